@@ -1,0 +1,55 @@
+"""imm_gym: learn to adapt the transition probability matrix of an IMM tracker.
+
+The numerical core (no Gymnasium import): motion models, scenarios, sensors, filters, the batched
+IMM bank, metrics. See README.md and SPEC.md.
+"""
+
+from .clairvoyant import clairvoyant_filter
+from .config import ConfigError
+from .filters import ExtendedKalmanFilter, KalmanFilter, UnscentedKalmanFilter, make_filter, predict
+from .imm import IMM, IMMResult, IMMState, IMMStep, combine, mix, update_mode_probs
+from .initiation import initiate
+from .models import MotionModel, ct_transition, paper_bank
+from .montecarlo import Batch, draw_batch
+from .scenarios import RandomFamily, Scenario, Segment, Truth, generate_truth, paper_scenario
+from .seeding import streams
+from .sensors import Measurements, PositionSensor, Sonar
+from .tpm import stay_tpm, validate_tpm
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "IMM",
+    "Batch",
+    "ConfigError",
+    "ExtendedKalmanFilter",
+    "IMMResult",
+    "IMMState",
+    "IMMStep",
+    "KalmanFilter",
+    "Measurements",
+    "MotionModel",
+    "PositionSensor",
+    "RandomFamily",
+    "Scenario",
+    "Segment",
+    "Sonar",
+    "Truth",
+    "UnscentedKalmanFilter",
+    "__version__",
+    "clairvoyant_filter",
+    "combine",
+    "ct_transition",
+    "draw_batch",
+    "generate_truth",
+    "initiate",
+    "make_filter",
+    "mix",
+    "paper_bank",
+    "paper_scenario",
+    "predict",
+    "stay_tpm",
+    "streams",
+    "update_mode_probs",
+    "validate_tpm",
+]

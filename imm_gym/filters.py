@@ -1,0 +1,215 @@
+r"""Model-matched filters, batched over any leading axes: Kalman, extended Kalman, SVD-UKF.
+
+All models of the bank are linear in the state (:mod:`imm_gym.models`), so every filter predicts
+with the same closed form ``x = F x``, ``P = F P F^T + Q``; they differ in the measurement update:
+
+* :class:`KalmanFilter` — a linear sensor ``z = H x + v``;
+* :class:`ExtendedKalmanFilter` — ``h`` linearized at the predicted state (seed 002);
+* :class:`UnscentedKalmanFilter` — scaled unscented transform whose sigma points are the columns of
+  ``U sqrt(S)`` from the SVD ``P = U S U^T`` (SPEC §2, the "SVD-UKF"), defined even when ``P`` has
+  lost definiteness. The sigma points are drawn from the *predicted* covariance (``Q`` included).
+
+Shapes: ``x (..., n)``, ``P (..., n, n)``, ``z (..., m)``; the leading axes broadcast.
+Residuals go through ``sensor.residual`` (bearing wrapped to (-pi, pi]); covariances are
+symmetrized after every update (Joseph form for KF/EKF).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import ConfigError, check_range
+from .linalg import gaussian_loglik, inv_logdet, mahalanobis, sym_eig, symmetrize
+
+Array = NDArray[np.float64]
+
+FILTERS = ("ukf", "ekf", "kf")
+
+
+class MeasurementModel(Protocol):
+    """What a filter needs from a sensor (see :mod:`imm_gym.sensors`)."""
+
+    dim_z: int
+
+    @property
+    def R(self) -> Array: ...
+
+    def h(self, x: Array) -> Array: ...
+
+    def jacobian(self, x: Array) -> Array: ...
+
+    def residual(self, a: Array, b: Array) -> Array: ...
+
+    def linear_matrix(self, n: int) -> Array | None: ...
+
+
+@dataclass(frozen=True)
+class Update:
+    """Result of a measurement update.
+
+    Attributes:
+        x: ``(..., n)`` updated state.
+        P: ``(..., n, n)`` updated covariance.
+        z_pred: ``(..., m)`` predicted measurement.
+        nu: ``(..., m)`` innovation ``z - z_pred`` (bearing wrapped).
+        S: ``(..., m, m)`` innovation covariance.
+        loglik: ``(...)`` ``log N(nu; 0, S)``.
+        nis: ``(...)`` normalized innovation squared ``nu^T S^-1 nu``.
+    """
+
+    x: Array
+    P: Array
+    z_pred: Array
+    nu: Array
+    S: Array
+    loglik: Array
+    nis: Array
+
+
+def predict(x: Array, P: Array, F: Array, Q: Array) -> tuple[Array, Array]:
+    """Linear prediction ``x = F x``, ``P = F P F^T + Q`` (exact for the UKF too: F is linear).
+
+    Args:
+        x: ``(..., n)``; P: ``(..., n, n)``; F, Q: ``(..., n, n)`` broadcastable against P.
+    """
+    x_pred = (F @ x[..., None])[..., 0]
+    P_pred = F @ P @ np.swapaxes(F, -1, -2) + Q
+    return x_pred, P_pred
+
+
+def _finish(
+    x: Array,
+    z_pred: Array,
+    nu: Array,
+    S: Array,
+    K: Array,
+    P_new: Array,
+    S_inv: Array,
+    logdet: Array,
+) -> Update:
+    """``x += K nu`` and the likelihood terms shared by every update."""
+    x_new = x + (K @ nu[..., None])[..., 0]
+    return Update(
+        x=x_new,
+        P=symmetrize(P_new),
+        z_pred=z_pred,
+        nu=nu,
+        S=S,
+        loglik=gaussian_loglik(nu, S_inv, logdet),
+        nis=mahalanobis(nu, S_inv),
+    )
+
+
+class KalmanFilter:
+    """Kalman update for a linear sensor ``z = H x + v`` (Joseph-form covariance)."""
+
+    name = "kf"
+
+    def update(self, x: Array, P: Array, z: Array, sensor: MeasurementModel) -> Update:
+        """``K = P H^T S^-1``, ``S = H P H^T + R``, ``P = (I-KH) P (I-KH)^T + K R K^T``."""
+        H = sensor.linear_matrix(x.shape[-1])
+        if H is None:
+            raise ConfigError("filter 'kf' needs a linear sensor; use 'ekf' or 'ukf' for the sonar")
+        return _linearized_update(x, P, z, sensor, np.broadcast_to(H, (*x.shape[:-1], *H.shape)))
+
+
+class ExtendedKalmanFilter:
+    """EKF update: the sensor linearized at the predicted state, ``H = dh/dx (x)``."""
+
+    name = "ekf"
+
+    def update(self, x: Array, P: Array, z: Array, sensor: MeasurementModel) -> Update:
+        return _linearized_update(x, P, z, sensor, sensor.jacobian(x))
+
+
+def _linearized_update(x: Array, P: Array, z: Array, sensor: MeasurementModel, H: Array) -> Update:
+    z_pred = sensor.h(x)
+    nu = sensor.residual(np.broadcast_to(z, z_pred.shape), z_pred)
+    Ht = np.swapaxes(H, -1, -2)
+    PHt = P @ Ht
+    S = symmetrize(H @ PHt + sensor.R)
+    S_inv, logdet = inv_logdet(S)
+    K = PHt @ S_inv
+    IKH = np.eye(x.shape[-1]) - K @ H
+    P_new = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ sensor.R @ np.swapaxes(K, -1, -2)
+    return _finish(x, z_pred, nu, S, K, P_new, S_inv, logdet)
+
+
+@dataclass(frozen=True)
+class UnscentedKalmanFilter:
+    r"""SVD-UKF update with scaled sigma points (Julier 2002; Wan & van der Merwe 2000).
+
+    With ``lambda = alpha^2 (n + kappa) - n`` and ``P = U S U^T`` (SVD), the ``2n+1`` sigma points
+    are ``x`` and ``x ± sqrt(n + lambda) (U sqrt(S))_i``; weights
+    ``W0m = lambda / (n + lambda)``, ``W0c = W0m + 1 - alpha^2 + beta``,
+    ``Wi = 1 / (2 (n + lambda))``. Then
+    ``z_pred = sum W_m Z_i`` (bearings averaged as residuals about the centre point),
+    ``S = sum W_c (Z_i - z_pred)(Z_i - z_pred)^T + R``, ``C = sum W_c (X_i - x)(Z_i - z_pred)^T``,
+    ``K = C S^-1``, ``x += K nu``, ``P -= K S K^T``.
+
+    Attributes:
+        alpha, beta, kappa: sigma-point scaling (SPEC §6 default ``(1, 2, 0)``).
+    """
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    name = "ukf"
+
+    def __post_init__(self) -> None:
+        check_range("ukf.alpha", self.alpha, 0.0, 1.0, lo_open=True)
+        check_range("ukf.beta", self.beta, 0.0)
+        check_range("ukf.kappa", self.kappa, 0.0)
+
+    def weights(self, n: int) -> tuple[Array, Array, float]:
+        """Mean and covariance weights ``(2n+1,)`` and ``gamma = sqrt(n + lambda)``."""
+        lam = self.alpha**2 * (n + self.kappa) - n
+        c = n + lam
+        wm = np.full(2 * n + 1, 0.5 / c)
+        wc = wm.copy()
+        wm[0] = lam / c
+        wc[0] = lam / c + 1.0 - self.alpha**2 + self.beta
+        return wm, wc, float(np.sqrt(c))
+
+    def sigma_points(self, x: Array, P: Array) -> Array:
+        """``(..., 2n+1, n)`` sigma points from the SVD of ``P`` (columns of ``U sqrt(|S|)``)."""
+        n = x.shape[-1]
+        _, _, gamma = self.weights(n)
+        s, U = sym_eig(P)
+        D = gamma * np.swapaxes(U * np.sqrt(np.abs(s))[..., None, :], -1, -2)  # rows = columns
+        xc = x[..., None, :]
+        return np.concatenate([xc, xc + D, xc - D], axis=-2)
+
+    def update(self, x: Array, P: Array, z: Array, sensor: MeasurementModel) -> Update:
+        wm, wc, _ = self.weights(x.shape[-1])
+        X = self.sigma_points(x, P)
+        Z = sensor.h(X)  # (..., 2n+1, m)
+        z_pred = Z[..., 0, :] + wm @ sensor.residual(Z, Z[..., :1, :])
+        dZ = sensor.residual(Z, z_pred[..., None, :])
+        dX = X - x[..., None, :]
+        dZw = dZ * wc[:, None]
+        S = symmetrize(np.swapaxes(dZw, -1, -2) @ dZ + sensor.R)
+        C = np.swapaxes(dX, -1, -2) @ dZw
+        nu = sensor.residual(np.broadcast_to(z, z_pred.shape), z_pred)
+        S_inv, logdet = inv_logdet(S)
+        K = C @ S_inv
+        P_new = P - K @ S @ np.swapaxes(K, -1, -2)
+        return _finish(x, z_pred, nu, S, K, P_new, S_inv, logdet)
+
+
+Filter = KalmanFilter | ExtendedKalmanFilter | UnscentedKalmanFilter
+
+
+def make_filter(name: str, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0) -> Filter:
+    """The filter called ``name`` (``"ukf"``, ``"ekf"`` or ``"kf"``)."""
+    if name == "ukf":
+        return UnscentedKalmanFilter(alpha, beta, kappa)
+    if name == "ekf":
+        return ExtendedKalmanFilter()
+    if name == "kf":
+        return KalmanFilter()
+    raise ConfigError(f"filter must be one of {list(FILTERS)}, got {name!r}")

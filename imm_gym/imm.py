@@ -1,0 +1,345 @@
+r"""The Interacting Multiple Model estimator, batched over N trackers × M models (SPEC §1).
+
+One IMM cycle, with ``tpm[i, j] = P(j at k | i at k-1)`` (:mod:`imm_gym.tpm`):
+
+1. :func:`mix` — ``cbar_j = sum_i pi_ij mu_i``, ``mu_{i|j} = pi_ij mu_i / cbar_j``,
+   ``x0_j = sum_i mu_{i|j} x_i``, ``P0_j = sum_i mu_{i|j} [P_i + (x_i - x0_j)(x_i - x0_j)^T]``;
+2. model-matched filtering — :func:`imm_gym.filters.predict` and the filter's ``update``;
+3. :func:`update_mode_probs` — ``mu_j ∝ Lambda_j cbar_j``, in the log domain;
+4. :func:`combine` — ``x = sum_j mu_j x_j``, ``P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]``.
+
+The TPM is an input of every step (in the environments it is the agent's action). :class:`IMM`
+runs the cycle; :meth:`IMM.run` runs it over a recorded measurement sequence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import ConfigError
+from .filters import Filter, MeasurementModel, Update, make_filter, predict
+from .linalg import inv_logdet, mahalanobis
+from .models import MotionModel, bank_dim
+from .tpm import validate_tpm
+
+Array = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+_TINY = 1e-300
+
+
+@dataclass(frozen=True)
+class IMMState:
+    """Posterior of N trackers.
+
+    Attributes:
+        x: ``(N, M, n)`` model-conditioned states.
+        P: ``(N, M, n, n)`` model-conditioned covariances.
+        mu: ``(N, M)`` model probabilities.
+    """
+
+    x: Array
+    P: Array
+    mu: Array
+
+
+@dataclass(frozen=True)
+class IMMStep:
+    """Outputs of one cycle for N trackers.
+
+    Attributes:
+        x: ``(N, n)`` combined estimate; P: ``(N, n, n)`` its covariance.
+        mode_probs: ``(N, M)`` updated model probabilities.
+        cbar: ``(N, M)`` predicted model probabilities ``cbar_j``.
+        loglik: ``(N, M)`` per-model log-likelihoods ``log Lambda_j`` (0 on a missed detection).
+        model_nis: ``(N, M)`` per-model normalized innovation squared (0 on a missed detection).
+        nis: ``(N,)`` NIS of the IMM's predicted measurement density (moment-matched mixture of the
+            model-conditioned predictions, weights ``cbar``); 0 on a missed detection.
+        detected: ``(N,)`` whether a measurement was used.
+    """
+
+    x: Array
+    P: Array
+    mode_probs: Array
+    cbar: Array
+    loglik: Array
+    model_nis: Array
+    nis: Array
+    detected: BoolArray
+
+
+@dataclass(frozen=True)
+class IMMResult:
+    """:meth:`IMM.run` outputs over K steps (the N axis is dropped for a single sequence).
+
+    Attributes:
+        x: ``(N, K, n)`` combined estimates; P: ``(N, K, n, n)``.
+        mode_probs: ``(N, K, M)``; loglik: ``(N, K, M)``; model_nis: ``(N, K, M)``; nis: ``(N, K)``.
+    """
+
+    x: Array
+    P: Array
+    mode_probs: Array
+    loglik: Array
+    model_nis: Array
+    nis: Array
+
+
+def mix(mu: Array, x: Array, P: Array, tpm: Array) -> tuple[Array, Array, Array]:
+    """Interaction step: predicted model probabilities and mixed initial conditions.
+
+    Args:
+        mu: ``(N, M)`` model probabilities at k-1.
+        x: ``(N, M, n)``; P: ``(N, M, n, n)`` model-conditioned posteriors at k-1.
+        tpm: ``(M, M)`` or ``(N, M, M)``.
+
+    Returns:
+        ``cbar (N, M)``, ``x0 (N, M, n)``, ``P0 (N, M, n, n)``. If ``cbar_j`` is 0 (model j
+        unreachable) its mixing weights fall back to ``mu`` so that ``x0_j`` stays defined.
+    """
+    joint = tpm * mu[:, :, None]  # (N, i, j): pi_ij mu_i
+    cbar = joint.sum(axis=1)
+    reachable = cbar > _TINY
+    w = np.where(
+        reachable[:, None, :], joint / np.where(reachable, cbar, 1.0)[:, None, :], mu[:, :, None]
+    )  # mu_{i|j}
+    wt = np.swapaxes(w, 1, 2)  # (N, j, i)
+    x0 = wt @ x  # (N, j, n)
+    dx = x[:, None, :, :] - x0[:, :, None, :]  # (N, j, i, n)
+    spread = dx[..., :, None] * dx[..., None, :]
+    P0 = np.einsum("nji,njiab->njab", wt, P[:, None] + spread)
+    return cbar, x0, P0
+
+
+def update_mode_probs(loglik: Array, cbar: Array) -> Array:
+    """``mu_j = Lambda_j cbar_j / sum_l Lambda_l cbar_l``, computed as a log-sum-exp.
+
+    Args:
+        loglik: ``(N, M)`` log-likelihoods; cbar: ``(N, M)`` predicted model probabilities.
+    """
+    with np.errstate(divide="ignore"):
+        a = loglik + np.log(cbar)
+    a = a - a.max(axis=-1, keepdims=True)
+    e = np.exp(a)
+    return e / e.sum(axis=-1, keepdims=True)
+
+
+def combine(mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
+    """Output combination with the spread-of-means term.
+
+    Args:
+        mu: ``(N, M)``; x: ``(N, M, n)``; P: ``(N, M, n, n)``.
+
+    Returns:
+        ``x (N, n)`` and ``P (N, n, n)``.
+    """
+    x_hat = (mu[:, None, :] @ x)[:, 0]
+    dx = x - x_hat[:, None, :]
+    P_hat = np.einsum("nm,nmab->nab", mu, P + dx[..., :, None] * dx[..., None, :])
+    return x_hat, 0.5 * (P_hat + np.swapaxes(P_hat, -1, -2))
+
+
+class IMM:
+    """A bank of model-matched filters run as an IMM, batched over N trackers.
+
+    Args:
+        models: the M motion models (:mod:`imm_gym.models`).
+        sensor: the measurement model (:mod:`imm_gym.sensors`).
+        filter: ``"ukf"`` (SVD-UKF, default), ``"ekf"`` or ``"kf"`` (linear sensors only), or a
+            filter instance.
+        T: sampling period (s).
+
+    Example:
+        >>> from imm_gym import IMM, Sonar, paper_bank, stay_tpm
+        >>> imm = IMM(paper_bank(), Sonar())
+        >>> result = imm.run(z, stay_tpm(3, 0.995), x0, P0)  # z: (K, 2) recorded measurements
+    """
+
+    def __init__(
+        self,
+        models: Sequence[MotionModel],
+        sensor: MeasurementModel,
+        filter: str | Filter = "ukf",
+        T: float = 1.0,
+    ) -> None:
+        if len(models) == 0:
+            raise ConfigError("models must contain at least one motion model")
+        self.models = tuple(models)
+        self.sensor = sensor
+        self.filter = make_filter(filter) if isinstance(filter, str) else filter
+        if self.filter.name == "kf" and sensor.linear_matrix(4) is None:
+            raise ConfigError("filter 'kf' needs a linear sensor; use 'ekf' or 'ukf' for the sonar")
+        self.T = float(T)
+        self.n = bank_dim(self.models)
+        self.F = np.stack([m.transition_matrix(self.T, self.n) for m in self.models])
+        self.Q = np.stack([m.noise_covariance(self.n) for m in self.models])
+
+    @property
+    def n_models(self) -> int:
+        return len(self.models)
+
+    def init(self, x0: Array, P0: Array, mode_probs: Array | None = None) -> IMMState:
+        """Initial posterior: every model starts at ``(x0, P0)``.
+
+        Args:
+            x0: ``(n,)`` or ``(N, n)``; a 4-dimensional ``x0`` in a 6-dimensional bank gets zero
+                acceleration. P0: ``(n, n)`` or ``(N, n, n)``, symmetric positive definite.
+            mode_probs: ``(M,)`` or ``(N, M)``; uniform by default.
+        """
+        x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
+        P0 = np.asarray(P0, dtype=np.float64)
+        if P0.ndim == 2:
+            P0 = P0[None]
+        N, n0 = x0.shape
+        if P0.shape[-2:] != (n0, n0) or P0.shape[0] not in (1, N):
+            raise ConfigError(
+                f"P0 must have shape ({n0}, {n0}) or ({N}, {n0}, {n0}), got {P0.shape}"
+            )
+        if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(P0))):
+            raise ConfigError("x0 and P0 must be finite")
+        if not np.allclose(P0, np.swapaxes(P0, -1, -2)):
+            raise ConfigError("P0 must be symmetric")
+        try:
+            np.linalg.cholesky(P0)
+        except np.linalg.LinAlgError:
+            raise ConfigError("P0 must be positive definite") from None
+        if n0 not in (4, self.n):
+            raise ConfigError(f"x0 must have 4 or {self.n} entries, got {n0}")
+        x = np.zeros((N, self.n))
+        x[:, :n0] = x0
+        P = np.zeros((N, self.n, self.n))
+        P[:, :n0, :n0] = P0
+        for i in range(n0, self.n):
+            P[:, i, i] = max(m.q_acc for m in self.models) * 100.0
+        M = self.n_models
+        if mode_probs is None:
+            mu = np.full((N, M), 1.0 / M)
+        else:
+            mu = np.broadcast_to(np.asarray(mode_probs, dtype=np.float64), (N, M)).copy()
+            if np.any(mu < 0) or not np.allclose(mu.sum(-1), 1.0):
+                raise ConfigError("mode_probs must be non-negative and sum to 1")
+        return IMMState(
+            x=np.repeat(x[:, None], M, axis=1),
+            P=np.repeat(P[:, None], M, axis=1),
+            mu=mu,
+        )
+
+    def step(
+        self,
+        state: IMMState,
+        tpm: Array,
+        z: Array,
+        detected: BoolArray | None = None,
+        check: bool = True,
+    ) -> tuple[IMMState, IMMStep]:
+        """One IMM cycle for N trackers.
+
+        Args:
+            state: posterior at k-1.
+            tpm: ``(M, M)`` or ``(N, M, M)`` TPM used for this step's mixing.
+            z: ``(N, m)`` measurements at k.
+            detected: ``(N,)``; where False the filters only predict and ``mu = cbar``.
+            check: validate ``tpm`` and ``z`` (disable only for inputs already validated).
+
+        Returns:
+            The posterior at k and the step outputs.
+        """
+        N, M, _ = state.x.shape
+        if check:
+            tpm = validate_tpm(tpm, M)
+            if tpm.ndim == 3 and tpm.shape[0] != N:
+                raise ConfigError(f"tpm has {tpm.shape[0]} matrices for {N} trackers")
+            z = np.asarray(z, dtype=np.float64)
+            if z.shape != (N, self.sensor.dim_z):
+                raise ConfigError(f"z must have shape ({N}, {self.sensor.dim_z}), got {z.shape}")
+            if not np.all(np.isfinite(z)):
+                raise ConfigError("z must be finite (mark missed detections with detected=False)")
+        cbar, x0, P0 = mix(state.mu, state.x, state.P, tpm)
+        x_pred, P_pred = predict(x0, P0, self.F, self.Q)
+        upd = self.filter.update(x_pred, P_pred, z[:, None, :], self.sensor)
+        if detected is None:
+            x, P, loglik, model_nis = upd.x, upd.P, upd.loglik, upd.nis
+            det = np.ones(N, dtype=bool)
+        else:
+            det = np.asarray(detected, dtype=bool)
+            if det.shape != (N,):
+                raise ConfigError(f"detected must have shape ({N},), got {det.shape}")
+            x = np.where(det[:, None, None], upd.x, x_pred)
+            P = np.where(det[:, None, None, None], upd.P, P_pred)
+            loglik = np.where(det[:, None], upd.loglik, 0.0)
+            model_nis = np.where(det[:, None], upd.nis, 0.0)
+        mu = update_mode_probs(loglik, cbar)
+        x_hat, P_hat = combine(mu, x, P)
+        nis = np.where(det, self._mixture_nis(cbar, upd, z), 0.0)
+        out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det)
+        return IMMState(x, P, mu), out
+
+    def _mixture_nis(self, cbar: Array, upd: Update, z: Array) -> Array:
+        """NIS of ``z`` under the moment-matched predicted measurement density of the IMM.
+
+        ``z_pred = sum_j cbar_j z_j``, ``S = sum_j cbar_j [S_j + (z_j - z_pred)(z_j - z_pred)^T]``
+        (differences through ``sensor.residual``, so bearings are averaged correctly).
+        """
+        ref = upd.z_pred[:, :1, :]
+        z_mix = ref[:, 0] + np.einsum("nm,nmd->nd", cbar, self.sensor.residual(upd.z_pred, ref))
+        d = self.sensor.residual(upd.z_pred, z_mix[:, None, :])
+        S = np.einsum("nm,nmab->nab", cbar, upd.S + d[..., :, None] * d[..., None, :])
+        S_inv, _ = inv_logdet(S)
+        return mahalanobis(self.sensor.residual(z, z_mix), S_inv)
+
+    def run(
+        self,
+        z: Array,
+        tpm: Array,
+        x0: Array,
+        P0: Array,
+        mode_probs: Array | None = None,
+        detected: BoolArray | None = None,
+    ) -> IMMResult:
+        """Run the IMM over recorded measurements with a fixed TPM.
+
+        Args:
+            z: ``(K, m)`` one sequence or ``(N, K, m)`` N sequences (measurements at steps 1..K;
+                ``x0, P0`` is the prior at step 0).
+            tpm: ``(M, M)`` or ``(N, M, M)``.
+            x0, P0, mode_probs: see :meth:`init`.
+            detected: ``(K,)`` or ``(N, K)`` detection flags; all True by default.
+
+        Returns:
+            An :class:`IMMResult`; for a single ``(K, m)`` sequence the N axis is dropped.
+        """
+        z = np.asarray(z, dtype=np.float64)
+        single = z.ndim == 2
+        if single:
+            z = z[None]
+            detected = None if detected is None else np.asarray(detected)[None]
+        if z.ndim != 3 or z.shape[-1] != self.sensor.dim_z:
+            raise ConfigError(
+                f"z must have shape (K, m) or (N, K, m) with m = {self.sensor.dim_z}, got {z.shape}"
+            )
+        N, K, _ = z.shape
+        if detected is not None and np.shape(detected) != (N, K):
+            raise ConfigError(
+                f"detected must have shape {(N, K)[1 if single else 0 :]}, got {np.shape(detected)}"
+            )
+        tpm = validate_tpm(tpm, self.n_models)
+        state = self.init(x0, P0, mode_probs)
+        if state.x.shape[0] == 1 and N > 1:
+            state = IMMState(*(np.repeat(a, N, axis=0) for a in (state.x, state.P, state.mu)))
+        M, n = self.n_models, self.n
+        out_x, out_P = np.empty((N, K, n)), np.empty((N, K, n, n))
+        out_mu, out_ll, out_mnis = np.empty((N, K, M)), np.empty((N, K, M)), np.empty((N, K, M))
+        out_nis = np.empty((N, K))
+        for k in range(K):
+            det = None if detected is None else np.asarray(detected[:, k], dtype=bool)
+            state, o = self.step(state, tpm, z[:, k], det)
+            out_x[:, k], out_P[:, k], out_mu[:, k] = o.x, o.P, o.mode_probs
+            out_ll[:, k], out_mnis[:, k], out_nis[:, k] = o.loglik, o.model_nis, o.nis
+        arrays = (out_x, out_P, out_mu, out_ll, out_mnis, out_nis)
+        if single:
+            arrays = tuple(a[0] for a in arrays)
+        return IMMResult(*arrays)

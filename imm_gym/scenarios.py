@@ -1,0 +1,272 @@
+"""Target scenarios: segment tables, the paper scenario, the randomized family, batched truth.
+
+A scenario is a table of segments (duration in steps, turn rate, tangential acceleration) plus the
+initial position and velocity, the sampling period and an optional truth process noise. Step ``k``
+(``k = 1..K``) moves the target from ``t = (k-1) T`` to ``t = k T`` with the motion of the segment
+that contains it; state 0 is the start.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import ConfigError, check_finite, check_int, check_range
+from .models import ct_transition
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A stretch of motion.
+
+    Attributes:
+        duration: number of steps (>= 1).
+        turn_rate_deg: turn rate in °/s, > 0 counter-clockwise (the paper's "-1.2 °/s" turns
+            clockwise, SPEC §6); 0 for straight motion.
+        accel: tangential acceleration in m/s² (speed change along the heading); 0 by default.
+            A segment either turns or accelerates.
+    """
+
+    duration: int
+    turn_rate_deg: float = 0.0
+    accel: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_int("segment.duration", self.duration, 1)
+        check_finite("segment.turn_rate_deg", self.turn_rate_deg)
+        check_finite("segment.accel", self.accel)
+        if self.turn_rate_deg != 0.0 and self.accel != 0.0:
+            raise ConfigError("a segment has either turn_rate_deg or accel non-zero, not both")
+
+    @property
+    def motion(self) -> str:
+        """``"straight"``, ``"turn"`` or ``"accel"``."""
+        if self.turn_rate_deg != 0.0:
+            return "turn"
+        return "accel" if self.accel != 0.0 else "straight"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A deterministic segment table with its initial state.
+
+    Attributes:
+        segments: the motion table, in order.
+        position: initial position ``(x, y)`` in m.
+        velocity: initial velocity ``(vx, vy)`` in m/s.
+        T: sampling period in s.
+        truth_q: diagonal of a discrete-time process noise added to the true state
+            ``[x, y, vx, vy]`` at every step, or ``None`` for a deterministic truth (SPEC §6).
+    """
+
+    segments: tuple[Segment, ...]
+    position: tuple[float, float] = (0.0, 0.0)
+    velocity: tuple[float, float] = (0.0, 0.0)
+    T: float = 1.0
+    truth_q: tuple[float, float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        segs = tuple(
+            s if isinstance(s, Segment) else Segment(**s)
+            for s in self.segments  # type: ignore[arg-type]
+        )
+        if not segs:
+            raise ConfigError("scenario.segments must contain at least one segment")
+        object.__setattr__(self, "segments", segs)
+        if len(self.position) != 2 or len(self.velocity) != 2:
+            raise ConfigError("scenario.position and scenario.velocity must have 2 entries")
+        object.__setattr__(
+            self, "position", tuple(check_finite("scenario.position", v) for v in self.position)
+        )
+        object.__setattr__(
+            self, "velocity", tuple(check_finite("scenario.velocity", v) for v in self.velocity)
+        )
+        check_range("scenario.T", self.T, 0.0, lo_open=True)
+        if self.truth_q is not None:
+            if len(self.truth_q) != 4:
+                raise ConfigError("scenario.truth_q must have 4 entries (x, y, vx, vy) or be None")
+            object.__setattr__(
+                self,
+                "truth_q",
+                tuple(check_range("scenario.truth_q", v, 0.0) for v in self.truth_q),
+            )
+
+    @property
+    def horizon(self) -> int:
+        """Number of steps K."""
+        return sum(s.duration for s in self.segments)
+
+    def profile(self) -> tuple[Array, Array]:
+        """Per-step turn rate (rad/s) and tangential acceleration (m/s²), each ``(K,)``."""
+        omega = np.concatenate(
+            [np.full(s.duration, math.radians(s.turn_rate_deg)) for s in self.segments]
+        )
+        accel = np.concatenate([np.full(s.duration, s.accel) for s in self.segments])
+        return omega, accel
+
+
+def paper_scenario() -> Scenario:
+    """The TIP-IMM paper's Table 1 scenario (SPEC §3): 150 s from (3000, 4500) m at (20, 15) m/s."""
+    return Scenario(
+        segments=(
+            Segment(40),
+            Segment(30, -1.2),
+            Segment(20),
+            Segment(25, 1.8),
+            Segment(35),
+        ),
+        position=(3000.0, 4500.0),
+        velocity=(20.0, 15.0),
+        T=1.0,
+    )
+
+
+@dataclass(frozen=True)
+class RandomFamily:
+    """The randomized scenario family of SPEC §6, used for training and held-out evaluation.
+
+    Start at range ``U(range_m)`` and bearing ``U(-pi, pi)`` from the origin, speed ``U(speed)``,
+    heading ``U(-pi, pi)``; ``n_segments`` drawn uniformly, each at least ``min_duration`` steps
+    (durations uniform over all such compositions of ``horizon``); straight first, then alternating
+    straight / turn; turn rates ``±U(turn_rate_deg)`` with a random sign.
+    """
+
+    horizon: int = 150
+    range_m: tuple[float, float] = (3000.0, 8000.0)
+    speed: tuple[float, float] = (5.0, 25.0)
+    n_segments: tuple[int, int] = (3, 6)
+    min_duration: int = 10
+    turn_rate_deg: tuple[float, float] = (0.5, 3.0)
+    T: float = 1.0
+    truth_q: tuple[float, float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        check_int("family.horizon", self.horizon, 1)
+        check_int("family.min_duration", self.min_duration, 1)
+        for name, (lo, hi), low in (
+            ("family.range_m", self.range_m, 0.0),
+            ("family.speed", self.speed, 0.0),
+            ("family.turn_rate_deg", self.turn_rate_deg, 0.0),
+        ):
+            check_range(f"{name}[0]", lo, low)
+            check_range(f"{name}[1]", hi, lo)
+        n_lo = check_int("family.n_segments[0]", self.n_segments[0], 1)
+        check_int("family.n_segments[1]", self.n_segments[1], n_lo)
+        if self.n_segments[1] * self.min_duration > self.horizon:
+            raise ConfigError(
+                f"family.n_segments[1] * family.min_duration must be <= family.horizon "
+                f"({self.n_segments[1]} * {self.min_duration} > {self.horizon})"
+            )
+        check_range("family.T", self.T, 0.0, lo_open=True)
+
+    def sample(self, rng: np.random.Generator) -> Scenario:
+        """Draw one scenario; the sequence of draws is fixed, so a seeded ``rng`` reproduces it."""
+        rng_range = rng.uniform(*self.range_m)
+        bearing = rng.uniform(-math.pi, math.pi)
+        speed = rng.uniform(*self.speed)
+        heading = rng.uniform(-math.pi, math.pi)
+        n = int(rng.integers(self.n_segments[0], self.n_segments[1] + 1))
+        durations = _composition(rng, self.horizon, n, self.min_duration)
+        rates = rng.uniform(*self.turn_rate_deg, size=n) * rng.choice([-1.0, 1.0], size=n)
+        segments = tuple(
+            Segment(int(d), float(rates[i]) if i % 2 == 1 else 0.0) for i, d in enumerate(durations)
+        )
+        return Scenario(
+            segments=segments,
+            position=(rng_range * math.cos(bearing), rng_range * math.sin(bearing)),
+            velocity=(speed * math.cos(heading), speed * math.sin(heading)),
+            T=self.T,
+            truth_q=self.truth_q,
+        )
+
+
+def _composition(
+    rng: np.random.Generator, total: int, parts: int, minimum: int
+) -> NDArray[np.int64]:
+    """A uniformly drawn composition of ``total`` into ``parts`` integers, each >= ``minimum``."""
+    extra = total - parts * minimum
+    bars = np.sort(rng.choice(extra + parts - 1, size=parts - 1, replace=False))
+    edges = np.concatenate([[-1], bars, [extra + parts - 1]])
+    return np.diff(edges) - 1 + minimum
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Ground truth of N runs.
+
+    Attributes:
+        states: ``(N, K+1, 4)`` true ``[x, y, vx, vy]`` at ``t = 0, T, ..., K T``.
+        turn_rate: ``(N, K)`` turn rate (rad/s) of step k (moving from k-1 to k).
+        accel: ``(N, K)`` tangential acceleration (m/s²) of step k.
+        T: sampling period.
+    """
+
+    states: Array
+    turn_rate: Array
+    accel: Array
+    T: float = field(default=1.0)
+
+    @property
+    def n_runs(self) -> int:
+        return self.states.shape[0]
+
+    @property
+    def horizon(self) -> int:
+        return self.turn_rate.shape[1]
+
+
+def generate_truth(
+    scenarios: Sequence[Scenario], rngs: Sequence[np.random.Generator] | None = None
+) -> Truth:
+    """Simulate the true trajectories of several scenarios at once (batched over runs).
+
+    A step with turn rate ``omega`` is exact circular motion ``x_k = F_CT(omega) x_{k-1}``; a step
+    with tangential acceleration ``a`` moves ``p += v T + a u T^2 / 2``, ``v += a u T`` with
+    ``u = v / |v|``. Truth noise, if the scenario has ``truth_q``, is ``N(0, diag(truth_q))`` drawn
+    from that run's generator after each step.
+
+    Args:
+        scenarios: N scenarios with the same horizon and sampling period.
+        rngs: one generator per scenario; needed only when a scenario has truth noise.
+
+    Returns:
+        The batched :class:`Truth`.
+    """
+    if len(scenarios) == 0:
+        raise ConfigError("generate_truth needs at least one scenario")
+    K, T = scenarios[0].horizon, scenarios[0].T
+    for s in scenarios:
+        if s.horizon != K or s.T != T:
+            raise ConfigError("all scenarios of one batch must share horizon and T")
+    noisy = [s.truth_q is not None for s in scenarios]
+    if any(noisy) and (rngs is None or len(rngs) != len(scenarios)):
+        raise ConfigError("scenarios with truth_q need one generator per scenario (rngs)")
+    N = len(scenarios)
+    profiles = [s.profile() for s in scenarios]
+    omega = np.stack([p[0] for p in profiles])
+    accel = np.stack([p[1] for p in profiles])
+    states = np.empty((N, K + 1, 4))
+    states[:, 0, :2] = [s.position for s in scenarios]
+    states[:, 0, 2:] = [s.velocity for s in scenarios]
+    F = ct_transition(omega, T)  # (N, K, 4, 4)
+    for k in range(K):
+        x = np.einsum("nij,nj->ni", F[:, k], states[:, k])
+        a = accel[:, k]
+        if np.any(a != 0.0):
+            v = states[:, k, 2:]
+            speed = np.linalg.norm(v, axis=-1, keepdims=True)
+            u = np.divide(v, speed, out=np.zeros_like(v), where=speed > 0)
+            av = a[:, None] * u
+            x[:, :2] += 0.5 * T * T * av
+            x[:, 2:] += T * av
+        states[:, k + 1] = x
+        for n in np.flatnonzero(noisy):
+            q = np.asarray(scenarios[n].truth_q)
+            states[n, k + 1] += np.sqrt(q) * rngs[n].standard_normal(4)  # type: ignore[index]
+    return Truth(states=states, turn_rate=omega, accel=accel, T=T)
