@@ -54,10 +54,8 @@ def check_range(
 
 def check_int(name: str, value: int, lo: int, hi: float = math.inf) -> int:
     """Return ``value`` as int, or raise if it is not an integer in ``[lo, hi]``."""
-    if (
-        isinstance(value, bool)
-        or (not isinstance(value, (int,))
-        and not (isinstance(value, float) and value.is_integer()))
+    if isinstance(value, bool) or (
+        not isinstance(value, (int,)) and not (isinstance(value, float) and value.is_integer())
     ):
         raise ConfigError(f"{name} must be an integer, got {value!r}")
     v = int(value)

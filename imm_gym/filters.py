@@ -16,6 +16,7 @@ symmetrized after every update (Joseph form for KF/EKF).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -23,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import ConfigError, check_range
-from .linalg import gaussian_loglik, inv_logdet, mahalanobis, sym_eig, symmetrize
+from .linalg import LOG_2PI, inv_logdet, sym_eig, symmetrize
 
 Array = NDArray[np.float64]
 
@@ -45,6 +46,8 @@ class MeasurementModel(Protocol):
     def residual(self, a: Array, b: Array) -> Array: ...
 
     def linear_matrix(self, n: int) -> Array | None: ...
+
+    def wrap(self, z: Array) -> Array: ...
 
 
 @dataclass(frozen=True)
@@ -82,25 +85,24 @@ def predict(x: Array, P: Array, F: Array, Q: Array) -> tuple[Array, Array]:
 
 
 def _finish(
-    x: Array,
-    z_pred: Array,
-    nu: Array,
-    S: Array,
-    K: Array,
-    P_new: Array,
-    S_inv: Array,
-    logdet: Array,
+    x: Array, z_pred: Array, nu: Array, S: Array, C: Array, P_minus: Callable[[Array], Array]
 ) -> Update:
-    """``x += K nu`` and the likelihood terms shared by every update."""
-    x_new = x + (K @ nu[..., None])[..., 0]
+    """Shared tail of every update, from the cross covariance ``C = P H^T`` (or its UT estimate).
+
+    ``K = C S^-1``, ``x += K nu``, ``P = P_minus`` (the filter's updated covariance, symmetrized),
+    ``NIS = nu^T S^-1 nu``, ``log N(nu; 0, S) = -(NIS + log det S + m log 2 pi) / 2``.
+    """
+    S_inv, logdet = inv_logdet(S)
+    S_inv_nu = (S_inv @ nu[..., None])[..., 0]
+    nis = np.sum(nu * S_inv_nu, axis=-1)
     return Update(
-        x=x_new,
-        P=symmetrize(P_new),
+        x=x + (C @ S_inv_nu[..., None])[..., 0],
+        P=symmetrize(P_minus(C @ S_inv)),
         z_pred=z_pred,
         nu=nu,
         S=S,
-        loglik=gaussian_loglik(nu, S_inv, logdet),
-        nis=mahalanobis(nu, S_inv),
+        loglik=-0.5 * (nis + logdet + nu.shape[-1] * LOG_2PI),
+        nis=nis,
     )
 
 
@@ -129,14 +131,15 @@ class ExtendedKalmanFilter:
 def _linearized_update(x: Array, P: Array, z: Array, sensor: MeasurementModel, H: Array) -> Update:
     z_pred = sensor.h(x)
     nu = sensor.residual(np.broadcast_to(z, z_pred.shape), z_pred)
-    Ht = np.swapaxes(H, -1, -2)
-    PHt = P @ Ht
-    S = symmetrize(H @ PHt + sensor.R)
-    S_inv, logdet = inv_logdet(S)
-    K = PHt @ S_inv
-    IKH = np.eye(x.shape[-1]) - K @ H
-    P_new = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ sensor.R @ np.swapaxes(K, -1, -2)
-    return _finish(x, z_pred, nu, S, K, P_new, S_inv, logdet)
+    C = P @ np.swapaxes(H, -1, -2)
+    S = symmetrize(H @ C + sensor.R)
+    eye = np.eye(x.shape[-1])
+
+    def joseph(K: Array) -> Array:
+        IKH = eye - K @ H
+        return IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ sensor.R @ np.swapaxes(K, -1, -2)
+
+    return _finish(x, z_pred, nu, S, C, joseph)
 
 
 @dataclass(frozen=True)
@@ -175,30 +178,36 @@ class UnscentedKalmanFilter:
         wc[0] = lam / c + 1.0 - self.alpha**2 + self.beta
         return wm, wc, float(np.sqrt(c))
 
-    def sigma_points(self, x: Array, P: Array) -> Array:
-        """``(..., 2n+1, n)`` sigma points from the SVD of ``P`` (columns of ``U sqrt(|S|)``)."""
-        n = x.shape[-1]
+    def sigma_offsets(self, P: Array) -> Array:
+        """``(..., 2n+1, n)`` offsets ``0, +gamma a_i, -gamma a_i`` with ``a_i`` the columns of
+        ``U sqrt(|S|)`` from the SVD of ``P``; the sigma points are ``x`` plus these."""
+        n = P.shape[-1]
         _, _, gamma = self.weights(n)
         s, U = sym_eig(P)
-        D = gamma * np.swapaxes(U * np.sqrt(np.abs(s))[..., None, :], -1, -2)  # rows = columns
-        xc = x[..., None, :]
-        return np.concatenate([xc, xc + D, xc - D], axis=-2)
+        D = np.swapaxes(U * (gamma * np.sqrt(np.abs(s)))[..., None, :], -1, -2)  # rows = a_i
+        O = np.empty((*P.shape[:-2], 2 * n + 1, n))
+        O[..., 0, :] = 0.0
+        O[..., 1 : n + 1, :] = D
+        O[..., n + 1 :, :] = -D
+        return O
+
+    def sigma_points(self, x: Array, P: Array) -> Array:
+        """``(..., 2n+1, n)`` sigma points ``x, x + gamma a_i, x - gamma a_i``."""
+        return x[..., None, :] + self.sigma_offsets(P)
 
     def update(self, x: Array, P: Array, z: Array, sensor: MeasurementModel) -> Update:
         wm, wc, _ = self.weights(x.shape[-1])
-        X = self.sigma_points(x, P)
-        Z = sensor.h(X)  # (..., 2n+1, m)
-        z_pred = Z[..., 0, :] + wm @ sensor.residual(Z, Z[..., :1, :])
-        dZ = sensor.residual(Z, z_pred[..., None, :])
-        dX = X - x[..., None, :]
+        O = self.sigma_offsets(P)
+        Z = sensor.h(x[..., None, :] + O)  # (..., 2n+1, m)
+        dZ = sensor.residual(Z, Z[..., :1, :])  # about the centre point: bearings stay unwrapped
+        mean = wm @ dZ
+        z_pred = sensor.wrap(Z[..., 0, :] + mean)
+        dZ -= mean[..., None, :]
         dZw = dZ * wc[:, None]
         S = symmetrize(np.swapaxes(dZw, -1, -2) @ dZ + sensor.R)
-        C = np.swapaxes(dX, -1, -2) @ dZw
+        C = np.swapaxes(O, -1, -2) @ dZw
         nu = sensor.residual(np.broadcast_to(z, z_pred.shape), z_pred)
-        S_inv, logdet = inv_logdet(S)
-        K = C @ S_inv
-        P_new = P - K @ S @ np.swapaxes(K, -1, -2)
-        return _finish(x, z_pred, nu, S, K, P_new, S_inv, logdet)
+        return _finish(x, z_pred, nu, S, C, lambda K: P - K @ np.swapaxes(C, -1, -2))
 
 
 Filter = KalmanFilter | ExtendedKalmanFilter | UnscentedKalmanFilter

@@ -20,8 +20,17 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from . import kernels
 from .config import ConfigError
-from .filters import Filter, MeasurementModel, Update, make_filter, predict
+from .filters import (
+    ExtendedKalmanFilter,
+    Filter,
+    KalmanFilter,
+    MeasurementModel,
+    UnscentedKalmanFilter,
+    Update,
+    make_filter,
+)
 from .linalg import inv_logdet, mahalanobis
 from .models import MotionModel, bank_dim
 from .tpm import validate_tpm
@@ -30,6 +39,9 @@ Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 _TINY = 1e-300
+
+#: ``"auto"`` picks the compiled kernel for the built-in sensors and filters, numpy otherwise.
+BACKENDS = ("auto", "numba", "numpy")
 
 
 @dataclass(frozen=True)
@@ -89,6 +101,28 @@ class IMMResult:
     nis: Array
 
 
+def moment_match(w: Array, x: Array, P: Array) -> tuple[Array, Array]:
+    """Gaussian mixture moments ``x_j = sum_i w_ji x_i``, ``P_j = sum_i w_ji [P_i + dx dx^T]``.
+
+    Computed about a reference point ``r = x_0`` (deviations ``d_i = x_i - r``) as
+    ``P_j = sum_i w_ji (P_i + d_i d_i^T) - (x_j - r)(x_j - r)^T``, which equals the spread form when
+    ``sum_i w_ji = 1`` and keeps the products small (no cancellation at kilometre ranges).
+
+    Args:
+        w: ``(N, J, I)`` weights, rows summing to 1; x: ``(N, I, n)``; P: ``(N, I, n, n)``.
+
+    Returns:
+        ``(N, J, n)`` means and ``(N, J, n, n)`` covariances.
+    """
+    N, I, n = x.shape
+    ref = x[:, :1, :]
+    d = x - ref
+    second = (P + d[..., :, None] * d[..., None, :]).reshape(N, I, n * n)
+    d_bar = w @ d
+    P_out = (w @ second).reshape(N, -1, n, n) - d_bar[..., :, None] * d_bar[..., None, :]
+    return ref + d_bar, 0.5 * (P_out + np.swapaxes(P_out, -1, -2))
+
+
 def mix(mu: Array, x: Array, P: Array, tpm: Array) -> tuple[Array, Array, Array]:
     """Interaction step: predicted model probabilities and mixed initial conditions.
 
@@ -107,11 +141,7 @@ def mix(mu: Array, x: Array, P: Array, tpm: Array) -> tuple[Array, Array, Array]
     w = np.where(
         reachable[:, None, :], joint / np.where(reachable, cbar, 1.0)[:, None, :], mu[:, :, None]
     )  # mu_{i|j}
-    wt = np.swapaxes(w, 1, 2)  # (N, j, i)
-    x0 = wt @ x  # (N, j, n)
-    dx = x[:, None, :, :] - x0[:, :, None, :]  # (N, j, i, n)
-    spread = dx[..., :, None] * dx[..., None, :]
-    P0 = np.einsum("nji,njiab->njab", wt, P[:, None] + spread)
+    x0, P0 = moment_match(np.swapaxes(w, 1, 2), x, P)
     return cbar, x0, P0
 
 
@@ -137,10 +167,8 @@ def combine(mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
     Returns:
         ``x (N, n)`` and ``P (N, n, n)``.
     """
-    x_hat = (mu[:, None, :] @ x)[:, 0]
-    dx = x - x_hat[:, None, :]
-    P_hat = np.einsum("nm,nmab->nab", mu, P + dx[..., :, None] * dx[..., None, :])
-    return x_hat, 0.5 * (P_hat + np.swapaxes(P_hat, -1, -2))
+    x_hat, P_hat = moment_match(mu[:, None, :], x, P)
+    return x_hat[:, 0], P_hat[:, 0]
 
 
 class IMM:
@@ -152,6 +180,9 @@ class IMM:
         filter: ``"ukf"`` (SVD-UKF, default), ``"ekf"`` or ``"kf"`` (linear sensors only), or a
             filter instance.
         T: sampling period (s).
+        backend: ``"auto"`` (default), ``"numba"`` (fused compiled cycle, built-in sensors and
+            filters) or ``"numpy"`` (vectorized reference, any measurement model). Both compute
+            the same equations; the tests hold them equal.
 
     Example:
         >>> from imm_gym import IMM, Sonar, paper_bank, stay_tpm
@@ -165,6 +196,7 @@ class IMM:
         sensor: MeasurementModel,
         filter: str | Filter = "ukf",
         T: float = 1.0,
+        backend: str = "auto",
     ) -> None:
         if len(models) == 0:
             raise ConfigError("models must contain at least one motion model")
@@ -177,10 +209,56 @@ class IMM:
         self.n = bank_dim(self.models)
         self.F = np.stack([m.transition_matrix(self.T, self.n) for m in self.models])
         self.Q = np.stack([m.noise_covariance(self.n) for m in self.models])
+        self._Ft = np.ascontiguousarray(np.swapaxes(self.F, -1, -2))
+        self._FFt = np.stack([np.kron(F, F).T for F in self.F])
+        self.backend = self._choose_backend(backend)
+        if self.backend == "numba":
+            kind, params = kernels.sensor_spec(sensor)  # type: ignore[misc]
+            if isinstance(self.filter, UnscentedKalmanFilter):
+                wm, wc, gamma = self.filter.weights(self.n)
+                fkind = kernels.UKF
+            else:
+                wm = wc = np.zeros(1)
+                gamma, fkind = 0.0, kernels.EKF
+            R = np.ascontiguousarray(sensor.R, dtype=np.float64)
+            self._kernel_args = (self.F, self.Q, R, kind, params, fkind, wm, wc, gamma)
+
+    def _choose_backend(self, backend: str) -> str:
+        if backend not in BACKENDS:
+            raise ConfigError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
+        compiled = kernels.sensor_spec(self.sensor) is not None and isinstance(
+            self.filter, (UnscentedKalmanFilter, ExtendedKalmanFilter, KalmanFilter)
+        )
+        if backend == "numba" and not compiled:
+            raise ConfigError(
+                "backend 'numba' supports the built-in sensors (Sonar, PositionSensor) and filters "
+                "only; use backend='numpy' for a custom measurement model"
+            )
+        if backend == "auto":
+            return "numba" if compiled else "numpy"
+        return backend
 
     @property
     def n_models(self) -> int:
         return len(self.models)
+
+    def predict(self, x: Array, P: Array) -> tuple[Array, Array]:
+        """Model-matched prediction ``x_j = F_j x0_j``, ``P_j = F_j P0_j F_j^T + Q_j``.
+
+        Same result as :func:`imm_gym.filters.predict`, computed as one matrix product per model
+        over all N trackers with ``vec(F P F^T) = (F ⊗ F) vec(P)`` (far faster than N small
+        products when N is large).
+
+        Args:
+            x: ``(N, M, n)``; P: ``(N, M, n, n)``.
+        """
+        N, M, n = x.shape
+        x_pred = np.empty_like(x)
+        P_pred = np.empty_like(P)
+        for j in range(M):
+            x_pred[:, j] = x[:, j] @ self._Ft[j]
+            P_pred[:, j] = (P[:, j].reshape(N, n * n) @ self._FFt[j]).reshape(N, n, n) + self.Q[j]
+        return x_pred, P_pred
 
     def init(self, x0: Array, P0: Array, mode_probs: Array | None = None) -> IMMState:
         """Initial posterior: every model starts at ``(x0, P0)``.
@@ -249,6 +327,10 @@ class IMM:
             The posterior at k and the step outputs.
         """
         N, M, _ = state.x.shape
+        if detected is not None:
+            detected = np.asarray(detected, dtype=bool)
+            if detected.shape != (N,):
+                raise ConfigError(f"detected must have shape ({N},), got {detected.shape}")
         if check:
             tpm = validate_tpm(tpm, M)
             if tpm.ndim == 3 and tpm.shape[0] != N:
@@ -258,16 +340,16 @@ class IMM:
                 raise ConfigError(f"z must have shape ({N}, {self.sensor.dim_z}), got {z.shape}")
             if not np.all(np.isfinite(z)):
                 raise ConfigError("z must be finite (mark missed detections with detected=False)")
+        if self.backend == "numba":
+            return self._step_compiled(state, tpm, z, detected)
         cbar, x0, P0 = mix(state.mu, state.x, state.P, tpm)
-        x_pred, P_pred = predict(x0, P0, self.F, self.Q)
+        x_pred, P_pred = self.predict(x0, P0)
         upd = self.filter.update(x_pred, P_pred, z[:, None, :], self.sensor)
         if detected is None:
             x, P, loglik, model_nis = upd.x, upd.P, upd.loglik, upd.nis
             det = np.ones(N, dtype=bool)
         else:
-            det = np.asarray(detected, dtype=bool)
-            if det.shape != (N,):
-                raise ConfigError(f"detected must have shape ({N},), got {det.shape}")
+            det = detected
             x = np.where(det[:, None, None], upd.x, x_pred)
             P = np.where(det[:, None, None, None], upd.P, P_pred)
             loglik = np.where(det[:, None], upd.loglik, 0.0)
@@ -277,6 +359,37 @@ class IMM:
         nis = np.where(det, self._mixture_nis(cbar, upd, z), 0.0)
         out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det)
         return IMMState(x, P, mu), out
+
+    def _step_compiled(
+        self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None
+    ) -> tuple[IMMState, IMMStep]:
+        """The same cycle through the fused kernel (:mod:`imm_gym.kernels`)."""
+        N, M, n = state.x.shape
+        det = np.ones(N, dtype=bool) if detected is None else detected
+        x, P = np.empty((N, M, n)), np.empty((N, M, n, n))
+        mu, cbar, loglik, model_nis = (np.empty((N, M)) for _ in range(4))
+        nis, x_hat, P_hat = np.empty(N), np.empty((N, n)), np.empty((N, n, n))
+        status = kernels.imm_step(
+            np.ascontiguousarray(state.x),
+            np.ascontiguousarray(state.P),
+            np.ascontiguousarray(state.mu),
+            np.ascontiguousarray(np.broadcast_to(tpm, (N, M, M)), dtype=np.float64),
+            np.ascontiguousarray(z, dtype=np.float64),
+            np.ascontiguousarray(det),
+            *self._kernel_args,
+            x,
+            P,
+            mu,
+            cbar,
+            loglik,
+            model_nis,
+            nis,
+            x_hat,
+            P_hat,
+        )
+        if status != kernels.OK:
+            raise np.linalg.LinAlgError("innovation covariance is not positive definite")
+        return IMMState(x, P, mu), IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det)
 
     def _mixture_nis(self, cbar: Array, upd: Update, z: Array) -> Array:
         """NIS of ``z`` under the moment-matched predicted measurement density of the IMM.

@@ -14,7 +14,7 @@ Array = NDArray[np.float64]
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
-_JACOBI_MAX_SWEEPS = 12
+JACOBI_MAX_SWEEPS = 12
 
 
 def wrap_angle(a: Array) -> Array:
@@ -46,69 +46,76 @@ def sym_eig(P: Array) -> tuple[Array, Array]:
     """
     n = P.shape[-1]
     flat = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, n, n)
-    s, U = _jacobi_eig(flat, _JACOBI_MAX_SWEEPS)
+    s, U = _jacobi_eig(flat, JACOBI_MAX_SWEEPS)
     return s.reshape(*P.shape[:-1]), U.reshape(P.shape)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _jacobi_eig(P: Array, max_sweeps: int) -> tuple[Array, Array]:  # pragma: no cover - jitted
-    """Cyclic Jacobi sweeps on each ``(n, n)`` block of ``P`` (shape ``(B, n, n)``).
-
-    A rotation ``J(p, q, theta)`` zeroes ``a_pq`` with ``t = tan(theta)`` the smaller root of
-    ``t^2 + 2 t cot(2 theta) - 1 = 0``, ``cot(2 theta) = (a_qq - a_pp) / (2 a_pq)``:
-    ``a_pp -= t a_pq``, ``a_qq += t a_pq``, ``(a_kp, a_kq) <- (c a_kp - s a_kq, s a_kp + c a_kq)``,
-    and the same on the columns of ``V``. Sweeps stop once the off-diagonal mass falls below
-    ``1e-32`` of the diagonal mass (machine precision; quadratic convergence).
-    """
+    """:func:`jacobi_eig_inplace` on each ``(n, n)`` block of ``P`` (shape ``(B, n, n)``)."""
     B, n, _ = P.shape
     s_out = np.empty((B, n))
     U_out = np.empty((B, n, n))
     a = np.empty((n, n))
-    v = np.empty((n, n))
     for b in range(B):
         for i in range(n):
             for j in range(n):
                 a[i, j] = 0.5 * (P[b, i, j] + P[b, j, i])
-                v[i, j] = 1.0 if i == j else 0.0
-        for _ in range(max_sweeps):
-            off = 0.0
-            diag = 0.0
-            for p in range(n):
-                diag += a[p, p] * a[p, p]
-                for q in range(p + 1, n):
-                    off += a[p, q] * a[p, q]
-            if off <= 1e-32 * diag:
-                break
-            for p in range(n - 1):
-                for q in range(p + 1, n):
-                    apq = a[p, q]
-                    if apq == 0.0:
-                        continue
-                    d = a[q, q] - a[p, p]
-                    root = np.sqrt(d * d + 4.0 * apq * apq)
-                    t = 2.0 * apq / (d + root if d >= 0.0 else d - root)
-                    c = 1.0 / np.sqrt(1.0 + t * t)
-                    s = t * c
-                    a[p, p] -= t * apq
-                    a[q, q] += t * apq
-                    a[p, q] = 0.0
-                    a[q, p] = 0.0
-                    for k in range(n):
-                        if k != p and k != q:
-                            akp = a[k, p]
-                            akq = a[k, q]
-                            a[k, p] = a[p, k] = c * akp - s * akq
-                            a[k, q] = a[q, k] = s * akp + c * akq
-                    for k in range(n):
-                        vkp = v[k, p]
-                        vkq = v[k, q]
-                        v[k, p] = c * vkp - s * vkq
-                        v[k, q] = s * vkp + c * vkq
+        jacobi_eig_inplace(a, U_out[b], max_sweeps)
         for i in range(n):
             s_out[b, i] = a[i, i]
-            for j in range(n):
-                U_out[b, i, j] = v[i, j]
     return s_out, U_out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def jacobi_eig_inplace(a: Array, v: Array, max_sweeps: int) -> None:  # pragma: no cover - jitted
+    """Diagonalize the symmetric ``a`` in place by cyclic Jacobi sweeps; ``v`` gets eigenvectors.
+
+    A rotation ``J(p, q, theta)`` zeroes ``a_pq`` with ``t = tan(theta)`` the smaller root of
+    ``t^2 + 2 t cot(2 theta) - 1 = 0``, ``cot(2 theta) = (a_qq - a_pp) / (2 a_pq)``:
+    ``a_pp -= t a_pq``, ``a_qq += t a_pq``, ``(a_kp, a_kq) <- (c a_kp - s a_kq, s a_kp + c a_kq)``,
+    and the same on the columns of ``v``. Sweeps stop once the off-diagonal mass falls below
+    ``1e-32`` of the diagonal mass (machine precision; quadratic convergence). On return the
+    eigenvalues are ``diag(a)`` and ``a_in = v diag(a) v^T``.
+    """
+    n = a.shape[0]
+    for i in range(n):
+        for j in range(n):
+            v[i, j] = 1.0 if i == j else 0.0
+    for _ in range(max_sweeps):
+        off = 0.0
+        diag = 0.0
+        for p in range(n):
+            diag += a[p, p] * a[p, p]
+            for q in range(p + 1, n):
+                off += a[p, q] * a[p, q]
+        if off <= 1e-32 * diag:
+            break
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = a[p, q]
+                if apq == 0.0:
+                    continue
+                d = a[q, q] - a[p, p]
+                root = np.sqrt(d * d + 4.0 * apq * apq)
+                t = 2.0 * apq / (d + root if d >= 0.0 else d - root)
+                c = 1.0 / np.sqrt(1.0 + t * t)
+                s = t * c
+                a[p, p] -= t * apq
+                a[q, q] += t * apq
+                a[p, q] = 0.0
+                a[q, p] = 0.0
+                for k in range(n):
+                    if k != p and k != q:
+                        akp = a[k, p]
+                        akq = a[k, q]
+                        a[k, p] = a[p, k] = c * akp - s * akq
+                        a[k, q] = a[q, k] = s * akp + c * akq
+                for k in range(n):
+                    vkp = v[k, p]
+                    vkq = v[k, q]
+                    v[k, p] = c * vkp - s * vkq
+                    v[k, q] = s * vkp + c * vkq
 
 
 def inv_logdet(S: Array) -> tuple[Array, Array]:
@@ -130,7 +137,7 @@ def inv_logdet(S: Array) -> tuple[Array, Array]:
     if m == 2:
         a, b, d = S[..., 0, 0], 0.5 * (S[..., 0, 1] + S[..., 1, 0]), S[..., 1, 1]
         det = a * d - b * b
-        if not np.all(det > 0) or not np.all(a > 0):
+        if not (np.minimum(a, det) > 0).all():  # also catches NaN
             raise np.linalg.LinAlgError("innovation covariance is not positive definite")
         inv = np.empty_like(S)
         inv[..., 0, 0] = d / det

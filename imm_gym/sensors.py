@@ -127,7 +127,10 @@ class Sonar(_Clutter):
         """Range and bearing of states ``(..., n)`` -> ``(..., 2)``."""
         dx = x[..., 0] - self.position[0]
         dy = x[..., 1] - self.position[1]
-        return np.stack([np.sqrt(dx * dx + dy * dy), np.arctan2(dy, dx)], axis=-1)
+        z = np.empty((*x.shape[:-1], 2))
+        np.sqrt(dx * dx + dy * dy, out=z[..., 0])
+        np.arctan2(dy, dx, out=z[..., 1])
+        return z
 
     def jacobian(self, x: Array) -> Array:
         r"""``H = dh/dx = [[dx/r, dy/r, 0..], [-dy/r^2, dx/r^2, 0..]]``, shape ``(..., 2, n)``."""
