@@ -32,9 +32,6 @@ UKF = 0
 EKF = 1
 
 # fmt: off
-# Status codes returned by imm_step (0 = fine).
-OK = 0
-NOT_PD = 1
 
 _TINY = 1e-300
 _TWO_PI = 2.0 * np.pi
@@ -53,8 +50,9 @@ def sensor_spec(sensor: object) -> tuple[int, Array] | None:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _wrap(a: float) -> float:  # pragma: no cover
-    """Angle wrapped to (-pi, pi]: ``pi - mod(pi - a, 2 pi)``."""
-    return np.pi - np.mod(np.pi - a, _TWO_PI)
+    """Angle wrapped to (-pi, pi], as :func:`imm_gym.linalg.wrap_angle`."""
+    w = np.pi - np.mod(np.pi - a, _TWO_PI)
+    return w + _TWO_PI if w <= -np.pi else w
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -275,8 +273,13 @@ def imm_step(
     nis_out: Array,
     xhat_out: Array,
     Phat_out: Array,
+    failed_out: NDArray[np.bool_],
 ) -> int:  # pragma: no cover
-    """One IMM cycle for N trackers (shapes as :meth:`imm_gym.imm.IMM.step`); returns a status.
+    """One IMM cycle for N trackers (shapes as :meth:`imm_gym.imm.IMM.step`).
+
+    Returns the number of trackers whose innovation covariance was not positive definite (a
+    diverged tracker); those are flagged in ``failed_out`` and their outputs filled with NaN, the
+    others are unaffected.
 
     ``tpm`` is ``(N, M, M)`` (a broadcast view is fine). Per tracker: mixing (SPEC §1 step 1),
     ``x = F x0``, ``P = F P0 F^T + Q``, the UKF or EKF update (Joseph form for the EKF), the
@@ -311,7 +314,9 @@ def imm_step(
     IKH = np.empty((n, n))
     T1 = np.empty((n, n))
     logpost = np.empty(M)
+    failures = 0
     for t in range(N):
+        failed_out[t] = False
         # 1. mixing
         for j in range(M):
             acc = 0.0
@@ -366,7 +371,8 @@ def imm_step(
                     Sj[r, c] = S[j, r, c]
             logdet, ok = _inv_logdet(Sj, S_inv, Lc)
             if not ok:
-                return NOT_PD
+                failed_out[t] = True
+                break
             if not detected[t]:
                 for r in range(n):
                     x_out[t, j, r] = xp[r]
@@ -433,6 +439,11 @@ def imm_step(
                     P_out[t, j, r, c] = 0.5 * (T1[r, c] + T1[c, r])
             loglik_out[t, j] = -0.5 * (nis + logdet + m * LOG_2PI)
             model_nis_out[t, j] = nis
+        if failed_out[t]:
+            failures += 1
+            _fill_nan(t, x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, nis_out,
+                      xhat_out, Phat_out)
+            continue
         # 3. model probabilities, mu_j ∝ Lambda_j cbar_j (log-sum-exp)
         top = -np.inf
         for j in range(M):
@@ -486,7 +497,11 @@ def imm_step(
                     Sj[r, c] += cbar[j] * (S[j, r, c] + nu[r] * nu[c])
         logdet, ok = _inv_logdet(Sj, S_inv, Lc)
         if not ok:
-            return NOT_PD
+            failed_out[t] = True
+            failures += 1
+            _fill_nan(t, x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, nis_out,
+                      xhat_out, Phat_out)
+            continue
         for d in range(m):
             nu[d] = z[t, d] - hz[d]
         if sensor_kind == RANGE_BEARING:
@@ -496,4 +511,21 @@ def imm_step(
             for c in range(m):
                 acc += nu[r] * S_inv[r, c] * nu[c]
         nis_out[t] = acc
-    return OK
+    return failures
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _fill_nan(
+    t: int, x_out: Array, P_out: Array, mu_out: Array, cbar_out: Array, loglik_out: Array,
+    model_nis_out: Array, nis_out: Array, xhat_out: Array, Phat_out: Array,
+) -> None:  # pragma: no cover
+    """Mark tracker ``t``'s outputs as invalid."""
+    x_out[t] = np.nan
+    P_out[t] = np.nan
+    mu_out[t] = np.nan
+    cbar_out[t] = np.nan
+    loglik_out[t] = np.nan
+    model_nis_out[t] = np.nan
+    nis_out[t] = np.nan
+    xhat_out[t] = np.nan
+    Phat_out[t] = np.nan

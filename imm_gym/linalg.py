@@ -18,8 +18,13 @@ JACOBI_MAX_SWEEPS = 12
 
 
 def wrap_angle(a: Array) -> Array:
-    """Wrap angles to the half-open interval (-pi, pi]."""
-    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+    """Wrap angles to the half-open interval (-pi, pi].
+
+    ``pi - mod(pi - a, 2 pi)``; ``mod`` can round up to exactly ``2 pi`` for a tiny negative
+    argument (``a`` one ulp above pi), which the last step maps back to ``pi``.
+    """
+    w = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+    return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
 
 
 def symmetrize(P: Array) -> Array:

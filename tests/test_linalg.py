@@ -1,0 +1,228 @@
+"""Tests of imm_gym.linalg: angle wrapping, the Jacobi eigendecomposition, inverse/log-det."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym.linalg import gaussian_loglik, inv_logdet, mahalanobis, sym_eig, wrap_angle
+
+PI = np.pi
+
+
+# --------------------------------------------------------------------------- wrap_angle
+
+
+@pytest.mark.parametrize(
+    ("angle", "expected"),
+    [
+        (0.0, 0.0),
+        (PI, PI),
+        (-PI, PI),
+        (3 * PI, PI),
+        (-3 * PI, PI),
+        (2 * PI, 0.0),
+        (-2 * PI, 0.0),
+        (PI / 2, PI / 2),
+        (-PI / 2, -PI / 2),
+        (1.5 * PI, -0.5 * PI),
+        (-1.5 * PI, 0.5 * PI),
+        (7.0, 7.0 - 2 * PI),
+        (-7.0, -7.0 + 2 * PI),
+    ],
+)
+def test_wrap_angle_values(angle: float, expected: float) -> None:
+    got = wrap_angle(np.array(angle))
+    assert got == pytest.approx(expected, abs=1e-12)
+    assert -PI < got <= PI
+
+
+@pytest.mark.parametrize(
+    "angle",
+    [
+        # One ulp above np.pi. wrap_angle(-np.pi) == np.pi, so -np.pi is outside the range of
+        # wrap_angle by its own convention; this input must not map to -np.pi either.
+        np.nextafter(PI, 4.0),
+        np.nextafter(PI, 0.0),
+        np.nextafter(-PI, -4.0),
+        np.nextafter(-PI, 0.0),
+        3 * PI,
+        np.nextafter(3 * PI, 10.0),
+        -1e-300,
+        1e-300,
+    ],
+)
+def test_wrap_angle_half_open_interval_at_the_boundary(angle: float) -> None:
+    got = float(wrap_angle(np.array(angle)))
+    assert -PI < got <= PI
+    # The wrapped angle is the same direction.
+    assert np.cos(got) == pytest.approx(np.cos(angle), abs=1e-12)
+    assert np.sin(got) == pytest.approx(np.sin(angle), abs=1e-12)
+
+
+def test_wrap_angle_is_idempotent_at_the_boundary() -> None:
+    a = np.array([np.nextafter(PI, 4.0), PI, -PI, np.nextafter(-PI, 0.0)])
+    w = wrap_angle(a)
+    np.testing.assert_array_equal(wrap_angle(w), w)
+
+
+def test_wrap_angle_random_batch() -> None:
+    rng = np.random.default_rng(0)
+    a = rng.uniform(-1e4, 1e4, size=(50, 40))
+    w = wrap_angle(a)
+    assert w.shape == a.shape
+    assert np.all(w > -PI)
+    assert np.all(w <= PI)
+    k = (a - w) / (2 * PI)
+    np.testing.assert_allclose(k, np.round(k), atol=1e-9)
+
+
+# --------------------------------------------------------------------------- sym_eig
+
+
+def _random_symmetric(rng: np.random.Generator, n: int, pd: bool) -> np.ndarray:
+    A = rng.standard_normal((n, n))
+    if pd:
+        return A @ A.T + 0.1 * np.eye(n)
+    return 0.5 * (A + A.T)
+
+
+def _check_eig(P: np.ndarray) -> None:
+    s, U = sym_eig(P)
+    n = P.shape[-1]
+    assert s.shape == P.shape[:-1]
+    assert U.shape == P.shape
+    scale = max(1.0, float(np.abs(P).max()))
+    recon = U @ (s[..., :, None] * np.swapaxes(U, -1, -2))
+    np.testing.assert_allclose(recon, P, atol=1e-10 * scale, rtol=0)
+    eye = np.broadcast_to(np.eye(n), P.shape)
+    np.testing.assert_allclose(np.swapaxes(U, -1, -2) @ U, eye, atol=1e-12)
+    np.testing.assert_allclose(
+        np.sort(s, axis=-1), np.linalg.eigvalsh(P), atol=1e-10 * scale, rtol=0
+    )
+
+
+@pytest.mark.parametrize("n", [4, 6])
+@pytest.mark.parametrize("pd", [True, False], ids=["pd", "indefinite"])
+def test_sym_eig_random(n: int, pd: bool) -> None:
+    rng = np.random.default_rng(100 + n + pd)
+    for _ in range(20):
+        _check_eig(_random_symmetric(rng, n, pd))
+
+
+@pytest.mark.parametrize("n", [4, 6])
+def test_sym_eig_batched_matches_single(n: int) -> None:
+    rng = np.random.default_rng(n)
+    P = np.stack([_random_symmetric(rng, n, True) for _ in range(12)]).reshape(3, 4, n, n)
+    _check_eig(P)
+    s, U = sym_eig(P)
+    s1, U1 = sym_eig(P[1, 2])
+    np.testing.assert_array_equal(s[1, 2], s1)
+    np.testing.assert_array_equal(U[1, 2], U1)
+
+
+def test_sym_eig_degenerate_eigenvalues() -> None:
+    P = np.diag([2500.0, 2500.0, 25.0, 25.0])
+    _check_eig(P)
+    s, _ = sym_eig(P)
+    np.testing.assert_allclose(np.sort(s), [25.0, 25.0, 2500.0, 2500.0])
+    # Rotated copy: same spectrum, off-diagonal entries everywhere.
+    rng = np.random.default_rng(7)
+    Qm, _ = np.linalg.qr(rng.standard_normal((4, 4)))
+    _check_eig(Qm @ P @ Qm.T)
+
+
+def test_sym_eig_indefinite() -> None:
+    P = np.array(
+        [
+            [4.0, 1.0, 0.0, 2.0],
+            [1.0, -3.0, 0.5, 0.0],
+            [0.0, 0.5, 1.0, -1.0],
+            [2.0, 0.0, -1.0, -2.0],
+        ]
+    )
+    _check_eig(P)
+    s, _ = sym_eig(P)
+    assert s.min() < 0 < s.max()
+
+
+def test_sym_eig_badly_scaled_covariance() -> None:
+    # A tracker covariance: position ~ 1e4 m^2, velocity ~ 1 (m/s)^2, correlated.
+    P = np.array(
+        [
+            [2.5e3, 1.2e3, 40.0, 10.0],
+            [1.2e3, 9.0e3, 5.0, 60.0],
+            [40.0, 5.0, 2.0, 0.3],
+            [10.0, 60.0, 0.3, 3.0],
+        ]
+    )
+    _check_eig(P)
+
+
+def test_sym_eig_uses_symmetric_part() -> None:
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((4, 4))
+    s, _ = sym_eig(A)
+    np.testing.assert_allclose(np.sort(s), np.linalg.eigvalsh(0.5 * (A + A.T)), atol=1e-12)
+
+
+# --------------------------------------------------------------------------- inv_logdet
+
+
+@pytest.mark.parametrize("m", [2, 4])
+def test_inv_logdet_matches_numpy(m: int) -> None:
+    rng = np.random.default_rng(m)
+    A = rng.standard_normal((5, 3, m, m))
+    S = A @ np.swapaxes(A, -1, -2) + 0.5 * np.eye(m)
+    S_inv, logdet = inv_logdet(S)
+    assert S_inv.shape == S.shape
+    assert logdet.shape == S.shape[:-2]
+    np.testing.assert_allclose(S_inv, np.linalg.inv(S), rtol=1e-10, atol=1e-12)
+    sign, ref = np.linalg.slogdet(S)
+    assert np.all(sign == 1)
+    np.testing.assert_allclose(logdet, ref, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("m", [2, 4])
+def test_inv_logdet_scaled(m: int) -> None:
+    # Range-bearing scales: 2500 m^2 and 1e-6 rad^2.
+    rng = np.random.default_rng(10 + m)
+    d = np.array([2500.0, 7.6e-7, 30.0, 1.0])[:m]
+    C = rng.standard_normal((m, m))
+    S = np.diag(np.sqrt(d)) @ (C @ C.T + np.eye(m)) @ np.diag(np.sqrt(d))
+    S_inv, logdet = inv_logdet(S)
+    np.testing.assert_allclose(S_inv @ S, np.eye(m), atol=1e-9)
+    np.testing.assert_allclose(logdet, np.linalg.slogdet(S)[1], rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "S",
+    [
+        np.array([[1.0, 2.0], [2.0, 1.0]]),  # indefinite
+        np.array([[-1.0, 0.0], [0.0, -1.0]]),  # negative definite (det > 0, a < 0)
+        np.array([[1.0, 1.0], [1.0, 1.0]]),  # singular
+    ],
+    ids=["indefinite", "negative", "singular"],
+)
+def test_inv_logdet_rejects_non_pd_2x2(S: np.ndarray) -> None:
+    with pytest.raises(np.linalg.LinAlgError):
+        inv_logdet(S)
+
+
+def test_inv_logdet_rejects_non_pd_4x4() -> None:
+    with pytest.raises(np.linalg.LinAlgError):
+        inv_logdet(np.diag([1.0, 2.0, -1.0, 3.0]))
+
+
+def test_gaussian_loglik_matches_scipy() -> None:
+    from scipy.stats import multivariate_normal
+
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((2, 2))
+    S = A @ A.T + np.eye(2)
+    nu = rng.standard_normal(2)
+    S_inv, logdet = inv_logdet(S)
+    assert mahalanobis(nu, S_inv) == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-12)
+    assert gaussian_loglik(nu, S_inv, logdet) == pytest.approx(
+        multivariate_normal(np.zeros(2), S).logpdf(nu), rel=1e-12
+    )

@@ -1,0 +1,167 @@
+"""Tests of imm_gym.metrics: RMSE/ARMSE, NIS/NEES consistency, model identification."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from imm_gym import MotionModel, Scenario, Segment, generate_truth, paper_bank, paper_scenario
+from imm_gym.metrics import (
+    consistency,
+    mode_accuracy,
+    nees,
+    per_run_position_rmse,
+    rmse_over_time,
+    tracking_errors,
+    true_model_index,
+)
+
+
+def _truth_array(R: int = 7, K: int = 20) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    return rng.normal(0.0, 1000.0, (R, K, 4))
+
+
+def test_constant_error() -> None:
+    truth = _truth_array()
+    est = truth + np.array([3.0, 4.0, 0.3, -0.4])
+    np.testing.assert_allclose(rmse_over_time(est[..., :2] - truth[..., :2]), 5.0)
+    e = tracking_errors(est, truth)
+    assert e["armse_pos"] == pytest.approx(5.0)
+    assert e["armse_pos_x"] == pytest.approx(3.0)
+    assert e["armse_pos_y"] == pytest.approx(4.0)
+    assert e["armse_vel"] == pytest.approx(0.5)
+    assert e["armse_vel_x"] == pytest.approx(0.3)
+    assert e["armse_vel_y"] == pytest.approx(0.4)
+    np.testing.assert_allclose(per_run_position_rmse(est, truth), 5.0)
+
+
+def test_rmse_is_over_runs_then_mean_over_time() -> None:
+    # two runs, two steps: errors chosen so that the order of the means matters
+    err = np.zeros((2, 2, 2))
+    err[0, 0] = [3.0, 4.0]  # |e| = 5
+    err[1, 0] = [0.0, 0.0]
+    err[0, 1] = [6.0, 8.0]  # |e| = 10
+    err[1, 1] = [0.0, 10.0]  # |e| = 10
+    rmse = rmse_over_time(err)
+    np.testing.assert_allclose(rmse, [np.sqrt(25.0 / 2.0), 10.0])
+    truth = np.zeros((2, 2, 4))
+    est = np.concatenate([err, np.zeros((2, 2, 2))], axis=-1)
+    e = tracking_errors(est, truth)
+    assert e["armse_pos"] == pytest.approx((np.sqrt(12.5) + 10.0) / 2)
+    assert e["armse_pos_x"] == pytest.approx((np.sqrt(9.0 / 2) + np.sqrt(36.0 / 2)) / 2)
+    assert e["armse_vel"] == 0.0
+    # per run: RMSE over time of each run
+    np.testing.assert_allclose(
+        per_run_position_rmse(est, truth), [np.sqrt((25 + 100) / 2), np.sqrt(100 / 2)]
+    )
+
+
+def test_tracking_errors_ignores_extra_state() -> None:
+    truth = _truth_array()
+    shift = np.array([1.0, 0.0, 0.0, 0.0])
+    est = np.concatenate([truth + shift, np.full((7, 20, 2), 99.0)], axis=-1)
+    assert tracking_errors(est, truth)["armse_pos"] == pytest.approx(1.0)
+
+
+def test_consistency_chi2() -> None:
+    rng = np.random.default_rng(1)
+    v = stats.chi2(2).rvs(size=40_000, random_state=rng)
+    c = consistency(v, 2)
+    assert c["bound"] == pytest.approx(5.991464547, rel=1e-8)
+    assert c["inside"] == pytest.approx(0.95, abs=0.005)
+    assert c["mean"] == pytest.approx(2.0, rel=0.03)
+    assert c["dof"] == 2
+    # an over-confident filter (values 2x too large) fails the test
+    c_bad = consistency(2.0 * v, 2)
+    assert c_bad["inside"] < 0.85
+    assert c_bad["mean"] == pytest.approx(4.0, rel=0.03)
+
+
+def test_consistency_mask_and_empty() -> None:
+    v = np.array([1.0, 100.0, 2.0, 3.0])
+    c = consistency(v, 2, mask=np.array([True, False, True, True]))
+    assert c["mean"] == pytest.approx(2.0)
+    assert c["inside"] == 1.0
+    c = consistency(v, 4, mask=np.zeros(4, dtype=bool))
+    assert c["inside"] == 0.0 and c["mean"] == 0.0
+    assert c["bound"] == pytest.approx(stats.chi2.ppf(0.95, 4))
+
+
+def test_nees_calibrated_gaussian() -> None:
+    rng = np.random.default_rng(2)
+    R, K = 200, 50
+    A = rng.standard_normal((R, K, 4, 4))
+    P = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(4)
+    D = np.sqrt([100.0, 100.0, 1.0, 1.0])  # metre-scale positions, m/s-scale velocities
+    P = D[:, None] * P * D[None, :]
+    L = np.linalg.cholesky(P)
+    truth = rng.normal(0.0, 1000.0, (R, K, 4))
+    est = truth + (L @ rng.standard_normal((R, K, 4, 1)))[..., 0]
+    v = nees(est, P, truth)
+    assert v.shape == (R, K)
+    assert v.mean() == pytest.approx(4.0, rel=0.03)
+    c = consistency(v, 4)
+    assert c["inside"] == pytest.approx(0.95, abs=0.01)
+    # check one value by hand
+    e = truth[3, 7] - est[3, 7]
+    assert v[3, 7] == pytest.approx(e @ np.linalg.solve(P[3, 7], e), rel=1e-9)
+    # a covariance 4x too small is inconsistent
+    assert nees(est, P / 4.0, truth).mean() == pytest.approx(16.0, rel=0.03)
+
+
+def test_nees_uses_first_four_states() -> None:
+    truth = np.zeros((1, 1, 4))
+    est = np.array([[[1.0, 2.0, 0.0, 0.0, 5.0, 5.0]]])
+    P = np.eye(6)[None, None]
+    assert nees(est, P, truth)[0, 0] == pytest.approx(5.0)
+
+
+def test_true_model_index_paper() -> None:
+    truth = generate_truth([paper_scenario()] * 2)
+    idx = true_model_index(truth, paper_bank())
+    assert idx.shape == (2, 150)
+    expected = np.zeros(150, dtype=np.int64)
+    expected[40:70] = 2  # -1.2 deg/s: clockwise, the CT(-4) model
+    expected[90:115] = 1  # +1.8 deg/s: counter-clockwise, the CT(+4) model
+    np.testing.assert_array_equal(idx[0], expected)
+    np.testing.assert_array_equal(idx[1], expected)
+
+
+def test_true_model_index_nearest_rate_and_ca() -> None:
+    bank = (
+        MotionModel("ct", 1.0),
+        MotionModel("cv"),
+        MotionModel("ct", 5.0),
+        MotionModel("ct", -2.0),
+        MotionModel("ca", q=(0.1,) * 6),
+    )
+    sc = Scenario(
+        (Segment(2), Segment(2, 1.5), Segment(2, 4.0), Segment(2, -10.0), Segment(2, accel=1.0)),
+        velocity=(5.0, 0.0),
+    )
+    idx = true_model_index(generate_truth([sc]), bank)
+    np.testing.assert_array_equal(idx[0], [1, 1, 0, 0, 2, 2, 3, 3, 4, 4])
+    # no CT turning right and no CA: -1
+    idx = true_model_index(generate_truth([sc]), bank[:3])
+    np.testing.assert_array_equal(idx[0], [1, 1, 0, 0, 2, 2, -1, -1, -1, -1])
+
+
+def test_mode_accuracy() -> None:
+    truth = generate_truth([paper_scenario()] * 3)
+    idx = true_model_index(truth, paper_bank())
+    perfect = np.eye(3)[idx]
+    assert perfect.shape == (3, 150, 3)
+    assert mode_accuracy(perfect, idx) == 1.0
+    always_cv = np.zeros_like(perfect)
+    always_cv[..., 0] = 1.0
+    assert mode_accuracy(always_cv, idx) == pytest.approx(95 / 150)
+    wrong = np.eye(3)[(idx + 1) % 3]
+    assert mode_accuracy(wrong, idx) == 0.0
+    # steps without a matching model are not scored
+    idx2 = idx.copy()
+    idx2[:, :40] = -1
+    always_cv[:, :40] = [0.0, 1.0, 0.0]
+    assert mode_accuracy(always_cv, idx2) == pytest.approx(55 / 110)
+    assert mode_accuracy(perfect, np.full_like(idx, -1)) == 0.0

@@ -1,0 +1,281 @@
+"""Tests of imm_gym.sensors: the range-bearing sonar and the linear position sensor."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from imm_gym import ConfigError, PositionSensor, Sonar
+
+PI = np.pi
+
+
+def _gens(seeds: range | list[int]) -> list[np.random.Generator]:
+    return [np.random.default_rng(s) for s in seeds]
+
+
+def _static_states(n: int, k1: int, xy: tuple[float, float]) -> np.ndarray:
+    s = np.zeros((n, k1, 4))
+    s[..., 0], s[..., 1] = xy
+    return s
+
+
+# --------------------------------------------------------------------------- measurement model
+
+
+@pytest.mark.parametrize(
+    ("xy", "expected"),
+    [
+        ((3000.0, 4000.0), (5000.0, math.atan2(4000.0, 3000.0))),
+        ((-100.0, 0.0), (100.0, PI)),
+        ((0.0, -250.0), (250.0, -PI / 2)),
+        ((-3.0, -4.0), (5.0, math.atan2(-4.0, -3.0))),
+    ],
+)
+def test_sonar_h(xy: tuple[float, float], expected: tuple[float, float]) -> None:
+    z = Sonar().h(np.array([xy[0], xy[1], 7.0, -3.0]))
+    np.testing.assert_allclose(z, expected, rtol=1e-14)
+
+
+def test_sonar_h_position_offset() -> None:
+    sonar = Sonar(position=(100.0, -200.0))
+    z = sonar.h(np.array([103.0, -196.0, 1.0, 1.0]))
+    np.testing.assert_allclose(z, [5.0, math.atan2(4.0, 3.0)], rtol=1e-13)
+    H = sonar.jacobian(np.array([103.0, -196.0, 1.0, 1.0]))
+    np.testing.assert_allclose(H[0, :2], [0.6, 0.8], rtol=1e-13)
+    np.testing.assert_allclose(H[1, :2], [-4.0 / 25.0, 3.0 / 25.0], rtol=1e-13)
+
+
+@pytest.mark.parametrize("position", [(0.0, 0.0), (250.0, -1200.0)])
+def test_sonar_jacobian_finite_differences(position: tuple[float, float]) -> None:
+    sonar = Sonar(position=position)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        r, b = rng.uniform(500.0, 10000.0), rng.uniform(-3.0, 3.0)
+        x = np.array([r * math.cos(b), r * math.sin(b), *rng.normal(0, 20, 2)])
+        x[:2] += position
+        H = sonar.jacobian(x)
+        assert H.shape == (2, 4)
+        num = np.empty((2, 4))
+        for j in range(4):
+            e = np.zeros(4)
+            e[j] = 1e-3
+            num[:, j] = sonar.residual(sonar.h(x + e), sonar.h(x - e)) / 2e-3
+        np.testing.assert_allclose(H, num, rtol=1e-6, atol=1e-12)
+
+
+def test_sonar_jacobian_batched() -> None:
+    sonar = Sonar()
+    x = np.random.default_rng(2).normal(0.0, 3000.0, size=(3, 5, 4))
+    H = sonar.jacobian(x)
+    assert H.shape == (3, 5, 2, 4)
+    np.testing.assert_array_equal(H[1, 2], sonar.jacobian(x[1, 2]))
+
+
+def test_sonar_R() -> None:
+    sonar = Sonar(sigma_r=50.0, sigma_theta_deg=0.05)
+    np.testing.assert_allclose(sonar.R, np.diag([2500.0, math.radians(0.05) ** 2]))
+    assert sonar.dim_z == 2
+    assert sonar.linear_matrix(4) is None
+
+
+def test_sonar_residual_wraps() -> None:
+    sonar = Sonar()
+    a = np.array([[100.0, PI - 0.01], [100.0, -PI + 0.01]])
+    b = np.array([[90.0, -PI + 0.01], [90.0, PI - 0.01]])
+    d = sonar.residual(a, b)
+    np.testing.assert_allclose(d, [[10.0, -0.02], [10.0, 0.02]], atol=1e-12)
+
+
+def test_sonar_initial_position() -> None:
+    sonar = Sonar(position=(10.0, 20.0))
+    z = np.array([[1000.0, 0.3], [500.0, -2.0]])
+    pos, cov = sonar.initial_position(z)
+    np.testing.assert_allclose(pos[0], [10.0 + 1000.0 * math.cos(0.3), 20.0 + 1000 * math.sin(0.3)])
+    np.testing.assert_allclose(sonar.h(np.concatenate([pos, np.zeros((2, 2))], axis=1)), z)
+    # covariance = J R J^T with J the polar-to-Cartesian Jacobian = inverse of h's Jacobian
+    H = sonar.jacobian(np.concatenate([pos, np.zeros((2, 2))], axis=1))[..., :2]
+    expected = np.linalg.inv(H) @ sonar.R @ np.swapaxes(np.linalg.inv(H), -1, -2)
+    np.testing.assert_allclose(cov, expected, rtol=1e-9)
+
+
+# --------------------------------------------------------------------------- simulation
+
+
+def test_measurements_reproducible() -> None:
+    sonar = Sonar(outlier_prob=0.1, detection_prob=0.9)
+    states = _static_states(3, 50, (3000.0, 4000.0))
+    a = sonar.measure(states, _gens([1, 2, 3]))
+    b = sonar.measure(states, _gens([1, 2, 3]))
+    np.testing.assert_array_equal(a.z, b.z)
+    np.testing.assert_array_equal(a.detected, b.detected)
+    np.testing.assert_array_equal(a.outlier, b.outlier)
+    c = sonar.measure(states, _gens([1, 2, 4]))
+    np.testing.assert_array_equal(a.z[:2], c.z[:2])  # each run has its own generator
+    assert not np.array_equal(a.z[2], c.z[2])
+
+
+def test_measurement_shapes() -> None:
+    m = Sonar().measure(_static_states(4, 11, (1000.0, 0.0)), _gens(range(4)))
+    assert m.z.shape == (4, 11, 2)
+    assert m.detected.shape == m.outlier.shape == (4, 11)
+    assert m.detected.dtype == np.bool_
+    assert m.detected.all()
+    assert not m.outlier.any()
+
+
+def test_measure_needs_one_generator_per_run() -> None:
+    with pytest.raises(ConfigError):
+        Sonar().measure(_static_states(3, 5, (1000.0, 0.0)), _gens([1, 2]))
+    with pytest.raises(ConfigError):
+        Sonar().measure(np.zeros((5, 4)), _gens([1]))
+
+
+def test_sonar_noise_statistics() -> None:
+    sonar = Sonar()
+    states = _static_states(20, 1000, (3000.0, 4000.0))
+    m = sonar.measure(states, _gens(range(20)))
+    err = sonar.residual(m.z, sonar.h(states)).reshape(-1, 2)
+    std = err.std(axis=0)
+    assert std[0] == pytest.approx(50.0, rel=0.03)
+    assert std[1] == pytest.approx(math.radians(0.05), rel=0.03)
+    assert abs(err[:, 0].mean()) < 2.0  # 5.7 standard errors
+    assert abs(err[:, 1].mean()) < math.radians(0.002)
+    assert abs(np.corrcoef(err.T)[0, 1]) < 0.05
+
+
+def test_sonar_position_offset_in_simulation() -> None:
+    sonar = Sonar(position=(-2000.0, 500.0), sigma_r=1.0, sigma_theta_deg=0.001)
+    states = _static_states(2, 200, (1000.0, 4500.0))  # offset (3000, 4000) from the sensor
+    m = sonar.measure(states, _gens([0, 1]))
+    np.testing.assert_allclose(m.z[..., 0].mean(), 5000.0, atol=0.5)
+    np.testing.assert_allclose(m.z[..., 1].mean(), math.atan2(4000.0, 3000.0), atol=1e-5)
+
+
+def test_measured_bearing_wrapped() -> None:
+    # Target on the -x axis: bearings straddle +-pi. Large noise to cross the cut often.
+    sonar = Sonar(sigma_theta_deg=5.0)
+    states = _static_states(5, 400, (-5000.0, 0.0))
+    m = sonar.measure(states, _gens(range(5)))
+    b = m.z[..., 1]
+    assert np.all(b > -PI) and np.all(b <= PI)
+    assert (b > 3.0).any() and (b < -3.0).any()
+    # wrapped measurements are the same directions as the unwrapped ones
+    err = sonar.residual(m.z, sonar.h(states))[..., 1]
+    assert np.abs(err).max() < math.radians(40.0)
+
+
+def test_outliers() -> None:
+    states = _static_states(40, 500, (3000.0, 4000.0))
+    clean = Sonar()
+    dirty = Sonar(outlier_prob=0.05, outlier_scale=10.0)
+    mc = clean.measure(states, _gens(range(40)))
+    md = dirty.measure(states, _gens(range(40)))
+    share = md.outlier.mean()
+    assert share == pytest.approx(0.05, abs=0.006)
+    assert not mc.outlier.any()
+    noise = dirty.residual(md.z, dirty.h(states)) / dirty.sigma
+    out_std = noise[md.outlier].std(axis=0)
+    in_std = noise[~md.outlier].std(axis=0)
+    np.testing.assert_allclose(in_std, 1.0, rtol=0.03)
+    np.testing.assert_allclose(out_std, 10.0, rtol=0.1)
+    # common random numbers: the non-outlier measurements are unchanged
+    np.testing.assert_array_equal(md.z[~md.outlier], mc.z[~md.outlier])
+    # and the outliers are the same normal draws scaled by 10 (bearing: before wrapping)
+    np.testing.assert_allclose(
+        (md.z - dirty.h(states))[md.outlier][:, 0],
+        10.0 * (mc.z - clean.h(states))[md.outlier][:, 0],
+        rtol=1e-9,
+    )
+
+
+def test_changing_outlier_prob_keeps_other_draws() -> None:
+    states = _static_states(10, 300, (-1000.0, 7000.0))
+    a = Sonar(outlier_prob=0.02, detection_prob=0.9).measure(states, _gens(range(10)))
+    b = Sonar(outlier_prob=0.2, detection_prob=0.9).measure(states, _gens(range(10)))
+    both_clean = ~a.outlier & ~b.outlier
+    assert both_clean.sum() > 2000
+    np.testing.assert_array_equal(a.z[both_clean], b.z[both_clean])
+    np.testing.assert_array_equal(a.detected, b.detected)
+    assert b.outlier.sum() > a.outlier.sum()
+    assert np.all(b.outlier[a.outlier])  # a higher probability keeps the earlier outliers
+
+
+def test_missed_detections() -> None:
+    states = _static_states(40, 500, (3000.0, 4000.0))
+    full = Sonar().measure(states, _gens(range(40)))
+    m = Sonar(detection_prob=0.8).measure(states, _gens(range(40)))
+    assert m.detected[:, 0].all()  # the initiating detection is never missed
+    missed = 1.0 - m.detected[:, 1:].mean()
+    assert missed == pytest.approx(0.2, abs=0.01)
+    np.testing.assert_array_equal(m.z, full.z)  # would-be measurements kept, same noise
+
+
+def test_missed_detections_never_at_t0_even_if_rare() -> None:
+    m = Sonar(detection_prob=0.01).measure(_static_states(200, 3, (1.0, 1.0)), _gens(range(200)))
+    assert m.detected[:, 0].all()
+    assert m.detected[:, 1:].mean() < 0.05
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"sigma_r": -1.0}, "sonar.sigma_r"),
+        ({"sigma_r": 0.0}, "sonar.sigma_r"),
+        ({"sigma_theta_deg": -0.05}, "sonar.sigma_theta_deg"),
+        ({"position": (0.0, 0.0, 0.0)}, "sonar.position"),
+        ({"position": (0.0, float("inf"))}, "sonar.position"),
+        ({"outlier_prob": 1.5}, "sonar.outlier_prob"),
+        ({"outlier_scale": 0.5}, "sonar.outlier_scale"),
+        ({"detection_prob": 0.0}, "sonar.detection_prob"),
+    ],
+)
+def test_sonar_invalid_config(kwargs: dict, field: str) -> None:
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        Sonar(**kwargs)
+
+
+# --------------------------------------------------------------------------- position sensor
+
+
+@pytest.mark.parametrize(
+    ("sigma_vel", "m", "R"),
+    [
+        (None, 2, np.diag([100.0, 100.0])),
+        (2.0, 4, np.diag([100.0, 100.0, 4.0, 4.0])),
+    ],
+)
+@pytest.mark.parametrize("n", [4, 6])
+def test_position_sensor(sigma_vel: float | None, m: int, R: np.ndarray, n: int) -> None:
+    sensor = PositionSensor(sigma_pos=10.0, sigma_vel=sigma_vel)
+    assert sensor.dim_z == m
+    np.testing.assert_array_equal(sensor.R, R)
+    H = sensor.linear_matrix(n)
+    assert H.shape == (m, n)
+    np.testing.assert_array_equal(H, np.eye(m, n))
+    x = np.arange(2 * 3 * n, dtype=float).reshape(2, 3, n)
+    np.testing.assert_array_equal(sensor.h(x), x[..., :m])
+    J = sensor.jacobian(x)
+    assert J.shape == (2, 3, m, n)
+    np.testing.assert_array_equal(J[1, 2], H)
+    np.testing.assert_array_equal(sensor.h(x[0, 0]), H @ x[0, 0])
+
+
+@pytest.mark.parametrize("sigma_vel", [None, 2.0])
+def test_position_sensor_noise(sigma_vel: float | None) -> None:
+    sensor = PositionSensor(sigma_pos=10.0, sigma_vel=sigma_vel)
+    states = np.zeros((10, 1000, 4))
+    states[..., :] = [100.0, -50.0, 3.0, 4.0]
+    meas = sensor.measure(states, _gens(range(10)))
+    assert meas.z.shape == (10, 1000, sensor.dim_z)
+    err = (meas.z - sensor.h(states)).reshape(-1, sensor.dim_z)
+    np.testing.assert_allclose(err.std(axis=0), sensor.sigma, rtol=0.03)
+
+
+def test_position_sensor_invalid() -> None:
+    with pytest.raises(ConfigError, match=r"position_sensor\.sigma_pos"):
+        PositionSensor(sigma_pos=-1.0)
+    with pytest.raises(ConfigError, match=r"position_sensor\.sigma_vel"):
+        PositionSensor(sigma_vel=0.0)
