@@ -1,11 +1,14 @@
 """imm_gym: learn to adapt the transition probability matrix of an IMM tracker.
 
-The numerical core (no Gymnasium import): motion models, scenarios, sensors, filters, the batched
-IMM bank, metrics. See README.md and SPEC.md.
+The numerical core (no Gymnasium import in its modules): motion models, scenarios, sensors,
+filters, the batched IMM bank, metrics, the batched simulation. Importing the package registers the
+environment ids (``imm_gym/TPMAdapt-v0`` ...) with Gymnasium. See README.md.
 """
 
 from .clairvoyant import clairvoyant_filter
 from .config import ConfigError
+from .core import ActionError, TrackingCore
+from .env_config import EnvConfig
 from .filters import ExtendedKalmanFilter, KalmanFilter, UnscentedKalmanFilter, make_filter, predict
 from .imm import IMM, IMMResult, IMMState, IMMStep, combine, mix, update_mode_probs
 from .initiation import initiate
@@ -18,10 +21,21 @@ from .tpm import stay_tpm, validate_tpm
 
 __version__ = "0.1.0"
 
+
+def _register() -> None:
+    from .envs import register_envs
+
+    register_envs()
+
+
+_register()
+
 __all__ = [
     "IMM",
+    "ActionError",
     "Batch",
     "ConfigError",
+    "EnvConfig",
     "ExtendedKalmanFilter",
     "IMMResult",
     "IMMState",
@@ -34,6 +48,7 @@ __all__ = [
     "Scenario",
     "Segment",
     "Sonar",
+    "TrackingCore",
     "Truth",
     "UnscentedKalmanFilter",
     "__version__",

@@ -72,6 +72,8 @@ class IMMStep:
         nis: ``(N,)`` NIS of the IMM's predicted measurement density (moment-matched mixture of the
             model-conditioned predictions, weights ``cbar``); 0 on a missed detection.
         detected: ``(N,)`` whether a measurement was used.
+        failed: ``(N,)`` trackers whose innovation covariance lost positive definiteness
+            (outputs NaN); only with ``IMM.step(..., allow_failure=True)``, else an error.
     """
 
     x: Array
@@ -82,6 +84,7 @@ class IMMStep:
     model_nis: Array
     nis: Array
     detected: BoolArray
+    failed: BoolArray
 
 
 @dataclass(frozen=True)
@@ -313,6 +316,7 @@ class IMM:
         z: Array,
         detected: BoolArray | None = None,
         check: bool = True,
+        allow_failure: bool = False,
     ) -> tuple[IMMState, IMMStep]:
         """One IMM cycle for N trackers.
 
@@ -322,6 +326,9 @@ class IMM:
             z: ``(N, m)`` measurements at k.
             detected: ``(N,)``; where False the filters only predict and ``mu = cbar``.
             check: validate ``tpm`` and ``z`` (disable only for inputs already validated).
+            allow_failure: flag diverged trackers in ``IMMStep.failed`` (NaN outputs) instead of
+                raising ``numpy.linalg.LinAlgError`` (compiled backend only: the numpy
+                reference always raises).
 
         Returns:
             The posterior at k and the step outputs.
@@ -341,7 +348,7 @@ class IMM:
             if not np.all(np.isfinite(z)):
                 raise ConfigError("z must be finite (mark missed detections with detected=False)")
         if self.backend == "numba":
-            return self._step_compiled(state, tpm, z, detected)
+            return self._step_compiled(state, tpm, z, detected, allow_failure)
         cbar, x0, P0 = mix(state.mu, state.x, state.P, tpm)
         x_pred, P_pred = self.predict(x0, P0)
         upd = self.filter.update(x_pred, P_pred, z[:, None, :], self.sensor)
@@ -357,11 +364,11 @@ class IMM:
         mu = update_mode_probs(loglik, cbar)
         x_hat, P_hat = combine(mu, x, P)
         nis = np.where(det, self._mixture_nis(cbar, upd, z), 0.0)
-        out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det)
+        out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det, np.zeros(N, dtype=bool))
         return IMMState(x, P, mu), out
 
     def _step_compiled(
-        self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None
+        self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None, allow_failure: bool
     ) -> tuple[IMMState, IMMStep]:
         """The same cycle through the fused kernel (:mod:`imm_gym.kernels`)."""
         N, M, n = state.x.shape
@@ -369,7 +376,8 @@ class IMM:
         x, P = np.empty((N, M, n)), np.empty((N, M, n, n))
         mu, cbar, loglik, model_nis = (np.empty((N, M)) for _ in range(4))
         nis, x_hat, P_hat = np.empty(N), np.empty((N, n)), np.empty((N, n, n))
-        status = kernels.imm_step(
+        failed = np.empty(N, dtype=bool)
+        failures = kernels.imm_step(
             np.ascontiguousarray(state.x),
             np.ascontiguousarray(state.P),
             np.ascontiguousarray(state.mu),
@@ -386,10 +394,14 @@ class IMM:
             nis,
             x_hat,
             P_hat,
+            failed,
         )
-        if status != kernels.OK:
-            raise np.linalg.LinAlgError("innovation covariance is not positive definite")
-        return IMMState(x, P, mu), IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det)
+        if failures and not allow_failure:
+            raise np.linalg.LinAlgError(
+                f"innovation covariance is not positive definite for {failures} tracker(s)"
+            )
+        out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det, failed)
+        return IMMState(x, P, mu), out
 
     def _mixture_nis(self, cbar: Array, upd: Update, z: Array) -> Array:
         """NIS of ``z`` under the moment-matched predicted measurement density of the IMM.

@@ -56,3 +56,33 @@ def validate_tpm(tpm: Array, n_models: int, name: str = "tpm") -> Array:
             f"{name} rows must sum to 1 (±{ROW_SUM_TOL}); worst row is off by {worst:.3g}"
         )
     return a
+
+
+def apply_floor(tpm: Array, p_min: float) -> Array:
+    """Row-normalize and keep every entry in ``[p_min, 1 - p_min]`` so the IMM can always switch.
+
+    Entries below ``p_min`` are raised to it and the other entries of the row shrink
+    proportionally to pay for it, repeated until no entry is below (at most M passes). A row that
+    already satisfies the floor is only normalized, so a valid TPM passes unchanged. With
+    ``p_min < 1/M`` the largest entry is at most ``1 - (M-1) p_min <= 1 - p_min``.
+
+    Args:
+        tpm: ``(..., M, M)`` non-negative, finite, with positive row sums.
+        p_min: floor in ``[0, 1/M)``.
+    """
+    M = tpm.shape[-1]
+    if not 0.0 <= p_min < 1.0 / M:
+        raise ConfigError(f"p_min must be in [0, 1/M) = [0, {1.0 / M:.6g}), got {p_min!r}")
+    t = tpm / tpm.sum(axis=-1, keepdims=True)
+    if p_min == 0.0:
+        return t
+    fixed = np.zeros(t.shape, dtype=bool)
+    for _ in range(M):
+        low = fixed | (t < p_min)
+        if np.array_equal(low, fixed):
+            break
+        fixed = low
+        free_mass = np.where(fixed, 0.0, t).sum(axis=-1, keepdims=True)
+        budget = 1.0 - p_min * fixed.sum(axis=-1, keepdims=True)
+        t = np.where(fixed, p_min, t * (budget / free_mass))
+    return t

@@ -1,0 +1,1 @@
+"""PPO agents for the TPM-adaptation environments (lands with the PPO issue)."""

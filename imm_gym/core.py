@@ -1,0 +1,360 @@
+"""The batched simulation behind every environment front (no Gymnasium here).
+
+:class:`TrackingCore` advances N independent episodes in lock-step. Data flows one way:
+scenario -> truth -> sonar -> IMM bank(s) (TPM from the action) -> estimate -> reward, observation
+and diagnostics. Each episode slot ``i`` owns its two random streams
+(:func:`imm_gym.seeding.streams`): slot ``i`` reset with seed ``s`` replays exactly the episode of
+a scalar environment reset with seed ``s``, whatever the other slots do.
+
+Observation layout (float32; ``M`` models), blocks in this order:
+
+==============  ======  ==========================================================  =====  ====
+block           size    meaning                                                     min    max
+==============  ======  ==========================================================  =====  ====
+mode_probs      M       model probabilities ``mu(t)`` (fused ``U`` when parallel)   0      1
+prev_probs      M       ``mu(t-1)``                                                 0      1
+tpm             M*M     current TPM, row-major (feature ``tpm``)                    0      1
+loglik          M       ``(log Lambda_j - max_l log Lambda_l) / loglik_clip``,      -1     0
+                        clipped (feature ``loglik``)
+nis             M       per-model NIS squashed ``nis / (nis + m)`` (feature ``nis``)  0      1
+bank_b          M       bank B's probabilities before fusion (feature ``bank_b``)   0      1
+time            1       ``k / K`` (feature ``time``)                                0      1
+==============  ======  ==========================================================  =====  ====
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .env_config import EnvConfig
+from .fusion import fuse
+from .imm import IMM, IMMState, combine
+from .initiation import initiate
+from .metrics import true_model_index
+from .scenarios import RandomFamily, generate_truth
+from .seeding import streams
+from .tpm import apply_floor, stay_tpm
+
+Array = NDArray[np.float64]
+
+
+class ActionError(ValueError):
+    """An action has the wrong shape or a non-finite entry."""
+
+
+@dataclass
+class StepResult:
+    """What one core step returns for all N slots (fresh arrays)."""
+
+    obs: NDArray[np.float32]
+    reward: Array
+    terminated: NDArray[np.bool_]
+    truncated: NDArray[np.bool_]
+    info: dict[str, Any]
+
+
+class TrackingCore:
+    """N TPM-adaptation episodes: truth, sonar, IMM bank A (adapted TPM), optional bank B (fixed
+    TPM, entropy fusion with feedback), optional shadow IMM (fixed TPM) for the reward.
+
+    Args:
+        config: the environment configuration.
+        n_envs: number of slots N.
+    """
+
+    def __init__(self, config: EnvConfig, n_envs: int = 1) -> None:
+        if n_envs < 1:
+            raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+        self.config = config
+        self.n_envs = n_envs
+        self.models = config.bank
+        self.M = M = len(config.bank)
+        self.imm = IMM(config.bank, config.sensor, filter=config.filter, T=config.source.T)
+        self.n = self.imm.n
+        self.fixed_tpm = stay_tpm(M, config.initial_stay)
+        self.horizon = config.source.horizon
+        self.action_dim = M * M
+        low, high = self._observation_bounds()
+        self.obs_low, self.obs_high = low, high
+        self.obs_dim = low.size
+        N, K, m = n_envs, self.horizon, config.sensor.dim_z
+        self._rngs: list[tuple[np.random.Generator, np.random.Generator] | None] = [None] * N
+        self.truth = np.zeros((N, K + 1, 4))
+        self.z = np.zeros((N, K + 1, m))
+        self.detected = np.ones((N, K + 1), dtype=bool)
+        self.true_model = np.full((N, K), -1, dtype=np.int64)
+        self.k = np.zeros(N, dtype=np.int64)
+        self.done = np.ones(N, dtype=bool)
+        self.tpm = np.repeat(self.fixed_tpm[None], N, axis=0)
+        self.state_a = self._blank_state()
+        self.state_b = self._blank_state()
+        self.state_s = self._blank_state()
+        self.mu = np.full((N, M), 1.0 / M)
+        self.mu_prev = self.mu.copy()
+        self.mu_b = self.mu.copy()
+        self.loglik = np.zeros((N, M))
+        self.model_nis = np.zeros((N, M))
+
+    # ------------------------------------------------------------------ spaces
+    def _observation_bounds(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        M = self.M
+        lows, highs = [np.zeros(2 * M)], [np.ones(2 * M)]
+        sizes = {"tpm": M * M, "loglik": M, "nis": M, "bank_b": M, "time": 1}
+        for f in self.config.obs_features:
+            lows.append(np.full(sizes[f], -1.0 if f == "loglik" else 0.0))
+            highs.append(np.zeros(sizes[f]) if f == "loglik" else np.ones(sizes[f]))
+        return (
+            np.concatenate(lows).astype(np.float32),
+            np.concatenate(highs).astype(np.float32),
+        )
+
+    def _blank_state(self) -> IMMState:
+        N, M, n = self.n_envs, self.M, self.n
+        return IMMState(
+            np.zeros((N, M, n)),
+            np.repeat(np.eye(n)[None, None], N * M, 0).reshape(N, M, n, n),
+            np.full((N, M), 1.0 / M),
+        )
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, indices: NDArray[np.int64], seeds: list[int | None]) -> None:
+        """Start new episodes in the slots ``indices`` (one seed or None per slot).
+
+        A slot given a seed gets fresh streams from it; a slot given None continues its streams
+        (the next episode of the same sequence), or gets streams from OS entropy if it has none.
+        """
+        indices = np.asarray(indices, dtype=np.int64)
+        if indices.size == 0:
+            return
+        for i, seed in zip(indices, seeds, strict=True):
+            if seed is not None:
+                self._rngs[i] = streams(seed)
+            elif self._rngs[i] is None:
+                self._rngs[i] = streams(int(np.random.SeedSequence().generate_state(1)[0]))
+        scen_rngs = [self._rngs[i][0] for i in indices]  # type: ignore[index]
+        noise_rngs = [self._rngs[i][1] for i in indices]  # type: ignore[index]
+        source = self.config.source
+        if isinstance(source, RandomFamily):
+            scenarios = [source.sample(rng) for rng in scen_rngs]
+        else:
+            scenarios = [source] * indices.size
+        truth = generate_truth(scenarios, scen_rngs)
+        meas = self.config.sensor.measure(truth.states, noise_rngs)
+        velocity = np.array([s.velocity for s in scenarios])
+        x0, P0 = initiate(self.config.sensor, meas.z[:, 0], velocity, self.config.velocity_std)
+        self.truth[indices] = truth.states
+        self.z[indices] = meas.z
+        self.detected[indices] = meas.detected
+        self.true_model[indices] = true_model_index(truth, self.models)
+        init = self.imm.init(x0, P0)
+        # copy-on-write: arrays handed out earlier (infos) must not change under the caller
+        for bank in ("state_a", "state_b", "state_s"):
+            state = getattr(self, bank)
+            parts = [a.copy() for a in (state.x, state.P, state.mu)]
+            for a, value in zip(parts, (init.x, init.P, init.mu), strict=True):
+                a[indices] = value
+            setattr(self, bank, IMMState(*parts))
+        values = {
+            "tpm": self.fixed_tpm,
+            "mu": init.mu,
+            "mu_prev": init.mu,
+            "mu_b": init.mu,
+            "loglik": 0.0,
+            "model_nis": 0.0,
+            "k": 0,
+            "done": False,
+        }
+        for name, value in values.items():
+            array = getattr(self, name).copy()
+            array[indices] = value
+            setattr(self, name, array)
+
+    # ------------------------------------------------------------------ actions
+    def tpm_from_action(self, action: NDArray[Any], tpm: Array | None = None) -> Array:
+        """The TPM an action produces from the current TPM (``scale``) or from scratch (``set``).
+
+        ``scale``: ``pi_ij <- pi_ij * max_factor ** a_ij``; ``set``: ``pi_i = softmax(logit_scale
+        * a_i)``; then rows are normalized and floored to ``[p_min, 1 - p_min]``.
+        """
+        a = self.check_action(action)
+        current = self.tpm if tpm is None else tpm
+        N, M = a.shape[0], self.M
+        a = a.reshape(N, M, M)
+        if self.config.action_mode == "scale":
+            raw = current * np.power(self.config.max_factor, a)
+        else:
+            logits = self.config.logit_scale * a
+            raw = np.exp(logits - logits.max(axis=-1, keepdims=True))
+        return apply_floor(raw, self.config.p_min)
+
+    def check_action(self, action: NDArray[Any]) -> Array:
+        """Validate shape ``(N, M*M)`` and finiteness, then clip to [-1, 1] (float64)."""
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (self.n_envs, self.action_dim):
+            raise ActionError(
+                f"action must have shape ({self.n_envs}, {self.action_dim}) "
+                f"(or ({self.action_dim},) for the scalar env), got {np.shape(action)}"
+            )
+        if not np.all(np.isfinite(a)):
+            raise ActionError("action must be finite (got NaN or inf)")
+        return np.clip(a, -1.0, 1.0)
+
+    # ------------------------------------------------------------------ step
+    def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
+        """Advance the ``active`` slots (all by default) one step with their actions.
+
+        Inactive slots keep their state (their outputs in the result are meaningless: the vector
+        fronts mask them). An active slot whose episode ended must be reset first.
+        """
+        N = self.n_envs
+        active = np.ones(N, dtype=bool) if active is None else np.asarray(active, dtype=bool)
+        if np.any(self.done & active):
+            ended = np.flatnonzero(self.done & active).tolist()
+            raise RuntimeError(f"episodes in slots {ended} have ended; call reset before step")
+        before = self._snapshot()
+        cfg = self.config
+        tpm = self.tpm_from_action(action)
+        rows = np.arange(N)
+        k1 = np.minimum(self.k + 1, self.horizon)
+        z = self.z[rows, k1]
+        det = self.detected[rows, k1]
+        state_a, out_a = self.imm.step(self.state_a, tpm, z, det, check=False, allow_failure=True)
+        failed = out_a.failed.copy()
+        if cfg.parallel:
+            state_b, out_b = self.imm.step(
+                self.state_b, self.fixed_tpm, z, det, check=False, allow_failure=True
+            )
+            failed |= out_b.failed
+            with np.errstate(invalid="ignore"):
+                U = fuse(out_a.mode_probs, out_b.mode_probs)
+            x_hat, P_hat = combine(U, state_a.x, state_a.P)
+            self.state_a = IMMState(state_a.x, state_a.P, U)
+            self.state_b = IMMState(state_b.x, state_b.P, U.copy())
+            self.mu_b = out_b.mode_probs
+        else:
+            U, x_hat, P_hat = out_a.mode_probs, out_a.x, out_a.P
+            self.state_a = state_a
+        truth = self.truth[rows, k1]
+        error = _position_error(x_hat, truth)
+        error = np.where(np.isfinite(error), error, np.inf)
+        terms: dict[str, Array] = {
+            "error": -np.minimum(error, cfg.divergence_error) / cfg.reward_scale
+        }
+        info: dict[str, Any] = {}
+        if cfg.shadow == "fixed":
+            self.state_s, out_s = self.imm.step(
+                self.state_s, self.fixed_tpm, z, det, check=False, allow_failure=True
+            )
+            shadow_error = np.minimum(_position_error(out_s.x, truth), cfg.divergence_error)
+            terms["advantage"] = (shadow_error - np.minimum(error, cfg.divergence_error)) / (
+                cfg.reward_scale
+            )
+            info["shadow_position_error"] = shadow_error
+        reward = terms[cfg.reward].copy()
+        with np.errstate(invalid="ignore"):
+            cov_trace = P_hat[:, 0, 0] + P_hat[:, 1, 1]
+            diverged = (
+                failed
+                | ~np.isfinite(error)
+                | (error > cfg.divergence_error)
+                | ~(cov_trace <= cfg.divergence_cov)
+            )
+        self.k = k1
+        self.tpm = tpm
+        self.mu_prev = self.mu
+        self.mu = U
+        self.loglik = out_a.loglik
+        self.model_nis = out_a.model_nis
+        truncated = (k1 >= self.horizon) & ~diverged
+        self.done = diverged | truncated
+        if not np.all(active):
+            self._restore(before, ~active)
+        info.update(
+            {
+                "true_state": truth,
+                "true_model": self.true_model[rows, k1 - 1],
+                "estimate": x_hat,
+                "position_error": np.minimum(error, cfg.divergence_error),
+                "mode_probs": U,
+                "loglik": out_a.loglik,
+                "model_nis": out_a.model_nis,
+                "nis": out_a.nis,
+                "detected": det,
+                "tpm": tpm,
+                "step": k1,
+                "diverged": diverged,
+            }
+        )
+        for name, value in terms.items():
+            info[f"reward_{name}"] = value
+        info = {key: _finite(value) for key, value in info.items()}
+        return StepResult(self.observe(), _finite(reward), diverged, truncated, info)
+
+    _SLOT_ARRAYS = ("k", "done", "tpm", "mu", "mu_prev", "mu_b", "loglik", "model_nis")
+
+    def _snapshot(self) -> dict[str, Any]:
+        snap: dict[str, Any] = {name: getattr(self, name) for name in self._SLOT_ARRAYS}
+        for bank in ("state_a", "state_b", "state_s"):
+            snap[bank] = getattr(self, bank)
+        return snap
+
+    def _restore(self, snap: dict[str, Any], rows: NDArray[np.bool_]) -> None:
+        """Put back the pre-step values of the slots ``rows``."""
+        for name in self._SLOT_ARRAYS:
+            new = getattr(self, name)
+            if new is not snap[name]:
+                new = new.copy()
+                new[rows] = snap[name][rows]
+                setattr(self, name, new)
+        for bank in ("state_a", "state_b", "state_s"):
+            new, old = getattr(self, bank), snap[bank]
+            if new is not old:
+                parts = []
+                for a_new, a_old in ((new.x, old.x), (new.P, old.P), (new.mu, old.mu)):
+                    a_new = a_new.copy()
+                    a_new[rows] = a_old[rows]
+                    parts.append(a_new)
+                setattr(self, bank, IMMState(*parts))
+
+    # ------------------------------------------------------------------ observation
+    def observe(self) -> NDArray[np.float32]:
+        """The observation of every slot (see the module docstring for the layout)."""
+        cfg = self.config
+        blocks = [self.mu, self.mu_prev]
+        for f in cfg.obs_features:
+            if f == "tpm":
+                blocks.append(self.tpm.reshape(self.n_envs, -1))
+            elif f == "loglik":
+                rel = self.loglik - self.loglik.max(axis=-1, keepdims=True)
+                blocks.append(np.clip(rel, -cfg.loglik_clip, 0.0) / cfg.loglik_clip)
+            elif f == "nis":
+                blocks.append(self.model_nis / (self.model_nis + self.config.sensor.dim_z))
+            elif f == "bank_b":
+                blocks.append(self.mu_b)
+            else:
+                blocks.append((self.k / self.horizon)[:, None])
+        with np.errstate(invalid="ignore"):
+            obs = np.concatenate(blocks, axis=-1)
+        obs = np.nan_to_num(obs, nan=0.0, posinf=1.0, neginf=-1.0)
+        return np.clip(obs, self.obs_low, self.obs_high).astype(np.float32)
+
+
+def _position_error(x: Array, truth: Array) -> Array:
+    d = x[:, :2] - truth[:, :2]
+    return np.sqrt(np.sum(d * d, axis=-1))
+
+
+def _finite(value: Any) -> Any:
+    """Non-finite floats (a diverged slot) replaced by finite stand-ins for the API."""
+    if isinstance(value, np.ndarray) and value.dtype.kind == "f":
+        return np.nan_to_num(
+            value,
+            nan=0.0,
+            posinf=np.finfo(np.float64).max / 4,
+            neginf=-np.finfo(np.float64).max / 4,
+        )
+    return value

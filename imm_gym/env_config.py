@@ -1,0 +1,153 @@
+"""Configuration of the TPM-adaptation environments (frozen, typed, validated).
+
+Pass an :class:`EnvConfig`, a dict (``gymnasium.make(id, config={...})``) or keyword arguments
+(``gymnasium.make(id, parallel=True)``); unknown keys and out-of-range values raise
+:class:`~imm_gym.config.ConfigError` naming the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from .config import ConfigError, check_choice, check_range, from_dict
+from .filters import FILTERS
+from .models import MotionModel, paper_bank
+from .scenarios import RandomFamily, Scenario, paper_scenario
+from .sensors import Sonar
+
+ACTION_MODES = ("scale", "set")
+SHADOWS = ("fixed", "none")
+REWARDS = ("advantage", "error")
+OBS_FEATURES = ("tpm", "loglik", "nis", "bank_b", "time")
+TIP_READINGS = ("literal", "intent")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything that defines a TPM-adaptation environment.
+
+    Attributes:
+        scenario: ``"random"`` (the randomized family), ``"paper"`` (SPEC §3) or a
+            :class:`~imm_gym.scenarios.Scenario`.
+        family: the randomized family's parameters (used when ``scenario == "random"``).
+        sensor: the sonar (noise, position, outliers, missed detections).
+        bank: the motion models of the IMM bank.
+        filter: ``"ukf"`` (SVD-UKF) or ``"ekf"``.
+        initial_stay: diagonal of the initial (and fixed-bank) TPM, off-diagonal entries equal.
+        p_min: every TPM entry is kept in ``[p_min, 1 - p_min]`` after an action (< 1/M).
+        action_mode: ``"scale"`` (per-entry factors ``max_factor ** a`` on the current TPM) or
+            ``"set"`` (row logits ``logit_scale * a``, softmax per row).
+        max_factor: largest per-step factor of ``scale`` mode (> 1).
+        logit_scale: logit of ``set`` mode for an action of 1 (> 0).
+        parallel: run bank B with the fixed TPM and fuse by entropy (TIP-IMM §3.3).
+        shadow: ``"fixed"`` runs a classical IMM with the fixed TPM in lock-step on the same
+            measurements (for the ``advantage`` reward and diagnostics) or ``"none"``.
+        reward: ``"advantage"`` — ``(e_shadow - e) / reward_scale`` with ``e`` the position error
+            of the combined estimate — or ``"error"`` — ``-e / reward_scale``.
+        reward_scale: metres per unit of reward.
+        obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``, ``bank_b``,
+            ``time``.
+        loglik_clip: per-model log-likelihoods relative to the best model are clipped to
+            ``[-loglik_clip, 0]`` and divided by it.
+        velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
+        divergence_error: position error (m) that ends an episode as diverged.
+        divergence_cov: trace of the position covariance (m²) that ends an episode as diverged.
+    """
+
+    scenario: str | Scenario = "random"
+    family: RandomFamily = field(default_factory=RandomFamily)
+    sensor: Sonar = field(default_factory=Sonar)
+    bank: tuple[MotionModel, ...] = field(default_factory=paper_bank)
+    filter: str = "ukf"
+    initial_stay: float = 0.995
+    p_min: float = 1e-3
+    action_mode: str = "scale"
+    max_factor: float = 2.0
+    logit_scale: float = 4.0
+    parallel: bool = False
+    shadow: str = "fixed"
+    reward: str = "advantage"
+    reward_scale: float = 10.0
+    obs_features: tuple[str, ...] = ()
+    loglik_clip: float = 20.0
+    velocity_std: float = 5.0
+    divergence_error: float = 5000.0
+    divergence_cov: float = 1e8
+
+    def __post_init__(self) -> None:
+        if isinstance(self.scenario, Mapping):
+            object.__setattr__(self, "scenario", from_dict(Scenario, self.scenario, "scenario"))
+        elif not isinstance(self.scenario, Scenario):
+            check_choice("scenario", self.scenario, ("random", "paper"))
+        for name, cls in (("family", RandomFamily), ("sensor", Sonar)):
+            value = getattr(self, name)
+            if isinstance(value, Mapping):
+                object.__setattr__(self, name, from_dict(cls, value, name))
+            elif not isinstance(value, cls):
+                raise ConfigError(f"{name} must be a {cls.__name__} or a mapping")
+        bank = tuple(
+            from_dict(MotionModel, m, "bank[i]") if isinstance(m, Mapping) else m for m in self.bank
+        )
+        if len(bank) < 2 or not all(isinstance(m, MotionModel) for m in bank):
+            raise ConfigError("bank must hold at least 2 MotionModel entries")
+        object.__setattr__(self, "bank", bank)
+        check_choice("filter", self.filter, tuple(f for f in FILTERS if f != "kf"))
+        M = len(bank)
+        check_range("initial_stay", self.initial_stay, 0.0, 1.0)
+        check_range("p_min", self.p_min, 0.0, 1.0 / M, hi_open=True)
+        off = (1.0 - self.initial_stay) / (M - 1)
+        if min(self.initial_stay, off) < self.p_min:
+            raise ConfigError(
+                f"initial_stay={self.initial_stay} gives TPM entries below p_min={self.p_min}"
+            )
+        check_choice("action_mode", self.action_mode, ACTION_MODES)
+        check_range("max_factor", self.max_factor, 1.0, lo_open=True)
+        check_range("logit_scale", self.logit_scale, 0.0, lo_open=True)
+        if not isinstance(self.parallel, bool):
+            raise ConfigError(f"parallel must be a bool, got {self.parallel!r}")
+        check_choice("shadow", self.shadow, SHADOWS)
+        check_choice("reward", self.reward, REWARDS)
+        if self.reward == "advantage" and self.shadow == "none":
+            raise ConfigError("reward 'advantage' needs shadow 'fixed'")
+        check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
+        features = tuple(self.obs_features)
+        for f in features:
+            check_choice("obs_features[i]", f, OBS_FEATURES)
+        if len(set(features)) != len(features):
+            raise ConfigError(f"obs_features has duplicates: {features}")
+        if "bank_b" in features and not self.parallel:
+            raise ConfigError("obs_features 'bank_b' needs parallel=True")
+        object.__setattr__(self, "obs_features", features)
+        check_range("loglik_clip", self.loglik_clip, 0.0, lo_open=True)
+        check_range("velocity_std", self.velocity_std, 0.0, lo_open=True)
+        check_range("divergence_error", self.divergence_error, 0.0, lo_open=True)
+        check_range("divergence_cov", self.divergence_cov, 0.0, lo_open=True)
+
+    @property
+    def source(self) -> Scenario | RandomFamily:
+        """What ``reset`` draws a scenario from."""
+        if isinstance(self.scenario, Scenario):
+            return self.scenario
+        return paper_scenario() if self.scenario == "paper" else self.family
+
+    def replace(self, **changes: Any) -> EnvConfig:
+        """A copy with some fields changed (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def build(cls, config: EnvConfig | Mapping[str, Any] | None = None, **kwargs: Any) -> EnvConfig:
+        """From an :class:`EnvConfig` or mapping, updated with keyword arguments."""
+        if config is None:
+            base: dict[str, Any] = {}
+        elif isinstance(config, EnvConfig):
+            return config.replace(**kwargs) if kwargs else config
+        elif isinstance(config, Mapping):
+            base = dict(config)
+        else:
+            raise ConfigError(
+                f"config must be an EnvConfig or a mapping, got {type(config).__name__}"
+            )
+        return from_dict(cls, {**base, **kwargs}, "EnvConfig")

@@ -1,0 +1,113 @@
+"""stable-baselines3 ``VecEnv`` over the batched core: :class:`TPMAdaptVecEnv`.
+
+SB3 conventions: same-step reset (a finished episode is reset inside ``step_wait``, its last
+observation goes to ``info["terminal_observation"]``), ``info["TimeLimit.truncated"]`` for a
+truncation, ``dones = terminated | truncated``, fresh arrays every step. ``seed(s)`` seeds the
+next ``reset`` with ``s + i`` per sub-env, like the Gymnasium vector env.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+
+from ..core import TrackingCore
+from ..env_config import EnvConfig
+
+#: Per-step diagnostics copied into each sub-env's info dict (the rest stays in the core).
+SB3_INFO_KEYS = (
+    "position_error",
+    "shadow_position_error",
+    "reward_error",
+    "reward_advantage",
+    "diverged",
+)
+
+
+class TPMAdaptVecEnv(VecEnv):
+    """N TPM-adaptation episodes for stable-baselines3 (see :class:`TPMAdaptEnv` for the MDP).
+
+    Args:
+        num_envs: number of sub-environments.
+        config: an :class:`EnvConfig` or a mapping; keyword arguments override fields.
+        env_id: take the preset of a registered id (``"imm_gym/TPMAdapt-v0"``) as the base config.
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        config: EnvConfig | Mapping[str, Any] | None = None,
+        env_id: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if env_id is not None:
+            preset = gym.spec(env_id).kwargs.get("config") or {}
+            config = EnvConfig.build(preset) if config is None else EnvConfig.build(config)
+        self.config = EnvConfig.build(config, **kwargs)
+        self.core = TrackingCore(self.config, n_envs=num_envs)
+        observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
+        action_space = spaces.Box(-1.0, 1.0, (self.core.action_dim,), dtype=np.float32)
+        super().__init__(num_envs, observation_space, action_space)
+        self._actions: NDArray[Any] | None = None
+
+    def reset(self) -> NDArray[np.float32]:
+        self.core.reset(np.arange(self.num_envs), list(self._seeds))
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return self.core.observe()
+
+    def step_async(self, actions: NDArray[Any]) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait called without step_async")
+        a = self._actions.reshape(self.num_envs, self.core.action_dim)
+        self._actions = None
+        result = self.core.step(a)
+        obs = result.obs
+        dones = result.terminated | result.truncated
+        infos: list[dict[str, Any]] = [
+            {key: result.info[key][i].item() for key in SB3_INFO_KEYS if key in result.info}
+            for i in range(self.num_envs)
+        ]
+        finished = np.flatnonzero(dones)
+        if finished.size:
+            for i in finished:
+                infos[i]["terminal_observation"] = obs[i].copy()
+                infos[i]["TimeLimit.truncated"] = bool(
+                    result.truncated[i] and not result.terminated[i]
+                )
+            self.core.reset(finished, [None] * finished.size)
+            obs = self.core.observe()
+        return obs, result.reward.astype(np.float32), dones, infos
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        raise AttributeError(f"TPMAdaptVecEnv sub-envs share one core; cannot set {attr_name!r}")
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **kwargs: Any
+    ) -> list[Any]:
+        method = getattr(self, method_name)
+        return [method(*method_args, **kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(
+        self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None
+    ) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[NDArray[Any] | None]:
+        return [None for _ in range(self.num_envs)]

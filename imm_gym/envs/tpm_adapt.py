@@ -1,0 +1,152 @@
+"""The scalar Gymnasium environment: :class:`TPMAdaptEnv` (the core with N = 1)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from ..core import ActionError, TrackingCore
+from ..env_config import EnvConfig
+
+
+class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
+    """Learn to adapt the transition probability matrix (TPM) of an IMM tracker.
+
+    ## Description
+    A maneuvering target is observed by a sonar at the origin (range and bearing, σ_r = 50 m,
+    σ_θ = 0.05°). A bank of model-matched SVD-UKFs — CV, CT(+4°/s), CT(−4°/s) — runs the IMM
+    cycle. At every step the agent adjusts the TPM that the next mixing uses; it is rewarded for
+    the position accuracy of the combined estimate. TIP-IMM (a rule on the model probabilities)
+    and classical IMM (a fixed TPM) act through the same interface (``baselines/``).
+
+    ## Action Space
+    ``Box(-1, 1, (M*M,), float32)``, the TPM adjustment, row-major over ``(i, j)``:
+
+    * ``action_mode="scale"`` (default): ``π_ij ← π_ij · max_factor ** a_ij`` on the current TPM.
+      TIP-IMM's α/β steps are ``a = log(α) / log(max_factor)``, ``log(β) / log(max_factor)``,
+      and the zero action leaves the TPM unchanged (classical IMM).
+    * ``action_mode="set"``: ``π_i = softmax(logit_scale · a_i)`` row by row.
+
+    Then rows are normalized and every entry kept in ``[p_min, 1 − p_min]``. Out-of-range
+    actions are clipped; a wrong shape or a NaN/inf entry raises ``ActionError``. Float64 actions
+    are used at full precision.
+
+    ## Observation Space
+    ``Box(float32)``; with M = 3 models and no optional features, shape ``(6,)``:
+
+    | index        | meaning                                          | min | max |
+    |--------------|--------------------------------------------------|-----|-----|
+    | 0 .. M−1     | model probabilities μ(t) (fused U if parallel)   | 0   | 1   |
+    | M .. 2M−1    | model probabilities μ(t−1)                       | 0   | 1   |
+    | then, in the order of ``obs_features``:                                   |||
+    | ``tpm``      | current TPM, row-major (M·M)                     | 0   | 1   |
+    | ``loglik``   | log-likelihood minus the best model's, / clip (M)| −1  | 0   |
+    | ``nis``      | per-model NIS squashed nis/(nis+2) (M)           | 0   | 1   |
+    | ``bank_b``   | bank B's probabilities before fusion (M)         | 0   | 1   |
+    | ``time``     | k / K (1)                                        | 0   | 1   |
+
+    Policies act on the observation only; ground truth is in ``info`` for evaluation.
+
+    ## Rewards
+    ``reward="advantage"`` (default): ``(e_shadow − e) / reward_scale`` with ``e`` the position
+    error of the combined estimate and ``e_shadow`` that of a classical IMM (fixed TPM) run in
+    lock-step on the same measurements — a low-variance signal, 0 on average for classical IMM.
+    ``reward="error"``: ``−e / reward_scale``. Errors are capped at ``divergence_error``. Both
+    terms are in ``info`` (``reward_error``, ``reward_advantage``).
+
+    ## Starting State
+    A scenario is drawn (the randomized family, the paper scenario, or a user ``Scenario``); the
+    track starts from the first measurement and the scenario's initial velocity with
+    ``P0 = blockdiag(J R Jᵀ, 5² I)``; the TPM starts at ``initial_stay`` (0.995) on the diagonal;
+    model probabilities start uniform.
+
+    ## Episode End
+    Truncation at the scenario's horizon (150 steps by default). Termination when the tracker
+    diverges (non-finite state, position error above ``divergence_error`` or position covariance
+    trace above ``divergence_cov``); then ``info["diverged"]`` is True.
+
+    ## Arguments
+    | name      | type                    | default  | meaning                                    |
+    |-----------|-------------------------|----------|--------------------------------------------|
+    | config    | EnvConfig or dict       | preset   | the full configuration (:class:`EnvConfig`)|
+    | **kwargs  | EnvConfig fields        |          | override single fields, e.g. parallel=True |
+
+    ``gymnasium.make("imm_gym/TPMAdapt-v0", parallel=True, obs_features=("tpm", "loglik"))``.
+    Unknown keys and out-of-range values raise ``ConfigError`` naming the field.
+
+    ## Info
+    ``true_state``, ``true_model`` (bank index of the true motion, −1 if none), ``estimate``,
+    ``position_error``, ``shadow_position_error``, ``mode_probs``, ``loglik``, ``model_nis``,
+    ``nis``, ``detected``, ``tpm``, ``step``, ``diverged``, ``reward_*``.
+
+    ## Seeding
+    ``reset(seed=s)`` derives two streams from ``s`` — scenario and sensor noise — so two
+    policies reset with the same seed see the same target and the same noise (common random
+    numbers). Later resets without a seed continue the streams.
+
+    ## Vectorized environment
+    :class:`~imm_gym.envs.vector.TPMAdaptVectorEnv` runs N episodes in one batched core
+    (``gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``); sub-env
+    ``i`` reproduces this env reset with ``seed + i``. :class:`~imm_gym.envs.sb3.TPMAdaptVecEnv`
+    is the stable-baselines3 ``VecEnv`` over the same core.
+
+    ## Version History
+    * v0: initial release.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self,
+        config: EnvConfig | Mapping[str, Any] | None = None,
+        render_mode: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError(f"TPMAdaptEnv has no render modes, got render_mode={render_mode!r}")
+        self.config = EnvConfig.build(config, **kwargs)
+        self.core = TrackingCore(self.config, n_envs=1)
+        self.observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (self.core.action_dim,), dtype=np.float32)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        super().reset(seed=seed)
+        self.core.reset(np.array([0]), [seed])
+        info = {"true_state": self.core.truth[0, 0].copy(), "tpm": self.core.tpm[0].copy()}
+        return self.core.observe()[0], info
+
+    def step(
+        self, action: NDArray[Any]
+    ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        a = np.asarray(action)
+        if a.shape != (self.core.action_dim,):
+            raise ActionError(f"action must have shape ({self.core.action_dim},), got {a.shape}")
+        result = self.core.step(a[None])
+        info = {key: _item(value[0]) for key, value in result.info.items()}
+        return (
+            result.obs[0],
+            float(result.reward[0]),
+            bool(result.terminated[0]),
+            bool(result.truncated[0]),
+            info,
+        )
+
+
+def _item(value: Any) -> Any:
+    """Scalars as Python numbers, arrays as fresh copies."""
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    return value
