@@ -76,6 +76,8 @@ class TrackingCore:
         self.imm = IMM(config.bank, config.sensor, filter=config.filter, T=config.source.T)
         self.n = self.imm.n
         self.fixed_tpm = stay_tpm(M, config.initial_stay)
+        self._fixed_batch = np.repeat(self.fixed_tpm[None], n_envs, axis=0)
+        self._rows = np.arange(n_envs)
         self.horizon = config.source.horizon
         self.action_dim = M * M
         low, high = self._observation_bounds()
@@ -210,27 +212,25 @@ class TrackingCore:
         Inactive slots keep their state (their outputs in the result are meaningless: the vector
         fronts mask them). An active slot whose episode ended must be reset first.
         """
-        N = self.n_envs
-        active = np.ones(N, dtype=bool) if active is None else np.asarray(active, dtype=bool)
-        if np.any(self.done & active):
-            ended = np.flatnonzero(self.done & active).tolist()
+        all_active = active is None or bool(np.all(active))
+        if np.any(self.done if active is None else self.done & active):
+            ended = np.flatnonzero(self.done if active is None else self.done & active).tolist()
             raise RuntimeError(f"episodes in slots {ended} have ended; call reset before step")
-        before = self._snapshot()
+        before = None if all_active else self._snapshot()
         cfg = self.config
         tpm = self.tpm_from_action(action)
-        rows = np.arange(N)
+        rows = self._rows
         k1 = np.minimum(self.k + 1, self.horizon)
         z = self.z[rows, k1]
         det = self.detected[rows, k1]
         state_a, out_a = self.imm.step(self.state_a, tpm, z, det, check=False, allow_failure=True)
-        failed = out_a.failed.copy()
+        failed = out_a.failed
         if cfg.parallel:
             state_b, out_b = self.imm.step(
-                self.state_b, self.fixed_tpm, z, det, check=False, allow_failure=True
+                self.state_b, self._fixed_batch, z, det, check=False, allow_failure=True
             )
-            failed |= out_b.failed
-            with np.errstate(invalid="ignore"):
-                U = fuse(out_a.mode_probs, out_b.mode_probs)
+            failed = failed | out_b.failed
+            U = fuse(out_a.mode_probs, out_b.mode_probs)
             x_hat, P_hat = combine(U, state_a.x, state_a.P)
             self.state_a = IMMState(state_a.x, state_a.P, U)
             self.state_b = IMMState(state_b.x, state_b.P, U.copy())
@@ -240,29 +240,39 @@ class TrackingCore:
             self.state_a = state_a
         truth = self.truth[rows, k1]
         error = _position_error(x_hat, truth)
-        error = np.where(np.isfinite(error), error, np.inf)
-        terms: dict[str, Array] = {
-            "error": -np.minimum(error, cfg.divergence_error) / cfg.reward_scale
+        # NaN (a failed tracker) becomes the cap; the divergence flag says why
+        capped = np.where(error <= cfg.divergence_error, error, cfg.divergence_error)
+        info: dict[str, Any] = {
+            "true_state": truth,
+            "true_model": self.true_model[rows, k1 - 1],
+            "estimate": x_hat,
+            "position_error": capped,
+            "mode_probs": U,
+            "loglik": out_a.loglik,
+            "model_nis": out_a.model_nis,
+            "nis": out_a.nis,
+            "detected": det,
+            "tpm": tpm,
+            "step": k1,
+            "reward_error": -capped / cfg.reward_scale,
         }
-        info: dict[str, Any] = {}
         if cfg.shadow == "fixed":
             self.state_s, out_s = self.imm.step(
-                self.state_s, self.fixed_tpm, z, det, check=False, allow_failure=True
+                self.state_s, self._fixed_batch, z, det, check=False, allow_failure=True
             )
-            shadow_error = np.minimum(_position_error(out_s.x, truth), cfg.divergence_error)
-            terms["advantage"] = (shadow_error - np.minimum(error, cfg.divergence_error)) / (
-                cfg.reward_scale
+            shadow_error = _position_error(out_s.x, truth)
+            shadow_error = np.where(
+                shadow_error <= cfg.divergence_error, shadow_error, cfg.divergence_error
             )
             info["shadow_position_error"] = shadow_error
-        reward = terms[cfg.reward].copy()
-        with np.errstate(invalid="ignore"):
-            cov_trace = P_hat[:, 0, 0] + P_hat[:, 1, 1]
-            diverged = (
-                failed
-                | ~np.isfinite(error)
-                | (error > cfg.divergence_error)
-                | ~(cov_trace <= cfg.divergence_cov)
-            )
+            info["reward_advantage"] = (shadow_error - capped) / cfg.reward_scale
+        reward = info[f"reward_{cfg.reward}"].copy()
+        diverged = (
+            failed
+            | ~(error <= cfg.divergence_error)
+            | ~(P_hat[:, 0, 0] + P_hat[:, 1, 1] <= cfg.divergence_cov)
+        )
+        info["diverged"] = diverged
         self.k = k1
         self.tpm = tpm
         self.mu_prev = self.mu
@@ -271,28 +281,11 @@ class TrackingCore:
         self.model_nis = out_a.model_nis
         truncated = (k1 >= self.horizon) & ~diverged
         self.done = diverged | truncated
-        if not np.all(active):
-            self._restore(before, ~active)
-        info.update(
-            {
-                "true_state": truth,
-                "true_model": self.true_model[rows, k1 - 1],
-                "estimate": x_hat,
-                "position_error": np.minimum(error, cfg.divergence_error),
-                "mode_probs": U,
-                "loglik": out_a.loglik,
-                "model_nis": out_a.model_nis,
-                "nis": out_a.nis,
-                "detected": det,
-                "tpm": tpm,
-                "step": k1,
-                "diverged": diverged,
-            }
-        )
-        for name, value in terms.items():
-            info[f"reward_{name}"] = value
-        info = {key: _finite(value) for key, value in info.items()}
-        return StepResult(self.observe(), _finite(reward), diverged, truncated, info)
+        if before is not None:
+            self._restore(before, ~np.asarray(active, dtype=bool))
+        if diverged.any():  # only a diverged slot can carry NaN/inf
+            info = {key: _finite(value) for key, value in info.items()}
+        return StepResult(self.observe(), reward, diverged, truncated, info)
 
     _SLOT_ARRAYS = ("k", "done", "tpm", "mu", "mu_prev", "mu_b", "loglik", "model_nis")
 
@@ -337,10 +330,11 @@ class TrackingCore:
                 blocks.append(self.mu_b)
             else:
                 blocks.append((self.k / self.horizon)[:, None])
-        with np.errstate(invalid="ignore"):
-            obs = np.concatenate(blocks, axis=-1)
-        obs = np.nan_to_num(obs, nan=0.0, posinf=1.0, neginf=-1.0)
-        return np.clip(obs, self.obs_low, self.obs_high).astype(np.float32)
+        obs = np.concatenate(blocks, axis=-1)
+        if not np.isfinite(obs).all():  # a diverged slot
+            obs = np.nan_to_num(obs, nan=0.0, posinf=1.0, neginf=-1.0)
+        obs = obs.astype(np.float32)
+        return np.clip(obs, self.obs_low, self.obs_high, out=obs)
 
 
 def _position_error(x: Array, truth: Array) -> Array:

@@ -381,7 +381,9 @@ class IMM:
             np.ascontiguousarray(state.x),
             np.ascontiguousarray(state.P),
             np.ascontiguousarray(state.mu),
-            np.ascontiguousarray(np.broadcast_to(tpm, (N, M, M)), dtype=np.float64),
+            tpm
+            if tpm.shape == (N, M, M)
+            else np.ascontiguousarray(np.broadcast_to(tpm, (N, M, M))),
             np.ascontiguousarray(z, dtype=np.float64),
             np.ascontiguousarray(det),
             *self._kernel_args,

@@ -74,7 +74,7 @@ def apply_floor(tpm: Array, p_min: float) -> Array:
     if not 0.0 <= p_min < 1.0 / M:
         raise ConfigError(f"p_min must be in [0, 1/M) = [0, {1.0 / M:.6g}), got {p_min!r}")
     t = tpm / tpm.sum(axis=-1, keepdims=True)
-    if p_min == 0.0:
+    if p_min == 0.0 or t.min() >= p_min:
         return t
     fixed = np.zeros(t.shape, dtype=bool)
     for _ in range(M):
@@ -84,5 +84,6 @@ def apply_floor(tpm: Array, p_min: float) -> Array:
         fixed = low
         free_mass = np.where(fixed, 0.0, t).sum(axis=-1, keepdims=True)
         budget = 1.0 - p_min * fixed.sum(axis=-1, keepdims=True)
-        t = np.where(fixed, p_min, t * (budget / free_mass))
+        touched = fixed.any(axis=-1, keepdims=True)  # rows without a floored entry stay as they are
+        t = np.where(fixed, p_min, np.where(touched, t * (budget / free_mass), t))
     return t

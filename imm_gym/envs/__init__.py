@@ -21,7 +21,6 @@ PRESETS: dict[str, dict[str, Any]] = {
         "scenario": "random",
         "parallel": True,
         "p_min": 0.05,
-        "initial_stay": 0.9,
         "obs_features": ("bank_b",),
     },
 }
