@@ -221,12 +221,37 @@ class Truth:
         return self.turn_rate.shape[1]
 
 
+def _constant_speed_truth(p0: Array, v0: Array, omega: Array, T: float) -> Array:
+    """Noise-free straight/turn motion in closed form, vectorized over runs and steps.
+
+    The heading advances by ``omega_k T`` per step and the speed is constant, so the velocity
+    before step k is ``R(sum_{l<k} omega_l T) v0``; step k moves the position by
+    ``sin(omega T)/omega v + (1 - cos(omega T))/omega J v`` (``J`` the 90° rotation; ``T v`` when
+    ``omega = 0``), the first row of ``F_CT``.
+    """
+    N, K = omega.shape
+    wt = omega * T
+    heading = np.concatenate([np.zeros((N, 1)), np.cumsum(wt, axis=1)], axis=1)  # (N, K+1)
+    c, s = np.cos(heading), np.sin(heading)
+    v = np.stack([c * v0[:, :1] - s * v0[:, 1:], s * v0[:, :1] + c * v0[:, 1:]], axis=-1)
+    F = ct_transition(omega, T)  # (N, K, 4, 4): rows 0-1 give the position increment
+    v_before = v[:, :-1]
+    dp = np.einsum("nkij,nkj->nki", F[..., :2, 2:], v_before)
+    states = np.empty((N, K + 1, 4))
+    states[:, :, :2] = p0[:, None, :] + np.concatenate(
+        [np.zeros((N, 1, 2)), np.cumsum(dp, axis=1)], axis=1
+    )
+    states[:, :, 2:] = v
+    return states
+
+
 def generate_truth(
     scenarios: Sequence[Scenario], rngs: Sequence[np.random.Generator] | None = None
 ) -> Truth:
     """Simulate the true trajectories of several scenarios at once (batched over runs).
 
-    A step with turn rate ``omega`` is exact circular motion ``x_k = F_CT(omega) x_{k-1}``; a step
+    A step with turn rate ``omega`` is exact circular motion ``x_k = F_CT(omega) x_{k-1}`` (computed
+    in closed form over all steps when there is no acceleration and no truth noise); a step
     with tangential acceleration ``a`` moves ``p += v T + a u T^2 / 2``, ``v += a u T`` with
     ``u = v / |v|``. Truth noise, if the scenario has ``truth_q``, is ``N(0, diag(truth_q))`` drawn
     from that run's generator after each step.
@@ -251,9 +276,14 @@ def generate_truth(
     profiles = [s.profile() for s in scenarios]
     omega = np.stack([p[0] for p in profiles])
     accel = np.stack([p[1] for p in profiles])
+    p0 = np.array([s.position for s in scenarios])
+    v0 = np.array([s.velocity for s in scenarios])
+    if not any(noisy) and not np.any(accel != 0.0):
+        states = _constant_speed_truth(p0, v0, omega, T)
+        return Truth(states=states, turn_rate=omega, accel=accel, T=T)
     states = np.empty((N, K + 1, 4))
-    states[:, 0, :2] = [s.position for s in scenarios]
-    states[:, 0, 2:] = [s.velocity for s in scenarios]
+    states[:, 0, :2] = p0
+    states[:, 0, 2:] = v0
     F = ct_transition(omega, T)  # (N, K, 4, 4)
     for k in range(K):
         x = np.einsum("nij,nj->ni", F[:, k], states[:, k])

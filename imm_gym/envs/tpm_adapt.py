@@ -129,7 +129,8 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if a.shape != (self.core.action_dim,):
             raise ActionError(f"action must have shape ({self.core.action_dim},), got {a.shape}")
         result = self.core.step(a[None])
-        info = {key: _item(value[0]) for key, value in result.info.items()}
+        # row 0 of arrays created fresh by this step: a new object every call
+        info = {key: value[0] for key, value in result.info.items()}
         return (
             result.obs[0],
             float(result.reward[0]),
@@ -137,16 +138,3 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             bool(result.truncated[0]),
             info,
         )
-
-
-def _item(value: Any) -> Any:
-    """Scalars as Python numbers, arrays as fresh copies."""
-    if isinstance(value, np.ndarray):
-        return value.copy()
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    return value
