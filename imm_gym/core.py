@@ -246,6 +246,7 @@ class TrackingCore:
             "true_state": truth,
             "true_model": self.true_model[rows, k1 - 1],
             "estimate": x_hat,
+            "covariance": P_hat,
             "position_error": capped,
             "mode_probs": U,
             "loglik": out_a.loglik,

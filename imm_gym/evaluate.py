@@ -1,17 +1,22 @@
 """Monte-Carlo evaluation of TPM policies (command line: ``python -m imm_gym.evaluate``).
 
-Every policy is scored on the same R runs — same targets, same sensor noise (common random
-numbers, :mod:`imm_gym.montecarlo`) — and reported in the layout of the paper's Table 2 (position
-ARMSE overall / X / Y, velocity ARMSE X / Y), with NIS/NEES consistency, mode-identification
-accuracy and the clairvoyant bound.
+Every policy — a baseline by name or a saved stable-baselines3 model by path — runs through
+:func:`imm_gym.evaluation.rollout` on the same R runs: same targets, same sensor noise (common
+random numbers). The report follows the paper's Table 2 (position ARMSE overall / X / Y, velocity
+ARMSE X / Y) and adds NIS/NEES consistency, mode-identification accuracy, the clairvoyant bound and
+paired differences with 95 % bootstrap confidence intervals against a reference policy.
 
 Example::
 
-    python -m imm_gym.evaluate --policy fixed --scenario paper --runs 100 --seed 0 --json out.json
+    python -m imm_gym.evaluate --policy fixed --policy tip-imm --policy best-fixed \\
+        --scenario paper --runs 100 --seed 0 --json out.json --plots figs/
 
-The JSON file has the layout ``{"policies": {NAME: {"armse_pos": ..., "armse_pos_x": ...,
-"armse_pos_y": ..., "armse_vel_x": ..., "armse_vel_y": ..., ...}}, "clairvoyant": {...},
+``--json`` writes ``{"policies": {NAME: {"armse_pos": ..., "armse_pos_x": ..., "armse_pos_y": ...,
+"armse_vel_x": ..., "armse_vel_y": ..., ...}}, "clairvoyant": {...}, "paired": {...},
 "meta": {...}}``.
+
+The best fixed TPM is searched on training runs whose seeds (``seed + 1_000_000 + r``) never
+overlap the evaluation seeds.
 """
 
 from __future__ import annotations
@@ -20,27 +25,21 @@ import argparse
 import json
 import platform
 import sys
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from .clairvoyant import clairvoyant_filter
 from .config import ConfigError, from_dict
-from .imm import IMM
-from .metrics import consistency, mode_accuracy, nees, tracking_errors, true_model_index
-from .models import MotionModel, paper_bank
-from .montecarlo import Batch, draw_batch
-from .scenarios import RandomFamily, Scenario, paper_scenario
-from .sensors import Sonar
-from .tpm import stay_tpm
+from .env_config import EnvConfig
+from .evaluation import Rollout, evaluation_config, paired_bootstrap, rollout, score
+from .metrics import tracking_errors
+from .montecarlo import draw_batch
+from .scenarios import Scenario
 
-Array = NDArray[np.float64]
-
-#: The paper's Table 2 (ARMSE; m and m/s), for side-by-side printing on the paper scenario.
+#: The paper's Table 2 (ARMSE; m and m/s), printed beside the paper scenario's results.
 PAPER_TABLE2 = {
     "paper: classical IMM": {
         "armse_pos": 18.3600,
@@ -58,111 +57,160 @@ PAPER_TABLE2 = {
     },
 }
 
-#: Stay probability of the paper preset's fixed TPM (SPEC §6).
-PAPER_STAY = 0.995
+BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window")
+TRAIN_SEED_OFFSET = 1_000_000
+TRAIN_RUNS = 100
 
 
-@dataclass(frozen=True)
-class PolicyRun:
-    """A policy's estimates over a batch: ``x (R, K, n)``, ``P (R, K, n, n)``,
-    ``mode_probs (R, K, M)``, ``nis (R, K)`` and the detection mask ``(R, K)``."""
-
-    x: Array
-    P: Array
-    mode_probs: Array
-    nis: Array
-    detected: NDArray[np.bool_]
-
-
-def run_fixed_tpm(batch: Batch, imm: IMM, tpm: Array) -> PolicyRun:
-    """Classical IMM: the same TPM at every step."""
-    det = batch.measurements.detected[:, 1:]
-    res = imm.run(batch.measurements.z[:, 1:], tpm, batch.x0, batch.P0, detected=det)
-    return PolicyRun(res.x, res.P, res.mode_probs, res.nis, det)
-
-
-PolicyRunner = Callable[[Batch, IMM], PolicyRun]
-
-
-def builtin_policies(n_models: int) -> dict[str, PolicyRunner]:
-    """Policies available by name."""
-    return {
-        "fixed": lambda batch, imm: run_fixed_tpm(batch, imm, stay_tpm(n_models, PAPER_STAY)),
-    }
-
-
-def score(
-    run: PolicyRun, batch: Batch, models: Sequence[MotionModel], dim_z: int
-) -> dict[str, Any]:
-    """Table-2 errors, consistency and mode accuracy of one policy on a batch."""
-    truth = batch.truth.states[:, 1:]
-    out: dict[str, Any] = tracking_errors(run.x, truth)
-    out["nis"] = consistency(run.nis, dim_z, mask=run.detected)
-    out["nees"] = consistency(nees(run.x, run.P, truth), 4)
-    out["mode_accuracy"] = mode_accuracy(run.mode_probs, true_model_index(batch.truth, models))
-    return out
-
-
-def load_source(name: str) -> Scenario | RandomFamily:
+def load_source(name: str) -> str | Scenario:
     """``paper``, ``random`` or a JSON file holding a :class:`Scenario` (``segments`` list...)."""
-    if name == "paper":
-        return paper_scenario()
-    if name == "random":
-        return RandomFamily()
+    if name in ("paper", "random"):
+        return name
     path = Path(name)
     if not path.is_file():
         raise ConfigError(
             f"--scenario must be 'paper', 'random' or a JSON file; {name!r} is neither"
         )
-    data = json.loads(path.read_text())
-    if "segments" in data:
-        data = {**data, "segments": tuple(data["segments"])}
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"scenario file {name}: not valid JSON ({err})") from None
     return from_dict(Scenario, data, f"scenario file {name}")
+
+
+def make_policy(
+    name: str, base: EnvConfig, seed: int, train_runs: int = TRAIN_RUNS
+) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+    """``(policy, env_overrides, notes)`` for a policy name or a saved SB3 model path."""
+    from baselines import FixedTPM, best_fixed_stay, make_baseline
+
+    M = len(base.bank)
+    if name == "best-fixed":
+
+        def armse(stay: float) -> float:
+            policy = FixedTPM(M, stay)
+            cfg = evaluation_config(base, policy.env_overrides)
+            return score(rollout(policy, cfg, train_runs, seed + TRAIN_SEED_OFFSET))["armse_pos"]
+
+        stay, grid = best_fixed_stay(armse)
+        policy = FixedTPM(M, stay)
+        notes = {
+            "stay": stay,
+            "search": {f"{p:.4f}": v for p, v in grid.items()},
+            "train_runs": train_runs,
+            "train_seeds": f"{seed + TRAIN_SEED_OFFSET}..{seed + TRAIN_SEED_OFFSET + train_runs - 1}",  # noqa: E501
+        }
+        return policy, policy.env_overrides, notes
+    if name in BUILTIN_POLICIES:
+        policy = make_baseline(name, M)
+        return policy, policy.env_overrides, {}
+    path = Path(name)
+    if path.suffix == ".zip" or path.is_file():
+        return load_sb3_policy(path)
+    raise ConfigError(
+        f"unknown policy {name!r}: use one of {list(BUILTIN_POLICIES)} or a saved SB3 model (.zip)"
+    )
+
+
+def load_sb3_policy(path: Path) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+    """A saved SB3 model and the environment overrides stored beside it (``<model>.env.json``)."""
+    if not path.is_file():
+        raise ConfigError(f"policy file {str(path)!r} does not exist")
+    from stable_baselines3 import PPO
+
+    model = PPO.load(path, device="cpu")
+    sidecar = path.with_suffix(".env.json")
+    overrides = json.loads(sidecar.read_text()) if sidecar.is_file() else {}
+    return model, overrides, {"path": str(path)}
 
 
 def evaluate(
     policies: Sequence[str],
-    source: Scenario | RandomFamily,
+    scenario: str | Scenario,
     runs: int,
     seed: int,
-    filter: str = "ukf",
+    reference: str | None = None,
     clairvoyant: bool = True,
-) -> dict[str, Any]:
-    """Score ``policies`` on R common-random-number runs of ``source``; see the module docstring."""
-    sensor = Sonar()
-    models = paper_bank()
-    imm = IMM(models, sensor, filter=filter)
-    available = builtin_policies(len(models))
-    unknown = [p for p in policies if p not in available]
-    if unknown:
-        raise ConfigError(f"unknown policy {unknown}; available: {sorted(available)}")
-    batch = draw_batch(source, sensor, runs, seed)
+    progress: bool = False,
+) -> tuple[dict[str, Any], dict[str, Rollout]]:
+    """Score ``policies`` on R common-random-number runs; see the module docstring."""
+    base = EnvConfig(scenario=scenario)
+    if len(set(policies)) != len(policies):
+        raise ConfigError(f"--policy given twice: {list(policies)}")
+    made = {name: make_policy(name, base, seed) for name in policies}
+    rollouts: dict[str, Rollout] = {}
     results: dict[str, Any] = {"policies": {}}
-    for name in policies:
-        results["policies"][name] = score(available[name](batch, imm), batch, models, sensor.dim_z)
+    bar = _progress_bar(len(policies) * base.source.horizon, progress)
+    for name, (policy, overrides, notes) in made.items():
+        cfg = evaluation_config(base, overrides)
+        done = [0]
+
+        def tick(k: int, done: list[int] = done) -> None:
+            bar.update(k - done[0])
+            done[0] = k
+
+        rollouts[name] = rollout(policy, cfg, runs, seed, progress=tick)
+        results["policies"][name] = {**score(rollouts[name]), **notes}
+    bar.close()
+    ref = reference or ("fixed" if "fixed" in rollouts else next(iter(rollouts)))
+    if ref not in rollouts:
+        raise ConfigError(f"--reference {ref!r} is not among the evaluated policies")
+    results["paired"] = {
+        "reference": ref,
+        "differences": {
+            name: paired_bootstrap(r.squared_position_error, rollouts[ref].squared_position_error)
+            for name, r in rollouts.items()
+            if name != ref
+        },
+    }
     if clairvoyant:
-        xs, _ = clairvoyant_filter(
-            batch.truth,
-            batch.measurements.z[:, 1:],
-            sensor,
-            models,
-            batch.x0,
-            batch.P0,
-            filter,
-            batch.measurements.detected[:, 1:],
-        )
-        results["clairvoyant"] = tracking_errors(xs, batch.truth.states[:, 1:])
+        results["clairvoyant"] = clairvoyant_bound(base, runs, seed)
     results["meta"] = {
+        "scenario": scenario if isinstance(scenario, str) else "file",
         "runs": runs,
         "seed": seed,
-        "steps": batch.horizon,
-        "filter": filter,
+        "seeds": f"{seed}..{seed + runs - 1}",
+        "steps": base.source.horizon,
+        "filter": base.filter,
         "versions": _versions(),
     }
-    return results
+    return results, rollouts
+
+
+def clairvoyant_bound(base: EnvConfig, runs: int, seed: int) -> dict[str, float]:
+    """The clairvoyant filter's errors on the same runs (same seeds, same draws)."""
+    batch = draw_batch(base.source, base.sensor, runs, seed, base.velocity_std)
+    xs, _ = clairvoyant_filter(
+        batch.truth,
+        batch.measurements.z[:, 1:],
+        base.sensor,
+        base.bank,
+        batch.x0,
+        batch.P0,
+        base.filter,
+        batch.measurements.detected[:, 1:],
+    )
+    return tracking_errors(xs, batch.truth.states[:, 1:])
+
+
+class _NoBar:
+    def update(self, n: int) -> None:
+        """No progress display."""
+
+    def close(self) -> None:
+        """No progress display."""
+
+
+def _progress_bar(total: int, enabled: bool) -> Any:
+    if not enabled:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="evaluating", unit="step", leave=False)
 
 
 def _versions() -> dict[str, str]:
+    import gymnasium
     import scipy
 
     from . import __version__
@@ -171,6 +219,7 @@ def _versions() -> dict[str, str]:
         "imm_gym": __version__,
         "numpy": np.__version__,
         "scipy": scipy.__version__,
+        "gymnasium": gymnasium.__version__,
         "python": platform.python_version(),
     }
 
@@ -184,36 +233,54 @@ TABLE_COLUMNS = (
 )
 
 
-def print_table(results: dict[str, Any], scenario: str) -> None:
-    """Print the Table-2 layout with rich."""
+def render_tables(results: dict[str, Any]) -> None:
+    """Print the Table-2 layout and the paired differences with rich."""
     from rich.console import Console
     from rich.table import Table
 
     meta = results["meta"]
+    console = Console(width=None if sys.stdout.isatty() else 150)
     table = Table(
-        title=f"ARMSE on scenario '{scenario}', {meta['runs']} runs, seed {meta['seed']}, "
+        title=f"ARMSE, scenario '{meta['scenario']}', {meta['runs']} runs (seeds {meta['seeds']}), "
         f"{meta['steps']} steps, {meta['filter'].upper()}"
     )
     table.add_column("policy")
     for _, label in TABLE_COLUMNS:
         table.add_column(label, justify="right")
-    for label in ("NIS in 95%", "NEES in 95%", "mode acc."):
+    for label in ("NIS ≤ χ²95", "NEES ≤ χ²95", "mode acc.", "diverged"):
         table.add_column(label, justify="right")
     for name, r in results["policies"].items():
+        label = f"{name} (stay {r['stay']:.3g})" if "stay" in r else name
         table.add_row(
-            name,
+            label,
             *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS),
             f"{100 * r['nis']['inside']:.1f}%",
             f"{100 * r['nees']['inside']:.1f}%",
             f"{100 * r['mode_accuracy']:.1f}%",
+            str(r["diverged"]),
         )
     if "clairvoyant" in results:
         c = results["clairvoyant"]
-        table.add_row("clairvoyant (bound)", *(f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS), "", "", "")
-    if scenario == "paper":
+        table.add_row(
+            "clairvoyant (bound)", *(f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim"
+        )
+    if meta["scenario"] == "paper":
         for name, r in PAPER_TABLE2.items():
-            table.add_row(name, *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS), "", "", "", style="dim")
-    Console(width=None if sys.stdout.isatty() else 150).print(table)
+            table.add_row(name, *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
+    console.print(table)
+    paired = results["paired"]
+    if paired["differences"]:
+        diff = Table(title=f"Position ARMSE minus {paired['reference']}'s, 95% paired bootstrap CI")
+        for col in ("policy", "difference (m)", "95% CI (m)", "relative"):
+            diff.add_column(col, justify="right" if col != "policy" else "left")
+        for name, d in paired["differences"].items():
+            diff.add_row(
+                name,
+                f"{d['diff']:+.3f}",
+                f"[{d['low']:+.3f}, {d['high']:+.3f}]",
+                f"{100 * d['relative']:+.2f}%",
+            )
+        console.print(diff)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -225,14 +292,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--policy",
         action="append",
         required=True,
-        help="policy to evaluate (repeatable); available: fixed",
+        help=f"policy to evaluate (repeatable): {', '.join(BUILTIN_POLICIES)} or an SB3 .zip",
     )
     parser.add_argument("--scenario", default="paper", help="paper | random | a scenario JSON file")
     parser.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="run r uses seed + r (default 0)")
-    parser.add_argument("--filter", choices=("ukf", "ekf"), default="ukf")
+    parser.add_argument("--reference", help="policy the paired differences are taken against")
     parser.add_argument("--json", type=Path, help="write the results to this JSON file")
+    parser.add_argument("--plots", type=Path, help="write PNG figures to this directory")
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -244,18 +313,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
     try:
-        source = load_source(args.scenario)
-        results = evaluate(
-            args.policy, source, args.runs, args.seed, args.filter, not args.no_clairvoyant
+        results, rollouts = evaluate(
+            args.policy,
+            load_source(args.scenario),
+            args.runs,
+            args.seed,
+            reference=args.reference,
+            clairvoyant=not args.no_clairvoyant,
+            progress=not args.quiet and sys.stderr.isatty(),
         )
     except ConfigError as err:
         parser.error(str(err))
     results["meta"]["scenario"] = args.scenario
     results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
-    print_table(results, args.scenario)
+    render_tables(results)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))
+    if args.plots:
+        from .plots import write_figures
+
+        for path in write_figures(rollouts, args.plots, results["meta"]):
+            print(f"wrote {path}")
     return 0
 
 

@@ -81,8 +81,8 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     ## Info
     ``true_state``, ``true_model`` (bank index of the true motion, −1 if none), ``estimate``,
-    ``position_error``, ``shadow_position_error``, ``mode_probs``, ``loglik``, ``model_nis``,
-    ``nis``, ``detected``, ``tpm``, ``step``, ``diverged``, ``reward_*``.
+    ``covariance``, ``position_error``, ``shadow_position_error``, ``mode_probs``, ``loglik``,
+    ``model_nis``, ``nis``, ``detected``, ``tpm``, ``step``, ``diverged``, ``reward_*``.
 
     ## Seeding
     ``reset(seed=s)`` derives two streams from ``s`` — scenario and sensor noise — so two

@@ -1,0 +1,93 @@
+"""AMP-IMM (seed 003 §3.1): TPM adapted by the ratio of error compression ratios.
+
+Seed 003 lost its equations in extraction; this is the standard construction of that family
+(Zhang Rongchun et al.'s AMP-IFIMM generalized to M models), written down here so it can be
+checked. The error compression ratio of model j is ``lambda_j = mu_j(k) / cbar_j(k)`` — the
+posterior over the predicted model probability, which equals ``Lambda_j / sum_l Lambda_l cbar_l``
+— so the ratio of ratios is the likelihood ratio ``d_ij = lambda_j / lambda_i = Lambda_j /
+Lambda_i``. The adapted TPM scales the switching probabilities and keeps rows stochastic:
+
+    pi_ij' = d_ij pi_ij  (j != i),     pi_ii' = 1 - sum_{j != i} pi_ij'.
+
+Seed 003's guard: the adapted TPM is accepted only if every diagonal entry exceeds 0.6 (a stay
+probability below 0.5 would describe a transient, not a motion mode); otherwise the TPM is kept.
+The likelihoods come from the observation feature ``loglik`` (log-likelihoods relative to the best
+model, clipped to ``[-loglik_clip, 0]``), the current TPM from the feature ``tpm``; the new TPM is
+set through the ``set`` action (row logits ``log pi'``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .base import Baseline, Obs
+
+
+class AMPIMM(Baseline):
+    """Error-compression-ratio adaptive TPM with seed 003's diagonal guard.
+
+    Args:
+        n_models: M.
+        guard: minimum diagonal entry of an accepted TPM (seed 003: 0.6).
+        loglik_clip, logit_scale: must match the environment's (defaults 20 and 4).
+    """
+
+    name = "amp-imm"
+
+    def __init__(
+        self,
+        n_models: int = 3,
+        guard: float = 0.6,
+        loglik_clip: float = 20.0,
+        logit_scale: float = 4.0,
+    ) -> None:
+        super().__init__(n_models)
+        self.guard = guard
+        self.loglik_clip = loglik_clip
+        self.logit_scale = logit_scale
+        self.env_overrides = {
+            "action_mode": "set",
+            "logit_scale": logit_scale,
+            "loglik_clip": loglik_clip,
+            "obs_features": ("tpm", "loglik"),
+        }
+
+    def adapt(self, tpm: NDArray[np.float64], loglik: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The guarded AMP update of ``(N, M, M)`` TPMs given ``(N, M)`` log-likelihoods."""
+        M = self.n_models
+        d = np.exp(loglik[:, None, :] - loglik[:, :, None])  # d_ij = Lambda_j / Lambda_i
+        off = ~np.eye(M, dtype=bool)
+        new = np.where(off, tpm * d, 0.0)
+        diag = 1.0 - new.sum(axis=-1)
+        new[:, np.arange(M), np.arange(M)] = diag
+        accept = (diag > self.guard).all(axis=-1)
+        return np.where(accept[:, None, None], new, tpm)
+
+    def predict(
+        self,
+        observation: Obs,
+        state: Any = None,
+        episode_start: NDArray[np.bool_] | None = None,
+        deterministic: bool = True,
+    ) -> tuple[NDArray[np.float64], Any]:
+        obs = self._batch(observation)
+        M = self.n_models
+        tpm = self.feature(obs, "tpm").reshape(-1, M, M)
+        loglik = self.feature(obs, "loglik") * self.loglik_clip
+        new = self.adapt(tpm, loglik)
+        actions = tpm_to_logits(new, self.logit_scale).reshape(obs.shape[0], -1)
+        return (actions[0] if np.ndim(observation) == 1 else actions), state
+
+
+def tpm_to_logits(tpm: NDArray[np.float64], logit_scale: float) -> NDArray[np.float64]:
+    """``set`` actions whose row softmax is ``tpm``: ``a = (log pi - c) / logit_scale``.
+
+    Each row is centred (``c`` the midpoint of its log range) so the actions stay in [-1, 1]
+    whenever the row's largest/smallest ratio is below ``exp(2 logit_scale)``.
+    """
+    logp = np.log(np.maximum(tpm, 1e-300))
+    centre = 0.5 * (logp.max(axis=-1, keepdims=True) + logp.min(axis=-1, keepdims=True))
+    return (logp - centre) / logit_scale

@@ -1,0 +1,70 @@
+"""The policy protocol shared by the baselines and stable-baselines3 models.
+
+A policy maps a batch of observations to a batch of actions:
+``predict(obs, state=None, episode_start=None, deterministic=True) -> (actions, state)``, the
+signature of SB3's ``BasePolicy.predict``, so one evaluation path runs every policy. Rule memory
+(a window of past probabilities, say) lives in ``state``, reset where ``episode_start`` is True.
+
+A baseline also declares the environment settings it needs (``env_overrides``: the action mode,
+observation features, the parallel bank...). The evaluation applies them to the common
+configuration; scenario and sensor stay shared, so every policy sees the same targets and noise.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+Obs = NDArray[np.float32]
+
+
+class Policy(Protocol):
+    """What :func:`imm_gym.evaluation.rollout` needs from a policy."""
+
+    def predict(
+        self,
+        observation: Obs,
+        state: Any = None,
+        episode_start: NDArray[np.bool_] | None = None,
+        deterministic: bool = True,
+    ) -> tuple[NDArray[Any], Any]: ...
+
+
+class Baseline:
+    """Base class of the rule-based policies.
+
+    Attributes:
+        name: the policy's name in the evaluation tool.
+        n_models: M, the number of models of the bank.
+        env_overrides: :class:`~imm_gym.EnvConfig` fields this policy needs.
+    """
+
+    name = "baseline"
+
+    def __init__(self, n_models: int = 3) -> None:
+        self.n_models = n_models
+        self.env_overrides: dict[str, Any] = {}
+
+    def _batch(self, observation: Obs) -> NDArray[np.float64]:
+        obs = np.asarray(observation, dtype=np.float64)
+        return obs[None] if obs.ndim == 1 else obs
+
+    def mode_probs(
+        self, obs: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``mu(t)`` and ``mu(t-1)``: the first 2M observation entries."""
+        M = self.n_models
+        return obs[:, :M], obs[:, M : 2 * M]
+
+    def feature(self, obs: NDArray[np.float64], name: str) -> NDArray[np.float64]:
+        """An optional observation block by name (the policy's ``obs_features`` order)."""
+        M = self.n_models
+        sizes = {"tpm": M * M, "loglik": M, "nis": M, "bank_b": M, "time": 1}
+        start = 2 * M
+        for f in self.env_overrides.get("obs_features", ()):
+            if f == name:
+                return obs[:, start : start + sizes[f]]
+            start += sizes[f]
+        raise KeyError(f"{self.name} needs the observation feature {name!r}")

@@ -1,0 +1,67 @@
+"""TIP-IMM (seed 000): the temporal-information TPM rule with parallel banks (SPEC §4, §6)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.tip import tip_factors
+
+from .base import Baseline, Obs
+
+
+class TIPIMM(Baseline):
+    """The TIP-IMM rule as a ``scale`` action: ``a_ij = log(f_ij) / log(max_factor)``.
+
+    ``f`` are the factors of :func:`imm_gym.tip.tip_factors` on ``mu(t)``, ``mu(t-1)`` (the
+    observation's first blocks: with the parallel bank on, the fused probabilities ``U``). The
+    environment settings that make this TIP-IMM are part of the policy: bank B with the fixed TPM
+    and entropy fusion with feedback (``parallel=True``), the TPM floor ``p_min = 0.05``.
+
+    Args:
+        n_models: M.
+        alpha, beta: growth and shrink factors (SPEC §6: 1.1, 0.9).
+        reading: ``"literal"`` (default) or ``"intent"`` for the ambiguous case.
+        floor: the TPM floor (0.05; 0 reproduces the paper's rule as printed, which fails).
+        parallel: run the parallel bank with entropy fusion.
+        max_factor: the environment's ``scale`` range (must exceed ``alpha`` and ``1/beta``).
+    """
+
+    name = "tip-imm"
+
+    def __init__(
+        self,
+        n_models: int = 3,
+        alpha: float = 1.1,
+        beta: float = 0.9,
+        reading: str = "literal",
+        floor: float = 0.05,
+        parallel: bool = True,
+        max_factor: float = 2.0,
+    ) -> None:
+        super().__init__(n_models)
+        if not (alpha <= max_factor and 1.0 / beta <= max_factor):
+            raise ValueError(f"max_factor={max_factor} cannot express alpha={alpha}, beta={beta}")
+        self.alpha, self.beta, self.reading = alpha, beta, reading
+        self.max_factor = max_factor
+        self.env_overrides = {
+            "action_mode": "scale",
+            "max_factor": max_factor,
+            "p_min": floor,
+            "parallel": parallel,
+        }
+
+    def predict(
+        self,
+        observation: Obs,
+        state: Any = None,
+        episode_start: NDArray[np.bool_] | None = None,
+        deterministic: bool = True,
+    ) -> tuple[NDArray[np.float64], Any]:
+        obs = self._batch(observation)
+        mu_now, mu_prev = self.mode_probs(obs)
+        f = tip_factors(mu_now, mu_prev, self.alpha, self.beta, self.reading)
+        actions = (np.log(f) / np.log(self.max_factor)).reshape(obs.shape[0], -1)
+        return (actions[0] if np.ndim(observation) == 1 else actions), state
