@@ -31,7 +31,6 @@ def write_figures(rollouts: dict[str, Rollout], out_dir: Path, meta: dict[str, A
     ax.plot(first.truth[0, :, 0], first.truth[0, :, 1], "k-", lw=2, label="truth")
     for name, r in rollouts.items():
         ax.plot(r.estimate[0, :, 0], r.estimate[0, :, 1], lw=1, label=name)
-    ax.plot(0.0, 0.0, "k^", label="sonar")
     ax.set(xlabel="x (m)", ylabel="y (m)", title=f"Trajectory, run 0 ({meta['scenario']})")
     ax.axis("equal")
     ax.legend()

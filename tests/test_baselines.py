@@ -1,0 +1,171 @@
+"""Baseline policies: the predict protocol, SB3's evaluate_policy, the rules by hand, and the
+paper-scenario results of SPEC §6 (TIP-IMM beats classical IMM only with its TPM floor)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.monitor import Monitor
+
+import imm_gym  # noqa: F401  (registers the ids)
+from baselines import AMPIMM, BASELINES, TIPIMM, FixedTPM, SlidingWindowTPM, make_baseline
+from baselines.amp_imm import tpm_to_logits
+from imm_gym import EnvConfig, TrackingCore
+from imm_gym.evaluation import evaluation_config, paired_bootstrap, rollout, score
+from imm_gym.tip import tip_factors
+from imm_gym.tpm import stay_tpm
+
+PAPER = EnvConfig(scenario="paper")
+
+
+def _env_for(policy, env_id: str = "imm_gym/TPMAdaptPaper-v0") -> gym.Env:
+    return gym.make(env_id, **policy.env_overrides)
+
+
+@pytest.mark.parametrize("name", sorted(BASELINES))
+def test_predict_protocol_batched_and_single(name: str) -> None:
+    policy = make_baseline(name)
+    env = _env_for(policy)
+    obs, _ = env.reset(seed=0)
+    batch = np.stack([obs, obs, obs])
+    actions, _ = policy.predict(batch, state=None, episode_start=np.ones(3, bool))
+    assert actions.shape == (3, 9)
+    assert np.all(np.isfinite(actions)) and np.all(np.abs(actions) <= 1.0 + 1e-12)
+    single, _ = policy.predict(obs)
+    assert single.shape == (9,)
+    np.testing.assert_allclose(single, actions[0])
+    env.step(single)
+
+
+@pytest.mark.parametrize("name", sorted(BASELINES))
+def test_runs_through_sb3_evaluate_policy(name: str) -> None:
+    policy = make_baseline(name)
+    env = Monitor(_env_for(policy))
+    mean, std = evaluate_policy(policy, env, n_eval_episodes=2, deterministic=True)
+    assert np.isfinite(mean) and np.isfinite(std)
+
+
+def test_fixed_policy_is_classical_imm_with_zero_reward() -> None:
+    policy = FixedTPM()
+    env = _env_for(policy)
+    obs, _ = env.reset(seed=3)
+    total, done = 0.0, False
+    while not done:
+        action, _ = policy.predict(obs)
+        obs, reward, term, trunc, info = env.step(action)
+        np.testing.assert_array_equal(info["tpm"], stay_tpm(3, 0.995))
+        total += reward
+        done = term or trunc
+    assert total == 0.0  # the shadow tracker is the same classical IMM
+
+
+def test_tip_policy_applies_the_rule_through_the_env() -> None:
+    policy = TIPIMM()
+    cfg = EnvConfig.build({"scenario": "paper", **policy.env_overrides})
+    core = TrackingCore(cfg, 1)
+    core.reset(np.array([0]), [7])
+    obs = core.observe()
+    for _ in range(30):
+        before = core.tpm.copy()
+        action, _ = policy.predict(obs)
+        mu_now, mu_prev = obs[:, :3].astype(np.float64), obs[:, 3:6].astype(np.float64)
+        expected = before * tip_factors(mu_now, mu_prev, 1.1, 0.9, "literal")
+        expected /= expected.sum(axis=-1, keepdims=True)
+        result = core.step(action)
+        obs = result.obs
+        if expected.min() >= 0.05:  # the floor did not bind: the rule alone
+            np.testing.assert_allclose(core.tpm, expected, rtol=1e-12)
+        assert core.tpm.min() >= 0.05 - 1e-12
+        np.testing.assert_allclose(core.tpm.sum(axis=-1), 1.0, atol=1e-12)
+
+
+def test_amp_update_and_guard_by_hand() -> None:
+    amp = AMPIMM()
+    tpm = np.array([[[0.9, 0.05, 0.05], [0.05, 0.9, 0.05], [0.05, 0.05, 0.9]]])
+    loglik = np.log(np.array([[1.0, 2.0, 0.5]]))  # Lambda_j
+    new = amp.adapt(tpm, loglik)
+    d = np.array([[1, 2, 0.5], [0.5, 1, 0.25], [2, 4, 1]])  # Lambda_j / Lambda_i
+    off = tpm[0] * d
+    expected = off.copy()
+    for i in range(3):
+        expected[i, i] = 1.0 - (off[i].sum() - off[i, i])
+    # row 2's diagonal 1 - 0.1 - 0.2 = 0.7 > 0.6 and row 0's 0.85: all accepted
+    np.testing.assert_allclose(new[0], expected, rtol=1e-12)
+    # a strong likelihood ratio pushes a diagonal below 0.6: the TPM is kept
+    big = np.log(np.array([[1.0, 10.0, 1.0]]))
+    np.testing.assert_array_equal(amp.adapt(tpm, big), tpm)
+
+
+def test_tpm_to_logits_round_trips_through_set_mode() -> None:
+    cfg = EnvConfig(scenario="paper", action_mode="set", p_min=1e-3)
+    core = TrackingCore(cfg, 1)
+    core.reset(np.array([0]), [0])
+    target = np.array([[[0.7, 0.2, 0.1], [0.05, 0.9, 0.05], [0.3, 0.3, 0.4]]])
+    got = core.tpm_from_action(tpm_to_logits(target, cfg.logit_scale).reshape(1, -1))
+    np.testing.assert_allclose(got, target, rtol=1e-12)
+
+
+def test_window_estimate_by_hand_and_episode_reset() -> None:
+    w = SlidingWindowTPM(window=2, kappa=1.0, prior_stay=0.8)
+    mu = [np.array([0.6, 0.3, 0.1]), np.array([0.5, 0.4, 0.1]), np.array([0.2, 0.7, 0.1])]
+    obs1 = np.concatenate([mu[1], mu[0]])[None]
+    obs2 = np.concatenate([mu[2], mu[1]])[None]
+    _, state = w.predict(obs1, None, np.array([True]))
+    actions, state = w.predict(obs2, state, np.array([False]))
+    counts = np.outer(mu[0], mu[1]) + np.outer(mu[1], mu[2])
+    expected = stay_tpm(3, 0.8) + counts
+    expected /= expected.sum(axis=-1, keepdims=True)
+    np.testing.assert_allclose(actions[0], tpm_to_logits(expected[None], 4.0)[0].ravel())
+    # a new episode forgets the window
+    fresh, _ = w.predict(obs2, state, np.array([True]))
+    only = stay_tpm(3, 0.8) + np.outer(mu[1], mu[2])
+    only /= only.sum(axis=-1, keepdims=True)
+    np.testing.assert_allclose(fresh[0], tpm_to_logits(only[None], 4.0)[0].ravel())
+
+
+def test_paired_bootstrap_against_explicit_resampling() -> None:
+    rng = np.random.default_rng(1)
+    a = rng.gamma(2.0, 100.0, (40, 30))
+    b = a * 1.1 + rng.gamma(2.0, 5.0, (40, 30))
+    out = paired_bootstrap(a, b, n_boot=400, seed=3)
+    armse = lambda e: np.sqrt(e.mean(axis=0)).mean()  # noqa: E731
+    assert out["diff"] == pytest.approx(armse(a) - armse(b))
+    w = np.random.default_rng(3).multinomial(40, np.full(40, 1 / 40), size=400)
+    boots = [armse(np.repeat(a, c, axis=0)) - armse(np.repeat(b, c, axis=0)) for c in w]
+    assert out["low"] == pytest.approx(np.quantile(boots, 0.025), rel=1e-9)
+    assert out["high"] == pytest.approx(np.quantile(boots, 0.975), rel=1e-9)
+    same = paired_bootstrap(a, a, n_boot=50)
+    assert same["diff"] == same["low"] == same["high"] == 0.0
+
+
+@pytest.fixture(scope="module")
+def paper_fixed():
+    policy = FixedTPM()
+    return rollout(policy, evaluation_config(PAPER, policy.env_overrides), 100, 0)
+
+
+def test_paper_tip_imm_beats_classical_by_5_to_9_percent(paper_fixed) -> None:
+    policy = TIPIMM()
+    tip = rollout(policy, evaluation_config(PAPER, policy.env_overrides), 100, 0)
+    classical = score(paper_fixed)["armse_pos"]
+    assert classical == pytest.approx(18.4, rel=0.03)
+    d = paired_bootstrap(tip.squared_position_error, paper_fixed.squared_position_error)
+    assert -0.09 <= d["relative"] <= -0.05
+    assert d["high"] < 0.0  # the CI excludes zero
+
+
+@pytest.mark.parametrize("reading", ["literal", "intent"])
+def test_paper_tip_imm_without_floor_loses_to_classical(paper_fixed, reading: str) -> None:
+    policy = TIPIMM(floor=0.0, reading=reading)
+    tip = rollout(policy, evaluation_config(PAPER, policy.env_overrides), 100, 0)
+    d = paired_bootstrap(tip.squared_position_error, paper_fixed.squared_position_error)
+    assert d["diff"] > 0.0 and d["low"] > 0.0
+
+
+def test_uniform_tpm_is_the_best_fixed_choice_on_the_paper_scenario(paper_fixed) -> None:
+    uniform = FixedTPM(stay=1 / 3)
+    r = rollout(uniform, evaluation_config(PAPER, uniform.env_overrides), 100, 0)
+    assert score(r)["armse_pos"] == pytest.approx(16.7, rel=0.03)
+    assert score(r)["armse_pos"] < score(paper_fixed)["armse_pos"]

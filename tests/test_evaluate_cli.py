@@ -1,0 +1,93 @@
+"""The evaluation tool: command line, JSON layout, common random numbers, figures, errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from imm_gym.evaluate import evaluate, main
+
+
+def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:
+    out = tmp_path / "res.json"
+    figs = tmp_path / "figs"
+    code = main(
+        [
+            "--policy",
+            "fixed",
+            "--policy",
+            "tip-imm",
+            "--scenario",
+            "paper",
+            "--runs",
+            "6",
+            "--seed",
+            "3",
+            "--json",
+            str(out),
+            "--plots",
+            str(figs),
+            "--quiet",
+        ]
+    )
+    assert code == 0
+    data = json.loads(out.read_text())
+    for name in ("fixed", "tip-imm"):
+        row = data["policies"][name]
+        for key in ("armse_pos", "armse_pos_x", "armse_pos_y", "armse_vel_x", "armse_vel_y"):
+            assert np.isfinite(row[key]) and row[key] > 0
+        assert 0.0 <= row["nis"]["inside"] <= 1.0 and 0.0 <= row["mode_accuracy"] <= 1.0
+    assert data["paired"]["reference"] == "fixed"
+    d = data["paired"]["differences"]["tip-imm"]
+    assert d["low"] <= d["diff"] <= d["high"]
+    assert data["clairvoyant"]["armse_pos"] < data["policies"]["fixed"]["armse_pos"]
+    assert data["meta"]["runs"] == 6 and data["meta"]["seeds"] == "3..8"
+    for png in ("trajectory.png", "mode_probs.png", "rmse.png"):
+        assert (figs / png).stat().st_size > 1000
+    printed = capsys.readouterr().out
+    assert "paper: TIP-IMM" in printed and "17.0247" in printed
+
+
+def test_common_random_numbers_across_policies() -> None:
+    _, rollouts = evaluate(["fixed", "window", "amp-imm"], "random", 4, 11, clairvoyant=False)
+    truths = [r.truth for r in rollouts.values()]
+    for t in truths[1:]:
+        np.testing.assert_array_equal(t, truths[0])
+    dets = [r.detected for r in rollouts.values()]
+    for d in dets[1:]:
+        np.testing.assert_array_equal(d, dets[0])
+
+
+def test_scenario_file(tmp_path) -> None:
+    path = tmp_path / "scen.json"
+    path.write_text(
+        json.dumps(
+            {
+                "segments": [{"duration": 30}, {"duration": 20, "turn_rate_deg": 2.0}],
+                "position": [4000.0, 1000.0],
+                "velocity": [-10.0, 12.0],
+            }
+        )
+    )
+    assert main(["--policy", "fixed", "--scenario", str(path), "--runs", "3", "--quiet"]) == 0
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--policy", "nope"], "unknown policy"),
+        (["--policy", "fixed", "--runs", "0"], "--runs must be >= 1"),
+        (["--policy", "fixed", "--seed", "-1"], "--seed must be >= 0"),
+        (["--policy", "fixed", "--scenario", "missing.json"], "--scenario must be"),
+        (["--policy", "fixed", "--policy", "fixed"], "given twice"),
+        (["--policy", "fixed", "--reference", "tip-imm"], "--reference"),
+        (["--policy", "missing_model.zip"], "does not exist"),
+    ],
+)
+def test_cli_rejects_bad_arguments(argv, message, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--quiet"])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
