@@ -1,16 +1,351 @@
-"""The main job: train a PPO agent to adapt the IMM's TPM, then evaluate it against the baselines.
+"""The main job: train PPO to adapt the IMM's TPM, then evaluate it against the baselines.
 
-Not implemented yet: training lands with the PPO issue. Until then this script says so and exits
-with status 2, so nobody mistakes it for a finished run. The tracking core and its evaluation are
-ready: ``python -m imm_gym.evaluate --policy fixed --scenario paper --runs 100 --seed 0``.
+    python train.py                      # defaults: imm_gym/TPMAdapt-v0, seed 0, ~15 min on 2 cores
+    python train.py --seed 0 1 2         # several training seeds: each reported, then mean ± std
+    python train.py --timesteps 200000 --out runs/quick
+    python train.py --resume runs/default/seed_0/checkpoints/latest
+
+Each seed writes ``OUT/seed_S/``: ``agent/`` (model, normalizer, env overrides), ``checkpoints/``,
+``tb/`` (TensorBoard), ``results.json``, ``report.md`` and ``plots/``. The evaluation compares the
+agent with classical IMM, TIP-IMM and the best fixed TPM on (a) the paper scenario (100 runs,
+seeds 0..99) and (b) held-out randomized scenarios (200 runs, seeds 0..199; training uses seeds
+from 100,000,000 on), with common random numbers and paired bootstrap CIs. ``OUT/summary.json``
+and ``OUT/report.md`` gather the seeds. Ctrl-C saves a checkpoint and exits cleanly.
 """
 
+from __future__ import annotations
+
+import argparse
+import json
+import platform
 import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from agents.training import set_threads
+
+BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
+ALGOS = ("ppo", "recurrent-ppo")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python train.py",
+        description="Train a PPO agent to adapt the IMM's TPM, then evaluate it.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("--env", default="imm_gym/TPMAdapt-v0", help="registered environment id")
+    p.add_argument("--algo", default="ppo", choices=ALGOS)
+    p.add_argument("--timesteps", type=int, help="training steps (default: the YAML entry's)")
+    p.add_argument("--seed", type=int, nargs="+", default=[0], help="training seed(s)")
+    p.add_argument("--config", type=Path, help="YAML file with hyperparameters overriding the entry")
+    p.add_argument("--out", type=Path, default=Path("runs/default"), help="output directory")
+    p.add_argument("--resume", type=Path, help="checkpoint directory to continue from")
+    p.add_argument("--checkpoint-every", type=int, default=250_000, help="steps between checkpoints")
+    p.add_argument("--paper-runs", type=int, default=100)
+    p.add_argument("--random-runs", type=int, default=200)
+    p.add_argument("--no-eval", action="store_true", help="train only")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    import gymnasium as gym
+
+    import imm_gym  # noqa: F401  (registers the ids)
+
+    if args.env not in gym.registry:
+        ids = sorted(k for k in gym.registry if k.startswith("imm_gym/"))
+        parser.error(f"--env {args.env!r} is not registered; available: {ids}")
+    if args.timesteps is not None and args.timesteps < 1:
+        parser.error(f"--timesteps must be >= 1, got {args.timesteps}")
+    if any(s < 0 for s in args.seed) or len(set(args.seed)) != len(args.seed):
+        parser.error(f"--seed values must be distinct non-negative integers, got {args.seed}")
+    if args.checkpoint_every < 1:
+        parser.error(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
+    if args.paper_runs < 1 or args.random_runs < 1:
+        parser.error("--paper-runs and --random-runs must be >= 1")
+    if args.config is not None and not args.config.is_file():
+        parser.error(f"--config file {str(args.config)!r} does not exist")
+    if args.resume is not None:
+        if not (args.resume / "model.zip").is_file():
+            parser.error(f"--resume {str(args.resume)!r} is not a checkpoint (model.zip missing)")
+        if len(args.seed) != 1:
+            parser.error("--resume continues one run: give a single --seed")
+
+
+def hyperparams(args: argparse.Namespace) -> dict[str, Any]:
+    import yaml
+
+    from agents.training import load_hyperparams
+
+    params = load_hyperparams(args.env, args.algo)
+    if args.config is not None:
+        extra = yaml.safe_load(args.config.read_text()) or {}
+        env_kwargs = {**params.get("env_kwargs", {}), **extra.pop("env_kwargs", {})}
+        params.update(extra)
+        params["env_kwargs"] = env_kwargs
+        if isinstance(params.get("policy_kwargs"), str):
+            from agents.training import _eval_policy_kwargs
+
+            params["policy_kwargs"] = _eval_policy_kwargs(params["policy_kwargs"])
+    if args.timesteps is not None:
+        params["n_timesteps"] = args.timesteps
+    params["n_timesteps"] = int(params["n_timesteps"])
+    return params
+
+
+def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_dir: Path) -> Any:
+    """Train (or resume) one seed; returns the trained agent's directory."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from agents.training import algo_kwargs, find_normalizer, make_training_env, save_agent
+
+    env_kwargs = dict(params.get("env_kwargs", {}))
+    frame_stack = int(params.get("frame_stack", 1))
+    gamma = float(params.get("gamma", 0.99))
+    env = make_training_env(
+        args.env, int(params["n_envs"]), seed, env_kwargs, bool(params.get("normalize", False)),
+        frame_stack, gamma,
+    )
+    algo_cls = _algo_class(args.algo)
+    ckpt_dir = run_dir / "checkpoints"
+    extra = {"env_id": args.env, "seed": seed}
+    if args.resume is not None:
+        model = algo_cls.load(args.resume / "model.zip", env=env, device="cpu")
+        _load_normalizer(find_normalizer(env), args.resume)
+        done = model.num_timesteps
+        print(f"resuming from {args.resume} at {done} steps")
+    else:
+        model = algo_cls(
+            params["policy"], env, seed=seed, device="cpu", verbose=0,
+            tensorboard_log=str(run_dir / "tb"), **algo_kwargs(params),
+        )
+        done = 0
+    remaining = max(params["n_timesteps"] - done, 0)
+
+    class Checkpoint(BaseCallback):
+        def __init__(self, every: int) -> None:
+            super().__init__()
+            self.every, self.next = every, done + every
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next:
+                self.next += self.every
+                save(ckpt_dir / "latest")
+            return True
+
+    def save(directory: Path) -> None:
+        save_agent(directory, model, env, env_kwargs, args.algo, frame_stack,
+                   {**extra, "num_timesteps": int(model.num_timesteps)})
+
+    start = time.perf_counter()
+    try:
+        model.learn(
+            remaining,
+            callback=Checkpoint(args.checkpoint_every),
+            progress_bar=not args.no_progress and sys.stderr.isatty(),
+            reset_num_timesteps=args.resume is None,
+            tb_log_name=f"{args.algo}_seed{seed}",
+        )
+    except KeyboardInterrupt:
+        save(ckpt_dir / "latest")
+        print(f"\ninterrupted: checkpoint saved to {ckpt_dir / 'latest'} "
+              f"({model.num_timesteps} steps); resume with --resume {ckpt_dir / 'latest'}")
+        raise SystemExit(130) from None
+    seconds = time.perf_counter() - start
+    save(ckpt_dir / "latest")
+    agent_dir = run_dir / "agent"
+    save_agent(agent_dir, model, env, env_kwargs, args.algo, frame_stack,
+               {**extra, "num_timesteps": int(model.num_timesteps)})
+    stats = {
+        "timesteps": int(model.num_timesteps),
+        "trained_this_call": remaining,
+        "seconds": seconds,
+        "fps": remaining / seconds if seconds > 0 else 0.0,
+    }
+    (run_dir / "training.json").write_text(json.dumps(stats, indent=2))
+    return agent_dir, stats
+
+
+def _algo_class(algo: str) -> Any:
+    if algo == "recurrent-ppo":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    from stable_baselines3 import PPO
+
+    return PPO
+
+
+def _load_normalizer(norm: Any, directory: Path) -> None:
+    import numpy as np
+
+    file = directory / "vecnormalize.json"
+    if norm is None or not file.is_file():
+        return
+    stats = json.loads(file.read_text())
+    norm.obs_rms.mean = np.array(stats["mean"])
+    norm.obs_rms.var = np.array(stats["var"])
+    norm.obs_rms.count = stats["count"]
+
+
+def evaluate_agent(agent_dir: Path, args: argparse.Namespace, run_dir: Path) -> dict[str, Any]:
+    """Paper scenario and held-out random scenarios, learned agent vs the baselines."""
+    from agents.policy import load_agent
+    from imm_gym.evaluate import evaluate, render_tables
+    from imm_gym.plots import write_figures
+
+    policy = load_agent(agent_dir)
+    out: dict[str, Any] = {}
+    for scenario, runs in (("paper", args.paper_runs), ("random", args.random_runs)):
+        results, rollouts = evaluate(
+            BASELINES_COMPARED, scenario, runs, seed=0, reference="best-fixed",
+            extra={"learned": (policy, policy.env_overrides)},
+        )
+        results["vs_tip_imm"] = _paired(rollouts, "learned", "tip-imm")
+        results["meta"]["scenario"] = scenario
+        render_tables(results)
+        write_figures(rollouts, run_dir / "plots" / scenario, results["meta"])
+        out[scenario] = results
+    return out
+
+
+def _paired(rollouts: dict[str, Any], a: str, b: str) -> dict[str, float]:
+    from imm_gym.evaluation import paired_bootstrap
+
+    return paired_bootstrap(rollouts[a].squared_position_error, rollouts[b].squared_position_error)
+
+
+def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None:
+    lines = [*header, ""]
+    for scenario in ("paper", "random"):
+        if scenario not in results:
+            continue
+        r = results[scenario]
+        meta = r["meta"]
+        lines += [
+            f"## {scenario} scenario — {meta['runs']} runs, seeds {meta['seeds']}",
+            "",
+            "| policy | pos ARMSE (m) | X (m) | Y (m) | vel X (m/s) | vel Y (m/s) |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        for name, row in r["policies"].items():
+            lines.append(f"| {name} | {row['armse_pos']:.3f} | {row['armse_pos_x']:.3f} | "
+                         f"{row['armse_pos_y']:.3f} | {row['armse_vel_x']:.3f} | "
+                         f"{row['armse_vel_y']:.3f} |")
+        c = r["clairvoyant"]
+        lines.append(f"| clairvoyant (bound) | {c['armse_pos']:.3f} | {c['armse_pos_x']:.3f} | "
+                     f"{c['armse_pos_y']:.3f} | {c['armse_vel_x']:.3f} | {c['armse_vel_y']:.3f} |")
+        lines += ["", "Paired differences of position ARMSE (95 % bootstrap CI):", ""]
+        for name, d in r["paired"]["differences"].items():
+            lines.append(f"- {name} − best-fixed: {d['diff']:+.3f} m [{d['low']:+.3f}, "
+                         f"{d['high']:+.3f}] ({100 * d['relative']:+.2f} %)")
+        d = r["vs_tip_imm"]
+        lines += [f"- learned − tip-imm: {d['diff']:+.3f} m [{d['low']:+.3f}, {d['high']:+.3f}] "
+                  f"({100 * d['relative']:+.2f} %)", ""]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    check_args(parser, args)
+    set_threads(1)
+    params = hyperparams(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
+    versions = _versions()
+    summary: dict[str, Any] = {"command": command, "versions": versions, "seeds": {}}
+    for seed in args.seed:
+        run_dir = args.out / f"seed_{seed}"
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.json").write_text(
+            json.dumps({"env": args.env, "algo": args.algo, "seed": seed,
+                        "hyperparams": _jsonable(params)}, indent=2, default=str)
+        )
+        agent_dir, stats = train_one(args, params, seed, run_dir)
+        print(f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
+              f"({stats['fps']:.0f} steps/s)")
+        entry: dict[str, Any] = {"training": stats}
+        if not args.no_eval:
+            results = evaluate_agent(agent_dir, args, run_dir)
+            entry.update(results)
+            (run_dir / "results.json").write_text(json.dumps(results, indent=2))
+            write_report(run_dir / "report.md", results, [
+                f"# {args.algo.upper()} on {args.env}, seed {seed}",
+                "",
+                f"Command: `{command}`. Training: {stats['timesteps']} steps in "
+                f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, SB3 on 1 thread).",
+                f"Versions: {versions}.",
+            ])
+        summary["seeds"][str(seed)] = entry
+    if not args.no_eval:
+        summary["across_seeds"] = _across_seeds(summary["seeds"])
+        _write_summary_report(args.out / "report.md", summary)
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _across_seeds(seeds: dict[str, Any]) -> dict[str, Any]:
+    import numpy as np
+
+    out: dict[str, Any] = {}
+    for scenario in ("paper", "random"):
+        learned = [s[scenario]["policies"]["learned"]["armse_pos"] for s in seeds.values()]
+        vs_best = [s[scenario]["paired"]["differences"]["learned"]["relative"]
+                   for s in seeds.values()]
+        vs_tip = [s[scenario]["vs_tip_imm"]["relative"] for s in seeds.values()]
+        out[scenario] = {
+            "armse_pos_mean": float(np.mean(learned)),
+            "armse_pos_std": float(np.std(learned, ddof=1)) if len(learned) > 1 else 0.0,
+            "relative_vs_best_fixed_mean": float(np.mean(vs_best)),
+            "relative_vs_tip_imm_mean": float(np.mean(vs_tip)),
+            "per_seed_armse_pos": learned,
+        }
+    return out
+
+
+def _write_summary_report(path: Path, summary: dict[str, Any]) -> None:
+    lines = ["# Training summary", "", f"Command: `{summary['command']}`", ""]
+    for scenario, s in summary["across_seeds"].items():
+        lines += [
+            f"## {scenario}",
+            "",
+            f"Learned position ARMSE over seeds: {s['armse_pos_mean']:.3f} ± "
+            f"{s['armse_pos_std']:.3f} m (per seed: "
+            f"{', '.join(f'{v:.3f}' for v in s['per_seed_armse_pos'])}); mean relative difference "
+            f"vs best fixed {100 * s['relative_vs_best_fixed_mean']:+.2f} %, vs TIP-IMM "
+            f"{100 * s['relative_vs_tip_imm_mean']:+.2f} %.",
+            "",
+        ]
+    path.write_text("\n".join(lines))
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def _versions() -> dict[str, str]:
+    import gymnasium
+    import numpy
+    import stable_baselines3
+    import torch
+
+    return {
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "gymnasium": gymnasium.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "torch": torch.__version__,
+    }
+
 
 if __name__ == "__main__":
-    print(
-        "train.py: training is not implemented yet (see the PPO issue).\n"
-        "Meanwhile: python -m imm_gym.evaluate --policy fixed --scenario paper --runs 100 --seed 0",
-        file=sys.stderr,
-    )
-    raise SystemExit(2)
+    raise SystemExit(main())

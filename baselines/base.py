@@ -17,6 +17,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.core import feature_sizes
+
 Obs = NDArray[np.float32]
 
 
@@ -61,7 +63,7 @@ class Baseline:
     def feature(self, obs: NDArray[np.float64], name: str) -> NDArray[np.float64]:
         """An optional observation block by name (the policy's ``obs_features`` order)."""
         M = self.n_models
-        sizes = {"tpm": M * M, "loglik": M, "nis": M, "bank_b": M, "time": 1}
+        sizes = feature_sizes(M, 2)
         start = 2 * M
         for f in self.env_overrides.get("obs_features", ()):
             if f == name:

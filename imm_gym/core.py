@@ -17,6 +17,8 @@ tpm             M*M     current TPM, row-major (feature ``tpm``)                
 loglik          M       ``(log Lambda_j - max_l log Lambda_l) / loglik_clip``,      -1     0
                         clipped (feature ``loglik``)
 nis             M       per-model NIS squashed ``nis / (nis + m)`` (feature ``nis``)  0      1
+innovation      M*m     per-model whitened innovations ``L_j^-1 nu_j`` clipped to     -1     1
+                        [-5, 5] and divided by 5, model-major (feature ``innovation``)
 bank_b          M       bank B's probabilities before fusion (feature ``bank_b``)   0      1
 time            1       ``k / K`` (feature ``time``)                                0      1
 ==============  ======  ==========================================================  =====  ====
@@ -40,6 +42,15 @@ from .seeding import streams
 from .tpm import apply_floor, stay_tpm
 
 Array = NDArray[np.float64]
+
+
+INNOVATION_CLIP = 5.0
+
+
+def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
+    """Length of each optional observation block."""
+    M = n_models
+    return {"tpm": M * M, "loglik": M, "nis": M, "innovation": M * dim_z, "bank_b": M, "time": 1}
 
 
 class ActionError(ValueError):
@@ -77,6 +88,8 @@ class TrackingCore:
         self.n = self.imm.n
         self.fixed_tpm = stay_tpm(M, config.initial_stay)
         self._fixed_batch = np.repeat(self.fixed_tpm[None], n_envs, axis=0)
+        shadow_stay = config.initial_stay if config.shadow_stay is None else config.shadow_stay
+        self._shadow_batch = np.repeat(stay_tpm(M, shadow_stay)[None], n_envs, axis=0)
         self._rows = np.arange(n_envs)
         self.horizon = config.source.horizon
         self.action_dim = M * M
@@ -100,14 +113,15 @@ class TrackingCore:
         self.mu_b = self.mu.copy()
         self.loglik = np.zeros((N, M))
         self.model_nis = np.zeros((N, M))
+        self.innovation = np.zeros((N, M, m))
 
     # ------------------------------------------------------------------ spaces
     def _observation_bounds(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         M = self.M
         lows, highs = [np.zeros(2 * M)], [np.ones(2 * M)]
-        sizes = {"tpm": M * M, "loglik": M, "nis": M, "bank_b": M, "time": 1}
+        sizes = feature_sizes(M, self.config.sensor.dim_z)
         for f in self.config.obs_features:
-            lows.append(np.full(sizes[f], -1.0 if f == "loglik" else 0.0))
+            lows.append(np.full(sizes[f], -1.0 if f in ("loglik", "innovation") else 0.0))
             highs.append(np.zeros(sizes[f]) if f == "loglik" else np.ones(sizes[f]))
         return (
             np.concatenate(lows).astype(np.float32),
@@ -167,6 +181,7 @@ class TrackingCore:
             "mu_b": init.mu,
             "loglik": 0.0,
             "model_nis": 0.0,
+            "innovation": 0.0,
             "k": 0,
             "done": False,
         }
@@ -259,7 +274,7 @@ class TrackingCore:
         }
         if cfg.shadow == "fixed":
             self.state_s, out_s = self.imm.step(
-                self.state_s, self._fixed_batch, z, det, check=False, allow_failure=True
+                self.state_s, self._shadow_batch, z, det, check=False, allow_failure=True
             )
             shadow_error = _position_error(out_s.x, truth)
             shadow_error = np.where(
@@ -280,6 +295,7 @@ class TrackingCore:
         self.mu = U
         self.loglik = out_a.loglik
         self.model_nis = out_a.model_nis
+        self.innovation = out_a.innovation
         truncated = (k1 >= self.horizon) & ~diverged
         self.done = diverged | truncated
         if before is not None:
@@ -288,7 +304,17 @@ class TrackingCore:
             info = {key: _finite(value) for key, value in info.items()}
         return StepResult(self.observe(), reward, diverged, truncated, info)
 
-    _SLOT_ARRAYS = ("k", "done", "tpm", "mu", "mu_prev", "mu_b", "loglik", "model_nis")
+    _SLOT_ARRAYS = (
+        "k",
+        "done",
+        "tpm",
+        "mu",
+        "mu_prev",
+        "mu_b",
+        "loglik",
+        "model_nis",
+        "innovation",
+    )
 
     def _snapshot(self) -> dict[str, Any]:
         snap: dict[str, Any] = {name: getattr(self, name) for name in self._SLOT_ARRAYS}
@@ -327,6 +353,9 @@ class TrackingCore:
                 blocks.append(np.clip(rel, -cfg.loglik_clip, 0.0) / cfg.loglik_clip)
             elif f == "nis":
                 blocks.append(self.model_nis / (self.model_nis + self.config.sensor.dim_z))
+            elif f == "innovation":
+                w = np.clip(self.innovation, -INNOVATION_CLIP, INNOVATION_CLIP) / INNOVATION_CLIP
+                blocks.append(w.reshape(self.n_envs, -1))
             elif f == "bank_b":
                 blocks.append(self.mu_b)
             else:

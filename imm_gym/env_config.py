@@ -21,7 +21,7 @@ from .sensors import Sonar
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
 REWARDS = ("advantage", "error")
-OBS_FEATURES = ("tpm", "loglik", "nis", "bank_b", "time")
+OBS_FEATURES = ("tpm", "loglik", "nis", "innovation", "bank_b", "time")
 TIP_READINGS = ("literal", "intent")
 
 
@@ -46,13 +46,15 @@ class EnvConfig:
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode for an action of 1 (> 0).
         parallel: run bank B with the fixed TPM and fuse by entropy (TIP-IMM §3.3).
-        shadow: ``"fixed"`` runs a classical IMM with the fixed TPM in lock-step on the same
+        shadow: ``"fixed"`` runs a classical IMM with a fixed TPM in lock-step on the same
             measurements (for the ``advantage`` reward and diagnostics) or ``"none"``.
+        shadow_stay: diagonal of the shadow's TPM (``None``: ``initial_stay``). Set it to the
+            best fixed TPM's (0.6 on the randomized family) to reward beating that bar.
         reward: ``"advantage"`` — ``(e_shadow - e) / reward_scale`` with ``e`` the position error
             of the combined estimate — or ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward.
-        obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``, ``bank_b``,
-            ``time``.
+        obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
+            ``innovation``, ``bank_b``, ``time``.
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
@@ -72,6 +74,7 @@ class EnvConfig:
     logit_scale: float = 4.0
     parallel: bool = False
     shadow: str = "fixed"
+    shadow_stay: float | None = None
     reward: str = "advantage"
     reward_scale: float = 10.0
     obs_features: tuple[str, ...] = ()
@@ -107,6 +110,8 @@ class EnvConfig:
         if not isinstance(self.parallel, bool):
             raise ConfigError(f"parallel must be a bool, got {self.parallel!r}")
         check_choice("shadow", self.shadow, SHADOWS)
+        if self.shadow_stay is not None:
+            check_range("shadow_stay", self.shadow_stay, 0.0, 1.0)
         check_choice("reward", self.reward, REWARDS)
         if self.reward == "advantage" and self.shadow == "none":
             raise ConfigError("reward 'advantage' needs shadow 'fixed'")

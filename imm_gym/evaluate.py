@@ -57,7 +57,7 @@ PAPER_TABLE2 = {
     },
 }
 
-BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window")
+BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window", "pretrained")
 TRAIN_SEED_OFFSET = 1_000_000
 TRAIN_RUNS = 100
 
@@ -101,27 +101,31 @@ def make_policy(
             "train_seeds": f"{seed + TRAIN_SEED_OFFSET}..{seed + TRAIN_SEED_OFFSET + train_runs - 1}",  # noqa: E501
         }
         return policy, policy.env_overrides, notes
+    if name == "pretrained":
+        from agents import PRETRAINED
+
+        return load_trained(PRETRAINED)
     if name in BUILTIN_POLICIES:
         policy = make_baseline(name, M)
         return policy, policy.env_overrides, {}
     path = Path(name)
-    if path.suffix == ".zip" or path.is_file():
-        return load_sb3_policy(path)
+    if path.suffix == ".zip" or path.is_dir() or path.exists():
+        return load_trained(path)
     raise ConfigError(
-        f"unknown policy {name!r}: use one of {list(BUILTIN_POLICIES)} or a saved SB3 model (.zip)"
+        f"unknown policy {name!r}: use one of {list(BUILTIN_POLICIES)} or a trained agent "
+        "(its directory or its model.zip)"
     )
 
 
-def load_sb3_policy(path: Path) -> tuple[Any, dict[str, Any], dict[str, Any]]:
-    """A saved SB3 model and the environment overrides stored beside it (``<model>.env.json``)."""
-    if not path.is_file():
-        raise ConfigError(f"policy file {str(path)!r} does not exist")
-    from stable_baselines3 import PPO
+def load_trained(path: Path) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+    """A trained agent (``agents.policy`` directory layout) and its environment overrides."""
+    from agents.policy import load_agent
 
-    model = PPO.load(path, device="cpu")
-    sidecar = path.with_suffix(".env.json")
-    overrides = json.loads(sidecar.read_text()) if sidecar.is_file() else {}
-    return model, overrides, {"path": str(path)}
+    try:
+        policy = load_agent(path)
+    except FileNotFoundError as err:
+        raise ConfigError(str(err)) from None
+    return policy, policy.env_overrides, {"path": str(path)}
 
 
 def evaluate(
@@ -132,15 +136,21 @@ def evaluate(
     reference: str | None = None,
     clairvoyant: bool = True,
     progress: bool = False,
+    extra: dict[str, tuple[Any, dict[str, Any]]] | None = None,
 ) -> tuple[dict[str, Any], dict[str, Rollout]]:
-    """Score ``policies`` on R common-random-number runs; see the module docstring."""
+    """Score ``policies`` on R common-random-number runs; see the module docstring.
+
+    ``extra`` adds policy objects by name: ``{name: (policy, env_overrides)}`` (a freshly trained
+    agent, say); they are evaluated first.
+    """
     base = EnvConfig(scenario=scenario)
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {list(policies)}")
-    made = {name: make_policy(name, base, seed) for name in policies}
+    made = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
+    made.update({name: make_policy(name, base, seed) for name in policies})
     rollouts: dict[str, Rollout] = {}
     results: dict[str, Any] = {"policies": {}}
-    bar = _progress_bar(len(policies) * base.source.horizon, progress)
+    bar = _progress_bar(len(made) * base.source.horizon, progress)
     for name, (policy, overrides, notes) in made.items():
         cfg = evaluation_config(base, overrides)
         done = [0]
@@ -292,7 +302,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--policy",
         action="append",
         required=True,
-        help=f"policy to evaluate (repeatable): {', '.join(BUILTIN_POLICIES)} or an SB3 .zip",
+        help=f"policy to evaluate (repeatable): {', '.join(BUILTIN_POLICIES)}, or a trained "
+        "agent's directory",
     )
     parser.add_argument("--scenario", default="paper", help="paper | random | a scenario JSON file")
     parser.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")

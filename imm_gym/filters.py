@@ -62,6 +62,8 @@ class Update:
         S: ``(..., m, m)`` innovation covariance.
         loglik: ``(...)`` ``log N(nu; 0, S)``.
         nis: ``(...)`` normalized innovation squared ``nu^T S^-1 nu``.
+        innovation: ``(...)`` whitened innovation ``L^-1 nu`` with ``S = L L^T`` (Cholesky):
+            signed, unit covariance for a consistent filter, squared norm = NIS.
     """
 
     x: Array
@@ -71,6 +73,7 @@ class Update:
     S: Array
     loglik: Array
     nis: Array
+    innovation: Array
 
 
 def predict(x: Array, P: Array, F: Array, Q: Array) -> tuple[Array, Array]:
@@ -95,6 +98,7 @@ def _finish(
     S_inv, logdet = inv_logdet(S)
     S_inv_nu = (S_inv @ nu[..., None])[..., 0]
     nis = np.sum(nu * S_inv_nu, axis=-1)
+    L = np.linalg.cholesky(S)
     return Update(
         x=x + (C @ S_inv_nu[..., None])[..., 0],
         P=symmetrize(P_minus(C @ S_inv)),
@@ -103,6 +107,7 @@ def _finish(
         S=S,
         loglik=-0.5 * (nis + logdet + nu.shape[-1] * LOG_2PI),
         nis=nis,
+        innovation=np.linalg.solve(L, nu[..., None])[..., 0],
     )
 
 

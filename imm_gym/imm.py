@@ -69,6 +69,8 @@ class IMMStep:
         cbar: ``(N, M)`` predicted model probabilities ``cbar_j``.
         loglik: ``(N, M)`` per-model log-likelihoods ``log Lambda_j`` (0 on a missed detection).
         model_nis: ``(N, M)`` per-model normalized innovation squared (0 on a missed detection).
+        innovation: ``(N, M, m)`` per-model whitened innovations ``L_j^-1 nu_j`` (0 on a missed
+            detection).
         nis: ``(N,)`` NIS of the IMM's predicted measurement density (moment-matched mixture of the
             model-conditioned predictions, weights ``cbar``); 0 on a missed detection.
         detected: ``(N,)`` whether a measurement was used.
@@ -82,6 +84,7 @@ class IMMStep:
     cbar: Array
     loglik: Array
     model_nis: Array
+    innovation: Array
     nis: Array
     detected: BoolArray
     failed: BoolArray
@@ -354,6 +357,7 @@ class IMM:
         upd = self.filter.update(x_pred, P_pred, z[:, None, :], self.sensor)
         if detected is None:
             x, P, loglik, model_nis = upd.x, upd.P, upd.loglik, upd.nis
+            innovation = upd.innovation
             det = np.ones(N, dtype=bool)
         else:
             det = detected
@@ -361,10 +365,13 @@ class IMM:
             P = np.where(det[:, None, None, None], upd.P, P_pred)
             loglik = np.where(det[:, None], upd.loglik, 0.0)
             model_nis = np.where(det[:, None], upd.nis, 0.0)
+            innovation = np.where(det[:, None, None], upd.innovation, 0.0)
         mu = update_mode_probs(loglik, cbar)
         x_hat, P_hat = combine(mu, x, P)
         nis = np.where(det, self._mixture_nis(cbar, upd, z), 0.0)
-        out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det, np.zeros(N, dtype=bool))
+        out = IMMStep(
+            x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, np.zeros(N, dtype=bool)
+        )
         return IMMState(x, P, mu), out
 
     def _step_compiled(
@@ -376,6 +383,7 @@ class IMM:
         x, P = np.empty((N, M, n)), np.empty((N, M, n, n))
         mu, cbar, loglik, model_nis = (np.empty((N, M)) for _ in range(4))
         nis, x_hat, P_hat = np.empty(N), np.empty((N, n)), np.empty((N, n, n))
+        innovation = np.empty((N, M, self.sensor.dim_z))
         failed = np.empty(N, dtype=bool)
         failures = kernels.imm_step(
             np.ascontiguousarray(state.x),
@@ -393,6 +401,7 @@ class IMM:
             cbar,
             loglik,
             model_nis,
+            innovation,
             nis,
             x_hat,
             P_hat,
@@ -402,7 +411,7 @@ class IMM:
             raise np.linalg.LinAlgError(
                 f"innovation covariance is not positive definite for {failures} tracker(s)"
             )
-        out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, nis, det, failed)
+        out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, failed)
         return IMMState(x, P, mu), out
 
     def _mixture_nis(self, cbar: Array, upd: Update, z: Array) -> Array:

@@ -270,6 +270,7 @@ def imm_step(
     cbar_out: Array,
     loglik_out: Array,
     model_nis_out: Array,
+    innov_out: Array,
     nis_out: Array,
     xhat_out: Array,
     Phat_out: Array,
@@ -380,6 +381,8 @@ def imm_step(
                         P_out[t, j, r, c] = Pp[r, c]
                 loglik_out[t, j] = 0.0
                 model_nis_out[t, j] = 0.0
+                for d in range(m):
+                    innov_out[t, j, d] = 0.0
                 continue
             for d in range(m):
                 nu[d] = z[t, d] - zp[j, d]
@@ -393,6 +396,12 @@ def imm_step(
             nis = 0.0
             for r in range(m):
                 nis += nu[r] * Sinu[r]
+            # whitened innovation L^-1 nu (S = L L^T): signed, |.|^2 = NIS
+            for r in range(m):
+                acc = nu[r]
+                for k in range(r):
+                    acc -= Lc[r, k] * innov_out[t, j, k]
+                innov_out[t, j, r] = acc / Lc[r, r]
             for r in range(n):
                 for c in range(m):
                     acc = 0.0
@@ -441,8 +450,8 @@ def imm_step(
             model_nis_out[t, j] = nis
         if failed_out[t]:
             failures += 1
-            _fill_nan(t, x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, nis_out,
-                      xhat_out, Phat_out)
+            _fill_nan(t, x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out,
+                      nis_out, xhat_out, Phat_out)
             continue
         # 3. model probabilities, mu_j ∝ Lambda_j cbar_j (log-sum-exp)
         top = -np.inf
@@ -499,8 +508,8 @@ def imm_step(
         if not ok:
             failed_out[t] = True
             failures += 1
-            _fill_nan(t, x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, nis_out,
-                      xhat_out, Phat_out)
+            _fill_nan(t, x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out,
+                      nis_out, xhat_out, Phat_out)
             continue
         for d in range(m):
             nu[d] = z[t, d] - hz[d]
@@ -517,9 +526,10 @@ def imm_step(
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _fill_nan(
     t: int, x_out: Array, P_out: Array, mu_out: Array, cbar_out: Array, loglik_out: Array,
-    model_nis_out: Array, nis_out: Array, xhat_out: Array, Phat_out: Array,
+    model_nis_out: Array, innov_out: Array, nis_out: Array, xhat_out: Array, Phat_out: Array,
 ) -> None:  # pragma: no cover
     """Mark tracker ``t``'s outputs as invalid."""
+    innov_out[t] = np.nan
     x_out[t] = np.nan
     P_out[t] = np.nan
     mu_out[t] = np.nan

@@ -53,6 +53,7 @@ class TPMAdaptVecEnv(VecEnv):
         self.core = TrackingCore(self.config, n_envs=num_envs)
         observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
         action_space = spaces.Box(-1.0, 1.0, (self.core.action_dim,), dtype=np.float32)
+        self.render_mode = None
         super().__init__(num_envs, observation_space, action_space)
         self._actions: NDArray[Any] | None = None
 

@@ -47,6 +47,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | ``tpm``      | current TPM, row-major (M·M)                     | 0   | 1   |
     | ``loglik``   | log-likelihood minus the best model's, / clip (M)| −1  | 0   |
     | ``nis``      | per-model NIS squashed nis/(nis+2) (M)           | 0   | 1   |
+    | ``innovation``| whitened innovations L⁻¹ν clipped ±5, /5 (M·2)  | −1  | 1   |
     | ``bank_b``   | bank B's probabilities before fusion (M)         | 0   | 1   |
     | ``time``     | k / K (1)                                        | 0   | 1   |
 

@@ -1,0 +1,128 @@
+"""PPO on the natively batched environment: hyperparameters, environment stack, save/load.
+
+Hyperparameters live in ``agents/hyperparams/ppo.yml`` in rl-zoo3's format, keyed by environment
+id (``n_envs``, ``n_timesteps``, ``policy``, ``normalize``, ``frame_stack``, ``env_kwargs``,
+``policy_kwargs`` and the algorithm's own arguments). The environment stack is
+``VecFrameStack(VecNormalize(VecMonitor(TPMAdaptVecEnv)))`` — one batched core, no subprocesses.
+
+Seeds: training slot ``i`` of run seed ``s`` starts its streams from ``TRAIN_SEED_BASE + 10_000 s
++ i`` and continues them across episodes; evaluation uses seeds below 10 million, so held-out
+scenarios are never trained on.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HYPERPARAMS = Path(__file__).parent / "hyperparams"
+TRAIN_SEED_BASE = 100_000_000
+ALGO_FILES = {"ppo": "ppo.yml", "recurrent-ppo": "recurrent_ppo.yml"}
+
+#: Keys of a hyperparameter entry that configure the environment stack, not the algorithm.
+_STACK_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "frame_stack", "env_kwargs")
+
+
+def set_threads(n: int = 1) -> None:
+    """One BLAS/torch thread per process: on 2 cores the env and the learner share the machine.
+
+    Small MLP batches gain nothing from more threads, and oversubscription slows both down.
+    """
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, str(n))
+    import torch
+
+    torch.set_num_threads(n)
+
+
+def load_hyperparams(env_id: str, algo: str = "ppo", path: Path | None = None) -> dict[str, Any]:
+    """The hyperparameter entry of ``env_id`` (rl-zoo3 YAML); ``policy_kwargs`` evaluated."""
+    import yaml
+
+    if algo not in ALGO_FILES:
+        raise ValueError(f"algo must be one of {list(ALGO_FILES)}, got {algo!r}")
+    file = path or HYPERPARAMS / ALGO_FILES[algo]
+    table = yaml.safe_load(file.read_text())
+    if env_id not in table:
+        raise ValueError(f"{file.name} has no entry for {env_id!r}; entries: {sorted(table)}")
+    params = dict(table[env_id])
+    if isinstance(params.get("policy_kwargs"), str):
+        params["policy_kwargs"] = _eval_policy_kwargs(params["policy_kwargs"])
+    return params
+
+
+def _eval_policy_kwargs(text: str) -> dict[str, Any]:
+    """rl-zoo3 writes ``policy_kwargs`` as a Python expression such as ``dict(net_arch=[64])``."""
+    import torch
+
+    namespace = {"dict": dict, "nn": torch.nn, "__builtins__": {}}
+    return dict(eval(text, namespace))  # noqa: S307 - our own YAML file, a restricted namespace
+
+
+def make_training_env(
+    env_id: str, n_envs: int, seed: int, env_kwargs: dict[str, Any], normalize: bool,
+    frame_stack: int, gamma: float,
+) -> Any:
+    """The vectorized training environment (see the module docstring)."""
+    from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
+
+    from imm_gym.envs.sb3 import TPMAdaptVecEnv
+
+    venv = TPMAdaptVecEnv(num_envs=n_envs, env_id=env_id, **env_kwargs)
+    venv.seed(TRAIN_SEED_BASE + 10_000 * seed)
+    env: Any = VecMonitor(venv)
+    if normalize:
+        env = VecNormalize(env, norm_obs=True, norm_reward=True, gamma=gamma)
+    if frame_stack > 1:
+        env = VecFrameStack(env, frame_stack)
+    return env
+
+
+def find_normalizer(env: Any) -> Any | None:
+    """The ``VecNormalize`` layer of a wrapped VecEnv, if any."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper, VecNormalize
+
+    while isinstance(env, VecEnvWrapper):
+        if isinstance(env, VecNormalize):
+            return env
+        env = env.venv
+    return None
+
+
+def save_agent(
+    directory: Path, model: Any, env: Any, env_kwargs: dict[str, Any], algo: str,
+    frame_stack: int, extra: dict[str, Any] | None = None,
+) -> None:
+    """Write ``model.zip``, ``env.json``, ``vecnormalize.json`` and ``agent.json``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    model.save(directory / "model.zip")
+    (directory / "env.json").write_text(json.dumps(_jsonable(env_kwargs), indent=2))
+    norm = find_normalizer(env)
+    if norm is not None:
+        stats = {
+            "mean": np.asarray(norm.obs_rms.mean).tolist(),
+            "var": np.asarray(norm.obs_rms.var).tolist(),
+            "count": float(norm.obs_rms.count),
+            "clip_obs": float(norm.clip_obs),
+            "epsilon": float(norm.epsilon),
+        }
+        (directory / "vecnormalize.json").write_text(json.dumps(stats))
+    meta = {"algo": algo, "frame_stack": frame_stack, **(extra or {})}
+    (directory / "agent.json").write_text(json.dumps(meta, indent=2))
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def algo_kwargs(params: dict[str, Any]) -> dict[str, Any]:
+    """The algorithm's own arguments from a hyperparameter entry."""
+    return {k: v for k, v in params.items() if k not in _STACK_KEYS}

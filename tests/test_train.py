@@ -1,0 +1,74 @@
+"""train.py: a short training run gives a loadable agent that the evaluation scores; resume
+continues the step count; bad arguments are rejected with a clear message."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import train
+from agents.policy import load_agent
+from imm_gym.evaluate import main as evaluate_main
+
+SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    cfg = out / "small.yml"
+    cfg.write_text(SMALL)
+    argv = ["--timesteps", "512", "--config", str(cfg), "--out", str(out), "--no-eval",
+            "--no-progress", "--checkpoint-every", "256"]
+    assert train.main(argv) == 0
+    return out, cfg
+
+
+def test_short_run_gives_an_agent_the_evaluation_scores(trained, tmp_path) -> None:
+    out, _ = trained
+    agent_dir = out / "seed_0" / "agent"
+    meta = json.loads((agent_dir / "agent.json").read_text())
+    assert meta["num_timesteps"] >= 512
+    policy = load_agent(agent_dir)
+    obs = np.zeros((2, 21), dtype=np.float32)
+    actions, state = policy.predict(obs, None, np.ones(2, bool))
+    assert actions.shape == (2, 9) and np.all(np.abs(actions) <= 1.0)
+    result = tmp_path / "res.json"
+    code = evaluate_main(["--policy", str(agent_dir), "--policy", "fixed", "--scenario", "paper",
+                          "--runs", "3", "--json", str(result), "--quiet", "--no-clairvoyant"])
+    assert code == 0
+    data = json.loads(result.read_text())
+    assert np.isfinite(data["policies"][str(agent_dir)]["armse_pos"])
+    assert (out / "seed_0" / "tb").is_dir()
+
+
+def test_resume_continues_the_step_count(trained) -> None:
+    out, cfg = trained
+    ckpt = out / "seed_0" / "checkpoints" / "latest"
+    before = json.loads((ckpt / "agent.json").read_text())["num_timesteps"]
+    argv = ["--timesteps", str(before + 256), "--config", str(cfg), "--out", str(out / "resumed"),
+            "--resume", str(ckpt), "--no-eval", "--no-progress"]
+    assert train.main(argv) == 0
+    after = json.loads((out / "resumed" / "seed_0" / "agent" / "agent.json").read_text())
+    assert after["num_timesteps"] >= before + 256
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--timesteps", "0"], "--timesteps must be >= 1"),
+        (["--seed", "-1"], "--seed values"),
+        (["--seed", "1", "1"], "--seed values"),
+        (["--env", "imm_gym/Nope-v0"], "is not registered"),
+        (["--resume", "does/not/exist"], "is not a checkpoint"),
+        (["--config", "missing.yml"], "does not exist"),
+        (["--algo", "dqn"], "invalid choice"),
+    ],
+)
+def test_bad_arguments(argv, message, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        train.main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
