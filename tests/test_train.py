@@ -72,3 +72,15 @@ def test_bad_arguments(argv, message, capsys) -> None:
         train.main(argv)
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_recurrent_variant_trains_and_evaluates(tmp_path) -> None:
+    cfg = tmp_path / "small.yml"
+    cfg.write_text(SMALL)
+    argv = ["--algo", "recurrent-ppo", "--timesteps", "256", "--config", str(cfg), "--out",
+            str(tmp_path), "--no-eval", "--no-progress"]
+    assert train.main(argv) == 0
+    agent = tmp_path / "seed_0" / "agent"
+    assert json.loads((agent / "agent.json").read_text())["algo"] == "recurrent-ppo"
+    assert evaluate_main(["--policy", str(agent), "--scenario", "paper", "--runs", "2",
+                          "--quiet", "--no-clairvoyant"]) == 0
