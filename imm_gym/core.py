@@ -20,6 +20,8 @@ nis             M       per-model NIS squashed ``nis / (nis + m)`` (feature ``ni
 innovation      M*m     per-model whitened innovations ``L_j^-1 nu_j`` clipped to     -1     1
                         [-5, 5] and divided by 5, model-major (feature ``innovation``)
 bank_b          M       bank B's probabilities before fusion (feature ``bank_b``)   0      1
+shadow_probs    M       the shadow IMM's model probabilities: a maneuver detector   0      1
+                        that the action does not influence (``shadow_probs``)
 time            1       ``k / K`` (feature ``time``)                                0      1
 ==============  ======  ==========================================================  =====  ====
 """
@@ -50,7 +52,15 @@ INNOVATION_CLIP = 5.0
 def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
     """Length of each optional observation block."""
     M = n_models
-    return {"tpm": M * M, "loglik": M, "nis": M, "innovation": M * dim_z, "bank_b": M, "time": 1}
+    return {
+        "tpm": M * M,
+        "loglik": M,
+        "nis": M,
+        "innovation": M * dim_z,
+        "bank_b": M,
+        "shadow_probs": M,
+        "time": 1,
+    }
 
 
 class ActionError(ValueError):
@@ -111,6 +121,7 @@ class TrackingCore:
         self.mu = np.full((N, M), 1.0 / M)
         self.mu_prev = self.mu.copy()
         self.mu_b = self.mu.copy()
+        self.mu_s = self.mu.copy()
         self.loglik = np.zeros((N, M))
         self.model_nis = np.zeros((N, M))
         self.innovation = np.zeros((N, M, m))
@@ -179,6 +190,7 @@ class TrackingCore:
             "mu": init.mu,
             "mu_prev": init.mu,
             "mu_b": init.mu,
+            "mu_s": init.mu,
             "loglik": 0.0,
             "model_nis": 0.0,
             "innovation": 0.0,
@@ -281,6 +293,7 @@ class TrackingCore:
                 shadow_error <= cfg.divergence_error, shadow_error, cfg.divergence_error
             )
             info["shadow_position_error"] = shadow_error
+            self.mu_s = out_s.mode_probs
             info["reward_advantage"] = (shadow_error - capped) / cfg.reward_scale
         reward = info[f"reward_{cfg.reward}"].copy()
         diverged = (
@@ -311,6 +324,7 @@ class TrackingCore:
         "mu",
         "mu_prev",
         "mu_b",
+        "mu_s",
         "loglik",
         "model_nis",
         "innovation",
@@ -358,6 +372,8 @@ class TrackingCore:
                 blocks.append(w.reshape(self.n_envs, -1))
             elif f == "bank_b":
                 blocks.append(self.mu_b)
+            elif f == "shadow_probs":
+                blocks.append(self.mu_s)
             else:
                 blocks.append((self.k / self.horizon)[:, None])
         obs = np.concatenate(blocks, axis=-1)

@@ -21,7 +21,7 @@ from .sensors import Sonar
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
 REWARDS = ("advantage", "error")
-OBS_FEATURES = ("tpm", "loglik", "nis", "innovation", "bank_b", "time")
+OBS_FEATURES = ("tpm", "loglik", "nis", "innovation", "bank_b", "shadow_probs", "time")
 TIP_READINGS = ("literal", "intent")
 
 
@@ -54,7 +54,7 @@ class EnvConfig:
             of the combined estimate — or ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward.
         obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
-            ``innovation``, ``bank_b``, ``time``.
+            ``innovation``, ``bank_b``, ``shadow_probs``, ``time``.
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
@@ -123,6 +123,8 @@ class EnvConfig:
             raise ConfigError(f"obs_features has duplicates: {features}")
         if "bank_b" in features and not self.parallel:
             raise ConfigError("obs_features 'bank_b' needs parallel=True")
+        if "shadow_probs" in features and self.shadow == "none":
+            raise ConfigError("obs_features 'shadow_probs' needs shadow 'fixed'")
         object.__setattr__(self, "obs_features", features)
         check_range("loglik_clip", self.loglik_clip, 0.0, lo_open=True)
         check_range("velocity_std", self.velocity_std, 0.0, lo_open=True)

@@ -49,6 +49,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | ``nis``      | per-model NIS squashed nis/(nis+2) (M)           | 0   | 1   |
     | ``innovation``| whitened innovations L⁻¹ν clipped ±5, /5 (M·2)  | −1  | 1   |
     | ``bank_b``   | bank B's probabilities before fusion (M)         | 0   | 1   |
+    | ``shadow_probs`` | the shadow IMM's probabilities (M)           | 0   | 1   |
     | ``time``     | k / K (1)                                        | 0   | 1   |
 
     Policies act on the observation only; ground truth is in ``info`` for evaluation.
