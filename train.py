@@ -39,10 +39,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--algo", default="ppo", choices=ALGOS)
     p.add_argument("--timesteps", type=int, help="training steps (default: the YAML entry's)")
     p.add_argument("--seed", type=int, nargs="+", default=[0], help="training seed(s)")
-    p.add_argument("--config", type=Path, help="YAML file with hyperparameters overriding the entry")
+    p.add_argument(
+        "--config", type=Path, help="YAML file with hyperparameters overriding the entry"
+    )
     p.add_argument("--out", type=Path, default=Path("runs/default"), help="output directory")
     p.add_argument("--resume", type=Path, help="checkpoint directory to continue from")
-    p.add_argument("--checkpoint-every", type=int, default=250_000, help="steps between checkpoints")
+    p.add_argument(
+        "--checkpoint-every", type=int, default=250_000, help="steps between checkpoints"
+    )
     p.add_argument("--paper-runs", type=int, default=100)
     p.add_argument("--random-runs", type=int, default=200)
     p.add_argument("--no-eval", action="store_true", help="train only")
@@ -106,8 +110,13 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     frame_stack = int(params.get("frame_stack", 1))
     gamma = float(params.get("gamma", 0.99))
     env = make_training_env(
-        args.env, int(params["n_envs"]), seed, env_kwargs, bool(params.get("normalize", False)),
-        frame_stack, gamma,
+        args.env,
+        int(params["n_envs"]),
+        seed,
+        env_kwargs,
+        bool(params.get("normalize", False)),
+        frame_stack,
+        gamma,
     )
     algo_cls = _algo_class(args.algo)
     ckpt_dir = run_dir / "checkpoints"
@@ -119,8 +128,13 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         print(f"resuming from {args.resume} at {done} steps")
     else:
         model = algo_cls(
-            params["policy"], env, seed=seed, device="cpu", verbose=0,
-            tensorboard_log=str(run_dir / "tb"), **algo_kwargs(params),
+            params["policy"],
+            env,
+            seed=seed,
+            device="cpu",
+            verbose=0,
+            tensorboard_log=str(run_dir / "tb"),
+            **algo_kwargs(params),
         )
         done = 0
     remaining = max(params["n_timesteps"] - done, 0)
@@ -137,8 +151,15 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
             return True
 
     def save(directory: Path) -> None:
-        save_agent(directory, model, env, env_kwargs, args.algo, frame_stack,
-                   {**extra, "num_timesteps": int(model.num_timesteps)})
+        save_agent(
+            directory,
+            model,
+            env,
+            env_kwargs,
+            args.algo,
+            frame_stack,
+            {**extra, "num_timesteps": int(model.num_timesteps)},
+        )
 
     start = time.perf_counter()
     try:
@@ -151,14 +172,23 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         )
     except KeyboardInterrupt:
         save(ckpt_dir / "latest")
-        print(f"\ninterrupted: checkpoint saved to {ckpt_dir / 'latest'} "
-              f"({model.num_timesteps} steps); resume with --resume {ckpt_dir / 'latest'}")
+        print(
+            f"\ninterrupted: checkpoint saved to {ckpt_dir / 'latest'} "
+            f"({model.num_timesteps} steps); resume with --resume {ckpt_dir / 'latest'}"
+        )
         raise SystemExit(130) from None
     seconds = time.perf_counter() - start
     save(ckpt_dir / "latest")
     agent_dir = run_dir / "agent"
-    save_agent(agent_dir, model, env, env_kwargs, args.algo, frame_stack,
-               {**extra, "num_timesteps": int(model.num_timesteps)})
+    save_agent(
+        agent_dir,
+        model,
+        env,
+        env_kwargs,
+        args.algo,
+        frame_stack,
+        {**extra, "num_timesteps": int(model.num_timesteps)},
+    )
     stats = {
         "timesteps": int(model.num_timesteps),
         "trained_this_call": remaining,
@@ -201,7 +231,11 @@ def evaluate_agent(agent_dir: Path, args: argparse.Namespace, run_dir: Path) -> 
     out: dict[str, Any] = {}
     for scenario, runs in (("paper", args.paper_runs), ("random", args.random_runs)):
         results, rollouts = evaluate(
-            BASELINES_COMPARED, scenario, runs, seed=0, reference="best-fixed",
+            BASELINES_COMPARED,
+            scenario,
+            runs,
+            seed=0,
+            reference="best-fixed",
             extra={"learned": (policy, policy.env_overrides)},
         )
         results["vs_tip_imm"] = _paired(rollouts, "learned", "tip-imm")
@@ -232,19 +266,28 @@ def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None
             "|---|---:|---:|---:|---:|---:|",
         ]
         for name, row in r["policies"].items():
-            lines.append(f"| {name} | {row['armse_pos']:.3f} | {row['armse_pos_x']:.3f} | "
-                         f"{row['armse_pos_y']:.3f} | {row['armse_vel_x']:.3f} | "
-                         f"{row['armse_vel_y']:.3f} |")
+            lines.append(
+                f"| {name} | {row['armse_pos']:.3f} | {row['armse_pos_x']:.3f} | "
+                f"{row['armse_pos_y']:.3f} | {row['armse_vel_x']:.3f} | "
+                f"{row['armse_vel_y']:.3f} |"
+            )
         c = r["clairvoyant"]
-        lines.append(f"| clairvoyant (bound) | {c['armse_pos']:.3f} | {c['armse_pos_x']:.3f} | "
-                     f"{c['armse_pos_y']:.3f} | {c['armse_vel_x']:.3f} | {c['armse_vel_y']:.3f} |")
+        lines.append(
+            f"| clairvoyant (bound) | {c['armse_pos']:.3f} | {c['armse_pos_x']:.3f} | "
+            f"{c['armse_pos_y']:.3f} | {c['armse_vel_x']:.3f} | {c['armse_vel_y']:.3f} |"
+        )
         lines += ["", "Paired differences of position ARMSE (95 % bootstrap CI):", ""]
         for name, d in r["paired"]["differences"].items():
-            lines.append(f"- {name} − best-fixed: {d['diff']:+.3f} m [{d['low']:+.3f}, "
-                         f"{d['high']:+.3f}] ({100 * d['relative']:+.2f} %)")
+            lines.append(
+                f"- {name} − best-fixed: {d['diff']:+.3f} m [{d['low']:+.3f}, "
+                f"{d['high']:+.3f}] ({100 * d['relative']:+.2f} %)"
+            )
         d = r["vs_tip_imm"]
-        lines += [f"- learned − tip-imm: {d['diff']:+.3f} m [{d['low']:+.3f}, {d['high']:+.3f}] "
-                  f"({100 * d['relative']:+.2f} %)", ""]
+        lines += [
+            f"- learned − tip-imm: {d['diff']:+.3f} m [{d['low']:+.3f}, {d['high']:+.3f}] "
+            f"({100 * d['relative']:+.2f} %)",
+            "",
+        ]
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -261,25 +304,36 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seed:
         run_dir = args.out / f"seed_{seed}"
         run_dir.mkdir(parents=True, exist_ok=True)
+        from agents.training import jsonable
+
         (run_dir / "config.json").write_text(
-            json.dumps({"env": args.env, "algo": args.algo, "seed": seed,
-                        "hyperparams": _jsonable(params)}, indent=2, default=str)
+            json.dumps(
+                {"env": args.env, "algo": args.algo, "seed": seed, "hyperparams": jsonable(params)},
+                indent=2,
+                default=str,
+            )
         )
         agent_dir, stats = train_one(args, params, seed, run_dir)
-        print(f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
-              f"({stats['fps']:.0f} steps/s)")
+        print(
+            f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
+            f"({stats['fps']:.0f} steps/s)"
+        )
         entry: dict[str, Any] = {"training": stats}
         if not args.no_eval:
             results = evaluate_agent(agent_dir, args, run_dir)
             entry.update(results)
             (run_dir / "results.json").write_text(json.dumps(results, indent=2))
-            write_report(run_dir / "report.md", results, [
-                f"# {args.algo.upper()} on {args.env}, seed {seed}",
-                "",
-                f"Command: `{command}`. Training: {stats['timesteps']} steps in "
-                f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, SB3 on 1 thread).",
-                f"Versions: {versions}.",
-            ])
+            write_report(
+                run_dir / "report.md",
+                results,
+                [
+                    f"# {args.algo.upper()} on {args.env}, seed {seed}",
+                    "",
+                    f"Command: `{command}`. Training: {stats['timesteps']} steps in "
+                    f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, SB3 on 1 thread).",
+                    f"Versions: {versions}.",
+                ],
+            )
         summary["seeds"][str(seed)] = entry
     if not args.no_eval:
         summary["across_seeds"] = _across_seeds(summary["seeds"])
@@ -295,8 +349,9 @@ def _across_seeds(seeds: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for scenario in ("paper", "random"):
         learned = [s[scenario]["policies"]["learned"]["armse_pos"] for s in seeds.values()]
-        vs_best = [s[scenario]["paired"]["differences"]["learned"]["relative"]
-                   for s in seeds.values()]
+        vs_best = [
+            s[scenario]["paired"]["differences"]["learned"]["relative"] for s in seeds.values()
+        ]
         vs_tip = [s[scenario]["vs_tip_imm"]["relative"] for s in seeds.values()]
         out[scenario] = {
             "armse_pos_mean": float(np.mean(learned)),
@@ -322,14 +377,6 @@ def _write_summary_report(path: Path, summary: dict[str, Any]) -> None:
             "",
         ]
     path.write_text("\n".join(lines))
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    return value
 
 
 def _versions() -> dict[str, str]:

@@ -60,12 +60,17 @@ def _eval_policy_kwargs(text: str) -> dict[str, Any]:
     import torch
 
     namespace = {"dict": dict, "nn": torch.nn, "__builtins__": {}}
-    return dict(eval(text, namespace))  # noqa: S307 - our own YAML file, a restricted namespace
+    return dict(eval(text, namespace))
 
 
 def make_training_env(
-    env_id: str, n_envs: int, seed: int, env_kwargs: dict[str, Any], normalize: bool,
-    frame_stack: int, gamma: float,
+    env_id: str,
+    n_envs: int,
+    seed: int,
+    env_kwargs: dict[str, Any],
+    normalize: bool,
+    frame_stack: int,
+    gamma: float,
 ) -> Any:
     """The vectorized training environment (see the module docstring)."""
     from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
@@ -94,13 +99,18 @@ def find_normalizer(env: Any) -> Any | None:
 
 
 def save_agent(
-    directory: Path, model: Any, env: Any, env_kwargs: dict[str, Any], algo: str,
-    frame_stack: int, extra: dict[str, Any] | None = None,
+    directory: Path,
+    model: Any,
+    env: Any,
+    env_kwargs: dict[str, Any],
+    algo: str,
+    frame_stack: int,
+    extra: dict[str, Any] | None = None,
 ) -> None:
     """Write ``model.zip``, ``env.json``, ``vecnormalize.json`` and ``agent.json``."""
     directory.mkdir(parents=True, exist_ok=True)
     model.save(directory / "model.zip")
-    (directory / "env.json").write_text(json.dumps(_jsonable(env_kwargs), indent=2))
+    (directory / "env.json").write_text(json.dumps(jsonable(env_kwargs), indent=2))
     norm = find_normalizer(env)
     if norm is not None:
         stats = {
@@ -115,11 +125,12 @@ def save_agent(
     (directory / "agent.json").write_text(json.dumps(meta, indent=2))
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
+    """Tuples as lists, recursively (for JSON)."""
     if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
+        return {k: jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     return value
 
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .base import Baseline, Obs
+from .base import Baseline
 
 
 class AMPIMM(Baseline):
@@ -66,20 +66,14 @@ class AMPIMM(Baseline):
         accept = (diag > self.guard).all(axis=-1)
         return np.where(accept[:, None, None], new, tpm)
 
-    def predict(
-        self,
-        observation: Obs,
-        state: Any = None,
-        episode_start: NDArray[np.bool_] | None = None,
-        deterministic: bool = True,
+    def act(
+        self, obs: NDArray[np.float64], state: Any, episode_start: NDArray[np.bool_]
     ) -> tuple[NDArray[np.float64], Any]:
-        obs = self._batch(observation)
         M = self.n_models
         tpm = self.feature(obs, "tpm").reshape(-1, M, M)
         loglik = self.feature(obs, "loglik") * self.loglik_clip
         new = self.adapt(tpm, loglik)
-        actions = tpm_to_logits(new, self.logit_scale).reshape(obs.shape[0], -1)
-        return (actions[0] if np.ndim(observation) == 1 else actions), state
+        return tpm_to_logits(new, self.logit_scale).reshape(obs.shape[0], -1), state
 
 
 def tpm_to_logits(tpm: NDArray[np.float64], logit_scale: float) -> NDArray[np.float64]:

@@ -49,9 +49,30 @@ class Baseline:
         self.n_models = n_models
         self.env_overrides: dict[str, Any] = {}
 
-    def _batch(self, observation: Obs) -> NDArray[np.float64]:
+    def predict(
+        self,
+        observation: Obs,
+        state: Any = None,
+        episode_start: NDArray[np.bool_] | None = None,
+        deterministic: bool = True,
+    ) -> tuple[NDArray[np.float64], Any]:
+        """SB3's signature; a single observation ``(d,)`` gives a single action ``(M*M,)``."""
         obs = np.asarray(observation, dtype=np.float64)
-        return obs[None] if obs.ndim == 1 else obs
+        single = obs.ndim == 1
+        obs = obs[None] if single else obs
+        start = (
+            np.ones(obs.shape[0], dtype=bool)
+            if episode_start is None
+            else np.asarray(episode_start, dtype=bool).reshape(obs.shape[0])
+        )
+        actions, state = self.act(obs, state, start)
+        return (actions[0] if single else actions), state
+
+    def act(
+        self, obs: NDArray[np.float64], state: Any, episode_start: NDArray[np.bool_]
+    ) -> tuple[NDArray[np.float64], Any]:
+        """Actions ``(N, M*M)`` for observations ``(N, d)``; the rule of each baseline."""
+        raise NotImplementedError
 
     def mode_probs(
         self, obs: NDArray[np.float64]

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .base import Baseline, Obs
+from .base import Baseline
 
 #: Stay probabilities searched for the best fixed TPM: from 1/M (uniform) to 0.999.
 STAY_GRID = (1 / 3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999)
@@ -31,16 +31,10 @@ class FixedTPM(Baseline):
             off = (1.0 - stay) / (n_models - 1)
             self.env_overrides.update({"initial_stay": stay, "p_min": min(1e-3, stay, off)})
 
-    def predict(
-        self,
-        observation: Obs,
-        state: Any = None,
-        episode_start: NDArray[np.bool_] | None = None,
-        deterministic: bool = True,
+    def act(
+        self, obs: NDArray[np.float64], state: Any, episode_start: NDArray[np.bool_]
     ) -> tuple[NDArray[np.float64], Any]:
-        obs = self._batch(observation)
-        actions = np.zeros((obs.shape[0], self.n_models**2))
-        return (actions[0] if np.ndim(observation) == 1 else actions), state
+        return np.zeros((obs.shape[0], self.n_models**2)), state
 
 
 def best_fixed_stay(

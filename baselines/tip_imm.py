@@ -9,7 +9,7 @@ from numpy.typing import NDArray
 
 from imm_gym.tip import tip_factors
 
-from .base import Baseline, Obs
+from .base import Baseline
 
 
 class TIPIMM(Baseline):
@@ -53,15 +53,9 @@ class TIPIMM(Baseline):
             "parallel": parallel,
         }
 
-    def predict(
-        self,
-        observation: Obs,
-        state: Any = None,
-        episode_start: NDArray[np.bool_] | None = None,
-        deterministic: bool = True,
+    def act(
+        self, obs: NDArray[np.float64], state: Any, episode_start: NDArray[np.bool_]
     ) -> tuple[NDArray[np.float64], Any]:
-        obs = self._batch(observation)
         mu_now, mu_prev = self.mode_probs(obs)
         f = tip_factors(mu_now, mu_prev, self.alpha, self.beta, self.reading)
-        actions = (np.log(f) / np.log(self.max_factor)).reshape(obs.shape[0], -1)
-        return (actions[0] if np.ndim(observation) == 1 else actions), state
+        return (np.log(f) / np.log(self.max_factor)).reshape(obs.shape[0], -1), state

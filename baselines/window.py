@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from imm_gym.tpm import stay_tpm
 
 from .amp_imm import tpm_to_logits
-from .base import Baseline, Obs
+from .base import Baseline
 
 
 class SlidingWindowTPM(Baseline):
@@ -52,22 +52,15 @@ class SlidingWindowTPM(Baseline):
         self.logit_scale = logit_scale
         self.env_overrides = {"action_mode": "set", "logit_scale": logit_scale}
 
-    def predict(
-        self,
-        observation: Obs,
-        state: Any = None,
-        episode_start: NDArray[np.bool_] | None = None,
-        deterministic: bool = True,
+    def act(
+        self, obs: NDArray[np.float64], state: Any, episode_start: NDArray[np.bool_]
     ) -> tuple[NDArray[np.float64], Any]:
-        obs = self._batch(observation)
         N, M = obs.shape[0], self.n_models
         mu_now, mu_prev = self.mode_probs(obs)
         counts = np.zeros((N, self.window, M, M)) if state is None else state.copy()
-        if episode_start is not None:
-            counts[np.asarray(episode_start, dtype=bool)] = 0.0
+        counts[episode_start] = 0.0
         counts = np.roll(counts, 1, axis=1)
         counts[:, 0] = mu_prev[:, :, None] * mu_now[:, None, :]
         tpm = self.kappa * self.prior + counts.sum(axis=1)
         tpm /= tpm.sum(axis=-1, keepdims=True)
-        actions = tpm_to_logits(tpm, self.logit_scale).reshape(N, -1)
-        return (actions[0] if np.ndim(observation) == 1 else actions), counts
+        return tpm_to_logits(tpm, self.logit_scale).reshape(N, -1), counts

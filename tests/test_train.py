@@ -33,7 +33,7 @@ def test_short_run_gives_an_agent_the_evaluation_scores(trained, tmp_path) -> No
     assert meta["num_timesteps"] >= 512
     policy = load_agent(agent_dir)
     obs = np.zeros((2, 21), dtype=np.float32)
-    actions, state = policy.predict(obs, None, np.ones(2, bool))
+    actions, _ = policy.predict(obs, None, np.ones(2, bool))
     assert actions.shape == (2, 9) and np.all(np.abs(actions) <= 1.0)
     result = tmp_path / "res.json"
     code = evaluate_main(["--policy", str(agent_dir), "--policy", "fixed", "--scenario", "paper",
