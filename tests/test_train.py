@@ -20,8 +20,18 @@ def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
     cfg = out / "small.yml"
     cfg.write_text(SMALL)
-    argv = ["--timesteps", "512", "--config", str(cfg), "--out", str(out), "--no-eval",
-            "--no-progress", "--checkpoint-every", "256"]
+    argv = [
+        "--timesteps",
+        "512",
+        "--config",
+        str(cfg),
+        "--out",
+        str(out),
+        "--no-eval",
+        "--no-progress",
+        "--checkpoint-every",
+        "256",
+    ]
     assert train.main(argv) == 0
     return out, cfg
 
@@ -36,8 +46,22 @@ def test_short_run_gives_an_agent_the_evaluation_scores(trained, tmp_path) -> No
     actions, _ = policy.predict(obs, None, np.ones(2, bool))
     assert actions.shape == (2, 9) and np.all(np.abs(actions) <= 1.0)
     result = tmp_path / "res.json"
-    code = evaluate_main(["--policy", str(agent_dir), "--policy", "fixed", "--scenario", "paper",
-                          "--runs", "3", "--json", str(result), "--quiet", "--no-clairvoyant"])
+    code = evaluate_main(
+        [
+            "--policy",
+            str(agent_dir),
+            "--policy",
+            "fixed",
+            "--scenario",
+            "paper",
+            "--runs",
+            "3",
+            "--json",
+            str(result),
+            "--quiet",
+            "--no-clairvoyant",
+        ]
+    )
     assert code == 0
     data = json.loads(result.read_text())
     assert np.isfinite(data["policies"][str(agent_dir)]["armse_pos"])
@@ -48,8 +72,18 @@ def test_resume_continues_the_step_count(trained) -> None:
     out, cfg = trained
     ckpt = out / "seed_0" / "checkpoints" / "latest"
     before = json.loads((ckpt / "agent.json").read_text())["num_timesteps"]
-    argv = ["--timesteps", str(before + 256), "--config", str(cfg), "--out", str(out / "resumed"),
-            "--resume", str(ckpt), "--no-eval", "--no-progress"]
+    argv = [
+        "--timesteps",
+        str(before + 256),
+        "--config",
+        str(cfg),
+        "--out",
+        str(out / "resumed"),
+        "--resume",
+        str(ckpt),
+        "--no-eval",
+        "--no-progress",
+    ]
     assert train.main(argv) == 0
     after = json.loads((out / "resumed" / "seed_0" / "agent" / "agent.json").read_text())
     assert after["num_timesteps"] >= before + 256
@@ -77,10 +111,33 @@ def test_bad_arguments(argv, message, capsys) -> None:
 def test_recurrent_variant_trains_and_evaluates(tmp_path) -> None:
     cfg = tmp_path / "small.yml"
     cfg.write_text(SMALL)
-    argv = ["--algo", "recurrent-ppo", "--timesteps", "256", "--config", str(cfg), "--out",
-            str(tmp_path), "--no-eval", "--no-progress"]
+    argv = [
+        "--algo",
+        "recurrent-ppo",
+        "--timesteps",
+        "256",
+        "--config",
+        str(cfg),
+        "--out",
+        str(tmp_path),
+        "--no-eval",
+        "--no-progress",
+    ]
     assert train.main(argv) == 0
     agent = tmp_path / "seed_0" / "agent"
     assert json.loads((agent / "agent.json").read_text())["algo"] == "recurrent-ppo"
-    assert evaluate_main(["--policy", str(agent), "--scenario", "paper", "--runs", "2",
-                          "--quiet", "--no-clairvoyant"]) == 0
+    assert (
+        evaluate_main(
+            [
+                "--policy",
+                str(agent),
+                "--scenario",
+                "paper",
+                "--runs",
+                "2",
+                "--quiet",
+                "--no-clairvoyant",
+            ]
+        )
+        == 0
+    )
