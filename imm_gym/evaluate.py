@@ -57,7 +57,7 @@ PAPER_TABLE2 = {
     },
 }
 
-BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window", "pretrained")
+BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window")
 TRAIN_SEED_OFFSET = 1_000_000
 TRAIN_RUNS = 100
 
@@ -101,10 +101,6 @@ def make_policy(
             "train_seeds": f"{seed + TRAIN_SEED_OFFSET}..{seed + TRAIN_SEED_OFFSET + train_runs - 1}",  # noqa: E501
         }
         return policy, policy.env_overrides, notes
-    if name == "pretrained":
-        from agents import PRETRAINED
-
-        return load_trained(PRETRAINED)
     if name in BUILTIN_POLICIES:
         policy = make_baseline(name, M)
         return policy, policy.env_overrides, {}
