@@ -2,7 +2,9 @@
 
 A trained agent is a directory (a "run" or the shipped ``pretrained/``) holding
 
-* ``model.zip`` — the stable-baselines3 model (PPO or RecurrentPPO);
+* ``model.zip`` — the stable-baselines3 model (PPO or RecurrentPPO), needed to resume training,
+  and ``policy.pt`` — the policy network alone (no optimizer state: a third of the size), enough
+  to act;
 * ``env.json`` — the environment overrides it was trained with (action mode, features...);
 * ``vecnormalize.json`` — the observation normalizer's running mean/variance (optional);
 * ``agent.json`` — the algorithm name and the frame-stack depth.
@@ -97,20 +99,23 @@ class LearnedPolicy:
 def load_agent(path: str | Path) -> LearnedPolicy:
     """Load a trained agent from its directory (or from its ``model.zip``)."""
     path = Path(path)
-    directory = path.parent if path.suffix == ".zip" else path
-    model_file = directory / "model.zip"
-    if not model_file.is_file():
-        raise FileNotFoundError(f"no trained agent at {str(directory)!r} (model.zip missing)")
+    directory = path.parent if path.suffix in (".zip", ".pt") else path
+    if not (directory / "agent.json").is_file():
+        raise FileNotFoundError(f"no trained agent at {str(directory)!r} (agent.json missing)")
     meta = json.loads((directory / "agent.json").read_text())
     algo = meta.get("algo", "ppo")
     if algo == "recurrent-ppo":
+        # sb3-contrib's recurrent policy does not save its LSTM size with the policy alone
         from sb3_contrib import RecurrentPPO
 
-        model = RecurrentPPO.load(model_file, device="cpu")
+        model = RecurrentPPO.load(directory / "model.zip", device="cpu")
     else:
-        from stable_baselines3 import PPO
+        from stable_baselines3.common.policies import ActorCriticPolicy
 
-        model = PPO.load(model_file, device="cpu")
+        policy_file = directory / "policy.pt"
+        if not policy_file.is_file():
+            raise FileNotFoundError(f"no trained agent at {str(directory)!r} (policy.pt missing)")
+        model = ActorCriticPolicy.load(str(policy_file), device="cpu")
     env_overrides = json.loads((directory / "env.json").read_text())
     if "obs_features" in env_overrides:
         env_overrides["obs_features"] = tuple(env_overrides["obs_features"])

@@ -107,9 +107,10 @@ def save_agent(
     frame_stack: int,
     extra: dict[str, Any] | None = None,
 ) -> None:
-    """Write ``model.zip``, ``env.json``, ``vecnormalize.json`` and ``agent.json``."""
+    """Write ``model.zip``, ``policy.pt``, ``env.json``, ``vecnormalize.json``, ``agent.json``."""
     directory.mkdir(parents=True, exist_ok=True)
     model.save(directory / "model.zip")
+    model.policy.save(str(directory / "policy.pt"))
     (directory / "env.json").write_text(json.dumps(jsonable(env_kwargs), indent=2))
     norm = find_normalizer(env)
     if norm is not None:

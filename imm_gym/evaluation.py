@@ -52,8 +52,11 @@ class Rollout:
 
 
 def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
-    """``base`` with a policy's overrides; the shadow tracker is off (it only shapes rewards)."""
-    return base.replace(**{"shadow": "none", "reward": "error", **overrides})
+    """``base`` with a policy's overrides; the shadow tracker is turned off (it only shapes
+    rewards) unless the policy observes it (``shadow_probs``)."""
+    observed = "shadow_probs" in overrides.get("obs_features", ())
+    defaults = {} if observed else {"shadow": "none", "reward": "error"}
+    return base.replace(**{**defaults, **overrides})
 
 
 def rollout(

@@ -83,7 +83,7 @@ def test_scenario_file(tmp_path) -> None:
         (["--policy", "fixed", "--scenario", "missing.json"], "--scenario must be"),
         (["--policy", "fixed", "--policy", "fixed"], "given twice"),
         (["--policy", "fixed", "--reference", "tip-imm"], "--reference"),
-        (["--policy", "missing_model.zip"], "no trained agent"),
+        (["--policy", "missing_dir/model.zip"], "no trained agent"),
     ],
 )
 def test_cli_rejects_bad_arguments(argv, message, capsys) -> None:
