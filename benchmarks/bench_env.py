@@ -1,211 +1,637 @@
-"""Single-core throughput of the environments, with one FilterPy IMM-UKF step for scale.
+"""Single-core step throughput of imm_gym's environments, with FilterPy for reference.
 
-What is measured (one CPU core; thread pools limited before numpy is imported):
+What is measured (all on one CPU core: the BLAS/OpenMP/numba thread pools are limited to one
+thread before numpy is imported), default ``imm_gym/TPMAdapt-v0`` config (randomized scenario
+family, 150-step episodes, M = 3 SVD-UKF bank, shadow IMM with a fixed TPM, ``advantage`` reward)
+unless stated:
 
-1. the scalar env through ``gymnasium.make("imm_gym/TPMAdapt-v0")`` (Gymnasium's default wrappers)
-   and its ``.unwrapped`` env, default configuration (bank A + shadow tracker), random actions,
-   whole 150-step episodes including the resets;
-2. the native vector env ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` at
-   N = 1, 64 and 1024, with the parallel bank off/on and the shadow tracker on/off
-   (``shadow="none", reward="error"``);
-3. the stable-baselines3 adapter ``TPMAdaptVecEnv`` at N = 64 and 1024;
-4. one FilterPy ``IMMEstimator`` step with three UKFs (the setup of ``bench_imm.py``).
+1. Scalar env, ``gymnasium.make("imm_gym/TPMAdapt-v0")`` (its default wrappers: order enforcing
+   and the passive env checker) and the same env's ``.unwrapped``, with zero actions and with
+   uniform random actions in [-1, 1] (drawn before timing). A repeat runs whole episodes —
+   ``reset()`` then ``step(a)`` until ``terminated or truncated`` — and the time per env step is
+   the repeat's time (resets included) over the env steps it took.
+2. Native vector env, ``gymnasium.make_vec(id, num_envs=N, vectorization_mode=
+   "vector_entry_point")`` for N = 1, 64, 1024 in four configurations: parallel bank B off / on
+   (``parallel=True``) x shadow tracker on (default: ``shadow="fixed"``, ``reward="advantage"``) /
+   off (``shadow="none", reward="error"``). The timed call is ``venv.step(actions)``; a repeat
+   runs whole cycles of 151 batch steps (150 steps of an episode + the ``NEXT_STEP`` autoreset
+   step, so each repeat holds its share of resets).
+3. stable-baselines3 adapter ``imm_gym.envs.sb3.TPMAdaptVecEnv(num_envs=N)`` for N = 64, 1024,
+   timed call ``venv.step(actions)`` (same-step resets), whole cycles of 150 batch steps.
+4. FilterPy ``IMMEstimator`` over three UKFs, one tracker, ``predict(); update(z)`` — timed by
+   the functions of ``bench_imm.py`` (imported from this directory), set up exactly as there.
 
-Figures are medians over ``--repeats`` repeats of env steps per second (N x batch steps / s) and
-microseconds per batch step. Run from the repository root::
+The vector fronts step with random actions by default (``--vec-actions zero`` for zeros). Each
+configuration is warmed up first (the numba kernels compile on their first call), then timed
+with ``time.perf_counter`` over repeats (garbage collection off while timing, as ``timeit``
+does); a repeat lasts at least ``MIN_REPEAT_S`` in whole episodes / cycles (one with
+``--quick``), and configurations whose repeat is longer than ``LONG_REPEAT_S`` (N = 1024) run
+``--long-repeats`` repeats instead of ``--repeats``. Reported figures are medians over the
+repeats: microseconds per batch step (one ``step`` call over all N sub-envs) and env-steps per
+second (N x batch steps / time; the vector env's autoreset steps count as steps).
 
-    python benchmarks/bench_env.py            # ~1-2 min
-    python benchmarks/bench_env.py --quick    # ~20 s
+Headline checks: (1) vector env, N = 1024, parallel on, shadow default, against the aim of
+50,000 env-steps/s; (2) the scalar env through ``gymnasium.make`` against one FilterPy IMM-UKF
+step, aim at least 10x faster.
+
+Run from the repository root::
+
+    python benchmarks/bench_env.py                 # full run (~1.5 min)
+    python benchmarks/bench_env.py --quick         # 3 repeats (1 at N = 1024), one episode each
+    python benchmarks/bench_env.py --repeats 9 --json bench_env.json
 """
 
 from __future__ import annotations
 
 import os
 
+# Single core: must happen before numpy (and numba) are imported.
 os.environ["OMP_NUM_THREADS"] = "1"
 os.environ["OPENBLAS_NUM_THREADS"] = "1"
 os.environ["MKL_NUM_THREADS"] = "1"
 os.environ["NUMBA_NUM_THREADS"] = "1"
 
 import argparse
+import hashlib
+import importlib.util
 import json
+import math
 import statistics
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import stable_baselines3
 from rich.console import Console
 from rich.table import Table
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import bench_imm
-
-import imm_gym  # noqa: F401  (registers the ids)
-from imm_gym import Sonar, paper_bank, paper_scenario
+import imm_gym
+from imm_gym import IMM, Sonar, draw_batch, paper_bank, paper_scenario
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
-from imm_gym.imm import IMM
-from imm_gym.montecarlo import draw_batch
+
+try:  # Belt and braces: also pin already-loaded thread pools if threadpoolctl is available.
+    from threadpoolctl import threadpool_limits
+except ImportError:  # pragma: no cover - depends on the environment
+    threadpool_limits = None
 
 ENV_ID = "imm_gym/TPMAdapt-v0"
-HORIZON = 150
-VECTOR_CONFIGS = {
-    "bank A + shadow (default)": {},
-    "bank A only": {"shadow": "none", "reward": "error"},
-    "banks A+B + shadow": {"parallel": True},
-    "banks A+B": {"parallel": True, "shadow": "none", "reward": "error"},
-}
+TARGET_VEC_ENV_STEPS_PER_S = 50_000.0
+TARGET_SPEEDUP_VS_FILTERPY = 10.0
+N_VECTOR = (1, 64, 1024)
+N_SB3 = (64, 1024)
+# (label, keyword overrides of the default config)
+VECTOR_CONFIGS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("parallel off, shadow on", {}),
+    ("parallel off, shadow off", {"shadow": "none", "reward": "error"}),
+    ("parallel on,  shadow on", {"parallel": True}),
+    ("parallel on,  shadow off", {"parallel": True, "shadow": "none", "reward": "error"}),
+)
+HEADLINE_VECTOR = ("parallel on,  shadow on", 1024)
+MIN_REPEAT_S = 0.3  # a repeat runs whole episodes / cycles until at least this long (not --quick)
+LONG_REPEAT_S = 1.0  # repeats longer than this use --long-repeats
+WARMUP_STEPS = 10
+
+Array = np.ndarray
+# block(units) -> (seconds, batch steps, episode ends) for `units` whole episodes / cycles
+Block = Callable[[int], tuple[float, int, int]]
 
 
-def time_scalar(env: Any, episodes: int, rng: np.random.Generator) -> float:
-    """Seconds per env step over whole episodes (resets included)."""
-    env.reset(seed=0)
-    actions = rng.uniform(-1, 1, (HORIZON, 9)).astype(np.float32)
-    steps = 0
-    t0 = time.perf_counter()
-    for _ in range(episodes):
-        for a in actions:
-            _, _, term, trunc, _ = env.step(a)
-            steps += 1
-            if term or trunc:
-                break
+def _load_bench_imm() -> ModuleType:
+    """``bench_imm.py`` from this directory, imported as a module (its ``main`` is not run)."""
+    path = Path(__file__).resolve().with_name("bench_imm.py")
+    spec = importlib.util.spec_from_file_location("bench_imm", path)
+    if spec is None or spec.loader is None:
+        raise SystemExit(f"cannot import {path}")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_imm"] = module  # dataclasses look their module up while being created
+    spec.loader.exec_module(module)
+    return module
+
+
+bench_imm = _load_bench_imm()
+_timed: Callable[[Callable[[], None]], float] = bench_imm._timed
+
+
+@dataclass
+class Result:
+    """Timing of one configuration."""
+
+    front: str  # "gymnasium.make", ".unwrapped", "make_vec", "SB3 VecEnv", "FilterPy"
+    config: str
+    actions: str
+    n_envs: int
+    us_per_step: float  # median microseconds per batch step (one step call over N sub-envs)
+    env_steps_per_s: float  # N / median time per batch step
+    us_per_step_min: float
+    us_per_step_max: float
+    repeats: int
+    units_per_repeat: int  # whole episodes (scalar) or cycles (vector) per repeat
+    batch_steps_timed: int
+    episode_ends: int  # terminated or truncated sub-env episodes seen while timing
+    per_repeat_us: list[float] = field(default_factory=list)
+
+    @property
+    def us_per_env_step(self) -> float:
+        return self.us_per_step / self.n_envs
+
+    @property
+    def steps_per_episode(self) -> float:
+        """Mean env steps per finished episode (nan when none finished)."""
+        if not self.episode_ends:
+            return math.nan
+        return self.batch_steps_timed * self.n_envs / self.episode_ends
+
+
+# ---------------------------------------------------------------------------------------------
+# Timing
+# ---------------------------------------------------------------------------------------------
+
+
+def bench(
+    front: str,
+    config: str,
+    actions: str,
+    n: int,
+    block: Block,
+    warmup: Callable[[], float],
+    unit_steps: int,
+    repeats: int,
+    long_repeats: int,
+    min_repeat_s: float,
+) -> Result:
+    """Warm up, size the repeats, then time repeats of whole episodes / cycles.
+
+    ``warmup()`` runs (and compiles) a few steps and returns the estimated seconds per step;
+    ``unit_steps`` is the number of steps of one episode / cycle.
+    """
+    per_unit = warmup() * unit_steps
+    units = max(1, math.ceil(min_repeat_s / per_unit)) if min_repeat_s > 0 else 1
+    if units * per_unit > LONG_REPEAT_S:
+        repeats = long_repeats
+    per_step, steps_timed, ends = [], 0, 0
+    for _ in range(repeats):
+        seconds, steps, e = block(units)
+        per_step.append(seconds / steps)
+        steps_timed += steps
+        ends += e
+    med = statistics.median(per_step)
+    return Result(
+        front=front,
+        config=config,
+        actions=actions,
+        n_envs=n,
+        us_per_step=med * 1e6,
+        env_steps_per_s=n / med,
+        us_per_step_min=min(per_step) * 1e6,
+        us_per_step_max=max(per_step) * 1e6,
+        repeats=repeats,
+        units_per_repeat=units,
+        batch_steps_timed=steps_timed,
+        episode_ends=ends,
+        per_repeat_us=[t * 1e6 for t in per_step],
+    )
+
+
+def action_pool(space: gym.spaces.Box, kind: str, length: int, seed: int) -> list[Array]:
+    """``length`` actions (one per step of an episode / cycle), zero or uniform on the box."""
+    if kind == "zero":
+        zero = np.zeros(space.shape, dtype=space.dtype)
+        return [zero] * length
+    rng = np.random.default_rng(seed)
+    return list(rng.uniform(space.low, space.high, (length, *space.shape)).astype(space.dtype))
+
+
+# ---------------------------------------------------------------------------------------------
+# Scalar env
+# ---------------------------------------------------------------------------------------------
+
+
+def scalar_case(env: gym.Env, pool: list[Array], seed: int) -> tuple[Callable[[], float], Block]:
+    """Warm-up and timed block (whole episodes, resets included) of a scalar env."""
+    P = len(pool)
+
+    def warmup() -> float:
+        env.reset(seed=seed)
+        for i in range(WARMUP_STEPS):
+            env.step(pool[i])
         env.reset()
-    return (time.perf_counter() - t0) / steps
+
+        def loop() -> None:
+            for i in range(WARMUP_STEPS):
+                env.step(pool[i])
+
+        return _timed(loop) / WARMUP_STEPS
+
+    def block(episodes: int) -> tuple[float, int, int]:
+        reset, step = env.reset, env.step
+        count = [0]
+
+        def loop() -> None:
+            steps = 0
+            for _ in range(episodes):
+                reset()
+                i = 0
+                while True:
+                    _, _, terminated, truncated, _ = step(pool[i % P])
+                    i += 1
+                    if terminated or truncated:
+                        break
+                steps += i
+            count[0] = steps
+
+        seconds = _timed(loop)
+        return seconds, count[0], episodes
+
+    return warmup, block
 
 
-def time_vector(step: Any, reset: Any, n: int, batch_steps: int, rng: np.random.Generator) -> float:
-    """Seconds per batch step (autoresets included)."""
-    reset()
-    actions = rng.uniform(-1, 1, (8, n, 9)).astype(np.float32)
-    t0 = time.perf_counter()
-    for k in range(batch_steps):
-        step(actions[k % 8])
-    return (time.perf_counter() - t0) / batch_steps
+# ---------------------------------------------------------------------------------------------
+# Vector envs (Gymnasium native and SB3)
+# ---------------------------------------------------------------------------------------------
 
 
-def median(samples: list[float]) -> float:
-    return statistics.median(samples)
+def vector_case(
+    step: Callable[[Array], tuple[Any, ...]],
+    reset: Callable[[], Any],
+    pool: list[Array],
+    cycle: int,
+    done: Callable[[tuple[Any, ...]], Array],
+) -> tuple[Callable[[], float], Block]:
+    """Warm-up and timed block (``cycle`` batch steps per unit) of a vector env.
+
+    The env keeps running across repeats (autoresets inside the timed steps); ``done(out)`` gives
+    the sub-envs whose episode ended in a step's output, counted after the clock stops.
+    """
+    P = len(pool)
+    k = [0]  # next index into the action pool
+
+    def warmup() -> float:
+        reset()
+        for i in range(WARMUP_STEPS):
+            step(pool[i % P])
+
+        def loop() -> None:
+            for i in range(WARMUP_STEPS, 2 * WARMUP_STEPS):
+                step(pool[i % P])
+
+        seconds = _timed(loop)
+        k[0] = 2 * WARMUP_STEPS
+        return seconds / WARMUP_STEPS
+
+    def block(cycles: int) -> tuple[float, int, int]:
+        steps = cycles * cycle
+        start = k[0]
+        outs: list[tuple[Any, ...]] = []
+        append = outs.append
+
+        def loop() -> None:
+            for i in range(start, start + steps):
+                append(step(pool[i % P]))
+
+        seconds = _timed(loop)
+        k[0] = start + steps
+        ends = sum(int(np.count_nonzero(done(out))) for out in outs)
+        return seconds, steps, ends
+
+    return warmup, block
 
 
-def run(args: argparse.Namespace) -> dict[str, Any]:
-    rng = np.random.default_rng(0)
-    repeats = 3 if args.quick else args.repeats
-    episodes = 1 if args.quick else 3
-    rows: list[dict[str, Any]] = []
+def make_vec(n: int, overrides: dict[str, Any]) -> Any:
+    return gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", **overrides)
 
-    for label, env in (
-        ("scalar env, gymnasium.make", gym.make(ENV_ID)),
-        ("scalar env, .unwrapped", gym.make(ENV_ID).unwrapped),
-    ):
-        time_scalar(env, 1, rng)  # warm up (numba cache load)
-        t = median([time_scalar(env, episodes, rng) for _ in range(repeats)])
-        rows.append(
-            {
-                "what": label,
-                "config": "bank A + shadow (default)",
-                "n": 1,
-                "us_per_step": t * 1e6,
-                "env_steps_per_s": 1 / t,
-            }
-        )
 
-    sizes = (1, 64) if args.quick else (1, 64, 1024)
-    for name, kwargs in VECTOR_CONFIGS.items():
-        for n in sizes:
-            venv = gym.make_vec(
-                ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", **kwargs
-            )
-            steps = max(20, min(300, 30_000 // n))
-            time_vector(venv.step, lambda v=venv: v.reset(seed=0), n, 5, rng)
-            t = median(
-                [
-                    time_vector(venv.step, lambda v=venv: v.reset(seed=0), n, steps, rng)
-                    for _ in range(repeats)
-                ]
-            )
-            rows.append(
-                {
-                    "what": "vector env",
-                    "config": name,
-                    "n": n,
-                    "us_per_step": t * 1e6,
-                    "env_steps_per_s": n / t,
-                }
-            )
+# ---------------------------------------------------------------------------------------------
+# FilterPy (via bench_imm.py)
+# ---------------------------------------------------------------------------------------------
 
-    for n in (64,) if args.quick else (64, 1024):
-        sb3 = TPMAdaptVecEnv(num_envs=n)
-        steps = max(20, min(300, 30_000 // n))
-        time_vector(sb3.step, sb3.reset, n, 5, rng)
-        t = median([time_vector(sb3.step, sb3.reset, n, steps, rng) for _ in range(repeats)])
-        rows.append(
-            {
-                "what": "SB3 VecEnv adapter",
-                "config": "bank A + shadow (default)",
-                "n": n,
-                "us_per_step": t * 1e6,
-                "env_steps_per_s": n / t,
-            }
-        )
 
-    imm = IMM(paper_bank(), Sonar())
-    batch = draw_batch(paper_scenario(), Sonar(), 1, 0)
-    episode = bench_imm.filterpy_episode(
-        imm.F, imm.Q, Sonar().R, batch.measurements.z[0], batch.x0[0], batch.P0[0]
+def filterpy_result(repeats: int, min_repeat_s: float, seed: int) -> Result:
+    """One FilterPy IMM-UKF tracker step, set up and timed as ``bench_imm.py`` does."""
+    sonar = Sonar()
+    imm = IMM(paper_bank(), sonar)
+    scenario = paper_scenario()
+    b = draw_batch(scenario, sonar, 1, seed)
+    ep = bench_imm.filterpy_episode(imm.F, imm.Q, sonar.R, b.measurements.z[0], b.x0[0], b.P0[0])
+    r = bench_imm.bench(
+        "FilterPy IMMEstimator", "ukf", 1, ep, scenario.horizon, repeats, min_repeat_s
     )
-    episode(10)
-    fp = median([episode(HORIZON) / HORIZON for _ in range(repeats)])
-    return {"rows": rows, "filterpy_us_per_step": fp * 1e6, "load": os.getloadavg()[0]}
+    return Result(
+        front="FilterPy",
+        config="IMMEstimator, 3 UKFs (bench_imm.py)",
+        actions="-",
+        n_envs=1,
+        us_per_step=r.us_per_step,
+        env_steps_per_s=r.tracker_steps_per_s,
+        us_per_step_min=r.us_per_step_min,
+        us_per_step_max=r.us_per_step_max,
+        repeats=repeats,
+        units_per_repeat=r.episodes_per_repeat,
+        batch_steps_timed=r.steps_timed,
+        episode_ends=0,
+        per_repeat_us=r.per_repeat_us,
+    )
 
 
-def render(results: dict[str, Any], console: Console) -> None:
-    table = Table(title="Environment throughput, 1 core (medians)")
-    for col in ("what", "configuration", "N", "µs / batch step", "env-steps/s"):
-        table.add_column(col, justify="left" if col in ("what", "configuration") else "right")
-    for r in results["rows"]:
-        table.add_row(
-            r["what"],
-            r["config"],
-            str(r["n"]),
-            f"{r['us_per_step']:,.0f}",
-            f"{r['env_steps_per_s']:,.0f}",
+# ---------------------------------------------------------------------------------------------
+# Reporting
+# ---------------------------------------------------------------------------------------------
+
+
+def environment() -> dict[str, Any]:
+    env = bench_imm.environment()
+    env["gymnasium"] = gym.__version__
+    env["stable_baselines3"] = stable_baselines3.__version__
+    env["imm_gym_source_sha1"] = _source_digest()
+    return env
+
+
+def _source_digest() -> str:
+    """SHA-1 over imm_gym's and imm_gym/envs' ``*.py`` files (identifies a dirty tree's code)."""
+    root = Path(imm_gym.__file__).resolve().parent
+    h = hashlib.sha1()
+    for f in sorted([*root.glob("*.py"), *root.glob("envs/*.py")]):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def _loadavg() -> float:
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+
+
+def _range(r: Result) -> str:
+    return f"({r.us_per_step_min:,.1f} – {r.us_per_step_max:,.1f})"
+
+
+def render(
+    console: Console,
+    scalar: list[Result],
+    vector: list[Result],
+    fp: Result,
+    env: dict[str, Any],
+    loadavg_end: float,
+) -> dict[str, Any]:
+    t1 = Table(
+        title=f"Scalar env steps — {ENV_ID}, default config, 1 core",
+        caption=(
+            "median over repeats of whole episodes, resets included; "
+            "speed-up = FilterPy µs per IMM-UKF step / this row's µs per env step"
+        ),
+    )
+    t1.add_column("front", no_wrap=True)
+    t1.add_column("actions")
+    t1.add_column("µs / env step", justify="right")
+    t1.add_column("(min – max)", justify="right", style="dim", no_wrap=True)
+    t1.add_column("env-steps/s", justify="right")
+    t1.add_column("repeats × episodes", justify="right")
+    t1.add_column("steps / episode", justify="right")
+    t1.add_column("speed-up vs FilterPy", justify="right")
+    for r in [*scalar, fp]:
+        if r is fp:
+            t1.add_section()
+        t1.add_row(
+            r.front if r is not fp else f"{r.front} {r.config}",
+            r.actions,
+            f"{r.us_per_step:,.1f}",
+            _range(r),
+            f"{r.env_steps_per_s:,.0f}",
+            f"{r.repeats} × {r.units_per_repeat}",
+            f"{r.steps_per_episode:.1f}" if r is not fp else "150 (paper)",
+            f"{fp.us_per_step / r.us_per_step:,.1f}×",
         )
-    console.print(table)
-    fp = results["filterpy_us_per_step"]
-    scalar = results["rows"][0]["us_per_step"]
-    big = [
-        r
-        for r in results["rows"]
-        if r["what"] == "vector env" and r["n"] == 1024 and r["config"] == "banks A+B + shadow"
-    ]
+    console.print(t1)
+
+    t2 = Table(
+        title=f"Vector env steps — {ENV_ID}, 1 core",
+        caption=(
+            "median over repeats of whole cycles (make_vec: 150 steps + 1 autoreset step; "
+            "SB3: 150 steps, same-step reset); env-steps/s = N × batch steps / time"
+        ),
+    )
+    t2.add_column("front", no_wrap=True)
+    t2.add_column("config", no_wrap=True)
+    t2.add_column("actions")
+    t2.add_column("N", justify="right")
+    t2.add_column("µs / batch step", justify="right")
+    t2.add_column("(min – max)", justify="right", style="dim", no_wrap=True)
+    t2.add_column("µs / env step", justify="right")
+    t2.add_column("env-steps/s", justify="right")
+    t2.add_column("repeats × cycles", justify="right")
+    t2.add_column("vs 50k aim", justify="right")
+    previous = None
+    for r in vector:
+        key = (r.front, r.config)
+        if previous is not None and key != previous:
+            t2.add_section()
+        previous = key
+        t2.add_row(
+            r.front,
+            r.config,
+            r.actions,
+            str(r.n_envs),
+            f"{r.us_per_step:,.1f}",
+            _range(r),
+            f"{r.us_per_env_step:,.2f}",
+            f"{r.env_steps_per_s:,.0f}",
+            f"{r.repeats} × {r.units_per_repeat}",
+            f"{r.env_steps_per_s / TARGET_VEC_ENV_STEPS_PER_S:.2f}",
+        )
+    console.print(t2)
+
+    config, n = HEADLINE_VECTOR
+    hv = next(r for r in vector if r.front == "make_vec" and r.config == config and r.n_envs == n)
+    ratio = hv.env_steps_per_s / TARGET_VEC_ENV_STEPS_PER_S
+    headline = Table(title="Headline checks")
+    headline.add_column("check")
+    headline.add_column("value", justify="right")
+    headline.add_column("aim", justify="right")
+    headline.add_column("met?", justify="center")
+
+    def verdict(ok: bool) -> str:
+        return "[green]yes[/green]" if ok else "[bold red]no[/bold red]"
+
+    headline.add_row(
+        f"(1) make_vec N={n}, {config.replace('  ', ' ')}: env-steps/s",
+        f"{hv.env_steps_per_s:,.0f}  ({ratio:.2f} of aim)",
+        f"≥ {TARGET_VEC_ENV_STEPS_PER_S:,.0f}",
+        verdict(ratio >= 1.0),
+    )
+    speedups = {}
+    for r in scalar:
+        if r.front != "gymnasium.make":
+            continue
+        s = fp.us_per_step / r.us_per_step
+        speedups[r.actions] = s
+        headline.add_row(
+            f"(2) gymnasium.make scalar env ({r.actions} actions) vs one FilterPy step",
+            f"{s:,.1f}×  ({r.us_per_step:,.1f} vs {fp.us_per_step:,.1f} µs)",
+            f"≥ {TARGET_SPEEDUP_VS_FILTERPY:.0f}×",
+            verdict(s >= TARGET_SPEEDUP_VS_FILTERPY),
+        )
+    console.print(headline)
+
+    threads = ", ".join(f"{k}={v}" for k, v in env["thread_env"].items())
+    load0 = env["loadavg_at_start"][0] if env["loadavg_at_start"] else math.nan
     console.print(
-        f"FilterPy IMMEstimator (3 UKFs) step: {fp:,.0f} µs. Scalar env via "
-        f"gymnasium.make: {scalar:,.0f} µs per step = {fp / scalar:.1f}x faster "
-        "(aim: 10x)."
+        f"[dim]{env['processor']}; {env['cpus_available']} CPUs available; {threads}; "
+        f"threadpoolctl {'used' if env['threadpoolctl'] else 'not installed'}; "
+        f"numpy {env['numpy']}, gymnasium {env['gymnasium']}, "
+        f"stable-baselines3 {env['stable_baselines3']}, filterpy {env['filterpy']}, "
+        f"Python {env['python']}; load avg (1 min) at start {load0:.2f}, at end "
+        f"{loadavg_end:.2f}[/dim]"
     )
-    if big:
-        console.print(
-            f"Vector env N=1024, parallel bank on: {big[0]['env_steps_per_s']:,.0f} "
-            "env-steps/s (aim: 50,000)."
+    return {
+        "vector_n1024_parallel_env_steps_per_s": hv.env_steps_per_s,
+        "vector_n1024_parallel_vs_aim": ratio,
+        "scalar_make_speedup_vs_filterpy": speedups,
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# Main
+# ---------------------------------------------------------------------------------------------
+
+
+def run(args: argparse.Namespace, console: Console) -> int:
+    repeats = args.repeats if args.repeats is not None else (3 if args.quick else 5)
+    long_repeats = args.long_repeats if args.long_repeats is not None else (1 if args.quick else 3)
+    if repeats < 1 or long_repeats < 1:
+        raise SystemExit("--repeats and --long-repeats must be >= 1")
+    min_repeat_s = 0.0 if args.quick else MIN_REPEAT_S
+    env_info = environment()
+    t_start = time.perf_counter()
+
+    common = {"repeats": repeats, "long_repeats": long_repeats, "min_repeat_s": min_repeat_s}
+
+    # 1. scalar env
+    scalar: list[Result] = []
+    made = gym.make(ENV_ID)
+    horizon = made.unwrapped.core.horizon
+    for front, env in (("gymnasium.make", made), (".unwrapped", made.unwrapped)):
+        for kind in ("zero", "random"):
+            console.print(f"[dim]timing scalar env {front} {kind} actions ...[/dim]")
+            pool = action_pool(env.action_space, kind, horizon, args.seed)
+            warmup, block = scalar_case(env, pool, args.seed)
+            scalar.append(bench(front, "default", kind, 1, block, warmup, horizon, **common))
+    made.close()
+
+    # 2. FilterPy reference
+    console.print("[dim]timing FilterPy IMMEstimator (UKF) N=1 (bench_imm.py) ...[/dim]")
+    fp = filterpy_result(repeats, min_repeat_s, args.seed)
+
+    # 3. native vector env and SB3 adapter
+    vector: list[Result] = []
+    kind = args.vec_actions
+    for config, overrides in VECTOR_CONFIGS:
+        for n in N_VECTOR:
+            console.print(f"[dim]timing make_vec {config} N={n} ...[/dim]")
+            venv = make_vec(n, overrides)
+            core = venv.unwrapped.core
+            cycle = core.horizon + 1  # NEXT_STEP autoreset: one extra step per episode
+            pool = action_pool(venv.action_space, kind, cycle, args.seed)
+            warmup, block = vector_case(
+                venv.step,
+                lambda v=venv: v.reset(seed=args.seed),
+                pool,
+                cycle,
+                lambda out: out[2] | out[3],
+            )
+            vector.append(bench("make_vec", config, kind, n, block, warmup, cycle, **common))
+            venv.close()
+    for n in N_SB3:
+        console.print(f"[dim]timing SB3 TPMAdaptVecEnv N={n} ...[/dim]")
+        venv = TPMAdaptVecEnv(num_envs=n)
+        venv.seed(args.seed)
+        cycle = venv.core.horizon  # same-step reset
+        batched = gym.spaces.Box(-1.0, 1.0, (n, venv.core.action_dim), dtype=np.float32)
+        pool = action_pool(batched, kind, cycle, args.seed)
+        warmup, block = vector_case(venv.step, venv.reset, pool, cycle, lambda out: out[2])
+        vector.append(
+            bench("SB3 VecEnv", "default (TPMAdaptVecEnv)", kind, n, block, warmup, cycle, **common)
         )
-    console.print(f"load average at the end: {results['load']:.2f}")
+        venv.close()
 
+    elapsed = time.perf_counter() - t_start
+    loadavg_end = _loadavg()
+    headline = render(console, scalar, vector, fp, env_info, loadavg_end)
+    console.print(f"[dim]timing took {elapsed:.0f} s[/dim]")
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--json", type=Path)
-    args = parser.parse_args(argv)
-    results = run(args)
-    render(results, Console(width=120))
-    if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
+    if args.json is not None:
+        payload = {
+            "benchmark": "bench_env",
+            "settings": {
+                "env_id": ENV_ID,
+                "repeats": repeats,
+                "long_repeats": long_repeats,
+                "quick": args.quick,
+                "seed": args.seed,
+                "vec_actions": kind,
+                "horizon": horizon,
+                "min_repeat_s": min_repeat_s,
+                "long_repeat_s": LONG_REPEAT_S,
+                "target_vec_env_steps_per_s": TARGET_VEC_ENV_STEPS_PER_S,
+                "target_speedup_vs_filterpy": TARGET_SPEEDUP_VS_FILTERPY,
+            },
+            "environment": {**env_info, "loadavg_at_end": loadavg_end},
+            "results": [
+                {
+                    **asdict(r),
+                    "us_per_env_step": r.us_per_env_step,
+                    "steps_per_episode": r.steps_per_episode,
+                }
+                for r in [*scalar, fp, *vector]
+            ],
+            "headline": headline,
+            "elapsed_s": elapsed,
+        }
+        Path(args.json).write_text(json.dumps(payload, indent=2) + "\n")
+        console.print(f"[dim]wrote {args.json}[/dim]")
     return 0
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument(
+        "--repeats", type=int, default=None, help="timed repeats per configuration (5; 3 quick)"
+    )
+    p.add_argument(
+        "--long-repeats",
+        type=int,
+        default=None,
+        help=f"repeats of configurations whose repeat lasts > {LONG_REPEAT_S:g} s (3; 1 quick)",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="3 repeats (1 for N = 1024) of a single episode / cycle each",
+    )
+    p.add_argument(
+        "--vec-actions",
+        choices=("random", "zero"),
+        default="random",
+        help="actions of the vector fronts (default random)",
+    )
+    p.add_argument("--json", metavar="FILE", default=None, help="also write the results as JSON")
+    p.add_argument("--seed", type=int, default=0, help="reset / action seed (default 0)")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=200)  # don't let rich wrap the tables at 80 columns in a pipe
+    if threadpool_limits is not None:
+        with threadpool_limits(limits=1):
+            return run(args, console)
+    return run(args, console)
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

@@ -1,0 +1,58 @@
+"""Wall time of the Monte-Carlo evaluation of every baseline, one core.
+
+Times ``imm_gym.evaluate.evaluate`` on the paper scenario (100 runs) for each baseline alone and
+for all of them together (the best fixed TPM includes its search over 12 stay probabilities on
+100 training runs), plus the clairvoyant bound. Import and the numba kernel's first load are timed
+separately. Run from the repository root::
+
+    python benchmarks/bench_evaluate.py [--runs 100] [--scenario paper]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["OMP_NUM_THREADS"] = "1"
+os.environ["OPENBLAS_NUM_THREADS"] = "1"
+os.environ["MKL_NUM_THREADS"] = "1"
+os.environ["NUMBA_NUM_THREADS"] = "1"
+
+import argparse
+import time
+
+from rich.console import Console
+from rich.table import Table
+
+POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=100)
+    parser.add_argument("--scenario", default="paper")
+    args = parser.parse_args(argv)
+    t0 = time.perf_counter()
+    from imm_gym.evaluate import evaluate
+
+    t_import = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    evaluate(["fixed"], args.scenario, 2, 0, clairvoyant=False)  # first kernel load
+    t_warm = time.perf_counter() - t0
+    table = Table(title=f"Evaluation wall time, scenario {args.scenario}, {args.runs} runs, 1 core")
+    table.add_column("what")
+    table.add_column("seconds", justify="right")
+    table.add_row("import imm_gym.evaluate", f"{t_import:.2f}")
+    table.add_row("first kernel load (numba cache)", f"{t_warm:.2f}")
+    for name in POLICIES:
+        t0 = time.perf_counter()
+        evaluate([name], args.scenario, args.runs, 0, clairvoyant=False)
+        table.add_row(name, f"{time.perf_counter() - t0:.2f}")
+    t0 = time.perf_counter()
+    evaluate(list(POLICIES), args.scenario, args.runs, 0)
+    table.add_row("all five + clairvoyant bound", f"{time.perf_counter() - t0:.2f}")
+    Console(width=100).print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,145 @@
+"""Registration of the environment ids, the Gymnasium and SB3 checkers over the whole registry,
+and ``gymnasium.make_vec`` with the native vector entry point."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import imm_gym
+from imm_gym import EnvConfig
+from imm_gym.envs import PRESETS, TPMAdaptEnv, TPMAdaptVectorEnv, register_envs
+
+IDS = sorted(env_id for env_id in gym.registry if env_id.startswith("imm_gym/"))
+
+
+def test_import_registers_every_preset() -> None:
+    assert set(PRESETS) == set(IDS)
+    for env_id, preset in PRESETS.items():
+        spec = gym.spec(env_id)
+        assert spec.entry_point == "imm_gym.envs.tpm_adapt:TPMAdaptEnv"
+        assert spec.vector_entry_point == "imm_gym.envs.vector:TPMAdaptVectorEnv"
+        assert spec.kwargs["config"] == preset
+        env = gym.make(env_id)
+        assert isinstance(env.unwrapped, TPMAdaptEnv)
+        assert env.unwrapped.config == EnvConfig.build(preset)
+        env.close()
+
+
+def test_presets_configure_what_they_claim() -> None:
+    paper = gym.make("imm_gym/TPMAdaptPaper-v0").unwrapped.config
+    assert paper.scenario == "paper" and paper.source.horizon == 150
+    parallel = gym.make("imm_gym/TPMAdaptParallel-v0").unwrapped.config
+    assert parallel.parallel and parallel.p_min == 0.05 and "bank_b" in parallel.obs_features
+    random = gym.make("imm_gym/TPMAdapt-v0").unwrapped.config
+    assert random.scenario == "random" and not random.parallel
+
+
+def test_register_envs_twice_is_harmless() -> None:
+    before = {env_id: gym.spec(env_id) for env_id in IDS}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        register_envs()
+        register_envs()
+        imm_gym.envs.register_envs()
+    assert [str(w.message) for w in caught] == []
+    after = sorted(env_id for env_id in gym.registry if env_id.startswith("imm_gym/"))
+    assert after == IDS
+    for env_id in IDS:
+        assert gym.spec(env_id) == before[env_id]
+
+
+def test_module_prefixed_id_works() -> None:
+    env = gym.make("imm_gym:imm_gym/TPMAdapt-v0")
+    assert env.spec is not None and env.spec.id == "imm_gym/TPMAdapt-v0"
+    assert isinstance(env.unwrapped, TPMAdaptEnv)
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_gymnasium_checker_passes_without_warnings(env_id: str) -> None:
+    env = gym.make(env_id)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        gym_check_env(env.unwrapped)
+    assert [f"{w.category.__name__}: {w.message}" for w in caught] == []
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_sb3_checker_passes_without_warnings(env_id: str) -> None:
+    env = gym.make(env_id)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sb3_check_env(env.unwrapped, warn=True)
+    assert [f"{w.category.__name__}: {w.message}" for w in caught] == []
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_make_with_the_passive_checker_runs_an_episode_start(env_id: str) -> None:
+    """``gym.make`` wraps with the passive env checker; it must not warn either."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = gym.make(env_id)
+        obs, info = env.reset(seed=1)
+        for _ in range(3):
+            obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    assert [str(w.message) for w in caught] == []
+    assert env.observation_space.contains(obs)
+    assert isinstance(reward, float) and not terminated and not truncated
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_make_vec_gives_the_native_vector_env_with_batched_spaces(env_id: str) -> None:
+    venv = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point")
+    assert isinstance(venv.unwrapped, TPMAdaptVectorEnv)
+    assert venv.num_envs == 3
+    single = gym.make(env_id)
+    assert venv.single_observation_space == single.observation_space
+    assert venv.single_action_space == single.action_space
+    for batched, one in (
+        (venv.observation_space, single.observation_space),
+        (venv.action_space, single.action_space),
+    ):
+        assert isinstance(batched, spaces.Box) and batched.dtype == np.float32
+        assert batched.shape == (3, *one.shape)
+        np.testing.assert_array_equal(batched.low, np.broadcast_to(one.low, batched.shape))
+        np.testing.assert_array_equal(batched.high, np.broadcast_to(one.high, batched.shape))
+    assert venv.unwrapped.config == single.unwrapped.config
+    obs, info = venv.reset(seed=0)
+    assert obs.dtype == np.float32 and venv.observation_space.contains(obs)
+    obs, reward, terminated, truncated, info = venv.step(venv.action_space.sample())
+    assert venv.observation_space.contains(obs)
+    assert reward.shape == terminated.shape == truncated.shape == (3,)
+
+
+def test_make_vec_passes_keyword_overrides_to_the_vector_env() -> None:
+    venv = gym.make_vec(
+        "imm_gym/TPMAdaptPaper-v0",
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        obs_features=("tpm", "time"),
+    )
+    config = venv.unwrapped.config
+    assert config.scenario == "paper" and config.obs_features == ("tpm", "time")
+    assert venv.single_observation_space.shape == (6 + 9 + 1,)
+
+
+def test_spaces_of_a_two_model_bank() -> None:
+    env = gym.make(
+        "imm_gym/TPMAdapt-v0",
+        bank=[{"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 3.0}],
+        obs_features=("tpm", "loglik", "nis", "innovation", "time"),
+    )
+    assert env.action_space.shape == (4,)
+    # mu, mu_prev (2 + 2), tpm 4, loglik 2, nis 2, innovation 2 x 2, time 1
+    assert env.observation_space.shape == (2 + 2 + 4 + 2 + 2 + 4 + 1,)
+    obs, _ = env.reset(seed=0)
+    obs, *_ = env.step(np.zeros(4, np.float32))
+    assert env.observation_space.contains(obs)
