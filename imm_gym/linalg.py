@@ -160,9 +160,3 @@ def inv_logdet(S: Array) -> tuple[Array, Array]:
 def mahalanobis(nu: Array, S_inv: Array) -> Array:
     """Quadratic form ``nu^T S^-1 nu``: ``(..., m), (..., m, m) -> (...)``."""
     return np.einsum("...i,...ij,...j->...", nu, S_inv, nu)
-
-
-def gaussian_loglik(nu: Array, S_inv: Array, logdet: Array) -> Array:
-    """``log N(nu; 0, S) = -(nu^T S^-1 nu + log det S + m log 2 pi) / 2``."""
-    m = nu.shape[-1]
-    return -0.5 * (mahalanobis(nu, S_inv) + logdet + m * LOG_2PI)

@@ -43,12 +43,6 @@ def tracking_errors(estimate: Array, truth: Array) -> dict[str, float]:
     }
 
 
-def per_run_position_rmse(estimate: Array, truth: Array) -> Array:
-    """Each run's position RMSE over time, ``(R,)``: the unit of paired comparisons."""
-    e = estimate[..., :2] - truth[..., :2]
-    return np.sqrt(np.mean(np.sum(e**2, axis=-1), axis=1))
-
-
 def nees(estimate: Array, covariance: Array, truth: Array) -> Array:
     """``(x - x_hat)^T P^-1 (x - x_hat)`` on ``[x, y, vx, vy]``: ``(R, K)``."""
     e = truth[..., :4] - estimate[..., :4]

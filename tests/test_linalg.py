@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imm_gym.linalg import gaussian_loglik, inv_logdet, mahalanobis, sym_eig, wrap_angle
+from imm_gym.linalg import inv_logdet, mahalanobis, sym_eig, wrap_angle
 
 PI = np.pi
 
@@ -212,17 +212,3 @@ def test_inv_logdet_rejects_non_pd_2x2(S: np.ndarray) -> None:
 def test_inv_logdet_rejects_non_pd_4x4() -> None:
     with pytest.raises(np.linalg.LinAlgError):
         inv_logdet(np.diag([1.0, 2.0, -1.0, 3.0]))
-
-
-def test_gaussian_loglik_matches_scipy() -> None:
-    from scipy.stats import multivariate_normal
-
-    rng = np.random.default_rng(5)
-    A = rng.standard_normal((2, 2))
-    S = A @ A.T + np.eye(2)
-    nu = rng.standard_normal(2)
-    S_inv, logdet = inv_logdet(S)
-    assert mahalanobis(nu, S_inv) == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-12)
-    assert gaussian_loglik(nu, S_inv, logdet) == pytest.approx(
-        multivariate_normal(np.zeros(2), S).logpdf(nu), rel=1e-12
-    )

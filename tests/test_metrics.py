@@ -11,7 +11,6 @@ from imm_gym.metrics import (
     consistency,
     mode_accuracy,
     nees,
-    per_run_position_rmse,
     rmse_over_time,
     tracking_errors,
     true_model_index,
@@ -34,7 +33,6 @@ def test_constant_error() -> None:
     assert e["armse_vel"] == pytest.approx(0.5)
     assert e["armse_vel_x"] == pytest.approx(0.3)
     assert e["armse_vel_y"] == pytest.approx(0.4)
-    np.testing.assert_allclose(per_run_position_rmse(est, truth), 5.0)
 
 
 def test_rmse_is_over_runs_then_mean_over_time() -> None:
@@ -52,10 +50,6 @@ def test_rmse_is_over_runs_then_mean_over_time() -> None:
     assert e["armse_pos"] == pytest.approx((np.sqrt(12.5) + 10.0) / 2)
     assert e["armse_pos_x"] == pytest.approx((np.sqrt(9.0 / 2) + np.sqrt(36.0 / 2)) / 2)
     assert e["armse_vel"] == 0.0
-    # per run: RMSE over time of each run
-    np.testing.assert_allclose(
-        per_run_position_rmse(est, truth), [np.sqrt((25 + 100) / 2), np.sqrt(100 / 2)]
-    )
 
 
 def test_tracking_errors_ignores_extra_state() -> None:
