@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imm_gym.linalg import inv_logdet, mahalanobis, sym_eig, wrap_angle
+from imm_gym.linalg import inv_logdet, sym_eig, wrap_angle
 
 PI = np.pi
 
