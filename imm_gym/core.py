@@ -275,13 +275,13 @@ class TrackingCore:
             "estimate": x_hat,
             "covariance": P_hat,
             "position_error": capped,
-            "mode_probs": U,
-            "loglik": out_a.loglik,
-            "model_nis": out_a.model_nis,
+            "mode_probs": U.copy(),
+            "loglik": out_a.loglik.copy(),
+            "model_nis": out_a.model_nis.copy(),
             "nis": out_a.nis,
             "detected": det,
-            "tpm": tpm,
-            "step": k1,
+            "tpm": tpm.copy(),
+            "step": k1.copy(),
             "reward_error": -capped / cfg.reward_scale,
         }
         if cfg.shadow == "fixed":

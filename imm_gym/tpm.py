@@ -73,17 +73,20 @@ def apply_floor(tpm: Array, p_min: float) -> Array:
     M = tpm.shape[-1]
     if not 0.0 <= p_min < 1.0 / M:
         raise ConfigError(f"p_min must be in [0, 1/M) = [0, {1.0 / M:.6g}), got {p_min!r}")
-    t = tpm / tpm.sum(axis=-1, keepdims=True)
+    row_sum = tpm.sum(axis=-1, keepdims=True)
+    # rows that already sum to 1 (to a few ulps) are not divided: a valid TPM passes bit for bit
+    t = np.where(np.abs(row_sum - 1.0) <= 4 * np.finfo(np.float64).eps, tpm, tpm / row_sum)
     if p_min == 0.0 or t.min() >= p_min:
         return t
     fixed = np.zeros(t.shape, dtype=bool)
     for _ in range(M):
         low = fixed | (t < p_min)
-        if np.array_equal(low, fixed):
+        grew = (low != fixed).any(axis=-1, keepdims=True)  # rows with a newly floored entry
+        if not grew.any():
             break
         fixed = low
         free_mass = np.where(fixed, 0.0, t).sum(axis=-1, keepdims=True)
         budget = 1.0 - p_min * fixed.sum(axis=-1, keepdims=True)
-        touched = fixed.any(axis=-1, keepdims=True)  # rows without a floored entry stay as they are
-        t = np.where(fixed, p_min, np.where(touched, t * (budget / free_mass), t))
+        # only rows that changed this pass are rescaled: each row's result is its own
+        t = np.where(fixed, p_min, np.where(grew, t * (budget / free_mass), t))
     return t

@@ -162,8 +162,9 @@ def test_object_dict_and_kwargs_give_equal_configs() -> None:
         TPMAdaptEnv(config=obj).config,
         TPMAdaptEnv(config=as_dict).config,
         TPMAdaptEnv(**KW).config,
-        gym.make("imm_gym/TPMAdaptPaper-v0", **{k: v for k, v in KW.items() if k != "scenario"})
-        .unwrapped.config,
+        gym.make(
+            "imm_gym/TPMAdaptPaper-v0", **{k: v for k, v in KW.items() if k != "scenario"}
+        ).unwrapped.config,
         gym.make("imm_gym/TPMAdapt-v0", config=obj).unwrapped.config,
         TPMAdaptVectorEnv(2, config=as_dict).config,
         TPMAdaptVecEnv(2, config=obj).config,

@@ -87,9 +87,9 @@ def test_make_with_the_passive_checker_runs_an_episode_start(env_id: str) -> Non
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         env = gym.make(env_id)
-        obs, info = env.reset(seed=1)
+        obs, _ = env.reset(seed=1)
         for _ in range(3):
-            obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+            obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
     assert [str(w.message) for w in caught] == []
     assert env.observation_space.contains(obs)
     assert isinstance(reward, float) and not terminated and not truncated
@@ -112,9 +112,9 @@ def test_make_vec_gives_the_native_vector_env_with_batched_spaces(env_id: str) -
         np.testing.assert_array_equal(batched.low, np.broadcast_to(one.low, batched.shape))
         np.testing.assert_array_equal(batched.high, np.broadcast_to(one.high, batched.shape))
     assert venv.unwrapped.config == single.unwrapped.config
-    obs, info = venv.reset(seed=0)
+    obs, _ = venv.reset(seed=0)
     assert obs.dtype == np.float32 and venv.observation_space.contains(obs)
-    obs, reward, terminated, truncated, info = venv.step(venv.action_space.sample())
+    obs, reward, terminated, truncated, _ = venv.step(venv.action_space.sample())
     assert venv.observation_space.contains(obs)
     assert reward.shape == terminated.shape == truncated.shape == (3,)
 

@@ -10,6 +10,7 @@ import pytest
 
 import train
 from agents.policy import load_agent
+from imm_gym import EnvConfig, TrackingCore
 from imm_gym.evaluate import main as evaluate_main
 
 SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
@@ -42,7 +43,8 @@ def test_short_run_gives_an_agent_the_evaluation_scores(trained, tmp_path) -> No
     meta = json.loads((agent_dir / "agent.json").read_text())
     assert meta["num_timesteps"] >= 512
     policy = load_agent(agent_dir)
-    obs = np.zeros((2, 21), dtype=np.float32)
+    obs_dim = TrackingCore(EnvConfig.build(policy.env_overrides), 1).obs_dim
+    obs = np.zeros((2, obs_dim), dtype=np.float32)
     actions, _ = policy.predict(obs, None, np.ones(2, bool))
     assert actions.shape == (2, 9) and np.all(np.abs(actions) <= 1.0)
     result = tmp_path / "res.json"

@@ -36,7 +36,8 @@ class TPMAdaptVecEnv(VecEnv):
     Args:
         num_envs: number of sub-environments.
         config: an :class:`EnvConfig` or a mapping; keyword arguments override fields.
-        env_id: take the preset of a registered id (``"imm_gym/TPMAdapt-v0"``) as the base config.
+        env_id: take the preset of a registered id (``"imm_gym/TPMAdapt-v0"``) as the base
+            config; a ``config`` mapping updates it, an :class:`EnvConfig` replaces it.
     """
 
     def __init__(
@@ -47,8 +48,9 @@ class TPMAdaptVecEnv(VecEnv):
         **kwargs: Any,
     ) -> None:
         if env_id is not None:
-            preset = gym.spec(env_id).kwargs.get("config") or {}
-            config = EnvConfig.build(preset) if config is None else EnvConfig.build(config)
+            preset = dict(gym.spec(env_id).kwargs.get("config") or {})
+            if config is None or isinstance(config, Mapping):
+                config = {**preset, **(config or {})}
         self.config = EnvConfig.build(config, **kwargs)
         self.core = TrackingCore(self.config, n_envs=num_envs)
         observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)

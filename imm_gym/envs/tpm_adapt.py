@@ -75,7 +75,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ## Arguments
     | name      | type                    | default  | meaning                                    |
     |-----------|-------------------------|----------|--------------------------------------------|
-    | config    | EnvConfig or dict       | preset   | the full configuration (:class:`EnvConfig`)|
+    | config    | EnvConfig or dict       | preset   | the full configuration (replaces the preset)|
     | **kwargs  | EnvConfig fields        |          | override single fields, e.g. parallel=True |
 
     ``gymnasium.make("imm_gym/TPMAdapt-v0", parallel=True, obs_features=("tpm", "loglik"))``.

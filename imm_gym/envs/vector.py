@@ -83,6 +83,7 @@ class TPMAdaptVectorEnv(VectorEnv):
             raise ActionError(
                 f"actions must have shape ({self.num_envs}, {self.core.action_dim}), got {a.shape}"
             )
+        self.core.check_action(a)  # a rejected action must not consume the pending autoresets
         restart = self._autoreset
         if restart.any():
             self.core.reset(np.flatnonzero(restart), [None] * int(restart.sum()))

@@ -1,0 +1,329 @@
+"""The native Gymnasium vector env (lock-step with scalar envs across NEXT_STEP autoresets, info
+masks) and the stable-baselines3 VecEnv adapter (same-step reset, seeding, PPO)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+from imm_gym import EnvConfig
+from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
+from imm_gym.envs.sb3 import TPMAdaptVecEnv
+
+SHORT = {
+    "scenario": "random",
+    "family": {"horizon": 20, "n_segments": (1, 2), "min_duration": 10},
+}
+ALL_FEATURES = ("tpm", "loglik", "nis", "innovation", "time", "bank_b", "shadow_probs")
+INFO_COMPARED = ("true_state", "estimate", "mode_probs", "tpm", "position_error", "diverged")
+
+
+def lockstep(config: dict, N: int = 4, steps: int = 70, seed: int = 11, low: float = -1.5):
+    """Step a vector env and N scalar envs (seeds seed + i) with the same random actions and
+    compare everything exactly; the scalar env is reset without a seed where the vector env
+    autoresets. Returns the number of autoresets seen."""
+    rng = np.random.default_rng(seed)
+    actions = rng.uniform(low, -low, (steps, N, 9)).astype(np.float32)
+    venv = TPMAdaptVectorEnv(N, config=config)
+    envs = [TPMAdaptEnv(config=config) for _ in range(N)]
+    obs, info = venv.reset(seed=seed)
+    assert info == {}
+    for i, env in enumerate(envs):
+        o, _ = env.reset(seed=seed + i)
+        np.testing.assert_array_equal(obs[i], o)
+    done = np.zeros(N, dtype=bool)
+    autoresets = 0
+    for t in range(steps):
+        obs, reward, terminated, truncated, info = venv.step(actions[t])
+        assert venv.observation_space.contains(obs)
+        assert reward.shape == terminated.shape == truncated.shape == (N,)
+        assert terminated.dtype == truncated.dtype == np.bool_
+        for i, env in enumerate(envs):
+            if done[i]:
+                o, _ = env.reset()
+                r, te, tr = 0.0, False, False
+                autoresets += 1
+                for key in INFO_COMPARED:
+                    assert not info[f"_{key}"][i]
+            else:
+                o, r, te, tr, inf = env.step(actions[t, i])
+                for key in INFO_COMPARED:
+                    assert info[f"_{key}"][i]
+                    assert np.array_equal(info[key][i], inf[key]), (t, i, key)
+            assert np.array_equal(obs[i], o), (t, i)
+            assert reward[i] == r, (t, i, reward[i] - r)
+            assert (bool(terminated[i]), bool(truncated[i])) == (te, tr), (t, i)
+            done[i] = te or tr
+    return autoresets
+
+
+LOCKSTEP_CONFIGS = {
+    "default": {},
+    "parallel_all_features": {"parallel": True, "p_min": 0.05, "obs_features": ALL_FEATURES},
+    "diverging": {"divergence_error": 60.0, "obs_features": ("tpm", "time")},
+    "set_outliers_missed": {
+        "action_mode": "set",
+        "sensor": {"outlier_prob": 0.1, "outlier_scale": 20.0, "detection_prob": 0.7},
+    },
+    "paper_error_reward": {"scenario": "paper", "reward": "error", "shadow": "none"},
+}
+
+
+@pytest.mark.parametrize("name", sorted(LOCKSTEP_CONFIGS))
+def test_vector_env_equals_scalar_envs_across_autoreset(name: str) -> None:
+    config = {**SHORT, **LOCKSTEP_CONFIGS[name]}
+    steps = 160 if config["scenario"] == "paper" else 70
+    autoresets = lockstep(config, steps=steps)
+    assert autoresets >= 4  # every sub-env went through at least one NEXT_STEP autoreset
+    if name == "diverging":
+        assert autoresets > 12  # divergences end episodes before the horizon
+
+
+def test_vector_env_equals_scalar_envs_with_a_binding_floor() -> None:
+    lockstep({**SHORT, "p_min": 0.3}, steps=30)
+
+
+def test_vector_env_metadata_and_reset_seeds() -> None:
+    venv = TPMAdaptVectorEnv(3, config=SHORT)
+    assert venv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    obs_int, _ = venv.reset(seed=7)
+    truth_int = venv.core.truth.copy()
+    obs_list, _ = venv.reset(seed=[7, 8, 9])
+    np.testing.assert_array_equal(obs_int, obs_list)
+    np.testing.assert_array_equal(venv.core.truth, truth_int)
+    venv.reset(seed=[9, None, 7])
+    np.testing.assert_array_equal(venv.core.truth[0], truth_int[2])
+    np.testing.assert_array_equal(venv.core.truth[2], truth_int[0])
+    with pytest.raises(ValueError, match="3 entries"):
+        venv.reset(seed=[1, 2])
+    with pytest.raises(ValueError, match="num_envs"):
+        TPMAdaptVectorEnv(0, config=SHORT)
+
+
+def test_vector_info_masks_are_false_for_autoreset_sub_envs() -> None:
+    N = 5
+    venv = TPMAdaptVectorEnv(N, config={**SHORT, "divergence_error": 50.0})
+    venv.reset(seed=3)
+    rng = np.random.default_rng(0)
+    pending = np.zeros(N, dtype=bool)
+    seen_partial = False
+    for _ in range(60):
+        obs, reward, terminated, truncated, info = venv.step(rng.uniform(-1, 1, (N, 9)))
+        data_keys = [k for k in info if not k.startswith("_")]
+        assert {"estimate", "mode_probs", "tpm", "true_state", "diverged"} <= set(data_keys)
+        for key in data_keys:
+            mask = info[f"_{key}"]
+            assert mask.dtype == np.bool_ and mask.shape == (N,)
+            np.testing.assert_array_equal(mask, ~pending)
+            assert len(info[key]) == N
+        assert not np.any(reward[pending]) and not np.any((terminated | truncated)[pending])
+        # an autoreset sub-env returns its first observation: uniform probabilities
+        np.testing.assert_allclose(obs[pending, :6], 1 / 3, rtol=1e-6)
+        seen_partial |= bool(pending.any() and not pending.all())
+        pending = terminated | truncated
+    assert seen_partial
+
+
+def test_vector_env_returns_fresh_arrays() -> None:
+    venv = TPMAdaptVectorEnv(2, config={"scenario": "paper"})
+    obs0, _ = venv.reset(seed=0)
+    a = np.zeros((2, 9))
+    out1 = venv.step(a)
+    out2 = venv.step(a)
+    for x, y in zip(out1[:4], out2[:4], strict=True):
+        assert not np.shares_memory(x, y)
+    assert not np.shares_memory(out1[0], obs0)
+    out2[0][:] = 0.0
+    out2[1][:] = 99.0
+    twin = TPMAdaptVectorEnv(2, config={"scenario": "paper"})
+    twin.reset(seed=0)
+    twin.step(a)
+    twin.step(a)
+    n1, n2 = venv.step(a), twin.step(a)
+    np.testing.assert_array_equal(n1[0], n2[0])
+    np.testing.assert_array_equal(n1[1], n2[1])
+
+
+@pytest.mark.parametrize(
+    "key",
+    ["mode_probs", "tpm", "step", "loglik", "model_nis"],
+)
+def test_mutating_vector_info_does_not_change_the_env(key: str) -> None:
+    config = {"scenario": "paper", "obs_features": ("tpm", "time")}
+    venv, twin = TPMAdaptVectorEnv(2, config=config), TPMAdaptVectorEnv(2, config=config)
+    a = np.full((2, 9), 0.4)
+    for v in (venv, twin):
+        v.reset(seed=1)
+    info = venv.step(a)[4]
+    twin.step(a)
+    info[key][...] = 140 if key == "step" else 0.2
+    for _ in range(2):
+        o1, r1, te1, tr1, _ = venv.step(a)
+        o2, r2, te2, tr2, _ = twin.step(a)
+        np.testing.assert_array_equal(o1, o2)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(te1, te2)
+        np.testing.assert_array_equal(tr1, tr2)
+
+
+# --------------------------------------------------------------------------- SB3 adapter
+
+
+def test_sb3_vecenv_api_shapes_and_dtypes() -> None:
+    N = 4
+    venv = TPMAdaptVecEnv(num_envs=N, config={**SHORT, "obs_features": ("tpm", "time")})
+    d = 6 + 9 + 1
+    assert venv.num_envs == N
+    assert venv.observation_space.shape == (d,) and venv.observation_space.dtype == np.float32
+    assert venv.action_space.shape == (9,)
+    obs = venv.reset()
+    assert obs.dtype == np.float32 and obs.shape == (N, d)
+    for _ in range(25):
+        obs, rewards, dones, infos = venv.step(np.zeros((N, 9), np.float32))
+        assert obs.dtype == np.float32 and obs.shape == (N, d)
+        assert rewards.dtype == np.float32 and rewards.shape == (N,)
+        assert dones.dtype == np.bool_ and dones.shape == (N,)
+        assert isinstance(infos, list) and len(infos) == N
+        assert all(isinstance(info, dict) for info in infos)
+        assert all(venv.observation_space.contains(o) for o in obs)
+        for info in infos:
+            assert isinstance(info["position_error"], float)
+            assert isinstance(info["diverged"], bool)
+    assert venv.get_attr("config") == [venv.config] * N
+    assert venv.env_is_wrapped(gym.Wrapper) == [False] * N
+    venv.close()
+
+
+def test_sb3_same_step_reset_matches_scalar_envs() -> None:
+    """SB3 sub-env i plays the episodes of a scalar env seeded s + i; a finished episode is
+    reset within the same step, its last observation in ``terminal_observation``."""
+    N, seed, steps = 4, 5, 70
+    config = {**SHORT, "divergence_error": 60.0, "obs_features": ("tpm", "loglik")}
+    venv = TPMAdaptVecEnv(num_envs=N, config=config)
+    venv.seed(seed)
+    obs = venv.reset()
+    envs = [TPMAdaptEnv(config=config) for _ in range(N)]
+    for i, env in enumerate(envs):
+        np.testing.assert_array_equal(obs[i], env.reset(seed=seed + i)[0])
+    rng = np.random.default_rng(seed)
+    truncations = divergences = 0
+    for _ in range(steps):
+        actions = rng.uniform(-1, 1, (N, 9)).astype(np.float32)
+        obs, rewards, dones, infos = venv.step(actions)
+        for i, env in enumerate(envs):
+            o, r, te, tr, info = env.step(actions[i])
+            assert rewards[i] == np.float32(r)
+            assert dones[i] == (te or tr)
+            assert infos[i]["diverged"] == bool(info["diverged"])
+            assert infos[i]["position_error"] == info["position_error"]
+            if te or tr:
+                np.testing.assert_array_equal(infos[i]["terminal_observation"], o)
+                assert infos[i]["TimeLimit.truncated"] is (tr and not te)
+                truncations += tr
+                divergences += te
+                o, _ = env.reset()
+            else:
+                assert "terminal_observation" not in infos[i]
+                assert "TimeLimit.truncated" not in infos[i]
+            np.testing.assert_array_equal(obs[i], o)
+    assert truncations >= 2 and divergences >= 2
+
+
+def test_sb3_horizon_end_and_divergence_flags() -> None:
+    venv = TPMAdaptVecEnv(num_envs=3, config=SHORT)
+    venv.seed(4)
+    obs = venv.reset()
+    last = obs
+    for t in range(20):
+        obs, _, dones, infos = venv.step(np.zeros((3, 9), np.float32))
+        assert dones.all() == (t == 19) and dones.any() == (t == 19)
+        if t < 19:
+            last = obs
+    for info in infos:
+        assert info["TimeLimit.truncated"] is True and info["diverged"] is False
+        assert info["terminal_observation"].shape == obs.shape[1:]
+        assert not np.array_equal(info["terminal_observation"], last[0])
+    np.testing.assert_allclose(obs[:, :6], 1 / 3, rtol=1e-6)  # reset observations
+    diverging = TPMAdaptVecEnv(num_envs=2, config={**SHORT, "divergence_error": 1.0})
+    diverging.reset()
+    obs, rewards, dones, infos = diverging.step(np.zeros((2, 9), np.float32))
+    assert dones.all() and np.all(np.isfinite(obs)) and np.all(np.isfinite(rewards))
+    for info in infos:
+        assert info["TimeLimit.truncated"] is False and info["diverged"] is True
+        assert np.all(np.isfinite(info["terminal_observation"]))
+
+
+def test_sb3_returns_fresh_arrays() -> None:
+    venv = TPMAdaptVecEnv(num_envs=2, config=SHORT)
+    venv.seed(0)
+    first = venv.reset()
+    outs = []
+    for _ in range(21):  # crosses the horizon: a same-step reset happens at step 20
+        outs.append(venv.step(np.zeros((2, 9), np.float32)))
+    arrays = [first] + [o[0] for o in outs] + [o[1] for o in outs] + [o[2] for o in outs]
+    for i, x in enumerate(arrays):
+        for y in arrays[i + 1 :]:
+            assert not np.shares_memory(x, y)
+    term = outs[19][3][0]["terminal_observation"]
+    assert not np.shares_memory(term, outs[19][0])
+    # scribbling on a returned observation does not change the env
+    twin = TPMAdaptVecEnv(num_envs=2, config=SHORT)
+    twin.seed(0)
+    twin.reset()
+    for _ in range(21):
+        twin.step(np.zeros((2, 9), np.float32))
+    for o in outs:
+        o[0][:] = -1.0
+    np.testing.assert_array_equal(
+        venv.step(np.ones((2, 9), np.float32))[0], twin.step(np.ones((2, 9), np.float32))[0]
+    )
+
+
+def test_sb3_seed_then_reset_reproduces_the_gymnasium_vector_reset() -> None:
+    config = {**SHORT, "parallel": True, "obs_features": ("bank_b", "tpm")}
+    sb3 = TPMAdaptVecEnv(num_envs=3, config=config)
+    seeds = sb3.seed(42)
+    assert list(seeds) == [42, 43, 44]
+    obs = sb3.reset()
+    gvenv = TPMAdaptVectorEnv(3, config=config)
+    g_obs, _ = gvenv.reset(seed=42)
+    np.testing.assert_array_equal(obs, g_obs)
+    np.testing.assert_array_equal(sb3.core.truth, gvenv.core.truth)
+    np.testing.assert_array_equal(sb3.core.z, gvenv.core.z)
+    a = np.random.default_rng(0).uniform(-1, 1, (3, 9)).astype(np.float32)
+    np.testing.assert_array_equal(sb3.step(a)[0], gvenv.step(a)[0])
+    # a reset without seed continues the streams; reseeding replays
+    sb3.reset()
+    assert not np.array_equal(sb3.core.truth, gvenv.core.truth)
+    sb3.seed(42)
+    sb3.reset()
+    np.testing.assert_array_equal(sb3.core.truth, gvenv.core.truth)
+
+
+def test_sb3_env_id_gives_the_preset() -> None:
+    venv = TPMAdaptVecEnv(num_envs=2, env_id="imm_gym/TPMAdaptParallel-v0")
+    assert venv.config == EnvConfig.build(gym.spec("imm_gym/TPMAdaptParallel-v0").kwargs["config"])
+    venv = TPMAdaptVecEnv(num_envs=2, env_id="imm_gym/TPMAdaptPaper-v0", parallel=True)
+    assert venv.config.scenario == "paper" and venv.config.parallel
+
+
+def test_sb3_env_id_preset_is_the_base_of_a_given_config() -> None:
+    venv = TPMAdaptVecEnv(num_envs=2, env_id="imm_gym/TPMAdaptPaper-v0", config={"p_min": 0.01})
+    assert venv.config.scenario == "paper" and venv.config.p_min == 0.01
+
+
+def test_ppo_learns_on_the_sb3_adapter_without_error() -> None:
+    import torch
+    from stable_baselines3 import PPO
+
+    torch.set_num_threads(1)
+    venv = TPMAdaptVecEnv(num_envs=4, config={**SHORT, "obs_features": ("tpm", "time")})
+    model = PPO(
+        "MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu", verbose=0
+    )
+    model.learn(512)
+    assert model.num_timesteps >= 512
+    action, _ = model.predict(venv.reset(), deterministic=True)
+    assert action.shape == (4, 9) and np.all(np.isfinite(action))
