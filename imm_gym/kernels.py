@@ -50,7 +50,17 @@ def sensor_spec(sensor: object) -> tuple[int, Array] | None:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _wrap(a: float) -> float:  # pragma: no cover
-    """Angle wrapped to (-pi, pi], as :func:`imm_gym.linalg.wrap_angle`."""
+    """Angle wrapped to (-pi, pi], as :func:`imm_gym.linalg.wrap_angle`.
+
+    Differences of two wrapped angles lie in (-2 pi, 2 pi): one shift suffices there, without the
+    cost of a floating-point modulo; other values take the general formula.
+    """
+    if -np.pi < a <= np.pi:
+        return a
+    if np.pi < a <= 3.0 * np.pi:
+        return a - _TWO_PI
+    if -3.0 * np.pi < a <= -np.pi:
+        return a + _TWO_PI
     w = np.pi - np.mod(np.pi - a, _TWO_PI)
     return w + _TWO_PI if w <= -np.pi else w
 

@@ -212,3 +212,15 @@ def test_inv_logdet_rejects_non_pd_2x2(S: np.ndarray) -> None:
 def test_inv_logdet_rejects_non_pd_4x4() -> None:
     with pytest.raises(np.linalg.LinAlgError):
         inv_logdet(np.diag([1.0, 2.0, -1.0, 3.0]))
+
+
+def test_kernel_wrap_equals_wrap_angle() -> None:
+    from imm_gym.kernels import _wrap
+
+    rng = np.random.default_rng(0)
+    special = [PI, -PI, 3 * PI, -3 * PI, np.nextafter(PI, 4.0), np.nextafter(-PI, -4.0), 0.0]
+    values = np.concatenate([special, rng.uniform(-20.0, 20.0, 2000), rng.uniform(-7, 7, 2000)])
+    expected = wrap_angle(values)
+    got = np.array([_wrap(float(v)) for v in values])
+    assert np.all((got > -PI) & (got <= PI))
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
