@@ -180,15 +180,7 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     seconds = time.perf_counter() - start
     save(ckpt_dir / "latest")
     agent_dir = run_dir / "agent"
-    save_agent(
-        agent_dir,
-        model,
-        env,
-        env_kwargs,
-        args.algo,
-        frame_stack,
-        {**extra, "num_timesteps": int(model.num_timesteps)},
-    )
+    save(agent_dir)
     stats = {
         "timesteps": int(model.num_timesteps),
         "trained_this_call": remaining,
