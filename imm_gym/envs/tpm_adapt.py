@@ -57,7 +57,8 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ## Rewards
     ``reward="advantage"`` (default): ``(e_shadow − e) / reward_scale`` with ``e`` the position
     error of the combined estimate and ``e_shadow`` that of a classical IMM (fixed TPM) run in
-    lock-step on the same measurements — a low-variance signal, 0 on average for classical IMM.
+    lock-step on the same measurements — a low-variance signal, exactly 0 for classical IMM (the
+    shadow's stay probability is ``shadow_stay``, by default ``initial_stay``).
     ``reward="error"``: ``−e / reward_scale``. Errors are capped at ``divergence_error``. Both
     terms are in ``info`` (``reward_error``, ``reward_advantage``).
 
