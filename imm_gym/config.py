@@ -14,6 +14,8 @@ import math
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
+import numpy as np
+
 T = TypeVar("T")
 
 
@@ -54,9 +56,10 @@ def check_range(
 
 def check_int(name: str, value: int, lo: int, hi: float = math.inf) -> int:
     """Return ``value`` as int, or raise if it is not an integer in ``[lo, hi]``."""
-    if isinstance(value, bool) or (
-        not isinstance(value, (int,)) and not (isinstance(value, float) and value.is_integer())
-    ):
+    integral = isinstance(value, (int, np.integer)) or (
+        isinstance(value, (float, np.floating)) and float(value).is_integer()
+    )
+    if isinstance(value, (bool, np.bool_)) or not integral:
         raise ConfigError(f"{name} must be an integer, got {value!r}")
     v = int(value)
     if v < lo or v > hi:

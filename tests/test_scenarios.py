@@ -286,3 +286,8 @@ def test_invalid_family(kwargs: dict, field: str) -> None:
 def test_invalid_scenario(kwargs: dict, field: str) -> None:
     with pytest.raises(ConfigError, match=field):
         Scenario((Segment(10),), **kwargs)
+
+
+def test_numpy_integers_are_accepted_as_durations() -> None:
+    assert Segment(np.int64(7)).duration == 7
+    assert RandomFamily(horizon=np.int32(150)).horizon == 150
