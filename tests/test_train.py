@@ -143,3 +143,34 @@ def test_recurrent_variant_trains_and_evaluates(tmp_path) -> None:
         )
         == 0
     )
+
+
+def test_main_job_writes_results_and_reports(tmp_path) -> None:
+    cfg = tmp_path / "small.yml"
+    cfg.write_text(SMALL)
+    argv = [
+        "--timesteps",
+        "256",
+        "--config",
+        str(cfg),
+        "--out",
+        str(tmp_path),
+        "--no-progress",
+        "--paper-runs",
+        "2",
+        "--random-runs",
+        "2",
+    ]
+    assert train.main(argv) == 0
+    run = tmp_path / "seed_0"
+    results = json.loads((run / "results.json").read_text())
+    for scenario in ("paper", "random"):
+        names = set(results[scenario]["policies"])
+        assert {"learned", "fixed", "tip-imm", "best-fixed"} <= names
+        d = results[scenario]["vs_tip_imm"]
+        assert d["low"] <= d["diff"] <= d["high"]
+        assert (run / "plots" / scenario / "rmse.png").is_file()
+    report = (run / "report.md").read_text()
+    assert "learned − tip-imm" in report and "clairvoyant (bound)" in report
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert "across_seeds" in summary and (tmp_path / "report.md").is_file()
