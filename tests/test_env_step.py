@@ -161,18 +161,24 @@ def test_mutating_a_step_info_array_does_not_change_the_env(key: str) -> None:
         np.testing.assert_array_equal(ia["tpm"], ib["tpm"])
 
 
-@pytest.mark.parametrize("seed", [0, 7])
-def test_zero_action_reproduces_classical_imm_exactly(seed: int) -> None:
-    env = gym.make(PAPER)
-    env.reset(seed=seed)
-    batch = draw_batch(paper_scenario(), Sonar(), 1, seed)
+def classical_imm(runs: int, seed: int, stay: float = 0.995):
+    """The paper scenario's runs seeded ``seed + r`` and a classical IMM run on them."""
+    batch = draw_batch(paper_scenario(), Sonar(), runs, seed)
     ref = IMM(paper_bank(), Sonar()).run(
         batch.measurements.z[:, 1:],
-        stay_tpm(3, 0.995),
+        stay_tpm(3, stay),
         batch.x0,
         batch.P0,
         detected=batch.measurements.detected[:, 1:],
     )
+    return batch, ref
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_zero_action_reproduces_classical_imm_exactly(seed: int) -> None:
+    env = gym.make(PAPER)
+    env.reset(seed=seed)
+    _, ref = classical_imm(1, seed)
     for k in range(150):
         _, reward, terminated, truncated, info = env.step(np.zeros(9, np.float32))
         assert np.array_equal(info["estimate"], ref.x[0, k]), k
@@ -191,14 +197,7 @@ def test_zero_action_in_the_vector_env_is_classical_imm_for_every_sub_env() -> N
     N, seed = 3, 30
     venv = TPMAdaptVectorEnv(N, config={"scenario": "paper"})
     venv.reset(seed=seed)
-    batch = draw_batch(paper_scenario(), Sonar(), N, seed)
-    ref = IMM(paper_bank(), Sonar()).run(
-        batch.measurements.z[:, 1:],
-        stay_tpm(3, 0.995),
-        batch.x0,
-        batch.P0,
-        detected=batch.measurements.detected[:, 1:],
-    )
+    _, ref = classical_imm(N, seed)
     for k in range(150):
         _, reward, *_, info = venv.step(np.zeros((N, 9), np.float32))
         np.testing.assert_array_equal(info["estimate"], ref.x[:, k])
@@ -228,15 +227,8 @@ def test_shadow_is_a_classical_imm_with_shadow_stay() -> None:
     seed, scale = 12, 7.0
     env = TPMAdaptEnv(scenario="paper", shadow_stay=0.6, reward_scale=scale)
     env.reset(seed=seed)
-    batch = draw_batch(paper_scenario(), Sonar(), 1, seed)
-    ref = IMM(paper_bank(), Sonar()).run(
-        batch.measurements.z[0, 1:],
-        stay_tpm(3, 0.6),
-        batch.x0,
-        batch.P0,
-        detected=batch.measurements.detected[0, 1:],
-    )
-    ref_error = np.linalg.norm(ref.x[:, :2] - batch.truth.states[0, 1:, :2], axis=-1)
+    batch, ref = classical_imm(1, seed, stay=0.6)
+    ref_error = np.linalg.norm(ref.x[0, :, :2] - batch.truth.states[0, 1:, :2], axis=-1)
     rng = np.random.default_rng(1)
     nonzero = 0
     for k in range(150):

@@ -16,25 +16,18 @@ from imm_gym.evaluate import main as evaluate_main
 SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
 
 
+def train_small(out, *args: str) -> int:
+    """``train.py`` with a small PPO (8 envs, 32-step rollouts) writing to ``out``."""
+    cfg = out / "small.yml"
+    cfg.write_text(SMALL)
+    return train.main(["--config", str(cfg), "--out", str(out), "--no-progress", *args])
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
-    cfg = out / "small.yml"
-    cfg.write_text(SMALL)
-    argv = [
-        "--timesteps",
-        "512",
-        "--config",
-        str(cfg),
-        "--out",
-        str(out),
-        "--no-eval",
-        "--no-progress",
-        "--checkpoint-every",
-        "256",
-    ]
-    assert train.main(argv) == 0
-    return out, cfg
+    assert train_small(out, "--timesteps", "512", "--no-eval", "--checkpoint-every", "256") == 0
+    return out, out / "small.yml"
 
 
 def test_short_run_gives_an_agent_the_evaluation_scores(trained, tmp_path) -> None:
@@ -111,21 +104,7 @@ def test_bad_arguments(argv, message, capsys) -> None:
 
 
 def test_recurrent_variant_trains_and_evaluates(tmp_path) -> None:
-    cfg = tmp_path / "small.yml"
-    cfg.write_text(SMALL)
-    argv = [
-        "--algo",
-        "recurrent-ppo",
-        "--timesteps",
-        "256",
-        "--config",
-        str(cfg),
-        "--out",
-        str(tmp_path),
-        "--no-eval",
-        "--no-progress",
-    ]
-    assert train.main(argv) == 0
+    assert train_small(tmp_path, "--algo", "recurrent-ppo", "--timesteps", "256", "--no-eval") == 0
     agent = tmp_path / "seed_0" / "agent"
     assert json.loads((agent / "agent.json").read_text())["algo"] == "recurrent-ppo"
     assert (
@@ -146,22 +125,8 @@ def test_recurrent_variant_trains_and_evaluates(tmp_path) -> None:
 
 
 def test_main_job_writes_results_and_reports(tmp_path) -> None:
-    cfg = tmp_path / "small.yml"
-    cfg.write_text(SMALL)
-    argv = [
-        "--timesteps",
-        "256",
-        "--config",
-        str(cfg),
-        "--out",
-        str(tmp_path),
-        "--no-progress",
-        "--paper-runs",
-        "2",
-        "--random-runs",
-        "2",
-    ]
-    assert train.main(argv) == 0
+    args = ("--timesteps", "256", "--paper-runs", "2", "--random-runs", "2")
+    assert train_small(tmp_path, *args) == 0
     run = tmp_path / "seed_0"
     results = json.loads((run / "results.json").read_text())
     for scenario in ("paper", "random"):
