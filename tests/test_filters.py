@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import random_pd
 from scipy.stats import multivariate_normal
 
 from imm_gym import (
@@ -24,19 +25,10 @@ PI = np.pi
 UPDATE_FIELDS = ("x", "P", "z_pred", "nu", "S", "loglik", "nis")
 
 
-def _random_pd(rng: np.random.Generator, std: np.ndarray) -> np.ndarray:
-    """A random covariance with the given standard deviations and random correlations."""
-    n = len(std)
-    A = rng.standard_normal((n, n))
-    C = A @ A.T + 0.5 * np.eye(n)
-    d = 1.0 / np.sqrt(np.diag(C))
-    return (std[:, None] * std[None, :]) * (d[:, None] * C * d[None, :])
-
-
 def _random_problem(rng: np.random.Generator, n: int = 4) -> tuple[np.ndarray, np.ndarray]:
     std = np.array([80.0, 120.0, 4.0, 6.0, 0.5, 0.5])[:n]
     x = np.concatenate([rng.uniform(-5000, 5000, 2), rng.normal(0, 15, 2), rng.normal(0, 1, 2)])
-    return x[:n], _random_pd(rng, std)
+    return x[:n], random_pd(rng, std)
 
 
 def _assert_updates_close(a, b, rtol: float, scale_atol: float = 1e-12) -> None:
@@ -148,7 +140,7 @@ def test_ukf_close_to_ekf_in_nearly_linear_regime() -> None:
     for _ in range(10):
         x, _ = _random_problem(rng)
         x[:2] = rng.uniform(3000, 8000) * np.array([math.cos(b := rng.uniform(-3, 3)), math.sin(b)])
-        P = _random_pd(rng, np.array([0.5, 0.5, 0.05, 0.05]))  # tiny: h is linear over P
+        P = random_pd(rng, np.array([0.5, 0.5, 0.05, 0.05]))  # tiny: h is linear over P
         z = sonar.h(x) + rng.normal(0.0, 1.0, 2) * sonar.sigma
         z = sonar.wrap(z)
         ukf = UnscentedKalmanFilter().update(x, P, z, sonar)
@@ -166,7 +158,7 @@ def test_ukf_update_with_sonar_second_order_range() -> None:
     sonar = Sonar()
     rng = np.random.default_rng(9)
     x = np.array([3000.0, 4000.0, 20.0, 15.0])
-    P = _random_pd(rng, np.array([200.0, 200.0, 5.0, 5.0]))
+    P = random_pd(rng, np.array([200.0, 200.0, 5.0, 5.0]))
     ukf = UnscentedKalmanFilter().update(x, P, sonar.h(x), sonar)
     ekf = ExtendedKalmanFilter().update(x, P, sonar.h(x), sonar)
     r = 5000.0
@@ -216,7 +208,7 @@ def test_predict_formula() -> None:
     F = np.stack([m.transition_matrix(1.0, 4) for m in bank])
     Q = np.stack([m.noise_covariance(4) for m in bank])
     x = rng.normal(0, 100, (5, 3, 4))
-    P = np.stack([[_random_pd(rng, np.full(4, 10.0)) for _ in range(3)] for _ in range(5)])
+    P = np.stack([[random_pd(rng, np.full(4, 10.0)) for _ in range(3)] for _ in range(5)])
     xp, Pp = predict(x, P, F, Q)
     assert xp.shape == (5, 3, 4) and Pp.shape == (5, 3, 4, 4)
     for i in range(5):

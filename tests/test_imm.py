@@ -6,6 +6,7 @@ import inspect
 
 import numpy as np
 import pytest
+from helpers import random_pd
 from scipy.special import softmax
 from scipy.stats import multivariate_normal
 
@@ -28,14 +29,6 @@ from imm_gym import (
 )
 
 
-def _random_pd(rng: np.random.Generator, std: np.ndarray) -> np.ndarray:
-    n = len(std)
-    A = rng.standard_normal((n, n))
-    C = A @ A.T + 0.5 * np.eye(n)
-    d = 1.0 / np.sqrt(np.diag(C))
-    return (std[:, None] * std[None, :]) * (d[:, None] * C * d[None, :])
-
-
 def _random_tpm(rng: np.random.Generator, M: int, shape: tuple[int, ...] = ()) -> np.ndarray:
     a = rng.uniform(0.05, 1.0, (*shape, M, M))
     return a / a.sum(axis=-1, keepdims=True)
@@ -45,7 +38,7 @@ def _random_posterior(rng: np.random.Generator, N: int, M: int, n: int = 4):
     base = np.array([3000.0, 4000.0, 20.0, 15.0, 0.0, 0.0])[:n]
     spread = np.array([100.0, 100.0, 5.0, 5.0, 1.0, 1.0])[:n]
     x = base + spread * rng.standard_normal((N, M, n))
-    P = np.stack([[_random_pd(rng, spread) for _ in range(M)] for _ in range(N)])
+    P = np.stack([[random_pd(rng, spread) for _ in range(M)] for _ in range(N)])
     mu = rng.dirichlet(np.ones(M), size=N)
     return x, P, mu
 
