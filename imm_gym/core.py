@@ -22,6 +22,11 @@ innovation      M*m     per-model whitened innovations ``L_j^-1 nu_j`` clipped t
 bank_b          M       bank B's probabilities before fusion (feature ``bank_b``)   0      1
 shadow_probs    M       the shadow IMM's model probabilities: a maneuver detector   0      1
                         that the action does not influence (``shadow_probs``)
+turn_rate       1       heading rate of the combined estimate over the last step,   -1     1
+                        ``atan2(v(t-1) x v(t), v(t-1) . v(t)) / T`` in units of
+                        ``TURN_RATE_SCALE`` (10 deg/s), clipped (``turn_rate``)
+shadow_turn_    1       the same for the shadow IMM's estimate                      -1     1
+rate                    (``shadow_turn_rate``)
 time            1       ``k / K`` (feature ``time``)                                0      1
 ==============  ======  ==========================================================  =====  ====
 """
@@ -47,6 +52,8 @@ Array = NDArray[np.float64]
 
 
 INNOVATION_CLIP = 5.0
+#: Heading rate (rad/s) that the ``turn_rate`` features map to 1.
+TURN_RATE_SCALE = float(np.deg2rad(10.0))
 
 
 def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
@@ -60,6 +67,8 @@ def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
         "bank_b": M,
         "shadow_probs": M,
         "time": 1,
+        "turn_rate": 1,
+        "shadow_turn_rate": 1,
     }
 
 
@@ -125,6 +134,10 @@ class TrackingCore:
         self.loglik = np.zeros((N, M))
         self.model_nis = np.zeros((N, M))
         self.innovation = np.zeros((N, M, m))
+        self.velocity = np.zeros((N, 2))
+        self.velocity_s = np.zeros((N, 2))
+        self.turn_rate = np.zeros(N)
+        self.turn_rate_s = np.zeros(N)
 
     # ------------------------------------------------------------------ spaces
     def _observation_bounds(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -132,7 +145,8 @@ class TrackingCore:
         lows, highs = [np.zeros(2 * M)], [np.ones(2 * M)]
         sizes = feature_sizes(M, self.config.sensor.dim_z)
         for f in self.config.obs_features:
-            lows.append(np.full(sizes[f], -1.0 if f in ("loglik", "innovation") else 0.0))
+            signed = f in ("loglik", "innovation", "turn_rate", "shadow_turn_rate")
+            lows.append(np.full(sizes[f], -1.0 if signed else 0.0))
             highs.append(np.zeros(sizes[f]) if f == "loglik" else np.ones(sizes[f]))
         return (
             np.concatenate(lows).astype(np.float32),
@@ -194,6 +208,10 @@ class TrackingCore:
             "loglik": 0.0,
             "model_nis": 0.0,
             "innovation": 0.0,
+            "velocity": x0[:, 2:4],
+            "velocity_s": x0[:, 2:4],
+            "turn_rate": 0.0,
+            "turn_rate_s": 0.0,
             "k": 0,
             "done": False,
         }
@@ -294,6 +312,8 @@ class TrackingCore:
             )
             info["shadow_position_error"] = shadow_error
             self.mu_s = out_s.mode_probs
+            self.turn_rate_s = heading_rate(self.velocity_s, out_s.x[:, 2:4], self.imm.T)
+            self.velocity_s = out_s.x[:, 2:4]
             info["reward_advantage"] = (shadow_error - capped) / cfg.reward_scale
         reward = info[f"reward_{cfg.reward}"].copy()
         diverged = (
@@ -309,6 +329,8 @@ class TrackingCore:
         self.loglik = out_a.loglik
         self.model_nis = out_a.model_nis
         self.innovation = out_a.innovation
+        self.turn_rate = heading_rate(self.velocity, x_hat[:, 2:4], self.imm.T)
+        self.velocity = x_hat[:, 2:4]
         truncated = (k1 >= self.horizon) & ~diverged
         self.done = diverged | truncated
         if before is not None:
@@ -328,6 +350,10 @@ class TrackingCore:
         "loglik",
         "model_nis",
         "innovation",
+        "velocity",
+        "velocity_s",
+        "turn_rate",
+        "turn_rate_s",
     )
 
     def _snapshot(self) -> dict[str, Any]:
@@ -374,6 +400,9 @@ class TrackingCore:
                 blocks.append(self.mu_b)
             elif f == "shadow_probs":
                 blocks.append(self.mu_s)
+            elif f in ("turn_rate", "shadow_turn_rate"):
+                rate = self.turn_rate if f == "turn_rate" else self.turn_rate_s
+                blocks.append(np.clip(rate / TURN_RATE_SCALE, -1.0, 1.0)[:, None])
             else:
                 blocks.append((self.k / self.horizon)[:, None])
         obs = np.concatenate(blocks, axis=-1)
@@ -381,6 +410,15 @@ class TrackingCore:
             obs = np.nan_to_num(obs, nan=0.0, posinf=1.0, neginf=-1.0)
         obs = obs.astype(np.float32)
         return np.clip(obs, self.obs_low, self.obs_high, out=obs)
+
+
+def heading_rate(v_prev: Array, v: Array, T: float) -> Array:
+    r"""Heading rate between two velocity estimates ``(N, 2)``:
+    :math:`\dot\psi = \operatorname{atan2}(v_{k-1} \times v_k,\ v_{k-1} \cdot v_k) / T`
+    (0 where either velocity is zero)."""
+    cross = v_prev[:, 0] * v[:, 1] - v_prev[:, 1] * v[:, 0]
+    dot = v_prev[:, 0] * v[:, 0] + v_prev[:, 1] * v[:, 1]
+    return np.arctan2(cross, dot) / T
 
 
 def _position_error(x: Array, truth: Array) -> Array:

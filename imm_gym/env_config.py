@@ -21,7 +21,17 @@ from .sensors import Sonar
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
 REWARDS = ("advantage", "error")
-OBS_FEATURES = ("tpm", "loglik", "nis", "innovation", "bank_b", "shadow_probs", "time")
+OBS_FEATURES = (
+    "tpm",
+    "loglik",
+    "nis",
+    "innovation",
+    "bank_b",
+    "shadow_probs",
+    "time",
+    "turn_rate",
+    "shadow_turn_rate",
+)
 TIP_READINGS = ("literal", "intent")
 
 
@@ -54,7 +64,8 @@ class EnvConfig:
             of the combined estimate — or ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward.
         obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
-            ``innovation``, ``bank_b``, ``shadow_probs``, ``time``.
+            ``innovation``, ``bank_b``, ``shadow_probs``, ``time``, ``turn_rate``,
+            ``shadow_turn_rate``.
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
@@ -123,8 +134,9 @@ class EnvConfig:
             raise ConfigError(f"obs_features has duplicates: {features}")
         if "bank_b" in features and not self.parallel:
             raise ConfigError("obs_features 'bank_b' needs parallel=True")
-        if "shadow_probs" in features and self.shadow == "none":
-            raise ConfigError("obs_features 'shadow_probs' needs shadow 'fixed'")
+        for f in ("shadow_probs", "shadow_turn_rate"):
+            if f in features and self.shadow == "none":
+                raise ConfigError(f"obs_features {f!r} needs shadow 'fixed'")
         object.__setattr__(self, "obs_features", features)
         check_range("loglik_clip", self.loglik_clip, 0.0, lo_open=True)
         check_range("velocity_std", self.velocity_std, 0.0, lo_open=True)

@@ -53,8 +53,9 @@ class Rollout:
 
 def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
     """``base`` with a policy's overrides; the shadow tracker is turned off (it only shapes
-    rewards) unless the policy observes it (``shadow_probs``)."""
-    observed = "shadow_probs" in overrides.get("obs_features", ())
+    rewards) unless the policy observes it (``shadow_probs``, ``shadow_turn_rate``)."""
+    features = overrides.get("obs_features", ())
+    observed = "shadow_probs" in features or "shadow_turn_rate" in features
     defaults = {} if observed else {"shadow": "none", "reward": "error"}
     return base.replace(**{**defaults, **overrides})
 

@@ -11,7 +11,16 @@ from stable_baselines3.common.vec_env import VecCheckNan
 from imm_gym.envs import TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
 
-ALL_FEATURES = ("tpm", "loglik", "nis", "innovation", "time", "shadow_probs")
+ALL_FEATURES = (
+    "tpm",
+    "loglik",
+    "nis",
+    "innovation",
+    "time",
+    "shadow_probs",
+    "turn_rate",
+    "shadow_turn_rate",
+)
 OUTLIERS = {"outlier_prob": 0.2, "outlier_scale": 100.0}
 
 FUZZ_CONFIGS = {

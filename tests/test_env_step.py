@@ -23,6 +23,8 @@ SIZES = {
     "bank_b": 3,
     "shadow_probs": 3,
     "time": 1,
+    "turn_rate": 1,
+    "shadow_turn_rate": 1,
 }
 LAYOUTS = [
     ((), False),
@@ -32,6 +34,7 @@ LAYOUTS = [
     (("bank_b",), True),
     (("tpm", "loglik", "nis", "innovation", "bank_b", "shadow_probs", "time"), True),
     (("innovation", "shadow_probs"), False),
+    (("turn_rate", "shadow_turn_rate", "tpm"), False),
 ]
 
 
@@ -53,7 +56,12 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
     assert space.shape == (6 + sum(SIZES[f] for f in features),)
     blocks_low = _blocks(space.low, features)
     blocks_high = _blocks(space.high, features)
-    bounds = {"loglik": (-1.0, 0.0), "innovation": (-1.0, 1.0)}
+    bounds = {
+        "loglik": (-1.0, 0.0),
+        "innovation": (-1.0, 1.0),
+        "turn_rate": (-1.0, 1.0),
+        "shadow_turn_rate": (-1.0, 1.0),
+    }
     for name, low in blocks_low.items():
         lo, hi = bounds.get(name, (0.0, 1.0))
         assert np.all(low == lo) and np.all(blocks_high[name] == hi), name
@@ -66,12 +74,13 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
     if "tpm" in features:
         np.testing.assert_array_equal(b["tpm"], stay_tpm(3, 0.995).ravel().astype(np.float32))
         np.testing.assert_array_equal(info["tpm"], stay_tpm(3, 0.995))
-    for name in ("loglik", "nis", "innovation", "time"):
+    for name in ("loglik", "nis", "innovation", "time", "turn_rate", "shadow_turn_rate"):
         if name in features:
             np.testing.assert_array_equal(b[name], 0.0)
 
     rng = np.random.default_rng(0)
     prev = np.full(3, 1 / 3)
+    v_prev = np.array([20.0, 15.0])  # the paper scenario's initial velocity starts the track
     for k in range(1, 41):
         obs, _, terminated, truncated, info = env.step(rng.uniform(-1, 1, 9))
         assert obs.dtype == np.float32 and space.contains(obs) and np.all(np.isfinite(obs))
@@ -98,6 +107,12 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
                 assert np.all(b[name] >= 0.0)
         if "innovation" in features:
             assert np.all(np.abs(b["innovation"]) <= 1.0) and np.any(b["innovation"] != 0.0)
+        if "turn_rate" in features:
+            v = info["estimate"][2:4]
+            rate = np.arctan2(v_prev[0] * v[1] - v_prev[1] * v[0], v_prev @ v)
+            expected = np.clip(rate / np.deg2rad(10.0), -1.0, 1.0)
+            np.testing.assert_allclose(b["turn_rate"], expected, rtol=1e-5, atol=1e-7)
+        v_prev = info["estimate"][2:4]
 
 
 def _twin_envs(**config):
@@ -452,3 +467,16 @@ def test_one_step_scenario_ends_by_truncation_or_by_divergence(diverge: bool) ->
     assert (terminated, truncated) == ((True, False) if diverge else (False, True))
     assert bool(info["diverged"]) is diverge
     assert env.observation_space.contains(obs) and np.isfinite(reward)
+
+
+@pytest.mark.parametrize("omega_deg", [-3.0, -0.5, 0.0, 1.2, 4.0, 80.0])
+def test_heading_rate_of_a_rotated_velocity_is_the_turn_rate(omega_deg: float) -> None:
+    from imm_gym.core import heading_rate
+
+    omega, T = np.deg2rad(omega_deg), 2.0
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(5, 2)) * 10.0
+    c, s = np.cos(omega * T), np.sin(omega * T)
+    v_next = v @ np.array([[c, s], [-s, c]])  # each row rotated by omega T
+    np.testing.assert_allclose(heading_rate(v, v_next, T), omega, atol=1e-12)
+    np.testing.assert_array_equal(heading_rate(np.zeros((1, 2)), v[:1], T), 0.0)

@@ -16,7 +16,17 @@ SHORT = {
     "scenario": "random",
     "family": {"horizon": 20, "n_segments": (1, 2), "min_duration": 10},
 }
-ALL_FEATURES = ("tpm", "loglik", "nis", "innovation", "time", "bank_b", "shadow_probs")
+ALL_FEATURES = (
+    "tpm",
+    "loglik",
+    "nis",
+    "innovation",
+    "time",
+    "bank_b",
+    "shadow_probs",
+    "turn_rate",
+    "shadow_turn_rate",
+)
 INFO_COMPARED = ("true_state", "estimate", "mode_probs", "tpm", "position_error", "diverged")
 
 

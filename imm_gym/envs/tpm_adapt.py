@@ -51,6 +51,8 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | ``bank_b``   | bank B's probabilities before fusion (M)         | 0   | 1   |
     | ``shadow_probs`` | the shadow IMM's probabilities (M)           | 0   | 1   |
     | ``time``     | k / K (1)                                        | 0   | 1   |
+    | ``turn_rate``| heading rate of the estimate, / 10°/s, clipped (1)| −1  | 1   |
+    | ``shadow_turn_rate`` | the same for the shadow IMM's estimate (1)| −1  | 1   |
 
     Policies act on the observation only; ground truth is in ``info`` for evaluation.
 
