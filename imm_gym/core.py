@@ -134,10 +134,10 @@ class TrackingCore:
         self.loglik = np.zeros((N, M))
         self.model_nis = np.zeros((N, M))
         self.innovation = np.zeros((N, M, m))
-        self.velocity = np.zeros((N, 2))
-        self.velocity_s = np.zeros((N, 2))
-        self.turn_rate = np.zeros(N)
-        self.turn_rate_s = np.zeros(N)
+        self.velocity = np.zeros((N, 2))  # combined estimates' velocities at t and t-1
+        self.velocity_prev = np.zeros((N, 2))
+        self.velocity_s = np.zeros((N, 2))  # the same for the shadow IMM
+        self.velocity_s_prev = np.zeros((N, 2))
 
     # ------------------------------------------------------------------ spaces
     def _observation_bounds(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -209,9 +209,9 @@ class TrackingCore:
             "model_nis": 0.0,
             "innovation": 0.0,
             "velocity": x0[:, 2:4],
+            "velocity_prev": x0[:, 2:4],
             "velocity_s": x0[:, 2:4],
-            "turn_rate": 0.0,
-            "turn_rate_s": 0.0,
+            "velocity_s_prev": x0[:, 2:4],
             "k": 0,
             "done": False,
         }
@@ -312,8 +312,7 @@ class TrackingCore:
             )
             info["shadow_position_error"] = shadow_error
             self.mu_s = out_s.mode_probs
-            self.turn_rate_s = heading_rate(self.velocity_s, out_s.x[:, 2:4], self.imm.T)
-            self.velocity_s = out_s.x[:, 2:4]
+            self.velocity_s_prev, self.velocity_s = self.velocity_s, out_s.x[:, 2:4].copy()
             info["reward_advantage"] = (shadow_error - capped) / cfg.reward_scale
         reward = info[f"reward_{cfg.reward}"].copy()
         diverged = (
@@ -329,8 +328,7 @@ class TrackingCore:
         self.loglik = out_a.loglik
         self.model_nis = out_a.model_nis
         self.innovation = out_a.innovation
-        self.turn_rate = heading_rate(self.velocity, x_hat[:, 2:4], self.imm.T)
-        self.velocity = x_hat[:, 2:4]
+        self.velocity_prev, self.velocity = self.velocity, x_hat[:, 2:4].copy()
         truncated = (k1 >= self.horizon) & ~diverged
         self.done = diverged | truncated
         if before is not None:
@@ -351,9 +349,9 @@ class TrackingCore:
         "model_nis",
         "innovation",
         "velocity",
+        "velocity_prev",
         "velocity_s",
-        "turn_rate",
-        "turn_rate_s",
+        "velocity_s_prev",
     )
 
     def _snapshot(self) -> dict[str, Any]:
@@ -400,8 +398,11 @@ class TrackingCore:
                 blocks.append(self.mu_b)
             elif f == "shadow_probs":
                 blocks.append(self.mu_s)
-            elif f in ("turn_rate", "shadow_turn_rate"):
-                rate = self.turn_rate if f == "turn_rate" else self.turn_rate_s
+            elif f == "turn_rate":
+                rate = heading_rate(self.velocity_prev, self.velocity, self.imm.T)
+                blocks.append(np.clip(rate / TURN_RATE_SCALE, -1.0, 1.0)[:, None])
+            elif f == "shadow_turn_rate":
+                rate = heading_rate(self.velocity_s_prev, self.velocity_s, self.imm.T)
                 blocks.append(np.clip(rate / TURN_RATE_SCALE, -1.0, 1.0)[:, None])
             else:
                 blocks.append((self.k / self.horizon)[:, None])
