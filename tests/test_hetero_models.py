@@ -1,0 +1,240 @@
+"""Heterogeneous bank (seed 002): conversions, CT/CTRA kinematics, EKF IMM against the KF IMM."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from imm_gym import IMM, ConfigError, PositionSensor, paper_bank, stay_tpm
+from imm_gym.conversions import (
+    SPACES,
+    conversion,
+    convert,
+    ct_transition_nl,
+    ctra_transition,
+    g_integrals,
+)
+from imm_gym.hetero import HeteroBank, HeteroIMM, HeteroModel, linear_models
+
+finite = st.floats(-50.0, 50.0, allow_nan=False)
+speed = st.floats(0.5, 30.0)
+angle = st.floats(-math.pi, math.pi)
+rate = st.floats(-1.0, 1.0)
+
+
+def random_state(space: str, rng: np.random.Generator) -> np.ndarray:
+    x = rng.normal(size=SPACES[space]) * 5.0
+    if space in ("ct", "ctra"):
+        x[2] = abs(x[2]) + 1.0
+        x[3] = rng.uniform(-3.0, 3.0)
+        x[4] = rng.uniform(-0.5, 0.5)
+    return x
+
+
+def numeric_jacobian(f, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    cols = []
+    for i in range(x.size):
+        d = np.zeros_like(x)
+        d[i] = eps
+        cols.append((f(x + d) - f(x - d)) / (2 * eps))
+    return np.stack(cols, axis=-1)
+
+
+@settings(max_examples=60, deadline=None)
+@given(finite, finite, speed, angle)
+def test_ncv_ctra_ncv_round_trip(px: float, py: float, v: float, psi: float) -> None:
+    x = np.array([px, py, v * math.cos(psi), v * math.sin(psi)])
+    ctra, _ = conversion(x, "ncv", "ctra")
+    np.testing.assert_allclose(ctra, [px, py, v, psi, 0.0, 0.0], atol=1e-9)
+    back, _ = conversion(ctra, "ctra", "ncv")
+    np.testing.assert_allclose(back, x, atol=1e-9)
+    via_ct, _ = conversion(conversion(x, "ncv", "ct")[0], "ct", "ncv")
+    np.testing.assert_allclose(via_ct, x, atol=1e-9)
+
+
+@pytest.mark.parametrize("src", sorted(SPACES))
+@pytest.mark.parametrize("dst", sorted(SPACES))
+def test_conversion_jacobians_match_finite_differences(src: str, dst: str) -> None:
+    rng = np.random.default_rng(hash((src, dst)) % 2**32)
+    for _ in range(5):
+        x = random_state(src, rng)
+        _, J = conversion(x, src, dst)
+        np.testing.assert_allclose(
+            J, numeric_jacobian(lambda y: conversion(y, src, dst)[0], x), atol=1e-6
+        )
+
+
+def test_conversion_jacobian_of_round_trip_is_identity_on_velocity() -> None:
+    x = np.array([1.0, 2.0, 3.0, -4.0])
+    ctra, J1 = conversion(x, "ncv", "ctra")
+    _, J2 = conversion(ctra, "ctra", "ncv")
+    np.testing.assert_allclose(J2 @ J1, np.eye(4), atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-3, 3), min_size=16, max_size=16), speed, angle)
+def test_converted_covariance_is_symmetric_psd(entries: list[float], v: float, psi: float) -> None:
+    A = np.array(entries).reshape(4, 4)
+    P = A @ A.T + 1e-3 * np.eye(4)
+    x = np.array([0.0, 0.0, v * math.cos(psi), v * math.sin(psi)])
+    for dst in ("ct", "ctra"):
+        _, Pc = convert(x, P, "ncv", dst)
+        np.testing.assert_allclose(Pc, Pc.T, atol=1e-12)
+        assert np.linalg.eigvalsh(Pc).min() > -1e-9 * np.abs(Pc).max()
+
+
+def test_zero_speed_conversion_is_finite() -> None:
+    x, P = convert(np.zeros(4), np.eye(4), "ncv", "ctra")
+    assert np.all(np.isfinite(x)) and np.all(np.isfinite(P))
+
+
+@pytest.mark.parametrize(
+    ("x", "src", "dst"),
+    [(np.zeros(4), "ct", "ncv"), (np.zeros(5), "ctra", "ncv"), (np.zeros(4), "ncv", "polar")],
+)
+def test_incompatible_conversion_raises(x: np.ndarray, src: str, dst: str) -> None:
+    with pytest.raises(ConfigError, match="state space"):
+        conversion(x, src, dst)
+
+
+@pytest.mark.parametrize("theta", [0.0, 1e-9, 1e-4, 0.3, 0.4999, 0.5, 0.7, 2.0, -1.5])
+def test_g_integrals_match_quadrature(theta: float) -> None:
+    tau = np.linspace(0.0, 1.0, 20001)
+    for n, g in enumerate(g_integrals(np.array(theta))):
+        f = tau**n * np.exp(1j * theta * tau)
+        ref = np.sum((f[1:] + f[:-1]) / 2) * (tau[1] - tau[0])
+        assert abs(g - ref) < 1e-8
+
+
+@settings(max_examples=40, deadline=None)
+@given(finite, finite, speed, angle, st.floats(0.01, 1.0), st.sampled_from([-1.0, 1.0]))
+def test_ct_matches_circular_motion(
+    px: float, py: float, v: float, psi: float, w: float, sign: float
+) -> None:
+    w *= sign
+    T = 0.7
+    out, _ = ct_transition_nl(np.array([px, py, v, psi, w]), T)
+    r = v / w
+    cx, cy = px - r * math.sin(psi), py + r * math.cos(psi)
+    expect = [cx + r * math.sin(psi + w * T), cy - r * math.cos(psi + w * T), v, psi + w * T, w]
+    np.testing.assert_allclose(out, expect, atol=1e-9 * max(1.0, abs(r)))
+
+
+@pytest.mark.parametrize("w", [0.0, 1e-7, 0.3, -0.8, 2.5])
+@pytest.mark.parametrize("a", [0.0, 1.5, -2.0])
+def test_ctra_matches_accelerating_motion(w: float, a: float) -> None:
+    x = np.array([3.0, -1.0, 8.0, 0.4, w, a])
+    T = 0.5
+    out, _ = ctra_transition(x, T)
+    t = np.linspace(0.0, T, 40001)
+    vel = (8.0 + a * t) * np.exp(1j * (0.4 + w * t))
+    dp = np.sum((vel[1:] + vel[:-1]) / 2) * (t[1] - t[0])
+    np.testing.assert_allclose(out[:2], [3.0 + dp.real, -1.0 + dp.imag], atol=1e-8)
+    np.testing.assert_allclose(out[2:], [8.0 + a * T, 0.4 + w * T, w, a], atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(finite, finite, speed, angle, st.floats(-3.0, 3.0))
+def test_zero_turn_rate_is_the_straight_line_limit(
+    px: float, py: float, v: float, psi: float, a: float
+) -> None:
+    T = 0.1
+    u = np.array([math.cos(psi), math.sin(psi)])
+    ct, _ = ct_transition_nl(np.array([px, py, v, psi, 0.0]), T)
+    np.testing.assert_allclose(ct[:2], np.array([px, py]) + v * T * u, atol=1e-12)
+    ctra, _ = ctra_transition(np.array([px, py, v, psi, 0.0, a]), T)
+    np.testing.assert_allclose(
+        ctra[:2], np.array([px, py]) + (v * T + a * T * T / 2) * u, atol=1e-12
+    )
+    near, _ = ctra_transition(np.array([px, py, v, psi, 1e-10, a]), T)
+    np.testing.assert_allclose(near, ctra, atol=1e-9)
+
+
+@pytest.mark.parametrize("w", [0.0, 1e-8, 0.1, 4.99, 5.01, -3.0])
+def test_transition_jacobians_match_finite_differences(w: float) -> None:
+    T = 0.1
+    x = np.array([1.0, 2.0, 7.0, -2.0, w, 0.8])
+    _, F = ctra_transition(x, T)
+    np.testing.assert_allclose(
+        F, numeric_jacobian(lambda y: ctra_transition(y, T)[0], x), atol=1e-7
+    )
+    _, F5 = ct_transition_nl(x[:5], T)
+    np.testing.assert_allclose(
+        F5, numeric_jacobian(lambda y: ct_transition_nl(y, T)[0], x[:5]), atol=1e-7
+    )
+
+
+def test_ekf_engine_equals_kalman_imm_on_linear_bank() -> None:
+    """The heterogeneous engine with the linear CV/CT(±4°/s) bank is the classical KF-IMM."""
+    rng = np.random.default_rng(3)
+    sensor = PositionSensor(sigma_pos=20.0, sigma_vel=2.0)
+    N, K = 4, 30
+    z = rng.normal(size=(N, K, 4)) * [50, 50, 3, 3] + [3000, 4000, 20, 15]
+    x0 = np.tile([3000.0, 4000.0, 20.0, 15.0], (N, 1))
+    P0 = np.diag([400.0, 400.0, 25.0, 25.0])
+    tpm = stay_tpm(3, 0.9)
+    ref = IMM(paper_bank(), sensor, filter="kf", backend="numpy").run(z, tpm, x0, P0)
+    imm = HeteroIMM(linear_models(paper_bank()), sensor, T=1.0)
+    state = imm.init(x0, P0, np.full(3, 1 / 3))
+    for k in range(K):
+        state, out = imm.step(state, tpm, z[:, k])
+        np.testing.assert_allclose(out.x, ref.x[:, k], rtol=1e-10, atol=1e-8)
+        np.testing.assert_allclose(out.P, ref.P[:, k], rtol=1e-8, atol=1e-8)
+        np.testing.assert_allclose(out.mode_probs, ref.mode_probs[:, k], atol=1e-10)
+        np.testing.assert_allclose(out.nis, ref.nis[:, k], rtol=1e-8)
+
+
+def test_ncv_ekf_step_is_the_kalman_formula() -> None:
+    sensor = PositionSensor(sigma_pos=1.0, sigma_vel=0.5)
+    model = HeteroModel("ncv", (0.6,))
+    imm = HeteroIMM([model], sensor, T=0.1)
+    x0, P0 = np.array([1.0, 2.0, 3.0, 4.0]), np.diag([1.0, 2.0, 0.5, 0.5])
+    z = np.array([[1.5, 2.2, 2.9, 4.2]])
+    _, out = imm.step(imm.init(x0, P0), np.eye(1), z)
+    _, F = model.transition(x0[None], 0.1)
+    Q = model.noise(x0[None], 0.1)[0]
+    x_pred, P_pred = F[0] @ x0, F[0] @ P0 @ F[0].T + Q
+    S = P_pred + sensor.R
+    K = P_pred @ np.linalg.inv(S)
+    np.testing.assert_allclose(out.x[0], x_pred + K @ (z[0] - x_pred), atol=1e-12)
+    np.testing.assert_allclose(out.P[0], (np.eye(4) - K) @ P_pred, atol=1e-12)
+
+
+def test_mixing_averages_headings_across_the_branch_cut() -> None:
+    sensor = PositionSensor(sigma_pos=1.0, sigma_vel=0.5)
+    imm = HeteroIMM(HeteroBank(models=("ct", "ctra")), sensor, T=0.1)
+    state = imm.init(np.array([0.0, 0.0, -10.0, 0.01]), np.eye(4), np.array([0.5, 0.5]))
+    state.x[0, 1, 3] = -math.pi + 0.01  # model 2 heading just across the cut
+    state.x[0, 0, 3] = math.pi - 0.01
+    _, x0s, _ = imm.mix(state, np.full((2, 2), 0.5))
+    for x0 in x0s:
+        assert abs(abs(x0[0, 3]) - math.pi) < 0.02
+
+
+def test_heterogeneous_bank_validation() -> None:
+    with pytest.raises(ConfigError, match="q_scale"):
+        HeteroBank(q_scale=(1.0, -1.0, 1.0))
+    with pytest.raises(ConfigError, match="sigma"):
+        HeteroBank(sigma_ct=(-1.0, 0.5))
+    with pytest.raises(ConfigError, match="models"):
+        HeteroBank(models=("ncv", "ca"))
+    with pytest.raises(ConfigError, match="q_scale"):
+        HeteroModel("ncv", (0.6,), q_scale=0.0)
+    with pytest.raises(ConfigError, match="ekf"):
+        HeteroIMM(HeteroBank(), PositionSensor(), filter="ukf")
+
+
+def test_failed_tracker_is_flagged_not_raised() -> None:
+    sensor = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+    imm = HeteroIMM(HeteroBank(), sensor, T=0.1)
+    state = imm.init(np.tile([0.0, 0.0, 5.0, 0.0], (2, 1)), np.eye(4))
+    state.P[1] = np.nan
+    _, out = imm.step(state, stay_tpm(3, 0.9), np.zeros((2, 4)), allow_failure=True)
+    assert out.failed.tolist() == [False, True]
+    assert np.all(np.isfinite(out.x[0]))
+    with pytest.raises(np.linalg.LinAlgError):
+        imm.step(state, stay_tpm(3, 0.9), np.zeros((2, 4)))
