@@ -271,6 +271,18 @@ SONAR_HETERO_BANK = {
 }
 
 
+@dataclass(frozen=True)
+class HeteroStep(IMMStep):
+    """:class:`~imm_gym.imm.IMMStep` plus the IMM's predicted measurement.
+
+    Attributes:
+        z_pred: ``(N, m)`` mean of the predicted measurement mixture (weights ``cbar``), the
+            one-step prediction whose error the tuner's objective measures.
+    """
+
+    z_pred: Array | None = None
+
+
 class _ModelSensor:
     """The sensor seen from model space: ``h_j = h(g(x))``, ``H_j = H(g(x)) J``; ``R`` may be a
     per-tracker ``(N, 1, m, m)`` array (``r_scale``)."""
@@ -416,7 +428,7 @@ class HeteroIMM:
         allow_failure: bool = False,
         q_scale: Array | None = None,
         r_scale: Array | None = None,
-    ) -> tuple[IMMState, IMMStep]:
+    ) -> tuple[IMMState, HeteroStep]:
         """One IMM-EKF cycle for N trackers (see the module docstring).
 
         Args:
@@ -480,11 +492,16 @@ class HeteroIMM:
         xc = np.stack([c[0] for c in cart], axis=1)
         Pc = np.stack([c[1] for c in cart], axis=1)
         x_hat, P_hat = combine(mu, xc, Pc)
-        nis = np.where(det & ~failed, mixture_nis(self.sensor, cbar, z_pred, S, z), 0.0)
+        z_mix, S_mix = measurement_mixture(self.sensor, cbar, z_pred, S)
+        S_inv, _ = inv_logdet(S_mix)
+        nu = self.sensor.residual(z, z_mix)
+        nis = np.where(det & ~failed, mahalanobis(nu, S_inv), 0.0)
         if failed.any():
-            for a in (x_hat, P_hat, mu, nis):
+            for a in (x_hat, P_hat, mu, nis, z_mix):
                 a[failed] = np.nan
-        out = IMMStep(x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, failed)
+        out = HeteroStep(
+            x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, failed, z_mix
+        )
         return IMMState(x_new, P_new, mu), out
 
     def _update(
@@ -504,18 +521,19 @@ class HeteroIMM:
         return self.filter.update(x, P, z, sensor), bad
 
 
-def mixture_nis(sensor: MeasurementModel, cbar: Array, z_pred: Array, S: Array, z: Array) -> Array:
-    """NIS of ``z`` under the moment-matched predicted measurement mixture (weights ``cbar``).
+def measurement_mixture(
+    sensor: MeasurementModel, cbar: Array, z_pred: Array, S: Array
+) -> tuple[Array, Array]:
+    """The IMM's predicted measurement density, moment-matched (weights ``cbar``).
 
-    ``z_mix = sum_j cbar_j z_j``, ``S_mix = sum_j cbar_j [S_j + (z_j - z_mix)(z_j - z_mix)^T]``,
-    ``NIS = (z - z_mix)^T S_mix^-1 (z - z_mix)`` (as :class:`imm_gym.imm.IMM` reports it).
+    ``z_mix = sum_j cbar_j z_j``, ``S_mix = sum_j cbar_j [S_j + (z_j - z_mix)(z_j - z_mix)^T]``
+    (differences through ``sensor.residual``), as :class:`imm_gym.imm.IMM` reports its NIS.
 
     Args:
-        cbar: ``(N, M)``; z_pred: ``(N, M, m)``; S: ``(N, M, m, m)``; z: ``(N, m)``.
+        cbar: ``(N, M)``; z_pred: ``(N, M, m)``; S: ``(N, M, m, m)``.
     """
     ref = z_pred[:, :1, :]
     z_mix = ref[:, 0] + np.einsum("nm,nmd->nd", cbar, sensor.residual(z_pred, ref))
     d = sensor.residual(z_pred, z_mix[:, None, :])
     S_mix = np.einsum("nm,nmab->nab", cbar, S + d[..., :, None] * d[..., None, :])
-    S_inv, _ = inv_logdet(S_mix)
-    return mahalanobis(sensor.residual(z, z_mix), S_inv)
+    return sensor.wrap(z_mix), S_mix

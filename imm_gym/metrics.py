@@ -103,3 +103,28 @@ def mode_accuracy(mode_probs: Array, true_index: NDArray[np.int64]) -> float:
     if not np.any(valid):
         return 0.0
     return float(np.mean(np.argmax(mode_probs, axis=-1)[valid] == true_index[valid]))
+
+
+def trajectory_metrics(estimate: Array, truth: Array, heading: Array) -> dict[str, float]:
+    r"""Seed 002's accuracy metrics (eqs. 30-32), pooled over runs and steps.
+
+    With ``e_k`` the position error of step k (R runs, K steps):
+    ``pos_rmse = sqrt(mean ||e||^2)``, ``pos_mae = mean ||e||``, ``pos_max`` = mean over runs of
+    ``max_k ||e_k||``, ``fde`` = mean over runs of ``||e_K||``, ``vel_rmse = sqrt(mean ||e_v||^2)``,
+    ``yaw_rmse_deg``: RMSE of ``atan2(vy_hat, vx_hat) - psi`` wrapped to (-180°, 180°].
+
+    Args:
+        estimate: ``(R, K, >= 4)``; truth: ``(R, K, 4)``; heading: ``(R, K)`` true yaw (rad).
+    """
+    e = np.linalg.norm(estimate[..., :2] - truth[..., :2], axis=-1)
+    ev = estimate[..., 2:4] - truth[..., 2:4]
+    yaw = np.arctan2(estimate[..., 3], estimate[..., 2]) - heading
+    yaw = np.mod(yaw + np.pi, 2 * np.pi) - np.pi
+    return {
+        "pos_rmse": float(np.sqrt(np.mean(e**2))),
+        "pos_mae": float(np.mean(e)),
+        "pos_max": float(np.mean(e.max(axis=-1))),
+        "fde": float(np.mean(e[:, -1])),
+        "vel_rmse": float(np.sqrt(np.mean(np.sum(ev**2, axis=-1)))),
+        "yaw_rmse_deg": float(np.degrees(np.sqrt(np.mean(yaw**2)))),
+    }

@@ -1,0 +1,93 @@
+"""Seed 002's evaluation: the scenario family, the metrics, the IMM-EKF's consistency."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from imm_gym import ConfigError, Scenario, Segment, generate_truth
+from imm_gym.metrics import trajectory_metrics
+from imm_gym.seed_eval import draw, seed002_evaluation, seed002_sensor
+from imm_gym.seed_scenarios import Seed002Family, profile_truth, seed003_profile
+
+
+def test_profile_truth_matches_segment_truth_on_turns() -> None:
+    """The CTRA truth equals the closed-form CT truth of :mod:`imm_gym.scenarios`."""
+    scenario = Scenario(
+        (Segment(20), Segment(30, 2.0), Segment(10), Segment(15, -3.0)),
+        position=(100.0, -50.0),
+        velocity=(6.0, 8.0),
+        T=1.0,
+    )
+    ref = generate_truth([scenario])
+    omega, accel = scenario.profile()
+    pt = profile_truth(
+        omega[None],
+        accel[None],
+        np.array([[100.0, -50.0]]),
+        np.array([10.0]),
+        np.array([math.atan2(8.0, 6.0)]),
+        1.0,
+    )
+    np.testing.assert_allclose(pt.truth.states, ref.states, atol=1e-9)
+
+
+def test_seed002_family_has_its_maneuvers() -> None:
+    fam = Seed002Family()
+    pt = fam.sample([np.random.default_rng(s) for s in range(4)])
+    w, speed = pt.truth.turn_rate, np.linalg.norm(pt.truth.states[..., 2:], axis=-1)
+    T = fam.T
+    sharp = np.abs(w) > 0.3
+    # two sharp 90° turns per run
+    np.testing.assert_allclose(np.sum(np.abs(w) * sharp, axis=1) * T, math.pi, atol=1e-9)
+    # the speed is lowest in the sharp turns
+    assert np.all(speed[:, 1:][sharp].reshape(4, -1).max(axis=1) < speed.max(axis=1) - 3.0)
+    # the S-curve turns back: net heading change of the gentle part is 0
+    gentle = (np.abs(w) > 0) & ~sharp
+    np.testing.assert_allclose(np.sum(w * gentle, axis=1), 0.0, atol=1e-9)
+
+
+def test_trajectory_metrics_closed_form() -> None:
+    truth = np.zeros((2, 3, 4))
+    truth[..., 2] = 1.0  # heading 0
+    est = truth.copy()
+    est[0, :, 0] = [3.0, 0.0, 4.0]
+    est[1, :, 3] = 1.0  # heading 45°
+    m = trajectory_metrics(est, truth, np.zeros((2, 3)))
+    assert m["pos_rmse"] == pytest.approx(math.sqrt(25 / 6))
+    assert m["pos_mae"] == pytest.approx(7 / 6)
+    assert m["pos_max"] == pytest.approx(2.0)
+    assert m["fde"] == pytest.approx(2.0)
+    assert m["vel_rmse"] == pytest.approx(math.sqrt(0.5))
+    assert m["yaw_rmse_deg"] == pytest.approx(math.sqrt(45.0**2 / 2))
+
+
+def test_heterogeneous_imm_is_consistent_on_seed002_family() -> None:
+    """Seed 002 reports 94.16 % of NIS inside the 95 % bound, mean 4.39 (dimension 4)."""
+    result = seed002_evaluation(runs=20, seed=0)
+    m = result["metrics"]
+    assert m["failed"] == 0
+    assert m["nis_inside"] >= 0.90
+    assert abs(m["nis_mean"] - 4.0) <= 0.25 * 4.0
+    assert m["pos_rmse"] < 0.5  # sigma_p = 0.5 m; seed 002: 0.31 m on their trajectory
+    assert m["yaw_rmse_deg"] < 5.0
+
+
+def test_seed_batches_are_reproducible_and_reject_bad_input() -> None:
+    a = draw(Seed002Family(), seed002_sensor(), 3, 7)
+    b = draw(Seed002Family(), seed002_sensor(), 3, 7)
+    np.testing.assert_array_equal(a.measurements.z, b.measurements.z)
+    with pytest.raises(ConfigError, match="runs"):
+        draw(Seed002Family(), seed002_sensor(), 0, 7)
+    with pytest.raises(ConfigError, match="shape"):
+        profile_truth(
+            np.zeros((1, 3)), np.zeros((1, 4)), np.zeros((1, 2)), np.ones(1), np.zeros(1), 0.1
+        )
+
+
+def test_seed003_profile_is_43_seconds() -> None:
+    w, a, _, v, _ = seed003_profile(0.1)
+    assert w.shape == a.shape == (430,)
+    assert v == 5.0
