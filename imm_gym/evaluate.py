@@ -38,6 +38,7 @@ from .evaluation import Rollout, evaluation_config, paired_bootstrap, rollout, s
 from .metrics import tracking_errors
 from .montecarlo import draw_batch
 from .scenarios import Scenario
+from .seed_eval import SEED_SCENARIOS
 
 #: The paper's Table 2 (ARMSE; m and m/s), printed beside the paper scenario's results.
 PAPER_TABLE2 = {
@@ -301,7 +302,12 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"policy to evaluate (repeatable): {', '.join(BUILTIN_POLICIES)}, or a trained "
         "agent's directory",
     )
-    parser.add_argument("--scenario", default="paper", help="paper | random | a scenario JSON file")
+    parser.add_argument(
+        "--scenario",
+        default="paper",
+        help="paper | random | a scenario JSON file | seed002 | seed003 (the NCV/CT/CTRA IMM-EKF "
+        "of seed 002, the CV/CA/CT bank of seed 003; policies fixed, bbsca, sca)",
+    )
     parser.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="run r uses seed + r (default 0)")
     parser.add_argument("--reference", help="policy the paired differences are taken against")
@@ -309,6 +315,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--plots", type=Path, help="write PNG figures to this directory")
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--tuned",
+        action="append",
+        default=[],
+        metavar="POLICY=FILE",
+        help="seed scenarios: load the tuned bank of bbsca/sca from FILE instead of tuning",
+    )
     return parser
 
 
@@ -319,6 +332,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--runs must be >= 1, got {args.runs}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
+    if args.scenario in SEED_SCENARIOS:
+        return _main_seed(parser, args)
     try:
         results, rollouts = evaluate(
             args.policy,
@@ -342,6 +357,23 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         for path in write_figures(rollouts, args.plots, results["meta"]):
             print(f"wrote {path}")
+    return 0
+
+
+def _main_seed(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """``--scenario seed002|seed003``: classical IMM-EKF and its BBSCA / SCA-tuned versions."""
+    from .seed_eval import evaluate_seed_scenario, render_seed_tables
+
+    try:
+        tuned = dict(item.split("=", 1) for item in args.tuned)
+        results = evaluate_seed_scenario(args.scenario, args.policy, args.runs, args.seed, tuned)
+    except ValueError as err:
+        parser.error(str(err))
+    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
+    render_seed_tables(results)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2))
     return 0
 
 

@@ -238,3 +238,139 @@ def seed002_evaluation(
 def seed003_imm(sensor: PositionSensor | None = None) -> HeteroIMM:
     """Seed 003's CV / CA / CT bank in the engine (Kalman filters: all models are linear)."""
     return HeteroIMM(linear_models(seed003_models()), sensor or seed003_sensor(), T=0.1)
+
+
+SEED_SCENARIOS = ("seed002", "seed003")
+SEED_POLICIES = ("fixed", "bbsca", "sca")
+#: Training runs of the tuners use seeds ``seed + TRAIN_SEED_OFFSET + r`` (never evaluation seeds).
+TRAIN_SEED_OFFSET = 1_000_000
+
+
+def seed_setup(name: str) -> tuple[HeteroIMM, Seed002Family | Seed003Family, PositionSensor, Array]:
+    """``(imm, family, sensor, tpm)`` of ``seed002`` or ``seed003``."""
+    if name == "seed002":
+        sensor = seed002_sensor()
+        return HeteroIMM(HeteroBank(), sensor, T=0.1), Seed002Family(), sensor, stay_tpm(3, 0.9)
+    if name == "seed003":
+        sensor = seed003_sensor()
+        return seed003_imm(sensor), Seed003Family(), sensor, stay_tpm(3, 0.9)
+    raise ConfigError(f"scenario must be one of {list(SEED_SCENARIOS)}, got {name!r}")
+
+
+def evaluate_seed_scenario(
+    name: str,
+    policies: list[str],
+    runs: int,
+    seed: int,
+    tuned: dict[str, str] | None = None,
+    train_runs: int = 10,
+    generations: int = 30,
+) -> dict[str, object]:
+    """Classical IMM (``fixed``) and its BBSCA- / SCA-tuned versions on a seed scenario.
+
+    A tuned policy loads its :class:`~imm_gym.tuning.TunedBank` from ``tuned[policy]`` if given,
+    else tunes on ``train_runs`` training runs (seeds ``seed + TRAIN_SEED_OFFSET + r``) with 10
+    particles and ``generations`` generations. All policies are scored on the same runs (seeds
+    ``seed .. seed + runs - 1``), with the held-out innovation objective ``J`` beside seed 002's
+    metrics.
+    """
+    from .tuning import TunedBank, TunerConfig, bank_objective, tune
+
+    imm, family, sensor, tpm = seed_setup(name)
+    for p in policies:
+        if p not in SEED_POLICIES:
+            raise ConfigError(
+                f"on scenario {name!r} the policies are {list(SEED_POLICIES)} (classical IMM and "
+                f"its tuned versions), got {p!r}"
+            )
+    if len(set(policies)) != len(policies):
+        raise ConfigError(f"--policy given twice: {policies}")
+    batch = draw(family, sensor, runs, seed)
+    held_out = bank_objective(imm, batch, tpm, sensor.sigma)
+    results: dict[str, object] = {}
+    for p in policies:
+        notes: dict[str, object] = {}
+        if p == "fixed":
+            bank = TunedBank(name, (1.0,) * imm.n_models, 1.0, method="none")
+        elif tuned and p in tuned:
+            bank = TunedBank.load(tuned[p])
+            notes["tuned_file"] = tuned[p]
+        else:
+            train = draw(family, sensor, train_runs, seed + TRAIN_SEED_OFFSET)
+            cfg = TunerConfig(method=p, generations=generations, seed=seed)
+            bank, _ = tune(imm, train, tpm, sensor.sigma, cfg, bank=name)
+            notes["train_seeds"] = (
+                f"{seed + TRAIN_SEED_OFFSET}..{seed + TRAIN_SEED_OFFSET + train_runs - 1}"
+            )
+        if len(bank.q_scale) != imm.n_models:
+            raise ConfigError(
+                f"tuned bank has {len(bank.q_scale)} Q scales for {imm.n_models} models"
+            )
+        q = np.tile(bank.q_scale, (runs, 1))
+        r = np.full(runs, bank.r_scale)
+        run = run_bank(imm, batch, tpm, q_scale=q, r_scale=r)
+        metrics = score_run(run, batch, sensor.dim_z)
+        metrics["innovation_mse"] = float(held_out(bank.theta[None])[0])
+        results[p] = {
+            **metrics,
+            "q_scale": list(bank.q_scale),
+            "r_scale": bank.r_scale,
+            "train_objective": bank.objective,
+            **notes,
+        }
+    return {
+        "policies": results,
+        "paper": SEED002_PAPER if name == "seed002" else {},
+        "meta": {
+            "scenario": name,
+            "runs": runs,
+            "seed": seed,
+            "seeds": f"{seed}..{seed + runs - 1}",
+            "steps": batch.measurements.z.shape[1] - 1,
+            "filter": "ekf",
+        },
+    }
+
+
+SEED_COLUMNS = (
+    ("pos_rmse", "pos RMSE (m)", "{:.4f}"),
+    ("pos_mae", "MAE (m)", "{:.4f}"),
+    ("pos_max", "max (m)", "{:.3f}"),
+    ("fde", "FDE (m)", "{:.4f}"),
+    ("vel_rmse", "vel RMSE (m/s)", "{:.4f}"),
+    ("yaw_rmse_deg", "yaw RMSE (°)", "{:.3f}"),
+    ("nis_inside", "NIS ≤ χ²95", "{:.1%}"),
+    ("nis_mean", "mean NIS", "{:.3f}"),
+    ("nees_inside", "NEES ≤ χ²95", "{:.1%}"),
+    ("nees_mean", "mean NEES", "{:.3f}"),
+    ("innovation_mse", "innov. MSE J", "{:.4f}"),
+)
+
+
+def render_seed_tables(results: dict[str, object]) -> None:
+    """Print the seed-scenario table (seed 002's paper row beside it) with rich."""
+    import sys
+
+    from rich.console import Console
+    from rich.table import Table
+
+    meta: dict[str, object] = results["meta"]  # type: ignore[assignment]
+    console = Console(width=None if sys.stdout.isatty() else 180)
+    table = Table(
+        title=f"scenario '{meta['scenario']}', {meta['runs']} runs (seeds {meta['seeds']}), "
+        f"{meta['steps']} steps, IMM-EKF"
+    )
+    table.add_column("policy")
+    for _, label, _ in SEED_COLUMNS:
+        table.add_column(label, justify="right")
+    rows = dict(results["policies"])  # type: ignore[call-overload]
+    paper = results.get("paper") or {}
+    for name, r in rows.items():
+        table.add_row(name, *(fmt.format(r[k]) for k, _, fmt in SEED_COLUMNS))
+    if paper:
+        table.add_row(
+            "seed 002 paper (their trajectory)",
+            *(fmt.format(paper[k]) if k in paper else "—" for k, _, fmt in SEED_COLUMNS),
+            style="dim",
+        )
+    console.print(table)

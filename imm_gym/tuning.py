@@ -1,0 +1,265 @@
+r"""Offline Q/R tuning of an IMM bank by the bare-bones sine-cosine algorithm (seed 003 §3.2).
+
+**Search space.** A particle is ``theta = (log10 s_Q1, ..., log10 s_QM, log10 s_R)``: one factor
+on each model's process noise ``Q_j`` and one on the measurement noise ``R`` the filters assume
+(all models share the sensor, so one ``R`` factor instead of seed 003's one per model), inside the
+box ``[lo, hi]^D``.
+
+**Objective** (seed 003: "the actual mean square error of the innovation"): over a training set
+of S runs and K steps,
+
+.. math::
+    J(\theta) = \frac{1}{S K m} \sum_{s,k} \lVert \Sigma^{-1/2}(z_{s,k} - \hat z_{s,k|k-1})
+    \rVert^2,
+
+with ``\hat z_{k|k-1} = \sum_j \bar c_j h_j(x_j^-)`` the IMM's predicted measurement and
+``\Sigma = diag(\sigma^2)`` the *sensor's* nominal noise (fixed: it only makes position and velocity
+commensurate, so inflating the filter's ``R`` cannot lower ``J``). ``J`` is the one-step
+prediction error; ``J = 1`` would be a perfect predictor of a sensor with that noise... plus the
+state's own prediction error.
+
+**Why offline and batched.** Seed 003 re-runs the optimizer at every time step on the data seen so
+far. That is 10 particles x 100 generations of filtering per step, and the tuned values chase the
+noise of a few samples. Here the tuner runs once, before tracking, on a training set of scenarios,
+and a generation's P particles are P x S independent trackers of one batched IMM run
+(:func:`imm_gym.seed_eval.run_bank` with per-tracker ``q_scale`` / ``r_scale``): one pass over the
+K steps evaluates the whole swarm. The tuned bank is then a fixed configuration
+(:class:`TunedBank`, saved and loaded as JSON).
+
+**SCA** (Mirjalili 2016): with ``b`` the best particle so far,
+``X_i <- X_i + r_1 \sin r_2 |r_3 b - X_i|`` if ``r_4 < 0.5`` else with ``\cos``;
+``r_1 = a (1 - t / T_{max})`` (linear, ``a = 2``), ``r_2 \sim U(0, 2\pi)``, ``r_3 \sim U(0, 2)``,
+``r_4 \sim U(0, 1)`` per component; the swarm moves every generation (no selection).
+
+**BBSCA** (seed 003 §3.2.2): (i) ``r_1 = a e^{-\lambda t / T_{max}}`` (exponentially decreasing,
+``\lambda = 4``: the extraction lost the constant); (ii) per component, with probability 1/2
+(``r_5 < 0.5``) the sine-cosine step above, otherwise the Gaussian bare-bones step toward the best,
+``Y_{ij} \sim N((b_j + X_{kj}) / 2, |b_j - X_{kj}|)`` with ``k`` a randomly chosen particle;
+(iii) greedy selection, ``X_i <- Y_i`` only if ``J(Y_i) < J(X_i)``. Both spend P evaluations per
+generation, so equal budgets are equal generation counts.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import ConfigError, check_choice, check_int, check_range, from_dict
+from .hetero import HeteroIMM
+from .seed_eval import SeedBatch, run_bank
+
+Array = NDArray[np.float64]
+
+OPTIMIZERS = ("bbsca", "sca")
+
+
+@dataclass(frozen=True)
+class TunerConfig:
+    """Settings of the optimizer (seed 003: 10 particles, 100 generations).
+
+    Attributes:
+        method: ``"bbsca"`` or ``"sca"``.
+        particles: swarm size P (>= 2); generations: T_max (>= 1).
+        bounds: the box of ``log10`` scales, ``lo < hi``.
+        a: the initial ``r_1``; decay: BBSCA's ``lambda``.
+        seed: the optimizer's generator seed.
+    """
+
+    method: str = "bbsca"
+    particles: int = 10
+    generations: int = 30
+    bounds: tuple[float, float] = (-2.0, 2.0)
+    a: float = 2.0
+    decay: float = 4.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_choice("tuner.method", self.method, OPTIMIZERS)
+        check_int("tuner.particles", self.particles, 2)
+        check_int("tuner.generations", self.generations, 1)
+        lo = check_range("tuner.bounds[0]", self.bounds[0], -10.0, 10.0)
+        check_range("tuner.bounds[1]", self.bounds[1], lo, 10.0, lo_open=True)
+        check_range("tuner.a", self.a, 0.0, lo_open=True)
+        check_range("tuner.decay", self.decay, 0.0, lo_open=True)
+        check_int("tuner.seed", self.seed, 0)
+
+
+@dataclass(frozen=True)
+class OptimResult:
+    """Best point, its value, and the best value after each generation (``history[0]``: the
+    initial swarm)."""
+
+    best: Array
+    value: float
+    history: list[float]
+    evaluations: int
+
+
+def optimize(objective: Callable[[Array], Array], dim: int, config: TunerConfig) -> OptimResult:
+    """Minimize ``objective`` (batched: ``(P, D) -> (P,)``) by SCA or BBSCA (module docstring).
+
+    The initial swarm is uniform in the box and includes the centre point 0 (the untuned bank)
+    as particle 0, so the result is never worse than the start on the training set.
+    """
+    check_int("dim", dim, 1)
+    rng = np.random.default_rng(config.seed)
+    lo, hi = config.bounds
+    P, G = config.particles, config.generations
+    X = rng.uniform(lo, hi, size=(P, dim))
+    X[0] = np.clip(0.0, lo, hi)
+    f = np.asarray(objective(X), dtype=np.float64)
+    f = np.where(np.isfinite(f), f, np.inf)
+    b = int(np.argmin(f))
+    best, best_f = X[b].copy(), float(f[b])
+    history = [best_f]
+    for t in range(G):
+        if config.method == "sca":
+            r1 = config.a * (1.0 - t / G)
+        else:
+            r1 = config.a * np.exp(-config.decay * t / G)
+        r2 = rng.uniform(0.0, 2 * np.pi, size=X.shape)
+        r3 = rng.uniform(0.0, 2.0, size=X.shape)
+        r4 = rng.uniform(size=X.shape)
+        trig = np.where(r4 < 0.5, np.sin(r2), np.cos(r2))
+        Y = X + r1 * trig * np.abs(r3 * best - X)
+        if config.method == "bbsca":
+            k = rng.integers(0, P, size=X.shape)
+            other = X[k, np.arange(dim)[None, :]]
+            gauss = rng.normal((best + other) / 2.0, np.abs(best - other))
+            Y = np.where(rng.uniform(size=X.shape) < 0.5, Y, gauss)
+        Y = np.clip(Y, lo, hi)
+        fy = np.asarray(objective(Y), dtype=np.float64)
+        fy = np.where(np.isfinite(fy), fy, np.inf)
+        if config.method == "bbsca":
+            better = fy < f
+            X = np.where(better[:, None], Y, X)
+            f = np.where(better, fy, f)
+        else:
+            X, f = Y, fy
+        b = int(np.argmin(fy))
+        if fy[b] < best_f:
+            best, best_f = Y[b].copy(), float(fy[b])
+        history.append(best_f)
+    return OptimResult(best, best_f, history, P * (G + 1))
+
+
+def innovation_mse(run_z_pred: Array, z: Array, sigma: Array, failed: Array) -> Array:
+    """Per-tracker ``J``: ``mean_{k, i} ((z - z_hat) / sigma)^2``; ``inf`` for a failed tracker.
+
+    Args:
+        run_z_pred, z: ``(N, K, m)``; sigma: ``(m,)``; failed: ``(N,)``.
+    """
+    e = (z - run_z_pred) / sigma
+    out = np.mean(e * e, axis=(1, 2))
+    return np.where(failed | ~np.isfinite(out), np.inf, out)
+
+
+def bank_objective(
+    imm: HeteroIMM, batch: SeedBatch, tpm: Array, sigma: Array
+) -> Callable[[Array], Array]:
+    """``J`` of every particle of a swarm, in one batched run over the training batch.
+
+    Args:
+        imm: the bank (its models' own ``q_scale`` are the reference, 1 = untuned).
+        batch: the training runs (S >= 1). tpm: the fixed TPM. sigma: the sensor's nominal
+            standard deviations ``(m,)``.
+    """
+    if batch.n_runs < 1:
+        raise ConfigError("the tuning set is empty: it needs at least one run")
+    M, S = imm.n_models, batch.n_runs
+    z = batch.measurements.z[:, 1:]
+    sigma = np.asarray(sigma, dtype=np.float64)
+
+    def objective(theta: Array) -> Array:
+        theta = np.atleast_2d(theta)
+        P = theta.shape[0]
+        if theta.shape[1] != M + 1:
+            raise ConfigError(f"a particle has {M + 1} components (M Q scales, 1 R scale)")
+        scales = 10.0 ** np.repeat(theta, S, axis=0)  # particle-major, (P S, M + 1)
+        run = run_bank(imm, batch, tpm, q_scale=scales[:, :M], r_scale=scales[:, M], repeat=P)
+        per = innovation_mse(run.z_pred, np.tile(z, (P, 1, 1)), sigma, run.failed)
+        return per.reshape(P, S).mean(axis=1)
+
+    return objective
+
+
+@dataclass(frozen=True)
+class TunedBank:
+    """A tuned bank configuration: one ``Q`` factor per model and one ``R`` factor.
+
+    Attributes:
+        bank: name of the bank the factors apply to (``seed003``, ``seed002``).
+        q_scale: ``(M,)`` factors (> 0); r_scale: factor (> 0).
+        method: the optimizer; objective: training ``J`` of the tuned point; notes: free-form.
+    """
+
+    bank: str
+    q_scale: tuple[float, ...]
+    r_scale: float = 1.0
+    method: str = "bbsca"
+    objective: float | None = None
+    notes: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.q_scale:
+            raise ConfigError("tuned.q_scale must have one entry per model")
+        object.__setattr__(
+            self,
+            "q_scale",
+            tuple(check_range("tuned.q_scale[i]", s, 0.0, lo_open=True) for s in self.q_scale),
+        )
+        check_range("tuned.r_scale", self.r_scale, 0.0, lo_open=True)
+        check_choice("tuned.method", self.method, (*OPTIMIZERS, "none"))
+
+    @classmethod
+    def from_theta(cls, bank: str, theta: Array, **kwargs: Any) -> TunedBank:
+        s = 10.0 ** np.asarray(theta, dtype=np.float64)
+        return cls(bank, tuple(float(v) for v in s[:-1]), float(s[-1]), **kwargs)
+
+    @property
+    def theta(self) -> Array:
+        return np.log10(np.array([*self.q_scale, self.r_scale]))
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(asdict(self), indent=2))
+
+    @classmethod
+    def load(cls, path: str | Path) -> TunedBank:
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise ConfigError(f"tuned bank {path}: cannot read ({err})") from None
+        return from_dict(cls, data, f"tuned bank {path}")
+
+
+def tune(
+    imm: HeteroIMM,
+    batch: SeedBatch,
+    tpm: Array,
+    sigma: Array,
+    config: TunerConfig,
+    bank: str = "custom",
+) -> tuple[TunedBank, OptimResult]:
+    """Tune ``imm``'s Q and R factors on ``batch`` (see the module docstring)."""
+    objective = bank_objective(imm, batch, tpm, sigma)
+    result = optimize(objective, imm.n_models + 1, config)
+    tuned = TunedBank.from_theta(
+        bank,
+        result.best,
+        method=config.method,
+        objective=result.value,
+        notes={
+            "train_runs": batch.n_runs,
+            "evaluations": result.evaluations,
+            "particles": config.particles,
+            "generations": config.generations,
+            "seed": config.seed,
+        },
+    )
+    return tuned, result

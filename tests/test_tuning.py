@@ -1,0 +1,109 @@
+"""BBSCA / SCA Q-R tuning (seed 003 §3.2) and the seed-003 bank."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym import ConfigError
+from imm_gym.evaluate import main as evaluate_main
+from imm_gym.seed_eval import (
+    Seed003Family,
+    SeedBatch,
+    draw,
+    run_bank,
+    seed003_imm,
+    seed003_sensor,
+)
+from imm_gym.tpm import stay_tpm
+from imm_gym.tuning import TunedBank, TunerConfig, bank_objective, optimize, tune
+
+
+def sphere(theta: np.ndarray) -> np.ndarray:
+    return np.sum((np.atleast_2d(theta) - 0.7) ** 2, axis=-1)
+
+
+@pytest.mark.parametrize("method", ["bbsca", "sca"])
+def test_optimizers_descend_and_keep_the_best(method: str) -> None:
+    res = optimize(sphere, 4, TunerConfig(method=method, generations=40, seed=1))
+    assert np.all(np.diff(res.history) <= 0)
+    assert res.value < 0.5 * res.history[0]
+    assert res.value == pytest.approx(float(sphere(res.best)[0]))
+    assert res.evaluations == 10 * 41
+
+
+def test_bbsca_beats_sca_at_equal_budget_on_a_quadratic() -> None:
+    def final(method: str) -> float:
+        return np.mean(
+            [
+                optimize(sphere, 4, TunerConfig(method=method, generations=30, seed=s)).value
+                for s in range(5)
+            ]
+        )
+
+    assert final("bbsca") < final("sca")
+
+
+def test_batched_particles_equal_separate_runs() -> None:
+    """Particle p of a batched run is the bank run alone with that particle's scales."""
+    sensor = seed003_sensor()
+    imm = seed003_imm(sensor)
+    batch = draw(Seed003Family(), sensor, 2, 5)
+    tpm = stay_tpm(3, 0.9)
+    theta = np.array([[0.0, 0.0, 0.0, 0.0], [0.5, -1.0, 0.3, 0.2]])
+    both = bank_objective(imm, batch, tpm, sensor.sigma)(theta)
+    one = bank_objective(imm, batch, tpm, sensor.sigma)(theta[1:])
+    assert both[1] == pytest.approx(one[0], rel=1e-12)
+    plain = run_bank(imm, batch, tpm)
+    e = (batch.measurements.z[:, 1:] - plain.z_pred) / sensor.sigma
+    assert both[0] == pytest.approx(np.mean(e * e), rel=1e-12)
+
+
+def test_tuning_lowers_the_training_objective_and_round_trips(tmp_path) -> None:
+    sensor = seed003_sensor()
+    imm = seed003_imm(sensor)
+    batch = draw(Seed003Family(), sensor, 2, 1_000_000)
+    cfg = TunerConfig(particles=4, generations=2, seed=0)
+    tuned, res = tune(imm, batch, stay_tpm(3, 0.9), sensor.sigma, cfg, bank="seed003")
+    assert res.value <= res.history[0]  # particle 0 is the untuned bank
+    path = tmp_path / "tuned.json"
+    tuned.save(path)
+    loaded = TunedBank.load(path)
+    assert loaded == tuned
+    np.testing.assert_allclose(loaded.theta, res.best)
+
+
+def test_bad_tuning_input_is_rejected(tmp_path) -> None:
+    with pytest.raises(ConfigError, match="q_scale"):
+        TunedBank("seed003", (1.0, -0.5, 1.0))
+    with pytest.raises(ConfigError, match="r_scale"):
+        TunedBank("seed003", (1.0, 1.0, 1.0), r_scale=0.0)
+    with pytest.raises(ConfigError, match="particles"):
+        TunerConfig(particles=1)
+    with pytest.raises(ConfigError, match="bounds"):
+        TunerConfig(bounds=(1.0, 1.0))
+    sensor = seed003_sensor()
+    empty = SeedBatch(None, None, np.zeros((0, 4)), np.zeros((0, 4, 4)))  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="tuning set is empty"):
+        bank_objective(seed003_imm(sensor), empty, stay_tpm(3, 0.9), sensor.sigma)
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"bank": "seed003", "q_scale": [1, 1, 1], "typo": 1}')
+    with pytest.raises(ConfigError, match="typo"):
+        TunedBank.load(bad)
+
+
+def test_evaluation_tool_reports_tuned_banks(tmp_path, capsys) -> None:
+    tuned = TunedBank("seed003", (2.0, 0.5, 1.0), 1.2)
+    path = tmp_path / "bb.json"
+    tuned.save(path)
+    out = tmp_path / "out.json"
+    argv = ["--scenario", "seed003", "--policy", "fixed", "--policy", "bbsca", "--runs", "2"]
+    assert evaluate_main([*argv, "--tuned", f"bbsca={path}", "--json", str(out)]) == 0
+    import json
+
+    res = json.loads(out.read_text())["policies"]
+    assert res["bbsca"]["q_scale"] == [2.0, 0.5, 1.0]
+    assert res["fixed"]["innovation_mse"] != res["bbsca"]["innovation_mse"]
+    with pytest.raises(SystemExit):
+        evaluate_main(["--scenario", "seed003", "--policy", "tip-imm", "--runs", "2"])
+    assert "policies are" in capsys.readouterr().err
