@@ -41,7 +41,8 @@ from numpy.typing import NDArray
 
 from .env_config import EnvConfig
 from .fusion import fuse
-from .imm import IMM, IMMState, combine
+from .hetero import make_imm
+from .imm import IMMState, combine
 from .initiation import initiate
 from .metrics import true_model_index
 from .scenarios import RandomFamily, generate_truth
@@ -103,7 +104,7 @@ class TrackingCore:
         self.n_envs = n_envs
         self.models = config.bank
         self.M = M = len(config.bank)
-        self.imm = IMM(config.bank, config.sensor, filter=config.filter, T=config.source.T)
+        self.imm = make_imm(config.bank, config.sensor, filter=config.filter, T=config.source.T)
         self.n = self.imm.n
         self.fixed_tpm = stay_tpm(M, config.initial_stay)
         self._fixed_batch = np.repeat(self.fixed_tpm[None], n_envs, axis=0)

@@ -14,6 +14,7 @@ from typing import Any
 
 from .config import ConfigError, check_choice, check_range, from_dict
 from .filters import FILTERS
+from .hetero import HeteroBank
 from .models import MotionModel, paper_bank
 from .scenarios import RandomFamily, Scenario, paper_scenario
 from .sensors import Sonar
@@ -44,7 +45,9 @@ class EnvConfig:
             :class:`~imm_gym.scenarios.Scenario`.
         family: the randomized family's parameters (used when ``scenario == "random"``).
         sensor: the sonar (noise, position, outliers, missed detections).
-        bank: the motion models of the IMM bank.
+        bank: the motion models of the IMM bank, or a
+            :class:`~imm_gym.hetero.HeteroBank` (or a mapping of its fields): seed 002's
+            NCV/CT/CTRA models in their own state spaces (needs ``filter="ekf"``, no ``parallel``).
         filter: ``"ukf"`` (SVD-UKF) or ``"ekf"``.
         initial_stay: diagonal of the initial (and fixed-bank) TPM, off-diagonal entries equal.
         p_min: every TPM an action produces has its entries in ``[p_min, 1 - p_min]`` (< 1/M).
@@ -76,7 +79,7 @@ class EnvConfig:
     scenario: str | Scenario = "random"
     family: RandomFamily = field(default_factory=RandomFamily)
     sensor: Sonar = field(default_factory=Sonar)
-    bank: tuple[MotionModel, ...] = field(default_factory=paper_bank)
+    bank: tuple[MotionModel, ...] | HeteroBank = field(default_factory=paper_bank)
     filter: str = "ukf"
     initial_stay: float = 0.995
     p_min: float = 1e-3
@@ -105,11 +108,19 @@ class EnvConfig:
                 object.__setattr__(self, name, from_dict(cls, value, name))
             elif not isinstance(value, cls):
                 raise ConfigError(f"{name} must be a {cls.__name__} or a mapping")
-        bank = tuple(
-            from_dict(MotionModel, m, "bank[i]") if isinstance(m, Mapping) else m for m in self.bank
-        )
-        if len(bank) < 2 or not all(isinstance(m, MotionModel) for m in bank):
-            raise ConfigError("bank must hold at least 2 MotionModel entries")
+        if isinstance(self.bank, (Mapping, HeteroBank)):
+            bank: tuple[MotionModel, ...] | HeteroBank = from_dict(HeteroBank, self.bank, "bank")
+            if self.filter != "ekf" or self.parallel:
+                raise ConfigError(
+                    "a heterogeneous bank (NCV/CT/CTRA) needs filter 'ekf' and parallel=False"
+                )
+        else:
+            bank = tuple(
+                from_dict(MotionModel, m, "bank[i]") if isinstance(m, Mapping) else m
+                for m in self.bank
+            )
+            if len(bank) < 2 or not all(isinstance(m, MotionModel) for m in bank):
+                raise ConfigError("bank must hold at least 2 MotionModel entries")
         object.__setattr__(self, "bank", bank)
         check_choice("filter", self.filter, tuple(f for f in FILTERS if f != "kf"))
         M = len(bank)

@@ -58,7 +58,7 @@ from .conversions import (
     wrap_heading,
 )
 from .filters import ExtendedKalmanFilter, MeasurementModel, Update
-from .imm import IMMState, IMMStep, combine, mix, update_mode_probs
+from .imm import IMM, IMMState, IMMStep, combine, mix, update_mode_probs
 from .linalg import inv_logdet, mahalanobis
 from .models import MotionModel, bank_dim
 from .tpm import validate_tpm
@@ -537,3 +537,13 @@ def measurement_mixture(
     d = sensor.residual(z_pred, z_mix[:, None, :])
     S_mix = np.einsum("nm,nmab->nab", cbar, S + d[..., :, None] * d[..., None, :])
     return sensor.wrap(z_mix), S_mix
+
+
+def make_imm(
+    bank: Sequence[MotionModel] | HeteroBank, sensor: MeasurementModel, filter: str, T: float
+) -> IMM | HeteroIMM:
+    """The IMM engine for a bank: :class:`HeteroIMM` (EKF) for a :class:`HeteroBank`, else the
+    classical :class:`imm_gym.imm.IMM` (what :class:`imm_gym.core.TrackingCore` runs)."""
+    if isinstance(bank, HeteroBank):
+        return HeteroIMM(bank, sensor, T=T, filter=filter)
+    return IMM(bank, sensor, filter=filter, T=T)

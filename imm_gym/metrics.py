@@ -77,10 +77,22 @@ def true_model_index(truth: Truth, models: Sequence[MotionModel]) -> NDArray[np.
     """The bank model that matches the true motion of each step, ``(R, K)``; -1 if none.
 
     Straight -> the first CV model; turn -> the CT model turning the same way whose rate is
-    closest; tangential acceleration -> the first CA model.
+    closest; tangential acceleration -> the first CA model. For a heterogeneous bank
+    (:class:`~imm_gym.hetero.HeteroBank`): straight -> NCV, turn -> CT (turn rate estimated),
+    acceleration -> CTRA.
     """
     idx = np.full(truth.turn_rate.shape, -1, dtype=np.int64)
     omega, accel = truth.turn_rate, truth.accel
+    if hasattr(models, "build"):  # a HeteroBank: kinds ncv / ct / ctra
+        kinds = list(models.models)  # type: ignore[attr-defined]
+        for kind, where in (
+            ("ncv", (omega == 0) & (accel == 0)),
+            ("ct", (omega != 0) & (accel == 0)),
+            ("ctra", accel != 0),
+        ):
+            if kind in kinds:
+                idx[where] = kinds.index(kind)
+        return idx
     kinds = [m.kind for m in models]
     if "cv" in kinds:
         idx[(omega == 0) & (accel == 0)] = kinds.index("cv")

@@ -6,6 +6,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from ..hetero import SONAR_HETERO_BANK
 from .tpm_adapt import TPMAdaptEnv
 from .vector import TPMAdaptVectorEnv
 
@@ -22,6 +23,14 @@ PRESETS: dict[str, dict[str, Any]] = {
         "parallel": True,
         "p_min": 0.05,
         "obs_features": ("bank_b",),
+    },
+    # The randomized family with seed 002's heterogeneous bank: NCV [px, py, vx, vy], CT
+    # [px, py, v, psi, omega] (turn rate estimated), CTRA [.., a], IMM-EKF with state conversions
+    # before mixing and combination; noise scaled to the sonar scenarios (SONAR_HETERO_BANK).
+    "imm_gym/TPMAdaptHetero-v0": {
+        "scenario": "random",
+        "bank": dict(SONAR_HETERO_BANK),
+        "filter": "ekf",
     },
 }
 
