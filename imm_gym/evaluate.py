@@ -58,7 +58,7 @@ PAPER_TABLE2 = {
     },
 }
 
-BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window")
+BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window", "bbsca")
 TRAIN_SEED_OFFSET = 1_000_000
 TRAIN_RUNS = 100
 
@@ -101,6 +101,11 @@ def make_policy(
             "train_runs": train_runs,
             "train_seeds": f"{seed + TRAIN_SEED_OFFSET}..{seed + TRAIN_SEED_OFFSET + train_runs - 1}",  # noqa: E501
         }
+        return policy, policy.env_overrides, notes
+    if name == "bbsca":
+        from baselines.bbsca import tune_classical
+
+        policy, notes = tune_classical(base, train_runs // 5, seed + TRAIN_SEED_OFFSET)
         return policy, policy.env_overrides, notes
     if name in BUILTIN_POLICIES:
         policy = make_baseline(name, M)

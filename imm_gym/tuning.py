@@ -149,26 +149,29 @@ def optimize(objective: Callable[[Array], Array], dim: int, config: TunerConfig)
     return OptimResult(best, best_f, history, P * (G + 1))
 
 
-def innovation_mse(run_z_pred: Array, z: Array, sigma: Array, failed: Array) -> Array:
-    """Per-tracker ``J``: ``mean_{k, i} ((z - z_hat) / sigma)^2``; ``inf`` for a failed tracker.
+def innovation_mse(residual: Array, sigma: Array, failed: Array) -> Array:
+    """Per-tracker ``J``: ``mean_{k, i} (nu / sigma)^2``; ``inf`` for a failed tracker.
 
     Args:
-        run_z_pred, z: ``(N, K, m)``; sigma: ``(m,)``; failed: ``(N,)``.
+        residual: ``(N, K, m)`` innovations ``z - z_hat`` (bearings wrapped); sigma: ``(m,)``;
+        failed: ``(N,)``.
     """
-    e = (z - run_z_pred) / sigma
+    e = residual / sigma
     out = np.mean(e * e, axis=(1, 2))
     return np.where(failed | ~np.isfinite(out), np.inf, out)
 
 
 def bank_objective(
-    imm: HeteroIMM, batch: SeedBatch, tpm: Array, sigma: Array
+    imm: HeteroIMM, batch: SeedBatch, tpm: Array, sigma: Array, tune_r: bool = True
 ) -> Callable[[Array], Array]:
     """``J`` of every particle of a swarm, in one batched run over the training batch.
 
     Args:
         imm: the bank (its models' own ``q_scale`` are the reference, 1 = untuned).
-        batch: the training runs (S >= 1). tpm: the fixed TPM. sigma: the sensor's nominal
-            standard deviations ``(m,)``.
+        batch: the training runs (S >= 1; a :class:`~imm_gym.montecarlo.Batch` works too).
+        tpm: the fixed TPM. sigma: the sensor's nominal standard deviations ``(m,)``.
+        tune_r: particles carry the ``R`` factor as last component (else ``M`` components and
+            ``R`` as the sensor has it).
     """
     if batch.n_runs < 1:
         raise ConfigError("the tuning set is empty: it needs at least one run")
@@ -179,11 +182,14 @@ def bank_objective(
     def objective(theta: Array) -> Array:
         theta = np.atleast_2d(theta)
         P = theta.shape[0]
-        if theta.shape[1] != M + 1:
-            raise ConfigError(f"a particle has {M + 1} components (M Q scales, 1 R scale)")
-        scales = 10.0 ** np.repeat(theta, S, axis=0)  # particle-major, (P S, M + 1)
-        run = run_bank(imm, batch, tpm, q_scale=scales[:, :M], r_scale=scales[:, M], repeat=P)
-        per = innovation_mse(run.z_pred, np.tile(z, (P, 1, 1)), sigma, run.failed)
+        D = M + int(tune_r)
+        if theta.shape[1] != D:
+            raise ConfigError(f"a particle has {D} components ({M} Q scales, {int(tune_r)} R)")
+        scales = 10.0 ** np.repeat(theta, S, axis=0)  # particle-major, (P S, D)
+        r_scale = scales[:, M] if tune_r else None
+        run = run_bank(imm, batch, tpm, q_scale=scales[:, :M], r_scale=r_scale, repeat=P)
+        residual = imm.sensor.residual(np.tile(z, (P, 1, 1)), run.z_pred)
+        per = innovation_mse(residual, sigma, run.failed)
         return per.reshape(P, S).mean(axis=1)
 
     return objective
@@ -218,9 +224,14 @@ class TunedBank:
         check_choice("tuned.method", self.method, (*OPTIMIZERS, "none"))
 
     @classmethod
-    def from_theta(cls, bank: str, theta: Array, **kwargs: Any) -> TunedBank:
+    def from_theta(
+        cls, bank: str, theta: Array, n_models: int | None = None, **kwargs: Any
+    ) -> TunedBank:
+        """From ``log10`` factors: ``M`` Q factors, then the R factor if present."""
         s = 10.0 ** np.asarray(theta, dtype=np.float64)
-        return cls(bank, tuple(float(v) for v in s[:-1]), float(s[-1]), **kwargs)
+        M = len(s) - 1 if n_models is None else n_models
+        r = float(s[M]) if len(s) > M else 1.0
+        return cls(bank, tuple(float(v) for v in s[:M]), r, **kwargs)
 
     @property
     def theta(self) -> Array:
@@ -245,13 +256,15 @@ def tune(
     sigma: Array,
     config: TunerConfig,
     bank: str = "custom",
+    tune_r: bool = True,
 ) -> tuple[TunedBank, OptimResult]:
-    """Tune ``imm``'s Q and R factors on ``batch`` (see the module docstring)."""
-    objective = bank_objective(imm, batch, tpm, sigma)
-    result = optimize(objective, imm.n_models + 1, config)
+    """Tune ``imm``'s Q (and R) factors on ``batch`` (see the module docstring)."""
+    objective = bank_objective(imm, batch, tpm, sigma, tune_r)
+    result = optimize(objective, imm.n_models + int(tune_r), config)
     tuned = TunedBank.from_theta(
         bank,
         result.best,
+        imm.n_models,
         method=config.method,
         objective=result.value,
         notes={

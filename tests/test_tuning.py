@@ -107,3 +107,21 @@ def test_evaluation_tool_reports_tuned_banks(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit):
         evaluate_main(["--scenario", "seed003", "--policy", "tip-imm", "--runs", "2"])
     assert "policies are" in capsys.readouterr().err
+
+
+def test_bbsca_baseline_scales_the_bank_and_runs_through_the_evaluation() -> None:
+    from baselines.bbsca import scaled_bank, tune_classical
+    from imm_gym import EnvConfig, paper_bank
+    from imm_gym.evaluation import evaluation_config, rollout, score
+
+    bank = scaled_bank(paper_bank(), (2.0, 0.5, 1.0))
+    assert bank[0].q == tuple(2.0 * v for v in paper_bank()[0].q)
+    assert bank[1].q_acc == 0.5 * paper_bank()[1].q_acc
+    with pytest.raises(ValueError, match="q_scale"):
+        scaled_bank(paper_bank(), (1.0,))
+    base = EnvConfig(scenario="paper")
+    policy, notes = tune_classical(base, 2, 1_000_000, TunerConfig(particles=3, generations=1))
+    assert notes["train_objective"] <= notes["untuned_train_objective"]
+    assert policy.env_overrides["bank"] == scaled_bank(paper_bank(), policy.q_scale)
+    result = score(rollout(policy, evaluation_config(base, policy.env_overrides), 2, 0))
+    assert result["diverged"] == 0

@@ -1,0 +1,83 @@
+"""BBSCA-tuned classical IMM: the fixed TPM with the bank's process noise tuned offline.
+
+Seed 003 tunes ``Q`` and ``R`` by the bare-bones sine-cosine algorithm
+(:mod:`imm_gym.tuning`). In the environments the sensor that makes the measurements is also the
+filter's ``R``, so here only the models' ``Q`` factors are tuned (one per model): BBSCA minimizes
+the innovation mean-square error of the classical IMM (fixed TPM ``initial_stay``) on training
+runs, and the policy is that IMM with the tuned bank (``env_overrides["bank"]``), acting with the
+zero action like :class:`~baselines.fixed.FixedTPM`.
+
+The tuner runs the engine of :mod:`imm_gym.hetero` (an EKF for the sonar) on the bank; the
+environment then runs the tuned bank with its own filter (the SVD-UKF by default), whose
+predictions differ from the EKF's only through the weak measurement nonlinearity (SPEC §6).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from imm_gym.env_config import EnvConfig
+from imm_gym.hetero import HeteroIMM, linear_models
+from imm_gym.models import MotionModel
+from imm_gym.montecarlo import draw_batch
+from imm_gym.tpm import stay_tpm
+from imm_gym.tuning import TunedBank, TunerConfig, bank_objective, tune
+
+from .fixed import FixedTPM
+
+
+def scaled_bank(bank: Sequence[MotionModel], q_scale: Sequence[float]) -> tuple[MotionModel, ...]:
+    """The bank with model j's ``Q`` (``q`` and ``q_acc``) multiplied by ``q_scale[j]``."""
+    if len(q_scale) != len(bank):
+        raise ValueError(f"q_scale has {len(q_scale)} entries for {len(bank)} models")
+    return tuple(
+        dataclasses.replace(m, q=tuple(s * v for v in m.q), q_acc=s * m.q_acc)
+        for m, s in zip(bank, q_scale, strict=True)
+    )
+
+
+class BBSCATunedIMM(FixedTPM):
+    """Classical IMM (fixed TPM) whose bank's ``Q`` factors were tuned by BBSCA.
+
+    Args:
+        bank: the untuned bank; q_scale: one factor per model; stay: the TPM's diagonal
+            (``None``: the environment's ``initial_stay``).
+    """
+
+    name = "bbsca"
+
+    def __init__(
+        self, bank: Sequence[MotionModel], q_scale: Sequence[float], stay: float | None = None
+    ) -> None:
+        super().__init__(len(bank), stay)
+        self.q_scale = tuple(float(s) for s in q_scale)
+        self.env_overrides["bank"] = scaled_bank(bank, self.q_scale)
+
+
+def tune_classical(
+    base: EnvConfig, train_runs: int, seed: int, config: TunerConfig | None = None
+) -> tuple[BBSCATunedIMM, dict[str, Any]]:
+    """Tune ``base``'s bank on ``train_runs`` runs seeded ``seed + r``; the policy and notes."""
+    if not isinstance(base.bank, tuple):
+        raise ValueError("the bbsca baseline tunes a linear bank (CV/CT/CA MotionModels)")
+    config = config or TunerConfig()
+    batch = draw_batch(base.source, base.sensor, train_runs, seed, base.velocity_std)
+    imm = HeteroIMM(linear_models(base.bank), base.sensor, T=base.source.T)
+    tpm = stay_tpm(len(base.bank), base.initial_stay)
+    tuned, result = tune(imm, batch, tpm, base.sensor.sigma, config, bank="env", tune_r=False)
+    untuned = bank_objective(imm, batch, tpm, base.sensor.sigma, tune_r=False)
+    notes = {
+        "q_scale": list(tuned.q_scale),
+        "train_objective": result.value,
+        "untuned_train_objective": float(untuned(np.zeros((1, imm.n_models)))[0]),
+        "train_seeds": f"{seed}..{seed + train_runs - 1}",
+        "evaluations": result.evaluations,
+    }
+    return BBSCATunedIMM(base.bank, tuned.q_scale), notes
+
+
+__all__ = ["BBSCATunedIMM", "TunedBank", "scaled_bank", "tune_classical"]
