@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from imm_gym.env_config import EnvConfig
-from imm_gym.hetero import HeteroIMM, linear_models
+from imm_gym.hetero import HeteroBank, HeteroIMM, linear_models
 from imm_gym.models import MotionModel
 from imm_gym.montecarlo import draw_batch
 from imm_gym.tpm import stay_tpm
@@ -30,10 +30,17 @@ from imm_gym.tuning import TunedBank, TunerConfig, bank_objective, tune
 from .fixed import FixedTPM
 
 
-def scaled_bank(bank: Sequence[MotionModel], q_scale: Sequence[float]) -> tuple[MotionModel, ...]:
-    """The bank with model j's ``Q`` (``q`` and ``q_acc``) multiplied by ``q_scale[j]``."""
+def scaled_bank(
+    bank: Sequence[MotionModel] | HeteroBank, q_scale: Sequence[float]
+) -> tuple[MotionModel, ...] | HeteroBank:
+    """The bank with model j's ``Q`` (``q`` and ``q_acc``, or a heterogeneous bank's
+    ``q_scale``) multiplied by ``q_scale[j]``."""
     if len(q_scale) != len(bank):
         raise ValueError(f"q_scale has {len(q_scale)} entries for {len(bank)} models")
+    if isinstance(bank, HeteroBank):
+        return dataclasses.replace(
+            bank, q_scale=tuple(s * b for s, b in zip(q_scale, bank.q_scale, strict=True))
+        )
     return tuple(
         dataclasses.replace(m, q=tuple(s * v for v in m.q), q_acc=s * m.q_acc)
         for m, s in zip(bank, q_scale, strict=True)
@@ -51,7 +58,10 @@ class BBSCATunedIMM(FixedTPM):
     name = "bbsca"
 
     def __init__(
-        self, bank: Sequence[MotionModel], q_scale: Sequence[float], stay: float | None = None
+        self,
+        bank: Sequence[MotionModel] | HeteroBank,
+        q_scale: Sequence[float],
+        stay: float | None = None,
     ) -> None:
         super().__init__(len(bank), stay)
         self.q_scale = tuple(float(s) for s in q_scale)
@@ -62,11 +72,10 @@ def tune_classical(
     base: EnvConfig, train_runs: int, seed: int, config: TunerConfig | None = None
 ) -> tuple[BBSCATunedIMM, dict[str, Any]]:
     """Tune ``base``'s bank on ``train_runs`` runs seeded ``seed + r``; the policy and notes."""
-    if not isinstance(base.bank, tuple):
-        raise ValueError("the bbsca baseline tunes a linear bank (CV/CT/CA MotionModels)")
     config = config or TunerConfig()
     batch = draw_batch(base.source, base.sensor, train_runs, seed, base.velocity_std)
-    imm = HeteroIMM(linear_models(base.bank), base.sensor, T=base.source.T)
+    models = base.bank if isinstance(base.bank, HeteroBank) else linear_models(base.bank)
+    imm = HeteroIMM(models, base.sensor, T=base.source.T)
     tpm = stay_tpm(len(base.bank), base.initial_stay)
     tuned, result = tune(imm, batch, tpm, base.sensor.sigma, config, bank="env", tune_r=False)
     untuned = bank_objective(imm, batch, tpm, base.sensor.sigma, tune_r=False)

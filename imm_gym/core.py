@@ -41,8 +41,8 @@ from numpy.typing import NDArray
 
 from .env_config import EnvConfig
 from .fusion import fuse
-from .hetero import make_imm
-from .imm import IMMState, combine
+from .hetero import combine_bank, make_imm
+from .imm import IMMState
 from .initiation import initiate
 from .metrics import true_model_index
 from .scenarios import RandomFamily, generate_truth
@@ -277,7 +277,7 @@ class TrackingCore:
             )
             failed = failed | out_b.failed
             U = fuse(out_a.mode_probs, out_b.mode_probs)
-            x_hat, P_hat = combine(U, state_a.x, state_a.P)
+            x_hat, P_hat = combine_bank(self.imm, U, state_a.x, state_a.P)
             self.state_a = IMMState(state_a.x, state_a.P, U)
             self.state_b = IMMState(state_b.x, state_b.P, U.copy())
             self.mu_b = out_b.mode_probs

@@ -47,7 +47,7 @@ class EnvConfig:
         sensor: the sonar (noise, position, outliers, missed detections).
         bank: the motion models of the IMM bank, or a
             :class:`~imm_gym.hetero.HeteroBank` (or a mapping of its fields): seed 002's
-            NCV/CT/CTRA models in their own state spaces (needs ``filter="ekf"``, no ``parallel``).
+            NCV/CT/CTRA models in their own state spaces (needs ``filter="ekf"``).
         filter: ``"ukf"`` (SVD-UKF) or ``"ekf"``.
         initial_stay: diagonal of the initial (and fixed-bank) TPM, off-diagonal entries equal.
         p_min: every TPM an action produces has its entries in ``[p_min, 1 - p_min]`` (< 1/M).
@@ -110,10 +110,8 @@ class EnvConfig:
                 raise ConfigError(f"{name} must be a {cls.__name__} or a mapping")
         if isinstance(self.bank, (Mapping, HeteroBank)):
             bank: tuple[MotionModel, ...] | HeteroBank = from_dict(HeteroBank, self.bank, "bank")
-            if self.filter != "ekf" or self.parallel:
-                raise ConfigError(
-                    "a heterogeneous bank (NCV/CT/CTRA) needs filter 'ekf' and parallel=False"
-                )
+            if self.filter != "ekf":
+                raise ConfigError("a heterogeneous bank (NCV/CT/CTRA) needs filter 'ekf'")
         else:
             bank = tuple(
                 from_dict(MotionModel, m, "bank[i]") if isinstance(m, Mapping) else m

@@ -35,6 +35,7 @@ from .clairvoyant import clairvoyant_filter
 from .config import ConfigError, from_dict
 from .env_config import EnvConfig
 from .evaluation import Rollout, evaluation_config, paired_bootstrap, rollout, score
+from .hetero import SONAR_HETERO_BANK
 from .metrics import tracking_errors
 from .montecarlo import draw_batch
 from .scenarios import Scenario
@@ -60,6 +61,11 @@ PAPER_TABLE2 = {
 
 BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window", "bbsca")
 TRAIN_SEED_OFFSET = 1_000_000
+#: ``--bank``: environment overrides of each bank.
+BANKS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "hetero": {"bank": dict(SONAR_HETERO_BANK), "filter": "ekf"},
+}
 TRAIN_RUNS = 100
 
 
@@ -139,13 +145,18 @@ def evaluate(
     clairvoyant: bool = True,
     progress: bool = False,
     extra: dict[str, tuple[Any, dict[str, Any]]] | None = None,
+    bank: str = "paper",
 ) -> tuple[dict[str, Any], dict[str, Rollout]]:
     """Score ``policies`` on R common-random-number runs; see the module docstring.
 
     ``extra`` adds policy objects by name: ``{name: (policy, env_overrides)}`` (a freshly trained
-    agent, say); they are evaluated first.
+    agent, say); they are evaluated first. ``bank``: ``paper`` (CV, CT(±4°/s), SVD-UKF) or
+    ``hetero`` (NCV/CT/CTRA IMM-EKF, ``SONAR_HETERO_BANK``; no clairvoyant bound).
     """
-    base = EnvConfig(scenario=scenario)
+    if bank not in BANKS:
+        raise ConfigError(f"--bank must be one of {list(BANKS)}, got {bank!r}")
+    base = EnvConfig(scenario=scenario, **BANKS[bank])
+    clairvoyant = clairvoyant and bank == "paper"
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {list(policies)}")
     made = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
@@ -184,6 +195,7 @@ def evaluate(
         "seeds": f"{seed}..{seed + runs - 1}",
         "steps": base.source.horizon,
         "filter": base.filter,
+        "bank": bank,
         "versions": _versions(),
     }
     return results, rollouts
@@ -321,6 +333,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument(
+        "--bank",
+        default="paper",
+        help="paper (CV, CT(±4°/s), SVD-UKF) | hetero (NCV/CT/CTRA IMM-EKF, seed 002)",
+    )
+    parser.add_argument(
         "--tuned",
         action="append",
         default=[],
@@ -348,6 +365,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             reference=args.reference,
             clairvoyant=not args.no_clairvoyant,
             progress=not args.quiet and sys.stderr.isatty(),
+            bank=args.bank,
         )
     except ConfigError as err:
         parser.error(str(err))

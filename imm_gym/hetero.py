@@ -464,7 +464,6 @@ class HeteroIMM:
         innovation = np.zeros((N, M, m))
         z_pred, S = np.zeros((N, M, m)), np.tile(np.eye(m), (N, M, 1, 1))
         failed = np.zeros(N, dtype=bool)
-        cart = []
         for j, model in enumerate(self.models):
             n = self.dims[j]
             x_pred, F = model.transition(x0s[j], self.T)
@@ -487,11 +486,9 @@ class HeteroIMM:
             model_nis[:, j] = np.where(use, upd.nis, 0.0)
             innovation[:, j] = np.where(use[:, None], upd.innovation, 0.0)
             z_pred[:, j], S[:, j] = upd.z_pred, upd.S
-            cart.append(convert(xj, Pj, model.space, "ncv"))
         mu = update_mode_probs(loglik, cbar)
-        xc = np.stack([c[0] for c in cart], axis=1)
-        Pc = np.stack([c[1] for c in cart], axis=1)
-        x_hat, P_hat = combine(mu, xc, Pc)
+        posterior = IMMState(x_new, P_new, mu)
+        x_hat, P_hat = self.combine(mu, posterior)
         z_mix, S_mix = measurement_mixture(self.sensor, cbar, z_pred, S)
         S_inv, _ = inv_logdet(S_mix)
         nu = self.sensor.residual(z, z_mix)
@@ -502,7 +499,21 @@ class HeteroIMM:
         out = HeteroStep(
             x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, failed, z_mix
         )
-        return IMMState(x_new, P_new, mu), out
+        return posterior, out
+
+    def combine(self, mu: Array, state: IMMState) -> tuple[Array, Array]:
+        """Combination in the common Cartesian space: every model's posterior converted by
+        ``g_{j->ncv}`` (``P' = J P J^T``), then :func:`imm_gym.imm.combine` with ``mu (N, M)``.
+
+        Returns:
+            ``x (N, 4)``, ``P (N, 4, 4)``.
+        """
+        parts = [
+            convert(*self._model_state(state, j), m.space, "ncv") for j, m in enumerate(self.models)
+        ]
+        xc = np.stack([c[0] for c in parts], axis=1)
+        Pc = np.stack([c[1] for c in parts], axis=1)
+        return combine(mu, xc, Pc)
 
     def _update(
         self, x: Array, P: Array, z: Array, sensor: _ModelSensor
@@ -547,3 +558,12 @@ def make_imm(
     if isinstance(bank, HeteroBank):
         return HeteroIMM(bank, sensor, T=T, filter=filter)
     return IMM(bank, sensor, filter=filter, T=T)
+
+
+def combine_bank(imm: IMM | HeteroIMM, mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
+    """Output combination of a bank's model posteriors with probabilities ``mu``: for a
+    :class:`HeteroIMM` in the common Cartesian space (:meth:`HeteroIMM.combine`), else
+    :func:`imm_gym.imm.combine`."""
+    if isinstance(imm, HeteroIMM):
+        return imm.combine(mu, IMMState(x, P, mu))
+    return combine(mu, x, P)

@@ -61,9 +61,20 @@ def test_true_model_of_the_heterogeneous_bank() -> None:
 def test_heterogeneous_env_config_is_validated() -> None:
     with pytest.raises(ConfigError, match="ekf"):
         EnvConfig(bank=SONAR_HETERO_BANK)  # default filter is the UKF
-    with pytest.raises(ConfigError, match="parallel"):
-        EnvConfig(bank=SONAR_HETERO_BANK, filter="ekf", parallel=True)
     with pytest.raises(ConfigError, match="unknown key"):
         EnvConfig(bank={"modles": ("ncv", "ct")}, filter="ekf")
     cfg = EnvConfig(bank=HeteroBank(q_scale=(1.0, 2.0, 0.5)), filter="ekf")
     assert cfg.bank.q_scale == (1.0, 2.0, 0.5)
+
+
+def test_hetero_parallel_banks_fuse_in_cartesian_space() -> None:
+    """Bank B and entropy fusion (TIP-IMM §3.3) with the heterogeneous bank: the output is
+    bank A's models combined with the fused probabilities in the common Cartesian state."""
+    core = TrackingCore(EnvConfig(bank=SONAR_HETERO_BANK, filter="ekf", parallel=True), 1)
+    core.reset(np.array([0]), [5])
+    for _ in range(30):
+        res = core.step(np.zeros((1, 9)))
+    x, P = core.imm.combine(core.state_a.mu, core.state_a)
+    np.testing.assert_allclose(res.info["estimate"], x)
+    np.testing.assert_allclose(res.info["covariance"], P)
+    assert res.info["position_error"][0] < 200.0
