@@ -1,0 +1,95 @@
+"""BBSCA vs SCA vs the untuned bank: the innovation objective J on held-out runs.
+
+For each optimizer seed, both optimizers tune the bank's Q and R factors on the same training runs
+(seeds 1 000 000 ..) with the same budget (particles x (generations + 1) evaluations); the tuned
+banks are then scored on held-out runs (seeds 0 ..). Prints a table; ``--json`` writes it.
+
+    python benchmarks/tune_compare.py --bank seed003 --opt-seeds 0 1 2 3 4
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from imm_gym.seed_eval import TRAIN_SEED_OFFSET, draw, run_bank, score_run, seed_setup
+from imm_gym.tuning import TunerConfig, bank_objective, tune
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--bank", default="seed003", choices=["seed002", "seed003"])
+    parser.add_argument("--train-runs", type=int, default=10)
+    parser.add_argument("--test-runs", type=int, default=50)
+    parser.add_argument("--particles", type=int, default=10)
+    parser.add_argument("--generations", type=int, default=30)
+    parser.add_argument("--opt-seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--decay", type=float, default=4.0, help="BBSCA's r1 decay lambda")
+    parser.add_argument("--methods", nargs="+", default=["bbsca", "sca"])
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    imm, family, sensor, tpm = seed_setup(args.bank)
+    train = draw(family, sensor, args.train_runs, TRAIN_SEED_OFFSET)
+    test = draw(family, sensor, args.test_runs, 0)
+    held_out = bank_objective(imm, test, tpm, sensor.sigma)
+    M = imm.n_models
+
+    def pos_rmse(theta: np.ndarray) -> float:
+        s = 10.0**theta
+        run = run_bank(imm, test, tpm, np.tile(s[:M], (test.n_runs, 1)), np.full(test.n_runs, s[M]))
+        return score_run(run, test, sensor.dim_z)["pos_rmse"]
+
+    zero = np.zeros(M + 1)
+    rows: dict[str, list[dict[str, float]]] = {m: [] for m in args.methods}
+    untuned = {"test_J": float(held_out(zero[None])[0]), "pos_rmse": pos_rmse(zero)}
+    for seed in args.opt_seeds:
+        for method in rows:
+            cfg = TunerConfig(method, args.particles, args.generations, decay=args.decay, seed=seed)
+            t0 = time.perf_counter()
+            tuned, res = tune(imm, train, tpm, sensor.sigma, cfg, bank=args.bank)
+            rows[method].append(
+                {
+                    "seed": seed,
+                    "train_J": res.value,
+                    "test_J": float(held_out(tuned.theta[None])[0]),
+                    "pos_rmse": pos_rmse(tuned.theta),
+                    "q_scale": list(tuned.q_scale),
+                    "r_scale": tuned.r_scale,
+                    "seconds": time.perf_counter() - t0,
+                }
+            )
+            r = rows[method][-1]
+            print(
+                f"{method:5s} seed {seed}: train J {r['train_J']:.4f}  held-out J {r['test_J']:.4f}"
+                f"  pos RMSE {r['pos_rmse']:.4f} m  ({r['seconds']:.0f} s)",
+                flush=True,
+            )
+    print(
+        f"\n{args.bank}: {args.train_runs} training runs, {args.test_runs} held-out runs, "
+        f"{args.particles} particles x {args.generations} generations "
+        f"({args.particles * (args.generations + 1)} evaluations each)"
+    )
+    print(f"untuned: held-out J {untuned['test_J']:.4f}, pos RMSE {untuned['pos_rmse']:.4f} m")
+    for method, rs in rows.items():
+        tj = np.array([r["test_J"] for r in rs])
+        pr = np.array([r["pos_rmse"] for r in rs])
+        print(
+            f"{method}: held-out J {tj.mean():.4f} ± {tj.std():.4f} (min {tj.min():.4f}, max "
+            f"{tj.max():.4f}), pos RMSE {pr.mean():.4f} ± {pr.std():.4f} m"
+        )
+    if set(rows) == {"bbsca", "sca"}:
+        pairs = zip(rows["bbsca"], rows["sca"], strict=True)
+        wins = sum(b["test_J"] < s["test_J"] for b, s in pairs)
+        print(f"BBSCA below SCA on held-out J for {wins} of {len(args.opt_seeds)} optimizer seeds")
+    if args.json:
+        args.json.write_text(
+            json.dumps({"untuned": untuned, **rows, "args": vars(args)}, default=str, indent=2)
+        )
+
+
+if __name__ == "__main__":
+    main()
