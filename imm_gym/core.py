@@ -34,12 +34,13 @@ time            1       ``k / K`` (feature ``time``)                            
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .env_config import EnvConfig
+from .fused import env_step
 from .fusion import fuse
 from .hetero import combine_bank, make_imm
 from .imm import IMMState
@@ -75,6 +76,33 @@ def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
 
 class ActionError(ValueError):
     """An action has the wrong shape or a non-finite entry."""
+
+
+class BankStep(NamedTuple):
+    """One step of every bank for all N slots: what :meth:`TrackingCore.step` takes from either
+    engine — the compiled :func:`imm_gym.fused.env_step` (built-in banks) or the numpy
+    orchestration (any bank). Fields of a bank that did not run hold its previous state (the
+    shadow's scores are then meaningless)."""
+
+    tpm: Array  # (N, M, M) the TPM bank A mixed with (from the action)
+    state_a: IMMState  # bank A's posterior (probabilities: mode_probs)
+    state_b: IMMState  # bank B's (parallel; probabilities: mode_probs)
+    state_s: IMMState  # the shadow IMM's
+    mode_probs: Array  # (N, M) mu(t): bank A's, or the fused U when parallel
+    mu_b: Array  # (N, M) bank B's probabilities before the fusion
+    estimate: Array  # (N, n) combined estimate
+    covariance: Array  # (N, n, n)
+    loglik: Array  # (N, M) bank A's per-model log-likelihoods
+    model_nis: Array  # (N, M)
+    innovation: Array  # (N, M, m) whitened innovations
+    nis: Array  # (N,) NIS of bank A's predicted measurement mixture
+    velocity: Array  # (N, 2) velocity of the combined estimate
+    velocity_s: Array  # (N, 2) velocity of the shadow's estimate
+    position_error: Array  # (N,) capped at divergence_error
+    shadow_position_error: Array | None  # (N,) capped
+    reward_error: Array  # (N,)
+    reward_advantage: Array | None  # (N,)
+    diverged: NDArray[np.bool_]  # (N,)
 
 
 @dataclass
@@ -241,6 +269,10 @@ class TrackingCore:
 
     def check_action(self, action: NDArray[Any]) -> Array:
         """Validate shape ``(N, M*M)`` and finiteness, then clip to [-1, 1] (float64)."""
+        return np.clip(self._finite_action(action), -1.0, 1.0)
+
+    def _finite_action(self, action: NDArray[Any]) -> Array:
+        """``action`` as float64 after checking shape ``(N, M*M)`` and finiteness (not clipped)."""
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (self.n_envs, self.action_dim):
             raise ActionError(
@@ -249,7 +281,7 @@ class TrackingCore:
             )
         if not np.all(np.isfinite(a)):
             raise ActionError("action must be finite (got NaN or inf)")
-        return np.clip(a, -1.0, 1.0)
+        return a
 
     # ------------------------------------------------------------------ step
     def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
@@ -264,72 +296,52 @@ class TrackingCore:
             raise RuntimeError(f"episodes in slots {ended} have ended; call reset before step")
         before = None if all_active else self._snapshot()
         cfg = self.config
-        tpm = self.tpm_from_action(action)
         rows = self._rows
         k1 = np.minimum(self.k + 1, self.horizon)
         z = self.z[rows, k1]
         det = self.detected[rows, k1]
-        state_a, out_a = self.imm.step(self.state_a, tpm, z, det, check=False, allow_failure=True)
-        failed = out_a.failed
-        if cfg.parallel:
-            state_b, out_b = self.imm.step(
-                self.state_b, self._fixed_batch, z, det, check=False, allow_failure=True
-            )
-            failed = failed | out_b.failed
-            U = fuse(out_a.mode_probs, out_b.mode_probs)
-            x_hat, P_hat = combine_bank(self.imm, U, state_a.x, state_a.P)
-            self.state_a = IMMState(state_a.x, state_a.P, U)
-            self.state_b = IMMState(state_b.x, state_b.P, U.copy())
-            self.mu_b = out_b.mode_probs
-        else:
-            U, x_hat, P_hat = out_a.mode_probs, out_a.x, out_a.P
-            self.state_a = state_a
         truth = self.truth[rows, k1]
-        error = _position_error(x_hat, truth)
-        # NaN (a failed tracker) becomes the cap; the divergence flag says why
-        capped = np.where(error <= cfg.divergence_error, error, cfg.divergence_error)
+        kernel_args = getattr(self.imm, "kernel_args", None)
+        if kernel_args is None:
+            out = self._advance_numpy(action, z, det, truth)
+        else:
+            out = self._advance_fused(kernel_args, self._finite_action(action), z, det, truth)
         info: dict[str, Any] = {
             "true_state": truth,
             "true_model": self.true_model[rows, k1 - 1],
-            "estimate": x_hat,
-            "covariance": P_hat,
-            "position_error": capped,
-            "mode_probs": U.copy(),
-            "loglik": out_a.loglik.copy(),
-            "model_nis": out_a.model_nis.copy(),
-            "nis": out_a.nis,
+            "estimate": out.estimate,
+            "covariance": out.covariance,
+            "position_error": out.position_error,
+            "mode_probs": out.mode_probs.copy(),
+            "loglik": out.loglik.copy(),
+            "model_nis": out.model_nis.copy(),
+            "nis": out.nis,
             "detected": det,
-            "tpm": tpm.copy(),
+            "tpm": out.tpm.copy(),
             "step": k1.copy(),
-            "reward_error": -capped / cfg.reward_scale,
+            "reward_error": out.reward_error,
         }
+        self.state_a = out.state_a
+        if cfg.parallel:
+            self.state_b = out.state_b
+            self.mu_b = out.mu_b
         if cfg.shadow == "fixed":
-            self.state_s, out_s = self.imm.step(
-                self.state_s, self._shadow_batch, z, det, check=False, allow_failure=True
-            )
-            shadow_error = _position_error(out_s.x, truth)
-            shadow_error = np.where(
-                shadow_error <= cfg.divergence_error, shadow_error, cfg.divergence_error
-            )
-            info["shadow_position_error"] = shadow_error
-            self.mu_s = out_s.mode_probs
-            self.velocity_s_prev, self.velocity_s = self.velocity_s, out_s.x[:, 2:4].copy()
-            info["reward_advantage"] = (shadow_error - capped) / cfg.reward_scale
+            info["shadow_position_error"] = out.shadow_position_error
+            info["reward_advantage"] = out.reward_advantage
+            self.state_s = out.state_s
+            self.mu_s = out.state_s.mu
+            self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s
         reward = info[f"reward_{cfg.reward}"].copy()
-        diverged = (
-            failed
-            | ~(error <= cfg.divergence_error)
-            | ~(P_hat[:, 0, 0] + P_hat[:, 1, 1] <= cfg.divergence_cov)
-        )
+        diverged = out.diverged
         info["diverged"] = diverged
         self.k = k1
-        self.tpm = tpm
+        self.tpm = out.tpm
         self.mu_prev = self.mu
-        self.mu = U
-        self.loglik = out_a.loglik
-        self.model_nis = out_a.model_nis
-        self.innovation = out_a.innovation
-        self.velocity_prev, self.velocity = self.velocity, x_hat[:, 2:4].copy()
+        self.mu = out.mode_probs
+        self.loglik = out.loglik
+        self.model_nis = out.model_nis
+        self.innovation = out.innovation
+        self.velocity_prev, self.velocity = self.velocity, out.velocity
         truncated = (k1 >= self.horizon) & ~diverged
         self.done = diverged | truncated
         if before is not None:
@@ -337,6 +349,114 @@ class TrackingCore:
         if diverged.any():  # only a diverged slot can carry NaN/inf
             info = {key: _finite(value) for key, value in info.items()}
         return StepResult(self.observe(), reward, diverged, truncated, info)
+
+    def _advance_fused(
+        self, kernel_args: tuple, action: Array, z: Array, det: NDArray[np.bool_], truth: Array
+    ) -> BankStep:
+        """All banks' step as one call of the compiled :func:`imm_gym.fused.env_step`."""
+        cfg = self.config
+        set_mode = cfg.action_mode == "set"
+        a, b, s = self.state_a, self.state_b, self.state_s
+        (tpm, x_a, P_a, U, x_b, P_b, mu_b, x_s, P_s, mu_s, *rest) = env_step(
+            action,
+            self.tpm,
+            set_mode,
+            cfg.logit_scale if set_mode else cfg.max_factor,
+            cfg.p_min,
+            a.x,
+            a.P,
+            a.mu,
+            b.x,
+            b.P,
+            b.mu,
+            s.x,
+            s.P,
+            s.mu,
+            self._fixed_batch,
+            self._shadow_batch,
+            z,
+            det,
+            truth,
+            kernel_args,
+            cfg.parallel,
+            cfg.shadow == "fixed",
+            cfg.divergence_error,
+            cfg.divergence_cov,
+            cfg.reward_scale,
+        )
+        return BankStep(
+            tpm,
+            IMMState(x_a, P_a, U),
+            IMMState(x_b, P_b, U) if cfg.parallel else b,
+            IMMState(x_s, P_s, mu_s) if cfg.shadow == "fixed" else s,
+            U,
+            mu_b,
+            *rest,
+        )
+
+    def _advance_numpy(
+        self, action: NDArray[Any], z: Array, det: NDArray[np.bool_], truth: Array
+    ) -> BankStep:
+        """All banks' step composed of :meth:`tpm_from_action`, the IMM's ``step``,
+        :func:`imm_gym.fusion.fuse` and :func:`imm_gym.hetero.combine_bank` (any bank)."""
+        cfg = self.config
+        tpm = self.tpm_from_action(action)
+        state_a, out_a = self.imm.step(self.state_a, tpm, z, det, check=False, allow_failure=True)
+        failed = out_a.failed
+        state_b, mu_b = self.state_b, self.mu_b
+        if cfg.parallel:
+            state_b, out_b = self.imm.step(
+                self.state_b, self._fixed_batch, z, det, check=False, allow_failure=True
+            )
+            failed = failed | out_b.failed
+            mu_b = out_b.mode_probs
+            U = fuse(out_a.mode_probs, mu_b)
+            x_hat, P_hat = combine_bank(self.imm, U, state_a.x, state_a.P)
+            state_a = IMMState(state_a.x, state_a.P, U)
+            state_b = IMMState(state_b.x, state_b.P, U)
+        else:
+            U, x_hat, P_hat = out_a.mode_probs, out_a.x, out_a.P
+        error = _position_error(x_hat, truth)
+        # NaN (a failed tracker) becomes the cap; the divergence flag says why
+        capped = np.where(error <= cfg.divergence_error, error, cfg.divergence_error)
+        state_s, velocity_s = self.state_s, self.velocity_s
+        shadow_error = advantage = None
+        if cfg.shadow == "fixed":
+            state_s, out_s = self.imm.step(
+                self.state_s, self._shadow_batch, z, det, check=False, allow_failure=True
+            )
+            shadow_error = _position_error(out_s.x, truth)
+            shadow_error = np.where(
+                shadow_error <= cfg.divergence_error, shadow_error, cfg.divergence_error
+            )
+            velocity_s = out_s.x[:, 2:4].copy()
+            advantage = (shadow_error - capped) / cfg.reward_scale
+        diverged = (
+            failed
+            | ~(error <= cfg.divergence_error)
+            | ~(P_hat[:, 0, 0] + P_hat[:, 1, 1] <= cfg.divergence_cov)
+        )
+        return BankStep(
+            tpm,
+            state_a,
+            state_b,
+            state_s,
+            U,
+            mu_b,
+            x_hat,
+            P_hat,
+            out_a.loglik,
+            out_a.model_nis,
+            out_a.innovation,
+            out_a.nis,
+            x_hat[:, 2:4].copy(),
+            velocity_s,
+            capped,
+            shadow_error,
+            -capped / cfg.reward_scale,
+            advantage,
+            diverged,
+        )
 
     _SLOT_ARRAYS = (
         "k",

@@ -218,6 +218,9 @@ class IMM:
         self._Ft = np.ascontiguousarray(np.swapaxes(self.F, -1, -2))
         self._FFt = np.stack([np.kron(F, F).T for F in self.F])
         self.backend = self._choose_backend(backend)
+        #: the compiled kernel's bank constants ``(F, Q, R, sensor kind, sensor params, filter
+        #: kind, wm, wc, gamma)`` (:func:`imm_gym.kernels.imm_step`); None with the numpy backend
+        self.kernel_args: tuple | None = None
         if self.backend == "numba":
             kind, params = kernels.sensor_spec(sensor)  # type: ignore[misc]
             if isinstance(self.filter, UnscentedKalmanFilter):
@@ -227,7 +230,7 @@ class IMM:
                 wm = wc = np.zeros(1)
                 gamma, fkind = 0.0, kernels.EKF
             R = np.ascontiguousarray(sensor.R, dtype=np.float64)
-            self._kernel_args = (self.F, self.Q, R, kind, params, fkind, wm, wc, gamma)
+            self.kernel_args = (self.F, self.Q, R, kind, params, fkind, wm, wc, gamma)
 
     def _choose_backend(self, backend: str) -> str:
         if backend not in BACKENDS:
@@ -394,7 +397,7 @@ class IMM:
             else np.ascontiguousarray(np.broadcast_to(tpm, (N, M, M))),
             np.ascontiguousarray(z, dtype=np.float64),
             np.ascontiguousarray(det),
-            *self._kernel_args,
+            *self.kernel_args,
             x,
             P,
             mu,

@@ -335,8 +335,13 @@ def imm_step(
                 acc += tpm[t, i, j] * mu[t, i]
             cbar[j] = acc
         for j in range(M):
-            for i in range(M):
-                w[i] = tpm[t, i, j] * mu[t, i] / cbar[j] if cbar[j] > _TINY else mu[t, i]
+            if cbar[j] > _TINY:
+                inv_cbar = 1.0 / cbar[j]
+                for i in range(M):
+                    w[i] = tpm[t, i, j] * mu[t, i] * inv_cbar
+            else:
+                for i in range(M):
+                    w[i] = mu[t, i]
             for d in range(n):
                 acc = 0.0
                 for i in range(M):
@@ -353,22 +358,21 @@ def imm_step(
                     P0[j, c, r] = acc
         # 2. model-matched prediction and update
         for j in range(M):
-            Fj = F[j]
             for r in range(n):
                 acc = 0.0
                 for k in range(n):
-                    acc += Fj[r, k] * x0[j, k]
+                    acc += F[j, r, k] * x0[j, k]
                 xp[r] = acc
                 for c in range(n):
                     acc = 0.0
                     for k in range(n):
-                        acc += Fj[r, k] * P0[j, k, c]
+                        acc += F[j, r, k] * P0[j, k, c]
                     FP[r, c] = acc
             for r in range(n):
                 for c in range(r, n):
                     acc = 0.0
                     for k in range(n):
-                        acc += FP[r, k] * Fj[c, k]
+                        acc += FP[r, k] * F[j, c, k]
                     Pp[r, c] = acc + 0.5 * (Q[j, r, c] + Q[j, c, r])
                     Pp[c, r] = Pp[r, c]
             if filter_kind == UKF:
@@ -476,21 +480,7 @@ def imm_step(
             mu_out[t, j] = logpost[j] / total
             cbar_out[t, j] = cbar[j]
         # 4. combination
-        for d in range(n):
-            acc = 0.0
-            for j in range(M):
-                acc += mu_out[t, j] * x_out[t, j, d]
-            xhat_out[t, d] = acc
-        for r in range(n):
-            for c in range(r, n):
-                acc = 0.0
-                for j in range(M):
-                    acc += mu_out[t, j] * (
-                        P_out[t, j, r, c]
-                        + (x_out[t, j, r] - xhat_out[t, r]) * (x_out[t, j, c] - xhat_out[t, c])
-                    )
-                Phat_out[t, r, c] = acc
-                Phat_out[t, c, r] = acc
+        combine_into(t, mu_out, x_out, P_out, xhat_out, Phat_out)
         # 5. NIS of the predicted measurement mixture (weights cbar)
         if not detected[t]:
             nis_out[t] = 0.0
@@ -531,6 +521,32 @@ def imm_step(
                 acc += nu[r] * S_inv[r, c] * nu[c]
         nis_out[t] = acc
     return failures
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def combine_into(
+    t: int, mu: Array, x: Array, P: Array, x_hat: Array, P_hat: Array
+) -> None:  # pragma: no cover
+    """Output combination of tracker ``t`` with the spread-of-means term (SPEC §1 step 4).
+
+    ``x_hat[t] = sum_j mu_tj x_tj``, ``P_hat[t] = sum_j mu_tj [P_tj + (x_tj - x_hat)(x_tj -
+    x_hat)^T]``; ``mu (N, M)``, ``x (N, M, n)``, ``P (N, M, n, n)``.
+    """
+    M, n = x.shape[1], x.shape[2]
+    for d in range(n):
+        acc = 0.0
+        for j in range(M):
+            acc += mu[t, j] * x[t, j, d]
+        x_hat[t, d] = acc
+    for r in range(n):
+        for c in range(r, n):
+            acc = 0.0
+            for j in range(M):
+                acc += mu[t, j] * (
+                    P[t, j, r, c] + (x[t, j, r] - x_hat[t, r]) * (x[t, j, c] - x_hat[t, c])
+                )
+            P_hat[t, r, c] = acc
+            P_hat[t, c, r] = acc
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

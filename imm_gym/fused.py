@@ -1,0 +1,269 @@
+r"""Compiled step of the whole environment core for the built-in banks (numba, no Gymnasium).
+
+:meth:`imm_gym.core.TrackingCore.step` advances every bank of N slots. With a bank that has the
+compiled IMM kernel (:mod:`imm_gym.kernels`: built-in sensor and filter) that step is one call of
+:func:`env_step`; any other bank (a custom sensor, the heterogeneous bank) runs the same equations
+as a numpy orchestration of :mod:`imm_gym.tpm`, :mod:`imm_gym.imm` and :mod:`imm_gym.fusion`.
+The tests hold the two equal (to rounding) over whole episodes. Per slot ``t``:
+
+1. TPM from the action ``a`` (clipped to [-1, 1]): ``scale`` mode
+   :math:`\pi_{ij} \leftarrow \pi_{ij}\, f^{a_{ij}}` (``f = max_factor``), ``set`` mode
+   :math:`\pi_i = \operatorname{softmax}(\lambda a_i)` (``lambda = logit_scale``); then each row
+   normalized and floored to ``[p_min, 1 - p_min]`` as :func:`imm_gym.tpm.apply_floor` (a row that
+   already sums to 1 and satisfies the floor passes bit for bit);
+2. bank A's IMM cycle with that TPM (:func:`imm_gym.kernels.imm_step`);
+3. with ``parallel``: bank B's cycle with the fixed TPM, the entropy fusion (TIP-IMM eq. 19)
+   :math:`U = \frac{H(U_B)}{H(U_A) + H(U_B)} U_A + \frac{H(U_A)}{H(U_A) + H(U_B)} U_B`,
+   :math:`H(u) = -\sum_j u_j \log_2 u_j` (equal weights when both entropies are 0), fed back as
+   both banks' model probabilities, and the output :math:`\hat x = \sum_j U_j x_j^A` with the
+   spread term (SPEC §6);
+4. with ``shadow``: the shadow IMM (fixed TPM, its own probabilities);
+5. scores: position error :math:`e = \lVert \hat p - p \rVert` capped at ``divergence_error``
+   (NaN of a failed tracker becomes the cap), ``reward_error = -e / s``,
+   ``reward_advantage = (e_shadow - e) / s``, and the divergence flag (a failed bank, the error
+   above the cap or ``P_xx + P_yy`` above ``divergence_cov``).
+
+Every output array is freshly allocated; slots are independent (a slot's numbers do not depend
+on the batch it is in), so the vector env replays the scalar env bit for bit.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from .kernels import combine_into, imm_step
+
+Array = NDArray[np.float64]
+
+# fmt: off
+
+_ROW_SUM_EPS = 4 * float(np.finfo(np.float64).eps)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _floor_row(
+    tpm: Array, t: int, i: int, p_min: float, fixed: NDArray[np.bool_]
+) -> None:  # pragma: no cover
+    """Row ``tpm[t, i]`` normalized and floored in place (:func:`imm_gym.tpm.apply_floor`).
+
+    Entries below ``p_min`` are raised to it and the free entries rescaled by
+    ``(1 - p_min * #floored) / sum(free)``, repeated until no free entry is below (at most M
+    passes). ``fixed`` is an ``(M,)`` scratch array.
+    """
+    M = tpm.shape[2]
+    total = 0.0
+    for j in range(M):
+        total += tpm[t, i, j]
+    if abs(total - 1.0) > _ROW_SUM_EPS:
+        for j in range(M):
+            tpm[t, i, j] = tpm[t, i, j] / total
+    if p_min == 0.0:
+        return
+    for j in range(M):
+        fixed[j] = False
+    for _ in range(M):
+        grew = False
+        for j in range(M):
+            if not fixed[j] and tpm[t, i, j] < p_min:
+                fixed[j] = True
+                grew = True
+        if not grew:
+            return
+        free_mass = 0.0
+        n_fixed = 0
+        for j in range(M):
+            if fixed[j]:
+                n_fixed += 1
+            else:
+                free_mass += tpm[t, i, j]
+        ratio = (1.0 - p_min * n_fixed) / free_mass
+        for j in range(M):
+            tpm[t, i, j] = p_min if fixed[j] else tpm[t, i, j] * ratio
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def tpm_from_action(
+    action: Array, tpm: Array, set_mode: bool, gain: float, p_min: float
+) -> Array:  # pragma: no cover
+    """The TPMs ``(N, M, M)`` that the actions ``(N, M*M)`` produce (step 1 of the module doc).
+
+    ``gain`` is ``max_factor`` (``scale``) or ``logit_scale`` (``set``); actions are clipped to
+    [-1, 1] here.
+    """
+    N, M, _ = tpm.shape
+    out = np.empty((N, M, M))
+    fixed = np.empty(M, dtype=np.bool_)
+    for t in range(N):
+        for i in range(M):
+            if set_mode:
+                top = -np.inf
+                for j in range(M):
+                    logit = gain * min(max(action[t, i * M + j], -1.0), 1.0)
+                    out[t, i, j] = logit
+                    top = max(top, logit)
+                for j in range(M):
+                    out[t, i, j] = np.exp(out[t, i, j] - top)
+            else:
+                for j in range(M):
+                    a = min(max(action[t, i * M + j], -1.0), 1.0)
+                    out[t, i, j] = tpm[t, i, j] * gain**a
+            _floor_row(out, t, i, p_min, fixed)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _entropy(u: Array, t: int) -> float:  # pragma: no cover
+    """Shannon entropy in bits of ``u[t]``, ``0 log 0 = 0`` (:func:`imm_gym.fusion.entropy`)."""
+    acc = 0.0
+    for j in range(u.shape[1]):
+        acc += u[t, j] * np.log2(u[t, j]) if u[t, j] > 0.0 else 0.0
+    return -acc
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _fuse_into(t: int, u_a: Array, u_b: Array, U: Array) -> None:  # pragma: no cover
+    """Entropy-weighted fusion (eq. 19) of slot ``t`` into ``U[t]`` (as :func:`.fusion.fuse`)."""
+    M = U.shape[1]
+    h_a = _entropy(u_a, t)
+    h_b = _entropy(u_b, t)
+    total = h_a + h_b
+    w_a = h_b / total if total > 0.0 else 0.5
+    acc = 0.0
+    for j in range(M):
+        U[t, j] = w_a * u_a[t, j] + (1.0 - w_a) * u_b[t, j]
+        acc += U[t, j]
+    for j in range(M):
+        U[t, j] = U[t, j] / acc
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _bank_step(
+    x: Array, P: Array, mu: Array, tpm: Array, z: Array, detected: NDArray[np.bool_], bank: tuple
+) -> tuple[
+    Array, Array, Array, Array, Array, Array, Array, Array, Array, NDArray[np.bool_]
+]:  # pragma: no cover
+    """One IMM cycle of a bank into fresh arrays: ``(x, P, mu, loglik, model_nis, innovation,
+    nis, x_hat, P_hat, failed)`` (shapes as :meth:`imm_gym.imm.IMM.step`; ``bank`` is
+    :attr:`imm_gym.imm.IMM.kernel_args`)."""
+    N, M, n = x.shape
+    x_out = np.empty((N, M, n))
+    P_out = np.empty((N, M, n, n))
+    mu_out = np.empty((N, M))
+    cbar = np.empty((N, M))
+    loglik = np.empty((N, M))
+    model_nis = np.empty((N, M))
+    innovation = np.empty((N, M, z.shape[1]))
+    nis = np.empty(N)
+    x_hat = np.empty((N, n))
+    P_hat = np.empty((N, n, n))
+    failed = np.empty(N, dtype=np.bool_)
+    imm_step(x, P, mu, tpm, z, detected, *bank, x_out, P_out, mu_out, cbar, loglik, model_nis,
+             innovation, nis, x_hat, P_hat, failed)
+    return x_out, P_out, mu_out, loglik, model_nis, innovation, nis, x_hat, P_hat, failed
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _capped_error(
+    x_hat: Array, truth: Array, t: int, cap: float
+) -> tuple[float, float]:  # pragma: no cover
+    """``(e, min(e, cap))`` for slot ``t``, ``e = |p_hat - p|`` (a NaN error is capped)."""
+    dx = x_hat[t, 0] - truth[t, 0]
+    dy = x_hat[t, 1] - truth[t, 1]
+    e = np.sqrt(dx * dx + dy * dy)
+    return e, e if e <= cap else cap
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def env_step(
+    action: Array,
+    tpm: Array,
+    set_mode: bool,
+    gain: float,
+    p_min: float,
+    x_a: Array,
+    P_a: Array,
+    mu_a: Array,
+    x_b: Array,
+    P_b: Array,
+    mu_b: Array,
+    x_s: Array,
+    P_s: Array,
+    mu_s: Array,
+    fixed_tpm: Array,
+    shadow_tpm: Array,
+    z: Array,
+    detected: NDArray[np.bool_],
+    truth: Array,
+    bank: tuple,
+    parallel: bool,
+    shadow: bool,
+    divergence_error: float,
+    divergence_cov: float,
+    reward_scale: float,
+):  # pragma: no cover
+    """One step of all banks of N slots (the module docstring's steps 1-5).
+
+    Args:
+        action: ``(N, M*M)`` finite actions (clipped here); tpm: ``(N, M, M)`` current TPMs.
+        set_mode, gain, p_min: the action mode (``set`` or ``scale``), its ``logit_scale`` or
+            ``max_factor``, and the floor.
+        x_a, P_a, mu_a: bank A's posterior ``(N, M, n)``, ``(N, M, n, n)``, ``(N, M)``; x_b, P_b,
+            mu_b: bank B's; x_s, P_s, mu_s: the shadow IMM's.
+        fixed_tpm, shadow_tpm: ``(N, M, M)`` fixed TPMs of bank B and of the shadow.
+        z: ``(N, m)`` measurements; detected: ``(N,)``; truth: ``(N, 4+)`` true states.
+        bank: the bank's kernel constants (:attr:`imm_gym.imm.IMM.kernel_args`).
+        parallel, shadow: run bank B (and fuse), the shadow IMM.
+
+    Returns:
+        ``(tpm, x_a, P_a, mode_probs, x_b, P_b, mu_b, x_s, P_s, mu_s, estimate, covariance,
+        loglik, model_nis, innovation, nis, velocity, velocity_s, position_error,
+        shadow_position_error, reward_error, reward_advantage, diverged)``, fresh arrays;
+        ``mu_b`` are bank B's probabilities before the fusion (its posterior's are ``U``). The
+        inputs of a bank that does not run are returned as they are (and ``velocity_s`` and the
+        shadow scores are zeros without the shadow).
+    """
+    N, M, _ = x_a.shape
+    new_tpm = tpm_from_action(action, tpm, set_mode, gain, p_min)
+    xa, Pa, U, loglik, model_nis, innovation, nis, x_hat, P_hat, failed = _bank_step(
+        x_a, P_a, mu_a, new_tpm, z, detected, bank)
+    xb, Pb, Ub = x_b, P_b, mu_b
+    if parallel:
+        xb, Pb, Ub, _, _, _, _, _, _, failed_b = _bank_step(
+            x_b, P_b, mu_b, fixed_tpm, z, detected, bank)
+        u_a = U
+        U = np.empty((N, M))
+        for t in range(N):
+            failed[t] = failed[t] or failed_b[t]
+            _fuse_into(t, u_a, Ub, U)
+            combine_into(t, U, xa, Pa, x_hat, P_hat)
+    xs, Ps, mus, xs_hat = x_s, P_s, mu_s, x_hat
+    velocity_s = np.zeros((N, 2))
+    shadow_error = np.zeros(N)
+    advantage = np.zeros(N)
+    if shadow:
+        xs, Ps, mus, _, _, _, _, xs_hat, _, _ = _bank_step(
+            x_s, P_s, mu_s, shadow_tpm, z, detected, bank)
+    velocity = np.empty((N, 2))
+    error = np.empty(N)
+    reward_error = np.empty(N)
+    diverged = np.empty(N, dtype=np.bool_)
+    for t in range(N):
+        e, error[t] = _capped_error(x_hat, truth, t, divergence_error)
+        reward_error[t] = -error[t] / reward_scale
+        velocity[t, 0] = x_hat[t, 2]
+        velocity[t, 1] = x_hat[t, 3]
+        diverged[t] = (
+            failed[t]
+            or not e <= divergence_error
+            or not P_hat[t, 0, 0] + P_hat[t, 1, 1] <= divergence_cov
+        )
+        if shadow:
+            shadow_error[t] = _capped_error(xs_hat, truth, t, divergence_error)[1]
+            advantage[t] = (shadow_error[t] - error[t]) / reward_scale
+            velocity_s[t, 0] = xs_hat[t, 2]
+            velocity_s[t, 1] = xs_hat[t, 3]
+    return (new_tpm, xa, Pa, U, xb, Pb, Ub, xs, Ps, mus, x_hat, P_hat, loglik, model_nis,
+            innovation, nis, velocity, velocity_s, error, shadow_error, reward_error, advantage,
+            diverged)

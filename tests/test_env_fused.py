@@ -1,0 +1,94 @@
+"""The core's two engines compute the same step: the compiled :func:`imm_gym.fused.env_step`
+(built-in banks) against the numpy orchestration that any bank runs (here the same bank on the
+numpy IMM backend), over whole episodes with random actions, autoresets and divergences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym import IMM, EnvConfig, TrackingCore
+from imm_gym.fused import tpm_from_action
+from imm_gym.tpm import apply_floor
+
+FEATURES = ("tpm", "loglik", "nis", "innovation", "time", "turn_rate")
+SHADOW_FEATURES = ("shadow_probs", "shadow_turn_rate")
+N = 3
+
+
+def _engines(config: EnvConfig) -> tuple[TrackingCore, TrackingCore]:
+    fused, general = TrackingCore(config, N), TrackingCore(config, N)
+    general.imm = IMM(
+        config.bank, config.sensor, filter=config.filter, T=config.source.T, backend="numpy"
+    )
+    assert fused.imm.kernel_args is not None and general.imm.kernel_args is None
+    return fused, general
+
+
+def _assert_close(a: object, b: object, key: str) -> None:
+    if isinstance(a, np.ndarray) and a.dtype.kind == "f":
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10, err_msg=key)
+    else:
+        np.testing.assert_array_equal(a, b, err_msg=key)
+
+
+@pytest.mark.parametrize("mode", ["scale", "set"])
+@pytest.mark.parametrize("parallel", [False, True])
+@pytest.mark.parametrize("shadow", ["fixed", "none"])
+def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, shadow: str) -> None:
+    features = (
+        FEATURES
+        + (SHADOW_FEATURES if shadow == "fixed" else ())
+        + (("bank_b",) if parallel else ())
+    )
+    config = EnvConfig(
+        action_mode=mode,
+        parallel=parallel,
+        shadow=shadow,
+        reward="advantage" if shadow == "fixed" else "error",
+        p_min=0.01,
+        obs_features=features,
+        sensor={"detection_prob": 0.8},
+        family={"horizon": 60, "n_segments": (2, 4)},
+        divergence_error=60.0,  # a few episodes end as diverged
+    )
+    fused, general = _engines(config)
+    rng = np.random.default_rng(3)
+    for core in (fused, general):
+        core.reset(np.arange(N), [10, 11, 12])
+    ends = 0
+    for _ in range(200):
+        action = rng.uniform(-1.5, 1.5, (N, 9))
+        a, b = fused.step(action), general.step(action)
+        np.testing.assert_allclose(a.obs, b.obs, rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(a.terminated, b.terminated)
+        np.testing.assert_array_equal(a.truncated, b.truncated)
+        np.testing.assert_allclose(a.reward, b.reward, rtol=1e-10, atol=1e-10)
+        assert a.info.keys() == b.info.keys()
+        for key in a.info:
+            _assert_close(a.info[key], b.info[key], key)
+        for bank in ("state_a", "state_b", "state_s"):
+            for part in ("x", "P", "mu"):
+                _assert_close(
+                    getattr(getattr(fused, bank), part), getattr(getattr(general, bank), part), bank
+                )
+        done = np.flatnonzero(a.terminated | a.truncated)
+        ends += done.size
+        for core in (fused, general):
+            core.reset(done, [None] * done.size)
+    assert ends >= N  # whole episodes, then new ones
+
+
+@pytest.mark.parametrize("mode", ["scale", "set"])
+@pytest.mark.parametrize("p_min", [0.0, 1e-3, 0.2, 0.3])
+def test_compiled_tpm_from_action_equals_the_numpy_one(mode: str, p_min: float) -> None:
+    core = TrackingCore(EnvConfig(action_mode=mode, p_min=p_min, max_factor=50.0), 64)
+    rng = np.random.default_rng(1)
+    tpm = apply_floor(rng.random((64, 3, 3)) ** 3, p_min)
+    action = rng.uniform(-2, 2, (64, 9))
+    gain = core.config.logit_scale if mode == "set" else core.config.max_factor
+    got = tpm_from_action(action, tpm, mode == "set", gain, p_min)
+    np.testing.assert_allclose(got, core.tpm_from_action(action, tpm), rtol=1e-14, atol=1e-16)
+    # the zero scale action keeps a valid TPM bit for bit
+    if mode == "scale":
+        assert np.array_equal(tpm_from_action(np.zeros((64, 9)), tpm, False, gain, p_min), tpm)
