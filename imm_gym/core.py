@@ -279,7 +279,7 @@ class TrackingCore:
                 f"action must have shape ({self.n_envs}, {self.action_dim}) "
                 f"(or ({self.action_dim},) for the scalar env), got {np.shape(action)}"
             )
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ActionError("action must be finite (got NaN or inf)")
         return a
 
@@ -290,8 +290,8 @@ class TrackingCore:
         Inactive slots keep their state (their outputs in the result are meaningless: the vector
         fronts mask them). An active slot whose episode ended must be reset first.
         """
-        all_active = active is None or bool(np.all(active))
-        if np.any(self.done if active is None else self.done & active):
+        all_active = active is None or bool(np.asarray(active).all())
+        if (self.done if active is None else self.done & active).any():
             ended = np.flatnonzero(self.done if active is None else self.done & active).tolist()
             raise RuntimeError(f"episodes in slots {ended} have ended; call reset before step")
         before = None if all_active else self._snapshot()
@@ -531,7 +531,8 @@ class TrackingCore:
         if not np.isfinite(obs).all():  # a diverged slot
             obs = np.nan_to_num(obs, nan=0.0, posinf=1.0, neginf=-1.0)
         obs = obs.astype(np.float32)
-        return np.clip(obs, self.obs_low, self.obs_high, out=obs)
+        np.maximum(obs, self.obs_low, out=obs)  # clip to the Box (ufuncs: no wrapper overhead)
+        return np.minimum(obs, self.obs_high, out=obs)
 
 
 def heading_rate(v_prev: Array, v: Array, T: float) -> Array:

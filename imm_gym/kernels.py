@@ -66,25 +66,25 @@ def _wrap(a: float) -> float:  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _h(kind: int, params: Array, x: Array, out: Array) -> None:  # pragma: no cover
-    """Measurement function of the sensor ``kind`` at state ``x``."""
+def _h(kind: int, params: Array, x: Array, j: int, out: Array) -> None:  # pragma: no cover
+    """Measurement function of the sensor ``kind`` at state ``x[j]``."""
     if kind == RANGE_BEARING:
-        dx = x[0] - params[0]
-        dy = x[1] - params[1]
+        dx = x[j, 0] - params[0]
+        dy = x[j, 1] - params[1]
         out[0] = np.sqrt(dx * dx + dy * dy)
         out[1] = np.arctan2(dy, dx)
     else:
         for i in range(out.shape[0]):
-            out[i] = x[i]
+            out[i] = x[j, i]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _jacobian(kind: int, params: Array, x: Array, H: Array) -> None:  # pragma: no cover
-    """``H = dh/dx`` at ``x`` (``(m, n)``)."""
+def _jacobian(kind: int, params: Array, x: Array, j: int, H: Array) -> None:  # pragma: no cover
+    """``H = dh/dx`` at ``x[j]`` (``(m, n)``)."""
     H[:, :] = 0.0
     if kind == RANGE_BEARING:
-        dx = x[0] - params[0]
-        dy = x[1] - params[1]
+        dx = x[j, 0] - params[0]
+        dy = x[j, 1] - params[1]
         r2 = max(dx * dx + dy * dy, 1e-12)
         r = np.sqrt(r2)
         H[0, 0] = dx / r
@@ -132,7 +132,8 @@ def _inv_logdet(S: Array, S_inv: Array, L: Array) -> tuple[float, bool]:  # prag
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _ukf_moments(
     xp: Array,
-    Pp: Array,
+    s: Array,
+    U: Array,
     kind: int,
     params: Array,
     wm: Array,
@@ -143,42 +144,38 @@ def _ukf_moments(
     zp: Array,
     S: Array,
     C: Array,
-    a: Array,
-    U: Array,
     O: Array,
     Z: Array,
 ) -> None:  # pragma: no cover
     """SVD-UKF predicted measurement ``zp[j]``, innovation covariance ``S[j]``, cross covariance
-    ``C``.
+    ``C`` of model ``j``.
 
-    Sigma offsets ``0, ±gamma (U sqrt|s|)_i`` from the eigendecomposition of ``Pp``; bearings are
-    averaged as residuals about the centre point. Written with explicit indices (no array views
-    in the loops: each view costs a reference count).
+    Sigma offsets ``0, ±gamma (U sqrt|s|)_i`` from the eigendecomposition ``Pp_j = U_j diag(s_j)
+    U_j^T`` of the predicted covariance (``s[j]``: the diagonal of the diagonalized ``(n, n)``
+    block, ``U[j]`` its eigenvectors; ``xp[j]`` the predicted state); bearings are averaged as
+    residuals about the centre point. Written with explicit indices (no array views in the
+    loops: each view costs a reference count).
     """
-    n = xp.shape[0]
+    n = xp.shape[1]
     m = zp.shape[1]
     L = 2 * n + 1
-    for r in range(n):
-        for c in range(n):
-            a[r, c] = 0.5 * (Pp[r, c] + Pp[c, r])
-    jacobi_eig_inplace(a, U, JACOBI_MAX_SWEEPS)
     for c in range(n):
         O[0, c] = 0.0
     for i in range(n):
-        scale = gamma * np.sqrt(abs(a[i, i]))
+        scale = gamma * np.sqrt(abs(s[j, i, i]))
         for c in range(n):
-            O[1 + i, c] = scale * U[c, i]
-            O[1 + n + i, c] = -scale * U[c, i]
+            O[1 + i, c] = scale * U[j, c, i]
+            O[1 + n + i, c] = -scale * U[j, c, i]
     # Z holds h(sigma point) minus h(centre), bearing wrapped
     for k in range(L):
         if kind == RANGE_BEARING:
-            dx = xp[0] + O[k, 0] - params[0]
-            dy = xp[1] + O[k, 1] - params[1]
+            dx = xp[j, 0] + O[k, 0] - params[0]
+            dy = xp[j, 1] + O[k, 1] - params[1]
             Z[k, 0] = np.sqrt(dx * dx + dy * dy)
             Z[k, 1] = np.arctan2(dy, dx)
         else:
             for d in range(m):
-                Z[k, d] = xp[d] + O[k, d]
+                Z[k, d] = xp[j, d] + O[k, d]
     for k in range(L - 1, -1, -1):
         for d in range(m):
             Z[k, d] -= Z[0, d]
@@ -199,13 +196,13 @@ def _ukf_moments(
         zp[j, d] = acc
     # zp = h(centre) + mean residual
     if kind == RANGE_BEARING:
-        dx = xp[0] - params[0]
-        dy = xp[1] - params[1]
+        dx = xp[j, 0] - params[0]
+        dy = xp[j, 1] - params[1]
         zp[j, 0] = np.sqrt(dx * dx + dy * dy) + centre0
         zp[j, 1] = _wrap(np.arctan2(dy, dx) + centre1)
     else:
         for d in range(m):
-            zp[j, d] += xp[d]
+            zp[j, d] += xp[j, d]
     for r in range(m):
         for c in range(r, m):
             acc = 0.0
@@ -235,18 +232,19 @@ def _ekf_moments(
     H: Array,
     h: Array,
 ) -> None:  # pragma: no cover
-    """EKF predicted measurement ``zp[j] = h(xp)``, ``S[j] = H P H^T + R`` and ``C = P H^T``."""
-    n = xp.shape[0]
+    """EKF predicted measurement ``zp[j] = h(xp[j])``, ``S[j] = H Pp[j] H^T + R`` and ``C = Pp[j]
+    H^T`` of model ``j``."""
+    n = xp.shape[1]
     m = zp.shape[1]
-    _h(kind, params, xp, h)
+    _h(kind, params, xp, j, h)
     for d in range(m):
         zp[j, d] = h[d]
-    _jacobian(kind, params, xp, H)
+    _jacobian(kind, params, xp, j, H)
     for r in range(n):
         for c in range(m):
             acc = 0.0
             for k in range(n):
-                acc += Pp[r, k] * H[c, k]
+                acc += Pp[j, r, k] * H[c, k]
             C[r, c] = acc
     for r in range(m):
         for c in range(r, m):
@@ -304,8 +302,8 @@ def imm_step(
     P0 = np.empty((M, n, n))
     w = np.empty(M)
     cbar = np.empty(M)
-    xp = np.empty(n)
-    Pp = np.empty((n, n))
+    xp = np.empty((M, n))
+    Pp = np.empty((M, n, n))
     FP = np.empty((n, n))
     zp = np.empty((M, m))
     S = np.empty((M, m, m))
@@ -315,8 +313,9 @@ def imm_step(
     Lc = np.zeros((m, m))
     nu = np.empty(m)
     Sinu = np.empty(m)
-    a = np.empty((n, n))
-    U = np.empty((n, n))
+    eig = np.empty((M, n, n))
+    U = np.empty((M, n, n))
+    converged = np.empty(M, dtype=np.bool_)
     O = np.empty((L, n))
     Z = np.empty((L, m))
     Sj = np.empty((m, m))
@@ -362,7 +361,7 @@ def imm_step(
                 acc = 0.0
                 for k in range(n):
                     acc += F[j, r, k] * x0[j, k]
-                xp[r] = acc
+                xp[j, r] = acc
                 for c in range(n):
                     acc = 0.0
                     for k in range(n):
@@ -373,11 +372,16 @@ def imm_step(
                     acc = 0.0
                     for k in range(n):
                         acc += FP[r, k] * F[j, c, k]
-                    Pp[r, c] = acc + 0.5 * (Q[j, r, c] + Q[j, c, r])
-                    Pp[c, r] = Pp[r, c]
+                    Pp[j, r, c] = acc + 0.5 * (Q[j, r, c] + Q[j, c, r])
+                    Pp[j, c, r] = Pp[j, r, c]
+                    eig[j, r, c] = Pp[j, r, c]
+                    eig[j, c, r] = Pp[j, r, c]
+        if filter_kind == UKF:  # the M models' eigendecompositions, swept in lock-step
+            jacobi_eig_inplace(eig, U, JACOBI_MAX_SWEEPS, converged)
+        for j in range(M):
             if filter_kind == UKF:
                 _ukf_moments(
-                    xp, Pp, sensor_kind, sensor_params, wm, wc, gamma, R, j, zp, S, C, a, U, O, Z
+                    xp, eig, U, sensor_kind, sensor_params, wm, wc, gamma, R, j, zp, S, C, O, Z
                 )
             else:
                 _ekf_moments(xp, Pp, sensor_kind, sensor_params, R, j, zp, S, C, H, hz)
@@ -390,9 +394,9 @@ def imm_step(
                 break
             if not detected[t]:
                 for r in range(n):
-                    x_out[t, j, r] = xp[r]
+                    x_out[t, j, r] = xp[j, r]
                     for c in range(n):
-                        P_out[t, j, r, c] = Pp[r, c]
+                        P_out[t, j, r, c] = Pp[j, r, c]
                 loglik_out[t, j] = 0.0
                 model_nis_out[t, j] = 0.0
                 for d in range(m):
@@ -425,7 +429,7 @@ def imm_step(
                 acc = 0.0
                 for k in range(m):
                     acc += C[r, k] * Sinu[k]
-                x_out[t, j, r] = xp[r] + acc
+                x_out[t, j, r] = xp[j, r] + acc
             if filter_kind == UKF:
                 # P = Pp - K C^T
                 for r in range(n):
@@ -433,7 +437,7 @@ def imm_step(
                         acc = 0.0
                         for k in range(m):
                             acc += K[r, k] * C[c, k]
-                        T1[r, c] = Pp[r, c] - acc
+                        T1[r, c] = Pp[j, r, c] - acc
             else:
                 # Joseph form: (I - K H) Pp (I - K H)^T + K R K^T
                 for r in range(n):
@@ -446,7 +450,7 @@ def imm_step(
                     for c in range(n):
                         acc = 0.0
                         for k in range(n):
-                            acc += IKH[r, k] * Pp[k, c]
+                            acc += IKH[r, k] * Pp[j, k, c]
                         FP[r, c] = acc
                 for r in range(n):
                     for c in range(n):

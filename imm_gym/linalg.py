@@ -37,9 +37,9 @@ def sym_eig(P: Array) -> tuple[Array, Array]:
 
     For a symmetric matrix this *is* its singular value decomposition up to column signs
     (singular values ``|s|``), which is how the SVD-UKF uses it. Computed by the cyclic Jacobi
-    method (Golub & Van Loan §8.5), compiled with numba and run matrix by matrix: for the 4x4 to
-    6x6 blocks of a tracker it is 3-4x faster than LAPACK's per-matrix call, and each matrix's
-    result does not depend on the batch it is in (bit-identical scalar and vector envs).
+    method (Golub & Van Loan §8.5), compiled with numba: for the 4x4 to 6x6 blocks of a tracker
+    it is 3-4x faster than LAPACK's per-matrix call, and each matrix's result does not depend on
+    the batch it is in (bit-identical scalar and vector envs).
     The columns of ``U`` come unsorted; the symmetric sigma-point set does not depend on their
     order or sign.
 
@@ -57,70 +57,87 @@ def sym_eig(P: Array) -> tuple[Array, Array]:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _jacobi_eig(P: Array, max_sweeps: int) -> tuple[Array, Array]:  # pragma: no cover - jitted
-    """:func:`jacobi_eig_inplace` on each ``(n, n)`` block of ``P`` (shape ``(B, n, n)``)."""
+    """:func:`jacobi_eig_inplace` on the ``(n, n)`` blocks of ``P`` (shape ``(B, n, n)``)."""
     B, n, _ = P.shape
-    s_out = np.empty((B, n))
+    a = np.empty((B, n, n))
     U_out = np.empty((B, n, n))
-    a = np.empty((n, n))
     for b in range(B):
         for i in range(n):
             for j in range(n):
-                a[i, j] = 0.5 * (P[b, i, j] + P[b, j, i])
-        jacobi_eig_inplace(a, U_out[b], max_sweeps)
+                a[b, i, j] = 0.5 * (P[b, i, j] + P[b, j, i])
+    jacobi_eig_inplace(a, U_out, max_sweeps, np.empty(B, dtype=np.bool_))
+    s_out = np.empty((B, n))
+    for b in range(B):
         for i in range(n):
-            s_out[b, i] = a[i, i]
+            s_out[b, i] = a[b, i, i]
     return s_out, U_out
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def jacobi_eig_inplace(a: Array, v: Array, max_sweeps: int) -> None:  # pragma: no cover - jitted
-    """Diagonalize the symmetric ``a`` in place by cyclic Jacobi sweeps; ``v`` gets eigenvectors.
+def jacobi_eig_inplace(
+    a: Array, v: Array, max_sweeps: int, converged: NDArray[np.bool_]
+) -> None:  # pragma: no cover - jitted
+    """Diagonalize the symmetric ``a[b]`` in place by cyclic Jacobi sweeps; ``v[b]`` gets the
+    eigenvectors (``a``, ``v``: ``(B, n, n)``; ``converged``: ``(B,)`` scratch).
 
     A rotation ``J(p, q, theta)`` zeroes ``a_pq`` with ``t = tan(theta)`` the smaller root of
     ``t^2 + 2 t cot(2 theta) - 1 = 0``, ``cot(2 theta) = (a_qq - a_pp) / (2 a_pq)``:
     ``a_pp -= t a_pq``, ``a_qq += t a_pq``, ``(a_kp, a_kq) <- (c a_kp - s a_kq, s a_kp + c a_kq)``,
-    and the same on the columns of ``v``. Sweeps stop once the off-diagonal mass falls below
-    ``1e-32`` of the diagonal mass (machine precision; quadratic convergence). On return the
-    eigenvalues are ``diag(a)`` and ``a_in = v diag(a) v^T``.
+    and the same on the columns of ``v``. A matrix stops sweeping once its off-diagonal mass
+    falls below ``1e-32`` of its diagonal mass (machine precision; quadratic convergence). On
+    return the eigenvalues are ``diag(a[b])`` and ``a_in[b] = v[b] diag(a[b]) v[b]^T``.
+
+    The B matrices are swept in lock-step — rotation ``(p, q)`` of every unconverged matrix,
+    then the next — so that the B independent dependency chains of square roots and divisions
+    overlap in the processor; each matrix gets exactly the rotations it would get alone.
     """
-    n = a.shape[0]
-    for i in range(n):
-        for j in range(n):
-            v[i, j] = 1.0 if i == j else 0.0
+    B, n = a.shape[0], a.shape[1]
+    for b in range(B):
+        converged[b] = False
+        for i in range(n):
+            for j in range(n):
+                v[b, i, j] = 1.0 if i == j else 0.0
     for _ in range(max_sweeps):
-        off = 0.0
-        diag = 0.0
-        for p in range(n):
-            diag += a[p, p] * a[p, p]
-            for q in range(p + 1, n):
-                off += a[p, q] * a[p, q]
-        if off <= 1e-32 * diag:
+        active = 0
+        for b in range(B):
+            if converged[b]:
+                continue
+            off = 0.0
+            diag = 0.0
+            for p in range(n):
+                diag += a[b, p, p] * a[b, p, p]
+                for q in range(p + 1, n):
+                    off += a[b, p, q] * a[b, p, q]
+            converged[b] = off <= 1e-32 * diag
+            active += not converged[b]
+        if active == 0:
             break
         for p in range(n - 1):
             for q in range(p + 1, n):
-                apq = a[p, q]
-                if apq == 0.0:
-                    continue
-                d = a[q, q] - a[p, p]
-                root = np.sqrt(d * d + 4.0 * apq * apq)
-                t = 2.0 * apq / (d + root if d >= 0.0 else d - root)
-                c = 1.0 / np.sqrt(1.0 + t * t)
-                s = t * c
-                a[p, p] -= t * apq
-                a[q, q] += t * apq
-                a[p, q] = 0.0
-                a[q, p] = 0.0
-                for k in range(n):
-                    if k != p and k != q:
-                        akp = a[k, p]
-                        akq = a[k, q]
-                        a[k, p] = a[p, k] = c * akp - s * akq
-                        a[k, q] = a[q, k] = s * akp + c * akq
-                for k in range(n):
-                    vkp = v[k, p]
-                    vkq = v[k, q]
-                    v[k, p] = c * vkp - s * vkq
-                    v[k, q] = s * vkp + c * vkq
+                for b in range(B):
+                    apq = a[b, p, q]
+                    if converged[b] or apq == 0.0:
+                        continue
+                    d = a[b, q, q] - a[b, p, p]
+                    root = np.sqrt(d * d + 4.0 * apq * apq)
+                    t = 2.0 * apq / (d + root if d >= 0.0 else d - root)
+                    c = 1.0 / np.sqrt(1.0 + t * t)
+                    s = t * c
+                    a[b, p, p] -= t * apq
+                    a[b, q, q] += t * apq
+                    a[b, p, q] = 0.0
+                    a[b, q, p] = 0.0
+                    for k in range(n):
+                        if k != p and k != q:
+                            akp = a[b, k, p]
+                            akq = a[b, k, q]
+                            a[b, k, p] = a[b, p, k] = c * akp - s * akq
+                            a[b, k, q] = a[b, q, k] = s * akp + c * akq
+                    for k in range(n):
+                        vkp = v[b, k, p]
+                        vkq = v[b, k, q]
+                        v[b, k, p] = c * vkp - s * vkq
+                        v[b, k, q] = s * vkp + c * vkq
 
 
 def inv_logdet(S: Array) -> tuple[Array, Array]:
