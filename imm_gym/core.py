@@ -269,9 +269,9 @@ class TrackingCore:
 
     def check_action(self, action: NDArray[Any]) -> Array:
         """Validate shape ``(N, M*M)`` and finiteness, then clip to [-1, 1] (float64)."""
-        return np.clip(self._finite_action(action), -1.0, 1.0)
+        return np.clip(self.validate_action(action), -1.0, 1.0)
 
-    def _finite_action(self, action: NDArray[Any]) -> Array:
+    def validate_action(self, action: NDArray[Any]) -> Array:
         """``action`` as float64 after checking shape ``(N, M*M)`` and finiteness (not clipped)."""
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (self.n_envs, self.action_dim):
@@ -305,7 +305,7 @@ class TrackingCore:
         if kernel_args is None:
             out = self._advance_numpy(action, z, det, truth)
         else:
-            out = self._advance_fused(kernel_args, self._finite_action(action), z, det, truth)
+            out = self._advance_fused(kernel_args, self.validate_action(action), z, det, truth)
         info: dict[str, Any] = {
             "true_state": truth,
             "true_model": self.true_model[rows, k1 - 1],

@@ -77,9 +77,10 @@ class TPMAdaptVecEnv(VecEnv):
         result = self.core.step(a)
         obs = result.obs
         dones = result.terminated | result.truncated
+        keys = [key for key in SB3_INFO_KEYS if key in result.info]
+        columns = [result.info[key].tolist() for key in keys]  # Python scalars, column by column
         infos: list[dict[str, Any]] = [
-            {key: result.info[key][i].item() for key in SB3_INFO_KEYS if key in result.info}
-            for i in range(self.num_envs)
+            dict(zip(keys, row, strict=True)) for row in zip(*columns, strict=True)
         ]
         finished = np.flatnonzero(dones)
         if finished.size:

@@ -83,9 +83,9 @@ class TPMAdaptVectorEnv(VectorEnv):
             raise ActionError(
                 f"actions must have shape ({self.num_envs}, {self.core.action_dim}), got {a.shape}"
             )
-        self.core.check_action(a)  # a rejected action must not consume the pending autoresets
         restart = self._autoreset
         if restart.any():
+            self.core.validate_action(a)  # a rejected action must not consume the autoresets
             self.core.reset(np.flatnonzero(restart), [None] * int(restart.sum()))
         result = self.core.step(a, active=~restart)
         obs, reward = result.obs, result.reward
