@@ -27,6 +27,11 @@ turn_rate       1       heading rate of the combined estimate over the last step
                         ``TURN_RATE_SCALE`` (10 deg/s), clipped (``turn_rate``)
 shadow_turn_    1       the same for the shadow IMM's estimate                      -1     1
 rate                    (``shadow_turn_rate``)
+turn_rate_ema   2       exponential moving averages of the (unclipped) ``turn_rate``,   -1     1
+                        ``m(t) = lambda m(t-1) + (1 - lambda) w(t)``, ``m(0) = 0``, one
+                        per factor of ``EMA_FACTORS``, then clipped (``turn_rate_ema``)
+prob_ema        2M      the same averages of ``mu(t)``, ``m(0) = mu(0)``, factor-major   0      1
+                        (``prob_ema``): a memory of the recent modes
 time            1       ``k / K`` (feature ``time``)                                0      1
 ==============  ======  ==========================================================  =====  ====
 """
@@ -56,6 +61,9 @@ Array = NDArray[np.float64]
 INNOVATION_CLIP = 5.0
 #: Heading rate (rad/s) that the ``turn_rate`` features map to 1.
 TURN_RATE_SCALE = float(np.deg2rad(10.0))
+#: Factors ``lambda`` of the ``turn_rate_ema`` / ``prob_ema`` features (memories of about 3 and
+#: 10 steps).
+EMA_FACTORS = (0.7, 0.9)
 
 
 def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
@@ -71,6 +79,8 @@ def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
         "time": 1,
         "turn_rate": 1,
         "shadow_turn_rate": 1,
+        "turn_rate_ema": len(EMA_FACTORS),
+        "prob_ema": len(EMA_FACTORS) * M,
     }
 
 
@@ -167,6 +177,8 @@ class TrackingCore:
         self.velocity_prev = np.zeros((N, 2))
         self.velocity_s = np.zeros((N, 2))  # the same for the shadow IMM
         self.velocity_s_prev = np.zeros((N, 2))
+        self.rate_ema = np.zeros((N, len(EMA_FACTORS)))  # in TURN_RATE_SCALE units
+        self.prob_ema = np.full((N, len(EMA_FACTORS), M), 1.0 / M)
 
     # ------------------------------------------------------------------ spaces
     def _observation_bounds(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -174,7 +186,7 @@ class TrackingCore:
         lows, highs = [np.zeros(2 * M)], [np.ones(2 * M)]
         sizes = feature_sizes(M, self.config.sensor.dim_z)
         for f in self.config.obs_features:
-            signed = f in ("loglik", "innovation", "turn_rate", "shadow_turn_rate")
+            signed = f in ("loglik", "innovation", "turn_rate", "shadow_turn_rate", "turn_rate_ema")
             lows.append(np.full(sizes[f], -1.0 if signed else 0.0))
             highs.append(np.zeros(sizes[f]) if f == "loglik" else np.ones(sizes[f]))
         return (
@@ -241,6 +253,8 @@ class TrackingCore:
             "velocity_prev": x0[:, 2:4],
             "velocity_s": x0[:, 2:4],
             "velocity_s_prev": x0[:, 2:4],
+            "rate_ema": 0.0,
+            "prob_ema": init.mu[:, None, :],
             "k": 0,
             "done": False,
         }
@@ -342,6 +356,7 @@ class TrackingCore:
         self.model_nis = out.model_nis
         self.innovation = out.innovation
         self.velocity_prev, self.velocity = self.velocity, out.velocity
+        self._update_memories()
         truncated = (k1 >= self.horizon) & ~diverged
         self.done = diverged | truncated
         if before is not None:
@@ -473,6 +488,8 @@ class TrackingCore:
         "velocity_prev",
         "velocity_s",
         "velocity_s_prev",
+        "rate_ema",
+        "prob_ema",
     )
 
     def _snapshot(self) -> dict[str, Any]:
@@ -498,6 +515,17 @@ class TrackingCore:
                     a_new[rows] = a_old[rows]
                     parts.append(a_new)
                 setattr(self, bank, IMMState(*parts))
+
+    def _update_memories(self) -> None:
+        """Advance the moving averages of the ``turn_rate_ema`` / ``prob_ema`` features (only
+        when observed)."""
+        features = self.config.obs_features
+        lam = np.asarray(EMA_FACTORS)
+        if "turn_rate_ema" in features:
+            rate = heading_rate(self.velocity_prev, self.velocity, self.imm.T) / TURN_RATE_SCALE
+            self.rate_ema = lam * self.rate_ema + (1.0 - lam) * rate[:, None]
+        if "prob_ema" in features:
+            self.prob_ema = lam[:, None] * self.prob_ema + (1.0 - lam[:, None]) * self.mu[:, None]
 
     # ------------------------------------------------------------------ observation
     def observe(self) -> NDArray[np.float32]:
@@ -525,6 +553,10 @@ class TrackingCore:
             elif f == "shadow_turn_rate":
                 rate = heading_rate(self.velocity_s_prev, self.velocity_s, self.imm.T)
                 blocks.append(np.clip(rate / TURN_RATE_SCALE, -1.0, 1.0)[:, None])
+            elif f == "turn_rate_ema":
+                blocks.append(np.clip(self.rate_ema, -1.0, 1.0))
+            elif f == "prob_ema":
+                blocks.append(self.prob_ema.reshape(self.n_envs, -1))
             else:
                 blocks.append((self.k / self.horizon)[:, None])
         obs = np.concatenate(blocks, axis=-1)

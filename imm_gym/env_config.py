@@ -32,6 +32,8 @@ OBS_FEATURES = (
     "time",
     "turn_rate",
     "shadow_turn_rate",
+    "turn_rate_ema",
+    "prob_ema",
 )
 TIP_READINGS = ("literal", "intent")
 
@@ -68,7 +70,7 @@ class EnvConfig:
         reward_scale: metres per unit of reward.
         obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
             ``innovation``, ``bank_b``, ``shadow_probs``, ``time``, ``turn_rate``,
-            ``shadow_turn_rate``.
+            ``shadow_turn_rate``, ``turn_rate_ema``, ``prob_ema``.
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.

@@ -20,6 +20,8 @@ ALL_FEATURES = (
     "shadow_probs",
     "turn_rate",
     "shadow_turn_rate",
+    "turn_rate_ema",
+    "prob_ema",
 )
 OUTLIERS = {"outlier_prob": 0.2, "outlier_scale": 100.0}
 

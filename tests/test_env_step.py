@@ -25,6 +25,8 @@ SIZES = {
     "time": 1,
     "turn_rate": 1,
     "shadow_turn_rate": 1,
+    "turn_rate_ema": 2,
+    "prob_ema": 6,
 }
 LAYOUTS = [
     ((), False),
@@ -35,6 +37,7 @@ LAYOUTS = [
     (("tpm", "loglik", "nis", "innovation", "bank_b", "shadow_probs", "time"), True),
     (("innovation", "shadow_probs"), False),
     (("turn_rate", "shadow_turn_rate", "tpm"), False),
+    (("prob_ema", "turn_rate_ema", "turn_rate"), True),
 ]
 
 
@@ -61,6 +64,7 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
         "innovation": (-1.0, 1.0),
         "turn_rate": (-1.0, 1.0),
         "shadow_turn_rate": (-1.0, 1.0),
+        "turn_rate_ema": (-1.0, 1.0),
     }
     for name, low in blocks_low.items():
         lo, hi = bounds.get(name, (0.0, 1.0))
@@ -77,6 +81,12 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
     for name in ("loglik", "nis", "innovation", "time", "turn_rate", "shadow_turn_rate"):
         if name in features:
             np.testing.assert_array_equal(b[name], 0.0)
+    if "turn_rate_ema" in features:
+        np.testing.assert_array_equal(b["turn_rate_ema"], 0.0)
+    if "prob_ema" in features:
+        np.testing.assert_array_equal(b["prob_ema"], np.float32(1 / 3))
+    lam = np.array([0.7, 0.9])
+    rate_ema, prob_ema = np.zeros(2), np.full((2, 3), 1 / 3)
 
     rng = np.random.default_rng(0)
     prev = np.full(3, 1 / 3)
@@ -112,6 +122,14 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
             rate = np.arctan2(v_prev[0] * v[1] - v_prev[1] * v[0], v_prev @ v)
             expected = np.clip(rate / np.deg2rad(10.0), -1.0, 1.0)
             np.testing.assert_allclose(b["turn_rate"], expected, rtol=1e-5, atol=1e-7)
+            rate_ema = lam * rate_ema + (1 - lam) * rate / np.deg2rad(10.0)
+            if "turn_rate_ema" in features:
+                np.testing.assert_allclose(
+                    b["turn_rate_ema"], np.clip(rate_ema, -1, 1), rtol=1e-5, atol=1e-7
+                )
+        if "prob_ema" in features:
+            prob_ema = lam[:, None] * prob_ema + (1 - lam[:, None]) * info["mode_probs"]
+            np.testing.assert_allclose(b["prob_ema"], prob_ema.ravel(), rtol=1e-5, atol=1e-7)
         v_prev = info["estimate"][2:4]
 
 

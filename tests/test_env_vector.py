@@ -26,6 +26,8 @@ ALL_FEATURES = (
     "shadow_probs",
     "turn_rate",
     "shadow_turn_rate",
+    "turn_rate_ema",
+    "prob_ema",
 )
 INFO_COMPARED = ("true_state", "estimate", "mode_probs", "tpm", "position_error", "diverged")
 

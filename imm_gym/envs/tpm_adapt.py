@@ -53,6 +53,8 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | ``time``     | k / K (1)                                        | 0   | 1   |
     | ``turn_rate``| heading rate of the estimate, / 10°/s, clipped (1)| −1  | 1   |
     | ``shadow_turn_rate`` | the same for the shadow IMM's estimate (1)| −1  | 1   |
+    | ``turn_rate_ema`` | moving averages of the turn rate, λ = 0.7, 0.9 (2) | −1 | 1 |
+    | ``prob_ema`` | moving averages of μ, λ = 0.7, 0.9 (2M)          | 0   | 1   |
 
     Policies act on the observation only; ground truth is in ``info`` for evaluation.
 
