@@ -95,6 +95,7 @@ def tpm_from_action(
     N, M, _ = tpm.shape
     out = np.empty((N, M, M))
     fixed = np.empty(M, dtype=np.bool_)
+    log_gain = np.log(gain)  # f^a = exp(a log f): exp is cheaper than pow, and f^0 = 1 exactly
     for t in range(N):
         for i in range(M):
             if set_mode:
@@ -108,7 +109,7 @@ def tpm_from_action(
             else:
                 for j in range(M):
                     a = min(max(action[t, i * M + j], -1.0), 1.0)
-                    out[t, i, j] = tpm[t, i, j] * gain**a
+                    out[t, i, j] = tpm[t, i, j] * np.exp(a * log_gain)
             _floor_row(out, t, i, p_min, fixed)
     return out
 

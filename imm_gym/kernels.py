@@ -96,7 +96,7 @@ def _jacobian(kind: int, params: Array, x: Array, j: int, H: Array) -> None:  # 
             H[i, i] = 1.0
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _inv_logdet(S: Array, S_inv: Array, L: Array) -> tuple[float, bool]:  # pragma: no cover
     """Inverse and log-determinant of the SPD ``S`` by Cholesky; returns ``(logdet, ok)``."""
     m = S.shape[0]
@@ -129,7 +129,7 @@ def _inv_logdet(S: Array, S_inv: Array, L: Array) -> tuple[float, bool]:  # prag
     return logdet, True
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _ukf_moments(
     xp: Array,
     s: Array,
