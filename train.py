@@ -5,12 +5,16 @@
     python train.py --timesteps 200000 --out runs/quick
     python train.py --resume runs/default/seed_0/checkpoints/latest
 
-Each seed writes ``OUT/seed_S/``: ``agent/`` (model, normalizer, env overrides), ``checkpoints/``,
-``tb/`` (TensorBoard), ``results.json``, ``report.md`` and ``plots/``. The evaluation compares the
+Each seed writes ``OUT/seed_S/``: ``agent/`` (model, normalizer, env overrides), ``best/``,
+``checkpoints/``, ``tb/`` (TensorBoard), ``training.json``, ``results.json``, ``report.md`` and
+``plots/``. Every ``--validate-every`` steps the live policy is scored on validation runs (seeds
+from 50,000,000 on) and the best one is kept in ``best/``; ``agent/`` is that policy (model
+selection on validation scenarios, never on the held-out ones). The evaluation compares the
 agent with classical IMM, TIP-IMM and the best fixed TPM on (a) the paper scenario (100 runs,
-seeds 0..99) and (b) held-out randomized scenarios (200 runs, seeds 0..199; training uses seeds
-from 100,000,000 on), with common random numbers and paired bootstrap CIs. ``OUT/summary.json``
-and ``OUT/report.md`` gather the seeds. Ctrl-C saves a checkpoint and exits cleanly.
+seeds 0..99) and (b) held-out randomized scenarios (``--random-runs``, seeds 0..R-1; training
+uses seeds from 100,000,000 on), with common random numbers and paired bootstrap CIs.
+``OUT/summary.json`` and ``OUT/report.md`` gather the seeds. Ctrl-C saves a checkpoint and exits
+cleanly.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -47,6 +52,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--checkpoint-every", type=int, default=250_000, help="steps between checkpoints"
     )
+    p.add_argument(
+        "--validate-every",
+        type=int,
+        default=500_000,
+        help="steps between validations that keep the best checkpoint (0: keep the last)",
+    )
+    p.add_argument(
+        "--validation-runs", type=int, default=200, help="runs per validation (seeds 50,000,000+)"
+    )
     p.add_argument("--paper-runs", type=int, default=100)
     p.add_argument("--random-runs", type=int, default=200)
     p.add_argument("--no-eval", action="store_true", help="train only")
@@ -68,6 +82,10 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Non
         parser.error(f"--seed values must be distinct non-negative integers, got {args.seed}")
     if args.checkpoint_every < 1:
         parser.error(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
+    if args.validate_every < 0:
+        parser.error(f"--validate-every must be >= 0, got {args.validate_every}")
+    if args.validation_runs < 1:
+        parser.error(f"--validation-runs must be >= 1, got {args.validation_runs}")
     if args.paper_runs < 1 or args.random_runs < 1:
         parser.error("--paper-runs and --random-runs must be >= 1")
     if args.config is not None and not args.config.is_file():
@@ -104,7 +122,13 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     """Train (or resume) one seed; returns the trained agent's directory."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from agents.training import algo_kwargs, find_normalizer, make_training_env, save_agent
+    from agents.training import (
+        algo_kwargs,
+        find_normalizer,
+        make_training_env,
+        save_agent,
+        validation_armse,
+    )
 
     env_kwargs = dict(params.get("env_kwargs", {}))
     frame_stack = int(params.get("frame_stack", 1))
@@ -138,16 +162,38 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         )
         done = 0
     remaining = max(params["n_timesteps"] - done, 0)
+    best_dir = run_dir / "best"
+    best_file = best_dir / "validation.json"
+    best = json.loads(best_file.read_text()) if best_file.is_file() else {"armse_pos": None}
+    history: list[dict[str, float]] = best.get("history", [])
+
+    def validate() -> None:
+        """Score the live model on the validation runs; keep it in ``best/`` if it is the best."""
+        armse = validation_armse(
+            model, env, args.env, env_kwargs, frame_stack, args.algo, args.validation_runs
+        )
+        history.append({"timesteps": int(model.num_timesteps), "armse_pos": armse})
+        if best["armse_pos"] is None or armse < best["armse_pos"]:
+            best.update(armse_pos=armse, timesteps=int(model.num_timesteps))
+            save(best_dir)
+        best["history"] = history
+        best_dir.mkdir(parents=True, exist_ok=True)
+        best_file.write_text(json.dumps(best, indent=2))
 
     class Checkpoint(BaseCallback):
-        def __init__(self, every: int) -> None:
+        def __init__(self, every: int, validate_every: int) -> None:
             super().__init__()
             self.every, self.next = every, done + every
+            self.validate_every = validate_every
+            self.next_validation = done + validate_every
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next:
                 self.next += self.every
                 save(ckpt_dir / "latest")
+            if self.validate_every and self.num_timesteps >= self.next_validation:
+                self.next_validation += self.validate_every
+                validate()
             return True
 
     def save(directory: Path) -> None:
@@ -165,7 +211,7 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     try:
         model.learn(
             remaining,
-            callback=Checkpoint(args.checkpoint_every),
+            callback=Checkpoint(args.checkpoint_every, args.validate_every),
             progress_bar=not args.no_progress and sys.stderr.isatty(),
             reset_num_timesteps=args.resume is None,
             tb_log_name=f"{args.algo}_seed{seed}",
@@ -180,12 +226,20 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     seconds = time.perf_counter() - start
     save(ckpt_dir / "latest")
     agent_dir = run_dir / "agent"
-    save(agent_dir)
+    if args.validate_every:
+        validate()
+        if agent_dir.exists():
+            shutil.rmtree(agent_dir)
+        shutil.copytree(best_dir, agent_dir)
+    else:
+        save(agent_dir)
     stats = {
         "timesteps": int(model.num_timesteps),
         "trained_this_call": remaining,
         "seconds": seconds,
         "fps": remaining / seconds if seconds > 0 else 0.0,
+        "selected": {k: v for k, v in best.items() if k != "history"},
+        "validation": history,
     }
     (run_dir / "training.json").write_text(json.dumps(stats, indent=2))
     return agent_dir, stats

@@ -6,8 +6,9 @@ id (``n_envs``, ``n_timesteps``, ``policy``, ``normalize``, ``frame_stack``, ``e
 ``VecFrameStack(VecNormalize(VecMonitor(TPMAdaptVecEnv)))`` — one batched core, no subprocesses.
 
 Seeds: training slot ``i`` of run seed ``s`` starts its streams from ``TRAIN_SEED_BASE + 10_000 s
-+ i`` and continues them across episodes; evaluation uses seeds below 10 million, so held-out
-scenarios are never trained on.
++ i`` and continues them across episodes; the validation runs that pick the best checkpoint use
+seeds ``VALIDATION_SEED_BASE + r``; evaluation uses seeds below 10 million, so held-out scenarios
+are neither trained on nor used for model selection.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
 TRAIN_SEED_BASE = 100_000_000
+VALIDATION_SEED_BASE = 50_000_000
 ALGO_FILES = {"ppo": "ppo.yml", "recurrent-ppo": "recurrent_ppo.yml"}
 
 #: Keys of a hyperparameter entry that configure the environment stack, not the algorithm.
@@ -138,3 +140,37 @@ def jsonable(value: Any) -> Any:
 def algo_kwargs(params: dict[str, Any]) -> dict[str, Any]:
     """The algorithm's own arguments from a hyperparameter entry."""
     return {k: v for k, v in params.items() if k not in _STACK_KEYS}
+
+
+def validation_armse(
+    model: Any,
+    env: Any,
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    frame_stack: int,
+    algo: str,
+    runs: int,
+) -> float:
+    """Position ARMSE of the live ``model`` (deterministic actions) on ``runs`` validation runs
+    of ``env_id``'s scenario source, seeds ``VALIDATION_SEED_BASE + r``: the score that selects
+    the checkpoint to keep, on scenarios disjoint from training and from the held-out evaluation.
+    """
+    from agents.policy import LearnedPolicy
+    from imm_gym.env_config import EnvConfig
+    from imm_gym.envs import PRESETS
+    from imm_gym.evaluation import evaluation_config, rollout, score
+
+    norm = find_normalizer(env)
+    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in env_kwargs.items()}
+    policy = LearnedPolicy(
+        model,
+        overrides,
+        None if norm is None else np.asarray(norm.obs_rms.mean),
+        None if norm is None else np.asarray(norm.obs_rms.var),
+        10.0 if norm is None else float(norm.clip_obs),
+        1e-8 if norm is None else float(norm.epsilon),
+        frame_stack=frame_stack,
+        recurrent=algo == "recurrent-ppo",
+    )
+    config = evaluation_config(EnvConfig.build(PRESETS[env_id]), overrides)
+    return float(score(rollout(policy, config, runs, VALIDATION_SEED_BASE))["armse_pos"])

@@ -84,6 +84,21 @@ def test_resume_continues_the_step_count(trained) -> None:
     assert after["num_timesteps"] >= before + 256
 
 
+def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
+    argv = ("--timesteps", "1024", "--validate-every", "256", "--validation-runs", "3")
+    assert train_small(tmp_path, *argv, "--no-eval") == 0
+    run = tmp_path / "seed_0"
+    stats = json.loads((run / "training.json").read_text())
+    scores = [v["armse_pos"] for v in stats["validation"]]
+    assert len(scores) >= 4 and all(np.isfinite(scores))  # 256, 512, 768, 1024 and the end
+    best = min(range(len(scores)), key=scores.__getitem__)
+    assert stats["selected"]["armse_pos"] == scores[best]
+    assert stats["selected"]["timesteps"] == stats["validation"][best]["timesteps"]
+    agent = json.loads((run / "agent" / "agent.json").read_text())
+    assert agent["num_timesteps"] == stats["selected"]["timesteps"]
+    assert (run / "agent" / "policy.pt").read_bytes() == (run / "best" / "policy.pt").read_bytes()
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
@@ -94,6 +109,8 @@ def test_resume_continues_the_step_count(trained) -> None:
         (["--resume", "does/not/exist"], "is not a checkpoint"),
         (["--config", "missing.yml"], "does not exist"),
         (["--algo", "dqn"], "invalid choice"),
+        (["--validate-every", "-1"], "--validate-every must be >= 0"),
+        (["--validation-runs", "0"], "--validation-runs must be >= 1"),
     ],
 )
 def test_bad_arguments(argv, message, capsys) -> None:
