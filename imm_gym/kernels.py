@@ -301,6 +301,7 @@ def imm_step(
     x0 = np.empty((M, n))
     P0 = np.empty((M, n, n))
     w = np.empty(M)
+    spread = np.empty((M, n))
     cbar = np.empty(M)
     xp = np.empty((M, n))
     Pp = np.empty((M, n, n))
@@ -346,13 +347,13 @@ def imm_step(
                 for i in range(M):
                     acc += w[i] * x[t, i, d]
                 x0[j, d] = acc
+                for i in range(M):
+                    spread[i, d] = x[t, i, d] - acc  # x_i - x0_j
             for r in range(n):
                 for c in range(r, n):
                     acc = 0.0
                     for i in range(M):
-                        acc += w[i] * (
-                            P[t, i, r, c] + (x[t, i, r] - x0[j, r]) * (x[t, i, c] - x0[j, c])
-                        )
+                        acc += w[i] * (P[t, i, r, c] + spread[i, r] * spread[i, c])
                     P0[j, r, c] = acc
                     P0[j, c, r] = acc
         # 2. model-matched prediction and update
