@@ -130,6 +130,12 @@ class TrackingCore:
     """N TPM-adaptation episodes: truth, sonar, IMM bank A (adapted TPM), optional bank B (fixed
     TPM, entropy fusion with feedback), optional shadow IMM (fixed TPM) for the reward.
 
+    A step has two engines with the same equations and the same :class:`BankStep` result: a bank
+    with a compiled kernel (:attr:`imm_gym.imm.IMM.kernel_args`: built-in sensor and filter)
+    runs all banks, the fusion and the scores in one call of :func:`imm_gym.fused.env_step`; any
+    other bank (a custom sensor, the heterogeneous bank) runs them as numpy operations around its
+    ``step``. The rest of the step (info, episode ends, observation) is shared.
+
     Args:
         config: the environment configuration.
         n_envs: number of slots N.
