@@ -62,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--validation-runs", type=int, default=200, help="runs per validation (seeds 50,000,000+)"
     )
     p.add_argument("--paper-runs", type=int, default=100)
-    p.add_argument("--random-runs", type=int, default=200)
+    p.add_argument("--random-runs", type=int, default=1000)
     p.add_argument("--no-eval", action="store_true", help="train only")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
