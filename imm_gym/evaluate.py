@@ -116,12 +116,16 @@ def make_policy(
     if name in BUILTIN_POLICIES:
         policy = make_baseline(name, M)
         return policy, policy.env_overrides, {}
+    if name == "pretrained":
+        from agents import PRETRAINED
+
+        return load_trained(PRETRAINED)
     path = Path(name)
     if path.suffix == ".zip" or path.is_dir() or path.exists():
         return load_trained(path)
     raise ConfigError(
-        f"unknown policy {name!r}: use one of {list(BUILTIN_POLICIES)} or a trained agent "
-        "(its directory or its model.zip)"
+        f"unknown policy {name!r}: use one of {list(BUILTIN_POLICIES)}, 'pretrained' or a "
+        "trained agent (its directory or its model.zip)"
     )
 
 
@@ -316,8 +320,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--policy",
         action="append",
         required=True,
-        help=f"policy to evaluate (repeatable): {', '.join(BUILTIN_POLICIES)}, or a trained "
-        "agent's directory",
+        help=f"policy to evaluate (repeatable): {', '.join(BUILTIN_POLICIES)}, pretrained (the "
+        "shipped PPO agent), or a trained agent's directory",
     )
     parser.add_argument(
         "--scenario",

@@ -156,3 +156,18 @@ def test_main_job_writes_results_and_reports(tmp_path) -> None:
     assert "learned − tip-imm" in report and "clairvoyant (bound)" in report
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert "across_seeds" in summary and (tmp_path / "report.md").is_file()
+
+
+def test_export_copies_the_acting_files(trained, tmp_path) -> None:
+    from agents.export import FILES, export
+
+    out, _ = trained
+    copied = export(out / "seed_0" / "agent", tmp_path / "shipped")
+    assert sorted(p.name for p in copied) == sorted(FILES)
+    policy = load_agent(tmp_path / "shipped")
+    obs_dim = TrackingCore(EnvConfig.build(policy.env_overrides), 1).obs_dim
+    actions, _ = policy.predict(np.zeros((1, obs_dim), dtype=np.float32))
+    assert actions.shape == (1, 9)
+    with pytest.raises(FileNotFoundError, match="not a trained agent"):
+        export(tmp_path / "nothing", tmp_path / "other")
+
