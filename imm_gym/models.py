@@ -29,6 +29,22 @@ PAPER_Q = (0.1, 0.1, 0.12, 0.12)
 MODEL_KINDS = ("cv", "ct", "ca")
 
 
+def ct_ratios(omega: Array, T: float) -> tuple[Array, Array]:
+    r"""The position-increment entries of :func:`ct_transition`: :math:`\sin(\omega T)/\omega`
+    and :math:`(1 - \cos\omega T)/\omega`, by their Taylor series for ``|omega T| < 1e-6``
+    (``T`` and ``0`` in the limit).
+
+    Args:
+        omega: float turn rates (rad/s), any shape; T: sampling period (s).
+    """
+    wt = omega * T
+    small = np.abs(wt) < 1e-6
+    safe_w = np.where(small, 1.0, omega)
+    sin_ratio = np.where(small, T * (1.0 - wt * wt / 6.0), np.sin(wt) / safe_w)
+    cos_ratio = np.where(small, T * wt / 2.0, (1.0 - np.cos(wt)) / safe_w)
+    return sin_ratio, cos_ratio
+
+
 def ct_transition(omega: Array | float, T: float) -> Array:
     r"""Coordinated-turn transition matrices on ``[x, y, vx, vy]`` for turn rates ``omega``.
 
@@ -49,10 +65,7 @@ def ct_transition(omega: Array | float, T: float) -> Array:
     """
     w = np.asarray(omega, dtype=np.float64)
     wt = w * T
-    small = np.abs(wt) < 1e-6
-    safe_w = np.where(small, 1.0, w)
-    sin_ratio = np.where(small, T * (1.0 - wt * wt / 6.0), np.sin(wt) / safe_w)
-    cos_ratio = np.where(small, T * wt / 2.0, (1.0 - np.cos(wt)) / safe_w)
+    sin_ratio, cos_ratio = ct_ratios(w, T)
     c, s = np.cos(wt), np.sin(wt)
     F = np.zeros((*w.shape, 4, 4))
     F[..., 0, 0] = F[..., 1, 1] = 1.0

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .config import ConfigError, check_finite, check_int, check_range
-from .models import ct_transition
+from .models import ct_ratios, ct_transition
 
 Array = NDArray[np.float64]
 
@@ -104,10 +104,9 @@ class Scenario:
 
     def profile(self) -> tuple[Array, Array]:
         """Per-step turn rate (rad/s) and tangential acceleration (m/s²), each ``(K,)``."""
-        omega = np.concatenate(
-            [np.full(s.duration, math.radians(s.turn_rate_deg)) for s in self.segments]
-        )
-        accel = np.concatenate([np.full(s.duration, s.accel) for s in self.segments])
+        durations = [s.duration for s in self.segments]
+        omega = np.repeat([math.radians(s.turn_rate_deg) for s in self.segments], durations)
+        accel = np.repeat([s.accel for s in self.segments], durations)
         return omega, accel
 
 
@@ -234,9 +233,9 @@ def _constant_speed_truth(p0: Array, v0: Array, omega: Array, T: float) -> Array
     heading = np.concatenate([np.zeros((N, 1)), np.cumsum(wt, axis=1)], axis=1)  # (N, K+1)
     c, s = np.cos(heading), np.sin(heading)
     v = np.stack([c * v0[:, :1] - s * v0[:, 1:], s * v0[:, :1] + c * v0[:, 1:]], axis=-1)
-    F = ct_transition(omega, T)  # (N, K, 4, 4): rows 0-1 give the position increment
-    v_before = v[:, :-1]
-    dp = np.einsum("nkij,nkj->nki", F[..., :2, 2:], v_before)
+    sin_ratio, cos_ratio = ct_ratios(omega, T)  # F_CT[:2, 2:] = [[sr, -cr], [cr, sr]]
+    vx, vy = v[:, :-1, 0], v[:, :-1, 1]  # velocity before step k
+    dp = np.stack([sin_ratio * vx - cos_ratio * vy, cos_ratio * vx + sin_ratio * vy], axis=-1)
     states = np.empty((N, K + 1, 4))
     states[:, :, :2] = p0[:, None, :] + np.concatenate(
         [np.zeros((N, 1, 2)), np.cumsum(dp, axis=1)], axis=1
