@@ -26,7 +26,8 @@ Conversions go through CTRA, as seed 002 writes them:
 and ``cart6`` through NCV (``[x_{NCV}; 0, 0]`` and its first four components). A composite
 conversion's Jacobian is the product of the steps' Jacobians, and covariances map as
 ``P' = J P J^T`` (first order, seed 002). At zero speed the heading is undefined: the conversion
-uses ``v = max(|v|, V_MIN)`` in the Jacobian (a huge but finite heading variance) and heading 0.
+gives heading 0 and uses ``max(v, V_MIN)`` in the heading row of the Jacobian (a huge but finite
+heading variance); the speed row stays the unit velocity direction.
 
 The CT and CTRA transitions (seed 002 eqs. 5-6 and the CTRA update) are written in one closed form
 valid at ``\omega = 0``: with ``\theta = \omega T`` and
@@ -79,8 +80,13 @@ def check_space(name: str, x: Array, space: str) -> None:
 
 
 def _ncv_to_ctra(x: Array) -> tuple[Array, Array]:
+    """Eqs. (8), (9). With ``u = (v_x, v_y) / v`` (``(1, 0)`` at ``v = 0``, heading 0) the
+    Jacobian's speed row is ``u`` and its heading row ``(-u_y, u_x) / max(v, V_MIN)``."""
     vx, vy = x[..., 2], x[..., 3]
     v = np.hypot(vx, vy)
+    moving = v > 0
+    safe = np.where(moving, v, 1.0)
+    ux, uy = np.where(moving, vx / safe, 1.0), np.where(moving, vy / safe, 0.0)
     vs = np.maximum(v, V_MIN)
     out = np.zeros((*x.shape[:-1], 6))
     out[..., :2] = x[..., :2]
@@ -88,10 +94,8 @@ def _ncv_to_ctra(x: Array) -> tuple[Array, Array]:
     out[..., 3] = np.arctan2(vy, vx)
     J = np.zeros((*x.shape[:-1], 6, 4))
     J[..., 0, 0] = J[..., 1, 1] = 1.0
-    J[..., 2, 2] = np.where(v > 0, vx / vs, 1.0)
-    J[..., 2, 3] = np.where(v > 0, vy / vs, 0.0)
-    J[..., 3, 2] = -vy / vs**2
-    J[..., 3, 3] = np.where(v > 0, vx, V_MIN) / vs**2
+    J[..., 2, 2], J[..., 2, 3] = ux, uy
+    J[..., 3, 2], J[..., 3, 3] = -uy / vs, ux / vs
     return out, J
 
 
@@ -178,8 +182,22 @@ def conversion(x: Array, src: str, dst: str) -> tuple[Array, Array]:
 
 
 def convert(x: Array, P: Array, src: str, dst: str) -> tuple[Array, Array]:
-    """``(x, P)`` of space ``src`` in space ``dst``: ``x' = g(x)``, ``P' = J P J^T``."""
+    """``(x, P)`` of space ``src`` in space ``dst``: ``x' = g(x)``, ``P' = J P J^T``.
+
+    Args:
+        x: ``(..., n_src)``; P: ``(..., n_src, n_src)``.
+
+    Raises:
+        ConfigError: unknown space, or ``x`` / ``P`` not of ``src``'s dimension.
+    """
     out, J = conversion(x, src, dst)
+    P = np.asarray(P, dtype=np.float64)
+    n = SPACES[src]
+    if P.shape[-2:] != (n, n):
+        raise ConfigError(
+            f"conversion source: a {src!r} covariance is {n} x {n}, got an array of shape "
+            f"{P.shape} (incompatible state space)"
+        )
     return out, J @ P @ np.swapaxes(J, -1, -2)
 
 

@@ -3,8 +3,11 @@ r"""The heterogeneous IMM-EKF of seed 002: NCV, CT and CTRA models in their own 
 Models (:class:`HeteroModel`; state spaces and conversions in :mod:`imm_gym.conversions`):
 
 * NCV on ``[p_x, p_y, v_x, v_y]``: ``F`` of SPEC §2 (CV), continuous white-noise acceleration
-  ``Q = \sigma_a^2 \begin{bmatrix} T^3/3 & T^2/2\\ T^2/2 & T\end{bmatrix} \otimes I_2``
-  (seed 002: "terms of Δt³/3 and Δt²/2"), ``\sigma_a = 0.6`` m/s².
+  ``Q = \sigma_a^2 \begin{bmatrix} T^3/3 & T^2/2\\ T^2/2 & T\end{bmatrix} \otimes I_2``,
+  ``\sigma_a = 0.6`` (Table I prints m/s²; here ``\sigma_a^2`` is the noise's power spectral
+  density, m²/s³). Seed 002 names its ``Q_{NCV}`` "the discrete white noise acceleration model"
+  but prints the terms ``Δt³/3`` and ``Δt²/2``, which are those of the continuous model (the
+  discrete one has ``T⁴/4, T³/2, T²``); we follow the printed terms.
 * CT on ``[p_x, p_y, v, \psi, \omega]`` (turn rate estimated, nonlinear, eqs. 5-6), driven by a
   speed noise ``\sigma_v = 2.4`` m/s² and a yaw acceleration ``\sigma_{\dot\omega} = 0.6`` rad/s²:
   ``Q = G \operatorname{diag}(\sigma_v^2, \sigma_{\dot\omega}^2) G^T``,
@@ -89,7 +92,10 @@ class HeteroModel:
         check_choice("model.kind", self.kind, HETERO_KINDS)
         want = 1 if self.kind == "ncv" else 2
         if len(self.sigma) != want:
-            raise ConfigError(f"model.sigma must have {want} entries for a {self.kind!r} model")
+            raise ConfigError(
+                f"model.sigma must have {want} entries for a {self.kind!r} model, "
+                f"got {self.sigma!r}"
+            )
         object.__setattr__(
             self, "sigma", tuple(check_range("model.sigma", s, 0.0) for s in self.sigma)
         )
@@ -97,14 +103,17 @@ class HeteroModel:
 
     @property
     def space(self) -> str:
+        """The state space (:data:`imm_gym.conversions.SPACES`): the kind itself."""
         return self.kind
 
     @property
     def dim(self) -> int:
+        """State dimension: 4 (NCV), 5 (CT) or 6 (CTRA)."""
         return SPACES[self.kind]
 
     @property
     def label(self) -> str:
+        """Display name: ``NCV``, ``CT``, ``CTRA``."""
         return self.kind.upper()
 
     def transition(self, x: Array, T: float) -> tuple[Array, Array]:
@@ -149,25 +158,35 @@ class LinearModel:
 
     Attributes:
         model: the motion model; dim: the bank's state dimension (4 or 6).
+        q_scale: factor on ``Q`` (> 0).
     """
 
     model: MotionModel
     dim: int = 4
     q_scale: float = 1.0
 
+    def __post_init__(self) -> None:
+        if self.dim not in (4, 6):
+            raise ConfigError(f"model.dim must be 4 or 6 (the bank's state), got {self.dim!r}")
+        check_range("model.q_scale", self.q_scale, 0.0, lo_open=True)
+
     @property
     def space(self) -> str:
+        """``ncv`` for a 4-dimensional bank, ``cart6`` for a 6-dimensional one."""
         return "ncv" if self.dim == 4 else "cart6"
 
     @property
     def label(self) -> str:
+        """The motion model's label."""
         return self.model.label
 
     def transition(self, x: Array, T: float) -> tuple[Array, Array]:
+        """``F x`` and ``F`` (``(..., n)``, ``(..., n, n)``)."""
         F = self.model.transition_matrix(T, self.dim)
         return x @ F.T, np.broadcast_to(F, (*x.shape, self.dim))
 
     def noise(self, x: Array, T: float) -> Array:
+        """The model's ``Q`` (before ``q_scale``), ``(..., n, n)``."""
         return np.broadcast_to(self.model.noise_covariance(self.dim), (*x.shape, self.dim))
 
 
@@ -208,14 +227,14 @@ class HeteroBank:
     def __post_init__(self) -> None:
         models = tuple(self.models)
         if len(models) < 2:
-            raise ConfigError("bank.models must hold at least 2 models")
+            raise ConfigError(f"bank.models must hold at least 2 models, got {models!r}")
         for k in models:
             check_choice("bank.models[i]", k, HETERO_KINDS)
         object.__setattr__(self, "models", models)
         M = len(models)
         scale = (1.0,) * M if self.q_scale is None else tuple(self.q_scale)
         if len(scale) != M:
-            raise ConfigError(f"bank.q_scale must have {M} entries (one per model)")
+            raise ConfigError(f"bank.q_scale must have {M} entries (one per model), got {scale!r}")
         for s in scale:
             check_range("bank.q_scale[i]", s, 0.0, lo_open=True)
         object.__setattr__(self, "q_scale", scale)
@@ -223,7 +242,7 @@ class HeteroBank:
         for name in ("sigma_ct", "sigma_ctra"):
             value = tuple(getattr(self, name))
             if len(value) != 2:
-                raise ConfigError(f"bank.{name} must have 2 entries")
+                raise ConfigError(f"bank.{name} must have 2 entries, got {value!r}")
             for s in value:
                 check_range(f"bank.{name}[i]", s, 0.0)
             object.__setattr__(self, name, value)
@@ -231,7 +250,7 @@ class HeteroBank:
             p = tuple(float(v) for v in self.initial_probs)
             if len(p) != M or min(p) < 0 or abs(sum(p) - 1.0) > 1e-9:
                 raise ConfigError(
-                    f"bank.initial_probs must have {M} non-negative entries summing to 1"
+                    f"bank.initial_probs must have {M} non-negative entries summing to 1, got {p!r}"
                 )
             object.__setattr__(self, "initial_probs", p)
         check_range("bank.turn_rate_var", self.turn_rate_var, 0.0, lo_open=True)
@@ -284,8 +303,8 @@ class HeteroStep(IMMStep):
 
 
 class _ModelSensor:
-    """The sensor seen from model space: ``h_j = h(g(x))``, ``H_j = H(g(x)) J``; ``R`` may be a
-    per-tracker ``(N, 1, m, m)`` array (``r_scale``)."""
+    """The sensor seen from model space: ``h_j = h(g(x))``, ``H_j = H(g(x)) J``; ``R`` is the
+    sensor's ``(m, m)`` or a per-tracker ``(N, m, m)`` array (``r_scale``)."""
 
     def __init__(self, sensor: MeasurementModel, space: str, R: Array) -> None:
         self.sensor = sensor
@@ -317,7 +336,7 @@ class _ModelSensor:
 class HeteroIMM:
     """IMM-EKF over models with different state spaces, batched over N trackers.
 
-    Same interface as :class:`imm_gym.imm.IMM` (``init``, ``step``, ``run``-free): the combined
+    The interface of :class:`imm_gym.imm.IMM` (``init``, ``step``; no ``run``): the combined
     output ``IMMStep.x`` is Cartesian ``[x, y, vx, vy]`` with its ``4 x 4`` covariance.
 
     Args:
@@ -396,7 +415,9 @@ class HeteroIMM:
             mode_probs = np.array(self.bank.probs) if self.bank else np.full(M, 1.0 / M)
         mu = np.broadcast_to(np.asarray(mode_probs, dtype=np.float64), (N, M)).copy()
         if np.any(mu < 0) or not np.allclose(mu.sum(-1), 1.0):
-            raise ConfigError("mode_probs must be non-negative and sum to 1")
+            raise ConfigError(
+                f"mode_probs must be non-negative and sum to 1, got {np.asarray(mode_probs)!r}"
+            )
         return IMMState(x=x, P=P, mu=mu)
 
     def _model_state(self, state: IMMState, j: int) -> tuple[Array, Array]:
@@ -455,6 +476,8 @@ class HeteroIMM:
                 raise ConfigError(f"z must have shape ({N}, {self.sensor.dim_z}), got {z.shape}")
             if not np.all(np.isfinite(z)):
                 raise ConfigError("z must be finite (mark missed detections with detected=False)")
+            _check_scales("q_scale", q_scale, (N, M))
+            _check_scales("r_scale", r_scale, (N,))
         R = self.sensor.R if r_scale is None else np.asarray(r_scale)[:, None, None] * self.sensor.R
         cbar, x0s, P0s = self.mix(state, tpm)
         x_new = np.zeros_like(state.x)
@@ -530,6 +553,17 @@ class HeteroIMM:
             x = np.where(bad[:, None], 0.0, x)
             P = np.where(bad[:, None, None], np.eye(x.shape[-1]), P)
         return self.filter.update(x, P, z, sensor), bad
+
+
+def _check_scales(name: str, scale: Array | None, shape: tuple[int, ...]) -> None:
+    """Per-tracker noise factors: ``None`` or finite, > 0, of ``shape``."""
+    if scale is None:
+        return
+    a = np.asarray(scale, dtype=np.float64)
+    if a.shape != shape:
+        raise ConfigError(f"{name} must have shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a) & (a > 0)):
+        raise ConfigError(f"{name} must be finite and in (0, inf), got min {a.min()!r}")
 
 
 def measurement_mixture(

@@ -18,7 +18,7 @@ from imm_gym.conversions import (
     ctra_transition,
     g_integrals,
 )
-from imm_gym.hetero import HeteroBank, HeteroIMM, HeteroModel, linear_models
+from imm_gym.hetero import HeteroBank, HeteroIMM, HeteroModel, LinearModel, linear_models
 
 finite = st.floats(-50.0, 50.0, allow_nan=False)
 speed = st.floats(0.5, 30.0)
@@ -238,3 +238,117 @@ def test_failed_tracker_is_flagged_not_raised() -> None:
     assert np.all(np.isfinite(out.x[0]))
     with pytest.raises(np.linalg.LinAlgError):
         imm.step(state, stay_tpm(3, 0.9), np.zeros((2, 4)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-3, 3), min_size=36, max_size=36), speed, angle, rate, finite)
+def test_covariance_round_trips_through_ctra(
+    entries: list[float], v: float, psi: float, w: float, p: float
+) -> None:
+    """NCV -> CTRA -> NCV and CT -> CTRA -> CT give back (x, P): the Jacobians compose to I."""
+    A = np.array(entries).reshape(6, 6)
+    x_ncv = np.array([p, -p, v * math.cos(psi), v * math.sin(psi)])
+    P_ncv = A[:4, :4] @ A[:4, :4].T + 1e-3 * np.eye(4)
+    x, P = convert(*convert(x_ncv, P_ncv, "ncv", "ctra"), "ctra", "ncv")
+    np.testing.assert_allclose(x, x_ncv, atol=1e-9)
+    np.testing.assert_allclose(P, P_ncv, rtol=1e-9, atol=1e-9 * np.abs(P_ncv).max())
+    x_ct = np.array([p, -p, v, psi, w])
+    P_ct = A[:5, :5] @ A[:5, :5].T + 1e-3 * np.eye(5)
+    x, P = convert(*convert(x_ct, P_ct, "ct", "ctra"), "ctra", "ct")
+    np.testing.assert_array_equal(x, x_ct)
+    np.testing.assert_array_equal(P, P_ct)
+
+
+def test_jacobian_entries_derived_by_hand() -> None:
+    """Seed 002 eqs. (9) and (13) at a point: d v / d v_x = v_x / v, d psi / d v_x = -v_y / v^2,
+    d v_y / d psi = v cos(psi)."""
+    _, J = conversion(np.array([0.0, 0.0, 3.0, 4.0]), "ncv", "ctra")
+    assert J[2, 2] == pytest.approx(3 / 5) and J[2, 3] == pytest.approx(4 / 5)
+    assert J[3, 2] == pytest.approx(-4 / 25) and J[3, 3] == pytest.approx(3 / 25)
+    assert np.all(J[4:] == 0.0)
+    _, J = conversion(np.array([0.0, 0.0, 5.0, 0.3, 0.1, 2.0]), "ctra", "ncv")
+    assert J[3, 3] == pytest.approx(5 * math.cos(0.3))
+    assert J[2, 3] == pytest.approx(-5 * math.sin(0.3))
+    assert np.all(J[:, 4:] == 0.0)
+
+
+@pytest.mark.parametrize("v", [0.0, 1e-9, 1e-3])
+def test_speed_row_of_the_jacobian_is_the_unit_direction_at_any_speed(v: float) -> None:
+    _, J = conversion(np.array([0.0, 0.0, v, 0.0]), "ncv", "ct")
+    np.testing.assert_allclose(J[2, 2:], [1.0, 0.0])  # d speed / d velocity, even below V_MIN
+    assert np.all(np.isfinite(J)) and J[3, 3] > 0
+
+
+def test_covariance_of_the_wrong_space_is_rejected() -> None:
+    with pytest.raises(ConfigError, match="covariance is 4 x 4"):
+        convert(np.zeros(4), np.eye(5), "ncv", "ct")
+
+
+def test_process_noise_is_table_one() -> None:
+    """Q of each model in closed form (seed 002 Table I noise, module docstring of hetero)."""
+    T, psi = 0.1, 0.7
+    c, s = math.cos(psi), math.sin(psi)
+    x = np.array([0.0, 0.0, 5.0, psi, 0.1, 0.5])
+    Q = HeteroModel("ncv", (0.6,)).noise(x[:4], T)
+    block = 0.36 * np.array([[T**3 / 3, T**2 / 2], [T**2 / 2, T]])
+    np.testing.assert_allclose(Q, np.kron(block, np.eye(2)), atol=1e-15)
+    Q = HeteroModel("ct", (2.4, 0.6)).noise(x[:5], T)
+    g_v = np.array([T**2 / 2 * c, T**2 / 2 * s, T, 0.0, 0.0])
+    g_w = np.array([0.0, 0.0, 0.0, T**2 / 2, T])
+    np.testing.assert_allclose(Q, 2.4**2 * np.outer(g_v, g_v) + 0.6**2 * np.outer(g_w, g_w))
+    Q = HeteroModel("ctra", (20.0, 3.0)).noise(x, T)
+    g_j = np.array([T**3 / 6 * c, T**3 / 6 * s, T**2 / 2, 0.0, 0.0, T])
+    g_w = np.array([0.0, 0.0, 0.0, T**2 / 2, T, 0.0])
+    np.testing.assert_allclose(Q, 400.0 * np.outer(g_j, g_j) + 9.0 * np.outer(g_w, g_w))
+    bank = HeteroBank().build()
+    assert [m.sigma for m in bank] == [(0.6,), (2.4, 0.6), (20.0, 3.0)]
+
+
+def test_ct_ekf_step_and_likelihood_are_the_ekf_formulas() -> None:
+    """One CT model: x^- = f(x0), P^- = F P0 F^T + Q, H = H(g(x^-)) J, log N(nu; 0, S)."""
+    from scipy.stats import multivariate_normal
+
+    sensor = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+    model = HeteroModel("ct", (2.4, 0.6))
+    imm = HeteroIMM([model], sensor, T=0.1)
+    state = imm.init(np.array([1.0, 2.0, 6.0, 3.0]), np.diag([0.5, 0.5, 1.0, 1.0]))
+    state.x[0, 0, 4] = 0.3  # turning
+    x0, P0 = state.x[0, 0, :5], state.P[0, 0, :5, :5]
+    z = np.array([[1.7, 2.2, 5.5, 3.6]])
+    post, out = imm.step(state, np.eye(1), z)
+    x_pred, F = ct_transition_nl(x0, 0.1)
+    P_pred = F @ P0 @ F.T + model.noise(x0, 0.1)
+    h, J = conversion(x_pred, "ct", "ncv")
+    S = J @ P_pred @ J.T + sensor.R  # position+velocity sensor: H(cart) = I
+    K = P_pred @ J.T @ np.linalg.inv(S)
+    np.testing.assert_allclose(post.x[0, 0, :5], x_pred + K @ (z[0] - h), atol=1e-12)
+    expect = multivariate_normal(h, S).logpdf(z[0])
+    assert out.loglik[0, 0] == pytest.approx(expect, rel=1e-12)
+    assert out.nis[0] == pytest.approx((z[0] - h) @ np.linalg.solve(S, z[0] - h), rel=1e-10)
+
+
+def test_mixed_heading_covariance_across_the_branch_cut_stays_small() -> None:
+    sensor = PositionSensor(sigma_pos=1.0, sigma_vel=0.5)
+    imm = HeteroIMM(HeteroBank(models=("ct", "ctra")), sensor, T=0.1)
+    state = imm.init(np.array([0.0, 0.0, -10.0, 0.01]), np.eye(4), np.array([0.5, 0.5]))
+    state.x[0, 1, 3] = -math.pi + 0.01
+    state.x[0, 0, 3] = math.pi - 0.01
+    heading_var = state.P[0, 0, 3, 3]
+    _, _, P0s = imm.mix(state, np.full((2, 2), 0.5))
+    for P0 in P0s:  # spread of 0.02 rad, not of 2 pi - 0.02
+        assert P0[0, 3, 3] < heading_var + 1e-3
+
+
+def test_per_tracker_noise_scales_are_validated() -> None:
+    sensor = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+    imm = HeteroIMM(HeteroBank(), sensor, T=0.1)
+    state = imm.init(np.tile([0.0, 0.0, 5.0, 0.0], (2, 1)), np.eye(4))
+    z, tpm = np.zeros((2, 4)), stay_tpm(3, 0.9)
+    with pytest.raises(ConfigError, match=r"q_scale must be finite and in \(0, inf\)"):
+        imm.step(state, tpm, z, q_scale=np.array([[1.0, -1.0, 1.0], [1.0, 1.0, 1.0]]))
+    with pytest.raises(ConfigError, match=r"q_scale must have shape \(2, 3\)"):
+        imm.step(state, tpm, z, q_scale=np.ones((2, 2)))
+    with pytest.raises(ConfigError, match="r_scale must be finite"):
+        imm.step(state, tpm, z, r_scale=np.array([1.0, 0.0]))
+    with pytest.raises(ConfigError, match=r"model\.dim must be 4 or 6"):
+        LinearModel(paper_bank()[0], dim=5)
