@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from imm_gym.config import ConfigError, check_range
 from imm_gym.env_config import EnvConfig
 from imm_gym.hetero import HeteroBank, HeteroIMM, linear_models
 from imm_gym.models import MotionModel
@@ -34,9 +35,11 @@ def scaled_bank(
     bank: Sequence[MotionModel] | HeteroBank, q_scale: Sequence[float]
 ) -> tuple[MotionModel, ...] | HeteroBank:
     """The bank with model j's ``Q`` (``q`` and ``q_acc``, or a heterogeneous bank's
-    ``q_scale``) multiplied by ``q_scale[j]``."""
+    ``q_scale``) multiplied by ``q_scale[j]`` (> 0)."""
     if len(q_scale) != len(bank):
-        raise ValueError(f"q_scale has {len(q_scale)} entries for {len(bank)} models")
+        raise ConfigError(f"q_scale must have {len(bank)} entries (one per model), got {q_scale!r}")
+    for s in q_scale:
+        check_range("q_scale[i]", s, 0.0, lo_open=True)
     if isinstance(bank, HeteroBank):
         return dataclasses.replace(
             bank, q_scale=tuple(s * b for s, b in zip(q_scale, bank.q_scale, strict=True))

@@ -391,8 +391,16 @@ def _main_seed(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int
     """``--scenario seed002|seed003``: classical IMM-EKF and its BBSCA / SCA-tuned versions."""
     from .seed_eval import evaluate_seed_scenario, render_seed_tables
 
+    unused = {"--bank": args.bank != "paper", "--reference": args.reference, "--plots": args.plots}
+    for flag in (f for f, given in unused.items() if given):
+        parser.error(f"{flag} does not apply to --scenario {args.scenario}")
+    tuned: dict[str, str] = {}
+    for item in args.tuned:
+        policy, sep, path = item.partition("=")
+        if not sep or not policy or not path:
+            parser.error(f"--tuned must be POLICY=FILE (e.g. bbsca=tuned.json), got {item!r}")
+        tuned[policy] = path
     try:
-        tuned = dict(item.split("=", 1) for item in args.tuned)
         results = evaluate_seed_scenario(args.scenario, args.policy, args.runs, args.seed, tuned)
     except ValueError as err:
         parser.error(str(err))

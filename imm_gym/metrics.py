@@ -123,7 +123,7 @@ def trajectory_metrics(estimate: Array, truth: Array, heading: Array) -> dict[st
     With ``e_k`` the position error of step k (R runs, K steps):
     ``pos_rmse = sqrt(mean ||e||^2)``, ``pos_mae = mean ||e||``, ``pos_max`` = mean over runs of
     ``max_k ||e_k||``, ``fde`` = mean over runs of ``||e_K||``, ``vel_rmse = sqrt(mean ||e_v||^2)``,
-    ``yaw_rmse_deg``: RMSE of ``atan2(vy_hat, vx_hat) - psi`` wrapped to (-180°, 180°].
+    ``yaw_rmse_deg``: RMSE of ``atan2(vy_hat, vx_hat) - psi`` wrapped to [-180°, 180°).
 
     Args:
         estimate: ``(R, K, >= 4)``; truth: ``(R, K, 4)``; heading: ``(R, K)`` true yaw (rad).

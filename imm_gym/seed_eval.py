@@ -88,8 +88,10 @@ class Seed003Family:
             lo, hi = getattr(self, name)
             check_range(f"family.{name}[0]", lo, 0.0, lo_open=True)
             check_range(f"family.{name}[1]", hi, lo)
+        check_range("family.T", self.T, 0.0, 1.0, lo_open=True)
 
     def sample(self, rngs: list[np.random.Generator]) -> ProfileTruth:
+        """The truth of one run per generator."""
         if not rngs:
             raise ConfigError("Seed003Family.sample needs at least one generator")
         w0, a0, _, _, _ = seed003_profile(self.T)
@@ -221,12 +223,15 @@ def score_run(run: BankRun, batch: SeedBatch, dim_z: int) -> dict[str, float]:
 def seed002_evaluation(
     runs: int = 100, seed: int = 0, bank: HeteroBank | None = None
 ) -> dict[str, object]:
-    """The heterogeneous IMM-EKF on the seed-002-like family (see the module docstring)."""
-    sensor = seed002_sensor()
-    batch = draw(Seed002Family(), sensor, runs, seed)
-    bank = HeteroBank() if bank is None else bank
-    imm = HeteroIMM(bank, sensor, T=0.1)
-    run = run_bank(imm, batch, stay_tpm(len(bank), 0.90))
+    """The heterogeneous IMM-EKF on the seed-002-like family (see the module docstring).
+
+    Args:
+        runs, seed: runs ``seed .. seed + runs - 1``.
+        bank: the bank (default :class:`~imm_gym.hetero.HeteroBank`, seed 002 Table I).
+    """
+    imm, family, sensor, tpm = seed_setup("seed002", bank)
+    batch = draw(family, sensor, runs, seed)
+    run = run_bank(imm, batch, tpm)
     return {
         "metrics": score_run(run, batch, sensor.dim_z),
         "mean_mode_probs": run.mode_probs.mean(axis=(0, 1)).tolist(),
@@ -246,11 +251,19 @@ SEED_POLICIES = ("fixed", "bbsca", "sca")
 TRAIN_SEED_OFFSET = 1_000_000
 
 
-def seed_setup(name: str) -> tuple[HeteroIMM, Seed002Family | Seed003Family, PositionSensor, Array]:
-    """``(imm, family, sensor, tpm)`` of ``seed002`` or ``seed003``."""
+def seed_setup(
+    name: str, bank: HeteroBank | None = None
+) -> tuple[HeteroIMM, Seed002Family | Seed003Family, PositionSensor, Array]:
+    """``(imm, family, sensor, tpm)`` of ``seed002`` or ``seed003``.
+
+    Args:
+        bank: seed 002's heterogeneous bank (default Table I's); not used by ``seed003``.
+    """
     if name == "seed002":
         sensor = seed002_sensor()
-        return HeteroIMM(HeteroBank(), sensor, T=0.1), Seed002Family(), sensor, stay_tpm(3, 0.9)
+        bank = HeteroBank() if bank is None else bank
+        imm = HeteroIMM(bank, sensor, T=0.1)
+        return imm, Seed002Family(), sensor, stay_tpm(len(bank), 0.90)
     if name == "seed003":
         sensor = seed003_sensor()
         return seed003_imm(sensor), Seed003Family(), sensor, stay_tpm(3, 0.9)

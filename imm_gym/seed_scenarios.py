@@ -174,7 +174,7 @@ def seed003_profile(T: float = 0.1) -> tuple[Array, Array, tuple[float, float], 
     """
     check_range("T", T, 0.0, 1.0, lo_open=True)
     heading0 = -math.pi / 2  # v = (0, -5): heading south
-    turn1, turn2 = 0.2, 0.0
+    turn1 = 0.2
     # heading after the first turn: -pi/2 + 0.8; the uniform turn brings it to +pi/2 at 34 s
     turn2 = (math.pi / 2 - (heading0 + 4.0 * turn1)) / 20.0
     segs = [

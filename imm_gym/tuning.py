@@ -15,8 +15,8 @@ of S runs and K steps,
 with ``\hat z_{k|k-1} = \sum_j \bar c_j h_j(x_j^-)`` the IMM's predicted measurement and
 ``\Sigma = diag(\sigma^2)`` the *sensor's* nominal noise (fixed: it only makes position and velocity
 commensurate, so inflating the filter's ``R`` cannot lower ``J``). ``J`` is the one-step
-prediction error; ``J = 1`` would be a perfect predictor of a sensor with that noise... plus the
-state's own prediction error.
+prediction error: the measurement noise alone contributes 1 (a predictor that knew the true state
+would score ``J = 1`` in expectation), the state's prediction error the rest.
 
 **Why offline and batched.** Seed 003 re-runs the optimizer at every time step on the data seen so
 far. That is 10 particles x 100 generations of filtering per step, and the tuned values chase the
@@ -183,8 +183,11 @@ def bank_objective(
         theta = np.atleast_2d(theta)
         P = theta.shape[0]
         D = M + int(tune_r)
-        if theta.shape[1] != D:
-            raise ConfigError(f"a particle has {D} components ({M} Q scales, {int(tune_r)} R)")
+        if theta.ndim != 2 or theta.shape[1] != D:
+            raise ConfigError(
+                f"a particle has {D} components ({M} Q scales, {int(tune_r)} R), got particles of "
+                f"shape {theta.shape}"
+            )
         scales = 10.0 ** np.repeat(theta, S, axis=0)  # particle-major, (P S, D)
         r_scale = scales[:, M] if tune_r else None
         run = run_bank(imm, batch, tpm, q_scale=scales[:, :M], r_scale=r_scale, repeat=P)

@@ -91,3 +91,24 @@ def test_seed003_profile_is_43_seconds() -> None:
     w, a, _, v, _ = seed003_profile(0.1)
     assert w.shape == a.shape == (430,)
     assert v == 5.0
+
+
+def test_consistency_uses_the_one_sided_chi2_bound() -> None:
+    """chi2(4) samples: 95 % inside the bound 9.4877 (seed 002's dashed line), mean 4."""
+    from imm_gym.metrics import consistency
+
+    values = np.random.default_rng(0).chisquare(4, size=200_000)
+    c = consistency(values, 4)
+    assert c["bound"] == pytest.approx(9.4877, abs=1e-4)
+    assert c["inside"] == pytest.approx(0.95, abs=0.003)
+    assert c["mean"] == pytest.approx(4.0, abs=0.03)
+    masked = consistency(values, 4, mask=values > 9.4877)
+    assert masked["inside"] == 0.0
+
+
+def test_seed002_evaluation_takes_a_bank() -> None:
+    from imm_gym.hetero import HeteroBank
+
+    a = seed002_evaluation(runs=1, seed=4)["metrics"]
+    b = seed002_evaluation(runs=1, seed=4, bank=HeteroBank(q_scale=(0.1, 0.1, 0.1)))["metrics"]
+    assert a["pos_rmse"] != b["pos_rmse"]
