@@ -352,3 +352,26 @@ def test_per_tracker_noise_scales_are_validated() -> None:
         imm.step(state, tpm, z, r_scale=np.array([1.0, 0.0]))
     with pytest.raises(ConfigError, match=r"model\.dim must be 4 or 6"):
         LinearModel(paper_bank()[0], dim=5)
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**31), speed, angle, st.floats(0.05, 5.0))
+def test_model_covariances_stay_symmetric_positive_definite(
+    seed: int, v: float, psi: float, noise: float
+) -> None:
+    """Mixing with conversions, EKF prediction and Joseph update keep every model's P PD."""
+    rng = np.random.default_rng(seed)
+    sensor = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+    imm = HeteroIMM(HeteroBank(), sensor, T=0.1)
+    x = np.array([0.0, 0.0, v * math.cos(psi), v * math.sin(psi)])
+    state = imm.init(x, np.diag([0.25, 0.25, 0.25, 0.25]))
+    for _ in range(15):
+        x = x + 0.1 * np.array([x[2], x[3], 0.0, 0.0])
+        z = x + rng.normal(size=4) * noise
+        state, out = imm.step(state, stay_tpm(3, 0.9), z[None])
+        for j, n in enumerate(imm.dims):
+            P = state.P[0, j, :n, :n]
+            np.testing.assert_allclose(P, P.T, atol=1e-12 * np.abs(P).max())
+            assert np.linalg.eigvalsh(P).min() > 0
+        assert np.linalg.eigvalsh(out.P[0]).min() > 0
+        assert out.mode_probs.sum() == pytest.approx(1.0)
