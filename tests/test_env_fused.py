@@ -56,7 +56,7 @@ def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, sh
     rng = np.random.default_rng(3)
     for core in (fused, general):
         core.reset(np.arange(N), [10, 11, 12])
-    ends = 0
+    ends = diverged = 0
     for _ in range(200):
         action = rng.uniform(-1.5, 1.5, (N, 9))
         a, b = fused.step(action), general.step(action)
@@ -74,9 +74,10 @@ def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, sh
                 )
         done = np.flatnonzero(a.terminated | a.truncated)
         ends += done.size
+        diverged += int(a.terminated.sum())
         for core in (fused, general):
             core.reset(done, [None] * done.size)
-    assert ends >= N  # whole episodes, then new ones
+    assert ends >= N and diverged >= 1  # whole episodes, divergences, then new episodes
 
 
 @pytest.mark.parametrize("mode", ["scale", "set"])
