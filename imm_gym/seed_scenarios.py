@@ -162,12 +162,16 @@ def _expand(segments: list[tuple[float, float, float]], T: float) -> tuple[Array
 def seed003_profile(T: float = 0.1) -> tuple[Array, Array, tuple[float, float], float, float]:
     """Seed 003 §4: 43 s at ``T = 0.1`` s, one deterministic trajectory.
 
-    What the extraction kept: straight 0-10 s with ``v = (0, -5)`` m/s; 10-14 s an accelerating
-    turn ending at ``v = (1, -1)``-ish; 14-34 s a uniform turn; 34-38 s uniform acceleration ending
-    at ``v = (0, 8)``; straight to 43 s. Filled here (sensible, smooth in heading): start at
-    (0, 0) m (filled); 10-14 s turn at +0.2 rad/s with 0.5 m/s² (filled: rate and the speed-up);
-    14-34 s turn at +0.117 rad/s (filled: 2.34 rad, so that the heading reaches north at 34 s);
-    34-38 s acceleration 0.25 m/s² (speed 7 -> 8 m/s) along the heading (filled); 38-43 s straight.
+    What the extraction kept: straight 0-10 s with ``v = (0, -5)`` m/s; 10-14 s "uniformly
+    accelerated turning motion" with a constant Cartesian acceleration ``(0.25, 1)`` m/s², ending
+    at ``v = (1, -1)`` m/s; 14-34 s a uniform turn (rates lost); 34-38 s uniform acceleration
+    ending at ``v = (0, 8)`` m/s; straight to 43 s. Here: start at (0, 0) m (filled); 10-14 s a
+    CTRA turn at +0.2 rad/s with 0.5 m/s² — **not** the source's segment: it ends at the same
+    heading (-44° vs -45°) but at 7 m/s instead of the source's 1.41 m/s (``|(1, -1)|``), so the
+    rest is flown ~5x faster than in seed 003; 14-34 s turn at +0.117 rad/s (2.34 rad, so that the
+    heading reaches north at 34 s; the source's headings give 0.118 rad/s); 34-38 s acceleration
+    0.25 m/s² along the heading (7 -> 8 m/s; the source's is ~1.65 m/s², 1.41 -> 8 m/s);
+    38-43 s straight. The README's seed-003 figures are for this profile.
 
     Returns:
         ``omega (K,)``, ``accel (K,)``, start position, speed, heading.
