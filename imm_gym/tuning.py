@@ -104,8 +104,14 @@ class OptimResult:
 def optimize(objective: Callable[[Array], Array], dim: int, config: TunerConfig) -> OptimResult:
     """Minimize ``objective`` (batched: ``(P, D) -> (P,)``) by SCA or BBSCA (module docstring).
 
-    The initial swarm is uniform in the box and includes the centre point 0 (the untuned bank)
-    as particle 0, so the result is never worse than the start on the training set.
+    The initial swarm is uniform in the box and includes the point 0 (the untuned bank; clipped
+    to the box if the box excludes it) as particle 0, so with a box around 0 the result is never
+    worse than the untuned bank on the training set.
+
+    Args:
+        objective: ``(P, D) -> (P,)``; non-finite values count as ``inf``.
+        dim: ``D``, the number of components of a particle.
+        config: the optimizer's settings.
     """
     check_int("dim", dim, 1)
     rng = np.random.default_rng(config.seed)
