@@ -141,13 +141,20 @@ def _fuse_into(t: int, u_a: Array, u_b: Array, U: Array) -> None:  # pragma: no 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _bank_step(
-    x: Array, P: Array, mu: Array, tpm: Array, z: Array, detected: NDArray[np.bool_], bank: tuple
+    x: Array,
+    P: Array,
+    mu: Array,
+    tpm: Array,
+    z: Array,
+    detected: NDArray[np.bool_],
+    bank: tuple,
+    mixture_nis: bool,
 ) -> tuple[
     Array, Array, Array, Array, Array, Array, Array, Array, Array, NDArray[np.bool_]
 ]:  # pragma: no cover
     """One IMM cycle of a bank into fresh arrays: ``(x, P, mu, loglik, model_nis, innovation,
     nis, x_hat, P_hat, failed)`` (shapes as :meth:`imm_gym.imm.IMM.step`; ``bank`` is
-    :attr:`imm_gym.imm.IMM.kernel_args`)."""
+    :attr:`imm_gym.imm.IMM.kernel_args`; ``nis`` is 0 without ``mixture_nis``)."""
     N, M, n = x.shape
     x_out = np.empty((N, M, n))
     P_out = np.empty((N, M, n, n))
@@ -160,8 +167,8 @@ def _bank_step(
     x_hat = np.empty((N, n))
     P_hat = np.empty((N, n, n))
     failed = np.empty(N, dtype=np.bool_)
-    imm_step(x, P, mu, tpm, z, detected, *bank, x_out, P_out, mu_out, cbar, loglik, model_nis,
-             innovation, nis, x_hat, P_hat, failed)
+    imm_step(x, P, mu, tpm, z, detected, *bank, mixture_nis, x_out, P_out, mu_out, cbar, loglik,
+             model_nis, innovation, nis, x_hat, P_hat, failed)
     return x_out, P_out, mu_out, loglik, model_nis, innovation, nis, x_hat, P_hat, failed
 
 
@@ -228,11 +235,11 @@ def env_step(
     N, M, _ = x_a.shape
     new_tpm = tpm_from_action(action, tpm, set_mode, gain, p_min)
     xa, Pa, U, loglik, model_nis, innovation, nis, x_hat, P_hat, failed = _bank_step(
-        x_a, P_a, mu_a, new_tpm, z, detected, bank)
+        x_a, P_a, mu_a, new_tpm, z, detected, bank, True)
     xb, Pb, Ub = x_b, P_b, mu_b
     if parallel:
         xb, Pb, Ub, _, _, _, _, _, _, failed_b = _bank_step(
-            x_b, P_b, mu_b, fixed_tpm, z, detected, bank)
+            x_b, P_b, mu_b, fixed_tpm, z, detected, bank, False)
         u_a = U
         U = np.empty((N, M))
         for t in range(N):
@@ -245,7 +252,7 @@ def env_step(
     advantage = np.zeros(N)
     if shadow:
         xs, Ps, mus, _, _, _, _, xs_hat, _, _ = _bank_step(
-            x_s, P_s, mu_s, shadow_tpm, z, detected, bank)
+            x_s, P_s, mu_s, shadow_tpm, z, detected, bank, False)
     velocity = np.empty((N, 2))
     error = np.empty(N)
     reward_error = np.empty(N)

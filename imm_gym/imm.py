@@ -398,6 +398,7 @@ class IMM:
             np.ascontiguousarray(z, dtype=np.float64),
             np.ascontiguousarray(det),
             *self.kernel_args,
+            True,  # the mixture NIS
             x,
             P,
             mu,

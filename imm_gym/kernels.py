@@ -272,6 +272,7 @@ def imm_step(
     wm: Array,
     wc: Array,
     gamma: float,
+    mixture_nis: bool,
     x_out: Array,
     P_out: Array,
     mu_out: Array,
@@ -292,8 +293,9 @@ def imm_step(
 
     ``tpm`` is ``(N, M, M)`` (a broadcast view is fine). Per tracker: mixing (SPEC §1 step 1),
     ``x = F x0``, ``P = F P0 F^T + Q``, the UKF or EKF update (Joseph form for the EKF), the
-    log-domain probability update, the combination with the spread term, and the NIS of the
-    moment-matched predicted measurement mixture.
+    log-domain probability update, the combination with the spread term, and (with
+    ``mixture_nis``; else ``nis_out`` is 0) the NIS of the moment-matched predicted measurement
+    mixture.
     """
     N, M, n = x.shape
     m = z.shape[1]
@@ -487,7 +489,7 @@ def imm_step(
         # 4. combination
         combine_into(t, mu_out, x_out, P_out, xhat_out, Phat_out)
         # 5. NIS of the predicted measurement mixture (weights cbar)
-        if not detected[t]:
+        if not (detected[t] and mixture_nis):
             nis_out[t] = 0.0
             continue
         for d in range(m):
