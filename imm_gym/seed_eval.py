@@ -5,13 +5,13 @@ r"""Seed 002's and seed 003's evaluations: their banks, sensors, scenarios and m
   position+velocity sensor (``sigma_p = 0.5`` m, ``sigma_v = 0.5`` m/s), ``T = 0.1`` s. Metrics:
   :func:`~imm_gym.metrics.trajectory_metrics` (position RMSE / MAE / max / FDE, velocity and yaw
   RMSE) and NIS / NEES (dof 4) with the share inside the 95 % χ² bound and the mean.
-* **seed 003** — a CV / CA / CT(+6.7°/s) linear bank on ``[x, y, vx, vy, ax, ay]`` (Kalman filters
-  in the same engine), position+velocity measurements at ``T = 0.1`` s, the 43 s trajectory of
-  §4 (:func:`~imm_gym.seed_scenarios.seed003_profile`) and a family around it for training and
-  held-out evaluation (:class:`Seed003Family`). The noise values the extraction lost are filled:
-  ``Q_CV = diag(1e-3, 1e-3, 1e-2, 1e-2)`` with ``q_acc = 1e-2``, ``Q_CA = diag(1e-3, 1e-3, 1e-2,
-  1e-2, 1e-1, 1e-1)``, ``Q_CT = Q_CV``, ``sigma_p = 1`` m, ``sigma_v = 0.5`` m/s, TPM 0.90 / 0.05,
-  uniform ``mu_0``.
+* **seed 003** — a CV / CA / CT(+6.75°/s, the profile's turn rate) linear bank on
+  ``[x, y, vx, vy, ax, ay]`` (Kalman filters in the same engine), position+velocity measurements
+  at ``T = 0.1`` s, the 43 s trajectory of §4 (:func:`~imm_gym.seed_scenarios.seed003_profile`)
+  and a family around it for training and held-out evaluation (:class:`Seed003Family`). The
+  noise values the extraction lost are filled: ``Q_CV = diag(1e-3, 1e-3, 1e-2, 1e-2)`` with
+  ``q_acc = 1e-2``, ``Q_CA = diag(1e-3, 1e-3, 1e-2, 1e-2, 1e-1, 1e-1)``, ``Q_CT = Q_CV``,
+  ``sigma_p = 1`` m, ``sigma_v = 0.5`` m/s, TPM 0.90 / 0.05, uniform ``mu_0``.
 
 Track initiation (both): position and velocity from the first measurement, ``P_0 = R``; the first
 measurement only initiates, the K following steps are scored. Run ``r`` of a batch seeded ``s``
@@ -30,7 +30,13 @@ from .config import ConfigError, check_int, check_range
 from .hetero import HeteroBank, HeteroIMM, linear_models
 from .metrics import consistency, nees, trajectory_metrics
 from .models import MotionModel
-from .seed_scenarios import ProfileTruth, Seed002Family, profile_truth, seed003_profile
+from .seed_scenarios import (
+    SEED003_TURN_RATE,
+    ProfileTruth,
+    Seed002Family,
+    profile_truth,
+    seed003_profile,
+)
 from .seeding import streams
 from .sensors import Measurements, PositionSensor
 from .tpm import stay_tpm
@@ -68,15 +74,20 @@ def seed003_models() -> tuple[MotionModel, ...]:
     return (
         MotionModel("cv", q=q4, q_acc=1e-2),
         MotionModel("ca", q=(*q4, 1e-1, 1e-1)),
-        MotionModel("ct", math.degrees(0.117), q=q4, q_acc=1e-2),
+        MotionModel("ct", math.degrees(SEED003_TURN_RATE), q=q4, q_acc=1e-2),
     )
 
 
 @dataclass(frozen=True)
 class Seed003Family:
-    """Trajectories around seed 003's (``seed003_profile``): every turn rate scaled by
-    ``U(rate_scale)`` with one random sign per run, accelerations by ``U(accel_scale)``, initial
-    speed ``U(speed)``, heading ``U(-pi, pi)``, start ``U(-20, 20)`` m per axis."""
+    """Trajectories around seed 003's (``seed003_profile``), rotated to a random heading.
+
+    Per run: the turn rate scaled by ``U(rate_scale)`` **keeping the source's (left) turn
+    direction** — the bank has a single left-turning CT model —, the accelerations (the 10-14 s
+    Cartesian one, rotated with the heading, and the 34-38 s tangential one) scaled by
+    ``U(accel_scale)``, initial speed ``U(speed)``, heading ``U(-pi, pi)``, start ``U(-20, 20)`` m
+    per axis.
+    """
 
     rate_scale: tuple[float, float] = (0.6, 1.4)
     accel_scale: tuple[float, float] = (0.5, 1.5)
@@ -94,16 +105,25 @@ class Seed003Family:
         """The truth of one run per generator."""
         if not rngs:
             raise ConfigError("Seed003Family.sample needs at least one generator")
-        w0, a0, _, _, _ = seed003_profile(self.T)
-        w, a, pos, v, psi = [], [], [], [], []
+        p = seed003_profile(self.T)
+        w, a, ca, pos, v, psi = [], [], [], [], [], []
         for rng in rngs:
-            w.append(w0 * rng.uniform(*self.rate_scale) * rng.choice([-1.0, 1.0]))
-            a.append(a0 * rng.uniform(*self.accel_scale))
+            w.append(p.omega * rng.uniform(*self.rate_scale))
+            s = rng.uniform(*self.accel_scale)
+            a.append(p.accel * s)
             pos.append(rng.uniform(-20.0, 20.0, size=2))
             v.append(rng.uniform(*self.speed))
             psi.append(rng.uniform(-math.pi, math.pi))
+            c, sn = math.cos(psi[-1] - p.heading), math.sin(psi[-1] - p.heading)
+            ca.append(s * p.cart_accel @ np.array([[c, sn], [-sn, c]]))
         return profile_truth(
-            np.stack(w), np.stack(a), np.array(pos), np.array(v), np.array(psi), self.T
+            np.stack(w),
+            np.stack(a),
+            np.array(pos),
+            np.array(v),
+            np.array(psi),
+            self.T,
+            np.stack(ca),
         )
 
 

@@ -12,15 +12,17 @@ turns, with the speed falling before each curve and rising after it (:class:`See
 ``T = 0.1 s``; a position+velocity sensor with ``sigma_p = 0.5`` m, ``sigma_v = 0.5`` m/s
 (Table I).
 
-**Seed 003** §4 (43 s at ``T = 0.1 s``, position+velocity measurements). The extraction lost the
-initial state, the turn rates and most noise values; the values filled in here are marked
-"filled" in :func:`seed003_profile`.
+**Seed 003** §4 (43 s at ``T = 0.1 s``, position+velocity measurements): a straight leg, a
+constant Cartesian acceleration, a uniform turn, a straight acceleration, a straight leg. The
+extraction lost the initial state, the turn rate, the last acceleration and most noise values;
+the values filled in here are marked "filled" in :func:`seed003_profile`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,19 +48,40 @@ class ProfileTruth:
 
 
 def profile_truth(
-    omega: Array, accel: Array, position: Array, speed: Array, heading: Array, T: float
+    omega: Array,
+    accel: Array,
+    position: Array,
+    speed: Array,
+    heading: Array,
+    T: float,
+    cart_accel: Array | None = None,
 ) -> ProfileTruth:
-    """Exact CTRA truth from per-step profiles, batched over runs.
+    """Exact truth from per-step profiles, batched over runs.
+
+    A step is either CTRA (turn rate ``omega`` and tangential acceleration ``accel`` held, the
+    closed form of :func:`~imm_gym.conversions.ctra_transition`) or, where ``cart_accel`` is
+    non-zero, a constant **Cartesian** acceleration (``p += v T + a T²/2``, ``v += a T``, exact
+    too). A Cartesian step's ``omega`` and ``accel`` must be 0; the :class:`Truth` records for it
+    the step's mean turn rate ``Δψ/T`` and mean tangential acceleration ``Δ|v|/T``.
 
     Args:
         omega, accel: ``(N, K)`` turn rate (rad/s) and tangential acceleration (m/s²) of step k.
         position: ``(N, 2)``; speed: ``(N,)`` (m/s); heading: ``(N,)`` (rad) at ``t = 0``.
         T: sampling period (s).
+        cart_accel: optional ``(N, K, 2)`` world-frame acceleration (m/s²) of step k.
     """
     omega, accel = np.atleast_2d(omega), np.atleast_2d(accel)
     if omega.shape != accel.shape:
         raise ConfigError(f"omega and accel profiles differ in shape: {omega.shape}, {accel.shape}")
     N, K = omega.shape
+    if cart_accel is None:
+        cart_accel = np.zeros((N, K, 2))
+    cart_accel = np.asarray(cart_accel, dtype=np.float64).reshape(-1, K, 2)
+    if cart_accel.shape != (N, K, 2):
+        raise ConfigError(f"cart_accel has shape {cart_accel.shape}, expected {(N, K, 2)}")
+    cartesian = np.any(cart_accel != 0.0, axis=-1)
+    if np.any(cartesian & ((omega != 0.0) | (accel != 0.0))):
+        raise ConfigError("a step with a Cartesian acceleration must have omega = accel = 0")
     x = np.zeros((N, 6))
     x[:, :2] = position
     x[:, 2] = speed
@@ -68,13 +91,26 @@ def profile_truth(
     for k in range(K):
         x = x.copy()
         x[:, 4], x[:, 5] = omega[:, k], accel[:, k]
-        x, _ = ctra_transition(x, T)
+        cart = cartesian[:, k]
+        x_ctra, _ = ctra_transition(x, T)
+        if np.any(cart):
+            a = cart_accel[cart, k]
+            v0 = x[cart, 2:3] * np.stack([np.cos(x[cart, 3]), np.sin(x[cart, 3])], axis=-1)
+            v1 = v0 + a * T
+            x_ctra[cart, :2] = x[cart, :2] + v0 * T + 0.5 * a * T * T
+            x_ctra[cart, 2] = np.hypot(v1[:, 0], v1[:, 1])
+            turn = np.arctan2(v1[:, 1], v1[:, 0]) - x[cart, 3]
+            x_ctra[cart, 3] = x[cart, 3] + (turn + math.pi) % (2 * math.pi) - math.pi
+        x = x_ctra
         states[:, k + 1] = x
     if np.any(states[..., 2] < 0):
         raise ConfigError("the acceleration profile drives the speed below 0")
     v, psi = states[..., 2], states[..., 3]
+    omega, accel = omega.copy(), accel.copy()
+    omega[cartesian] = (np.diff(psi, axis=1) / T)[cartesian]
+    accel[cartesian] = (np.diff(v, axis=1) / T)[cartesian]
     cart = np.stack([states[..., 0], states[..., 1], v * np.cos(psi), v * np.sin(psi)], axis=-1)
-    return ProfileTruth(Truth(cart, omega.copy(), accel.copy(), T), psi)
+    return ProfileTruth(Truth(cart, omega, accel, T), psi)
 
 
 @dataclass(frozen=True)
@@ -159,48 +195,71 @@ def _expand(segments: list[tuple[float, float, float]], T: float) -> tuple[Array
     return w, a
 
 
-def seed003_profile(T: float = 0.1) -> tuple[Array, Array, tuple[float, float], float, float]:
+#: Seed 003's 14-34 s turn rate (filled): the heading turns from -45° (``v = (1, -1)`` m/s) to
+#: north (``v = (0, 8)`` m/s at 38 s after a straight acceleration), 135° in 20 s.
+SEED003_TURN_RATE = 3.0 * math.pi / 4.0 / 20.0
+
+
+class Seed003Profile(NamedTuple):
+    """Per-step profile of one seed-003 trajectory (see :func:`profile_truth`)."""
+
+    omega: Array
+    accel: Array
+    cart_accel: Array
+    position: tuple[float, float]
+    speed: float
+    heading: float
+
+
+def seed003_profile(T: float = 0.1) -> Seed003Profile:
     """Seed 003 §4: 43 s at ``T = 0.1`` s, one deterministic trajectory.
 
-    What the extraction kept: straight 0-10 s with ``v = (0, -5)`` m/s; 10-14 s "uniformly
-    accelerated turning motion" with a constant Cartesian acceleration ``(0.25, 1)`` m/s², ending
-    at ``v = (1, -1)`` m/s; 14-34 s a uniform turn (rates lost); 34-38 s uniform acceleration
-    ending at ``v = (0, 8)`` m/s; straight to 43 s. Here: start at (0, 0) m (filled); 10-14 s a
-    CTRA turn at +0.2 rad/s with 0.5 m/s² — **not** the source's segment: it ends at the same
-    heading (-44° vs -45°) but at 7 m/s instead of the source's 1.41 m/s (``|(1, -1)|``), so the
-    rest is flown ~5x faster than in seed 003; 14-34 s turn at +0.117 rad/s (2.34 rad, so that the
-    heading reaches north at 34 s; the source's headings give 0.118 rad/s); 34-38 s acceleration
-    0.25 m/s² along the heading (7 -> 8 m/s; the source's is ~1.65 m/s², 1.41 -> 8 m/s);
-    38-43 s straight. The README's seed-003 figures are for this profile.
+    From the source (every value it kept):
+
+    * 0-10 s straight, ``v = (0, -5)`` m/s;
+    * 10-14 s "uniformly accelerated turning motion": constant Cartesian acceleration
+      ``(0.25, 1)`` m/s², ending at ``v = (1, -1)`` m/s (|v| 5 -> 1.41 m/s, heading -90° -> -45°);
+    * 14-34 s a uniform turn (constant speed 1.41 m/s, constant rate);
+    * 34-38 s uniform acceleration ending at ``v = (0, 8)`` m/s;
+    * 38-43 s straight (so at ``v = (0, 8)`` m/s).
+
+    **Filled** (lost in extraction): the start position (0, 0) m; the 14-34 s turn rate,
+    :data:`SEED003_TURN_RATE` = 3π/80 ≈ 0.1178 rad/s (left), so that the heading is north at 34 s
+    and the 34-38 s acceleration is straight, (0, (8 - √2)/4) ≈ (0, 1.646) m/s² (its value was
+    lost too: this is the one that reaches ``v = (0, 8)`` from the turn's end along the heading).
 
     Returns:
-        ``omega (K,)``, ``accel (K,)``, start position, speed, heading.
+        :class:`Seed003Profile`: ``omega (K,)``, ``accel (K,)``, ``cart_accel (K, 2)``, start
+        position, speed, heading.
     """
     check_range("T", T, 0.0, 1.0, lo_open=True)
     heading0 = -math.pi / 2  # v = (0, -5): heading south
-    turn1 = 0.2
-    # heading after the first turn: -pi/2 + 0.8; the uniform turn brings it to +pi/2 at 34 s
-    turn2 = (math.pi / 2 - (heading0 + 4.0 * turn1)) / 20.0
+    speed0 = 5.0
+    v14 = math.hypot(1.0, -1.0)  # |(1, -1)|, the speed of the uniform turn
     segs = [
         (10.0, 0.0, 0.0),
-        (4.0, turn1, 0.5),
-        (20.0, turn2, 0.0),
-        (4.0, 0.0, 0.25),
+        (4.0, 0.0, 0.0),  # constant Cartesian acceleration, below
+        (20.0, SEED003_TURN_RATE, 0.0),
+        (4.0, 0.0, (8.0 - v14) / 4.0),
         (5.0, 0.0, 0.0),
     ]
     w, a = _expand(segs, T)
-    return w, a, (0.0, 0.0), 5.0, heading0
+    cart = np.zeros((w.size, 2))
+    k10, k14 = round(10.0 / T), round(14.0 / T)
+    cart[k10:k14] = (0.25, 1.0)
+    return Seed003Profile(w, a, cart, (0.0, 0.0), speed0, heading0)
 
 
 def seed003_truth(runs: int, T: float = 0.1) -> ProfileTruth:
     """``runs`` copies of the seed-003 trajectory (the noise makes the runs differ)."""
     check_int("runs", runs, 1)
-    w, a, pos, v, psi = seed003_profile(T)
+    p = seed003_profile(T)
     return profile_truth(
-        np.tile(w, (runs, 1)),
-        np.tile(a, (runs, 1)),
-        np.tile(pos, (runs, 1)),
-        np.full(runs, v),
-        np.full(runs, psi),
+        np.tile(p.omega, (runs, 1)),
+        np.tile(p.accel, (runs, 1)),
+        np.tile(p.position, (runs, 1)),
+        np.full(runs, p.speed),
+        np.full(runs, p.heading),
         T,
+        np.tile(p.cart_accel, (runs, 1, 1)),
     )

@@ -10,7 +10,7 @@ import pytest
 from imm_gym import ConfigError, Scenario, Segment, generate_truth
 from imm_gym.metrics import trajectory_metrics
 from imm_gym.seed_eval import draw, seed002_evaluation, seed002_sensor
-from imm_gym.seed_scenarios import Seed002Family, profile_truth, seed003_profile
+from imm_gym.seed_scenarios import Seed002Family, profile_truth, seed003_profile, seed003_truth
 
 
 def test_profile_truth_matches_segment_truth_on_turns() -> None:
@@ -87,10 +87,70 @@ def test_seed_batches_are_reproducible_and_reject_bad_input() -> None:
         )
 
 
-def test_seed003_profile_is_43_seconds() -> None:
-    w, a, _, v, _ = seed003_profile(0.1)
-    assert w.shape == a.shape == (430,)
-    assert v == 5.0
+def test_seed003_profile_follows_the_source() -> None:
+    """Seed 003 §4's stated velocities at the segment ends, exact (closed-form truth)."""
+    p = seed003_profile(0.1)
+    assert p.omega.shape == p.accel.shape == (430,) and p.cart_accel.shape == (430, 2)
+    assert p.speed == 5.0
+    pt = seed003_truth(1)
+    x, vel = pt.truth.states[0, :, :2], pt.truth.states[0, :, 2:]
+    k = {t: round(t / 0.1) for t in (10, 14, 34, 38, 43)}
+    np.testing.assert_allclose(vel[: k[10] + 1], np.tile((0.0, -5.0), (k[10] + 1, 1)), atol=1e-12)
+    # 10-14 s: constant Cartesian acceleration (0.25, 1) m/s^2, ending at v = (1, -1) m/s
+    np.testing.assert_allclose(
+        np.diff(vel[k[10] : k[14] + 1], axis=0), 0.1 * np.array([[0.25, 1.0]] * 40), atol=1e-12
+    )
+    np.testing.assert_allclose(vel[k[14]], (1.0, -1.0), atol=1e-12)
+    np.testing.assert_allclose(
+        x[k[14]] - x[k[10]], (0.0, -20.0) + 0.5 * 16 * np.array((0.25, 1.0)), atol=1e-9
+    )
+    # 14-34 s: a uniform (left) turn at |(1, -1)| m/s
+    speed = np.linalg.norm(vel, axis=-1)
+    np.testing.assert_allclose(speed[k[14] : k[34] + 1], math.sqrt(2.0), atol=1e-12)
+    assert np.all(pt.truth.turn_rate[0, k[14] : k[34]] > 0)
+    # 34-38 s: uniform acceleration ending at v = (0, 8) m/s; straight to 43 s
+    np.testing.assert_allclose(
+        vel[k[38] :], np.tile((0.0, 8.0), (k[43] - k[38] + 1, 1)), atol=1e-12
+    )
+    accel = np.diff(vel[k[34] : k[38] + 1], axis=0)
+    np.testing.assert_allclose(accel, np.tile(accel[0], (40, 1)), atol=1e-12)
+    # the recorded profile marks both accelerations (the bank's CA), the turn and the legs
+    assert np.all(pt.truth.accel[0, k[10] : k[14]] != 0) and np.all(
+        pt.truth.accel[0, k[34] : k[38]] != 0
+    )
+    assert np.all(pt.truth.accel[0, : k[10]] == 0) and np.all(pt.truth.turn_rate[0, k[38] :] == 0)
+    with pytest.raises(ConfigError, match="Cartesian"):
+        profile_truth(
+            np.full((1, 3), 0.1),
+            np.zeros((1, 3)),
+            np.zeros((1, 2)),
+            np.ones(1),
+            np.zeros(1),
+            0.1,
+            np.ones((1, 3, 2)),
+        )
+
+
+def test_seed003_family_keeps_the_turn_direction() -> None:
+    from imm_gym.seed_eval import Seed003Family
+
+    fam = Seed003Family()
+    pt = fam.sample([np.random.default_rng(s) for s in range(20)])
+    assert np.all(pt.truth.turn_rate >= 0) and np.any(pt.truth.turn_rate > 0.05)
+    # the 10-14 s Cartesian acceleration, rotated with the run's heading and scaled
+    vel = pt.truth.states[..., 2:]
+    dv = vel[:, 140] - vel[:, 100]
+    rot = pt.heading[:, 0] + math.pi / 2
+    back = np.stack(
+        [
+            np.cos(rot) * dv[:, 0] + np.sin(rot) * dv[:, 1],
+            -np.sin(rot) * dv[:, 0] + np.cos(rot) * dv[:, 1],
+        ],
+        axis=-1,
+    )
+    scale = back / (4.0 * np.array([0.25, 1.0]))
+    np.testing.assert_allclose(scale[:, 0], scale[:, 1], atol=1e-9)
+    assert np.all((scale[:, 0] >= 0.5) & (scale[:, 0] <= 1.5))
 
 
 def test_consistency_uses_the_one_sided_chi2_bound() -> None:
