@@ -141,13 +141,7 @@ def _fuse_into(t: int, u_a: Array, u_b: Array, U: Array) -> None:  # pragma: no 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _bank_step(
-    x: Array,
-    P: Array,
-    mu: Array,
-    tpm: Array,
-    z: Array,
-    detected: NDArray[np.bool_],
-    bank: tuple,
+    x: Array, P: Array, mu: Array, tpm: Array, z: Array, detected: NDArray[np.bool_], bank: tuple,
     mixture_nis: bool,
 ) -> tuple[
     Array, Array, Array, Array, Array, Array, Array, Array, Array, NDArray[np.bool_]
