@@ -171,3 +171,15 @@ def test_export_copies_the_acting_files(trained, tmp_path) -> None:
     with pytest.raises(FileNotFoundError, match="not a trained agent"):
         export(tmp_path / "nothing", tmp_path / "other")
 
+
+
+def test_pretrained_policy_ships_small_and_scores(tmp_path) -> None:
+    from agents import PRETRAINED
+
+    size = sum(p.stat().st_size for p in PRETRAINED.iterdir())
+    assert size < 1024 * 1024
+    result = tmp_path / "res.json"
+    argv = ["--policy", "pretrained", "--policy", "fixed", "--scenario", "paper", "--runs", "3"]
+    assert evaluate_main([*argv, "--json", str(result), "--quiet", "--no-clairvoyant"]) == 0
+    row = json.loads(result.read_text())["policies"]["pretrained"]
+    assert np.isfinite(row["armse_pos"]) and row["diverged"] == 0
