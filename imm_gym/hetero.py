@@ -61,7 +61,7 @@ from .conversions import (
     wrap_heading,
 )
 from .filters import ExtendedKalmanFilter, MeasurementModel, Update
-from .imm import IMM, IMMState, IMMStep, combine, mix, update_mode_probs
+from .imm import IMM, IMMState, IMMStep, combine, measurement_mixture, mix, update_mode_probs
 from .linalg import inv_logdet, mahalanobis
 from .models import MotionModel, bank_dim
 from .tpm import validate_tpm
@@ -564,24 +564,6 @@ def _check_scales(name: str, scale: Array | None, shape: tuple[int, ...]) -> Non
         raise ConfigError(f"{name} must have shape {shape}, got {a.shape}")
     if not np.all(np.isfinite(a) & (a > 0)):
         raise ConfigError(f"{name} must be finite and in (0, inf), got min {a.min()!r}")
-
-
-def measurement_mixture(
-    sensor: MeasurementModel, cbar: Array, z_pred: Array, S: Array
-) -> tuple[Array, Array]:
-    """The IMM's predicted measurement density, moment-matched (weights ``cbar``).
-
-    ``z_mix = sum_j cbar_j z_j``, ``S_mix = sum_j cbar_j [S_j + (z_j - z_mix)(z_j - z_mix)^T]``
-    (differences through ``sensor.residual``), as :class:`imm_gym.imm.IMM` reports its NIS.
-
-    Args:
-        cbar: ``(N, M)``; z_pred: ``(N, M, m)``; S: ``(N, M, m, m)``.
-    """
-    ref = z_pred[:, :1, :]
-    z_mix = ref[:, 0] + np.einsum("nm,nmd->nd", cbar, sensor.residual(z_pred, ref))
-    d = sensor.residual(z_pred, z_mix[:, None, :])
-    S_mix = np.einsum("nm,nmab->nab", cbar, S + d[..., :, None] * d[..., None, :])
-    return sensor.wrap(z_mix), S_mix
 
 
 def make_imm(

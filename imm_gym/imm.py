@@ -177,6 +177,25 @@ def combine(mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
     return x_hat[:, 0], P_hat[:, 0]
 
 
+def measurement_mixture(
+    sensor: MeasurementModel, cbar: Array, z_pred: Array, S: Array
+) -> tuple[Array, Array]:
+    """The IMM's predicted measurement density, moment-matched (weights ``cbar``).
+
+    ``z_mix = sum_j cbar_j z_j``, ``S_mix = sum_j cbar_j [S_j + (z_j - z_mix)(z_j - z_mix)^T]``
+    (differences through ``sensor.residual``, so bearings are averaged correctly); the density
+    whose NIS :class:`IMM` and :class:`imm_gym.hetero.HeteroIMM` report.
+
+    Args:
+        cbar: ``(N, M)``; z_pred: ``(N, M, m)``; S: ``(N, M, m, m)``.
+    """
+    ref = z_pred[:, :1, :]
+    z_mix = ref[:, 0] + np.einsum("nm,nmd->nd", cbar, sensor.residual(z_pred, ref))
+    d = sensor.residual(z_pred, z_mix[:, None, :])
+    S_mix = np.einsum("nm,nmab->nab", cbar, S + d[..., :, None] * d[..., None, :])
+    return sensor.wrap(z_mix), S_mix
+
+
 class IMM:
     """A bank of model-matched filters run as an IMM, batched over N trackers.
 
@@ -419,15 +438,9 @@ class IMM:
         return IMMState(x, P, mu), out
 
     def _mixture_nis(self, cbar: Array, upd: Update, z: Array) -> Array:
-        """NIS of ``z`` under the moment-matched predicted measurement density of the IMM.
-
-        ``z_pred = sum_j cbar_j z_j``, ``S = sum_j cbar_j [S_j + (z_j - z_pred)(z_j - z_pred)^T]``
-        (differences through ``sensor.residual``, so bearings are averaged correctly).
-        """
-        ref = upd.z_pred[:, :1, :]
-        z_mix = ref[:, 0] + np.einsum("nm,nmd->nd", cbar, self.sensor.residual(upd.z_pred, ref))
-        d = self.sensor.residual(upd.z_pred, z_mix[:, None, :])
-        S = np.einsum("nm,nmab->nab", cbar, upd.S + d[..., :, None] * d[..., None, :])
+        """NIS of ``z`` under the IMM's predicted measurement density
+        (:func:`measurement_mixture`)."""
+        z_mix, S = measurement_mixture(self.sensor, cbar, upd.z_pred, upd.S)
         S_inv, _ = inv_logdet(S)
         return mahalanobis(self.sensor.residual(z, z_mix), S_inv)
 
