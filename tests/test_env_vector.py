@@ -9,6 +9,7 @@ import pytest
 from gymnasium.vector import AutoresetMode
 
 from imm_gym import EnvConfig
+from imm_gym.env_config import OBS_FEATURES
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
 
@@ -16,19 +17,7 @@ SHORT = {
     "scenario": "random",
     "family": {"horizon": 20, "n_segments": (1, 2), "min_duration": 10},
 }
-ALL_FEATURES = (
-    "tpm",
-    "loglik",
-    "nis",
-    "innovation",
-    "time",
-    "bank_b",
-    "shadow_probs",
-    "turn_rate",
-    "shadow_turn_rate",
-    "turn_rate_ema",
-    "prob_ema",
-)
+ALL_FEATURES = OBS_FEATURES
 INFO_COMPARED = ("true_state", "estimate", "mode_probs", "tpm", "position_error", "diverged")
 
 
