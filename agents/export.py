@@ -11,6 +11,7 @@ and ``agent.json``: everything :func:`agents.policy.load_agent` needs to act, we
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import sys
 from collections.abc import Sequence
@@ -26,8 +27,7 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     missing = [name for name in FILES if not (source / name).is_file()]
     if missing:
         raise FileNotFoundError(f"{str(source)!r} is not a trained agent: missing {missing}")
-    meta = (source / "agent.json").read_text()
-    if '"recurrent-ppo"' in meta:
+    if json.loads((source / "agent.json").read_text()).get("algo") == "recurrent-ppo":
         raise ValueError("a recurrent agent needs model.zip to act; export a PPO agent")
     target.mkdir(parents=True, exist_ok=True)
     return [Path(shutil.copy2(source / name, target / name)) for name in FILES]

@@ -528,10 +528,16 @@ class TrackingCore:
         features = self.config.obs_features
         lam = np.asarray(EMA_FACTORS)
         if "turn_rate_ema" in features:
-            rate = heading_rate(self.velocity_prev, self.velocity, self.imm.T) / TURN_RATE_SCALE
-            self.rate_ema = lam * self.rate_ema + (1.0 - lam) * rate[:, None]
+            self.rate_ema = lam * self.rate_ema + (1.0 - lam) * self._turn_rate()[:, None]
         if "prob_ema" in features:
             self.prob_ema = lam[:, None] * self.prob_ema + (1.0 - lam[:, None]) * self.mu[:, None]
+
+    def _turn_rate(self, shadow: bool = False) -> Array:
+        """Heading rate of the combined (or the shadow's) estimate over the last step, in units
+        of ``TURN_RATE_SCALE``."""
+        if shadow:
+            return heading_rate(self.velocity_s_prev, self.velocity_s, self.imm.T) / TURN_RATE_SCALE
+        return heading_rate(self.velocity_prev, self.velocity, self.imm.T) / TURN_RATE_SCALE
 
     # ------------------------------------------------------------------ observation
     def observe(self) -> NDArray[np.float32]:
@@ -553,14 +559,10 @@ class TrackingCore:
                 blocks.append(self.mu_b)
             elif f == "shadow_probs":
                 blocks.append(self.mu_s)
-            elif f == "turn_rate":
-                rate = heading_rate(self.velocity_prev, self.velocity, self.imm.T)
-                blocks.append(np.clip(rate / TURN_RATE_SCALE, -1.0, 1.0)[:, None])
-            elif f == "shadow_turn_rate":
-                rate = heading_rate(self.velocity_s_prev, self.velocity_s, self.imm.T)
-                blocks.append(np.clip(rate / TURN_RATE_SCALE, -1.0, 1.0)[:, None])
+            elif f in ("turn_rate", "shadow_turn_rate"):  # clipped with the whole observation
+                blocks.append(self._turn_rate(shadow=f == "shadow_turn_rate")[:, None])
             elif f == "turn_rate_ema":
-                blocks.append(np.clip(self.rate_ema, -1.0, 1.0))
+                blocks.append(self.rate_ema)
             elif f == "prob_ema":
                 blocks.append(self.prob_ema.reshape(self.n_envs, -1))
             else:
