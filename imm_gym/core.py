@@ -32,6 +32,12 @@ turn_rate_ema   2       exponential moving averages of the (unclipped) ``turn_ra
                         per factor of ``EMA_FACTORS``, then clipped (``turn_rate_ema``)
 prob_ema        2M      the same averages of ``mu(t)``, ``m(0) = mu(0)``, factor-major   0      1
                         (``prob_ema``): a memory of the recent modes
+turn_magnitude  2       the same averages of the shadow's ``|turn rate|``, clipped to   0      1
+_ema                    1 before averaging (a transient does not linger), with the
+                        longer memories ``MAGNITUDE_EMA_FACTORS``: how sharply this
+                        target turns (``turn_magnitude_ema``)
+speed           1       speed of the combined estimate over ``SPEED_SCALE``, clipped    0      1
+                        (``speed``)
 time            1       ``k / K`` (feature ``time``)                                0      1
 ==============  ======  ==========================================================  =====  ====
 """
@@ -64,6 +70,11 @@ TURN_RATE_SCALE = float(np.deg2rad(10.0))
 #: Factors ``lambda`` of the ``turn_rate_ema`` / ``prob_ema`` features (memories of about 3 and
 #: 10 steps).
 EMA_FACTORS = (0.7, 0.9)
+#: Factors of the ``turn_magnitude_ema`` feature (memories of about 10 and 33 steps): gentle and
+#: sharp turners want different TPMs (a looser one for turn rates well below the bank's).
+MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
+#: Speed (m/s) that the ``speed`` feature maps to 1.
+SPEED_SCALE = 30.0
 
 
 def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
@@ -81,6 +92,8 @@ def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
         "shadow_turn_rate": 1,
         "turn_rate_ema": len(EMA_FACTORS),
         "prob_ema": len(EMA_FACTORS) * M,
+        "turn_magnitude_ema": len(MAGNITUDE_EMA_FACTORS),
+        "speed": 1,
     }
 
 
@@ -185,6 +198,7 @@ class TrackingCore:
         self.velocity_s_prev = np.zeros((N, 2))
         self.rate_ema = np.zeros((N, len(EMA_FACTORS)))  # in TURN_RATE_SCALE units
         self.prob_ema = np.full((N, len(EMA_FACTORS), M), 1.0 / M)
+        self.magnitude_ema = np.zeros((N, len(MAGNITUDE_EMA_FACTORS)))  # TURN_RATE_SCALE units
 
     # ------------------------------------------------------------------ spaces
     def _observation_bounds(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -261,6 +275,7 @@ class TrackingCore:
             "velocity_s_prev": x0[:, 2:4],
             "rate_ema": 0.0,
             "prob_ema": init.mu[:, None, :],
+            "magnitude_ema": 0.0,
             "k": 0,
             "done": False,
         }
@@ -496,6 +511,7 @@ class TrackingCore:
         "velocity_s_prev",
         "rate_ema",
         "prob_ema",
+        "magnitude_ema",
     )
 
     def _snapshot(self) -> dict[str, Any]:
@@ -523,14 +539,18 @@ class TrackingCore:
                 setattr(self, bank, IMMState(*parts))
 
     def _update_memories(self) -> None:
-        """Advance the moving averages of the ``turn_rate_ema`` / ``prob_ema`` features (only
-        when observed)."""
+        """Advance the moving averages of the ``turn_rate_ema`` / ``prob_ema`` /
+        ``turn_magnitude_ema`` features (only when observed)."""
         features = self.config.obs_features
         lam = np.asarray(EMA_FACTORS)
         if "turn_rate_ema" in features:
             self.rate_ema = lam * self.rate_ema + (1.0 - lam) * self._turn_rate()[:, None]
         if "prob_ema" in features:
             self.prob_ema = lam[:, None] * self.prob_ema + (1.0 - lam[:, None]) * self.mu[:, None]
+        if "turn_magnitude_ema" in features:
+            lam = np.asarray(MAGNITUDE_EMA_FACTORS)
+            magnitude = np.minimum(np.abs(self._turn_rate(shadow=True)), 1.0)[:, None]
+            self.magnitude_ema = lam * self.magnitude_ema + (1.0 - lam) * magnitude
 
     def _turn_rate(self, shadow: bool = False) -> Array:
         """Heading rate of the combined (or the shadow's) estimate over the last step, in units
@@ -565,6 +585,11 @@ class TrackingCore:
                 blocks.append(self.rate_ema)
             elif f == "prob_ema":
                 blocks.append(self.prob_ema.reshape(self.n_envs, -1))
+            elif f == "turn_magnitude_ema":
+                blocks.append(self.magnitude_ema)
+            elif f == "speed":
+                speed = np.hypot(self.velocity[:, 0], self.velocity[:, 1])
+                blocks.append(speed[:, None] / SPEED_SCALE)
             else:
                 blocks.append((self.k / self.horizon)[:, None])
         obs = np.concatenate(blocks, axis=-1)

@@ -34,7 +34,11 @@ OBS_FEATURES = (
     "shadow_turn_rate",
     "turn_rate_ema",
     "prob_ema",
+    "turn_magnitude_ema",
+    "speed",
 )
+#: Observation features computed from the shadow IMM (they need ``shadow="fixed"``).
+SHADOW_FEATURES = ("shadow_probs", "shadow_turn_rate", "turn_magnitude_ema")
 TIP_READINGS = ("literal", "intent")
 
 
@@ -70,7 +74,8 @@ class EnvConfig:
         reward_scale: metres per unit of reward.
         obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
             ``innovation``, ``bank_b``, ``shadow_probs``, ``time``, ``turn_rate``,
-            ``shadow_turn_rate``, ``turn_rate_ema``, ``prob_ema``.
+            ``shadow_turn_rate``, ``turn_rate_ema``, ``prob_ema``, ``turn_magnitude_ema``,
+            ``speed``.
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
@@ -145,7 +150,7 @@ class EnvConfig:
             raise ConfigError(f"obs_features has duplicates: {features}")
         if "bank_b" in features and not self.parallel:
             raise ConfigError("obs_features 'bank_b' needs parallel=True")
-        for f in ("shadow_probs", "shadow_turn_rate"):
+        for f in SHADOW_FEATURES:
             if f in features and self.shadow == "none":
                 raise ConfigError(f"obs_features {f!r} needs shadow 'fixed'")
         object.__setattr__(self, "obs_features", features)

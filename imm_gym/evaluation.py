@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .core import TrackingCore
-from .env_config import EnvConfig
+from .env_config import SHADOW_FEATURES, EnvConfig
 from .metrics import consistency, mode_accuracy, nees, tracking_errors
 
 Array = NDArray[np.float64]
@@ -53,9 +53,9 @@ class Rollout:
 
 def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
     """``base`` with a policy's overrides; the shadow tracker is turned off (it only shapes
-    rewards) unless the policy observes it (``shadow_probs``, ``shadow_turn_rate``)."""
+    rewards) unless the policy observes it (:data:`~imm_gym.env_config.SHADOW_FEATURES`)."""
     features = overrides.get("obs_features", ())
-    observed = "shadow_probs" in features or "shadow_turn_rate" in features
+    observed = any(f in SHADOW_FEATURES for f in features)
     defaults = {} if observed else {"shadow": "none", "reward": "error"}
     return base.replace(**{**defaults, **overrides})
 

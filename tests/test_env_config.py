@@ -43,6 +43,7 @@ BAD = [
     ({"obs_features": ("tpm", "foo")}, "obs_features"),
     ({"obs_features": ("tpm", "tpm")}, "obs_features"),
     ({"obs_features": ("shadow_probs",), "shadow": "none", "reward": "error"}, "shadow"),
+    ({"obs_features": ("turn_magnitude_ema",), "shadow": "none", "reward": "error"}, "shadow"),
     ({"reward": "advantage", "shadow": "none"}, "advantage"),
     ({"reward": "advantage", "shadow": "none"}, "shadow"),
     ({"reward": "regret"}, "reward"),

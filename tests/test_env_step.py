@@ -27,6 +27,8 @@ SIZES = {
     "shadow_turn_rate": 1,
     "turn_rate_ema": 2,
     "prob_ema": 6,
+    "turn_magnitude_ema": 2,
+    "speed": 1,
 }
 LAYOUTS = [
     ((), False),
@@ -38,6 +40,7 @@ LAYOUTS = [
     (("innovation", "shadow_probs"), False),
     (("turn_rate", "shadow_turn_rate", "tpm"), False),
     (("prob_ema", "turn_rate_ema", "turn_rate"), True),
+    (("speed", "shadow_turn_rate", "turn_magnitude_ema"), False),
 ]
 
 
@@ -85,8 +88,13 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
         np.testing.assert_array_equal(b["turn_rate_ema"], 0.0)
     if "prob_ema" in features:
         np.testing.assert_array_equal(b["prob_ema"], np.float32(1 / 3))
+    if "turn_magnitude_ema" in features:
+        np.testing.assert_array_equal(b["turn_magnitude_ema"], 0.0)
+    if "speed" in features:  # the track starts at the scenario's speed, 25 m/s
+        np.testing.assert_allclose(b["speed"], 25.0 / 30.0, rtol=1e-6)
     lam = np.array([0.7, 0.9])
     rate_ema, prob_ema = np.zeros(2), np.full((2, 3), 1 / 3)
+    lam_magnitude, magnitude_ema = np.array([0.9, 0.97]), np.zeros(2)
 
     rng = np.random.default_rng(0)
     prev = np.full(3, 1 / 3)
@@ -130,6 +138,13 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
         if "prob_ema" in features:
             prob_ema = lam[:, None] * prob_ema + (1 - lam[:, None]) * info["mode_probs"]
             np.testing.assert_allclose(b["prob_ema"], prob_ema.ravel(), rtol=1e-5, atol=1e-7)
+        if "turn_magnitude_ema" in features:  # of the clipped |shadow_turn_rate|
+            magnitude = abs(float(b["shadow_turn_rate"][0]))
+            magnitude_ema = lam_magnitude * magnitude_ema + (1 - lam_magnitude) * magnitude
+            np.testing.assert_allclose(b["turn_magnitude_ema"], magnitude_ema, rtol=1e-5, atol=1e-7)
+        if "speed" in features:
+            speed = np.hypot(*info["estimate"][2:4]) / 30.0
+            np.testing.assert_allclose(b["speed"], min(speed, 1.0), rtol=1e-6, atol=1e-7)
         v_prev = info["estimate"][2:4]
 
 
