@@ -138,8 +138,26 @@ def jsonable(value: Any) -> Any:
 
 
 def algo_kwargs(params: dict[str, Any]) -> dict[str, Any]:
-    """The algorithm's own arguments from a hyperparameter entry."""
-    return {k: v for k, v in params.items() if k not in _STACK_KEYS}
+    """The algorithm's own arguments from a hyperparameter entry; rl-zoo3's ``lin_X`` strings
+    (``learning_rate``, ``clip_range``) become :func:`linear_schedule` ``(X)``."""
+    kwargs = {k: v for k, v in params.items() if k not in _STACK_KEYS}
+    for key in ("learning_rate", "clip_range"):
+        value = kwargs.get(key)
+        if isinstance(value, str):
+            if not value.startswith("lin_"):
+                raise ValueError(f"{key} must be a number or 'lin_<number>', got {value!r}")
+            kwargs[key] = linear_schedule(float(value[4:]))
+    return kwargs
+
+
+def linear_schedule(initial: float) -> Any:
+    """``f(progress_remaining) = progress_remaining * initial``: from ``initial`` at the start of
+    training down to 0 at its end (SB3 passes the remaining fraction, 1 -> 0)."""
+
+    def schedule(progress_remaining: float) -> float:
+        return progress_remaining * initial
+
+    return schedule
 
 
 def validation_armse(

@@ -183,3 +183,15 @@ def test_pretrained_policy_ships_small_and_scores(tmp_path) -> None:
     assert evaluate_main([*argv, "--json", str(result), "--quiet", "--no-clairvoyant"]) == 0
     row = json.loads(result.read_text())["policies"]["pretrained"]
     assert np.isfinite(row["armse_pos"]) and row["diverged"] == 0
+
+
+def test_linear_schedules_from_rl_zoo_strings() -> None:
+    from agents.training import algo_kwargs
+
+    kwargs = algo_kwargs({"n_envs": 8, "learning_rate": "lin_3e-4", "clip_range": 0.2})
+    assert "n_envs" not in kwargs and kwargs["clip_range"] == 0.2
+    schedule = kwargs["learning_rate"]
+    assert schedule(1.0) == pytest.approx(3e-4) and schedule(0.25) == pytest.approx(7.5e-5)
+    assert schedule(0.0) == 0.0
+    with pytest.raises(ValueError, match="learning_rate"):
+        algo_kwargs({"learning_rate": "exp_3e-4"})
