@@ -132,95 +132,122 @@ def _inv_logdet(S: Array, S_inv: Array, L: Array) -> tuple[float, bool]:  # prag
     return logdet, True
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _ukf_moments(
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _ukf_moments_lanes(
     xp: Array,
     s: Array,
     U: Array,
-    b: int,
+    lanes: int,
     kind: int,
     params: Array,
     wm: Array,
     wc: Array,
     gamma: float,
     R: Array,
-    j: int,
     zp: Array,
     S: Array,
     C: Array,
     O: Array,
     Z: Array,
 ) -> None:  # pragma: no cover
-    """SVD-UKF predicted measurement ``zp[j]``, innovation covariance ``S[j]``, cross covariance
-    ``C`` of model ``j`` of the block's tracker ``b``.
+    """SVD-UKF predicted measurements ``zp[:, l]``, innovation covariances ``S[:, :, l]`` and
+    cross covariances ``C[:, :, l]`` of the lanes ``l < lanes`` (one model of one tracker each).
 
-    Sigma offsets ``0, ±gamma (U sqrt|s|)_i`` from the eigendecomposition ``Pp_j = U_j diag(s_j)
-    U_j^T`` of the predicted covariance (lane ``l = b M + j`` of :func:`jacobi_eig_lanes`'s
-    output: ``s[i, i, l]`` the eigenvalues, ``U[:, :, l]`` the eigenvectors; ``xp[b, j]`` the
-    predicted state); bearings are averaged as residuals about the centre point. Written with
-    explicit indices (no array views in the loops: each view costs a reference count).
+    Sigma offsets ``O_0 = 0``, ``O_{1+i} = -O_{1+n+i} = gamma sqrt|s_i| U_{:, i}`` from the
+    eigendecomposition ``Pp = U diag(s) U^T`` of the predicted covariance (lane ``l`` of
+    :func:`jacobi_eig_lanes`'s output; ``xp[l]`` the predicted state), ``Z_k = h(xp + O_k) -
+    h(xp)`` (bearing wrapped: averaged as residuals about the centre point),
+    ``zp = h(xp) + sum_k wm_k Z_k``, ``S = sum_k wc_k dZ_k dZ_k^T + R``,
+    ``C = sum_k wc_k O_k dZ_k^T`` with ``dZ_k = Z_k - sum_k wm_k Z_k``. Lane by lane the
+    operations and their order are those of a single model; each step is a loop over the lanes
+    (``O``, ``Z``: ``(2n+1, n, L)``, ``(2n+1, m, L)`` scratch), vectorized except ``atan2``.
     """
-    n = xp.shape[2]
-    m = zp.shape[1]
+    n = xp.shape[1]
+    m = zp.shape[0]
     L = 2 * n + 1
-    lane = b * xp.shape[1] + j
     for c in range(n):
-        O[0, c] = 0.0
+        for lane in range(lanes):
+            O[0, c, lane] = 0.0
     for i in range(n):
-        scale = gamma * np.sqrt(abs(s[i, i, lane]))
-        for c in range(n):
-            O[1 + i, c] = scale * U[c, i, lane]
-            O[1 + n + i, c] = -scale * U[c, i, lane]
+        for lane in range(lanes):
+            scale = gamma * np.sqrt(abs(s[i, i, lane]))
+            for c in range(n):
+                O[1 + i, c, lane] = scale * U[c, i, lane]
+                O[1 + n + i, c, lane] = -scale * U[c, i, lane]
     # Z holds h(sigma point) minus h(centre), bearing wrapped
     for k in range(L):
         if kind == RANGE_BEARING:
-            dx = xp[b, j, 0] + O[k, 0] - params[0]
-            dy = xp[b, j, 1] + O[k, 1] - params[1]
-            Z[k, 0] = np.sqrt(dx * dx + dy * dy)
-            Z[k, 1] = np.arctan2(dy, dx)
+            for lane in range(lanes):
+                dx = xp[lane, 0] + O[k, 0, lane] - params[0]
+                dy = xp[lane, 1] + O[k, 1, lane] - params[1]
+                Z[k, 0, lane] = np.sqrt(dx * dx + dy * dy)
+            for lane in range(lanes):
+                dx = xp[lane, 0] + O[k, 0, lane] - params[0]
+                dy = xp[lane, 1] + O[k, 1, lane] - params[1]
+                Z[k, 1, lane] = np.arctan2(dy, dx)
         else:
             for d in range(m):
-                Z[k, d] = xp[b, j, d] + O[k, d]
+                for lane in range(lanes):
+                    Z[k, d, lane] = xp[lane, d] + O[k, d, lane]
     for k in range(L - 1, -1, -1):
         for d in range(m):
-            Z[k, d] -= Z[0, d]
+            for lane in range(lanes):
+                Z[k, d, lane] -= Z[0, d, lane]
         if kind == RANGE_BEARING:
-            Z[k, 1] = _wrap(Z[k, 1])
-    centre0 = 0.0
-    centre1 = 0.0
+            for lane in range(lanes):
+                Z[k, 1, lane] = _wrap(Z[k, 1, lane])
     for d in range(m):
-        acc = 0.0
+        for lane in range(lanes):
+            zp[d, lane] = 0.0
         for k in range(L):
-            acc += wm[k] * Z[k, d]
+            for lane in range(lanes):
+                zp[d, lane] += wm[k] * Z[k, d, lane]
         for k in range(L):
-            Z[k, d] -= acc
-        if d == 0:
-            centre0 = acc
-        elif d == 1:
-            centre1 = acc
-        zp[j, d] = acc
+            for lane in range(lanes):
+                Z[k, d, lane] -= zp[d, lane]
     # zp = h(centre) + mean residual
-    if kind == RANGE_BEARING:
-        dx = xp[b, j, 0] - params[0]
-        dy = xp[b, j, 1] - params[1]
-        zp[j, 0] = np.sqrt(dx * dx + dy * dy) + centre0
-        zp[j, 1] = _wrap(np.arctan2(dy, dx) + centre1)
-    else:
-        for d in range(m):
-            zp[j, d] += xp[b, j, d]
+    for lane in range(lanes):
+        if kind == RANGE_BEARING:
+            dx = xp[lane, 0] - params[0]
+            dy = xp[lane, 1] - params[1]
+            zp[0, lane] = np.sqrt(dx * dx + dy * dy) + zp[0, lane]
+            zp[1, lane] = _wrap(np.arctan2(dy, dx) + zp[1, lane])
+        else:
+            for d in range(m):
+                zp[d, lane] += xp[lane, d]
     for r in range(m):
         for c in range(r, m):
-            acc = 0.0
+            for lane in range(lanes):
+                S[r, c, lane] = 0.0
             for k in range(L):
-                acc += wc[k] * Z[k, r] * Z[k, c]
-            S[j, r, c] = acc + 0.5 * (R[r, c] + R[c, r])
-            S[j, c, r] = S[j, r, c]
+                for lane in range(lanes):
+                    S[r, c, lane] += wc[k] * Z[k, r, lane] * Z[k, c, lane]
+            for lane in range(lanes):
+                S[r, c, lane] = S[r, c, lane] + 0.5 * (R[r, c] + R[c, r])
+                S[c, r, lane] = S[r, c, lane]
     for r in range(n):
         for c in range(m):
-            acc = 0.0
+            for lane in range(lanes):
+                C[r, c, lane] = 0.0
             for k in range(1, L):
-                acc += wc[k] * O[k, r] * Z[k, c]
-            C[r, c] = acc
+                for lane in range(lanes):
+                    C[r, c, lane] += wc[k] * O[k, r, lane] * Z[k, c, lane]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _from_lanes(
+    zp_l: Array, S_l: Array, C_l: Array, lane: int, j: int, zp: Array, S: Array, C: Array
+) -> None:  # pragma: no cover
+    """Model ``j``'s ``zp[j]``, ``S[j]``, ``C`` from lane ``lane`` of
+    :func:`_ukf_moments_lanes`'s outputs."""
+    n, m = C.shape
+    for r in range(m):
+        zp[j, r] = zp_l[r, lane]
+        for c in range(m):
+            S[j, r, c] = S_l[r, c, lane]
+    for r in range(n):
+        for c in range(m):
+            C[r, c] = C_l[r, c, lane]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -321,6 +348,12 @@ def imm_step(
     Pp = np.empty((TRACKER_BLOCK, M, n, n))
     eig = np.empty((n, n, TRACKER_BLOCK * M))
     U = np.empty((n, n, TRACKER_BLOCK * M))
+    xp_lanes = xp.reshape(TRACKER_BLOCK * M, n)  # lane l = b M + j: model j of row b
+    zp_l = np.empty((m, TRACKER_BLOCK * M))
+    S_l = np.empty((m, m, TRACKER_BLOCK * M))
+    C_l = np.empty((n, m, TRACKER_BLOCK * M))
+    O_l = np.empty((L, n, TRACKER_BLOCK * M))
+    Z_l = np.empty((L, m, TRACKER_BLOCK * M))
     zp = np.empty((M, m))
     S = np.empty((M, m, m))
     C = np.empty((n, m))
@@ -329,8 +362,6 @@ def imm_step(
     Lc = np.zeros((m, m))
     nu = np.empty(m)
     Sinu = np.empty(m)
-    O = np.empty((L, n))
-    Z = np.empty((L, m))
     Sj = np.empty((m, m))
     hz = np.empty(m)
     H = np.empty((m, n))
@@ -347,12 +378,12 @@ def imm_step(
             if filter_kind == UKF:
                 _to_lanes(Pp, nb, eig)
                 jacobi_eig_lanes(eig, U, nb * M, JACOBI_MAX_SWEEPS)
+                _ukf_moments_lanes(xp_lanes, eig, U, nb * M, sensor_kind, sensor_params, wm, wc,
+                                   gamma, R, zp_l, S_l, C_l, O_l, Z_l)
         failed_out[t] = False
         for j in range(M):
             if filter_kind == UKF:
-                _ukf_moments(
-                    xp, eig, U, b, sensor_kind, sensor_params, wm, wc, gamma, R, j, zp, S, C, O, Z
-                )
+                _from_lanes(zp_l, S_l, C_l, b * M + j, j, zp, S, C)
             else:
                 _ekf_moments(xp, Pp, b, sensor_kind, sensor_params, R, j, zp, S, C, H, hz)
             for r in range(m):
