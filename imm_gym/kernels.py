@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from .linalg import JACOBI_MAX_SWEEPS, LOG_2PI, jacobi_eig_inplace
+from .linalg import JACOBI_MAX_SWEEPS, LOG_2PI, jacobi_eig_lanes
 
 Array = NDArray[np.float64]
 
@@ -35,6 +35,9 @@ EKF = 1
 
 _TINY = 1e-300
 _TWO_PI = 2.0 * np.pi
+#: Trackers per block of :func:`imm_step`: the block's M predicted covariances per tracker are
+#: diagonalized together, one SIMD lane each (:func:`imm_gym.linalg.jacobi_eig_lanes`).
+TRACKER_BLOCK = 32
 
 
 def sensor_spec(sensor: object) -> tuple[int, Array] | None:
@@ -129,99 +132,129 @@ def _inv_logdet(S: Array, S_inv: Array, L: Array) -> tuple[float, bool]:  # prag
     return logdet, True
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _ukf_moments(
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _ukf_moments_lanes(
     xp: Array,
     s: Array,
     U: Array,
+    lanes: int,
     kind: int,
     params: Array,
     wm: Array,
     wc: Array,
     gamma: float,
     R: Array,
-    j: int,
     zp: Array,
     S: Array,
     C: Array,
     O: Array,
     Z: Array,
 ) -> None:  # pragma: no cover
-    """SVD-UKF predicted measurement ``zp[j]``, innovation covariance ``S[j]``, cross covariance
-    ``C`` of model ``j``.
+    """SVD-UKF predicted measurements ``zp[:, l]``, innovation covariances ``S[:, :, l]`` and
+    cross covariances ``C[:, :, l]`` of the lanes ``l < lanes`` (one model of one tracker each).
 
-    Sigma offsets ``0, ±gamma (U sqrt|s|)_i`` from the eigendecomposition ``Pp_j = U_j diag(s_j)
-    U_j^T`` of the predicted covariance (``s[j]``: the diagonal of the diagonalized ``(n, n)``
-    block, ``U[j]`` its eigenvectors; ``xp[j]`` the predicted state); bearings are averaged as
-    residuals about the centre point. Written with explicit indices (no array views in the
-    loops: each view costs a reference count).
+    Sigma offsets ``O_0 = 0``, ``O_{1+i} = -O_{1+n+i} = gamma sqrt|s_i| U_{:, i}`` from the
+    eigendecomposition ``Pp = U diag(s) U^T`` of the predicted covariance (lane ``l`` of
+    :func:`jacobi_eig_lanes`'s output; ``xp[l]`` the predicted state), ``Z_k = h(xp + O_k) -
+    h(xp)`` (bearing wrapped: averaged as residuals about the centre point),
+    ``zp = h(xp) + sum_k wm_k Z_k``, ``S = sum_k wc_k dZ_k dZ_k^T + R``,
+    ``C = sum_k wc_k O_k dZ_k^T`` with ``dZ_k = Z_k - sum_k wm_k Z_k``. Lane by lane the
+    operations and their order are those of a single model; each step is a loop over the lanes
+    (``O``, ``Z``: ``(2n+1, n, L)``, ``(2n+1, m, L)`` scratch), vectorized except ``atan2``.
     """
     n = xp.shape[1]
-    m = zp.shape[1]
+    m = zp.shape[0]
     L = 2 * n + 1
     for c in range(n):
-        O[0, c] = 0.0
+        for lane in range(lanes):
+            O[0, c, lane] = 0.0
     for i in range(n):
-        scale = gamma * np.sqrt(abs(s[j, i, i]))
-        for c in range(n):
-            O[1 + i, c] = scale * U[j, c, i]
-            O[1 + n + i, c] = -scale * U[j, c, i]
+        for lane in range(lanes):
+            scale = gamma * np.sqrt(abs(s[i, i, lane]))
+            for c in range(n):
+                O[1 + i, c, lane] = scale * U[c, i, lane]
+                O[1 + n + i, c, lane] = -scale * U[c, i, lane]
     # Z holds h(sigma point) minus h(centre), bearing wrapped
     for k in range(L):
         if kind == RANGE_BEARING:
-            dx = xp[j, 0] + O[k, 0] - params[0]
-            dy = xp[j, 1] + O[k, 1] - params[1]
-            Z[k, 0] = np.sqrt(dx * dx + dy * dy)
-            Z[k, 1] = np.arctan2(dy, dx)
+            for lane in range(lanes):
+                dx = xp[lane, 0] + O[k, 0, lane] - params[0]
+                dy = xp[lane, 1] + O[k, 1, lane] - params[1]
+                Z[k, 0, lane] = np.sqrt(dx * dx + dy * dy)
+            for lane in range(lanes):
+                dx = xp[lane, 0] + O[k, 0, lane] - params[0]
+                dy = xp[lane, 1] + O[k, 1, lane] - params[1]
+                Z[k, 1, lane] = np.arctan2(dy, dx)
         else:
             for d in range(m):
-                Z[k, d] = xp[j, d] + O[k, d]
+                for lane in range(lanes):
+                    Z[k, d, lane] = xp[lane, d] + O[k, d, lane]
     for k in range(L - 1, -1, -1):
         for d in range(m):
-            Z[k, d] -= Z[0, d]
+            for lane in range(lanes):
+                Z[k, d, lane] -= Z[0, d, lane]
         if kind == RANGE_BEARING:
-            Z[k, 1] = _wrap(Z[k, 1])
-    centre0 = 0.0
-    centre1 = 0.0
+            for lane in range(lanes):
+                Z[k, 1, lane] = _wrap(Z[k, 1, lane])
     for d in range(m):
-        acc = 0.0
+        for lane in range(lanes):
+            zp[d, lane] = 0.0
         for k in range(L):
-            acc += wm[k] * Z[k, d]
+            for lane in range(lanes):
+                zp[d, lane] += wm[k] * Z[k, d, lane]
         for k in range(L):
-            Z[k, d] -= acc
-        if d == 0:
-            centre0 = acc
-        elif d == 1:
-            centre1 = acc
-        zp[j, d] = acc
+            for lane in range(lanes):
+                Z[k, d, lane] -= zp[d, lane]
     # zp = h(centre) + mean residual
-    if kind == RANGE_BEARING:
-        dx = xp[j, 0] - params[0]
-        dy = xp[j, 1] - params[1]
-        zp[j, 0] = np.sqrt(dx * dx + dy * dy) + centre0
-        zp[j, 1] = _wrap(np.arctan2(dy, dx) + centre1)
-    else:
-        for d in range(m):
-            zp[j, d] += xp[j, d]
+    for lane in range(lanes):
+        if kind == RANGE_BEARING:
+            dx = xp[lane, 0] - params[0]
+            dy = xp[lane, 1] - params[1]
+            zp[0, lane] = np.sqrt(dx * dx + dy * dy) + zp[0, lane]
+            zp[1, lane] = _wrap(np.arctan2(dy, dx) + zp[1, lane])
+        else:
+            for d in range(m):
+                zp[d, lane] += xp[lane, d]
     for r in range(m):
         for c in range(r, m):
-            acc = 0.0
+            for lane in range(lanes):
+                S[r, c, lane] = 0.0
             for k in range(L):
-                acc += wc[k] * Z[k, r] * Z[k, c]
-            S[j, r, c] = acc + 0.5 * (R[r, c] + R[c, r])
-            S[j, c, r] = S[j, r, c]
+                for lane in range(lanes):
+                    S[r, c, lane] += wc[k] * Z[k, r, lane] * Z[k, c, lane]
+            for lane in range(lanes):
+                S[r, c, lane] = S[r, c, lane] + 0.5 * (R[r, c] + R[c, r])
+                S[c, r, lane] = S[r, c, lane]
     for r in range(n):
         for c in range(m):
-            acc = 0.0
+            for lane in range(lanes):
+                C[r, c, lane] = 0.0
             for k in range(1, L):
-                acc += wc[k] * O[k, r] * Z[k, c]
-            C[r, c] = acc
+                for lane in range(lanes):
+                    C[r, c, lane] += wc[k] * O[k, r, lane] * Z[k, c, lane]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _from_lanes(
+    zp_l: Array, S_l: Array, C_l: Array, lane: int, j: int, zp: Array, S: Array, C: Array
+) -> None:  # pragma: no cover
+    """Model ``j``'s ``zp[j]``, ``S[j]``, ``C`` from lane ``lane`` of
+    :func:`_ukf_moments_lanes`'s outputs."""
+    n, m = C.shape
+    for r in range(m):
+        zp[j, r] = zp_l[r, lane]
+        for c in range(m):
+            S[j, r, c] = S_l[r, c, lane]
+    for r in range(n):
+        for c in range(m):
+            C[r, c] = C_l[r, c, lane]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _ekf_moments(
     xp: Array,
     Pp: Array,
+    b: int,
     kind: int,
     params: Array,
     R: Array,
@@ -232,19 +265,19 @@ def _ekf_moments(
     H: Array,
     h: Array,
 ) -> None:  # pragma: no cover
-    """EKF predicted measurement ``zp[j] = h(xp[j])``, ``S[j] = H Pp[j] H^T + R`` and ``C = Pp[j]
-    H^T`` of model ``j``."""
-    n = xp.shape[1]
+    """EKF predicted measurement ``zp[j] = h(xp[b, j])``, ``S[j] = H Pp[b, j] H^T + R`` and
+    ``C = Pp[b, j] H^T`` of model ``j`` of the block's tracker ``b``."""
+    n = xp.shape[2]
     m = zp.shape[1]
-    _h(kind, params, xp, j, h)
+    _h(kind, params, xp[b], j, h)
     for d in range(m):
         zp[j, d] = h[d]
-    _jacobian(kind, params, xp, j, H)
+    _jacobian(kind, params, xp[b], j, H)
     for r in range(n):
         for c in range(m):
             acc = 0.0
             for k in range(n):
-                acc += Pp[j, r, k] * H[c, k]
+                acc += Pp[b, j, r, k] * H[c, k]
             C[r, c] = acc
     for r in range(m):
         for c in range(r, m):
@@ -296,6 +329,11 @@ def imm_step(
     log-domain probability update, the combination with the spread term, and (with
     ``mixture_nis``; else ``nis_out`` is 0) the NIS of the moment-matched predicted measurement
     mixture.
+
+    The trackers run in blocks of ``TRACKER_BLOCK``: the block's mixing and predictions first,
+    then the UKF's eigendecompositions of all its ``TRACKER_BLOCK * M`` predicted covariances
+    in one vectorized Jacobi call (one SIMD lane per matrix), then tracker by tracker the rest.
+    Every tracker's numbers are those it would get alone (the Jacobi lanes do not interact).
     """
     N, M, n = x.shape
     m = z.shape[1]
@@ -304,10 +342,19 @@ def imm_step(
     P0 = np.empty((M, n, n))
     w = np.empty(M)
     spread = np.empty((M, n))
-    cbar = np.empty(M)
-    xp = np.empty((M, n))
-    Pp = np.empty((M, n, n))
     FP = np.empty((n, n))
+    B = min(N, TRACKER_BLOCK)  # rows of the block arrays (a small batch allocates less)
+    cbar = np.empty((B, M))
+    xp = np.empty((B, M, n))
+    Pp = np.empty((B, M, n, n))
+    eig = np.empty((n, n, B * M))
+    U = np.empty((n, n, B * M))
+    xp_lanes = xp.reshape(B * M, n)  # lane l = b M + j: model j of row b
+    zp_l = np.empty((m, B * M))
+    S_l = np.empty((m, m, B * M))
+    C_l = np.empty((n, m, B * M))
+    O_l = np.empty((L, n, B * M))
+    Z_l = np.empty((L, m, B * M))
     zp = np.empty((M, m))
     S = np.empty((M, m, m))
     C = np.empty((n, m))
@@ -316,11 +363,6 @@ def imm_step(
     Lc = np.zeros((m, m))
     nu = np.empty(m)
     Sinu = np.empty(m)
-    eig = np.empty((M, n, n))
-    U = np.empty((M, n, n))
-    converged = np.empty(M, dtype=np.bool_)
-    O = np.empty((L, n))
-    Z = np.empty((L, m))
     Sj = np.empty((m, m))
     hz = np.empty(m)
     H = np.empty((m, n))
@@ -329,65 +371,22 @@ def imm_step(
     logpost = np.empty(M)
     failures = 0
     for t in range(N):
+        b = t % TRACKER_BLOCK  # row of tracker t in its block
+        if b == 0:  # 1. mixing and prediction of the block, 2a. its eigendecompositions
+            nb = min(TRACKER_BLOCK, N - t)
+            for i in range(nb):
+                _mix_predict(t + i, i, x, P, mu, tpm, F, Q, cbar, xp, Pp, x0, P0, w, spread, FP)
+            if filter_kind == UKF:
+                _to_lanes(Pp, nb, eig)
+                jacobi_eig_lanes(eig, U, nb * M, JACOBI_MAX_SWEEPS)
+                _ukf_moments_lanes(xp_lanes, eig, U, nb * M, sensor_kind, sensor_params, wm, wc,
+                                   gamma, R, zp_l, S_l, C_l, O_l, Z_l)
         failed_out[t] = False
-        # 1. mixing
-        for j in range(M):
-            acc = 0.0
-            for i in range(M):
-                acc += tpm[t, i, j] * mu[t, i]
-            cbar[j] = acc
-        for j in range(M):
-            if cbar[j] > _TINY:
-                inv_cbar = 1.0 / cbar[j]
-                for i in range(M):
-                    w[i] = tpm[t, i, j] * mu[t, i] * inv_cbar
-            else:
-                for i in range(M):
-                    w[i] = mu[t, i]
-            for d in range(n):
-                acc = 0.0
-                for i in range(M):
-                    acc += w[i] * x[t, i, d]
-                x0[j, d] = acc
-                for i in range(M):
-                    spread[i, d] = x[t, i, d] - acc  # x_i - x0_j
-            for r in range(n):
-                for c in range(r, n):
-                    acc = 0.0
-                    for i in range(M):
-                        acc += w[i] * (P[t, i, r, c] + spread[i, r] * spread[i, c])
-                    P0[j, r, c] = acc
-                    P0[j, c, r] = acc
-        # 2. model-matched prediction and update
-        for j in range(M):
-            for r in range(n):
-                acc = 0.0
-                for k in range(n):
-                    acc += F[j, r, k] * x0[j, k]
-                xp[j, r] = acc
-                for c in range(n):
-                    acc = 0.0
-                    for k in range(n):
-                        acc += F[j, r, k] * P0[j, k, c]
-                    FP[r, c] = acc
-            for r in range(n):
-                for c in range(r, n):
-                    acc = 0.0
-                    for k in range(n):
-                        acc += FP[r, k] * F[j, c, k]
-                    Pp[j, r, c] = acc + 0.5 * (Q[j, r, c] + Q[j, c, r])
-                    Pp[j, c, r] = Pp[j, r, c]
-                    eig[j, r, c] = Pp[j, r, c]
-                    eig[j, c, r] = Pp[j, r, c]
-        if filter_kind == UKF:  # the M models' eigendecompositions, swept in lock-step
-            jacobi_eig_inplace(eig, U, JACOBI_MAX_SWEEPS, converged)
         for j in range(M):
             if filter_kind == UKF:
-                _ukf_moments(
-                    xp, eig, U, sensor_kind, sensor_params, wm, wc, gamma, R, j, zp, S, C, O, Z
-                )
+                _from_lanes(zp_l, S_l, C_l, b * M + j, j, zp, S, C)
             else:
-                _ekf_moments(xp, Pp, sensor_kind, sensor_params, R, j, zp, S, C, H, hz)
+                _ekf_moments(xp, Pp, b, sensor_kind, sensor_params, R, j, zp, S, C, H, hz)
             for r in range(m):
                 for c in range(m):
                     Sj[r, c] = S[j, r, c]
@@ -397,9 +396,9 @@ def imm_step(
                 break
             if not detected[t]:
                 for r in range(n):
-                    x_out[t, j, r] = xp[j, r]
+                    x_out[t, j, r] = xp[b, j, r]
                     for c in range(n):
-                        P_out[t, j, r, c] = Pp[j, r, c]
+                        P_out[t, j, r, c] = Pp[b, j, r, c]
                 loglik_out[t, j] = 0.0
                 model_nis_out[t, j] = 0.0
                 for d in range(m):
@@ -432,7 +431,7 @@ def imm_step(
                 acc = 0.0
                 for k in range(m):
                     acc += C[r, k] * Sinu[k]
-                x_out[t, j, r] = xp[j, r] + acc
+                x_out[t, j, r] = xp[b, j, r] + acc
             if filter_kind == UKF:
                 # P = Pp - K C^T
                 for r in range(n):
@@ -440,7 +439,7 @@ def imm_step(
                         acc = 0.0
                         for k in range(m):
                             acc += K[r, k] * C[c, k]
-                        T1[r, c] = Pp[j, r, c] - acc
+                        T1[r, c] = Pp[b, j, r, c] - acc
             else:
                 # Joseph form: (I - K H) Pp (I - K H)^T + K R K^T
                 for r in range(n):
@@ -453,7 +452,7 @@ def imm_step(
                     for c in range(n):
                         acc = 0.0
                         for k in range(n):
-                            acc += IKH[r, k] * Pp[j, k, c]
+                            acc += IKH[r, k] * Pp[b, j, k, c]
                         FP[r, c] = acc
                 for r in range(n):
                     for c in range(n):
@@ -477,7 +476,7 @@ def imm_step(
         # 3. model probabilities, mu_j ∝ Lambda_j cbar_j (log-sum-exp)
         top = -np.inf
         for j in range(M):
-            logpost[j] = loglik_out[t, j] + (np.log(cbar[j]) if cbar[j] > 0.0 else -np.inf)
+            logpost[j] = loglik_out[t, j] + (np.log(cbar[b, j]) if cbar[b, j] > 0.0 else -np.inf)
             top = max(top, logpost[j])
         total = 0.0
         for j in range(M):
@@ -485,7 +484,7 @@ def imm_step(
             total += logpost[j]
         for j in range(M):
             mu_out[t, j] = logpost[j] / total
-            cbar_out[t, j] = cbar[j]
+            cbar_out[t, j] = cbar[b, j]
         # 4. combination
         combine_into(t, mu_out, x_out, P_out, xhat_out, Phat_out)
         # 5. NIS of the predicted measurement mixture (weights cbar)
@@ -498,7 +497,7 @@ def imm_step(
                 diff = zp[j, d] - zp[0, d]
                 if sensor_kind == RANGE_BEARING and d == 1:
                     diff = _wrap(diff)
-                acc += cbar[j] * diff
+                acc += cbar[b, j] * diff
             hz[d] = zp[0, d] + acc  # mixture mean
         for r in range(m):
             for c in range(m):
@@ -510,7 +509,7 @@ def imm_step(
                 nu[1] = _wrap(nu[1])
             for r in range(m):
                 for c in range(m):
-                    Sj[r, c] += cbar[j] * (S[j, r, c] + nu[r] * nu[c])
+                    Sj[r, c] += cbar[b, j] * (S[j, r, c] + nu[r] * nu[c])
         logdet, ok = _inv_logdet(Sj, S_inv, Lc)
         if not ok:
             failed_out[t] = True
@@ -528,6 +527,78 @@ def imm_step(
                 acc += nu[r] * S_inv[r, c] * nu[c]
         nis_out[t] = acc
     return failures
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _mix_predict(
+    t: int, b: int, x: Array, P: Array, mu: Array, tpm: Array, F: Array, Q: Array, cbar: Array,
+    xp: Array, Pp: Array, x0: Array, P0: Array, w: Array, spread: Array, FP: Array,
+) -> None:  # pragma: no cover
+    """Mixing (SPEC §1 step 1) and prediction of tracker ``t`` into row ``b`` of the block.
+
+    ``cbar_j = sum_i pi_ij mu_i``; ``x0_j = sum_i mu_i|j x_i``, ``P0_j = sum_i mu_i|j [P_i +
+    (x_i - x0_j)(x_i - x0_j)^T]`` with ``mu_i|j = pi_ij mu_i / cbar_j`` (``mu`` itself when
+    ``cbar_j`` underflows); ``xp_j = F_j x0_j``, ``Pp_j = F_j P0_j F_j^T + Q_j``. ``x0``,
+    ``P0``, ``w``, ``spread``, ``FP`` are scratch.
+    """
+    M, n = x.shape[1], x.shape[2]
+    for j in range(M):
+        acc = 0.0
+        for i in range(M):
+            acc += tpm[t, i, j] * mu[t, i]
+        cbar[b, j] = acc
+    for j in range(M):
+        if cbar[b, j] > _TINY:
+            inv_cbar = 1.0 / cbar[b, j]
+            for i in range(M):
+                w[i] = tpm[t, i, j] * mu[t, i] * inv_cbar
+        else:
+            for i in range(M):
+                w[i] = mu[t, i]
+        for d in range(n):
+            acc = 0.0
+            for i in range(M):
+                acc += w[i] * x[t, i, d]
+            x0[j, d] = acc
+            for i in range(M):
+                spread[i, d] = x[t, i, d] - acc  # x_i - x0_j
+        for r in range(n):
+            for c in range(r, n):
+                acc = 0.0
+                for i in range(M):
+                    acc += w[i] * (P[t, i, r, c] + spread[i, r] * spread[i, c])
+                P0[j, r, c] = acc
+                P0[j, c, r] = acc
+    for j in range(M):
+        for r in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += F[j, r, k] * x0[j, k]
+            xp[b, j, r] = acc
+            for c in range(n):
+                acc = 0.0
+                for k in range(n):
+                    acc += F[j, r, k] * P0[j, k, c]
+                FP[r, c] = acc
+        for r in range(n):
+            for c in range(r, n):
+                acc = 0.0
+                for k in range(n):
+                    acc += FP[r, k] * F[j, c, k]
+                Pp[b, j, r, c] = acc + 0.5 * (Q[j, r, c] + Q[j, c, r])
+                Pp[b, j, c, r] = Pp[b, j, r, c]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _to_lanes(Pp: Array, nb: int, eig: Array) -> None:  # pragma: no cover
+    """Upper triangles of the block's predicted covariances ``Pp[b, j]`` side by side as the
+    lanes ``l = b M + j`` of ``eig (n, n, L)`` (the layout of :func:`jacobi_eig_lanes`)."""
+    M, n = Pp.shape[1], Pp.shape[2]
+    for r in range(n):
+        for c in range(r, n):
+            for b in range(nb):
+                for j in range(M):
+                    eig[r, c, b * M + j] = Pp[b, j, r, c]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -27,6 +27,7 @@ from imm_gym import (
     stay_tpm,
     update_mode_probs,
 )
+from imm_gym.kernels import TRACKER_BLOCK
 
 
 def _random_tpm(rng: np.random.Generator, M: int, shape: tuple[int, ...] = ()) -> np.ndarray:
@@ -412,6 +413,34 @@ def test_backends_agree(bank, sensor, filter_name: str) -> None:
         np.testing.assert_allclose(
             a, b, rtol=1e-7, atol=1e-9 * max(1.0, np.abs(a).max()), err_msg=f
         )
+
+
+@pytest.mark.skipif(not HAS_BACKENDS, reason="IMM has a single backend")
+@pytest.mark.parametrize("filter_name", ["ukf", "ekf"])
+def test_compiled_tracker_does_not_depend_on_its_batch(filter_name: str) -> None:
+    # The kernel runs trackers in blocks (TRACKER_BLOCK) and diagonalizes a block's covariances
+    # together: a tracker's numbers must not depend on its block, its position or N.
+    N = 2 * TRACKER_BLOCK + 5
+    rng = np.random.default_rng(21)
+    imm = IMM(paper_bank(), Sonar(), filter_name, backend="numba")
+    x, P, mu = _random_posterior(rng, N, 3)
+    P[::9] = np.diag([2500.0, 2500.0, 25.0, 25.0])  # degenerate: converges in one sweep
+    tpm = _random_tpm(rng, 3, (N,))
+    z = Sonar().h(x[:, 0])
+    det = rng.random(N) < 0.8
+
+    def step(rows: np.ndarray | slice) -> list[np.ndarray]:
+        state, out = imm.step(IMMState(x[rows], P[rows], mu[rows]), tpm[rows], z[rows], det[rows])
+        fields = ("x", "P", "mode_probs", "loglik", "model_nis", "innovation", "nis")
+        return [state.x, state.P, *(getattr(out, f) for f in fields)]
+
+    batched = step(slice(None))
+    order = rng.permutation(N)
+    for a, b in zip(step(order), batched, strict=True):
+        np.testing.assert_array_equal(a, b[order])
+    for t in (0, TRACKER_BLOCK - 1, TRACKER_BLOCK, N - 1):
+        for a, b in zip(step(slice(t, t + 1)), batched, strict=True):
+            np.testing.assert_array_equal(a[0], b[t])
 
 
 @pytest.mark.skipif(not HAS_BACKENDS, reason="IMM has a single backend")

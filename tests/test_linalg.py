@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from imm_gym.linalg import inv_logdet, sym_eig, wrap_angle
+from imm_gym.linalg import EIG_LANES, inv_logdet, sym_eig, wrap_angle
 
 PI = np.pi
 
@@ -164,6 +166,64 @@ def test_sym_eig_uses_symmetric_part() -> None:
     A = rng.standard_normal((4, 4))
     s, _ = sym_eig(A)
     np.testing.assert_allclose(np.sort(s), np.linalg.eigvalsh(0.5 * (A + A.T)), atol=1e-12)
+
+
+def _hard_matrices(rng: np.random.Generator) -> list[np.ndarray]:
+    """Matrices that stop sweeping early or late: diagonal, zero, degenerate, ill-conditioned,
+    indefinite, random SPD, and one with a NaN (never converges: all sweeps)."""
+    Qm, _ = np.linalg.qr(rng.standard_normal((4, 4)))
+    nan = _random_symmetric(rng, 4, True)
+    nan[0, 1] = nan[1, 0] = np.nan
+    return [
+        np.diag([4.0, 3.0, 2.0, 1.0]),
+        np.zeros((4, 4)),
+        np.diag([2500.0, 2500.0, 25.0, 25.0]),
+        Qm @ np.diag([2500.0, 2500.0, 25.0, 25.0]) @ Qm.T,
+        Qm @ np.diag([1e8, 1.0, 1e-4, 1e-8]) @ Qm.T,
+        _random_symmetric(rng, 4, False),
+        nan,
+        *(_random_symmetric(rng, 4, True) for _ in range(5)),
+    ]
+
+
+def test_sym_eig_lanes_do_not_interact() -> None:
+    # More than two calls' worth of lanes, the hard cases spread over them: every matrix gets
+    # bit for bit what it gets alone, whatever its neighbours (converged or not) do.
+    rng = np.random.default_rng(11)
+    hard = _hard_matrices(rng)
+    P = np.stack([hard[i % len(hard)] for i in range(2 * EIG_LANES + 7)])
+    P[len(hard) :: 5] = np.stack([_random_symmetric(rng, 4, True) for _ in P[len(hard) :: 5]])
+    s, U = sym_eig(P)
+    for i in range(P.shape[0]):
+        s1, U1 = sym_eig(P[i])
+        np.testing.assert_array_equal(s[i], s1)
+        np.testing.assert_array_equal(U[i], U1)
+    finite = np.isfinite(P).all(axis=(-1, -2))
+    assert not finite.all()
+    for i in np.flatnonzero(finite)[:40]:
+        _check_eig(P[i])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    log_spread=st.floats(0.0, 10.0),
+    n=st.sampled_from([4, 6]),
+)
+def test_sym_eig_matches_eigh_on_random_covariances(seed: int, log_spread: float, n: int) -> None:
+    # Random orthogonal basis and eigenvalues spread over up to 10 decades (tracker covariances
+    # mix m^2 and (m/s)^2), some of them repeated.
+    rng = np.random.default_rng(seed)
+    Qm, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    eigenvalues = 10.0 ** rng.uniform(-log_spread / 2, log_spread / 2, n)
+    eigenvalues[rng.random(n) < 0.2] = eigenvalues[0]
+    P = (Qm * eigenvalues) @ Qm.T
+    P = 0.5 * (P + P.T)
+    _check_eig(P)
+    s, _ = sym_eig(P)
+    np.testing.assert_allclose(
+        np.sort(s), np.linalg.eigh(P)[0], rtol=0, atol=1e-12 * eigenvalues.max()
+    )
 
 
 # --------------------------------------------------------------------------- inv_logdet
