@@ -195,3 +195,19 @@ def test_linear_schedules_from_rl_zoo_strings() -> None:
     assert schedule(0.0) == 0.0
     with pytest.raises(ValueError, match="learning_rate"):
         algo_kwargs({"learning_rate": "exp_3e-4"})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("scenario", "runs", "reference"), [("paper", 100, "tip-imm"), ("random", 200, "best-fixed")]
+)
+def test_pretrained_agent_beats_the_bar(scenario, runs, reference, tmp_path) -> None:
+    """The shipped agent's README claims: below TIP-IMM on the paper scenario (100 runs) and
+    below the best fixed TPM on held-out random scenarios, 95 % CIs excluding zero."""
+    result = tmp_path / "res.json"
+    argv = ["--policy", "pretrained", "--policy", reference, "--scenario", scenario]
+    argv += ["--runs", str(runs), "--reference", reference, "--json", str(result)]
+    assert evaluate_main([*argv, "--quiet", "--no-clairvoyant"]) == 0
+    paired = json.loads(result.read_text())["paired"]
+    assert paired["reference"] == reference
+    assert paired["differences"]["pretrained"]["high"] < 0.0
