@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .env_config import EnvConfig
-from .fused import env_step
+from .fused import env_step, step_inputs
 from .fusion import fuse
 from .hetero import combine_bank, make_imm
 from .imm import IMMState
@@ -167,7 +167,6 @@ class TrackingCore:
         self._fixed_batch = np.repeat(self.fixed_tpm[None], n_envs, axis=0)
         shadow_stay = config.initial_stay if config.shadow_stay is None else config.shadow_stay
         self._shadow_batch = np.repeat(stay_tpm(M, shadow_stay)[None], n_envs, axis=0)
-        self._rows = np.arange(n_envs)
         self.horizon = config.source.horizon
         self.action_dim = M * M
         low, high = self._observation_bounds()
@@ -314,7 +313,7 @@ class TrackingCore:
                 f"action must have shape ({self.n_envs}, {self.action_dim}) "
                 f"(or ({self.action_dim},) for the scalar env), got {np.shape(action)}"
             )
-        if not np.isfinite(a).all():
+        if np.count_nonzero(np.isfinite(a)) != a.size:
             raise ActionError("action must be finite (got NaN or inf)")
         return a
 
@@ -326,16 +325,15 @@ class TrackingCore:
         fronts mask them). An active slot whose episode ended must be reset first.
         """
         all_active = active is None or bool(np.asarray(active).all())
-        if (self.done if active is None else self.done & active).any():
+        # np.count_nonzero, not ndarray.any: a C call, several times cheaper on small arrays
+        if np.count_nonzero(self.done if active is None else self.done & active):
             ended = np.flatnonzero(self.done if active is None else self.done & active).tolist()
             raise RuntimeError(f"episodes in slots {ended} have ended; call reset before step")
         before = None if all_active else self._snapshot()
         cfg = self.config
-        rows = self._rows
-        k1 = np.minimum(self.k + 1, self.horizon)
-        z = self.z[rows, k1]
-        det = self.detected[rows, k1]
-        truth = self.truth[rows, k1]
+        k1, step, z, det, truth, true_model = step_inputs(
+            self.k, self.horizon, self.z, self.detected, self.truth, self.true_model
+        )
         kernel_args = getattr(self.imm, "kernel_args", None)
         if kernel_args is None:
             out = self._advance_numpy(action, z, det, truth)
@@ -343,7 +341,7 @@ class TrackingCore:
             out = self._advance_fused(kernel_args, self.validate_action(action), z, det, truth)
         info: dict[str, Any] = {
             "true_state": truth,
-            "true_model": self.true_model[rows, k1 - 1],
+            "true_model": true_model,
             "estimate": out.estimate,
             "covariance": out.covariance,
             "position_error": out.position_error,
@@ -353,7 +351,7 @@ class TrackingCore:
             "nis": out.nis,
             "detected": det,
             "tpm": out.tpm.copy(),
-            "step": k1.copy(),
+            "step": step,
             "reward_error": out.reward_error,
         }
         self.state_a = out.state_a
@@ -382,7 +380,7 @@ class TrackingCore:
         self.done = diverged | truncated
         if before is not None:
             self._restore(before, ~np.asarray(active, dtype=bool))
-        if diverged.any():  # only a diverged slot can carry NaN/inf
+        if np.count_nonzero(diverged):  # only a diverged slot can carry NaN/inf
             info = {key: _finite(value) for key, value in info.items()}
         return StepResult(self.observe(), reward, diverged, truncated, info)
 
@@ -593,7 +591,7 @@ class TrackingCore:
             else:
                 blocks.append((self.k / self.horizon)[:, None])
         obs = np.concatenate(blocks, axis=-1)
-        if not np.isfinite(obs).all():  # a diverged slot
+        if np.count_nonzero(np.isfinite(obs)) != obs.size:  # a diverged slot
             obs = np.nan_to_num(obs, nan=0.0, posinf=1.0, neginf=-1.0)
         obs = obs.astype(np.float32)
         np.maximum(obs, self.obs_low, out=obs)  # clip to the Box (ufuncs: no wrapper overhead)

@@ -115,6 +115,37 @@ def tpm_from_action(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def step_inputs(
+    k: NDArray[np.int64], horizon: int, z: Array, detected: NDArray[np.bool_], truth: Array,
+    true_model: NDArray[np.int64],
+) -> tuple[
+    NDArray[np.int64], NDArray[np.int64], Array, NDArray[np.bool_], Array, NDArray[np.int64]
+]:  # pragma: no cover
+    """What the step of every slot ``t`` reads, into fresh arrays: its step index
+    ``k1_t = min(k_t + 1, K)`` (twice: the core's counter and the info's copy), the measurement
+    ``z[t, k1_t]``, the detection flag ``detected[t, k1_t]``, the true state ``truth[t, k1_t]``
+    and the true model ``true_model[t, k1_t - 1]`` of the interval it ends (``K = horizon``;
+    ``z (N, K+1, m)``, ``detected (N, K+1)``, ``truth (N, K+1, d)``, ``true_model (N, K)``).
+    """
+    N = k.shape[0]
+    k1 = np.empty(N, dtype=np.int64)
+    step = np.empty(N, dtype=np.int64)
+    z_k = np.empty((N, z.shape[2]))
+    det = np.empty(N, dtype=np.bool_)
+    truth_k = np.empty((N, truth.shape[2]))
+    model = np.empty(N, dtype=np.int64)
+    for t in range(N):
+        kt = min(k[t] + 1, horizon)
+        k1[t] = kt
+        step[t] = kt
+        z_k[t] = z[t, kt]
+        det[t] = detected[t, kt]
+        truth_k[t] = truth[t, kt]
+        model[t] = true_model[t, kt - 1]
+    return k1, step, z_k, det, truth_k, model
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _entropy(u: Array, t: int) -> float:  # pragma: no cover
     """Shannon entropy in bits of ``u[t]``, ``0 log 0 = 0`` (:func:`imm_gym.fusion.entropy`)."""
     acc = 0.0
