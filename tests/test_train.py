@@ -197,7 +197,6 @@ def test_linear_schedules_from_rl_zoo_strings() -> None:
         algo_kwargs({"learning_rate": "exp_3e-4"})
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
     ("scenario", "runs", "reference"), [("paper", 100, "tip-imm"), ("random", 200, "best-fixed")]
 )
