@@ -32,6 +32,9 @@ turn_rate_ema   2       exponential moving averages of the (unclipped) ``turn_ra
                         per factor of ``EMA_FACTORS``, then clipped (``turn_rate_ema``)
 prob_ema        2M      the same averages of ``mu(t)``, ``m(0) = mu(0)``, factor-major   0      1
                         (``prob_ema``): a memory of the recent modes
+shadow_turn_    2       the same averages of the shadow's turn rate, clipped to        -1     1
+rate_ema                [-1, 1] before averaging (``shadow_turn_rate_ema``): a memory
+                        that the action cannot steer
 turn_magnitude  2       the same averages of the shadow's ``|turn rate|``, clipped to   0      1
 _ema                    1 before averaging (a transient does not linger), with the
                         longer memories ``MAGNITUDE_EMA_FACTORS``: how sharply this
@@ -70,6 +73,15 @@ TURN_RATE_SCALE = float(np.deg2rad(10.0))
 #: Factors ``lambda`` of the ``turn_rate_ema`` / ``prob_ema`` features (memories of about 3 and
 #: 10 steps).
 EMA_FACTORS = (0.7, 0.9)
+#: Observation blocks with values in [-1, 1] (the others lie in [0, 1], ``loglik`` in [-1, 0]).
+SIGNED_FEATURES = (
+    "loglik",
+    "innovation",
+    "turn_rate",
+    "shadow_turn_rate",
+    "turn_rate_ema",
+    "shadow_turn_rate_ema",
+)
 #: Factors of the ``turn_magnitude_ema`` feature (memories of about 10 and 33 steps): gentle and
 #: sharp turners want different TPMs (a looser one for turn rates well below the bank's).
 MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
@@ -92,6 +104,7 @@ def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
         "shadow_turn_rate": 1,
         "turn_rate_ema": len(EMA_FACTORS),
         "prob_ema": len(EMA_FACTORS) * M,
+        "shadow_turn_rate_ema": len(EMA_FACTORS),
         "turn_magnitude_ema": len(MAGNITUDE_EMA_FACTORS),
         "speed": 1,
     }
@@ -196,6 +209,7 @@ class TrackingCore:
         self.velocity_s = np.zeros((N, 2))  # the same for the shadow IMM
         self.velocity_s_prev = np.zeros((N, 2))
         self.rate_ema = np.zeros((N, len(EMA_FACTORS)))  # in TURN_RATE_SCALE units
+        self.shadow_rate_ema = np.zeros((N, len(EMA_FACTORS)))
         self.prob_ema = np.full((N, len(EMA_FACTORS), M), 1.0 / M)
         self.magnitude_ema = np.zeros((N, len(MAGNITUDE_EMA_FACTORS)))  # TURN_RATE_SCALE units
 
@@ -205,7 +219,7 @@ class TrackingCore:
         lows, highs = [np.zeros(2 * M)], [np.ones(2 * M)]
         sizes = feature_sizes(M, self.config.sensor.dim_z)
         for f in self.config.obs_features:
-            signed = f in ("loglik", "innovation", "turn_rate", "shadow_turn_rate", "turn_rate_ema")
+            signed = f in SIGNED_FEATURES
             lows.append(np.full(sizes[f], -1.0 if signed else 0.0))
             highs.append(np.zeros(sizes[f]) if f == "loglik" else np.ones(sizes[f]))
         return (
@@ -273,6 +287,7 @@ class TrackingCore:
             "velocity_s": x0[:, 2:4],
             "velocity_s_prev": x0[:, 2:4],
             "rate_ema": 0.0,
+            "shadow_rate_ema": 0.0,
             "prob_ema": init.mu[:, None, :],
             "magnitude_ema": 0.0,
             "k": 0,
@@ -508,6 +523,7 @@ class TrackingCore:
         "velocity_s",
         "velocity_s_prev",
         "rate_ema",
+        "shadow_rate_ema",
         "prob_ema",
         "magnitude_ema",
     )
@@ -537,12 +553,15 @@ class TrackingCore:
                 setattr(self, bank, IMMState(*parts))
 
     def _update_memories(self) -> None:
-        """Advance the moving averages of the ``turn_rate_ema`` / ``prob_ema`` /
-        ``turn_magnitude_ema`` features (only when observed)."""
+        """Advance the moving averages of the ``turn_rate_ema`` / ``shadow_turn_rate_ema`` /
+        ``prob_ema`` / ``turn_magnitude_ema`` features (only when observed)."""
         features = self.config.obs_features
         lam = np.asarray(EMA_FACTORS)
         if "turn_rate_ema" in features:
             self.rate_ema = lam * self.rate_ema + (1.0 - lam) * self._turn_rate()[:, None]
+        if "shadow_turn_rate_ema" in features:
+            rate = np.clip(self._turn_rate(shadow=True), -1.0, 1.0)[:, None]
+            self.shadow_rate_ema = lam * self.shadow_rate_ema + (1.0 - lam) * rate
         if "prob_ema" in features:
             self.prob_ema = lam[:, None] * self.prob_ema + (1.0 - lam[:, None]) * self.mu[:, None]
         if "turn_magnitude_ema" in features:
@@ -581,6 +600,8 @@ class TrackingCore:
                 blocks.append(self._turn_rate(shadow=f == "shadow_turn_rate")[:, None])
             elif f == "turn_rate_ema":
                 blocks.append(self.rate_ema)
+            elif f == "shadow_turn_rate_ema":
+                blocks.append(self.shadow_rate_ema)
             elif f == "prob_ema":
                 blocks.append(self.prob_ema.reshape(self.n_envs, -1))
             elif f == "turn_magnitude_ema":

@@ -34,11 +34,17 @@ OBS_FEATURES = (
     "shadow_turn_rate",
     "turn_rate_ema",
     "prob_ema",
+    "shadow_turn_rate_ema",
     "turn_magnitude_ema",
     "speed",
 )
 #: Observation features computed from the shadow IMM (they need ``shadow="fixed"``).
-SHADOW_FEATURES = ("shadow_probs", "shadow_turn_rate", "turn_magnitude_ema")
+SHADOW_FEATURES = (
+    "shadow_probs",
+    "shadow_turn_rate",
+    "shadow_turn_rate_ema",
+    "turn_magnitude_ema",
+)
 TIP_READINGS = ("literal", "intent")
 
 
@@ -74,8 +80,8 @@ class EnvConfig:
         reward_scale: metres per unit of reward.
         obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
             ``innovation``, ``bank_b``, ``shadow_probs``, ``time``, ``turn_rate``,
-            ``shadow_turn_rate``, ``turn_rate_ema``, ``prob_ema``, ``turn_magnitude_ema``,
-            ``speed``.
+            ``shadow_turn_rate``, ``turn_rate_ema``, ``prob_ema``, ``shadow_turn_rate_ema``,
+            ``turn_magnitude_ema``, ``speed``.
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.

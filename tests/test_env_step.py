@@ -27,6 +27,7 @@ SIZES = {
     "shadow_turn_rate": 1,
     "turn_rate_ema": 2,
     "prob_ema": 6,
+    "shadow_turn_rate_ema": 2,
     "turn_magnitude_ema": 2,
     "speed": 1,
 }
@@ -40,7 +41,7 @@ LAYOUTS = [
     (("innovation", "shadow_probs"), False),
     (("turn_rate", "shadow_turn_rate", "tpm"), False),
     (("prob_ema", "turn_rate_ema", "turn_rate"), True),
-    (("speed", "shadow_turn_rate", "turn_magnitude_ema"), False),
+    (("speed", "shadow_turn_rate", "turn_magnitude_ema", "shadow_turn_rate_ema"), False),
 ]
 
 
@@ -68,6 +69,7 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
         "turn_rate": (-1.0, 1.0),
         "shadow_turn_rate": (-1.0, 1.0),
         "turn_rate_ema": (-1.0, 1.0),
+        "shadow_turn_rate_ema": (-1.0, 1.0),
     }
     for name, low in blocks_low.items():
         lo, hi = bounds.get(name, (0.0, 1.0))
@@ -88,13 +90,15 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
         np.testing.assert_array_equal(b["turn_rate_ema"], 0.0)
     if "prob_ema" in features:
         np.testing.assert_array_equal(b["prob_ema"], np.float32(1 / 3))
-    if "turn_magnitude_ema" in features:
-        np.testing.assert_array_equal(b["turn_magnitude_ema"], 0.0)
+    for name in ("turn_magnitude_ema", "shadow_turn_rate_ema"):
+        if name in features:
+            np.testing.assert_array_equal(b[name], 0.0)
     if "speed" in features:  # the track starts at the scenario's speed, 25 m/s
         np.testing.assert_allclose(b["speed"], 25.0 / 30.0, rtol=1e-6)
     lam = np.array([0.7, 0.9])
     rate_ema, prob_ema = np.zeros(2), np.full((2, 3), 1 / 3)
     lam_magnitude, magnitude_ema = np.array([0.9, 0.97]), np.zeros(2)
+    shadow_rate_ema = np.zeros(2)
 
     rng = np.random.default_rng(0)
     prev = np.full(3, 1 / 3)
@@ -142,6 +146,12 @@ def test_observation_layout_dtype_and_bounds(features: tuple[str, ...], parallel
             magnitude = abs(float(b["shadow_turn_rate"][0]))
             magnitude_ema = lam_magnitude * magnitude_ema + (1 - lam_magnitude) * magnitude
             np.testing.assert_allclose(b["turn_magnitude_ema"], magnitude_ema, rtol=1e-5, atol=1e-7)
+        if "shadow_turn_rate_ema" in features:  # of the clipped shadow_turn_rate
+            shadow_rate = float(b["shadow_turn_rate"][0])
+            shadow_rate_ema = lam * shadow_rate_ema + (1 - lam) * shadow_rate
+            np.testing.assert_allclose(
+                b["shadow_turn_rate_ema"], shadow_rate_ema, rtol=1e-5, atol=1e-7
+            )
         if "speed" in features:
             speed = np.hypot(*info["estimate"][2:4]) / 30.0
             np.testing.assert_allclose(b["speed"], min(speed, 1.0), rtol=1e-6, atol=1e-7)
