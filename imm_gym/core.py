@@ -559,15 +559,16 @@ class TrackingCore:
         lam = np.asarray(EMA_FACTORS)
         if "turn_rate_ema" in features:
             self.rate_ema = lam * self.rate_ema + (1.0 - lam) * self._turn_rate()[:, None]
-        if "shadow_turn_rate_ema" in features:
-            rate = np.clip(self._turn_rate(shadow=True), -1.0, 1.0)[:, None]
-            self.shadow_rate_ema = lam * self.shadow_rate_ema + (1.0 - lam) * rate
         if "prob_ema" in features:
             self.prob_ema = lam[:, None] * self.prob_ema + (1.0 - lam[:, None]) * self.mu[:, None]
-        if "turn_magnitude_ema" in features:
-            lam = np.asarray(MAGNITUDE_EMA_FACTORS)
-            magnitude = np.minimum(np.abs(self._turn_rate(shadow=True)), 1.0)[:, None]
-            self.magnitude_ema = lam * self.magnitude_ema + (1.0 - lam) * magnitude
+        if "shadow_turn_rate_ema" in features or "turn_magnitude_ema" in features:
+            shadow_rate = np.clip(self._turn_rate(shadow=True), -1.0, 1.0)[:, None]
+            if "shadow_turn_rate_ema" in features:
+                self.shadow_rate_ema = lam * self.shadow_rate_ema + (1.0 - lam) * shadow_rate
+            if "turn_magnitude_ema" in features:
+                lam_m = np.asarray(MAGNITUDE_EMA_FACTORS)
+                magnitude = np.abs(shadow_rate)
+                self.magnitude_ema = lam_m * self.magnitude_ema + (1.0 - lam_m) * magnitude
 
     def _turn_rate(self, shadow: bool = False) -> Array:
         """Heading rate of the combined (or the shadow's) estimate over the last step, in units
