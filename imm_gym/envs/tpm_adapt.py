@@ -55,7 +55,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | ``shadow_turn_rate`` | the same for the shadow IMM's estimate (1)| −1  | 1   |
     | ``turn_rate_ema`` | moving averages of the turn rate, λ = 0.7, 0.9 (2) | −1 | 1 |
     | ``prob_ema`` | moving averages of μ, λ = 0.7, 0.9 (2M)          | 0   | 1   |
-    | ``shadow_turn_rate_ema`` | the same of the shadow's turn rate (2) | −1  | 1   |
+    | ``shadow_turn_rate_ema`` | shadow's clipped turn rate, averaged, λ = 0.7, 0.9 (2) | −1 | 1 |
     | ``turn_magnitude_ema`` | shadow's clipped turn-rate size, λ = 0.9, 0.97 (2) | 0 | 1 |
     | ``speed``    | speed of the estimate / 30 m/s, clipped (1)      | 0   | 1   |
 
