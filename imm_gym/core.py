@@ -376,6 +376,9 @@ class TrackingCore:
         if cfg.shadow == "fixed":
             info["shadow_position_error"] = out.shadow_position_error
             info["reward_advantage"] = out.reward_advantage
+            info["reward_squared_advantage"] = (
+                out.shadow_position_error**2 - out.position_error**2
+            ) / cfg.reward_scale**2
             self.state_s = out.state_s
             self.mu_s = out.state_s.mu
             self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s

@@ -21,7 +21,7 @@ from .sensors import Sonar
 
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
-REWARDS = ("advantage", "error")
+REWARDS = ("advantage", "squared_advantage", "error")
 OBS_FEATURES = (
     "tpm",
     "loglik",
@@ -76,7 +76,9 @@ class EnvConfig:
         shadow_stay: diagonal of the shadow's TPM (``None``: ``initial_stay``). Set it to the
             best fixed TPM's (0.6 on the randomized family) to reward beating that bar.
         reward: ``"advantage"`` — ``(e_shadow - e) / reward_scale`` with ``e`` the position error
-            of the combined estimate — or ``"error"`` — ``-e / reward_scale``.
+            of the combined estimate —, ``"squared_advantage"`` —
+            ``(e_shadow² - e²) / reward_scale²``, the per-step terms of the mean squared error
+            that the RMSE(t) of the ARMSE are made of — or ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward.
         obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
             ``innovation``, ``bank_b``, ``shadow_probs``, ``time``, ``turn_rate``,
@@ -146,8 +148,8 @@ class EnvConfig:
         if self.shadow_stay is not None:
             check_range("shadow_stay", self.shadow_stay, 0.0, 1.0)
         check_choice("reward", self.reward, REWARDS)
-        if self.reward == "advantage" and self.shadow == "none":
-            raise ConfigError("reward 'advantage' needs shadow 'fixed'")
+        if self.reward != "error" and self.shadow == "none":
+            raise ConfigError(f"reward {self.reward!r} needs shadow 'fixed'")
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
         features = tuple(self.obs_features)
         for f in features:

@@ -46,6 +46,7 @@ BAD = [
     ({"obs_features": ("turn_magnitude_ema",), "shadow": "none", "reward": "error"}, "shadow"),
     ({"reward": "advantage", "shadow": "none"}, "advantage"),
     ({"reward": "advantage", "shadow": "none"}, "shadow"),
+    ({"reward": "squared_advantage", "shadow": "none"}, "squared_advantage"),
     ({"reward": "regret"}, "reward"),
     ({"shadow": "sometimes"}, "shadow"),
     ({"shadow_stay": 1.5}, "shadow_stay"),
@@ -127,6 +128,7 @@ def test_valid_edges_are_accepted() -> None:
     env.reset(seed=0)
     _, reward, *_, info = env.step(np.zeros(9))
     assert "reward_advantage" not in info and reward == info["reward_error"]
+    assert "reward_squared_advantage" not in info
 
 
 KW = {

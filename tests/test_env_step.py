@@ -297,11 +297,14 @@ def test_shadow_is_a_classical_imm_with_shadow_stay() -> None:
         np.testing.assert_allclose(reward, (ref_error[k] - e) / scale, rtol=1e-9, atol=1e-12)
         assert reward == info["reward_advantage"]
         np.testing.assert_allclose(info["reward_error"], -e / scale, rtol=1e-12)
+        np.testing.assert_allclose(
+            info["reward_squared_advantage"], (ref_error[k] ** 2 - e**2) / scale**2, rtol=1e-9
+        )
         nonzero += reward != 0.0
     assert nonzero > 100
 
 
-@pytest.mark.parametrize("reward", ["error", "advantage"])
+@pytest.mark.parametrize("reward", ["error", "advantage", "squared_advantage"])
 def test_reward_is_the_configured_term(reward: str) -> None:
     env = TPMAdaptEnv(scenario="random", reward=reward)
     env.reset(seed=3)
@@ -393,6 +396,7 @@ def test_info_carries_ground_truth_and_diagnostics() -> None:
         "diverged",
         "reward_error",
         "reward_advantage",
+        "reward_squared_advantage",
     }
     for k in range(1, 151):
         _, reward, _, _, info = env.step(rng.uniform(-1, 1, 9))

@@ -26,6 +26,7 @@ SB3_INFO_KEYS = (
     "shadow_position_error",
     "reward_error",
     "reward_advantage",
+    "reward_squared_advantage",
     "diverged",
 )
 

@@ -66,8 +66,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     error of the combined estimate and ``e_shadow`` that of a classical IMM (fixed TPM) run in
     lock-step on the same measurements — a low-variance signal, exactly 0 for classical IMM (the
     shadow's stay probability is ``shadow_stay``, by default ``initial_stay``).
-    ``reward="error"``: ``−e / reward_scale``. Errors are capped at ``divergence_error``. Both
-    terms are in ``info`` (``reward_error``, ``reward_advantage``).
+    ``reward="squared_advantage"``: ``(e_shadow² − e²) / reward_scale²``, the per-step terms of
+    the mean squared error that the ARMSE's RMSE(t) are made of.
+    ``reward="error"``: ``−e / reward_scale``. Errors are capped at ``divergence_error``. All
+    terms are in ``info`` (``reward_error``, ``reward_advantage``, ``reward_squared_advantage``).
 
     ## Starting State
     A scenario is drawn (the randomized family, the paper scenario, or a user ``Scenario``); the
