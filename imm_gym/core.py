@@ -62,7 +62,7 @@ from .initiation import initiate
 from .metrics import true_model_index
 from .scenarios import RandomFamily, generate_truth
 from .seeding import streams
-from .tpm import apply_floor, stay_tpm
+from .tpm import apply_floor, row_divergence, stay_tpm
 
 Array = NDArray[np.float64]
 
@@ -383,6 +383,9 @@ class TrackingCore:
             self.mu_s = out.state_s.mu
             self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s
         reward = info[f"reward_{cfg.reward}"].copy()
+        if cfg.tpm_cost > 0.0:
+            info["tpm_divergence"] = row_divergence(out.tpm, self._shadow_batch[0])
+            reward -= cfg.tpm_cost * info["tpm_divergence"]
         diverged = out.diverged
         info["diverged"] = diverged
         self.k = k1

@@ -80,6 +80,9 @@ class EnvConfig:
             ``(e_shadow² - e²) / reward_scale²``, the per-step terms of the mean squared error
             that the RMSE(t) of the ARMSE are made of — or ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward.
+        tpm_cost: weight of the TPM's divergence from the shadow's,
+            :func:`imm_gym.tpm.row_divergence` (nats), subtracted from the reward each step: the
+            policy leaves the shadow's TPM only where that pays (0: no cost; needs the shadow).
         obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
             ``innovation``, ``bank_b``, ``shadow_probs``, ``time``, ``turn_rate``,
             ``shadow_turn_rate``, ``turn_rate_ema``, ``prob_ema``, ``shadow_turn_rate_ema``,
@@ -106,6 +109,7 @@ class EnvConfig:
     shadow_stay: float | None = None
     reward: str = "advantage"
     reward_scale: float = 10.0
+    tpm_cost: float = 0.0
     obs_features: tuple[str, ...] = ()
     loglik_clip: float = 20.0
     velocity_std: float = 5.0
@@ -151,6 +155,9 @@ class EnvConfig:
         if self.reward != "error" and self.shadow == "none":
             raise ConfigError(f"reward {self.reward!r} needs shadow 'fixed'")
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
+        check_range("tpm_cost", self.tpm_cost, 0.0)
+        if self.tpm_cost > 0.0 and self.shadow == "none":
+            raise ConfigError("tpm_cost > 0 needs shadow 'fixed' (the TPM it is measured from)")
         features = tuple(self.obs_features)
         for f in features:
             check_choice("obs_features[i]", f, OBS_FEATURES)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import rel_entr
 
 from .config import ConfigError, check_range
 
@@ -90,3 +91,13 @@ def apply_floor(tpm: Array, p_min: float) -> Array:
         # only rows that changed this pass are rescaled: each row's result is its own
         t = np.where(fixed, p_min, np.where(grew, t * (budget / free_mass), t))
     return t
+
+
+def row_divergence(tpm: Array, reference: Array) -> Array:
+    """Mean Kullback-Leibler divergence of the rows of ``tpm`` from those of ``reference``:
+    ``D = (1/M) Σ_i Σ_j π_ij ln(π_ij / ρ_ij)`` (``0 ln 0 = 0``), over the leading axes of ``tpm``.
+
+    Zero exactly when the two TPMs are equal; ``reference`` needs positive entries.
+    """
+    tpm = np.asarray(tpm, dtype=float)
+    return rel_entr(tpm, reference).sum(axis=-1).mean(axis=-1)

@@ -47,6 +47,8 @@ BAD = [
     ({"reward": "advantage", "shadow": "none"}, "advantage"),
     ({"reward": "advantage", "shadow": "none"}, "shadow"),
     ({"reward": "squared_advantage", "shadow": "none"}, "squared_advantage"),
+    ({"tpm_cost": -0.1}, "tpm_cost"),
+    ({"tpm_cost": 0.1, "shadow": "none", "reward": "error"}, "tpm_cost"),
     ({"reward": "regret"}, "reward"),
     ({"shadow": "sometimes"}, "shadow"),
     ({"shadow_stay": 1.5}, "shadow_stay"),

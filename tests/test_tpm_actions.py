@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.stats
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -11,7 +12,7 @@ from hypothesis.extra.numpy import arrays
 from imm_gym import ActionError, ConfigError, EnvConfig, TrackingCore
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
-from imm_gym.tpm import apply_floor, stay_tpm
+from imm_gym.tpm import apply_floor, row_divergence, stay_tpm
 
 _CORES: dict[tuple, TrackingCore] = {}
 
@@ -277,3 +278,41 @@ def test_rejected_action_on_an_autoreset_step_does_not_skip_an_episode() -> None
         return venv.core.truth[0].copy()
 
     np.testing.assert_array_equal(episode_two_truth(True), episode_two_truth(False))
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    raw=arrays(np.float64, (2, 3, 3), elements=st.floats(1e-3, 1.0)),
+    stay=st.floats(0.05, 0.95),
+)
+def test_row_divergence_is_the_mean_kl_of_the_rows(raw, stay) -> None:
+    tpm = raw / raw.sum(axis=-1, keepdims=True)
+    reference = stay_tpm(3, stay)
+    expected = [np.mean([scipy.stats.entropy(t[i], reference[i]) for i in range(3)]) for t in tpm]
+    np.testing.assert_allclose(row_divergence(tpm, reference), expected, rtol=1e-10, atol=1e-14)
+    assert np.all(row_divergence(tpm, reference) >= -1e-15)
+    assert row_divergence(reference, reference) == 0.0
+
+
+def test_row_divergence_by_hand() -> None:
+    # a row (0.6, 0.2, 0.2) from the uniform one: 0.6 ln 1.8 + 2 * 0.2 ln 0.6
+    expected = 0.6 * np.log(1.8) + 0.4 * np.log(0.6)
+    np.testing.assert_allclose(row_divergence(stay_tpm(3, 0.6), stay_tpm(3, 1 / 3)), expected)
+    zero_entry = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(row_divergence(zero_entry, stay_tpm(3, 1 / 3)), np.log(3.0))
+
+
+def test_tpm_cost_is_subtracted_from_the_reward() -> None:
+    cost = 0.05
+    env = TPMAdaptEnv(scenario="random", action_mode="set", shadow_stay=1 / 3, tpm_cost=cost)
+    env.reset(seed=4)
+    _, reward, *_, info = env.step(np.zeros(9))  # set mode: zero logits, the uniform TPM
+    assert abs(info["tpm_divergence"]) < 1e-14
+    np.testing.assert_allclose(reward, info["reward_advantage"], rtol=0.0, atol=1e-15)
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        _, reward, *_, info = env.step(rng.uniform(-1, 1, 9))
+        divergence = row_divergence(info["tpm"], stay_tpm(3, 1 / 3))
+        np.testing.assert_allclose(info["tpm_divergence"], divergence, rtol=1e-12)
+        assert divergence > 0.0
+        np.testing.assert_allclose(reward, info["reward_advantage"] - cost * divergence)

@@ -70,6 +70,8 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     the mean squared error that the ARMSE's RMSE(t) are made of.
     ``reward="error"``: ``−e / reward_scale``. Errors are capped at ``divergence_error``. All
     terms are in ``info`` (``reward_error``, ``reward_advantage``, ``reward_squared_advantage``).
+    ``tpm_cost > 0`` subtracts ``tpm_cost`` times the mean KL divergence of the TPM's rows from
+    the shadow's (:func:`imm_gym.tpm.row_divergence`, ``info["tpm_divergence"]``).
 
     ## Starting State
     A scenario is drawn (the randomized family, the paper scenario, or a user ``Scenario``); the
