@@ -129,10 +129,12 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         save_agent,
         validation_armse,
     )
+    from imm_gym.core import critic_state_size
 
     env_kwargs = dict(params.get("env_kwargs", {}))
     frame_stack = int(params.get("frame_stack", 1))
     gamma = float(params.get("gamma", 0.99))
+    critic_state = bool(params.get("critic_state", False))
     env = make_training_env(
         args.env,
         int(params["n_envs"]),
@@ -141,24 +143,37 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         bool(params.get("normalize", False)),
         frame_stack,
         gamma,
+        critic_state,
     )
     algo_cls = _algo_class(args.algo)
     ckpt_dir = run_dir / "checkpoints"
-    extra = {"env_id": args.env, "seed": seed}
+    critic_dims = critic_state_size(env.unwrapped.core.M) if critic_state else 0
+    extra = {"env_id": args.env, "seed": seed, "critic_dims": critic_dims}
     if args.resume is not None:
         model = algo_cls.load(args.resume / "model.zip", env=env, device="cpu")
         _load_normalizer(find_normalizer(env), args.resume)
         done = model.num_timesteps
         print(f"resuming from {args.resume} at {done} steps")
     else:
+        kwargs = algo_kwargs(params)
+        policy = params["policy"]
+        if critic_dims:
+            from agents.asymmetric import AsymmetricActorCriticPolicy
+
+            policy = AsymmetricActorCriticPolicy
+            kwargs["policy_kwargs"] = {
+                **kwargs.get("policy_kwargs", {}),
+                "critic_dims": critic_dims,
+                "frame_stack": frame_stack,
+            }
         model = algo_cls(
-            params["policy"],
+            policy,
             env,
             seed=seed,
             device="cpu",
             verbose=0,
             tensorboard_log=str(run_dir / "tb"),
-            **algo_kwargs(params),
+            **kwargs,
         )
         done = 0
     remaining = max(params["n_timesteps"] - done, 0)
@@ -170,7 +185,14 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     def validate() -> None:
         """Score the live model on the validation runs; keep it in ``best/`` if it is the best."""
         armse = validation_armse(
-            model, env, args.env, env_kwargs, frame_stack, args.algo, args.validation_runs
+            model,
+            env,
+            args.env,
+            env_kwargs,
+            frame_stack,
+            args.algo,
+            args.validation_runs,
+            critic_dims,
         )
         history.append({"timesteps": int(model.num_timesteps), "armse_pos": armse})
         if best["armse_pos"] is None or armse < best["armse_pos"]:

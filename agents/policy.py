@@ -36,6 +36,8 @@ class LearnedPolicy:
         clip_obs, epsilon: the normalizer's clipping and epsilon.
         frame_stack: number of consecutive observations the model sees.
         recurrent: whether the model keeps an LSTM state.
+        critic_dims: entries of each frame that only its critic reads (ground truth in
+            training, :mod:`agents.asymmetric`); they are zeros here, which the actor ignores.
     """
 
     name = "learned"
@@ -50,6 +52,7 @@ class LearnedPolicy:
         epsilon: float = 1e-8,
         frame_stack: int = 1,
         recurrent: bool = False,
+        critic_dims: int = 0,
     ) -> None:
         self.model = model
         self.env_overrides = env_overrides
@@ -57,6 +60,7 @@ class LearnedPolicy:
         self.clip_obs, self.epsilon = clip_obs, epsilon
         self.frame_stack = frame_stack
         self.recurrent = recurrent
+        self.critic_dims = critic_dims
 
     def normalize(self, obs: NDArray[Any]) -> NDArray[np.float32]:
         if self.obs_mean is None or self.obs_var is None:
@@ -74,6 +78,8 @@ class LearnedPolicy:
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1
         obs = obs[None] if single else obs
+        if self.critic_dims:
+            obs = np.concatenate([obs, np.zeros((obs.shape[0], self.critic_dims))], axis=-1)
         N, d = obs.shape
         start = np.ones(N, bool) if episode_start is None else np.asarray(episode_start, bool)
         stack, lstm = (None, None) if state is None else state
@@ -115,7 +121,12 @@ def load_agent(path: str | Path) -> LearnedPolicy:
         policy_file = directory / "policy.pt"
         if not policy_file.is_file():
             raise FileNotFoundError(f"no trained agent at {str(directory)!r} (policy.pt missing)")
-        model = ActorCriticPolicy.load(str(policy_file), device="cpu")
+        policy_cls = ActorCriticPolicy
+        if meta.get("critic_dims", 0):
+            from agents.asymmetric import AsymmetricActorCriticPolicy
+
+            policy_cls = AsymmetricActorCriticPolicy
+        model = policy_cls.load(str(policy_file), device="cpu")
     env_overrides = json.loads((directory / "env.json").read_text())
     if "obs_features" in env_overrides:
         env_overrides["obs_features"] = tuple(env_overrides["obs_features"])
@@ -135,4 +146,5 @@ def load_agent(path: str | Path) -> LearnedPolicy:
         eps,
         frame_stack=int(meta.get("frame_stack", 1)),
         recurrent=algo == "recurrent-ppo",
+        critic_dims=int(meta.get("critic_dims", 0)),
     )

@@ -26,7 +26,15 @@ VALIDATION_SEED_BASE = 50_000_000
 ALGO_FILES = {"ppo": "ppo.yml", "recurrent-ppo": "recurrent_ppo.yml"}
 
 #: Keys of a hyperparameter entry that configure the environment stack, not the algorithm.
-_STACK_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "frame_stack", "env_kwargs")
+_STACK_KEYS = (
+    "n_envs",
+    "n_timesteps",
+    "policy",
+    "normalize",
+    "frame_stack",
+    "env_kwargs",
+    "critic_state",
+)
 
 
 def set_threads(n: int = 1) -> None:
@@ -73,13 +81,15 @@ def make_training_env(
     normalize: bool,
     frame_stack: int,
     gamma: float,
+    critic_state: bool = False,
 ) -> Any:
-    """The vectorized training environment (see the module docstring)."""
+    """The vectorized training environment (see the module docstring); ``critic_state`` appends
+    ground truth for an asymmetric critic (:mod:`agents.asymmetric`)."""
     from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
 
     from imm_gym.envs.sb3 import TPMAdaptVecEnv
 
-    venv = TPMAdaptVecEnv(num_envs=n_envs, env_id=env_id, **env_kwargs)
+    venv = TPMAdaptVecEnv(num_envs=n_envs, env_id=env_id, critic_state=critic_state, **env_kwargs)
     venv.seed(TRAIN_SEED_BASE + 10_000 * seed)
     env: Any = VecMonitor(venv)
     if normalize:
@@ -168,6 +178,7 @@ def validation_armse(
     frame_stack: int,
     algo: str,
     runs: int,
+    critic_dims: int = 0,
 ) -> float:
     """Position ARMSE of the live ``model`` (deterministic actions) on ``runs`` validation runs
     of ``env_id``'s scenario source, seeds ``VALIDATION_SEED_BASE + r``: the score that selects
@@ -189,6 +200,7 @@ def validation_armse(
         1e-8 if norm is None else float(norm.epsilon),
         frame_stack=frame_stack,
         recurrent=algo == "recurrent-ppo",
+        critic_dims=critic_dims,
     )
     config = evaluation_config(EnvConfig.build(PRESETS[env_id]), overrides)
     return float(score(rollout(policy, config, runs, VALIDATION_SEED_BASE))["armse_pos"])

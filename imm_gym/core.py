@@ -56,8 +56,8 @@ from numpy.typing import NDArray
 from .env_config import EnvConfig
 from .fused import env_step, step_inputs
 from .fusion import fuse
-from .hetero import combine_bank, make_imm
-from .imm import IMMState
+from .hetero import HeteroBank, combine_bank, make_imm
+from .imm import IMMState, combine
 from .initiation import initiate
 from .metrics import true_model_index
 from .scenarios import RandomFamily, generate_truth
@@ -87,6 +87,13 @@ SIGNED_FEATURES = (
 MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
 #: Speed (m/s) that the ``speed`` feature maps to 1.
 SPEED_SCALE = 30.0
+#: Bound of every entry of :meth:`TrackingCore.critic_state`.
+CRITIC_CLIP = 10.0
+
+
+def critic_state_size(n_models: int) -> int:
+    """Length of :meth:`TrackingCore.critic_state`: two 4-d errors and a one-hot model."""
+    return 8 + n_models
 
 
 def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
@@ -624,6 +631,32 @@ class TrackingCore:
         obs = obs.astype(np.float32)
         np.maximum(obs, self.obs_low, out=obs)  # clip to the Box (ufuncs: no wrapper overhead)
         return np.minimum(obs, self.obs_high, out=obs)
+
+    def critic_state(self) -> NDArray[np.float32]:
+        """Ground truth for a critic that is trained but never acts (asymmetric actor-critic):
+        per slot, the combined estimate's error ``x̂ - x`` (position / 50 m, velocity / 5 m/s),
+        the same for the shadow's estimate (zeros without a shadow), and the true model of the
+        coming step, one-hot; clipped to ``[-CRITIC_CLIP, CRITIC_CLIP]``.
+
+        The return of a step depends on how far each tracker is off the target now and on the
+        maneuver to come, which no observation reveals; a value function that sees them
+        predicts returns with less noise. Policies must not act on it (SPEC §5).
+        """
+        rows = np.arange(self.n_envs)
+        truth = self.truth[rows, self.k]
+        scale = np.array([50.0, 50.0, 5.0, 5.0])
+        if isinstance(self.config.bank, HeteroBank):
+            raise ValueError("critic_state needs a bank whose models share one state space")
+        blocks = [(combine(self.mu, self.state_a.x, self.state_a.P)[0] - truth) / scale]
+        if self.config.shadow == "fixed":
+            estimate_s = combine(self.mu_s, self.state_s.x, self.state_s.P)[0]
+            blocks.append((estimate_s - truth) / scale)
+        else:
+            blocks.append(np.zeros((self.n_envs, 4)))
+        coming = self.true_model[rows, np.minimum(self.k, self.horizon - 1)]
+        blocks.append(np.eye(self.M)[coming])
+        out = np.clip(np.concatenate(blocks, axis=-1), -CRITIC_CLIP, CRITIC_CLIP)
+        return np.nan_to_num(out).astype(np.float32)
 
 
 def heading_rate(v_prev: Array, v: Array, T: float) -> Array:

@@ -17,7 +17,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from ..core import TrackingCore
+from ..core import CRITIC_CLIP, TrackingCore, critic_state_size
 from ..env_config import EnvConfig
 
 #: Per-step diagnostics copied into each sub-env's info dict (the rest stays in the core).
@@ -39,6 +39,9 @@ class TPMAdaptVecEnv(VecEnv):
         config: an :class:`EnvConfig` or a mapping; keyword arguments override fields.
         env_id: take the preset of a registered id (``"imm_gym/TPMAdapt-v0"``) as the base
             config; a ``config`` mapping updates it, an :class:`EnvConfig` replaces it.
+        critic_state: append :meth:`~imm_gym.core.TrackingCore.critic_state` (ground truth) to
+            every observation, for an asymmetric actor-critic whose actor does not read it
+            (:class:`agents.asymmetric.AsymmetricActorCriticPolicy`).
     """
 
     def __init__(
@@ -46,6 +49,7 @@ class TPMAdaptVecEnv(VecEnv):
         num_envs: int = 1,
         config: EnvConfig | Mapping[str, Any] | None = None,
         env_id: str | None = None,
+        critic_state: bool = False,
         **kwargs: Any,
     ) -> None:
         if env_id is not None:
@@ -54,7 +58,12 @@ class TPMAdaptVecEnv(VecEnv):
                 config = {**preset, **(config or {})}
         self.config = EnvConfig.build(config, **kwargs)
         self.core = TrackingCore(self.config, n_envs=num_envs)
-        observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
+        self.critic_state = critic_state
+        low, high = self.core.obs_low, self.core.obs_high
+        if critic_state:
+            extra = np.full(critic_state_size(self.core.M), CRITIC_CLIP, dtype=np.float32)
+            low, high = np.concatenate([low, -extra]), np.concatenate([high, extra])
+        observation_space = spaces.Box(low, high, dtype=np.float32)
         action_space = spaces.Box(-1.0, 1.0, (self.core.action_dim,), dtype=np.float32)
         self.render_mode = None
         super().__init__(num_envs, observation_space, action_space)
@@ -65,7 +74,13 @@ class TPMAdaptVecEnv(VecEnv):
         self._reset_seeds()
         self._reset_options()
         self.reset_infos = [{} for _ in range(self.num_envs)]
-        return self.core.observe()
+        return self._observe()
+
+    def _observe(self) -> NDArray[np.float32]:
+        obs = self.core.observe()
+        if self.critic_state:
+            return np.concatenate([obs, self.core.critic_state()], axis=-1)
+        return obs
 
     def step_async(self, actions: NDArray[Any]) -> None:
         self._actions = np.asarray(actions)
@@ -76,7 +91,7 @@ class TPMAdaptVecEnv(VecEnv):
         a = self._actions.reshape(self.num_envs, self.core.action_dim)
         self._actions = None
         result = self.core.step(a)
-        obs = result.obs
+        obs = self._observe() if self.critic_state else result.obs
         dones = result.terminated | result.truncated
         keys = [key for key in SB3_INFO_KEYS if key in result.info]
         columns = [result.info[key].tolist() for key in keys]  # Python scalars, column by column
@@ -91,7 +106,7 @@ class TPMAdaptVecEnv(VecEnv):
                     result.truncated[i] and not result.terminated[i]
                 )
             self.core.reset(finished, [None] * finished.size)
-            obs = self.core.observe()
+            obs = self._observe()
         return obs, result.reward.astype(np.float32), dones, infos
 
     def close(self) -> None:
