@@ -365,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     check_args(parser, args)
     set_threads(1)
     params = hyperparams(args)
+    if params.get("critic_state") and args.algo != "ppo":
+        parser.error(f"critic_state: true needs --algo ppo, got --algo {args.algo}")
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
     versions = _versions()

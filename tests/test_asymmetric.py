@@ -111,3 +111,13 @@ def test_a_run_with_the_critic_state_gives_an_agent_the_evaluation_scores(tmp_pa
     code = evaluate_main(["--policy", str(agent_dir), *runs, "--json", str(result)])
     assert code == 0
     assert np.isfinite(json.loads(result.read_text())["policies"][str(agent_dir)]["armse_pos"])
+
+
+def test_critic_state_with_a_recurrent_agent_is_rejected(tmp_path, capsys) -> None:
+    cfg = tmp_path / "ac.yml"
+    cfg.write_text("critic_state: true\n")
+    argv = ["--algo", "recurrent-ppo", "--config", str(cfg), "--out", str(tmp_path)]
+    with pytest.raises(SystemExit) as exit_info:
+        train.main([*argv, "--no-eval", "--no-progress"])
+    assert exit_info.value.code == 2
+    assert "critic_state" in capsys.readouterr().err

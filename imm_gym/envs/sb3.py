@@ -74,10 +74,9 @@ class TPMAdaptVecEnv(VecEnv):
         self._reset_seeds()
         self._reset_options()
         self.reset_infos = [{} for _ in range(self.num_envs)]
-        return self._observe()
+        return self._with_critic_state(self.core.observe())
 
-    def _observe(self) -> NDArray[np.float32]:
-        obs = self.core.observe()
+    def _with_critic_state(self, obs: NDArray[np.float32]) -> NDArray[np.float32]:
         if self.critic_state:
             return np.concatenate([obs, self.core.critic_state()], axis=-1)
         return obs
@@ -91,7 +90,7 @@ class TPMAdaptVecEnv(VecEnv):
         a = self._actions.reshape(self.num_envs, self.core.action_dim)
         self._actions = None
         result = self.core.step(a)
-        obs = self._observe() if self.critic_state else result.obs
+        obs = self._with_critic_state(result.obs)
         dones = result.terminated | result.truncated
         keys = [key for key in SB3_INFO_KEYS if key in result.info]
         columns = [result.info[key].tolist() for key in keys]  # Python scalars, column by column
@@ -106,7 +105,7 @@ class TPMAdaptVecEnv(VecEnv):
                     result.truncated[i] and not result.terminated[i]
                 )
             self.core.reset(finished, [None] * finished.size)
-            obs = self._observe()
+            obs = self._with_critic_state(self.core.observe())
         return obs, result.reward.astype(np.float32), dones, infos
 
     def close(self) -> None:
