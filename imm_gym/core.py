@@ -56,8 +56,8 @@ from numpy.typing import NDArray
 from .env_config import EnvConfig
 from .fused import env_step, step_inputs
 from .fusion import fuse
-from .hetero import HeteroBank, combine_bank, make_imm
-from .imm import IMMState, combine
+from .hetero import combine_bank, make_imm
+from .imm import IMMState
 from .initiation import initiate
 from .metrics import true_model_index
 from .scenarios import RandomFamily, generate_truth
@@ -645,11 +645,10 @@ class TrackingCore:
         rows = np.arange(self.n_envs)
         truth = self.truth[rows, self.k]
         scale = np.array([50.0, 50.0, 5.0, 5.0])
-        if isinstance(self.config.bank, HeteroBank):
-            raise ValueError("critic_state needs a bank whose models share one state space")
-        blocks = [(combine(self.mu, self.state_a.x, self.state_a.P)[0] - truth) / scale]
+        estimate = combine_bank(self.imm, self.mu, self.state_a.x, self.state_a.P)[0]
+        blocks = [(estimate - truth) / scale]
         if self.config.shadow == "fixed":
-            estimate_s = combine(self.mu_s, self.state_s.x, self.state_s.P)[0]
+            estimate_s = combine_bank(self.imm, self.mu_s, self.state_s.x, self.state_s.P)[0]
             blocks.append((estimate_s - truth) / scale)
         else:
             blocks.append(np.zeros((self.n_envs, 4)))
