@@ -8,8 +8,10 @@
 Each seed writes ``OUT/seed_S/``: ``agent/`` (model, normalizer, env overrides), ``best/``,
 ``checkpoints/``, ``tb/`` (TensorBoard), ``training.json``, ``results.json``, ``report.md`` and
 ``plots/``. Every ``--validate-every`` steps the live policy is scored on validation runs (seeds
-from 50,000,000 on) and the best one is kept in ``best/``; ``agent/`` is that policy (model
-selection on validation scenarios, never on the held-out ones). The evaluation compares the
+from 50,000,000 on) and the best one is kept in ``best/``. ``agent/`` is the mean of the
+policy's weights after every update from ``swa_start`` (a fraction of the budget) on when the
+hyperparameters set it, as the default does; otherwise the validated best (model selection on
+validation scenarios, never on the held-out ones). The evaluation compares the
 agent with classical IMM, TIP-IMM and the best fixed TPM on (a) the paper scenario (100 runs,
 seeds 0..99) and (b) held-out randomized scenarios (``--random-runs``, seeds 0..R-1; training
 uses seeds from 100,000,000 on), with common random numbers and paired bootstrap CIs.
@@ -51,6 +53,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", type=Path, help="checkpoint directory to continue from")
     p.add_argument(
         "--checkpoint-every", type=int, default=250_000, help="steps between checkpoints"
+    )
+    p.add_argument(
+        "--keep-checkpoints",
+        action="store_true",
+        help="keep every checkpoint as checkpoints/step_N (default: only checkpoints/latest)",
     )
     p.add_argument(
         "--validate-every",
@@ -123,6 +130,7 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     from stable_baselines3.common.callbacks import BaseCallback
 
     from agents.training import (
+        WeightAverage,
         algo_kwargs,
         find_normalizer,
         make_training_env,
@@ -177,6 +185,11 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         )
         done = 0
     remaining = max(params["n_timesteps"] - done, 0)
+    swa = None
+    if params.get("swa_start") is not None:
+        swa = WeightAverage(int(float(params["swa_start"]) * params["n_timesteps"]))
+        if args.resume is not None:
+            swa.load(args.resume)
     best_dir = run_dir / "best"
     best_file = best_dir / "validation.json"
     best = json.loads(best_file.read_text()) if best_file.is_file() else {"armse_pos": None}
@@ -209,16 +222,26 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
             self.validate_every = validate_every
             self.next_validation = done + validate_every
 
+        def _on_rollout_start(self) -> None:
+            if swa is not None:  # the weights after the previous update
+                swa.update(model)
+
+        def _on_training_end(self) -> None:
+            if swa is not None:
+                swa.update(model)
+
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next:
                 self.next += self.every
                 save(ckpt_dir / "latest")
+                if args.keep_checkpoints:
+                    save(ckpt_dir / f"step_{self.num_timesteps}")
             if self.validate_every and self.num_timesteps >= self.next_validation:
                 self.next_validation += self.validate_every
                 validate()
             return True
 
-    def save(directory: Path) -> None:
+    def save(directory: Path, **more: Any) -> None:
         save_agent(
             directory,
             model,
@@ -226,8 +249,10 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
             env_kwargs,
             args.algo,
             frame_stack,
-            {**extra, "num_timesteps": int(model.num_timesteps)},
+            {**extra, "num_timesteps": int(model.num_timesteps), **more},
         )
+        if swa is not None and directory.parent == ckpt_dir:
+            swa.save(directory)
 
     start = time.perf_counter()
     try:
@@ -250,17 +275,35 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     agent_dir = run_dir / "agent"
     if args.validate_every:
         validate()
+    if swa is not None:
+        swa.apply(model)
+        selected = {"swa_start": swa.start, "snapshots": swa.snapshots}
+        save(agent_dir, swa=selected)
+        if args.validate_every:
+            selected["armse_pos"] = validation_armse(
+                model,
+                env,
+                args.env,
+                env_kwargs,
+                frame_stack,
+                args.algo,
+                args.validation_runs,
+                critic_dims,
+            )
+    elif args.validate_every:
         if agent_dir.exists():
             shutil.rmtree(agent_dir)
         shutil.copytree(best_dir, agent_dir)
+        selected = {k: v for k, v in best.items() if k != "history"}
     else:
         save(agent_dir)
+        selected = {"timesteps": int(model.num_timesteps)}
     stats = {
         "timesteps": int(model.num_timesteps),
         "trained_this_call": remaining,
         "seconds": seconds,
         "fps": remaining / seconds if seconds > 0 else 0.0,
-        "selected": {k: v for k, v in best.items() if k != "history"},
+        "selected": selected,
         "validation": history,
     }
     (run_dir / "training.json").write_text(json.dumps(stats, indent=2))
@@ -367,6 +410,9 @@ def main(argv: list[str] | None = None) -> int:
     params = hyperparams(args)
     if params.get("critic_state") and args.algo != "ppo":
         parser.error(f"critic_state: true needs --algo ppo, got --algo {args.algo}")
+    swa_start = params.get("swa_start")
+    if swa_start is not None and not (isinstance(swa_start, (int, float)) and 0 <= swa_start < 1):
+        parser.error(f"swa_start must be a fraction of the budget in [0, 1), got {swa_start!r}")
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
     versions = _versions()
@@ -401,6 +447,7 @@ def main(argv: list[str] | None = None) -> int:
                     "",
                     f"Command: `{command}`. Training: {stats['timesteps']} steps in "
                     f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, SB3 on 1 thread).",
+                    f"Agent: {_describe_selection(stats['selected'])}.",
                     f"Versions: {versions}.",
                 ],
             )
@@ -411,6 +458,20 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(f"wrote {args.out}")
     return 0
+
+
+def _describe_selection(selected: dict[str, Any]) -> str:
+    """How the evaluated policy was obtained, from ``training.json``'s ``selected``."""
+    score = selected.get("armse_pos")
+    validation = "" if score is None else f", validation ARMSE {score:.3f} m"
+    if "swa_start" in selected:
+        return (
+            f"the mean of the weights after every update from step {selected['swa_start']} on "
+            f"({selected['snapshots']} updates){validation}"
+        )
+    if score is not None:
+        return f"the best validated checkpoint, at step {selected['timesteps']}{validation}"
+    return f"the last iterate, at step {selected['timesteps']}"
 
 
 def _across_seeds(seeds: dict[str, Any]) -> dict[str, Any]:

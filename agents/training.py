@@ -34,6 +34,7 @@ _STACK_KEYS = (
     "frame_stack",
     "env_kwargs",
     "critic_state",
+    "swa_start",
 )
 
 
@@ -168,6 +169,69 @@ def linear_schedule(initial: float) -> Any:
         return progress_remaining * initial
 
     return schedule
+
+
+class WeightAverage:
+    """Stochastic weight averaging (Izmailov et al. 2018) of the policy over training: the
+    running mean ``θ̄_n = θ̄_{n-1} + (θ_n − θ̄_{n-1}) / n`` of the weights after every update
+    from step ``start`` on. PPO's iterates keep moving at a constant learning rate; their mean is
+    a policy of lower variance than any one of them.
+
+    Args:
+        start: the first training step whose post-update weights enter the mean.
+    """
+
+    FILE = "swa.pt"
+
+    def __init__(self, start: int) -> None:
+        self.start = start
+        self.average: dict[str, Any] = {}
+        self.snapshots = 0
+        self.last_update = -1
+
+    def update(self, model: Any) -> None:
+        """Add ``model.policy``'s weights once per PPO update (``model._n_updates``), from
+        ``start`` on; calling it again before the next update does nothing."""
+        import torch
+
+        if model.num_timesteps < self.start or model._n_updates == self.last_update:
+            return
+        self.snapshots += 1
+        with torch.no_grad():
+            for name, value in model.policy.state_dict().items():
+                if name not in self.average or not value.is_floating_point():
+                    self.average[name] = value.detach().clone()  # integer buffers: indices
+                else:
+                    self.average[name] += (value - self.average[name]) / self.snapshots
+        self.last_update = model._n_updates
+
+    def apply(self, model: Any) -> None:
+        """Load the averaged weights into ``model.policy``."""
+        if not self.snapshots:
+            raise RuntimeError(f"no weights averaged: training ended before step {self.start}")
+        model.policy.load_state_dict(self.average)
+
+    def save(self, directory: Path) -> None:
+        import torch
+
+        if self.snapshots:
+            state = {
+                "average": self.average,
+                "snapshots": self.snapshots,
+                "last_update": self.last_update,
+            }
+            torch.save(state, directory / self.FILE)
+
+    def load(self, directory: Path) -> None:
+        """Continue the mean saved beside a checkpoint (if averaging had begun there)."""
+        import torch
+
+        file = directory / self.FILE
+        if file.is_file():
+            state = torch.load(file, weights_only=True)
+            self.average = state["average"]
+            self.snapshots = int(state["snapshots"])
+            self.last_update = int(state["last_update"])
 
 
 def validation_armse(

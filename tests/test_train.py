@@ -16,17 +16,19 @@ from imm_gym.evaluate import main as evaluate_main
 SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
 
 
-def train_small(out, *args: str) -> int:
-    """``train.py`` with a small PPO (8 envs, 32-step rollouts) writing to ``out``."""
+def train_small(out, *args: str, extra: str = "") -> int:
+    """``train.py`` with a small PPO (8 envs, 32-step rollouts; ``extra`` YAML on top) writing
+    to ``out``."""
     cfg = out / "small.yml"
-    cfg.write_text(SMALL)
+    cfg.write_text(SMALL + extra)
     return train.main(["--config", str(cfg), "--out", str(out), "--no-progress", *args])
 
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
-    assert train_small(out, "--timesteps", "512", "--no-eval", "--checkpoint-every", "256") == 0
+    argv = ["--timesteps", "512", "--no-eval", "--checkpoint-every", "256", "--keep-checkpoints"]
+    assert train_small(out, *argv) == 0
     return out, out / "small.yml"
 
 
@@ -63,6 +65,15 @@ def test_short_run_gives_an_agent_the_evaluation_scores(trained, tmp_path) -> No
     assert (out / "seed_0" / "tb").is_dir()
 
 
+def test_keep_checkpoints_keeps_every_checkpoint_by_its_step(trained) -> None:
+    out, _ = trained
+    ckpts = out / "seed_0" / "checkpoints"
+    assert sorted(p.name for p in ckpts.iterdir()) == ["latest", "step_256", "step_512"]
+    for step in (256, 512):
+        meta = json.loads((ckpts / f"step_{step}" / "agent.json").read_text())
+        assert meta["num_timesteps"] == step
+
+
 def test_resume_continues_the_step_count(trained) -> None:
     out, cfg = trained
     ckpt = out / "seed_0" / "checkpoints" / "latest"
@@ -86,7 +97,7 @@ def test_resume_continues_the_step_count(trained) -> None:
 
 def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
     argv = ("--timesteps", "1024", "--validate-every", "256", "--validation-runs", "3")
-    assert train_small(tmp_path, *argv, "--no-eval") == 0
+    assert train_small(tmp_path, *argv, "--no-eval", extra="swa_start: null\n") == 0
     run = tmp_path / "seed_0"
     stats = json.loads((run / "training.json").read_text())
     scores = [v["armse_pos"] for v in stats["validation"]]
@@ -97,6 +108,46 @@ def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
     agent = json.loads((run / "agent" / "agent.json").read_text())
     assert agent["num_timesteps"] == stats["selected"]["timesteps"]
     assert (run / "agent" / "policy.pt").read_bytes() == (run / "best" / "policy.pt").read_bytes()
+
+
+def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> None:
+    # 8 envs x 32 steps: an update every 256 steps; averaging from step 512 of 1024 takes the
+    # weights after updates 2, 3 and 4, which checkpoints step_768, step_1024 (saved while the
+    # next rollout is collected) and the final checkpoints/latest hold
+    cfg = tmp_path / "swa.yml"
+    cfg.write_text(SMALL + "swa_start: 0.5\n")
+    common = ["--config", str(cfg), "--no-progress", "--no-eval", "--checkpoint-every", "256"]
+    argv = ["--out", str(tmp_path), "--timesteps", "1024", "--keep-checkpoints"]
+    assert train.main([*common, *argv, "--validate-every", "512", "--validation-runs", "3"]) == 0
+    run = tmp_path / "seed_0"
+    ckpts = run / "checkpoints"
+    snapshots = [load_agent(ckpts / name).model for name in ("step_768", "step_1024", "latest")]
+    expected = {
+        k: sum(m.state_dict()[k] for m in snapshots) / 3 for k in snapshots[0].state_dict()
+    }
+    agent = load_agent(run / "agent").model.state_dict()
+    for k, v in expected.items():
+        np.testing.assert_allclose(agent[k].numpy(), v.numpy(), rtol=1e-5, atol=1e-7)
+    last = snapshots[-1].state_dict()["action_net.weight"]
+    assert not np.allclose(agent["action_net.weight"], last)  # not an iterate
+    stats = json.loads((run / "training.json").read_text())
+    assert stats["selected"]["swa_start"] == 512 and stats["selected"]["snapshots"] == 3
+    meta = json.loads((run / "agent" / "agent.json").read_text())
+    assert meta["swa"] == {"swa_start": 512, "snapshots": 3}
+    assert np.isfinite(stats["selected"]["armse_pos"])
+    # resuming from the last checkpoint continues its mean: one more update, four snapshots
+    argv = ["--out", str(tmp_path / "resumed"), "--timesteps", "1280", "--validate-every", "0"]
+    assert train.main([*common, *argv, "--resume", str(ckpts / "latest")]) == 0
+    stats = json.loads((tmp_path / "resumed" / "seed_0" / "training.json").read_text())
+    assert stats["selected"]["snapshots"] == 4
+
+
+@pytest.mark.parametrize("value", ["1.0", "-0.1", "'late'"])
+def test_bad_swa_start_is_rejected(value, tmp_path, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        train_small(tmp_path, "--timesteps", "256", extra=f"swa_start: {value}\n")
+    assert exc.value.code == 2
+    assert "swa_start must be a fraction of the budget in [0, 1)" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
