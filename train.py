@@ -411,7 +411,8 @@ def main(argv: list[str] | None = None) -> int:
     if params.get("critic_state") and args.algo != "ppo":
         parser.error(f"critic_state: true needs --algo ppo, got --algo {args.algo}")
     swa_start = params.get("swa_start")
-    if swa_start is not None and not (isinstance(swa_start, (int, float)) and 0 <= swa_start < 1):
+    is_number = isinstance(swa_start, (int, float)) and not isinstance(swa_start, bool)
+    if swa_start is not None and not (is_number and 0 <= swa_start < 1):
         parser.error(f"swa_start must be a fraction of the budget in [0, 1), got {swa_start!r}")
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])

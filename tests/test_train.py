@@ -142,7 +142,7 @@ def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> No
     assert stats["selected"]["snapshots"] == 4
 
 
-@pytest.mark.parametrize("value", ["1.0", "-0.1", "'late'"])
+@pytest.mark.parametrize("value", ["1.0", "-0.1", "'late'", "false"])
 def test_bad_swa_start_is_rejected(value, tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         train_small(tmp_path, "--timesteps", "256", extra=f"swa_start: {value}\n")
