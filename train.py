@@ -195,9 +195,9 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     best = json.loads(best_file.read_text()) if best_file.is_file() else {"armse_pos": None}
     history: list[dict[str, float]] = best.get("history", [])
 
-    def validate() -> None:
-        """Score the live model on the validation runs; keep it in ``best/`` if it is the best."""
-        armse = validation_armse(
+    def validation_score() -> float:
+        """The live model's position ARMSE on the validation runs."""
+        return validation_armse(
             model,
             env,
             args.env,
@@ -207,6 +207,10 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
             args.validation_runs,
             critic_dims,
         )
+
+    def validate() -> None:
+        """Score the live model on the validation runs; keep it in ``best/`` if it is the best."""
+        armse = validation_score()
         history.append({"timesteps": int(model.num_timesteps), "armse_pos": armse})
         if best["armse_pos"] is None or armse < best["armse_pos"]:
             best.update(armse_pos=armse, timesteps=int(model.num_timesteps))
@@ -280,16 +284,7 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         selected = {"swa_start": swa.start, "snapshots": swa.snapshots}
         save(agent_dir, swa=selected)
         if args.validate_every:
-            selected["armse_pos"] = validation_armse(
-                model,
-                env,
-                args.env,
-                env_kwargs,
-                frame_stack,
-                args.algo,
-                args.validation_runs,
-                critic_dims,
-            )
+            selected["armse_pos"] = validation_score()
     elif args.validate_every:
         if agent_dir.exists():
             shutil.rmtree(agent_dir)
