@@ -237,9 +237,9 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.next:
                 self.next += self.every
-                save(ckpt_dir / "latest")
+                checkpoint("latest")
                 if args.keep_checkpoints:
-                    save(ckpt_dir / f"step_{self.num_timesteps}")
+                    checkpoint(f"step_{self.num_timesteps}")
             if self.validate_every and self.num_timesteps >= self.next_validation:
                 self.next_validation += self.validate_every
                 validate()
@@ -255,8 +255,12 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
             frame_stack,
             {**extra, "num_timesteps": int(model.num_timesteps), **more},
         )
-        if swa is not None and directory.parent == ckpt_dir:
-            swa.save(directory)
+
+    def checkpoint(name: str) -> None:
+        """``checkpoints/NAME``: the live model and, once begun, the weight average."""
+        save(ckpt_dir / name)
+        if swa is not None:
+            swa.save(ckpt_dir / name)
 
     start = time.perf_counter()
     try:
@@ -268,14 +272,14 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
             tb_log_name=f"{args.algo}_seed{seed}",
         )
     except KeyboardInterrupt:
-        save(ckpt_dir / "latest")
+        checkpoint("latest")
         print(
             f"\ninterrupted: checkpoint saved to {ckpt_dir / 'latest'} "
             f"({model.num_timesteps} steps); resume with --resume {ckpt_dir / 'latest'}"
         )
         raise SystemExit(130) from None
     seconds = time.perf_counter() - start
-    save(ckpt_dir / "latest")
+    checkpoint("latest")
     agent_dir = run_dir / "agent"
     if args.validate_every:
         validate()

@@ -174,8 +174,8 @@ def linear_schedule(initial: float) -> Any:
 class WeightAverage:
     """Stochastic weight averaging (Izmailov et al. 2018) of the policy over training: the
     running mean ``θ̄_n = θ̄_{n-1} + (θ_n − θ̄_{n-1}) / n`` of the weights after every update
-    from step ``start`` on. PPO's iterates keep moving at a constant learning rate; their mean is
-    a policy of lower variance than any one of them.
+    from step ``start`` on. PPO's iterates keep wandering at a constant learning rate; their mean
+    averages the wander out instead of betting on one iterate.
 
     Args:
         start: the first training step whose post-update weights enter the mean.
