@@ -137,7 +137,7 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         save_agent,
         validation_armse,
     )
-    from imm_gym.core import critic_state_size
+    from imm_gym.sim.core import critic_state_size
 
     env_kwargs = dict(params.get("env_kwargs", {}))
     frame_stack = int(params.get("frame_stack", 1))
@@ -334,8 +334,9 @@ def _load_normalizer(norm: Any, directory: Path) -> None:
 def evaluate_agent(agent_dir: Path, args: argparse.Namespace, run_dir: Path) -> dict[str, Any]:
     """Paper scenario and held-out random scenarios, learned agent vs the baselines."""
     from agents.policy import load_agent
-    from imm_gym.evaluate import evaluate, render_tables
-    from imm_gym.plots import write_figures
+    from imm_gym.cli.evaluate import evaluate
+    from imm_gym.cli.tables import render_tables
+    from imm_gym.evaluation.plots import write_figures
 
     policy = load_agent(agent_dir)
     out: dict[str, Any] = {}
@@ -357,7 +358,7 @@ def evaluate_agent(agent_dir: Path, args: argparse.Namespace, run_dir: Path) -> 
 
 
 def _paired(rollouts: dict[str, Any], a: str, b: str) -> dict[str, float]:
-    from imm_gym.evaluation import paired_bootstrap
+    from imm_gym.evaluation.rollout import paired_bootstrap
 
     return paired_bootstrap(rollouts[a].squared_position_error, rollouts[b].squared_position_error)
 

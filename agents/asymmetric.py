@@ -1,6 +1,6 @@
 """Asymmetric actor-critic: a value network that also sees ground truth, an actor that does not.
 
-The environment appends :meth:`imm_gym.core.TrackingCore.critic_state` (each tracker's error and
+The environment appends :meth:`imm_gym.sim.core.TrackingCore.critic_state` (each tracker's error and
 the coming true model) to every observation frame when trained with ``critic_state: true``
 (:class:`imm_gym.envs.sb3.TPMAdaptVecEnv`). :class:`AsymmetricActorCriticPolicy` feeds the whole
 stacked observation to the value network and only the first ``frame - critic_dims`` entries of

@@ -11,7 +11,7 @@ A trained agent is a directory (a "run" or the shipped ``pretrained/``) holding
 
 :class:`LearnedPolicy` applies the normalizer and then the frame stack itself (the order of
 SB3's ``VecFrameStack(VecNormalize(env))``), so a model runs through
-:func:`imm_gym.evaluation.rollout` like any baseline.
+:func:`imm_gym.evaluation.rollout.rollout` like any baseline.
 """
 
 from __future__ import annotations

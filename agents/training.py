@@ -249,9 +249,9 @@ def validation_armse(
     the checkpoint to keep, on scenarios disjoint from training and from the held-out evaluation.
     """
     from agents.policy import LearnedPolicy
-    from imm_gym.env_config import EnvConfig
     from imm_gym.envs import PRESETS
-    from imm_gym.evaluation import evaluation_config, rollout, score
+    from imm_gym.evaluation.rollout import evaluation_config, rollout, score
+    from imm_gym.sim.env_config import EnvConfig
 
     norm = find_normalizer(env)
     overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in env_kwargs.items()}

@@ -17,13 +17,13 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.core import feature_sizes
+from imm_gym.sim.core import feature_sizes
 
 Obs = NDArray[np.float32]
 
 
 class Policy(Protocol):
-    """What :func:`imm_gym.evaluation.rollout` needs from a policy."""
+    """What :func:`imm_gym.evaluation.rollout.rollout` needs from a policy."""
 
     def predict(
         self,

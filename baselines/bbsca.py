@@ -1,13 +1,13 @@
 """BBSCA-tuned classical IMM: the fixed TPM with the bank's process noise tuned offline.
 
 Seed 003 tunes ``Q`` and ``R`` by the bare-bones sine-cosine algorithm
-(:mod:`imm_gym.tuning`). In the environments the sensor that makes the measurements is also the
-filter's ``R``, so here only the models' ``Q`` factors are tuned (one per model): BBSCA minimizes
-the innovation mean-square error of the classical IMM (fixed TPM ``initial_stay``) on training
-runs, and the policy is that IMM with the tuned bank (``env_overrides["bank"]``), acting with the
-zero action like :class:`~baselines.fixed.FixedTPM`.
+(:mod:`imm_gym.papers.tuning`). In the environments the sensor that makes the measurements is also
+the filter's ``R``, so here only the models' ``Q`` factors are tuned (one per model): BBSCA
+minimizes the innovation mean-square error of the classical IMM (fixed TPM ``initial_stay``) on
+training runs, and the policy is that IMM with the tuned bank (``env_overrides["bank"]``), acting
+with the zero action like :class:`~baselines.fixed.FixedTPM`.
 
-The tuner runs the engine of :mod:`imm_gym.hetero` (an EKF for the sonar) on the bank; the
+The tuner runs the engine of :mod:`imm_gym.tracking.hetero` (an EKF for the sonar) on the bank; the
 environment then runs the tuned bank with its own filter (the SVD-UKF by default), whose
 predictions differ from the EKF's only through the weak measurement nonlinearity (SPEC §6).
 """
@@ -20,13 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from imm_gym.config import ConfigError, check_range
-from imm_gym.env_config import EnvConfig
-from imm_gym.hetero import HeteroBank, HeteroIMM, linear_models
-from imm_gym.models import MotionModel
-from imm_gym.montecarlo import draw_batch
-from imm_gym.tpm import stay_tpm
-from imm_gym.tuning import TunedBank, TunerConfig, bank_objective, tune
+from imm_gym.evaluation.montecarlo import draw_batch
+from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, tune
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, linear_models
+from imm_gym.tracking.models import MotionModel
+from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError, check_range
 
 from .fixed import FixedTPM
 

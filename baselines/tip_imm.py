@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.tip import tip_factors
+from imm_gym.tracking.tip import tip_factors
 
 from .base import Baseline
 
@@ -15,7 +15,7 @@ from .base import Baseline
 class TIPIMM(Baseline):
     """The TIP-IMM rule as a ``scale`` action: ``a_ij = log(f_ij) / log(max_factor)``.
 
-    ``f`` are the factors of :func:`imm_gym.tip.tip_factors` on ``mu(t)``, ``mu(t-1)`` (the
+    ``f`` are the factors of :func:`imm_gym.tracking.tip.tip_factors` on ``mu(t)``, ``mu(t-1)`` (the
     observation's first blocks: with the parallel bank on, the fused probabilities ``U``). The
     environment settings that make this TIP-IMM are part of the policy: bank B with the fixed TPM
     and entropy fusion with feedback (``parallel=True``), the TPM floor ``p_min = 0.05``.

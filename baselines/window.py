@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.tpm import stay_tpm
+from imm_gym.tracking.tpm import stay_tpm
 
 from .amp_imm import tpm_to_logits
 from .base import Baseline

@@ -1,6 +1,6 @@
 """Wall time of the Monte-Carlo evaluation of every baseline, one core.
 
-Times ``imm_gym.evaluate.evaluate`` on the paper scenario (100 runs) for each baseline alone and
+Times ``imm_gym.cli.evaluate.evaluate`` on the paper scenario (100 runs) for each baseline alone and
 for all of them together (the best fixed TPM includes its search over 12 stay probabilities on
 100 training runs), plus the clairvoyant bound. Import and the numba kernel's first load are timed
 separately. Run from the repository root::
@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenario", default="paper")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    from imm_gym.evaluate import evaluate
+    from imm_gym.cli.evaluate import evaluate
 
     t_import = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     table = Table(title=f"Evaluation wall time, scenario {args.scenario}, {args.runs} runs, 1 core")
     table.add_column("what")
     table.add_column("seconds", justify="right")
-    table.add_row("import imm_gym.evaluate", f"{t_import:.2f}")
+    table.add_row("import imm_gym.cli.evaluate", f"{t_import:.2f}")
     table.add_row("first kernel load (numba cache)", f"{t_warm:.2f}")
     for name in POLICIES:
         t0 = time.perf_counter()

@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from imm_gym.seed_eval import TRAIN_SEED_OFFSET, draw, run_bank, score_run, seed_setup
-from imm_gym.tuning import TunerConfig, bank_objective, tune
+from imm_gym.papers.systems import draw, run_bank, score_run, seed_setup
+from imm_gym.papers.tuning import TunerConfig, bank_objective, tune
+from imm_gym.seeding import TRAIN_SEED_OFFSET
 
 
 def main() -> None:

@@ -5,25 +5,38 @@ filters, the batched IMM bank, metrics, the batched simulation. Importing the pa
 environment ids (``imm_gym/TPMAdapt-v0`` ...) with Gymnasium. See README.md.
 """
 
-from .clairvoyant import clairvoyant_filter
-from .config import ConfigError
-from .core import ActionError, TrackingCore
-from .env_config import EnvConfig
-from .filters import ExtendedKalmanFilter, KalmanFilter, UnscentedKalmanFilter, make_filter, predict
-from .imm import IMM, IMMResult, IMMState, IMMStep, combine, mix, update_mode_probs
-from .initiation import initiate
-from .models import MotionModel, ct_transition, paper_bank
-from .montecarlo import Batch, draw_batch
-from .scenarios import RandomFamily, Scenario, Segment, Truth, generate_truth, paper_scenario
-from .seeding import streams
-from .sensors import Measurements, PositionSensor, Sonar
-from .tpm import stay_tpm, validate_tpm
+from imm_gym.evaluation.clairvoyant import clairvoyant_filter
+from imm_gym.evaluation.montecarlo import Batch, draw_batch
+from imm_gym.scenarios.segments import (
+    RandomFamily,
+    Scenario,
+    Segment,
+    Truth,
+    generate_truth,
+    paper_scenario,
+)
+from imm_gym.seeding import streams
+from imm_gym.sim.core import ActionError, TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.tracking.filters import (
+    ExtendedKalmanFilter,
+    KalmanFilter,
+    UnscentedKalmanFilter,
+    make_filter,
+    predict,
+)
+from imm_gym.tracking.imm import IMM, IMMResult, IMMState, IMMStep, combine, mix, update_mode_probs
+from imm_gym.tracking.initiation import initiate
+from imm_gym.tracking.models import MotionModel, ct_transition, paper_bank
+from imm_gym.tracking.sensors import Measurements, PositionSensor, Sonar
+from imm_gym.tracking.tpm import stay_tpm, validate_tpm
+from imm_gym.validation import ConfigError
 
 __version__ = "0.1.0"
 
 
 def _register() -> None:
-    from .envs import register_envs
+    from imm_gym.envs import register_envs
 
     register_envs()
 

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+#: Training runs of the tuners use seeds ``seed + TRAIN_SEED_OFFSET + r`` (never evaluation seeds).
+TRAIN_SEED_OFFSET = 1_000_000
+
 
 def streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
     """``(scenario_rng, noise_rng)`` spawned from ``SeedSequence(seed)``."""

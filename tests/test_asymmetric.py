@@ -15,9 +15,9 @@ from hypothesis import strategies as st
 import train
 from agents.asymmetric import AsymmetricActorCriticPolicy, actor_index
 from agents.policy import load_agent
-from imm_gym.core import CRITIC_CLIP, critic_state_size
+from imm_gym.cli.evaluate import main as evaluate_main
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
-from imm_gym.evaluate import main as evaluate_main
+from imm_gym.sim.core import CRITIC_CLIP, critic_state_size
 
 ENV = dict(action_mode="set", shadow_stay=1 / 3)
 

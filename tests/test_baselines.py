@@ -13,9 +13,9 @@ import imm_gym  # noqa: F401  (registers the ids)
 from baselines import AMPIMM, BASELINES, TIPIMM, FixedTPM, SlidingWindowTPM, make_baseline
 from baselines.amp_imm import tpm_to_logits
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.evaluation import evaluation_config, paired_bootstrap, rollout, score
-from imm_gym.tip import tip_factors
-from imm_gym.tpm import stay_tpm
+from imm_gym.evaluation.rollout import evaluation_config, paired_bootstrap, rollout, score
+from imm_gym.tracking.tip import tip_factors
+from imm_gym.tracking.tpm import stay_tpm
 
 PAPER = EnvConfig(scenario="paper")
 

@@ -1,4 +1,4 @@
-"""The core's two engines compute the same step: the compiled :func:`imm_gym.fused.env_step`
+"""The core's two engines compute the same step: the compiled :func:`imm_gym.sim.kernels.env_step`
 (built-in banks) against the numpy orchestration that any bank runs (here the same bank on the
 numpy IMM backend), over whole episodes with random actions, autoresets and divergences."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from imm_gym import IMM, EnvConfig, TrackingCore
-from imm_gym.fused import tpm_from_action
-from imm_gym.tpm import apply_floor
+from imm_gym.sim.kernels import tpm_from_action
+from imm_gym.tracking.tpm import apply_floor
 
 FEATURES = ("tpm", "loglik", "nis", "innovation", "time", "turn_rate")
 SHADOW_FEATURES = ("shadow_probs", "shadow_turn_rate")

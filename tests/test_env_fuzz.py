@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import VecCheckNan
 
-from imm_gym.env_config import OBS_FEATURES
 from imm_gym.envs import TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
+from imm_gym.sim.env_config import OBS_FEATURES
 
 ALL_FEATURES = tuple(f for f in OBS_FEATURES if f != "bank_b")  # bank_b needs parallel
 OUTLIERS = {"outlier_prob": 0.2, "outlier_scale": 100.0}

@@ -9,9 +9,9 @@ import pytest
 from gymnasium.vector import AutoresetMode
 
 from imm_gym import EnvConfig
-from imm_gym.env_config import OBS_FEATURES
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
+from imm_gym.sim.env_config import OBS_FEATURES
 
 SHORT = {
     "scenario": "random",

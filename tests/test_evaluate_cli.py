@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from imm_gym.evaluate import evaluate, main
+from imm_gym.cli.evaluate import evaluate, main
 
 
 def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:

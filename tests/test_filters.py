@@ -1,4 +1,5 @@
-"""Tests of imm_gym.filters: KF, EKF and SVD-UKF updates, the linear prediction, sigma points."""
+"""Tests of imm_gym.tracking.filters: KF, EKF and SVD-UKF updates, the linear prediction, sigma
+points."""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from imm_gym import IMM, IMMState, Sonar, combine, draw_batch, paper_bank, stay_tpm
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
-from imm_gym.fusion import entropy, fuse
+from imm_gym.tracking.fusion import entropy, fuse
 
 
 def h_bits(u: list[float]) -> float:

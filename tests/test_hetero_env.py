@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from imm_gym import ConfigError, EnvConfig, TrackingCore
-from imm_gym.hetero import SONAR_HETERO_BANK, HeteroBank, HeteroIMM
+from imm_gym.tracking.hetero import SONAR_HETERO_BANK, HeteroBank, HeteroIMM
 
 ENV_ID = "imm_gym/TPMAdaptHetero-v0"
 

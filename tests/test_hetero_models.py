@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from imm_gym import IMM, ConfigError, PositionSensor, paper_bank, stay_tpm
-from imm_gym.conversions import (
+from imm_gym.tracking.conversions import (
     SPACES,
     conversion,
     convert,
@@ -18,7 +18,7 @@ from imm_gym.conversions import (
     ctra_transition,
     g_integrals,
 )
-from imm_gym.hetero import HeteroBank, HeteroIMM, HeteroModel, LinearModel, linear_models
+from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, HeteroModel, LinearModel, linear_models
 
 finite = st.floats(-50.0, 50.0, allow_nan=False)
 speed = st.floats(0.5, 30.0)

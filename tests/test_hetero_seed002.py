@@ -8,13 +8,18 @@ import numpy as np
 import pytest
 
 from imm_gym import ConfigError, Scenario, Segment, generate_truth
-from imm_gym.metrics import trajectory_metrics
-from imm_gym.seed_eval import draw, seed002_evaluation, seed002_sensor
-from imm_gym.seed_scenarios import Seed002Family, profile_truth, seed003_profile, seed003_truth
+from imm_gym.evaluation.metrics import trajectory_metrics
+from imm_gym.papers.systems import draw, seed002_evaluation, seed002_sensor
+from imm_gym.scenarios.profiles import (
+    Seed002Family,
+    profile_truth,
+    seed003_profile,
+    seed003_truth,
+)
 
 
 def test_profile_truth_matches_segment_truth_on_turns() -> None:
-    """The CTRA truth equals the closed-form CT truth of :mod:`imm_gym.scenarios`."""
+    """The CTRA truth equals the closed-form CT truth of :mod:`imm_gym.scenarios.segments`."""
     scenario = Scenario(
         (Segment(20), Segment(30, 2.0), Segment(10), Segment(15, -3.0)),
         position=(100.0, -50.0),
@@ -132,7 +137,7 @@ def test_seed003_profile_follows_the_source() -> None:
 
 
 def test_seed003_family_keeps_the_turn_direction() -> None:
-    from imm_gym.seed_eval import Seed003Family
+    from imm_gym.papers.systems import Seed003Family
 
     fam = Seed003Family()
     pt = fam.sample([np.random.default_rng(s) for s in range(20)])
@@ -155,7 +160,7 @@ def test_seed003_family_keeps_the_turn_direction() -> None:
 
 def test_consistency_uses_the_one_sided_chi2_bound() -> None:
     """chi2(4) samples: 95 % inside the bound 9.4877 (seed 002's dashed line), mean 4."""
-    from imm_gym.metrics import consistency
+    from imm_gym.evaluation.metrics import consistency
 
     values = np.random.default_rng(0).chisquare(4, size=200_000)
     c = consistency(values, 4)
@@ -167,7 +172,7 @@ def test_consistency_uses_the_one_sided_chi2_bound() -> None:
 
 
 def test_seed002_evaluation_takes_a_bank() -> None:
-    from imm_gym.hetero import HeteroBank
+    from imm_gym.tracking.hetero import HeteroBank
 
     a = seed002_evaluation(runs=1, seed=4)["metrics"]
     b = seed002_evaluation(runs=1, seed=4, bank=HeteroBank(q_scale=(0.1, 0.1, 0.1)))["metrics"]

@@ -1,4 +1,5 @@
-"""Tests of imm_gym.imm: the IMM cycle against independent implementations, batching, errors."""
+"""Tests of imm_gym.tracking.imm: the IMM cycle against independent implementations, batching,
+errors."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ from imm_gym import (
     stay_tpm,
     update_mode_probs,
 )
-from imm_gym.kernels import TRACKER_BLOCK
+from imm_gym.tracking.kernels.imm import TRACKER_BLOCK
 
 
 def _random_tpm(rng: np.random.Generator, M: int, shape: tuple[int, ...] = ()) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""Tests of imm_gym.linalg: angle wrapping, the Jacobi eigendecomposition, inverse/log-det."""
+"""Tests of imm_gym.tracking.linalg: angle wrapping, the Jacobi eigendecomposition,
+inverse/log-det."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imm_gym.linalg import EIG_LANES, inv_logdet, sym_eig, wrap_angle
+from imm_gym.tracking.linalg import EIG_LANES, inv_logdet, sym_eig, wrap_angle
 
 PI = np.pi
 
@@ -275,7 +276,7 @@ def test_inv_logdet_rejects_non_pd_4x4() -> None:
 
 
 def test_kernel_wrap_equals_wrap_angle() -> None:
-    from imm_gym.kernels import _wrap
+    from imm_gym.tracking.kernels.imm import _wrap
 
     rng = np.random.default_rng(0)
     special = [PI, -PI, 3 * PI, -3 * PI, np.nextafter(PI, 4.0), np.nextafter(-PI, -4.0), 0.0]

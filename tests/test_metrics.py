@@ -1,4 +1,4 @@
-"""Tests of imm_gym.metrics: RMSE/ARMSE, NIS/NEES consistency, model identification."""
+"""Tests of imm_gym.evaluation.metrics: RMSE/ARMSE, NIS/NEES consistency, model identification."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 
 from imm_gym import MotionModel, Scenario, Segment, generate_truth, paper_bank, paper_scenario
-from imm_gym.metrics import (
+from imm_gym.evaluation.metrics import (
     consistency,
     mode_accuracy,
     nees,

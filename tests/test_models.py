@@ -1,4 +1,4 @@
-"""Tests of imm_gym.models: CV / CT / CA transition matrices, process noise, validation."""
+"""Tests of imm_gym.tracking.models: CV / CT / CA transition matrices, process noise, validation."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from imm_gym import ConfigError, MotionModel, ct_transition, paper_bank
-from imm_gym.models import PAPER_Q, bank_dim
+from imm_gym.tracking.models import PAPER_Q, bank_dim
 
 CV_F = np.array(
     [

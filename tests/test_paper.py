@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from imm_gym import IMM, Sonar, clairvoyant_filter, draw_batch, paper_bank, paper_scenario, stay_tpm
-from imm_gym.metrics import tracking_errors
+from imm_gym.evaluation.metrics import tracking_errors
 
 IMM_ARMSE = 18.4  # SPEC §6: classical IMM, paper preset (the paper prints 18.36)
 CLAIRVOYANT_ARMSE = 15.7  # SPEC §6: the clairvoyant filter

@@ -11,7 +11,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from imm_gym import IMM, IMMState, Sonar, paper_bank, stay_tpm
-from imm_gym.linalg import wrap_angle
+from imm_gym.tracking.linalg import wrap_angle
 
 PI = math.pi
 BACKENDS = ["numpy", "numba"] if "backend" in inspect.signature(IMM).parameters else [None]

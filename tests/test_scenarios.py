@@ -1,4 +1,4 @@
-"""Tests of imm_gym.scenarios: the paper scenario, the random family, batched truth."""
+"""Tests of imm_gym.scenarios.segments: the paper scenario, the random family, batched truth."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Tests of imm_gym.sensors: the range-bearing sonar and the linear position sensor."""
+"""Tests of imm_gym.tracking.sensors: the range-bearing sonar and the linear position sensor."""
 
 from __future__ import annotations
 

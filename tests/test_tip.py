@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from imm_gym import ConfigError, EnvConfig, TrackingCore
-from imm_gym.tip import tip_factors
+from imm_gym.tracking.tip import tip_factors
 
 ALPHA, BETA = 1.1, 0.9
 TPM = [[0.8, 0.1, 0.1], [0.2, 0.7, 0.1], [0.1, 0.1, 0.8]]

@@ -12,7 +12,7 @@ from hypothesis.extra.numpy import arrays
 from imm_gym import ActionError, ConfigError, EnvConfig, TrackingCore
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
-from imm_gym.tpm import apply_floor, row_divergence, stay_tpm
+from imm_gym.tracking.tpm import apply_floor, row_divergence, stay_tpm
 
 _CORES: dict[tuple, TrackingCore] = {}
 

@@ -11,7 +11,7 @@ import pytest
 import train
 from agents.policy import load_agent
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.evaluate import main as evaluate_main
+from imm_gym.cli.evaluate import main as evaluate_main
 
 SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from imm_gym import ConfigError
-from imm_gym.evaluate import main as evaluate_main
-from imm_gym.seed_eval import (
+from imm_gym.cli.evaluate import main as evaluate_main
+from imm_gym.papers.systems import (
     Seed003Family,
     SeedBatch,
     draw,
@@ -15,8 +15,8 @@ from imm_gym.seed_eval import (
     seed003_imm,
     seed003_sensor,
 )
-from imm_gym.tpm import stay_tpm
-from imm_gym.tuning import TunedBank, TunerConfig, bank_objective, optimize, tune
+from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, optimize, tune
+from imm_gym.tracking.tpm import stay_tpm
 
 
 def sphere(theta: np.ndarray) -> np.ndarray:
@@ -112,7 +112,7 @@ def test_evaluation_tool_reports_tuned_banks(tmp_path, capsys) -> None:
 def test_bbsca_baseline_scales_the_bank_and_runs_through_the_evaluation() -> None:
     from baselines.bbsca import scaled_bank, tune_classical
     from imm_gym import EnvConfig, paper_bank
-    from imm_gym.evaluation import evaluation_config, rollout, score
+    from imm_gym.evaluation.rollout import evaluation_config, rollout, score
 
     bank = scaled_bank(paper_bank(), (2.0, 0.5, 1.0))
     assert bank[0].q == tuple(2.0 * v for v in paper_bank()[0].q)
@@ -152,7 +152,8 @@ def test_tuned_banks_beat_the_untuned_bank_on_held_out_runs() -> None:
     """Seed 002's bank, a small budget (6 particles x 6 generations, 3 training runs): both
     optimizers lower the innovation objective on held-out runs. (BBSCA below SCA at equal budget
     is measured by benchmarks/tune_compare.py; at this budget it depends on the optimizer seed.)"""
-    from imm_gym.seed_eval import TRAIN_SEED_OFFSET, seed_setup
+    from imm_gym.papers.systems import seed_setup
+    from imm_gym.seeding import TRAIN_SEED_OFFSET
 
     imm, family, sensor, tpm = seed_setup("seed002")
     train = draw(family, sensor, 3, TRAIN_SEED_OFFSET)

@@ -1,4 +1,4 @@
-"""Gymnasium fronts over :class:`imm_gym.core.TrackingCore` and their registration."""
+"""Gymnasium fronts over :class:`imm_gym.sim.core.TrackingCore` and their registration."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ from typing import Any
 
 import gymnasium as gym
 
-from ..hetero import SONAR_HETERO_BANK
-from .tpm_adapt import TPMAdaptEnv
-from .vector import TPMAdaptVectorEnv
+from imm_gym.envs.tpm_adapt import TPMAdaptEnv
+from imm_gym.envs.vector import TPMAdaptVectorEnv
+from imm_gym.tracking.hetero import SONAR_HETERO_BANK
 
 #: Registered ids and their presets (``config`` keyword of the entry points).
 PRESETS: dict[str, dict[str, Any]] = {

@@ -17,8 +17,8 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from ..core import CRITIC_CLIP, TrackingCore, critic_state_size
-from ..env_config import EnvConfig
+from imm_gym.sim.core import CRITIC_CLIP, TrackingCore, critic_state_size
+from imm_gym.sim.env_config import EnvConfig
 
 #: Per-step diagnostics copied into each sub-env's info dict (the rest stays in the core).
 SB3_INFO_KEYS = (
@@ -39,7 +39,7 @@ class TPMAdaptVecEnv(VecEnv):
         config: an :class:`EnvConfig` or a mapping; keyword arguments override fields.
         env_id: take the preset of a registered id (``"imm_gym/TPMAdapt-v0"``) as the base
             config; a ``config`` mapping updates it, an :class:`EnvConfig` replaces it.
-        critic_state: append :meth:`~imm_gym.core.TrackingCore.critic_state` (ground truth) to
+        critic_state: append :meth:`~imm_gym.sim.core.TrackingCore.critic_state` (ground truth) to
             every observation, for an asymmetric actor-critic whose actor does not read it
             (:class:`agents.asymmetric.AsymmetricActorCriticPolicy`).
     """

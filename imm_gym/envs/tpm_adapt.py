@@ -10,8 +10,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from ..core import ActionError, TrackingCore
-from ..env_config import EnvConfig
+from imm_gym.sim.core import ActionError, TrackingCore
+from imm_gym.sim.env_config import EnvConfig
 
 
 class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -71,7 +71,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ``reward="error"``: ``−e / reward_scale``. Errors are capped at ``divergence_error``. All
     terms are in ``info`` (``reward_error``, ``reward_advantage``, ``reward_squared_advantage``).
     ``tpm_cost > 0`` subtracts ``tpm_cost`` times the mean KL divergence of the TPM's rows from
-    the shadow's (:func:`imm_gym.tpm.row_divergence`, ``info["tpm_divergence"]``).
+    the shadow's (:func:`imm_gym.tracking.tpm.row_divergence`, ``info["tpm_divergence"]``).
 
     ## Starting State
     A scenario is drawn (the randomized family, the paper scenario, or a user ``Scenario``); the

@@ -11,8 +11,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from ..core import ActionError, TrackingCore
-from ..env_config import EnvConfig
+from imm_gym.sim.core import ActionError, TrackingCore
+from imm_gym.sim.env_config import EnvConfig
 
 
 class TPMAdaptVectorEnv(VectorEnv):

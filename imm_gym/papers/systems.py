@@ -1,13 +1,14 @@
 r"""Seed 002's and seed 003's evaluations: their banks, sensors, scenarios and metrics.
 
-* **seed 002** — the NCV/CT/CTRA IMM-EKF (:class:`~imm_gym.hetero.HeteroBank`, Table I: TPM 0.90 /
-  0.05, ``mu_0 = (0.90, 0.08, 0.02)``) on :class:`~imm_gym.seed_scenarios.Seed002Family`, a
+* **seed 002** — the NCV/CT/CTRA IMM-EKF (:class:`~imm_gym.tracking.hetero.HeteroBank`, Table I: TPM
+0.90 /
+  0.05, ``mu_0 = (0.90, 0.08, 0.02)``) on :class:`~imm_gym.scenarios.profiles.Seed002Family`, a
   position+velocity sensor (``sigma_p = 0.5`` m, ``sigma_v = 0.5`` m/s), ``T = 0.1`` s. Metrics:
-  :func:`~imm_gym.metrics.trajectory_metrics` (position RMSE / MAE / max / FDE, velocity and yaw
-  RMSE) and NIS / NEES (dof 4) with the share inside the 95 % χ² bound and the mean.
+  :func:`~imm_gym.evaluation.metrics.trajectory_metrics` (position RMSE / MAE / max / FDE, velocity
+  and yaw RMSE) and NIS / NEES (dof 4) with the share inside the 95 % χ² bound and the mean.
 * **seed 003** — a CV / CA / CT(+6.75°/s, the profile's turn rate) linear bank on
   ``[x, y, vx, vy, ax, ay]`` (Kalman filters in the same engine), position+velocity measurements
-  at ``T = 0.1`` s, the 43 s trajectory of §4 (:func:`~imm_gym.seed_scenarios.seed003_profile`)
+  at ``T = 0.1`` s, the 43 s trajectory of §4 (:func:`~imm_gym.scenarios.profiles.seed003_profile`)
   and a family around it for training and held-out evaluation (:class:`Seed003Family`). The
   noise values the extraction lost are filled: ``Q_CV = diag(1e-3, 1e-3, 1e-2, 1e-2)`` with
   ``q_acc = 1e-2``, ``Q_CA = diag(1e-3, 1e-3, 1e-2, 1e-2, 1e-1, 1e-1)``, ``Q_CT = Q_CV``,
@@ -26,20 +27,19 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_int, check_range
-from .hetero import HeteroBank, HeteroIMM, linear_models
-from .metrics import consistency, nees, trajectory_metrics
-from .models import MotionModel
-from .seed_scenarios import (
+from imm_gym.evaluation.metrics import consistency, nees, trajectory_metrics
+from imm_gym.scenarios.profiles import (
     SEED003_TURN_RATE,
     ProfileTruth,
     Seed002Family,
-    profile_truth,
-    seed003_profile,
+    Seed003Family,
 )
-from .seeding import streams
-from .sensors import Measurements, PositionSensor
-from .tpm import stay_tpm
+from imm_gym.seeding import streams
+from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, linear_models
+from imm_gym.tracking.models import MotionModel
+from imm_gym.tracking.sensors import Measurements, PositionSensor
+from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError, check_int
 
 Array = NDArray[np.float64]
 
@@ -76,55 +76,6 @@ def seed003_models() -> tuple[MotionModel, ...]:
         MotionModel("ca", q=(*q4, 1e-1, 1e-1)),
         MotionModel("ct", math.degrees(SEED003_TURN_RATE), q=q4, q_acc=1e-2),
     )
-
-
-@dataclass(frozen=True)
-class Seed003Family:
-    """Trajectories around seed 003's (``seed003_profile``), rotated to a random heading.
-
-    Per run: the turn rate scaled by ``U(rate_scale)`` **keeping the source's (left) turn
-    direction** — the bank has a single left-turning CT model —, the accelerations (the 10-14 s
-    Cartesian one, rotated with the heading, and the 34-38 s tangential one) scaled by
-    ``U(accel_scale)``, initial speed ``U(speed)``, heading ``U(-pi, pi)``, start ``U(-20, 20)`` m
-    per axis.
-    """
-
-    rate_scale: tuple[float, float] = (0.6, 1.4)
-    accel_scale: tuple[float, float] = (0.5, 1.5)
-    speed: tuple[float, float] = (4.0, 6.0)
-    T: float = 0.1
-
-    def __post_init__(self) -> None:
-        for name in ("rate_scale", "accel_scale", "speed"):
-            lo, hi = getattr(self, name)
-            check_range(f"family.{name}[0]", lo, 0.0, lo_open=True)
-            check_range(f"family.{name}[1]", hi, lo)
-        check_range("family.T", self.T, 0.0, 1.0, lo_open=True)
-
-    def sample(self, rngs: list[np.random.Generator]) -> ProfileTruth:
-        """The truth of one run per generator."""
-        if not rngs:
-            raise ConfigError("Seed003Family.sample needs at least one generator")
-        p = seed003_profile(self.T)
-        w, a, ca, pos, v, psi = [], [], [], [], [], []
-        for rng in rngs:
-            w.append(p.omega * rng.uniform(*self.rate_scale))
-            s = rng.uniform(*self.accel_scale)
-            a.append(p.accel * s)
-            pos.append(rng.uniform(-20.0, 20.0, size=2))
-            v.append(rng.uniform(*self.speed))
-            psi.append(rng.uniform(-math.pi, math.pi))
-            c, sn = math.cos(psi[-1] - p.heading), math.sin(psi[-1] - p.heading)
-            ca.append(s * p.cart_accel @ np.array([[c, sn], [-sn, c]]))
-        return profile_truth(
-            np.stack(w),
-            np.stack(a),
-            np.array(pos),
-            np.array(v),
-            np.array(psi),
-            self.T,
-            np.stack(ca),
-        )
 
 
 @dataclass(frozen=True)
@@ -247,7 +198,7 @@ def seed002_evaluation(
 
     Args:
         runs, seed: runs ``seed .. seed + runs - 1``.
-        bank: the bank (default :class:`~imm_gym.hetero.HeteroBank`, seed 002 Table I).
+        bank: the bank (default :class:`~imm_gym.tracking.hetero.HeteroBank`, seed 002 Table I).
     """
     imm, family, sensor, tpm = seed_setup("seed002", bank)
     batch = draw(family, sensor, runs, seed)
@@ -266,10 +217,6 @@ def seed003_imm(sensor: PositionSensor | None = None) -> HeteroIMM:
 
 
 SEED_SCENARIOS = ("seed002", "seed003")
-SEED_POLICIES = ("fixed", "bbsca", "sca")
-#: Training runs of the tuners use seeds ``seed + TRAIN_SEED_OFFSET + r`` (never evaluation seeds).
-TRAIN_SEED_OFFSET = 1_000_000
-
 
 def seed_setup(
     name: str, bank: HeteroBank | None = None
@@ -288,122 +235,3 @@ def seed_setup(
         sensor = seed003_sensor()
         return seed003_imm(sensor), Seed003Family(), sensor, stay_tpm(3, 0.9)
     raise ConfigError(f"scenario must be one of {list(SEED_SCENARIOS)}, got {name!r}")
-
-
-def evaluate_seed_scenario(
-    name: str,
-    policies: list[str],
-    runs: int,
-    seed: int,
-    tuned: dict[str, str] | None = None,
-    train_runs: int = 10,
-    generations: int = 30,
-) -> dict[str, object]:
-    """Classical IMM (``fixed``) and its BBSCA- / SCA-tuned versions on a seed scenario.
-
-    A tuned policy loads its :class:`~imm_gym.tuning.TunedBank` from ``tuned[policy]`` if given,
-    else tunes on ``train_runs`` training runs (seeds ``seed + TRAIN_SEED_OFFSET + r``) with 10
-    particles and ``generations`` generations. All policies are scored on the same runs (seeds
-    ``seed .. seed + runs - 1``), with the held-out innovation objective ``J`` beside seed 002's
-    metrics.
-    """
-    from .tuning import TunedBank, TunerConfig, bank_objective, tune
-
-    imm, family, sensor, tpm = seed_setup(name)
-    for p in policies:
-        if p not in SEED_POLICIES:
-            raise ConfigError(
-                f"on scenario {name!r} the policies are {list(SEED_POLICIES)} (classical IMM and "
-                f"its tuned versions), got {p!r}"
-            )
-    if len(set(policies)) != len(policies):
-        raise ConfigError(f"--policy given twice: {policies}")
-    batch = draw(family, sensor, runs, seed)
-    held_out = bank_objective(imm, batch, tpm, sensor.sigma)
-    results: dict[str, object] = {}
-    for p in policies:
-        notes: dict[str, object] = {}
-        if p == "fixed":
-            bank = TunedBank(name, (1.0,) * imm.n_models, 1.0, method="none")
-        elif tuned and p in tuned:
-            bank = TunedBank.load(tuned[p])
-            notes["tuned_file"] = tuned[p]
-        else:
-            train = draw(family, sensor, train_runs, seed + TRAIN_SEED_OFFSET)
-            cfg = TunerConfig(method=p, generations=generations, seed=seed)
-            bank, _ = tune(imm, train, tpm, sensor.sigma, cfg, bank=name)
-            notes["train_seeds"] = (
-                f"{seed + TRAIN_SEED_OFFSET}..{seed + TRAIN_SEED_OFFSET + train_runs - 1}"
-            )
-        if len(bank.q_scale) != imm.n_models:
-            raise ConfigError(
-                f"tuned bank has {len(bank.q_scale)} Q scales for {imm.n_models} models"
-            )
-        q = np.tile(bank.q_scale, (runs, 1))
-        r = np.full(runs, bank.r_scale)
-        run = run_bank(imm, batch, tpm, q_scale=q, r_scale=r)
-        metrics = score_run(run, batch, sensor.dim_z)
-        metrics["innovation_mse"] = float(held_out(bank.theta[None])[0])
-        results[p] = {
-            **metrics,
-            "q_scale": list(bank.q_scale),
-            "r_scale": bank.r_scale,
-            "train_objective": bank.objective,
-            **notes,
-        }
-    return {
-        "policies": results,
-        "paper": SEED002_PAPER if name == "seed002" else {},
-        "meta": {
-            "scenario": name,
-            "runs": runs,
-            "seed": seed,
-            "seeds": f"{seed}..{seed + runs - 1}",
-            "steps": batch.measurements.z.shape[1] - 1,
-            "filter": "ekf",
-        },
-    }
-
-
-SEED_COLUMNS = (
-    ("pos_rmse", "pos RMSE (m)", "{:.4f}"),
-    ("pos_mae", "MAE (m)", "{:.4f}"),
-    ("pos_max", "max (m)", "{:.3f}"),
-    ("fde", "FDE (m)", "{:.4f}"),
-    ("vel_rmse", "vel RMSE (m/s)", "{:.4f}"),
-    ("yaw_rmse_deg", "yaw RMSE (°)", "{:.3f}"),
-    ("nis_inside", "NIS ≤ χ²95", "{:.1%}"),
-    ("nis_mean", "mean NIS", "{:.3f}"),
-    ("nees_inside", "NEES ≤ χ²95", "{:.1%}"),
-    ("nees_mean", "mean NEES", "{:.3f}"),
-    ("innovation_mse", "innov. MSE J", "{:.4f}"),
-)
-
-
-def render_seed_tables(results: dict[str, object]) -> None:
-    """Print the seed-scenario table (seed 002's paper row beside it) with rich."""
-    import sys
-
-    from rich.console import Console
-    from rich.table import Table
-
-    meta: dict[str, object] = results["meta"]  # type: ignore[assignment]
-    console = Console(width=None if sys.stdout.isatty() else 180)
-    table = Table(
-        title=f"scenario '{meta['scenario']}', {meta['runs']} runs (seeds {meta['seeds']}), "
-        f"{meta['steps']} steps, IMM-EKF"
-    )
-    table.add_column("policy")
-    for _, label, _ in SEED_COLUMNS:
-        table.add_column(label, justify="right")
-    rows = dict(results["policies"])  # type: ignore[call-overload]
-    paper = results.get("paper") or {}
-    for name, r in rows.items():
-        table.add_row(name, *(fmt.format(r[k]) for k, _, fmt in SEED_COLUMNS))
-    if paper:
-        table.add_row(
-            "seed 002 paper (their trajectory)",
-            *(fmt.format(paper[k]) if k in paper else "—" for k, _, fmt in SEED_COLUMNS),
-            style="dim",
-        )
-    console.print(table)

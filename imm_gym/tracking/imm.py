@@ -1,10 +1,10 @@
 r"""The Interacting Multiple Model estimator, batched over N trackers × M models (SPEC §1).
 
-One IMM cycle, with ``tpm[i, j] = P(j at k | i at k-1)`` (:mod:`imm_gym.tpm`):
+One IMM cycle, with ``tpm[i, j] = P(j at k | i at k-1)`` (:mod:`imm_gym.tracking.tpm`):
 
 1. :func:`mix` — ``cbar_j = sum_i pi_ij mu_i``, ``mu_{i|j} = pi_ij mu_i / cbar_j``,
    ``x0_j = sum_i mu_{i|j} x_i``, ``P0_j = sum_i mu_{i|j} [P_i + (x_i - x0_j)(x_i - x0_j)^T]``;
-2. model-matched filtering — :func:`imm_gym.filters.predict` and the filter's ``update``;
+2. model-matched filtering — :func:`imm_gym.tracking.filters.predict` and the filter's ``update``;
 3. :func:`update_mode_probs` — ``mu_j ∝ Lambda_j cbar_j``, in the log domain;
 4. :func:`combine` — ``x = sum_j mu_j x_j``, ``P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]``.
 
@@ -20,9 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from . import kernels
-from .config import ConfigError
-from .filters import (
+from imm_gym.tracking.filters import (
     ExtendedKalmanFilter,
     Filter,
     KalmanFilter,
@@ -31,9 +29,11 @@ from .filters import (
     Update,
     make_filter,
 )
-from .linalg import inv_logdet, mahalanobis
-from .models import MotionModel, bank_dim
-from .tpm import validate_tpm
+from imm_gym.tracking.kernels import imm as kernels
+from imm_gym.tracking.linalg import inv_logdet, mahalanobis
+from imm_gym.tracking.models import MotionModel, bank_dim
+from imm_gym.tracking.tpm import validate_tpm
+from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -184,7 +184,7 @@ def measurement_mixture(
 
     ``z_mix = sum_j cbar_j z_j``, ``S_mix = sum_j cbar_j [S_j + (z_j - z_mix)(z_j - z_mix)^T]``
     (differences through ``sensor.residual``, so bearings are averaged correctly); the density
-    whose NIS :class:`IMM` and :class:`imm_gym.hetero.HeteroIMM` report.
+    whose NIS :class:`IMM` and :class:`imm_gym.tracking.hetero.HeteroIMM` report.
 
     Args:
         cbar: ``(N, M)``; z_pred: ``(N, M, m)``; S: ``(N, M, m, m)``.
@@ -200,8 +200,8 @@ class IMM:
     """A bank of model-matched filters run as an IMM, batched over N trackers.
 
     Args:
-        models: the M motion models (:mod:`imm_gym.models`).
-        sensor: the measurement model (:mod:`imm_gym.sensors`).
+        models: the M motion models (:mod:`imm_gym.tracking.models`).
+        sensor: the measurement model (:mod:`imm_gym.tracking.sensors`).
         filter: ``"ukf"`` (SVD-UKF, default), ``"ekf"`` or ``"kf"`` (linear sensors only), or a
             filter instance.
         T: sampling period (s).
@@ -238,7 +238,8 @@ class IMM:
         self._FFt = np.stack([np.kron(F, F).T for F in self.F])
         self.backend = self._choose_backend(backend)
         #: the compiled kernel's bank constants ``(F, Q, R, sensor kind, sensor params, filter
-        #: kind, wm, wc, gamma)`` (:func:`imm_gym.kernels.imm_step`); None with the numpy backend
+        #: kind, wm, wc, gamma)`` (:func:`imm_gym.tracking.kernels.imm.imm_step`); None with the
+        #: numpy backend
         self.kernel_args: tuple | None = None
         if self.backend == "numba":
             kind, params = kernels.sensor_spec(sensor)  # type: ignore[misc]
@@ -273,8 +274,8 @@ class IMM:
     def predict(self, x: Array, P: Array) -> tuple[Array, Array]:
         """Model-matched prediction ``x_j = F_j x0_j``, ``P_j = F_j P0_j F_j^T + Q_j``.
 
-        Same result as :func:`imm_gym.filters.predict`, computed as one matrix product per model
-        over all N trackers with ``vec(F P F^T) = (F ⊗ F) vec(P)`` (far faster than N small
+        Same result as :func:`imm_gym.tracking.filters.predict`, computed as one matrix product per
+        model over all N trackers with ``vec(F P F^T) = (F ⊗ F) vec(P)`` (far faster than N small
         products when N is large).
 
         Args:
@@ -399,7 +400,7 @@ class IMM:
     def _step_compiled(
         self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None, allow_failure: bool
     ) -> tuple[IMMState, IMMStep]:
-        """The same cycle through the fused kernel (:mod:`imm_gym.kernels`)."""
+        """The same cycle through the fused kernel (:mod:`imm_gym.tracking.kernels.imm`)."""
         N, M, n = state.x.shape
         det = np.ones(N, dtype=bool) if detected is None else detected
         x, P = np.empty((N, M, n)), np.empty((N, M, n, n))

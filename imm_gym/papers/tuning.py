@@ -22,8 +22,8 @@ would score ``J = 1`` in expectation), the state's prediction error the rest.
 far. That is 10 particles x 100 generations of filtering per step, and the tuned values chase the
 noise of a few samples. Here the tuner runs once, before tracking, on a training set of scenarios,
 and a generation's P particles are P x S independent trackers of one batched IMM run
-(:func:`imm_gym.seed_eval.run_bank` with per-tracker ``q_scale`` / ``r_scale``): one pass over the
-K steps evaluates the whole swarm. The tuned bank is then a fixed configuration
+(:func:`imm_gym.papers.systems.run_bank` with per-tracker ``q_scale`` / ``r_scale``): one pass over
+the K steps evaluates the whole swarm. The tuned bank is then a fixed configuration
 (:class:`TunedBank`, saved and loaded as JSON).
 
 **SCA** (Mirjalili 2016): with ``b`` the best particle so far,
@@ -50,9 +50,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_choice, check_int, check_range, from_dict
-from .hetero import HeteroIMM
-from .seed_eval import SeedBatch, run_bank
+from imm_gym.papers.systems import SeedBatch, run_bank
+from imm_gym.tracking.hetero import HeteroIMM
+from imm_gym.validation import ConfigError, check_choice, check_int, check_range, from_dict
 
 Array = NDArray[np.float64]
 
@@ -174,8 +174,8 @@ def bank_objective(
 
     Args:
         imm: the bank (its models' own ``q_scale`` are the reference, 1 = untuned).
-        batch: the training runs (S >= 1; a :class:`~imm_gym.montecarlo.Batch` works too).
-        tpm: the fixed TPM. sigma: the sensor's nominal standard deviations ``(m,)``.
+        batch: the training runs (S >= 1; a :class:`~imm_gym.evaluation.montecarlo.Batch` works
+        too). tpm: the fixed TPM. sigma: the sensor's nominal standard deviations ``(m,)``.
         tune_r: particles carry the ``R`` factor as last component (else ``M`` components and
             ``R`` as the sensor has it).
     """

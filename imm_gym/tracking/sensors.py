@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_finite, check_range
-from .linalg import wrap_angle
+from imm_gym.tracking.linalg import wrap_angle
+from imm_gym.validation import ConfigError, check_finite, check_range
 
 Array = NDArray[np.float64]
 

@@ -2,7 +2,7 @@
 
 Pass an :class:`EnvConfig`, a dict (``gymnasium.make(id, config={...})``) or keyword arguments
 (``gymnasium.make(id, parallel=True)``); unknown keys and out-of-range values raise
-:class:`~imm_gym.config.ConfigError` naming the field.
+:class:`~imm_gym.validation.ConfigError` naming the field.
 """
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from .config import ConfigError, check_choice, check_range, from_dict
-from .filters import FILTERS
-from .hetero import HeteroBank
-from .models import MotionModel, paper_bank
-from .scenarios import RandomFamily, Scenario, paper_scenario
-from .sensors import Sonar
+from imm_gym.scenarios.segments import RandomFamily, Scenario, paper_scenario
+from imm_gym.tracking.filters import FILTERS
+from imm_gym.tracking.hetero import HeteroBank
+from imm_gym.tracking.models import MotionModel, paper_bank
+from imm_gym.tracking.sensors import Sonar
+from imm_gym.validation import ConfigError, check_choice, check_range, from_dict
 
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
@@ -54,11 +54,11 @@ class EnvConfig:
 
     Attributes:
         scenario: ``"random"`` (the randomized family), ``"paper"`` (SPEC §3) or a
-            :class:`~imm_gym.scenarios.Scenario`.
+            :class:`~imm_gym.scenarios.segments.Scenario`.
         family: the randomized family's parameters (used when ``scenario == "random"``).
         sensor: the sonar (noise, position, outliers, missed detections).
         bank: the motion models of the IMM bank, or a
-            :class:`~imm_gym.hetero.HeteroBank` (or a mapping of its fields): seed 002's
+            :class:`~imm_gym.tracking.hetero.HeteroBank` (or a mapping of its fields): seed 002's
             NCV/CT/CTRA models in their own state spaces (needs ``filter="ekf"``).
         filter: ``"ukf"`` (SVD-UKF) or ``"ekf"``.
         initial_stay: diagonal of the initial (and fixed-bank) TPM, off-diagonal entries equal.
@@ -81,8 +81,9 @@ class EnvConfig:
             that the RMSE(t) of the ARMSE are made of — or ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward.
         tpm_cost: weight of the TPM's divergence from the shadow's,
-            :func:`imm_gym.tpm.row_divergence` (nats), subtracted from the reward each step: the
-            policy leaves the shadow's TPM only where that pays (0: no cost; needs the shadow).
+            :func:`imm_gym.tracking.tpm.row_divergence` (nats), subtracted from the reward each
+            step: the policy leaves the shadow's TPM only where that pays (0: no cost; needs the
+            shadow).
         obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
             ``innovation``, ``bank_b``, ``shadow_probs``, ``time``, ``turn_rate``,
             ``shadow_turn_rate``, ``turn_rate_ema``, ``prob_ema``, ``shadow_turn_rate_ema``,

@@ -2,9 +2,9 @@ r"""The scenarios of seeds 002 and 003: per-step turn-rate / acceleration profil
 
 A profile gives, for every step k, the turn rate ``omega_k`` (rad/s) and the tangential
 acceleration ``a_k`` (m/s²) held during that step. The truth is the exact CTRA motion
-(:func:`imm_gym.conversions.ctra_transition`, closed form, no integration error), so a step can
-turn and accelerate at once; states are reported as ``[x, y, vx, vy]`` (:class:`Truth`), with the
-heading ``psi`` (yaw, zero sideslip) kept for the yaw metrics.
+(:func:`imm_gym.tracking.conversions.ctra_transition`, closed form, no integration error), so a step
+can turn and accelerate at once; states are reported as ``[x, y, vx, vy]`` (:class:`Truth`), with
+the heading ``psi`` (yaw, zero sideslip) kept for the yaw metrics.
 
 **Seed 002** (vehicle trajectory from MATLAB's Driving Scenario Designer; the data set is not
 published, so this family is "like theirs"): straight segments, a gentle S-curve and two sharp 90°
@@ -27,9 +27,9 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_int, check_range
-from .conversions import ctra_transition
-from .scenarios import Truth
+from imm_gym.scenarios.segments import Truth
+from imm_gym.tracking.conversions import ctra_transition
+from imm_gym.validation import ConfigError, check_int, check_range
 
 Array = NDArray[np.float64]
 
@@ -59,8 +59,8 @@ def profile_truth(
     """Exact truth from per-step profiles, batched over runs.
 
     A step is either CTRA (turn rate ``omega`` and tangential acceleration ``accel`` held, the
-    closed form of :func:`~imm_gym.conversions.ctra_transition`) or, where ``cart_accel`` is
-    non-zero, a constant **Cartesian** acceleration (``p += v T + a T²/2``, ``v += a T``, exact
+    closed form of :func:`~imm_gym.tracking.conversions.ctra_transition`) or, where ``cart_accel``
+    is non-zero, a constant **Cartesian** acceleration (``p += v T + a T²/2``, ``v += a T``, exact
     too). A Cartesian step's ``omega`` and ``accel`` must be 0; the :class:`Truth` records for it
     the step's mean turn rate ``Δψ/T`` and mean tangential acceleration ``Δ|v|/T``.
 
@@ -263,3 +263,52 @@ def seed003_truth(runs: int, T: float = 0.1) -> ProfileTruth:
         T,
         np.tile(p.cart_accel, (runs, 1, 1)),
     )
+
+
+@dataclass(frozen=True)
+class Seed003Family:
+    """Trajectories around seed 003's (``seed003_profile``), rotated to a random heading.
+
+    Per run: the turn rate scaled by ``U(rate_scale)`` **keeping the source's (left) turn
+    direction** — the bank has a single left-turning CT model —, the accelerations (the 10-14 s
+    Cartesian one, rotated with the heading, and the 34-38 s tangential one) scaled by
+    ``U(accel_scale)``, initial speed ``U(speed)``, heading ``U(-pi, pi)``, start ``U(-20, 20)`` m
+    per axis.
+    """
+
+    rate_scale: tuple[float, float] = (0.6, 1.4)
+    accel_scale: tuple[float, float] = (0.5, 1.5)
+    speed: tuple[float, float] = (4.0, 6.0)
+    T: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("rate_scale", "accel_scale", "speed"):
+            lo, hi = getattr(self, name)
+            check_range(f"family.{name}[0]", lo, 0.0, lo_open=True)
+            check_range(f"family.{name}[1]", hi, lo)
+        check_range("family.T", self.T, 0.0, 1.0, lo_open=True)
+
+    def sample(self, rngs: list[np.random.Generator]) -> ProfileTruth:
+        """The truth of one run per generator."""
+        if not rngs:
+            raise ConfigError("Seed003Family.sample needs at least one generator")
+        p = seed003_profile(self.T)
+        w, a, ca, pos, v, psi = [], [], [], [], [], []
+        for rng in rngs:
+            w.append(p.omega * rng.uniform(*self.rate_scale))
+            s = rng.uniform(*self.accel_scale)
+            a.append(p.accel * s)
+            pos.append(rng.uniform(-20.0, 20.0, size=2))
+            v.append(rng.uniform(*self.speed))
+            psi.append(rng.uniform(-math.pi, math.pi))
+            c, sn = math.cos(psi[-1] - p.heading), math.sin(psi[-1] - p.heading)
+            ca.append(s * p.cart_accel @ np.array([[c, sn], [-sn, c]]))
+        return profile_truth(
+            np.stack(w),
+            np.stack(a),
+            np.array(pos),
+            np.array(v),
+            np.array(psi),
+            self.T,
+            np.stack(ca),
+        )

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from .evaluation import Rollout
+from imm_gym.evaluation.rollout import Rollout
 
 
 def write_figures(rollouts: dict[str, Rollout], out_dir: Path, meta: dict[str, Any]) -> list[Path]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_range
+from imm_gym.validation import ConfigError, check_range
 
 Array = NDArray[np.float64]
 
@@ -19,7 +19,7 @@ def initiate(
     ``P0 = blockdiag(J R J^T, velocity_std^2 I)`` with ``J`` the Jacobian of the conversion.
 
     Args:
-        sensor: a sensor with ``initial_position`` (:mod:`imm_gym.sensors`).
+        sensor: a sensor with ``initial_position`` (:mod:`imm_gym.tracking.sensors`).
         z0: ``(N, m)`` first measurements.
         velocity: ``(2,)`` or ``(N, 2)`` velocity (m/s).
         velocity_std: standard deviation of the velocity guess (m/s).

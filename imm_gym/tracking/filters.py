@@ -1,7 +1,8 @@
 r"""Model-matched filters, batched over any leading axes: Kalman, extended Kalman, SVD-UKF.
 
-All models of the bank are linear in the state (:mod:`imm_gym.models`), so every filter predicts
-with the same closed form ``x = F x``, ``P = F P F^T + Q``; they differ in the measurement update:
+All models of the bank are linear in the state (:mod:`imm_gym.tracking.models`), so every filter
+predicts with the same closed form ``x = F x``, ``P = F P F^T + Q``; they differ in the measurement
+update:
 
 * :class:`KalmanFilter` — a linear sensor ``z = H x + v``;
 * :class:`ExtendedKalmanFilter` — ``h`` linearized at the predicted state (seed 002);
@@ -23,8 +24,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_range
-from .linalg import LOG_2PI, inv_logdet, sym_eig, symmetrize
+from imm_gym.tracking.linalg import LOG_2PI, inv_logdet, sym_eig, symmetrize
+from imm_gym.validation import ConfigError, check_range
 
 Array = NDArray[np.float64]
 
@@ -32,7 +33,7 @@ FILTERS = ("ukf", "ekf", "kf")
 
 
 class MeasurementModel(Protocol):
-    """What a filter needs from a sensor (see :mod:`imm_gym.sensors`)."""
+    """What a filter needs from a sensor (see :mod:`imm_gym.tracking.sensors`)."""
 
     dim_z: int
 

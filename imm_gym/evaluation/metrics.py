@@ -13,9 +13,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
-from .linalg import inv_logdet, mahalanobis
-from .models import MotionModel
-from .scenarios import Truth
+from imm_gym.scenarios.segments import Truth
+from imm_gym.tracking.linalg import inv_logdet, mahalanobis
+from imm_gym.tracking.models import MotionModel
 
 Array = NDArray[np.float64]
 
@@ -78,8 +78,8 @@ def true_model_index(truth: Truth, models: Sequence[MotionModel]) -> NDArray[np.
 
     Straight -> the first CV model; turn -> the CT model turning the same way whose rate is
     closest; tangential acceleration -> the first CA model. For a heterogeneous bank
-    (:class:`~imm_gym.hetero.HeteroBank`): straight -> NCV, turn -> CT (turn rate estimated),
-    acceleration -> CTRA.
+    (:class:`~imm_gym.tracking.hetero.HeteroBank`): straight -> NCV, turn -> CT (turn rate
+    estimated), acceleration -> CTRA.
     """
     idx = np.full(truth.turn_rate.shape, -1, dtype=np.int64)
     omega, accel = truth.turn_rate, truth.accel

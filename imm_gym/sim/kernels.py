@@ -1,17 +1,18 @@
 r"""Compiled step of the whole environment core for the built-in banks (numba, no Gymnasium).
 
-:meth:`imm_gym.core.TrackingCore.step` advances every bank of N slots. With a bank that has the
-compiled IMM kernel (:mod:`imm_gym.kernels`: built-in sensor and filter) that step is one call of
-:func:`env_step`; any other bank (a custom sensor, the heterogeneous bank) runs the same equations
-as a numpy orchestration of :mod:`imm_gym.tpm`, :mod:`imm_gym.imm` and :mod:`imm_gym.fusion`.
-The tests hold the two equal (to rounding) over whole episodes. Per slot ``t``:
+:meth:`imm_gym.sim.core.TrackingCore.step` advances every bank of N slots. With a bank that has the
+compiled IMM kernel (:mod:`imm_gym.tracking.kernels.imm`: built-in sensor and filter) that step is
+one call of :func:`env_step`; any other bank (a custom sensor, the heterogeneous bank) runs the same
+equations as a numpy orchestration of :mod:`imm_gym.tracking.tpm`, :mod:`imm_gym.tracking.imm` and
+:mod:`imm_gym.tracking.fusion`. The tests hold the two equal (to rounding) over whole episodes. Per
+slot ``t``:
 
 1. TPM from the action ``a`` (clipped to [-1, 1]): ``scale`` mode
    :math:`\pi_{ij} \leftarrow \pi_{ij}\, f^{a_{ij}}` (``f = max_factor``), ``set`` mode
    :math:`\pi_i = \operatorname{softmax}(\lambda a_i)` (``lambda = logit_scale``); then each row
-   normalized and floored to ``[p_min, 1 - p_min]`` as :func:`imm_gym.tpm.apply_floor` (a row that
-   already sums to 1 and satisfies the floor passes bit for bit);
-2. bank A's IMM cycle with that TPM (:func:`imm_gym.kernels.imm_step`);
+   normalized and floored to ``[p_min, 1 - p_min]`` as :func:`imm_gym.tracking.tpm.apply_floor` (a
+   row that already sums to 1 and satisfies the floor passes bit for bit);
+2. bank A's IMM cycle with that TPM (:func:`imm_gym.tracking.kernels.imm.imm_step`);
 3. with ``parallel``: bank B's cycle with the fixed TPM, the entropy fusion (TIP-IMM eq. 19)
    :math:`U = \frac{H(U_B)}{H(U_A) + H(U_B)} U_A + \frac{H(U_A)}{H(U_A) + H(U_B)} U_B`,
    :math:`H(u) = -\sum_j u_j \log_2 u_j` (equal weights when both entropies are 0), fed back as
@@ -33,7 +34,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from .kernels import combine_into, imm_step
+from imm_gym.tracking.kernels.imm import combine_into, imm_step
 
 Array = NDArray[np.float64]
 
@@ -46,7 +47,7 @@ _ROW_SUM_EPS = 4 * float(np.finfo(np.float64).eps)
 def _floor_row(
     tpm: Array, t: int, i: int, p_min: float, fixed: NDArray[np.bool_]
 ) -> None:  # pragma: no cover
-    """Row ``tpm[t, i]`` normalized and floored in place (:func:`imm_gym.tpm.apply_floor`).
+    """Row ``tpm[t, i]`` normalized and floored in place (:func:`imm_gym.tracking.tpm.apply_floor`).
 
     Entries below ``p_min`` are raised to it and the free entries rescaled by
     ``(1 - p_min * #floored) / sum(free)``, repeated until no free entry is below (at most M
@@ -147,7 +148,8 @@ def step_inputs(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _entropy(u: Array, t: int) -> float:  # pragma: no cover
-    """Shannon entropy in bits of ``u[t]``, ``0 log 0 = 0`` (:func:`imm_gym.fusion.entropy`)."""
+    """Shannon entropy in bits of ``u[t]``, ``0 log 0 = 0``
+    (:func:`imm_gym.tracking.fusion.entropy`)."""
     acc = 0.0
     for j in range(u.shape[1]):
         acc += u[t, j] * np.log2(u[t, j]) if u[t, j] > 0.0 else 0.0
@@ -178,8 +180,8 @@ def _bank_step(
     Array, Array, Array, Array, Array, Array, Array, Array, Array, NDArray[np.bool_]
 ]:  # pragma: no cover
     """One IMM cycle of a bank into fresh arrays: ``(x, P, mu, loglik, model_nis, innovation,
-    nis, x_hat, P_hat, failed)`` (shapes as :meth:`imm_gym.imm.IMM.step`; ``bank`` is
-    :attr:`imm_gym.imm.IMM.kernel_args`; ``nis`` is 0 without ``mixture_nis``)."""
+    nis, x_hat, P_hat, failed)`` (shapes as :meth:`imm_gym.tracking.imm.IMM.step`; ``bank`` is
+    :attr:`imm_gym.tracking.imm.IMM.kernel_args`; ``nis`` is 0 without ``mixture_nis``)."""
     N, M, n = x.shape
     x_out = np.empty((N, M, n))
     P_out = np.empty((N, M, n, n))
@@ -246,7 +248,7 @@ def env_step(
             mu_b: bank B's; x_s, P_s, mu_s: the shadow IMM's.
         fixed_tpm, shadow_tpm: ``(N, M, M)`` fixed TPMs of bank B and of the shadow.
         z: ``(N, m)`` measurements; detected: ``(N,)``; truth: ``(N, 4+)`` true states.
-        bank: the bank's kernel constants (:attr:`imm_gym.imm.IMM.kernel_args`).
+        bank: the bank's kernel constants (:attr:`imm_gym.tracking.imm.IMM.kernel_args`).
         parallel, shadow: run bank B (and fuse), the shadow IMM.
 
     Returns:

@@ -6,7 +6,7 @@ Spaces (``SPACES``), all with position ``(p_x, p_y)`` first:
 * ``ct``   — ``[p_x, p_y, v, \psi, \omega]`` (speed, heading = yaw under zero sideslip, turn rate);
 * ``ctra`` — ``[p_x, p_y, v, \psi, \omega, a]`` (plus tangential acceleration);
 * ``cart6`` — ``[x, y, v_x, v_y, a_x, a_y]``, the state of the linear CV/CT(ω known)/CA banks
-  (:mod:`imm_gym.models`), so that those banks run through the same engine.
+  (:mod:`imm_gym.tracking.models`), so that those banks run through the same engine.
 
 Conversions go through CTRA, as seed 002 writes them:
 
@@ -51,7 +51,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError
+from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
 

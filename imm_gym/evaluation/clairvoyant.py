@@ -13,10 +13,10 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError
-from .filters import Filter, MeasurementModel, make_filter, predict
-from .models import MotionModel, ct_transition
-from .scenarios import Truth
+from imm_gym.scenarios.segments import Truth
+from imm_gym.tracking.filters import Filter, MeasurementModel, make_filter, predict
+from imm_gym.tracking.models import MotionModel, ct_transition
+from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
 

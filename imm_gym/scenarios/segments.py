@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_finite, check_int, check_range
-from .models import ct_ratios, ct_transition
+from imm_gym.tracking.models import ct_ratios, ct_transition
+from imm_gym.validation import ConfigError, check_finite, check_int, check_range
 
 Array = NDArray[np.float64]
 

@@ -1,8 +1,8 @@
 """One evaluation path for every policy: batched roll-outs, Table-2 scores, paired bootstrap CIs.
 
 :func:`rollout` runs a policy (anything with SB3's ``predict``) on R episodes at once — one
-:class:`~imm_gym.core.TrackingCore` with R slots, slot ``r`` reset with seed ``seed + r`` — so all
-policies see the same targets and the same sensor noise (common random numbers) whatever
+:class:`~imm_gym.sim.core.TrackingCore` with R slots, slot ``r`` reset with seed ``seed + r`` — so
+all policies see the same targets and the same sensor noise (common random numbers) whatever
 environment settings they need. A run whose tracker diverges keeps an error of
 ``divergence_error`` for the rest of its episode.
 """
@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .core import TrackingCore
-from .env_config import SHADOW_FEATURES, EnvConfig
-from .metrics import consistency, mode_accuracy, nees, tracking_errors
+from imm_gym.evaluation.metrics import consistency, mode_accuracy, nees, tracking_errors
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import SHADOW_FEATURES, EnvConfig
 
 Array = NDArray[np.float64]
 
@@ -53,7 +53,7 @@ class Rollout:
 
 def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
     """``base`` with a policy's overrides; the shadow tracker is turned off (it only shapes
-    rewards) unless the policy observes it (:data:`~imm_gym.env_config.SHADOW_FEATURES`)."""
+    rewards) unless the policy observes it (:data:`~imm_gym.sim.env_config.SHADOW_FEATURES`)."""
     features = overrides.get("obs_features", ())
     observed = any(f in SHADOW_FEATURES for f in features)
     defaults = {} if observed else {"shadow": "none", "reward": "error"}

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import rel_entr
 
-from .config import ConfigError, check_range
+from imm_gym.validation import ConfigError, check_range
 
 Array = NDArray[np.float64]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_range
+from imm_gym.validation import ConfigError, check_range
 
 Array = NDArray[np.float64]
 

@@ -1,6 +1,6 @@
 r"""The heterogeneous IMM-EKF of seed 002: NCV, CT and CTRA models in their own state spaces.
 
-Models (:class:`HeteroModel`; state spaces and conversions in :mod:`imm_gym.conversions`):
+Models (:class:`HeteroModel`; state spaces and conversions in :mod:`imm_gym.tracking.conversions`):
 
 * NCV on ``[p_x, p_y, v_x, v_y]``: ``F`` of SPEC §2 (CV), continuous white-noise acceleration
   ``Q = \sigma_a^2 \begin{bmatrix} T^3/3 & T^2/2\\ T^2/2 & T\end{bmatrix} \otimes I_2``,
@@ -19,24 +19,24 @@ Models (:class:`HeteroModel`; state spaces and conversions in :mod:`imm_gym.conv
   & T\\ 0 & 0 & 0 & \tfrac{T^2}{2} & T & 0\end{bmatrix}^T``.
 
 (noise values of seed 002 Table I). Each model's ``Q`` is multiplied by its ``q_scale`` (the knob
-the BBSCA tuner turns, :mod:`imm_gym.tuning`).
+the BBSCA tuner turns, :mod:`imm_gym.papers.tuning`).
 
 One IMM-EKF cycle (:class:`HeteroIMM`), with ``g_{i\to j}`` the conversion of model i's space to
 model j's and ``J_{i\to j}`` its Jacobian (seed 002: "before being mixed, the state vectors ... must
 be transformed into the state space of the target model j"):
 
 1. mixing in each target space: ``x_{i\to j} = g_{i\to j}(x_i)``,
-   ``P_{i\to j} = J P_i J^T``, then :func:`imm_gym.imm.mix` (headings averaged as residuals about
-   model j's own heading);
+   ``P_{i\to j} = J P_i J^T``, then :func:`imm_gym.tracking.imm.mix` (headings averaged as residuals
+   about model j's own heading);
 2. EKF per model: ``x^- = f_j(x_0)``, ``P^- = F_j P_0 F_j^T + Q_j`` (``F_j`` the Jacobian at
    ``x_0``), update with ``h_j = h \circ g_{j\to ncv}`` and ``H_j = H(g(x^-)) J_{j\to ncv}``;
-3. :func:`imm_gym.imm.update_mode_probs`;
+3. :func:`imm_gym.tracking.imm.update_mode_probs`;
 4. combination in the common Cartesian space NCV: every model's posterior converted by
-   ``g_{j\to ncv}`` and combined by :func:`imm_gym.imm.combine` (spread term included).
+   ``g_{j\to ncv}`` and combined by :func:`imm_gym.tracking.imm.combine` (spread term included).
 
-For the linear banks of :mod:`imm_gym.models` (:class:`LinearModel`, space ``cart6`` or ``ncv``)
-the conversions are identities and the engine is the classical IMM with a Kalman filter; it also
-runs a batch of trackers with *per-tracker* ``Q`` and ``R`` scales (``q_scale (N, M)``,
+For the linear banks of :mod:`imm_gym.tracking.models` (:class:`LinearModel`, space ``cart6`` or
+``ncv``) the conversions are identities and the engine is the classical IMM with a Kalman filter; it
+also runs a batch of trackers with *per-tracker* ``Q`` and ``R`` scales (``q_scale (N, M)``,
 ``r_scale (N,)``), which is how the tuner evaluates all particles at once.
 
 States of models with different dimensions are stored zero-padded in one ``(N, M, n_max)`` array
@@ -51,8 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_choice, check_range
-from .conversions import (
+from imm_gym.tracking.conversions import (
     SPACES,
     conversion,
     convert,
@@ -60,11 +59,20 @@ from .conversions import (
     ctra_transition,
     wrap_heading,
 )
-from .filters import ExtendedKalmanFilter, MeasurementModel, Update
-from .imm import IMM, IMMState, IMMStep, combine, measurement_mixture, mix, update_mode_probs
-from .linalg import inv_logdet, mahalanobis
-from .models import MotionModel, bank_dim
-from .tpm import validate_tpm
+from imm_gym.tracking.filters import ExtendedKalmanFilter, MeasurementModel, Update
+from imm_gym.tracking.imm import (
+    IMM,
+    IMMState,
+    IMMStep,
+    combine,
+    measurement_mixture,
+    mix,
+    update_mode_probs,
+)
+from imm_gym.tracking.linalg import inv_logdet, mahalanobis
+from imm_gym.tracking.models import MotionModel, bank_dim
+from imm_gym.tracking.tpm import validate_tpm
+from imm_gym.validation import ConfigError, check_choice, check_range
 
 Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -103,7 +111,7 @@ class HeteroModel:
 
     @property
     def space(self) -> str:
-        """The state space (:data:`imm_gym.conversions.SPACES`): the kind itself."""
+        """The state space (:data:`imm_gym.tracking.conversions.SPACES`): the kind itself."""
         return self.kind
 
     @property
@@ -154,7 +162,8 @@ class HeteroModel:
 
 @dataclass(frozen=True)
 class LinearModel:
-    """A linear model of :mod:`imm_gym.models` (CV, CT(ω known), CA) in the engine's interface.
+    """A linear model of :mod:`imm_gym.tracking.models` (CV, CT(ω known), CA) in the engine's
+    interface.
 
     Attributes:
         model: the motion model; dim: the bank's state dimension (4 or 6).
@@ -194,7 +203,7 @@ AnyModel = HeteroModel | LinearModel
 
 
 def linear_models(models: Sequence[MotionModel]) -> tuple[LinearModel, ...]:
-    """Wrap a linear bank of :mod:`imm_gym.models` for :class:`HeteroIMM`."""
+    """Wrap a linear bank of :mod:`imm_gym.tracking.models` for :class:`HeteroIMM`."""
     n = bank_dim(models)
     return tuple(LinearModel(m, n) for m in models)
 
@@ -292,7 +301,7 @@ SONAR_HETERO_BANK = {
 
 @dataclass(frozen=True)
 class HeteroStep(IMMStep):
-    """:class:`~imm_gym.imm.IMMStep` plus the IMM's predicted measurement.
+    """:class:`~imm_gym.tracking.imm.IMMStep` plus the IMM's predicted measurement.
 
     Attributes:
         z_pred: ``(N, m)`` mean of the predicted measurement mixture (weights ``cbar``), the
@@ -336,12 +345,12 @@ class _ModelSensor:
 class HeteroIMM:
     """IMM-EKF over models with different state spaces, batched over N trackers.
 
-    The interface of :class:`imm_gym.imm.IMM` (``init``, ``step``; no ``run``): the combined
-    output ``IMMStep.x`` is Cartesian ``[x, y, vx, vy]`` with its ``4 x 4`` covariance.
+    The interface of :class:`imm_gym.tracking.imm.IMM` (``init``, ``step``; no ``run``): the
+    combined output ``IMMStep.x`` is Cartesian ``[x, y, vx, vy]`` with its ``4 x 4`` covariance.
 
     Args:
         models: :class:`HeteroModel` / :class:`LinearModel` objects, or a :class:`HeteroBank`.
-        sensor: measurement model on the Cartesian state (:mod:`imm_gym.sensors`).
+        sensor: measurement model on the Cartesian state (:mod:`imm_gym.tracking.sensors`).
         T: sampling period (s).
         filter: only ``"ekf"`` (a linear model's EKF is its Kalman filter).
     """
@@ -526,7 +535,8 @@ class HeteroIMM:
 
     def combine(self, mu: Array, state: IMMState) -> tuple[Array, Array]:
         """Combination in the common Cartesian space: every model's posterior converted by
-        ``g_{j->ncv}`` (``P' = J P J^T``), then :func:`imm_gym.imm.combine` with ``mu (N, M)``.
+        ``g_{j->ncv}`` (``P' = J P J^T``), then :func:`imm_gym.tracking.imm.combine` with ``mu (N,
+        M)``.
 
         Returns:
             ``x (N, 4)``, ``P (N, 4, 4)``.
@@ -570,7 +580,8 @@ def make_imm(
     bank: Sequence[MotionModel] | HeteroBank, sensor: MeasurementModel, filter: str, T: float
 ) -> IMM | HeteroIMM:
     """The IMM engine for a bank: :class:`HeteroIMM` (EKF) for a :class:`HeteroBank`, else the
-    classical :class:`imm_gym.imm.IMM` (what :class:`imm_gym.core.TrackingCore` runs)."""
+    classical :class:`imm_gym.tracking.imm.IMM` (what :class:`imm_gym.sim.core.TrackingCore`
+    runs)."""
     if isinstance(bank, HeteroBank):
         return HeteroIMM(bank, sensor, T=T, filter=filter)
     return IMM(bank, sensor, filter=filter, T=T)
@@ -579,7 +590,7 @@ def make_imm(
 def combine_bank(imm: IMM | HeteroIMM, mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
     """Output combination of a bank's model posteriors with probabilities ``mu``: for a
     :class:`HeteroIMM` in the common Cartesian space (:meth:`HeteroIMM.combine`), else
-    :func:`imm_gym.imm.combine`."""
+    :func:`imm_gym.tracking.imm.combine`."""
     if isinstance(imm, HeteroIMM):
         return imm.combine(mu, IMMState(x, P, mu))
     return combine(mu, x, P)

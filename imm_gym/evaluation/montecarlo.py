@@ -12,11 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_int
-from .initiation import initiate
-from .scenarios import RandomFamily, Scenario, Truth, generate_truth
-from .seeding import streams
-from .sensors import Measurements
+from imm_gym.scenarios.segments import RandomFamily, Scenario, Truth, generate_truth
+from imm_gym.seeding import streams
+from imm_gym.tracking.initiation import initiate
+from imm_gym.tracking.sensors import Measurements
+from imm_gym.validation import ConfigError, check_int
 
 Array = NDArray[np.float64]
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import ConfigError, check_choice, check_finite, check_range
+from imm_gym.validation import ConfigError, check_choice, check_finite, check_range
 
 Array = NDArray[np.float64]
 

@@ -53,16 +53,16 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .env_config import EnvConfig
-from .fused import env_step, step_inputs
-from .fusion import fuse
-from .hetero import combine_bank, make_imm
-from .imm import IMMState
-from .initiation import initiate
-from .metrics import true_model_index
-from .scenarios import RandomFamily, generate_truth
-from .seeding import streams
-from .tpm import apply_floor, row_divergence, stay_tpm
+from imm_gym.evaluation.metrics import true_model_index
+from imm_gym.scenarios.segments import RandomFamily, generate_truth
+from imm_gym.seeding import streams
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.kernels import env_step, step_inputs
+from imm_gym.tracking.fusion import fuse
+from imm_gym.tracking.hetero import combine_bank, make_imm
+from imm_gym.tracking.imm import IMMState
+from imm_gym.tracking.initiation import initiate
+from imm_gym.tracking.tpm import apply_floor, row_divergence, stay_tpm
 
 Array = NDArray[np.float64]
 
@@ -123,7 +123,7 @@ class ActionError(ValueError):
 
 class BankStep(NamedTuple):
     """One step of every bank for all N slots: what :meth:`TrackingCore.step` takes from either
-    engine — the compiled :func:`imm_gym.fused.env_step` (built-in banks) or the numpy
+    engine — the compiled :func:`imm_gym.sim.kernels.env_step` (built-in banks) or the numpy
     orchestration (any bank). Fields of a bank that did not run hold its previous state (the
     shadow's scores are then meaningless)."""
 
@@ -164,10 +164,11 @@ class TrackingCore:
     TPM, entropy fusion with feedback), optional shadow IMM (fixed TPM) for the reward.
 
     A step has two engines with the same equations and the same :class:`BankStep` result: a bank
-    with a compiled kernel (:attr:`imm_gym.imm.IMM.kernel_args`: built-in sensor and filter)
-    runs all banks, the fusion and the scores in one call of :func:`imm_gym.fused.env_step`; any
-    other bank (a custom sensor, the heterogeneous bank) runs them as numpy operations around its
-    ``step``. The rest of the step (info, episode ends, observation) is shared.
+    with a compiled kernel (:attr:`imm_gym.tracking.imm.IMM.kernel_args`: built-in sensor and
+    filter) runs all banks, the fusion and the scores in one call of
+    :func:`imm_gym.sim.kernels.env_step`; any other bank (a custom sensor, the heterogeneous bank)
+    runs them as numpy operations around its ``step``. The rest of the step (info, episode ends,
+    observation) is shared.
 
     Args:
         config: the environment configuration.
@@ -415,7 +416,7 @@ class TrackingCore:
     def _advance_fused(
         self, kernel_args: tuple, action: Array, z: Array, det: NDArray[np.bool_], truth: Array
     ) -> BankStep:
-        """All banks' step as one call of the compiled :func:`imm_gym.fused.env_step`."""
+        """All banks' step as one call of the compiled :func:`imm_gym.sim.kernels.env_step`."""
         cfg = self.config
         set_mode = cfg.action_mode == "set"
         a, b, s = self.state_a, self.state_b, self.state_s
@@ -460,7 +461,8 @@ class TrackingCore:
         self, action: NDArray[Any], z: Array, det: NDArray[np.bool_], truth: Array
     ) -> BankStep:
         """All banks' step composed of :meth:`tpm_from_action`, the IMM's ``step``,
-        :func:`imm_gym.fusion.fuse` and :func:`imm_gym.hetero.combine_bank` (any bank)."""
+        :func:`imm_gym.tracking.fusion.fuse` and :func:`imm_gym.tracking.hetero.combine_bank` (any
+        bank)."""
         cfg = self.config
         tpm = self.tpm_from_action(action)
         state_a, out_a = self.imm.step(self.state_a, tpm, z, det, check=False, allow_failure=True)

@@ -1,9 +1,10 @@
 r"""Compiled fast path of the IMM cycle for the built-in sensors (numba).
 
-:class:`imm_gym.imm.IMM` runs one of two backends with the same equations:
+:class:`imm_gym.tracking.imm.IMM` runs one of two backends with the same equations:
 
-* ``"numpy"`` — the vectorized reference in :mod:`imm_gym.imm` and :mod:`imm_gym.filters`; works
-  with any sensor that implements :class:`imm_gym.filters.MeasurementModel`;
+* ``"numpy"`` — the vectorized reference in :mod:`imm_gym.tracking.imm` and
+:mod:`imm_gym.tracking.filters`; works
+  with any sensor that implements :class:`imm_gym.tracking.filters.MeasurementModel`;
 * ``"numba"`` — this module: the whole cycle (mix, predict, update, likelihood, probability update,
   combination, NIS) fused into one compiled loop over the trackers, for :class:`~imm_gym.Sonar` and
   :class:`~imm_gym.PositionSensor`. Small 4x4 blocks make numpy's per-call overhead dominate; the
@@ -22,7 +23,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from .linalg import JACOBI_MAX_SWEEPS, LOG_2PI, jacobi_eig_lanes
+from imm_gym.tracking.linalg import JACOBI_MAX_SWEEPS, LOG_2PI, jacobi_eig_lanes
 
 Array = NDArray[np.float64]
 
@@ -36,13 +37,13 @@ EKF = 1
 _TINY = 1e-300
 _TWO_PI = 2.0 * np.pi
 #: Trackers per block of :func:`imm_step`: the block's M predicted covariances per tracker are
-#: diagonalized together, one SIMD lane each (:func:`imm_gym.linalg.jacobi_eig_lanes`).
+#: diagonalized together, one SIMD lane each (:func:`imm_gym.tracking.linalg.jacobi_eig_lanes`).
 TRACKER_BLOCK = 32
 
 
 def sensor_spec(sensor: object) -> tuple[int, Array] | None:
     """``(kind, params)`` of a built-in sensor for the kernel, or ``None`` for any other."""
-    from .sensors import PositionSensor, Sonar
+    from imm_gym.tracking.sensors import PositionSensor, Sonar
 
     if isinstance(sensor, Sonar):
         return RANGE_BEARING, np.array(sensor.position, dtype=np.float64)
@@ -53,7 +54,7 @@ def sensor_spec(sensor: object) -> tuple[int, Array] | None:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _wrap(a: float) -> float:  # pragma: no cover
-    """Angle wrapped to (-pi, pi], as :func:`imm_gym.linalg.wrap_angle`.
+    """Angle wrapped to (-pi, pi], as :func:`imm_gym.tracking.linalg.wrap_angle`.
 
     Differences of two wrapped angles lie in (-2 pi, 2 pi): one shift suffices there, without the
     cost of a floating-point modulo; other values take the general formula.
@@ -318,7 +319,7 @@ def imm_step(
     Phat_out: Array,
     failed_out: NDArray[np.bool_],
 ) -> int:  # pragma: no cover
-    """One IMM cycle for N trackers (shapes as :meth:`imm_gym.imm.IMM.step`).
+    """One IMM cycle for N trackers (shapes as :meth:`imm_gym.tracking.imm.IMM.step`).
 
     Returns the number of trackers whose innovation covariance was not positive definite (a
     diverged tracker); those are flagged in ``failed_out`` and their outputs filled with NaN, the

@@ -1,0 +1,2 @@
+"""The command lines. The only modules of the library that import the plug-in packages
+``baselines`` and ``agents``."""

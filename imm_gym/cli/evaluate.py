@@ -1,0 +1,345 @@
+"""Monte-Carlo evaluation of TPM policies (command line: ``python -m imm_gym.evaluate``).
+
+Every policy — a baseline by name or a saved stable-baselines3 model by path — runs through
+:func:`imm_gym.evaluation.rollout.rollout` on the same R runs: same targets, same sensor noise
+(common random numbers). The report follows the paper's Table 2 (position ARMSE overall / X / Y,
+velocity ARMSE X / Y) and adds NIS/NEES consistency, mode-identification accuracy, the clairvoyant
+bound and paired differences with 95 % bootstrap confidence intervals against a reference policy.
+
+Example::
+
+    python -m imm_gym.evaluate --policy fixed --policy tip-imm --policy best-fixed \\
+        --scenario paper --runs 100 --seed 0 --json out.json --plots figs/
+
+``--json`` writes ``{"policies": {NAME: {"armse_pos": ..., "armse_pos_x": ..., "armse_pos_y": ...,
+"armse_vel_x": ..., "armse_vel_y": ..., ...}}, "clairvoyant": {...}, "paired": {...},
+"meta": {...}}``.
+
+The best fixed TPM is searched on training runs whose seeds (``seed + 1_000_000 + r``) never
+overlap the evaluation seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from imm_gym.cli.tables import render_tables
+from imm_gym.evaluation.clairvoyant import clairvoyant_filter
+from imm_gym.evaluation.metrics import tracking_errors
+from imm_gym.evaluation.montecarlo import draw_batch
+from imm_gym.evaluation.rollout import (
+    Rollout,
+    evaluation_config,
+    paired_bootstrap,
+    rollout,
+    score,
+)
+from imm_gym.papers.systems import SEED_SCENARIOS
+from imm_gym.scenarios.segments import Scenario
+from imm_gym.seeding import TRAIN_SEED_OFFSET
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.tracking.hetero import SONAR_HETERO_BANK
+from imm_gym.validation import ConfigError, from_dict
+
+BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window", "bbsca")
+#: ``--bank``: environment overrides of each bank.
+BANKS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "hetero": {"bank": dict(SONAR_HETERO_BANK), "filter": "ekf"},
+}
+TRAIN_RUNS = 100
+
+
+def load_source(name: str) -> str | Scenario:
+    """``paper``, ``random`` or a JSON file holding a :class:`Scenario` (``segments`` list...)."""
+    if name in ("paper", "random"):
+        return name
+    path = Path(name)
+    if not path.is_file():
+        raise ConfigError(
+            f"--scenario must be 'paper', 'random' or a JSON file; {name!r} is neither"
+        )
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"scenario file {name}: not valid JSON ({err})") from None
+    return from_dict(Scenario, data, f"scenario file {name}")
+
+
+def make_policy(
+    name: str, base: EnvConfig, seed: int, train_runs: int = TRAIN_RUNS
+) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+    """``(policy, env_overrides, notes)`` for a policy name or a saved SB3 model path."""
+    from baselines import FixedTPM, best_fixed_stay, make_baseline
+
+    M = len(base.bank)
+    if name == "best-fixed":
+
+        def armse(stay: float) -> float:
+            policy = FixedTPM(M, stay)
+            cfg = evaluation_config(base, policy.env_overrides)
+            return score(rollout(policy, cfg, train_runs, seed + TRAIN_SEED_OFFSET))["armse_pos"]
+
+        stay, grid = best_fixed_stay(armse)
+        policy = FixedTPM(M, stay)
+        notes = {
+            "stay": stay,
+            "search": {f"{p:.4f}": v for p, v in grid.items()},
+            "train_runs": train_runs,
+            "train_seeds": f"{seed + TRAIN_SEED_OFFSET}..{seed + TRAIN_SEED_OFFSET + train_runs - 1}",  # noqa: E501
+        }
+        return policy, policy.env_overrides, notes
+    if name == "bbsca":
+        from baselines.bbsca import tune_classical
+
+        policy, notes = tune_classical(base, train_runs // 5, seed + TRAIN_SEED_OFFSET)
+        return policy, policy.env_overrides, notes
+    if name in BUILTIN_POLICIES:
+        policy = make_baseline(name, M)
+        return policy, policy.env_overrides, {}
+    if name == "pretrained":
+        from agents import PRETRAINED
+
+        return load_trained(PRETRAINED)
+    path = Path(name)
+    if path.suffix == ".zip" or path.is_dir() or path.exists():
+        return load_trained(path)
+    raise ConfigError(
+        f"unknown policy {name!r}: use one of {list(BUILTIN_POLICIES)}, 'pretrained' or a "
+        "trained agent (its directory or its model.zip)"
+    )
+
+
+def load_trained(path: Path) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+    """A trained agent (``agents.policy`` directory layout) and its environment overrides."""
+    from agents.policy import load_agent
+
+    try:
+        policy = load_agent(path)
+    except FileNotFoundError as err:
+        raise ConfigError(str(err)) from None
+    return policy, policy.env_overrides, {"path": str(path)}
+
+
+def evaluate(
+    policies: Sequence[str],
+    scenario: str | Scenario,
+    runs: int,
+    seed: int,
+    reference: str | None = None,
+    clairvoyant: bool = True,
+    progress: bool = False,
+    extra: dict[str, tuple[Any, dict[str, Any]]] | None = None,
+    bank: str = "paper",
+) -> tuple[dict[str, Any], dict[str, Rollout]]:
+    """Score ``policies`` on R common-random-number runs; see the module docstring.
+
+    ``extra`` adds policy objects by name: ``{name: (policy, env_overrides)}`` (a freshly trained
+    agent, say); they are evaluated first. ``bank``: ``paper`` (CV, CT(±4°/s), SVD-UKF) or
+    ``hetero`` (NCV/CT/CTRA IMM-EKF, ``SONAR_HETERO_BANK``; no clairvoyant bound).
+    """
+    if bank not in BANKS:
+        raise ConfigError(f"--bank must be one of {list(BANKS)}, got {bank!r}")
+    base = EnvConfig(scenario=scenario, **BANKS[bank])
+    clairvoyant = clairvoyant and bank == "paper"
+    if len(set(policies)) != len(policies):
+        raise ConfigError(f"--policy given twice: {list(policies)}")
+    made = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
+    made.update({name: make_policy(name, base, seed) for name in policies})
+    rollouts: dict[str, Rollout] = {}
+    results: dict[str, Any] = {"policies": {}}
+    bar = _progress_bar(len(made) * base.source.horizon, progress)
+    for name, (policy, overrides, notes) in made.items():
+        cfg = evaluation_config(base, overrides)
+        done = [0]
+
+        def tick(k: int, done: list[int] = done) -> None:
+            bar.update(k - done[0])
+            done[0] = k
+
+        rollouts[name] = rollout(policy, cfg, runs, seed, progress=tick)
+        results["policies"][name] = {**score(rollouts[name]), **notes}
+    bar.close()
+    ref = reference or ("fixed" if "fixed" in rollouts else next(iter(rollouts)))
+    if ref not in rollouts:
+        raise ConfigError(f"--reference {ref!r} is not among the evaluated policies")
+    results["paired"] = {
+        "reference": ref,
+        "differences": {
+            name: paired_bootstrap(r.squared_position_error, rollouts[ref].squared_position_error)
+            for name, r in rollouts.items()
+            if name != ref
+        },
+    }
+    if clairvoyant:
+        results["clairvoyant"] = clairvoyant_bound(base, runs, seed)
+    results["meta"] = {
+        "scenario": scenario if isinstance(scenario, str) else "file",
+        "runs": runs,
+        "seed": seed,
+        "seeds": f"{seed}..{seed + runs - 1}",
+        "steps": base.source.horizon,
+        "filter": base.filter,
+        "bank": bank,
+        "versions": _versions(),
+    }
+    return results, rollouts
+
+
+def clairvoyant_bound(base: EnvConfig, runs: int, seed: int) -> dict[str, float]:
+    """The clairvoyant filter's errors on the same runs (same seeds, same draws)."""
+    batch = draw_batch(base.source, base.sensor, runs, seed, base.velocity_std)
+    xs, _ = clairvoyant_filter(
+        batch.truth,
+        batch.measurements.z[:, 1:],
+        base.sensor,
+        base.bank,
+        batch.x0,
+        batch.P0,
+        base.filter,
+        batch.measurements.detected[:, 1:],
+    )
+    return tracking_errors(xs, batch.truth.states[:, 1:])
+
+
+class _NoBar:
+    def update(self, n: int) -> None:
+        """No progress display."""
+
+    def close(self) -> None:
+        """No progress display."""
+
+
+def _progress_bar(total: int, enabled: bool) -> Any:
+    if not enabled:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="evaluating", unit="step", leave=False)
+
+
+def _versions() -> dict[str, str]:
+    import gymnasium
+    import scipy
+
+    from imm_gym import __version__
+
+    return {
+        "imm_gym": __version__,
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "gymnasium": gymnasium.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m imm_gym.evaluate",
+        description="Monte-Carlo evaluation of TPM policies with common random numbers.",
+    )
+    parser.add_argument(
+        "--policy",
+        action="append",
+        required=True,
+        help=f"policy to evaluate (repeatable): {', '.join(BUILTIN_POLICIES)}, pretrained (the "
+        "shipped PPO agent), or a trained agent's directory",
+    )
+    parser.add_argument(
+        "--scenario",
+        default="paper",
+        help="paper | random | a scenario JSON file | seed002 | seed003 (the NCV/CT/CTRA IMM-EKF "
+        "of seed 002, the CV/CA/CT bank of seed 003; policies fixed, bbsca, sca)",
+    )
+    parser.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")
+    parser.add_argument("--seed", type=int, default=0, help="run r uses seed + r (default 0)")
+    parser.add_argument("--reference", help="policy the paired differences are taken against")
+    parser.add_argument("--json", type=Path, help="write the results to this JSON file")
+    parser.add_argument("--plots", type=Path, help="write PNG figures to this directory")
+    parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--bank",
+        default="paper",
+        help="paper (CV, CT(±4°/s), SVD-UKF) | hetero (NCV/CT/CTRA IMM-EKF, seed 002)",
+    )
+    parser.add_argument(
+        "--tuned",
+        action="append",
+        default=[],
+        metavar="POLICY=FILE",
+        help="seed scenarios: load the tuned bank of bbsca/sca from FILE instead of tuning",
+    )
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.runs < 1:
+        parser.error(f"--runs must be >= 1, got {args.runs}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+    if args.scenario in SEED_SCENARIOS:
+        return _main_seed(parser, args)
+    try:
+        results, rollouts = evaluate(
+            args.policy,
+            load_source(args.scenario),
+            args.runs,
+            args.seed,
+            reference=args.reference,
+            clairvoyant=not args.no_clairvoyant,
+            progress=not args.quiet and sys.stderr.isatty(),
+            bank=args.bank,
+        )
+    except ConfigError as err:
+        parser.error(str(err))
+    results["meta"]["scenario"] = args.scenario
+    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
+    render_tables(results)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2))
+    if args.plots:
+        from imm_gym.evaluation.plots import write_figures
+
+        for path in write_figures(rollouts, args.plots, results["meta"]):
+            print(f"wrote {path}")
+    return 0
+
+
+def _main_seed(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """``--scenario seed002|seed003``: classical IMM-EKF and its BBSCA / SCA-tuned versions."""
+    from imm_gym.cli.tables import render_seed_tables
+    from imm_gym.papers.tuned_comparison import evaluate_seed_scenario
+
+    unused = {"--bank": args.bank != "paper", "--reference": args.reference, "--plots": args.plots}
+    for flag in (f for f, given in unused.items() if given):
+        parser.error(f"{flag} does not apply to --scenario {args.scenario}")
+    tuned: dict[str, str] = {}
+    for item in args.tuned:
+        policy, sep, path = item.partition("=")
+        if not sep or not policy or not path:
+            parser.error(f"--tuned must be POLICY=FILE (e.g. bbsca=tuned.json), got {item!r}")
+        tuned[policy] = path
+    try:
+        results = evaluate_seed_scenario(args.scenario, args.policy, args.runs, args.seed, tuned)
+    except ValueError as err:
+        parser.error(str(err))
+    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
+    render_seed_tables(results)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+

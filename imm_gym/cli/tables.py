@@ -1,0 +1,109 @@
+"""The tables the command lines print (rich): Table 2's layout with the paired differences, and
+the seed-system comparison."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from imm_gym.papers.tip_imm import PAPER_TABLE2
+
+TABLE_COLUMNS = (
+    ("armse_pos", "pos (m)"),
+    ("armse_pos_x", "X (m)"),
+    ("armse_pos_y", "Y (m)"),
+    ("armse_vel_x", "vel X (m/s)"),
+    ("armse_vel_y", "vel Y (m/s)"),
+)
+
+
+def render_tables(results: dict[str, Any]) -> None:
+    """Print the Table-2 layout and the paired differences with rich."""
+    from rich.console import Console
+    from rich.table import Table
+
+    meta = results["meta"]
+    console = Console(width=None if sys.stdout.isatty() else 150)
+    table = Table(
+        title=f"ARMSE, scenario '{meta['scenario']}', {meta['runs']} runs (seeds {meta['seeds']}), "
+        f"{meta['steps']} steps, {meta['filter'].upper()}"
+    )
+    table.add_column("policy")
+    for _, label in TABLE_COLUMNS:
+        table.add_column(label, justify="right")
+    for label in ("NIS ≤ χ²95", "NEES ≤ χ²95", "mode acc.", "diverged"):
+        table.add_column(label, justify="right")
+    for name, r in results["policies"].items():
+        label = f"{name} (stay {r['stay']:.3g})" if "stay" in r else name
+        table.add_row(
+            label,
+            *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS),
+            f"{100 * r['nis']['inside']:.1f}%",
+            f"{100 * r['nees']['inside']:.1f}%",
+            f"{100 * r['mode_accuracy']:.1f}%",
+            str(r["diverged"]),
+        )
+    if "clairvoyant" in results:
+        c = results["clairvoyant"]
+        table.add_row(
+            "clairvoyant (bound)", *(f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim"
+        )
+    if meta["scenario"] == "paper":
+        for name, r in PAPER_TABLE2.items():
+            table.add_row(name, *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
+    console.print(table)
+    paired = results["paired"]
+    if paired["differences"]:
+        diff = Table(title=f"Position ARMSE minus {paired['reference']}'s, 95% paired bootstrap CI")
+        for col in ("policy", "difference (m)", "95% CI (m)", "relative"):
+            diff.add_column(col, justify="right" if col != "policy" else "left")
+        for name, d in paired["differences"].items():
+            diff.add_row(
+                name,
+                f"{d['diff']:+.3f}",
+                f"[{d['low']:+.3f}, {d['high']:+.3f}]",
+                f"{100 * d['relative']:+.2f}%",
+            )
+        console.print(diff)
+
+
+SEED_COLUMNS = (
+    ("pos_rmse", "pos RMSE (m)", "{:.4f}"),
+    ("pos_mae", "MAE (m)", "{:.4f}"),
+    ("pos_max", "max (m)", "{:.3f}"),
+    ("fde", "FDE (m)", "{:.4f}"),
+    ("vel_rmse", "vel RMSE (m/s)", "{:.4f}"),
+    ("yaw_rmse_deg", "yaw RMSE (°)", "{:.3f}"),
+    ("nis_inside", "NIS ≤ χ²95", "{:.1%}"),
+    ("nis_mean", "mean NIS", "{:.3f}"),
+    ("nees_inside", "NEES ≤ χ²95", "{:.1%}"),
+    ("nees_mean", "mean NEES", "{:.3f}"),
+    ("innovation_mse", "innov. MSE J", "{:.4f}"),
+)
+
+
+def render_seed_tables(results: dict[str, object]) -> None:
+    """Print the seed-scenario table (seed 002's paper row beside it) with rich."""
+    from rich.console import Console
+    from rich.table import Table
+
+    meta: dict[str, object] = results["meta"]  # type: ignore[assignment]
+    console = Console(width=None if sys.stdout.isatty() else 180)
+    table = Table(
+        title=f"scenario '{meta['scenario']}', {meta['runs']} runs (seeds {meta['seeds']}), "
+        f"{meta['steps']} steps, IMM-EKF"
+    )
+    table.add_column("policy")
+    for _, label, _ in SEED_COLUMNS:
+        table.add_column(label, justify="right")
+    rows = dict(results["policies"])  # type: ignore[call-overload]
+    paper = results.get("paper") or {}
+    for name, r in rows.items():
+        table.add_row(name, *(fmt.format(r[k]) for k, _, fmt in SEED_COLUMNS))
+    if paper:
+        table.add_row(
+            "seed 002 paper (their trajectory)",
+            *(fmt.format(paper[k]) if k in paper else "—" for k, _, fmt in SEED_COLUMNS),
+            style="dim",
+        )
+    console.print(table)
