@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.sim.core import feature_sizes
+from imm_gym.sim.features import feature_sizes
 
 Obs = NDArray[np.float32]
 
@@ -38,7 +38,7 @@ class Baseline:
     """Base class of the rule-based policies.
 
     Attributes:
-        name: the policy's name in the evaluation tool.
+        name: the policy's name in the evaluation tool (given by ``register``).
         n_models: M, the number of models of the bank.
         env_overrides: :class:`~imm_gym.EnvConfig` fields this policy needs.
     """

@@ -518,7 +518,7 @@ def test_one_step_scenario_ends_by_truncation_or_by_divergence(diverge: bool) ->
 
 @pytest.mark.parametrize("omega_deg", [-3.0, -0.5, 0.0, 1.2, 4.0, 80.0])
 def test_heading_rate_of_a_rotated_velocity_is_the_turn_rate(omega_deg: float) -> None:
-    from imm_gym.sim.core import heading_rate
+    from imm_gym.sim.features import heading_rate
 
     omega, T = np.deg2rad(omega_deg), 2.0
     rng = np.random.default_rng(3)

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from imm_gym.sim.core import ActionError, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.features import datasheet_table
 
 
 class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -39,25 +40,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ## Observation Space
     ``Box(float32)``; with M = 3 models and no optional features, shape ``(6,)``:
 
-    | index        | meaning                                          | min | max |
-    |--------------|--------------------------------------------------|-----|-----|
-    | 0 .. M−1     | model probabilities μ(t) (fused U if parallel)   | 0   | 1   |
-    | M .. 2M−1    | model probabilities μ(t−1)                       | 0   | 1   |
-    | then, in the order of ``obs_features``:                                   |||
-    | ``tpm``      | current TPM, row-major (M·M)                     | 0   | 1   |
-    | ``loglik``   | log-likelihood minus the best model's, / clip (M)| −1  | 0   |
-    | ``nis``      | per-model NIS squashed nis/(nis+2) (M)           | 0   | 1   |
-    | ``innovation``| whitened innovations L⁻¹ν clipped ±5, /5 (M·2)  | −1  | 1   |
-    | ``bank_b``   | bank B's probabilities before fusion (M)         | 0   | 1   |
-    | ``shadow_probs`` | the shadow IMM's probabilities (M)           | 0   | 1   |
-    | ``time``     | k / K (1)                                        | 0   | 1   |
-    | ``turn_rate``| heading rate of the estimate, / 10°/s, clipped (1)| −1  | 1   |
-    | ``shadow_turn_rate`` | the same for the shadow IMM's estimate (1)| −1  | 1   |
-    | ``turn_rate_ema`` | moving averages of the turn rate, λ = 0.7, 0.9 (2) | −1 | 1 |
-    | ``prob_ema`` | moving averages of μ, λ = 0.7, 0.9 (2M)          | 0   | 1   |
-    | ``shadow_turn_rate_ema`` | shadow's clipped turn rate, averaged, λ = 0.7, 0.9 (2) | −1 | 1 |
-    | ``turn_magnitude_ema`` | shadow's clipped turn-rate size, λ = 0.9, 0.97 (2) | 0 | 1 |
-    | ``speed``    | speed of the estimate / 30 m/s, clipped (1)      | 0   | 1   |
+    {observation_table}
 
     Policies act on the observation only; ground truth is in ``info`` for evaluation.
 
@@ -152,3 +135,9 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             bool(result.truncated[0]),
             info,
         )
+
+
+# The observation table of the datasheet comes from the feature registry (one declaration each).
+TPMAdaptEnv.__doc__ = TPMAdaptEnv.__doc__.replace(  # type: ignore[union-attr]
+    "{observation_table}", datasheet_table().replace("\n", "\n    ")
+)

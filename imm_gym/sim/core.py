@@ -6,43 +6,9 @@ and diagnostics. Each episode slot ``i`` owns its two random streams
 (:func:`imm_gym.seeding.streams`): slot ``i`` reset with seed ``s`` replays exactly the episode of
 a scalar environment reset with seed ``s``, whatever the other slots do.
 
-Observation layout (float32; ``M`` models), blocks in this order:
-
-==============  ======  ==========================================================  =====  ====
-block           size    meaning                                                     min    max
-==============  ======  ==========================================================  =====  ====
-mode_probs      M       model probabilities ``mu(t)`` (fused ``U`` when parallel)   0      1
-prev_probs      M       ``mu(t-1)``                                                 0      1
-tpm             M*M     current TPM, row-major (feature ``tpm``)                    0      1
-loglik          M       ``(log Lambda_j - max_l log Lambda_l) / loglik_clip``,      -1     0
-                        clipped (feature ``loglik``)
-nis             M       per-model NIS squashed ``nis / (nis + m)`` (feature ``nis``)  0      1
-innovation      M*m     per-model whitened innovations ``L_j^-1 nu_j`` clipped to     -1     1
-                        [-5, 5] and divided by 5, model-major (feature ``innovation``)
-bank_b          M       bank B's probabilities before fusion (feature ``bank_b``)   0      1
-shadow_probs    M       the shadow IMM's model probabilities: a maneuver detector   0      1
-                        that the action does not influence (``shadow_probs``)
-turn_rate       1       heading rate of the combined estimate over the last step,   -1     1
-                        ``atan2(v(t-1) x v(t), v(t-1) . v(t)) / T`` in units of
-                        ``TURN_RATE_SCALE`` (10 deg/s), clipped (``turn_rate``)
-shadow_turn_    1       the same for the shadow IMM's estimate                      -1     1
-rate                    (``shadow_turn_rate``)
-turn_rate_ema   2       exponential moving averages of the (unclipped) ``turn_rate``,   -1     1
-                        ``m(t) = lambda m(t-1) + (1 - lambda) w(t)``, ``m(0) = 0``, one
-                        per factor of ``EMA_FACTORS``, then clipped (``turn_rate_ema``)
-prob_ema        2M      the same averages of ``mu(t)``, ``m(0) = mu(0)``, factor-major   0      1
-                        (``prob_ema``): a memory of the recent modes
-shadow_turn_    2       the same averages of the shadow's turn rate, clipped to        -1     1
-rate_ema                [-1, 1] before averaging (``shadow_turn_rate_ema``): a memory
-                        that the action cannot steer
-turn_magnitude  2       the same averages of the shadow's ``|turn rate|``, clipped to   0      1
-_ema                    1 before averaging (a transient does not linger), with the
-                        longer memories ``MAGNITUDE_EMA_FACTORS``: how sharply this
-                        target turns (``turn_magnitude_ema``)
-speed           1       speed of the combined estimate over ``SPEED_SCALE``, clipped    0      1
-                        (``speed``)
-time            1       ``k / K`` (feature ``time``)                                0      1
-==============  ======  ==========================================================  =====  ====
+The observation is ``[mu(t), mu(t-1)]`` followed by the blocks of ``obs_features``, each
+declared once in :mod:`imm_gym.sim.features` (the datasheet table of
+:class:`~imm_gym.envs.tpm_adapt.TPMAdaptEnv` is generated from it).
 """
 
 from __future__ import annotations
@@ -57,6 +23,7 @@ from imm_gym.evaluation.metrics import true_model_index
 from imm_gym.scenarios.segments import RandomFamily, generate_truth
 from imm_gym.seeding import streams
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.features import FEATURES, bounds
 from imm_gym.sim.kernels import env_step, step_inputs
 from imm_gym.tracking.fusion import fuse
 from imm_gym.tracking.hetero import combine_bank, make_imm
@@ -67,26 +34,6 @@ from imm_gym.tracking.tpm import apply_floor, row_divergence, stay_tpm
 Array = NDArray[np.float64]
 
 
-INNOVATION_CLIP = 5.0
-#: Heading rate (rad/s) that the ``turn_rate`` features map to 1.
-TURN_RATE_SCALE = float(np.deg2rad(10.0))
-#: Factors ``lambda`` of the ``turn_rate_ema`` / ``prob_ema`` features (memories of about 3 and
-#: 10 steps).
-EMA_FACTORS = (0.7, 0.9)
-#: Observation blocks with values in [-1, 1] (the others lie in [0, 1], ``loglik`` in [-1, 0]).
-SIGNED_FEATURES = (
-    "loglik",
-    "innovation",
-    "turn_rate",
-    "shadow_turn_rate",
-    "turn_rate_ema",
-    "shadow_turn_rate_ema",
-)
-#: Factors of the ``turn_magnitude_ema`` feature (memories of about 10 and 33 steps): gentle and
-#: sharp turners want different TPMs (a looser one for turn rates well below the bank's).
-MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
-#: Speed (m/s) that the ``speed`` feature maps to 1.
-SPEED_SCALE = 30.0
 #: Bound of every entry of :meth:`TrackingCore.critic_state`.
 CRITIC_CLIP = 10.0
 
@@ -94,27 +41,6 @@ CRITIC_CLIP = 10.0
 def critic_state_size(n_models: int) -> int:
     """Length of :meth:`TrackingCore.critic_state`: two 4-d errors and a one-hot model."""
     return 8 + n_models
-
-
-def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
-    """Length of each optional observation block."""
-    M = n_models
-    return {
-        "tpm": M * M,
-        "loglik": M,
-        "nis": M,
-        "innovation": M * dim_z,
-        "bank_b": M,
-        "shadow_probs": M,
-        "time": 1,
-        "turn_rate": 1,
-        "shadow_turn_rate": 1,
-        "turn_rate_ema": len(EMA_FACTORS),
-        "prob_ema": len(EMA_FACTORS) * M,
-        "shadow_turn_rate_ema": len(EMA_FACTORS),
-        "turn_magnitude_ema": len(MAGNITUDE_EMA_FACTORS),
-        "speed": 1,
-    }
 
 
 class ActionError(ValueError):
@@ -190,9 +116,9 @@ class TrackingCore:
         self._shadow_batch = np.repeat(stay_tpm(M, shadow_stay)[None], n_envs, axis=0)
         self.horizon = config.source.horizon
         self.action_dim = M * M
-        low, high = self._observation_bounds()
-        self.obs_low, self.obs_high = low, high
-        self.obs_dim = low.size
+        self.obs_low, self.obs_high = bounds(config.obs_features, M, config.sensor.dim_z)
+        self.obs_dim = self.obs_low.size
+        self.sampling_period = config.source.T
         N, K, m = n_envs, self.horizon, config.sensor.dim_z
         self._rngs: list[tuple[np.random.Generator, np.random.Generator] | None] = [None] * N
         self.truth = np.zeros((N, K + 1, 4))
@@ -216,24 +142,13 @@ class TrackingCore:
         self.velocity_prev = np.zeros((N, 2))
         self.velocity_s = np.zeros((N, 2))  # the same for the shadow IMM
         self.velocity_s_prev = np.zeros((N, 2))
-        self.rate_ema = np.zeros((N, len(EMA_FACTORS)))  # in TURN_RATE_SCALE units
-        self.shadow_rate_ema = np.zeros((N, len(EMA_FACTORS)))
-        self.prob_ema = np.full((N, len(EMA_FACTORS), M), 1.0 / M)
-        self.magnitude_ema = np.zeros((N, len(MAGNITUDE_EMA_FACTORS)))  # TURN_RATE_SCALE units
-
-    # ------------------------------------------------------------------ spaces
-    def _observation_bounds(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        M = self.M
-        lows, highs = [np.zeros(2 * M)], [np.ones(2 * M)]
-        sizes = feature_sizes(M, self.config.sensor.dim_z)
-        for f in self.config.obs_features:
-            signed = f in SIGNED_FEATURES
-            lows.append(np.full(sizes[f], -1.0 if signed else 0.0))
-            highs.append(np.zeros(sizes[f]) if f == "loglik" else np.ones(sizes[f]))
-        return (
-            np.concatenate(lows).astype(np.float32),
-            np.concatenate(highs).astype(np.float32),
-        )
+        #: the observed features' memories (:class:`imm_gym.sim.features.Memory`)
+        self._memories = {
+            f: FEATURES[f].memory for f in config.obs_features if FEATURES[f].memory is not None
+        }
+        self.memories = {
+            name: np.zeros((N, *memory.shape(M))) for name, memory in self._memories.items()
+        }
 
     def _blank_state(self) -> IMMState:
         N, M, n = self.n_envs, self.M, self.n
@@ -294,10 +209,6 @@ class TrackingCore:
             "velocity_prev": x0[:, 2:4],
             "velocity_s": x0[:, 2:4],
             "velocity_s_prev": x0[:, 2:4],
-            "rate_ema": 0.0,
-            "shadow_rate_ema": 0.0,
-            "prob_ema": init.mu[:, None, :],
-            "magnitude_ema": 0.0,
             "k": 0,
             "done": False,
         }
@@ -305,6 +216,10 @@ class TrackingCore:
             array = getattr(self, name).copy()
             array[indices] = value
             setattr(self, name, array)
+        for name, memory in self._memories.items():
+            state = self.memories[name].copy()
+            state[indices] = memory.initial(init.mu)
+            self.memories[name] = state
 
     # ------------------------------------------------------------------ actions
     def tpm_from_action(self, action: NDArray[Any], tpm: Array | None = None) -> Array:
@@ -537,16 +452,13 @@ class TrackingCore:
         "velocity_prev",
         "velocity_s",
         "velocity_s_prev",
-        "rate_ema",
-        "shadow_rate_ema",
-        "prob_ema",
-        "magnitude_ema",
     )
 
     def _snapshot(self) -> dict[str, Any]:
         snap: dict[str, Any] = {name: getattr(self, name) for name in self._SLOT_ARRAYS}
         for bank in ("state_a", "state_b", "state_s"):
             snap[bank] = getattr(self, bank)
+        snap["memories"] = dict(self.memories)
         return snap
 
     def _restore(self, snap: dict[str, Any], rows: NDArray[np.bool_]) -> None:
@@ -566,67 +478,23 @@ class TrackingCore:
                     a_new[rows] = a_old[rows]
                     parts.append(a_new)
                 setattr(self, bank, IMMState(*parts))
+        for name, old in snap["memories"].items():
+            new = self.memories[name]
+            if new is not old:
+                new = new.copy()
+                new[rows] = old[rows]
+                self.memories[name] = new
 
     def _update_memories(self) -> None:
-        """Advance the moving averages of the ``turn_rate_ema`` / ``shadow_turn_rate_ema`` /
-        ``prob_ema`` / ``turn_magnitude_ema`` features (only when observed)."""
-        features = self.config.obs_features
-        lam = np.asarray(EMA_FACTORS)
-        if "turn_rate_ema" in features:
-            self.rate_ema = lam * self.rate_ema + (1.0 - lam) * self._turn_rate()[:, None]
-        if "prob_ema" in features:
-            self.prob_ema = lam[:, None] * self.prob_ema + (1.0 - lam[:, None]) * self.mu[:, None]
-        if "shadow_turn_rate_ema" in features or "turn_magnitude_ema" in features:
-            shadow_rate = np.clip(self._turn_rate(shadow=True), -1.0, 1.0)[:, None]
-            if "shadow_turn_rate_ema" in features:
-                self.shadow_rate_ema = lam * self.shadow_rate_ema + (1.0 - lam) * shadow_rate
-            if "turn_magnitude_ema" in features:
-                lam_m = np.asarray(MAGNITUDE_EMA_FACTORS)
-                magnitude = np.abs(shadow_rate)
-                self.magnitude_ema = lam_m * self.magnitude_ema + (1.0 - lam_m) * magnitude
-
-    def _turn_rate(self, shadow: bool = False) -> Array:
-        """Heading rate of the combined (or the shadow's) estimate over the last step, in units
-        of ``TURN_RATE_SCALE``."""
-        if shadow:
-            return heading_rate(self.velocity_s_prev, self.velocity_s, self.imm.T) / TURN_RATE_SCALE
-        return heading_rate(self.velocity_prev, self.velocity, self.imm.T) / TURN_RATE_SCALE
+        """Advance the observed features' memories by one step."""
+        for name, memory in self._memories.items():
+            self.memories[name] = memory.advance(self.memories[name], self)
 
     # ------------------------------------------------------------------ observation
     def observe(self) -> NDArray[np.float32]:
         """The observation of every slot (see the module docstring for the layout)."""
-        cfg = self.config
         blocks = [self.mu, self.mu_prev]
-        for f in cfg.obs_features:
-            if f == "tpm":
-                blocks.append(self.tpm.reshape(self.n_envs, -1))
-            elif f == "loglik":
-                rel = self.loglik - self.loglik.max(axis=-1, keepdims=True)
-                blocks.append(np.clip(rel, -cfg.loglik_clip, 0.0) / cfg.loglik_clip)
-            elif f == "nis":
-                blocks.append(self.model_nis / (self.model_nis + self.config.sensor.dim_z))
-            elif f == "innovation":
-                w = np.clip(self.innovation, -INNOVATION_CLIP, INNOVATION_CLIP) / INNOVATION_CLIP
-                blocks.append(w.reshape(self.n_envs, -1))
-            elif f == "bank_b":
-                blocks.append(self.mu_b)
-            elif f == "shadow_probs":
-                blocks.append(self.mu_s)
-            elif f in ("turn_rate", "shadow_turn_rate"):  # clipped with the whole observation
-                blocks.append(self._turn_rate(shadow=f == "shadow_turn_rate")[:, None])
-            elif f == "turn_rate_ema":
-                blocks.append(self.rate_ema)
-            elif f == "shadow_turn_rate_ema":
-                blocks.append(self.shadow_rate_ema)
-            elif f == "prob_ema":
-                blocks.append(self.prob_ema.reshape(self.n_envs, -1))
-            elif f == "turn_magnitude_ema":
-                blocks.append(self.magnitude_ema)
-            elif f == "speed":
-                speed = np.hypot(self.velocity[:, 0], self.velocity[:, 1])
-                blocks.append(speed[:, None] / SPEED_SCALE)
-            else:
-                blocks.append((self.k / self.horizon)[:, None])
+        blocks += [FEATURES[f].observe(self) for f in self.config.obs_features]
         obs = np.concatenate(blocks, axis=-1)
         if np.count_nonzero(np.isfinite(obs)) != obs.size:  # a diverged slot
             obs = np.nan_to_num(obs, nan=0.0, posinf=1.0, neginf=-1.0)
@@ -658,15 +526,6 @@ class TrackingCore:
         blocks.append(np.eye(self.M)[coming])
         out = np.clip(np.concatenate(blocks, axis=-1), -CRITIC_CLIP, CRITIC_CLIP)
         return np.nan_to_num(out).astype(np.float32)
-
-
-def heading_rate(v_prev: Array, v: Array, T: float) -> Array:
-    r"""Heading rate between two velocity estimates ``(N, 2)``:
-    :math:`\dot\psi = \operatorname{atan2}(v_{k-1} \times v_k,\ v_{k-1} \cdot v_k) / T`
-    (0 where either velocity is zero)."""
-    cross = v_prev[:, 0] * v[:, 1] - v_prev[:, 1] * v[:, 0]
-    dot = v_prev[:, 0] * v[:, 0] + v_prev[:, 1] * v[:, 1]
-    return np.arctan2(cross, dot) / T
 
 
 def _position_error(x: Array, truth: Array) -> Array:

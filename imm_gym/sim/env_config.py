@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from imm_gym.scenarios.segments import RandomFamily, Scenario, paper_scenario
+from imm_gym.sim.features import FEATURES, shadow_features
 from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, paper_bank
@@ -22,29 +23,10 @@ from imm_gym.validation import ConfigError, check_choice, check_range, from_dict
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
 REWARDS = ("advantage", "squared_advantage", "error")
-OBS_FEATURES = (
-    "tpm",
-    "loglik",
-    "nis",
-    "innovation",
-    "bank_b",
-    "shadow_probs",
-    "time",
-    "turn_rate",
-    "shadow_turn_rate",
-    "turn_rate_ema",
-    "prob_ema",
-    "shadow_turn_rate_ema",
-    "turn_magnitude_ema",
-    "speed",
-)
+#: The optional observation blocks (:data:`imm_gym.sim.features.FEATURES`).
+OBS_FEATURES = tuple(FEATURES)
 #: Observation features computed from the shadow IMM (they need ``shadow="fixed"``).
-SHADOW_FEATURES = (
-    "shadow_probs",
-    "shadow_turn_rate",
-    "shadow_turn_rate_ema",
-    "turn_magnitude_ema",
-)
+SHADOW_FEATURES = shadow_features()
 TIP_READINGS = ("literal", "intent")
 
 
@@ -84,10 +66,8 @@ class EnvConfig:
             :func:`imm_gym.tracking.tpm.row_divergence` (nats), subtracted from the reward each
             step: the policy leaves the shadow's TPM only where that pays (0: no cost; needs the
             shadow).
-        obs_features: extra observation blocks, from ``tpm``, ``loglik``, ``nis``,
-            ``innovation``, ``bank_b``, ``shadow_probs``, ``time``, ``turn_rate``,
-            ``shadow_turn_rate``, ``turn_rate_ema``, ``prob_ema``, ``shadow_turn_rate_ema``,
-            ``turn_magnitude_ema``, ``speed``.
+        obs_features: extra observation blocks, from :data:`OBS_FEATURES` (declared in
+            :mod:`imm_gym.sim.features`).
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
@@ -164,10 +144,10 @@ class EnvConfig:
             check_choice("obs_features[i]", f, OBS_FEATURES)
         if len(set(features)) != len(features):
             raise ConfigError(f"obs_features has duplicates: {features}")
-        if "bank_b" in features and not self.parallel:
-            raise ConfigError("obs_features 'bank_b' needs parallel=True")
-        for f in SHADOW_FEATURES:
-            if f in features and self.shadow == "none":
+        for f in features:
+            if FEATURES[f].needs_parallel and not self.parallel:
+                raise ConfigError(f"obs_features {f!r} needs parallel=True")
+            if FEATURES[f].needs_shadow and self.shadow == "none":
                 raise ConfigError(f"obs_features {f!r} needs shadow 'fixed'")
         object.__setattr__(self, "obs_features", features)
         check_range("loglik_clip", self.loglik_clip, 0.0, lo_open=True)

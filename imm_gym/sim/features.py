@@ -1,0 +1,279 @@
+r"""The observation-feature registry: every optional observation block declared once.
+
+An observation is ``[mu(t), mu(t-1)]`` followed by the blocks named in
+:attr:`~imm_gym.sim.env_config.EnvConfig.obs_features`, in that order. A block is a
+:class:`Feature`: its name, a one-line meaning (the environment's datasheet table is generated
+from it, :func:`datasheet_table`), its length for ``M`` models and ``m`` measurement components,
+its bounds, what it needs of the configuration (the shadow IMM, the parallel bank), how it is
+computed from the core's per-step quantities (:class:`StepView`) and, for a memory, how that
+memory starts and advances. Adding a feature is one :func:`register` call here (and its test).
+
+Memories are exponential moving averages :math:`m(t) = \lambda m(t-1) + (1 - \lambda) w(t)`,
+one per factor ``lambda``, advanced after every step (only for observed features).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+#: Whitened innovations are clipped to ``[-INNOVATION_CLIP, INNOVATION_CLIP]`` and divided by it.
+INNOVATION_CLIP = 5.0
+#: Heading rate (rad/s) that the ``turn_rate`` features map to 1.
+TURN_RATE_SCALE = float(np.deg2rad(10.0))
+#: Factors ``lambda`` of the ``turn_rate_ema`` / ``prob_ema`` / ``shadow_turn_rate_ema``
+#: memories (about 3 and 10 steps).
+EMA_FACTORS = (0.7, 0.9)
+#: Factors of the ``turn_magnitude_ema`` memory (about 10 and 33 steps): gentle and sharp turners
+#: want different TPMs (a looser one for turn rates well below the bank's).
+MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
+#: Speed (m/s) that the ``speed`` feature maps to 1.
+SPEED_SCALE = 30.0
+
+
+class StepView(Protocol):
+    """The core's quantities after a step that features are computed from (N slots, M models,
+    m measurement components). Ground truth is not among them: policies never see it."""
+
+    config: Any  # the EnvConfig
+    horizon: int  # K, steps of an episode
+    n_envs: int
+    k: NDArray[np.int64]  # (N,) steps taken
+    mu: Array  # (N, M) mu(t): bank A's, or the fused U when parallel
+    mu_prev: Array  # (N, M) mu(t-1)
+    mu_b: Array  # (N, M) bank B's probabilities before fusion
+    mu_s: Array  # (N, M) the shadow IMM's
+    tpm: Array  # (N, M, M) the TPM of the last step
+    loglik: Array  # (N, M) bank A's per-model log-likelihoods
+    model_nis: Array  # (N, M)
+    innovation: Array  # (N, M, m) whitened innovations
+    velocity: Array  # (N, 2) velocity of the combined estimate at t
+    velocity_prev: Array  # (N, 2) at t-1
+    velocity_s: Array  # (N, 2) the shadow's estimate at t
+    velocity_s_prev: Array  # (N, 2) at t-1
+    sampling_period: float  # T (s)
+    memories: dict[str, Array]  # each memory feature's state
+
+
+@dataclass(frozen=True)
+class Memory:
+    """A feature's state carried across steps.
+
+    Attributes:
+        shape: the state's shape per slot for ``M`` models.
+        initial: the state of slots starting an episode, from their initial model probabilities
+            ``(n, M)`` (a float or an array broadcast over them).
+        advance: the next state from the previous one and the step's view.
+    """
+
+    shape: Callable[[int], tuple[int, ...]]
+    initial: Callable[[Array], Array | float]
+    advance: Callable[[Array, StepView], Array]
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One optional observation block.
+
+    Attributes:
+        name: the key in ``obs_features``.
+        meaning: one line for the datasheet (length in parentheses is added).
+        size: block length for ``M`` models and ``m`` measurement components.
+        low, high: bounds of every entry (the observation is clipped to them).
+        observe: the ``(N, size)`` block from the view (before clipping).
+        needs_shadow: computed from the shadow IMM (needs ``shadow="fixed"``).
+        needs_parallel: computed from bank B (needs ``parallel=True``).
+        memory: the state it keeps across steps, if any.
+    """
+
+    name: str
+    meaning: str
+    size: Callable[[int, int], int]
+    low: float
+    high: float
+    observe: Callable[[StepView], Array]
+    size_label: str = ""
+    needs_shadow: bool = False
+    needs_parallel: bool = False
+    memory: Memory | None = None
+
+
+#: Every feature by name, in declaration order.
+FEATURES: dict[str, Feature] = {}
+
+
+def register(feature: Feature) -> Feature:
+    """Add ``feature`` to :data:`FEATURES` (names are unique)."""
+    if feature.name in FEATURES:
+        raise ValueError(f"observation feature {feature.name!r} is already registered")
+    FEATURES[feature.name] = feature
+    return feature
+
+
+def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
+    """Length of each optional observation block."""
+    return {name: f.size(n_models, dim_z) for name, f in FEATURES.items()}
+
+
+def shadow_features() -> tuple[str, ...]:
+    """The features computed from the shadow IMM."""
+    return tuple(name for name, f in FEATURES.items() if f.needs_shadow)
+
+
+def bounds(
+    features: tuple[str, ...], n_models: int, dim_z: int
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Lower and upper bounds of the whole observation (``[mu(t), mu(t-1)]`` then the blocks)."""
+    lows, highs = [np.zeros(2 * n_models)], [np.ones(2 * n_models)]
+    for name in features:
+        f = FEATURES[name]
+        size = f.size(n_models, dim_z)
+        lows.append(np.full(size, f.low))
+        highs.append(np.full(size, f.high))
+    return np.concatenate(lows).astype(np.float32), np.concatenate(highs).astype(np.float32)
+
+
+def datasheet_table() -> str:
+    """The observation table of the environments' datasheet (markdown), from the registry."""
+    rows = [
+        "| index | meaning | min | max |",
+        "|---|---|---|---|",
+        "| 0 .. M−1 | model probabilities μ(t) (fused U if parallel) | 0 | 1 |",
+        "| M .. 2M−1 | model probabilities μ(t−1) | 0 | 1 |",
+        "| then, in the order of ``obs_features``: | | | |",
+    ]
+    for f in FEATURES.values():
+        needs = " [shadow]" if f.needs_shadow else " [parallel]" if f.needs_parallel else ""
+        rows.append(
+            f"| ``{f.name}`` | {f.meaning} ({f.size_label}){needs} | {f.low:g} | {f.high:g} |"
+        )
+    return "\n".join(rows)
+
+
+# ---------------------------------------------------------------------------- computations
+def heading_rate(v_prev: Array, v: Array, T: float) -> Array:
+    r"""Heading rate between two velocity estimates ``(N, 2)``:
+    :math:`\dot\psi = \operatorname{atan2}(v_{k-1} \times v_k,\ v_{k-1} \cdot v_k) / T`
+    (0 where either velocity is zero)."""
+    cross = v_prev[:, 0] * v[:, 1] - v_prev[:, 1] * v[:, 0]
+    dot = v_prev[:, 0] * v[:, 0] + v_prev[:, 1] * v[:, 1]
+    return np.arctan2(cross, dot) / T
+
+
+def turn_rate(view: StepView) -> Array:
+    """``(N,)`` heading rate of the combined estimate over the last step / ``TURN_RATE_SCALE``."""
+    return heading_rate(view.velocity_prev, view.velocity, view.sampling_period) / TURN_RATE_SCALE
+
+
+def shadow_turn_rate(view: StepView) -> Array:
+    """``(N,)`` the same for the shadow IMM's estimate."""
+    rate = heading_rate(view.velocity_s_prev, view.velocity_s, view.sampling_period)
+    return rate / TURN_RATE_SCALE
+
+
+def _ema(factors: tuple[float, ...], signal: Callable[[StepView], Array]) -> Memory:
+    """Moving averages of a scalar signal ``(N,)``, one per factor, starting at 0."""
+    lam = np.asarray(factors)
+    return Memory(
+        shape=lambda M: (len(factors),),
+        initial=lambda mu0: 0.0,
+        advance=lambda m, view: lam * m + (1.0 - lam) * signal(view)[:, None],
+    )
+
+
+def _memory_of(name: str) -> Callable[[StepView], Array]:
+    return lambda view: view.memories[name].reshape(view.n_envs, -1)
+
+
+def _relative_loglik(view: StepView) -> Array:
+    clip = view.config.loglik_clip
+    rel = view.loglik - view.loglik.max(axis=-1, keepdims=True)
+    return np.clip(rel, -clip, 0.0) / clip
+
+
+def _whitened_innovation(view: StepView) -> Array:
+    w = np.clip(view.innovation, -INNOVATION_CLIP, INNOVATION_CLIP) / INNOVATION_CLIP
+    return w.reshape(view.n_envs, -1)
+
+
+def _clipped_shadow_rate(view: StepView) -> Array:
+    return np.clip(shadow_turn_rate(view), -1.0, 1.0)
+
+
+_LAM = np.asarray(EMA_FACTORS)
+
+# ---------------------------------------------------------------------------- the registry
+register(Feature(
+    "tpm", "current TPM, row-major", lambda M, m: M * M, 0.0, 1.0,
+    lambda v: v.tpm.reshape(v.n_envs, -1), size_label="M·M",
+))
+register(Feature(
+    "loglik", "log-likelihood minus the best model's, clipped to ±``loglik_clip`` and divided"
+    " by it", lambda M, m: M, -1.0, 0.0, _relative_loglik, size_label="M",
+))
+register(Feature(
+    "nis", "per-model NIS squashed, nis / (nis + m)", lambda M, m: M, 0.0, 1.0,
+    lambda v: v.model_nis / (v.model_nis + v.config.sensor.dim_z), size_label="M",
+))
+register(Feature(
+    "innovation", "per-model whitened innovations L⁻¹ν clipped to ±5 and divided by 5,"
+    " model-major", lambda M, m: M * m, -1.0, 1.0, _whitened_innovation, size_label="M·m",
+))
+register(Feature(
+    "bank_b", "bank B's probabilities before fusion", lambda M, m: M, 0.0, 1.0,
+    lambda v: v.mu_b, size_label="M", needs_parallel=True,
+))
+register(Feature(
+    "shadow_probs", "the shadow IMM's probabilities: a maneuver detector the action does not"
+    " influence", lambda M, m: M, 0.0, 1.0, lambda v: v.mu_s, size_label="M", needs_shadow=True,
+))
+register(Feature(
+    "time", "k / K", lambda M, m: 1, 0.0, 1.0, lambda v: (v.k / v.horizon)[:, None],
+    size_label="1",
+))
+register(Feature(
+    "turn_rate", "heading rate of the combined estimate over the last step,"
+    " atan2(v(t−1) × v(t), v(t−1) · v(t)) / T, over 10°/s, clipped", lambda M, m: 1, -1.0, 1.0,
+    lambda v: turn_rate(v)[:, None], size_label="1",
+))
+register(Feature(
+    "shadow_turn_rate", "the same for the shadow IMM's estimate", lambda M, m: 1, -1.0, 1.0,
+    lambda v: shadow_turn_rate(v)[:, None], size_label="1", needs_shadow=True,
+))
+register(Feature(
+    "turn_rate_ema", "moving averages of the (unclipped) turn rate, λ = 0.7, 0.9, then clipped",
+    lambda M, m: len(EMA_FACTORS), -1.0, 1.0, _memory_of("turn_rate_ema"), size_label="2",
+    memory=_ema(EMA_FACTORS, turn_rate),
+))
+register(Feature(
+    "prob_ema", "moving averages of μ(t), λ = 0.7, 0.9, starting at μ(0), factor-major",
+    lambda M, m: len(EMA_FACTORS) * M, 0.0, 1.0, _memory_of("prob_ema"), size_label="2M",
+    memory=Memory(
+        shape=lambda M: (len(EMA_FACTORS), M),
+        initial=lambda mu0: mu0[:, None, :],
+        advance=lambda m, v: _LAM[:, None] * m + (1.0 - _LAM[:, None]) * v.mu[:, None],
+    ),
+))
+register(Feature(
+    "shadow_turn_rate_ema", "moving averages of the shadow's turn rate clipped to ±1,"
+    " λ = 0.7, 0.9: a memory the action cannot steer", lambda M, m: len(EMA_FACTORS), -1.0, 1.0,
+    _memory_of("shadow_turn_rate_ema"), size_label="2", needs_shadow=True,
+    memory=_ema(EMA_FACTORS, _clipped_shadow_rate),
+))
+register(Feature(
+    "turn_magnitude_ema", "moving averages of the shadow's turn-rate magnitude clipped to 1,"
+    " λ = 0.9, 0.97: how sharply this target turns", lambda M, m: len(MAGNITUDE_EMA_FACTORS),
+    0.0, 1.0, _memory_of("turn_magnitude_ema"), size_label="2", needs_shadow=True,
+    memory=_ema(MAGNITUDE_EMA_FACTORS, lambda v: np.abs(_clipped_shadow_rate(v))),
+))
+register(Feature(
+    "speed", "speed of the combined estimate over 30 m/s, clipped", lambda M, m: 1, 0.0, 1.0,
+    lambda v: np.hypot(v.velocity[:, 0], v.velocity[:, 1])[:, None] / SPEED_SCALE,
+    size_label="1",
+))
