@@ -1,38 +1,30 @@
-"""Shared fixtures: the IMM backends.
+"""Shared fixtures: the IMM engines.
 
-:class:`imm_gym.IMM` may offer several backends computing the same equations (``backend="numpy"``,
-the vectorized reference, and ``"numba"``, the fused compiled cycle). Tests that build an IMM take
-the ``make_imm`` fixture and run once per backend; without a ``backend`` argument they run once.
+:class:`imm_gym.IMM` runs the same equations on two engines (``engine="numpy"``, the vectorized
+reference, and ``"compiled"``, the fused numba cycle). Tests that build an IMM take the
+``make_imm`` fixture and run once per engine.
 """
 
 from __future__ import annotations
-
-import inspect
 
 import pytest
 
 from imm_gym import IMM
 
-HAS_BACKENDS = "backend" in inspect.signature(IMM).parameters
-BACKENDS = ["numpy", "numba"] if HAS_BACKENDS else [None]
+#: the engines every ``make_imm`` test runs on (``"auto"`` only picks one of them)
+ENGINES = ["numpy", "compiled"]
 
 
-def build_imm(models, sensor, filter="ukf", backend=None, **kwargs) -> IMM:
-    if backend is None:
-        return IMM(models, sensor, filter, **kwargs)
-    return IMM(models, sensor, filter, backend=backend, **kwargs)
-
-
-@pytest.fixture(params=BACKENDS, ids=lambda b: b or "default")
-def backend(request: pytest.FixtureRequest) -> str | None:
+@pytest.fixture(params=ENGINES)
+def engine(request: pytest.FixtureRequest) -> str:
     return request.param
 
 
 @pytest.fixture
-def make_imm(backend: str | None):
-    """``make_imm(models, sensor, filter="ukf")`` with the parametrized backend."""
+def make_imm(engine: str):
+    """``make_imm(models, sensor, filter="ukf")`` on the parametrized engine."""
 
     def _make(models, sensor, filter="ukf", **kwargs) -> IMM:
-        return build_imm(models, sensor, filter, backend, **kwargs)
+        return IMM(models, sensor, filter, engine=engine, **kwargs)
 
     return _make

@@ -1,6 +1,6 @@
 """The core's two engines compute the same step: the compiled :func:`imm_gym.sim.kernels.env_step`
 (built-in banks) against the numpy orchestration that any bank runs (here the same bank on the
-numpy IMM backend), over whole episodes with random actions, autoresets and divergences."""
+numpy IMM engine), over whole episodes with random actions, autoresets and divergences."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ N = 3
 def _engines(config: EnvConfig) -> tuple[TrackingCore, TrackingCore]:
     fused, general = TrackingCore(config, N), TrackingCore(config, N)
     general.imm = IMM(
-        config.bank, config.sensor, filter=config.filter, T=config.source.T, backend="numpy"
+        config.bank, config.sensor, filter=config.filter, T=config.source.T, engine="numpy"
     )
     assert fused.imm.kernel_args is not None and general.imm.kernel_args is None
     return fused, general

@@ -177,7 +177,7 @@ def test_ekf_engine_equals_kalman_imm_on_linear_bank() -> None:
     x0 = np.tile([3000.0, 4000.0, 20.0, 15.0], (N, 1))
     P0 = np.diag([400.0, 400.0, 25.0, 25.0])
     tpm = stay_tpm(3, 0.9)
-    ref = IMM(paper_bank(), sensor, filter="kf", backend="numpy").run(z, tpm, x0, P0)
+    ref = IMM(paper_bank(), sensor, filter="kf", engine="numpy").run(z, tpm, x0, P0)
     imm = HeteroIMM(linear_models(paper_bank()), sensor, T=1.0)
     state = imm.init(x0, P0, np.full(3, 1 / 3))
     for k in range(K):

@@ -3,8 +3,6 @@ errors."""
 
 from __future__ import annotations
 
-import inspect
-
 import numpy as np
 import pytest
 from helpers import random_pd
@@ -43,9 +41,6 @@ def _random_posterior(rng: np.random.Generator, N: int, M: int, n: int = 4):
     P = np.stack([[random_pd(rng, spread) for _ in range(M)] for _ in range(N)])
     mu = rng.dirichlet(np.ones(M), size=N)
     return x, P, mu
-
-
-HAS_BACKENDS = "backend" in inspect.signature(IMM).parameters
 
 
 @pytest.fixture(scope="module")
@@ -379,10 +374,9 @@ def test_reproducible_with_seed(make_imm) -> None:
     np.testing.assert_array_equal(b1.measurements.z[1], b4.measurements.z[0])
 
 
-# --------------------------------------------------------------------------- backends
+# --------------------------------------------------------------------------- engines
 
 
-@pytest.mark.skipif(not HAS_BACKENDS, reason="IMM has a single backend")
 @pytest.mark.parametrize(
     ("bank", "sensor", "filter_name"),
     [
@@ -399,16 +393,15 @@ def test_reproducible_with_seed(make_imm) -> None:
     ],
     ids=["sonar-ukf", "sonar-ekf", "sonar-offset", "pos-kf", "posvel-ukf", "ca-bank-kf"],
 )
-def test_backends_agree(bank, sensor, filter_name: str) -> None:
+def test_engines_agree(bank, sensor, filter_name: str) -> None:
     batch = draw_batch(RandomFamily(), sensor, 6, 77)
     z = batch.measurements.z[:, 1:]
     rng = np.random.default_rng(78)
     det = rng.random(z.shape[:2]) < 0.9
     tpm = _random_tpm(rng, len(bank), (6,))
-    results = [
-        IMM(bank, sensor, filter_name, backend=b).run(z, tpm, batch.x0, batch.P0, detected=det)
-        for b in ("numpy", "numba")
-    ]
+    imms = [IMM(bank, sensor, filter_name, engine=e) for e in ("numpy", "compiled")]
+    assert [imm.engine for imm in imms] == ["numpy", "compiled"]
+    results = [imm.run(z, tpm, batch.x0, batch.P0, detected=det) for imm in imms]
     for f in ("x", "P", "mode_probs", "loglik", "model_nis", "nis"):
         a, b = getattr(results[0], f), getattr(results[1], f)
         np.testing.assert_allclose(
@@ -416,14 +409,13 @@ def test_backends_agree(bank, sensor, filter_name: str) -> None:
         )
 
 
-@pytest.mark.skipif(not HAS_BACKENDS, reason="IMM has a single backend")
 @pytest.mark.parametrize("filter_name", ["ukf", "ekf"])
 def test_compiled_tracker_does_not_depend_on_its_batch(filter_name: str) -> None:
     # The kernel runs trackers in blocks (TRACKER_BLOCK) and diagonalizes a block's covariances
     # together: a tracker's numbers must not depend on its block, its position or N.
     N = 2 * TRACKER_BLOCK + 5
     rng = np.random.default_rng(21)
-    imm = IMM(paper_bank(), Sonar(), filter_name, backend="numba")
+    imm = IMM(paper_bank(), Sonar(), filter_name, engine="compiled")
     x, P, mu = _random_posterior(rng, N, 3)
     P[::9] = np.diag([2500.0, 2500.0, 25.0, 25.0])  # degenerate: converges in one sweep
     tpm = _random_tpm(rng, 3, (N,))
@@ -444,10 +436,27 @@ def test_compiled_tracker_does_not_depend_on_its_batch(filter_name: str) -> None
             np.testing.assert_array_equal(a[0], b[t])
 
 
-@pytest.mark.skipif(not HAS_BACKENDS, reason="IMM has a single backend")
-def test_unknown_backend() -> None:
-    with pytest.raises(ConfigError, match="backend"):
-        IMM(paper_bank(), Sonar(), backend="cuda")
+def test_unknown_engine() -> None:
+    with pytest.raises(ConfigError, match="engine"):
+        IMM(paper_bank(), Sonar(), engine="cuda")
+
+
+class _CustomSonar:
+    """A measurement model the compiled kernel does not know: the sonar behind another type."""
+
+    def __init__(self) -> None:
+        self._sonar = Sonar()
+
+    def __getattr__(self, name: str):
+        return getattr(self._sonar, name)
+
+
+def test_auto_engine_compiles_the_built_in_sensors_only() -> None:
+    assert IMM(paper_bank(), Sonar()).engine == "compiled"
+    assert IMM(paper_bank(), PositionSensor(sigma_pos=30.0), "kf").engine == "compiled"
+    assert IMM(paper_bank(), _CustomSonar()).engine == "numpy"
+    with pytest.raises(ConfigError, match="engine 'compiled'"):
+        IMM(paper_bank(), _CustomSonar(), engine="compiled")
 
 
 # --------------------------------------------------------------------------- (8)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import inspect
 import math
 
 import numpy as np
@@ -14,16 +13,9 @@ from imm_gym import IMM, IMMState, Sonar, paper_bank, stay_tpm
 from imm_gym.tracking.linalg import wrap_angle
 
 PI = math.pi
-BACKENDS = ["numpy", "numba"] if "backend" in inspect.signature(IMM).parameters else [None]
 SONAR = Sonar()
 BANK = paper_bank()
-
-
-def _imm(backend: str | None) -> IMM:
-    return IMM(BANK, SONAR) if backend is None else IMM(BANK, SONAR, backend=backend)
-
-
-IMMS = {b: _imm(b) for b in BACKENDS}
+IMMS = {engine: IMM(BANK, SONAR, engine=engine) for engine in ("numpy", "compiled")}
 
 positive = st.floats(min_value=1e-3, max_value=1.0, allow_nan=False)
 probability_vectors = st.lists(positive, min_size=3, max_size=3).map(
@@ -77,13 +69,13 @@ def _assert_pd(P: np.ndarray) -> None:
     assert np.all(np.linalg.eigvalsh(P) > 0)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("engine", IMMS)
 @settings(max_examples=50, deadline=None)
 @given(inputs=imm_inputs())
-def test_imm_step_keeps_probabilities_and_covariances_valid(backend, inputs) -> None:
+def test_imm_step_keeps_probabilities_and_covariances_valid(engine, inputs) -> None:
     xs, Ps, mu, tpm, z = inputs
     state = IMMState(x=xs[None], P=Ps[None], mu=mu[None])
-    new, out = IMMS[backend].step(state, tpm, z[None])
+    new, out = IMMS[engine].step(state, tpm, z[None])
     for name, a in [
         ("x", out.x),
         ("P", out.P),

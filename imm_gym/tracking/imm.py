@@ -41,7 +41,7 @@ BoolArray = NDArray[np.bool_]
 _TINY = 1e-300
 
 #: ``"auto"`` picks the compiled kernel for the built-in sensors and filters, numpy otherwise.
-BACKENDS = ("auto", "numba", "numpy")
+ENGINES = ("auto", "compiled", "numpy")
 
 
 @dataclass(frozen=True)
@@ -205,9 +205,10 @@ class IMM:
         filter: ``"ukf"`` (SVD-UKF, default), ``"ekf"`` or ``"kf"`` (linear sensors only), or a
             filter instance.
         T: sampling period (s).
-        backend: ``"auto"`` (default), ``"numba"`` (fused compiled cycle, built-in sensors and
-            filters) or ``"numpy"`` (vectorized reference, any measurement model). Both compute
-            the same equations; the tests hold them equal.
+        engine: ``"auto"`` (default), ``"compiled"`` (the fused numba cycle of
+            :mod:`imm_gym.tracking.kernels.imm`, built-in sensors and filters) or ``"numpy"``
+            (vectorized reference, any measurement model). Both compute the same equations; the
+            tests hold them equal.
 
     Example:
         >>> from imm_gym import IMM, Sonar, paper_bank, stay_tpm
@@ -221,7 +222,7 @@ class IMM:
         sensor: MeasurementModel,
         filter: str | Filter = "ukf",
         T: float = 1.0,
-        backend: str = "auto",
+        engine: str = "auto",
     ) -> None:
         if len(models) == 0:
             raise ConfigError("models must contain at least one motion model")
@@ -236,12 +237,13 @@ class IMM:
         self.Q = np.stack([m.noise_covariance(self.n) for m in self.models])
         self._Ft = np.ascontiguousarray(np.swapaxes(self.F, -1, -2))
         self._FFt = np.stack([np.kron(F, F).T for F in self.F])
-        self.backend = self._choose_backend(backend)
+        #: the engine that runs :meth:`step`: ``"compiled"`` or ``"numpy"``
+        self.engine = self._choose_engine(engine)
         #: the compiled kernel's bank constants ``(F, Q, R, sensor kind, sensor params, filter
         #: kind, wm, wc, gamma)`` (:func:`imm_gym.tracking.kernels.imm.imm_step`); None with the
-        #: numpy backend
+        #: numpy engine
         self.kernel_args: tuple | None = None
-        if self.backend == "numba":
+        if self.engine == "compiled":
             kind, params = kernels.sensor_spec(sensor)  # type: ignore[misc]
             if isinstance(self.filter, UnscentedKalmanFilter):
                 wm, wc, gamma = self.filter.weights(self.n)
@@ -252,20 +254,20 @@ class IMM:
             R = np.ascontiguousarray(sensor.R, dtype=np.float64)
             self.kernel_args = (self.F, self.Q, R, kind, params, fkind, wm, wc, gamma)
 
-    def _choose_backend(self, backend: str) -> str:
-        if backend not in BACKENDS:
-            raise ConfigError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
+    def _choose_engine(self, engine: str) -> str:
+        if engine not in ENGINES:
+            raise ConfigError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
         compiled = kernels.sensor_spec(self.sensor) is not None and isinstance(
             self.filter, (UnscentedKalmanFilter, ExtendedKalmanFilter, KalmanFilter)
         )
-        if backend == "numba" and not compiled:
+        if engine == "compiled" and not compiled:
             raise ConfigError(
-                "backend 'numba' supports the built-in sensors (Sonar, PositionSensor) and filters "
-                "only; use backend='numpy' for a custom measurement model"
+                "engine 'compiled' supports the built-in sensors (Sonar, PositionSensor) and "
+                "filters only; use engine='numpy' for a custom measurement model"
             )
-        if backend == "auto":
-            return "numba" if compiled else "numpy"
-        return backend
+        if engine == "auto":
+            return "compiled" if compiled else "numpy"
+        return engine
 
     @property
     def n_models(self) -> int:
@@ -353,7 +355,7 @@ class IMM:
             detected: ``(N,)``; where False the filters only predict and ``mu = cbar``.
             check: validate ``tpm`` and ``z`` (disable only for inputs already validated).
             allow_failure: flag diverged trackers in ``IMMStep.failed`` (NaN outputs) instead of
-                raising ``numpy.linalg.LinAlgError`` (compiled backend only: the numpy
+                raising ``numpy.linalg.LinAlgError`` (compiled engine only: the numpy
                 reference always raises).
 
         Returns:
@@ -373,7 +375,7 @@ class IMM:
                 raise ConfigError(f"z must have shape ({N}, {self.sensor.dim_z}), got {z.shape}")
             if not np.all(np.isfinite(z)):
                 raise ConfigError("z must be finite (mark missed detections with detected=False)")
-        if self.backend == "numba":
+        if self.engine == "compiled":
             return self._step_compiled(state, tpm, z, detected, allow_failure)
         cbar, x0, P0 = mix(state.mu, state.x, state.P, tpm)
         x_pred, P_pred = self.predict(x0, P0)

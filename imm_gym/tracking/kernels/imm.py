@@ -1,16 +1,17 @@
 r"""Compiled fast path of the IMM cycle for the built-in sensors (numba).
 
-:class:`imm_gym.tracking.imm.IMM` runs one of two backends with the same equations:
+:class:`imm_gym.tracking.imm.IMM` runs one of two engines with the same equations:
 
 * ``"numpy"`` — the vectorized reference in :mod:`imm_gym.tracking.imm` and
-:mod:`imm_gym.tracking.filters`; works
-  with any sensor that implements :class:`imm_gym.tracking.filters.MeasurementModel`;
-* ``"numba"`` — this module: the whole cycle (mix, predict, update, likelihood, probability update,
-  combination, NIS) fused into one compiled loop over the trackers, for :class:`~imm_gym.Sonar` and
-  :class:`~imm_gym.PositionSensor`. Small 4x4 blocks make numpy's per-call overhead dominate; the
-  fused loop is 10-30x faster at N = 1 and several times faster at N = 1024.
+  :mod:`imm_gym.tracking.filters`; works with any sensor that implements
+  :class:`imm_gym.tracking.filters.MeasurementModel`;
+* ``"compiled"`` — this module: the whole cycle (mix, predict, update, likelihood, probability
+  update, combination, NIS) fused into one compiled loop over the trackers, for
+  :class:`~imm_gym.Sonar` and :class:`~imm_gym.PositionSensor`. Small 4x4 blocks make numpy's
+  per-call overhead dominate; the fused loop is 10-30x faster at N = 1 and several times faster at
+  N = 1024.
 
-The tests run both backends on the same inputs and require the same numbers (to rounding).
+The tests run both engines on the same inputs and require the same numbers (to rounding).
 
 Sensor codes: ``RANGE_BEARING`` (``h = [|p - s|, atan2]``, params = sensor position ``s``),
 ``LINEAR`` (``h = x[:m]``). Filter codes: ``UKF``, ``EKF`` (the Kalman filter is the EKF of a
