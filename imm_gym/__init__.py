@@ -16,7 +16,8 @@ from imm_gym.scenarios.segments import (
     paper_scenario,
 )
 from imm_gym.seeding import streams
-from imm_gym.sim.core import ActionError, TrackingCore
+from imm_gym.sim.actions import ActionError
+from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.tracking.filters import (
     ExtendedKalmanFilter,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imm_gym import IMM, EnvConfig, TrackingCore
+from imm_gym import EnvConfig, TrackingCore
 from imm_gym.sim.kernels import tpm_from_action
 from imm_gym.tracking.tpm import apply_floor
 
@@ -17,10 +17,7 @@ N = 3
 
 
 def _engines(config: EnvConfig) -> tuple[TrackingCore, TrackingCore]:
-    fused, general = TrackingCore(config, N), TrackingCore(config, N)
-    general.imm = IMM(
-        config.bank, config.sensor, filter=config.filter, T=config.source.T, engine="numpy"
-    )
+    fused, general = TrackingCore(config, N), TrackingCore(config.replace(engine="numpy"), N)
     assert fused.imm.kernel_args is not None and general.imm.kernel_args is None
     return fused, general
 

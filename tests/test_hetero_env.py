@@ -74,7 +74,7 @@ def test_hetero_parallel_banks_fuse_in_cartesian_space() -> None:
     core.reset(np.array([0]), [5])
     for _ in range(30):
         res = core.step(np.zeros((1, 9)))
-    x, P = core.imm.combine(core.state_a.mu, core.state_a)
+    x, P = core.imm.combine(core.state_a.mu, core.state_a.x, core.state_a.P)
     np.testing.assert_allclose(res.info["estimate"], x)
     np.testing.assert_allclose(res.info["covariance"], P)
     assert res.info["position_error"][0] < 200.0

@@ -10,7 +10,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from imm_gym.sim.core import ActionError, TrackingCore
+from imm_gym.sim.actions import ActionError
+from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import datasheet_table
 

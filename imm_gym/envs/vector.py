@@ -11,7 +11,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from imm_gym.sim.core import ActionError, TrackingCore
+from imm_gym.sim.actions import ActionError
+from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 
 

@@ -14,7 +14,7 @@ declared once in :mod:`imm_gym.sim.features` (the datasheet table of
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,14 +22,16 @@ from numpy.typing import NDArray
 from imm_gym.evaluation.metrics import true_model_index
 from imm_gym.scenarios.segments import RandomFamily, generate_truth
 from imm_gym.seeding import streams
+from imm_gym.sim.actions import tpm_from_action, validate_action
+from imm_gym.sim.engines import choose_engine
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import FEATURES, bounds
-from imm_gym.sim.kernels import env_step, step_inputs
-from imm_gym.tracking.fusion import fuse
-from imm_gym.tracking.hetero import combine_bank, make_imm
+from imm_gym.sim.kernels import step_inputs
+from imm_gym.sim.rewards import reward
+from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
 from imm_gym.tracking.initiation import initiate
-from imm_gym.tracking.tpm import apply_floor, row_divergence, stay_tpm
+from imm_gym.tracking.tpm import stay_tpm
 
 Array = NDArray[np.float64]
 
@@ -41,37 +43,6 @@ CRITIC_CLIP = 10.0
 def critic_state_size(n_models: int) -> int:
     """Length of :meth:`TrackingCore.critic_state`: two 4-d errors and a one-hot model."""
     return 8 + n_models
-
-
-class ActionError(ValueError):
-    """An action has the wrong shape or a non-finite entry."""
-
-
-class BankStep(NamedTuple):
-    """One step of every bank for all N slots: what :meth:`TrackingCore.step` takes from either
-    engine — the compiled :func:`imm_gym.sim.kernels.env_step` (built-in banks) or the numpy
-    orchestration (any bank). Fields of a bank that did not run hold its previous state (the
-    shadow's scores are then meaningless)."""
-
-    tpm: Array  # (N, M, M) the TPM bank A mixed with (from the action)
-    state_a: IMMState  # bank A's posterior (probabilities: mode_probs)
-    state_b: IMMState  # bank B's (parallel; probabilities: mode_probs)
-    state_s: IMMState  # the shadow IMM's
-    mode_probs: Array  # (N, M) mu(t): bank A's, or the fused U when parallel
-    mu_b: Array  # (N, M) bank B's probabilities before the fusion
-    estimate: Array  # (N, n) combined estimate
-    covariance: Array  # (N, n, n)
-    loglik: Array  # (N, M) bank A's per-model log-likelihoods
-    model_nis: Array  # (N, M)
-    innovation: Array  # (N, M, m) whitened innovations
-    nis: Array  # (N,) NIS of bank A's predicted measurement mixture
-    velocity: Array  # (N, 2) velocity of the combined estimate
-    velocity_s: Array  # (N, 2) velocity of the shadow's estimate
-    position_error: Array  # (N,) capped at divergence_error
-    shadow_position_error: Array | None  # (N,) capped
-    reward_error: Array  # (N,)
-    reward_advantage: Array | None  # (N,)
-    diverged: NDArray[np.bool_]  # (N,)
 
 
 @dataclass
@@ -89,12 +60,11 @@ class TrackingCore:
     """N TPM-adaptation episodes: truth, sonar, IMM bank A (adapted TPM), optional bank B (fixed
     TPM, entropy fusion with feedback), optional shadow IMM (fixed TPM) for the reward.
 
-    A step has two engines with the same equations and the same :class:`BankStep` result: a bank
-    with a compiled kernel (:attr:`imm_gym.tracking.imm.IMM.kernel_args`: built-in sensor and
-    filter) runs all banks, the fusion and the scores in one call of
-    :func:`imm_gym.sim.kernels.env_step`; any other bank (a custom sensor, the heterogeneous bank)
-    runs them as numpy operations around its ``step``. The rest of the step (info, episode ends,
-    observation) is shared.
+    A step: the slots' inputs (:func:`imm_gym.sim.kernels.step_inputs`), all banks advanced by
+    the configured engine (:mod:`imm_gym.sim.engines`, a
+    :class:`~imm_gym.sim.bank_step.BankStep`), the reward terms (:mod:`imm_gym.sim.rewards`),
+    the episode ends, the features' memories and the observation
+    (:mod:`imm_gym.sim.features`).
 
     Args:
         config: the environment configuration.
@@ -108,12 +78,16 @@ class TrackingCore:
         self.n_envs = n_envs
         self.models = config.bank
         self.M = M = len(config.bank)
-        self.imm = make_imm(config.bank, config.sensor, filter=config.filter, T=config.source.T)
+        self.imm = make_tracker(
+            config.bank, config.sensor, config.filter, config.source.T, engine=config.engine
+        )
         self.n = self.imm.n
         self.fixed_tpm = stay_tpm(M, config.initial_stay)
-        self._fixed_batch = np.repeat(self.fixed_tpm[None], n_envs, axis=0)
+        #: ``(N, M, M)`` the fixed TPMs of bank B and of the shadow IMM
+        self.fixed_tpms = np.repeat(self.fixed_tpm[None], n_envs, axis=0)
         shadow_stay = config.initial_stay if config.shadow_stay is None else config.shadow_stay
-        self._shadow_batch = np.repeat(stay_tpm(M, shadow_stay)[None], n_envs, axis=0)
+        self.shadow_tpms = np.repeat(stay_tpm(M, shadow_stay)[None], n_envs, axis=0)
+        self._advance = choose_engine(config.engine, self.imm.kernel_args)
         self.horizon = config.source.horizon
         self.action_dim = M * M
         self.obs_low, self.obs_high = bounds(config.obs_features, M, config.sensor.dim_z)
@@ -223,21 +197,10 @@ class TrackingCore:
 
     # ------------------------------------------------------------------ actions
     def tpm_from_action(self, action: NDArray[Any], tpm: Array | None = None) -> Array:
-        """The TPM an action produces from the current TPM (``scale``) or from scratch (``set``).
-
-        ``scale``: ``pi_ij <- pi_ij * max_factor ** a_ij``; ``set``: ``pi_i = softmax(logit_scale
-        * a_i)``; then rows are normalized and floored to ``[p_min, 1 - p_min]``.
-        """
-        a = self.check_action(action)
-        current = self.tpm if tpm is None else tpm
-        N, M = a.shape[0], self.M
-        a = a.reshape(N, M, M)
-        if self.config.action_mode == "scale":
-            raw = current * np.power(self.config.max_factor, a)
-        else:
-            logits = self.config.logit_scale * a
-            raw = np.exp(logits - logits.max(axis=-1, keepdims=True))
-        return apply_floor(raw, self.config.p_min)
+        """The TPMs an action ``(N, M*M)`` produces from ``tpm`` (default: the current TPMs),
+        :func:`imm_gym.sim.actions.tpm_from_action`."""
+        return tpm_from_action(self.validate_action(action), self.tpm if tpm is None else tpm,
+                               self.config)
 
     def check_action(self, action: NDArray[Any]) -> Array:
         """Validate shape ``(N, M*M)`` and finiteness, then clip to [-1, 1] (float64)."""
@@ -245,15 +208,7 @@ class TrackingCore:
 
     def validate_action(self, action: NDArray[Any]) -> Array:
         """``action`` as float64 after checking shape ``(N, M*M)`` and finiteness (not clipped)."""
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (self.n_envs, self.action_dim):
-            raise ActionError(
-                f"action must have shape ({self.n_envs}, {self.action_dim}) "
-                f"(or ({self.action_dim},) for the scalar env), got {np.shape(action)}"
-            )
-        if np.count_nonzero(np.isfinite(a)) != a.size:
-            raise ActionError("action must be finite (got NaN or inf)")
-        return a
+        return validate_action(action, self.n_envs, self.action_dim)
 
     # ------------------------------------------------------------------ step
     def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
@@ -272,11 +227,7 @@ class TrackingCore:
         k1, step, z, det, truth, true_model = step_inputs(
             self.k, self.horizon, self.z, self.detected, self.truth, self.true_model
         )
-        kernel_args = getattr(self.imm, "kernel_args", None)
-        if kernel_args is None:
-            out = self._advance_numpy(action, z, det, truth)
-        else:
-            out = self._advance_fused(kernel_args, self.validate_action(action), z, det, truth)
+        out = self._advance(self, self.validate_action(action), z, det, truth)
         info: dict[str, Any] = {
             "true_state": truth,
             "true_model": true_model,
@@ -290,25 +241,21 @@ class TrackingCore:
             "detected": det,
             "tpm": out.tpm.copy(),
             "step": step,
-            "reward_error": out.reward_error,
         }
-        self.state_a = out.state_a
+        shadow = cfg.shadow == "fixed"
+        value, terms = reward(
+            out, cfg.reward, cfg.reward_scale, shadow, cfg.tpm_cost, self.shadow_tpms[0]
+        )
+        info.update(terms)
+        self.state_a = IMMState(out.x_a, out.P_a, out.mode_probs)
         if cfg.parallel:
-            self.state_b = out.state_b
+            self.state_b = IMMState(out.x_b, out.P_b, out.mode_probs)
             self.mu_b = out.mu_b
-        if cfg.shadow == "fixed":
+        if shadow:
             info["shadow_position_error"] = out.shadow_position_error
-            info["reward_advantage"] = out.reward_advantage
-            info["reward_squared_advantage"] = (
-                out.shadow_position_error**2 - out.position_error**2
-            ) / cfg.reward_scale**2
-            self.state_s = out.state_s
-            self.mu_s = out.state_s.mu
+            self.state_s = IMMState(out.x_s, out.P_s, out.mu_s)
+            self.mu_s = out.mu_s
             self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s
-        reward = info[f"reward_{cfg.reward}"].copy()
-        if cfg.tpm_cost > 0.0:
-            info["tpm_divergence"] = row_divergence(out.tpm, self._shadow_batch[0])
-            reward -= cfg.tpm_cost * info["tpm_divergence"]
         diverged = out.diverged
         info["diverged"] = diverged
         self.k = k1
@@ -326,116 +273,7 @@ class TrackingCore:
             self._restore(before, ~np.asarray(active, dtype=bool))
         if np.count_nonzero(diverged):  # only a diverged slot can carry NaN/inf
             info = {key: _finite(value) for key, value in info.items()}
-        return StepResult(self.observe(), reward, diverged, truncated, info)
-
-    def _advance_fused(
-        self, kernel_args: tuple, action: Array, z: Array, det: NDArray[np.bool_], truth: Array
-    ) -> BankStep:
-        """All banks' step as one call of the compiled :func:`imm_gym.sim.kernels.env_step`."""
-        cfg = self.config
-        set_mode = cfg.action_mode == "set"
-        a, b, s = self.state_a, self.state_b, self.state_s
-        (tpm, x_a, P_a, U, x_b, P_b, mu_b, x_s, P_s, mu_s, *rest) = env_step(
-            action,
-            self.tpm,
-            set_mode,
-            cfg.logit_scale if set_mode else cfg.max_factor,
-            cfg.p_min,
-            a.x,
-            a.P,
-            a.mu,
-            b.x,
-            b.P,
-            b.mu,
-            s.x,
-            s.P,
-            s.mu,
-            self._fixed_batch,
-            self._shadow_batch,
-            z,
-            det,
-            truth,
-            kernel_args,
-            cfg.parallel,
-            cfg.shadow == "fixed",
-            cfg.divergence_error,
-            cfg.divergence_cov,
-            cfg.reward_scale,
-        )
-        return BankStep(
-            tpm,
-            IMMState(x_a, P_a, U),
-            IMMState(x_b, P_b, U) if cfg.parallel else b,
-            IMMState(x_s, P_s, mu_s) if cfg.shadow == "fixed" else s,
-            U,
-            mu_b,
-            *rest,
-        )
-
-    def _advance_numpy(
-        self, action: NDArray[Any], z: Array, det: NDArray[np.bool_], truth: Array
-    ) -> BankStep:
-        """All banks' step composed of :meth:`tpm_from_action`, the IMM's ``step``,
-        :func:`imm_gym.tracking.fusion.fuse` and :func:`imm_gym.tracking.hetero.combine_bank` (any
-        bank)."""
-        cfg = self.config
-        tpm = self.tpm_from_action(action)
-        state_a, out_a = self.imm.step(self.state_a, tpm, z, det, check=False, allow_failure=True)
-        failed = out_a.failed
-        state_b, mu_b = self.state_b, self.mu_b
-        if cfg.parallel:
-            state_b, out_b = self.imm.step(
-                self.state_b, self._fixed_batch, z, det, check=False, allow_failure=True
-            )
-            failed = failed | out_b.failed
-            mu_b = out_b.mode_probs
-            U = fuse(out_a.mode_probs, mu_b)
-            x_hat, P_hat = combine_bank(self.imm, U, state_a.x, state_a.P)
-            state_a = IMMState(state_a.x, state_a.P, U)
-            state_b = IMMState(state_b.x, state_b.P, U)
-        else:
-            U, x_hat, P_hat = out_a.mode_probs, out_a.x, out_a.P
-        error = _position_error(x_hat, truth)
-        # NaN (a failed tracker) becomes the cap; the divergence flag says why
-        capped = np.where(error <= cfg.divergence_error, error, cfg.divergence_error)
-        state_s, velocity_s = self.state_s, self.velocity_s
-        shadow_error = advantage = None
-        if cfg.shadow == "fixed":
-            state_s, out_s = self.imm.step(
-                self.state_s, self._shadow_batch, z, det, check=False, allow_failure=True
-            )
-            shadow_error = _position_error(out_s.x, truth)
-            shadow_error = np.where(
-                shadow_error <= cfg.divergence_error, shadow_error, cfg.divergence_error
-            )
-            velocity_s = out_s.x[:, 2:4].copy()
-            advantage = (shadow_error - capped) / cfg.reward_scale
-        diverged = (
-            failed
-            | ~(error <= cfg.divergence_error)
-            | ~(P_hat[:, 0, 0] + P_hat[:, 1, 1] <= cfg.divergence_cov)
-        )
-        return BankStep(
-            tpm,
-            state_a,
-            state_b,
-            state_s,
-            U,
-            mu_b,
-            x_hat,
-            P_hat,
-            out_a.loglik,
-            out_a.model_nis,
-            out_a.innovation,
-            out_a.nis,
-            x_hat[:, 2:4].copy(),
-            velocity_s,
-            capped,
-            shadow_error,
-            -capped / cfg.reward_scale,
-            advantage,
-            diverged,
-        )
+        return StepResult(self.observe(), value, diverged, truncated, info)
 
     _SLOT_ARRAYS = (
         "k",
@@ -515,10 +353,10 @@ class TrackingCore:
         rows = np.arange(self.n_envs)
         truth = self.truth[rows, self.k]
         scale = np.array([50.0, 50.0, 5.0, 5.0])
-        estimate = combine_bank(self.imm, self.mu, self.state_a.x, self.state_a.P)[0]
+        estimate = self.imm.combine(self.mu, self.state_a.x, self.state_a.P)[0]
         blocks = [(estimate - truth) / scale]
         if self.config.shadow == "fixed":
-            estimate_s = combine_bank(self.imm, self.mu_s, self.state_s.x, self.state_s.P)[0]
+            estimate_s = self.imm.combine(self.mu_s, self.state_s.x, self.state_s.P)[0]
             blocks.append((estimate_s - truth) / scale)
         else:
             blocks.append(np.zeros((self.n_envs, 4)))
@@ -526,11 +364,6 @@ class TrackingCore:
         blocks.append(np.eye(self.M)[coming])
         out = np.clip(np.concatenate(blocks, axis=-1), -CRITIC_CLIP, CRITIC_CLIP)
         return np.nan_to_num(out).astype(np.float32)
-
-
-def _position_error(x: Array, truth: Array) -> Array:
-    d = x[:, :2] - truth[:, :2]
-    return np.sqrt(np.sum(d * d, axis=-1))
 
 
 def _finite(value: Any) -> Any:

@@ -14,6 +14,7 @@ from typing import Any
 
 from imm_gym.scenarios.segments import RandomFamily, Scenario, paper_scenario
 from imm_gym.sim.features import FEATURES, shadow_features
+from imm_gym.sim.rewards import REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, paper_bank
@@ -22,7 +23,9 @@ from imm_gym.validation import ConfigError, check_choice, check_range, from_dict
 
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
-REWARDS = ("advantage", "squared_advantage", "error")
+#: The reward terms (:data:`imm_gym.sim.rewards.REWARD_TERMS`).
+REWARDS = tuple(REWARD_TERMS)
+ENGINES = ("auto", "compiled", "numpy")
 #: The optional observation blocks (:data:`imm_gym.sim.features.FEATURES`).
 OBS_FEATURES = tuple(FEATURES)
 #: Observation features computed from the shadow IMM (they need ``shadow="fixed"``).
@@ -57,10 +60,11 @@ class EnvConfig:
             measurements (for the ``advantage`` reward and diagnostics) or ``"none"``.
         shadow_stay: diagonal of the shadow's TPM (``None``: ``initial_stay``). Set it to the
             best fixed TPM's (0.6 on the randomized family) to reward beating that bar.
-        reward: ``"advantage"`` — ``(e_shadow - e) / reward_scale`` with ``e`` the position error
-            of the combined estimate —, ``"squared_advantage"`` —
-            ``(e_shadow² - e²) / reward_scale²``, the per-step terms of the mean squared error
-            that the RMSE(t) of the ARMSE are made of — or ``"error"`` — ``-e / reward_scale``.
+        reward: the rewarded term of :mod:`imm_gym.sim.rewards`: ``"advantage"`` —
+            ``(e_shadow - e) / reward_scale`` with ``e`` the position error of the combined
+            estimate —, ``"squared_advantage"`` — ``(e_shadow² - e²) / reward_scale²``, the
+            per-step terms of the mean squared error that the RMSE(t) of the ARMSE are made of —
+            or ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward.
         tpm_cost: weight of the TPM's divergence from the shadow's,
             :func:`imm_gym.tracking.tpm.row_divergence` (nats), subtracted from the reward each
@@ -73,6 +77,9 @@ class EnvConfig:
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
         divergence_error: position error (m) that ends an episode as diverged.
         divergence_cov: trace of the position covariance (m²) that ends an episode as diverged.
+        engine: how the banks run (:mod:`imm_gym.sim.engines`): ``"compiled"`` (one numba call
+            per step; built-in sensor and filter, linear bank), ``"numpy"`` (any tracker) or
+            ``"auto"`` (compiled where possible). Same numbers either way (to rounding).
     """
 
     scenario: str | Scenario = "random"
@@ -96,6 +103,7 @@ class EnvConfig:
     velocity_std: float = 5.0
     divergence_error: float = 5000.0
     divergence_cov: float = 1e8
+    engine: str = "auto"
 
     def __post_init__(self) -> None:
         if isinstance(self.scenario, Mapping):
@@ -133,7 +141,7 @@ class EnvConfig:
         if self.shadow_stay is not None:
             check_range("shadow_stay", self.shadow_stay, 0.0, 1.0)
         check_choice("reward", self.reward, REWARDS)
-        if self.reward != "error" and self.shadow == "none":
+        if REWARD_TERMS[self.reward].needs_shadow and self.shadow == "none":
             raise ConfigError(f"reward {self.reward!r} needs shadow 'fixed'")
         check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
         check_range("tpm_cost", self.tpm_cost, 0.0)
@@ -154,6 +162,7 @@ class EnvConfig:
         check_range("velocity_std", self.velocity_std, 0.0, lo_open=True)
         check_range("divergence_error", self.divergence_error, 0.0, lo_open=True)
         check_range("divergence_cov", self.divergence_cov, 0.0, lo_open=True)
+        check_choice("engine", self.engine, ENGINES)
 
     @property
     def source(self) -> Scenario | RandomFamily:

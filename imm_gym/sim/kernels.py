@@ -1,11 +1,10 @@
 r"""Compiled step of the whole environment core for the built-in banks (numba, no Gymnasium).
 
-:meth:`imm_gym.sim.core.TrackingCore.step` advances every bank of N slots. With a bank that has the
-compiled IMM kernel (:mod:`imm_gym.tracking.kernels.imm`: built-in sensor and filter) that step is
-one call of :func:`env_step`; any other bank (a custom sensor, the heterogeneous bank) runs the same
-equations as a numpy orchestration of :mod:`imm_gym.tracking.tpm`, :mod:`imm_gym.tracking.imm` and
-:mod:`imm_gym.tracking.fusion`. The tests hold the two equal (to rounding) over whole episodes. Per
-slot ``t``:
+The compiled engine of :mod:`imm_gym.sim.engines`: with a bank that has the compiled IMM kernel
+(:mod:`imm_gym.tracking.kernels.imm`: built-in sensor and filter) one step of all banks of N slots
+is one call of :func:`env_step`. Its numpy reference, :func:`imm_gym.sim.engines.numpy_step`,
+composes :mod:`imm_gym.sim.actions`, the tracker's ``step`` and :mod:`imm_gym.tracking.fusion`;
+the tests hold the two equal over whole episodes. Per slot ``t``:
 
 1. TPM from the action ``a`` (clipped to [-1, 1]): ``scale`` mode
    :math:`\pi_{ij} \leftarrow \pi_{ij}\, f^{a_{ij}}` (``f = max_factor``), ``set`` mode
@@ -20,9 +19,9 @@ slot ``t``:
    spread term (SPEC §6);
 4. with ``shadow``: the shadow IMM (fixed TPM, its own probabilities);
 5. scores: position error :math:`e = \lVert \hat p - p \rVert` capped at ``divergence_error``
-   (NaN of a failed tracker becomes the cap), ``reward_error = -e / s``,
-   ``reward_advantage = (e_shadow - e) / s``, and the divergence flag (a failed bank, the error
-   above the cap or ``P_xx + P_yy`` above ``divergence_cov``).
+   (NaN of a failed tracker becomes the cap), the shadow's, and the divergence flag (a failed
+   bank, the error above the cap or ``P_xx + P_yy`` above ``divergence_cov``). The reward terms
+   are computed from these errors by :mod:`imm_gym.sim.rewards`.
 
 Every output array is freshly allocated; slots are independent (a slot's numbers do not depend
 on the batch it is in), so the vector env replays the scalar env bit for bit.
@@ -34,6 +33,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.sim.bank_step import BankStep
 from imm_gym.tracking.kernels.imm import combine_into, imm_step
 
 Array = NDArray[np.float64]
@@ -236,8 +236,7 @@ def env_step(
     shadow: bool,
     divergence_error: float,
     divergence_cov: float,
-    reward_scale: float,
-):  # pragma: no cover
+) -> BankStep:  # pragma: no cover
     """One step of all banks of N slots (the module docstring's steps 1-5).
 
     Args:
@@ -252,12 +251,7 @@ def env_step(
         parallel, shadow: run bank B (and fuse), the shadow IMM.
 
     Returns:
-        ``(tpm, x_a, P_a, mode_probs, x_b, P_b, mu_b, x_s, P_s, mu_s, estimate, covariance,
-        loglik, model_nis, innovation, nis, velocity, velocity_s, position_error,
-        shadow_position_error, reward_error, reward_advantage, diverged)``, fresh arrays;
-        ``mu_b`` are bank B's probabilities before the fusion (its posterior's are ``U``). The
-        inputs of a bank that does not run are returned as they are (and ``velocity_s`` and the
-        shadow scores are zeros without the shadow).
+        the :class:`~imm_gym.sim.bank_step.BankStep` of the slots, fresh arrays.
     """
     N, M, _ = x_a.shape
     new_tpm = tpm_from_action(action, tpm, set_mode, gain, p_min)
@@ -276,17 +270,14 @@ def env_step(
     xs, Ps, mus, xs_hat = x_s, P_s, mu_s, x_hat
     velocity_s = np.zeros((N, 2))
     shadow_error = np.zeros(N)
-    advantage = np.zeros(N)
     if shadow:
         xs, Ps, mus, _, _, _, _, xs_hat, _, _ = _bank_step(
             x_s, P_s, mu_s, shadow_tpm, z, detected, bank, False)
     velocity = np.empty((N, 2))
     error = np.empty(N)
-    reward_error = np.empty(N)
     diverged = np.empty(N, dtype=np.bool_)
     for t in range(N):
         e, error[t] = _capped_error(x_hat, truth, t, divergence_error)
-        reward_error[t] = -error[t] / reward_scale
         velocity[t, 0] = x_hat[t, 2]
         velocity[t, 1] = x_hat[t, 3]
         diverged[t] = (
@@ -296,9 +287,11 @@ def env_step(
         )
         if shadow:
             shadow_error[t] = _capped_error(xs_hat, truth, t, divergence_error)[1]
-            advantage[t] = (shadow_error[t] - error[t]) / reward_scale
             velocity_s[t, 0] = xs_hat[t, 2]
             velocity_s[t, 1] = xs_hat[t, 3]
-    return (new_tpm, xa, Pa, U, xb, Pb, Ub, xs, Ps, mus, x_hat, P_hat, loglik, model_nis,
-            innovation, nis, velocity, velocity_s, error, shadow_error, reward_error, advantage,
-            diverged)
+    return BankStep(
+        tpm=new_tpm, x_a=xa, P_a=Pa, mode_probs=U, x_b=xb, P_b=Pb, mu_b=Ub, x_s=xs, P_s=Ps,
+        mu_s=mus, estimate=x_hat, covariance=P_hat, loglik=loglik, model_nis=model_nis,
+        innovation=innovation, nis=nis, velocity=velocity, velocity_s=velocity_s,
+        position_error=error, shadow_position_error=shadow_error, diverged=diverged,
+    )

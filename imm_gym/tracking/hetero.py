@@ -64,6 +64,7 @@ from imm_gym.tracking.imm import (
     IMM,
     IMMState,
     IMMStep,
+    Tracker,
     combine,
     measurement_mixture,
     mix,
@@ -343,7 +344,8 @@ class _ModelSensor:
 
 
 class HeteroIMM:
-    """IMM-EKF over models with different state spaces, batched over N trackers.
+    """IMM-EKF over models with different state spaces, batched over N trackers (a
+    :class:`~imm_gym.tracking.imm.Tracker` without a compiled kernel).
 
     The interface of :class:`imm_gym.tracking.imm.IMM` (``init``, ``step``; no ``run``): the
     combined output ``IMMStep.x`` is Cartesian ``[x, y, vx, vy]`` with its ``4 x 4`` covariance.
@@ -363,6 +365,7 @@ class HeteroIMM:
         filter: str = "ekf",
     ) -> None:
         self.bank = models if isinstance(models, HeteroBank) else None
+        self.kernel_args: tuple | None = None  # no compiled cycle: the numpy engine runs it
         self.models: tuple[AnyModel, ...] = (
             models.build() if isinstance(models, HeteroBank) else tuple(models)
         )
@@ -520,7 +523,7 @@ class HeteroIMM:
             z_pred[:, j], S[:, j] = upd.z_pred, upd.S
         mu = update_mode_probs(loglik, cbar)
         posterior = IMMState(x_new, P_new, mu)
-        x_hat, P_hat = self.combine(mu, posterior)
+        x_hat, P_hat = self.combine(mu, posterior.x, posterior.P)
         z_mix, S_mix = measurement_mixture(self.sensor, cbar, z_pred, S)
         S_inv, _ = inv_logdet(S_mix)
         nu = self.sensor.residual(z, z_mix)
@@ -533,14 +536,15 @@ class HeteroIMM:
         )
         return posterior, out
 
-    def combine(self, mu: Array, state: IMMState) -> tuple[Array, Array]:
-        """Combination in the common Cartesian space: every model's posterior converted by
-        ``g_{j->ncv}`` (``P' = J P J^T``), then :func:`imm_gym.tracking.imm.combine` with ``mu (N,
-        M)``.
+    def combine(self, mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
+        """Combination in the common Cartesian space: every model's posterior ``x (N, M, n)``,
+        ``P`` converted by ``g_{j->ncv}`` (``P' = J P J^T``), then
+        :func:`imm_gym.tracking.imm.combine` with ``mu (N, M)``.
 
         Returns:
             ``x (N, 4)``, ``P (N, 4, 4)``.
         """
+        state = IMMState(x, P, mu)
         parts = [
             convert(*self._model_state(state, j), m.space, "ncv") for j, m in enumerate(self.models)
         ]
@@ -576,21 +580,16 @@ def _check_scales(name: str, scale: Array | None, shape: tuple[int, ...]) -> Non
         raise ConfigError(f"{name} must be finite and in (0, inf), got min {a.min()!r}")
 
 
-def make_imm(
-    bank: Sequence[MotionModel] | HeteroBank, sensor: MeasurementModel, filter: str, T: float
-) -> IMM | HeteroIMM:
-    """The IMM engine for a bank: :class:`HeteroIMM` (EKF) for a :class:`HeteroBank`, else the
-    classical :class:`imm_gym.tracking.imm.IMM` (what :class:`imm_gym.sim.core.TrackingCore`
-    runs)."""
+def make_tracker(
+    bank: Sequence[MotionModel] | HeteroBank,
+    sensor: MeasurementModel,
+    filter: str,
+    T: float,
+    engine: str = "auto",
+) -> Tracker:
+    """The tracker of a bank: :class:`HeteroIMM` (EKF) for a :class:`HeteroBank`, else the
+    classical :class:`imm_gym.tracking.imm.IMM` with ``engine`` (``"auto"``, ``"compiled"`` or
+    ``"numpy"``; the heterogeneous bank has the numpy engine only)."""
     if isinstance(bank, HeteroBank):
         return HeteroIMM(bank, sensor, T=T, filter=filter)
-    return IMM(bank, sensor, filter=filter, T=T)
-
-
-def combine_bank(imm: IMM | HeteroIMM, mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
-    """Output combination of a bank's model posteriors with probabilities ``mu``: for a
-    :class:`HeteroIMM` in the common Cartesian space (:meth:`HeteroIMM.combine`), else
-    :func:`imm_gym.tracking.imm.combine`."""
-    if isinstance(imm, HeteroIMM):
-        return imm.combine(mu, IMMState(x, P, mu))
-    return combine(mu, x, P)
+    return IMM(bank, sensor, filter=filter, T=T, engine=engine)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -196,8 +197,50 @@ def measurement_mixture(
     return sensor.wrap(z_mix), S_mix
 
 
+class Tracker(Protocol):
+    """What runs a bank of models as an IMM over N trackers: :class:`IMM` (one state space,
+    the linear CV/CT/CA models) and :class:`imm_gym.tracking.hetero.HeteroIMM` (models in their
+    own state spaces). The simulation (:mod:`imm_gym.sim`) needs no more than this.
+
+    Attributes:
+        n: dimension of the model-conditioned states (the largest model's).
+        T: sampling period (s).
+        kernel_args: the constants of the compiled cycle
+            (:func:`imm_gym.tracking.kernels.imm.imm_step`), or None where the tracker has none.
+    """
+
+    n: int
+    T: float
+    kernel_args: tuple | None
+
+    @property
+    def n_models(self) -> int: ...
+
+    def init(self, x0: Array, P0: Array, mode_probs: Array | None = None) -> IMMState:
+        """The state of N trackers started at ``x0 (N, 4)``, ``P0 (N, 4, 4)``."""
+        ...
+
+    def step(
+        self,
+        state: IMMState,
+        tpm: Array,
+        z: Array,
+        detected: BoolArray | None = None,
+        check: bool = True,
+        allow_failure: bool = False,
+    ) -> tuple[IMMState, IMMStep]:
+        """One IMM cycle with ``tpm`` ``(M, M)`` or ``(N, M, M)`` and measurements ``z (N, m)``."""
+        ...
+
+    def combine(self, mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
+        """The combined estimate ``(N, 4+)`` and covariance of model posteriors ``x``, ``P`` with
+        probabilities ``mu (N, M)`` (SPEC §1 step 4)."""
+        ...
+
+
 class IMM:
-    """A bank of model-matched filters run as an IMM, batched over N trackers.
+    """A bank of model-matched filters run as an IMM, batched over N trackers (a
+    :class:`Tracker`).
 
     Args:
         models: the M motion models (:mod:`imm_gym.tracking.models`).
@@ -446,6 +489,11 @@ class IMM:
         z_mix, S = measurement_mixture(self.sensor, cbar, upd.z_pred, upd.S)
         S_inv, _ = inv_logdet(S)
         return mahalanobis(self.sensor.residual(z, z_mix), S_inv)
+
+    def combine(self, mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
+        """Output combination of model posteriors ``x (N, M, n)``, ``P`` with ``mu (N, M)``
+        (:func:`combine`)."""
+        return combine(mu, x, P)
 
     def run(
         self,

@@ -1,0 +1,116 @@
+"""The two engines of one step of all banks (bank A with the action's TPM, bank B, the shadow IMM),
+both returning a :class:`~imm_gym.sim.bank_step.BankStep`:
+
+* ``"numpy"`` — :func:`numpy_step`, the reference: :func:`imm_gym.sim.actions.tpm_from_action`,
+  the tracker's ``step`` per bank, :func:`imm_gym.tracking.fusion.fuse` and the output
+  combination. Runs any tracker (a custom sensor, the heterogeneous bank).
+* ``"compiled"`` — :func:`compiled_step`, one call of :func:`imm_gym.sim.kernels.env_step` for
+  trackers with a compiled kernel (``kernel_args``: built-in sensor and filter).
+
+``EnvConfig.engine = "auto"`` takes the compiled engine where the tracker has one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.sim.actions import tpm_from_action
+from imm_gym.sim.bank_step import BankStep
+from imm_gym.sim.kernels import env_step
+from imm_gym.tracking.fusion import fuse
+from imm_gym.validation import ConfigError
+
+if TYPE_CHECKING:
+    from imm_gym.sim.core import TrackingCore
+
+Array = NDArray[np.float64]
+Engine = Callable[["TrackingCore", Array, Array, NDArray[np.bool_], Array], BankStep]
+
+
+def compiled_step(
+    core: TrackingCore, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array
+) -> BankStep:
+    """All banks' step as one call of the compiled :func:`imm_gym.sim.kernels.env_step`.
+
+    Args:
+        action: ``(N, M*M)`` finite actions; z: ``(N, m)``; detected: ``(N,)``; truth:
+            ``(N, 4)`` the slots' true states (for the errors).
+    """
+    cfg = core.config
+    set_mode = cfg.action_mode == "set"
+    a, b, s = core.state_a, core.state_b, core.state_s
+    return env_step(
+        action, core.tpm, set_mode, cfg.logit_scale if set_mode else cfg.max_factor, cfg.p_min,
+        a.x, a.P, a.mu, b.x, b.P, b.mu, s.x, s.P, s.mu, core.fixed_tpms, core.shadow_tpms,
+        z, detected, truth, core.imm.kernel_args, cfg.parallel, cfg.shadow == "fixed",
+        cfg.divergence_error, cfg.divergence_cov,
+    )
+
+
+def _capped_error(x: Array, truth: Array, cap: float) -> tuple[Array, Array]:
+    """``(e, min(e, cap))``, ``e = |p_hat - p|`` (a NaN error becomes the cap)."""
+    d = x[:, :2] - truth[:, :2]
+    error = np.sqrt(np.sum(d * d, axis=-1))
+    return error, np.where(error <= cap, error, cap)
+
+
+def numpy_step(
+    core: TrackingCore, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array
+) -> BankStep:
+    """All banks' step composed of the tracker's own operations (any tracker)."""
+    cfg, imm = core.config, core.imm
+    tpm = tpm_from_action(action, core.tpm, cfg)
+    state_a, out_a = imm.step(core.state_a, tpm, z, detected, check=False, allow_failure=True)
+    failed = out_a.failed
+    state_b, mu_b = core.state_b, core.mu_b
+    if cfg.parallel:
+        state_b, out_b = imm.step(
+            core.state_b, core.fixed_tpms, z, detected, check=False, allow_failure=True
+        )
+        failed = failed | out_b.failed
+        mu_b = out_b.mode_probs
+        U = fuse(out_a.mode_probs, mu_b)
+        x_hat, P_hat = imm.combine(U, state_a.x, state_a.P)
+    else:
+        U, x_hat, P_hat = out_a.mode_probs, out_a.x, out_a.P
+    error, capped = _capped_error(x_hat, truth, cfg.divergence_error)
+    N = action.shape[0]
+    state_s, velocity_s, shadow_error = core.state_s, np.zeros((N, 2)), np.zeros(N)
+    if cfg.shadow == "fixed":
+        state_s, out_s = imm.step(
+            core.state_s, core.shadow_tpms, z, detected, check=False, allow_failure=True
+        )
+        shadow_error = _capped_error(out_s.x, truth, cfg.divergence_error)[1]
+        velocity_s = out_s.x[:, 2:4].copy()
+    diverged = (
+        failed
+        | ~(error <= cfg.divergence_error)
+        | ~(P_hat[:, 0, 0] + P_hat[:, 1, 1] <= cfg.divergence_cov)
+    )
+    return BankStep(
+        tpm=tpm, x_a=state_a.x, P_a=state_a.P, mode_probs=U,
+        x_b=state_b.x, P_b=state_b.P, mu_b=mu_b, x_s=state_s.x, P_s=state_s.P, mu_s=state_s.mu,
+        estimate=x_hat, covariance=P_hat, loglik=out_a.loglik, model_nis=out_a.model_nis,
+        innovation=out_a.innovation, nis=out_a.nis, velocity=x_hat[:, 2:4].copy(),
+        velocity_s=velocity_s, position_error=capped, shadow_position_error=shadow_error,
+        diverged=diverged,
+    )
+
+
+ENGINES: dict[str, Engine] = {"compiled": compiled_step, "numpy": numpy_step}
+
+
+def choose_engine(name: str, kernel_args: tuple | None) -> Engine:
+    """The engine called ``name`` (``auto``: compiled where the tracker has a kernel)."""
+    if name == "auto":
+        name = "numpy" if kernel_args is None else "compiled"
+    if name == "compiled" and kernel_args is None:
+        raise ConfigError(
+            "engine 'compiled' needs a tracker with a compiled kernel (built-in sensor and filter, "
+            "linear bank); use engine 'auto' or 'numpy'"
+        )
+    return ENGINES[name]

@@ -1,0 +1,89 @@
+r"""Named reward terms, each computed once from the per-step errors that every engine returns.
+
+With ``e`` the position error of the combined estimate and ``e_s`` the shadow IMM's (both capped
+at ``divergence_error``) and ``s = reward_scale``:
+
+=====================  ==============================  ========================================
+term                   value                           meaning
+=====================  ==============================  ========================================
+``error``              :math:`-e / s`                  tracking accuracy alone
+``advantage``          :math:`(e_s - e) / s`           accuracy beyond the shadow's fixed TPM
+``squared_advantage``  :math:`(e_s^2 - e^2) / s^2`     the per-step terms of the mean squared
+                                                       error the ARMSE's RMSE(t) are made of
+=====================  ==============================  ========================================
+
+Every term the configuration allows is in ``info`` as ``reward_<term>``; the reward is the term
+``EnvConfig.reward`` names, minus ``tpm_cost`` times ``info["tpm_divergence"]``, the mean KL
+divergence of the TPM's rows from the shadow's (:func:`imm_gym.tracking.tpm.row_divergence`).
+Adding a term is one :func:`register` call here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.sim.bank_step import BankStep
+from imm_gym.tracking.tpm import row_divergence
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class RewardTerm:
+    """A reward term: ``value(step, reward_scale) -> (N,)``; ``needs_shadow`` if it uses the
+    shadow IMM's error."""
+
+    name: str
+    value: Callable[[BankStep, float], Array]
+    needs_shadow: bool = False
+
+
+#: Every term by name, in declaration order.
+REWARD_TERMS: dict[str, RewardTerm] = {}
+
+
+def register(term: RewardTerm) -> RewardTerm:
+    """Add ``term`` to :data:`REWARD_TERMS` (names are unique)."""
+    if term.name in REWARD_TERMS:
+        raise ValueError(f"reward term {term.name!r} is already registered")
+    REWARD_TERMS[term.name] = term
+    return term
+
+
+register(RewardTerm("error", lambda step, s: -step.position_error / s))
+register(RewardTerm(
+    "advantage",
+    lambda step, s: (step.shadow_position_error - step.position_error) / s,
+    needs_shadow=True,
+))
+register(RewardTerm(
+    "squared_advantage",
+    lambda step, s: (step.shadow_position_error**2 - step.position_error**2) / s**2,
+    needs_shadow=True,
+))
+
+
+def reward(
+    step: BankStep, name: str, scale: float, shadow: bool, tpm_cost: float, shadow_tpm: Array
+) -> tuple[Array, dict[str, Array]]:
+    """The reward of every slot and the ``info`` entries of its terms.
+
+    Args:
+        step: the banks' step.
+        name: the rewarded term; scale: ``reward_scale``; shadow: the shadow IMM ran.
+        tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)``.
+    """
+    terms = {
+        f"reward_{t.name}": t.value(step, scale)
+        for t in REWARD_TERMS.values()
+        if shadow or not t.needs_shadow
+    }
+    value = terms[f"reward_{name}"].copy()
+    if tpm_cost > 0.0:
+        terms["tpm_divergence"] = row_divergence(step.tpm, shadow_tpm)
+        value -= tpm_cost * terms["tpm_divergence"]
+    return value, terms
