@@ -24,8 +24,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .base import Baseline
+from .registry import register
 
 
+@register("amp-imm", help="AMP-IMM, seed 003's TPM scaled by likelihood ratios, with a guard")
 class AMPIMM(Baseline):
     """Error-compression-ratio adaptive TPM with seed 003's diagonal guard.
 
@@ -34,8 +36,6 @@ class AMPIMM(Baseline):
         guard: minimum diagonal entry of an accepted TPM (seed 003: 0.6).
         loglik_clip, logit_scale: must match the environment's (defaults 20 and 4).
     """
-
-    name = "amp-imm"
 
     def __init__(
         self,

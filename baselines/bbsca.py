@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from imm_gym.evaluation.montecarlo import draw_batch
+from imm_gym.sim.episodes import draw_batch
 from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, tune
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, linear_models
@@ -29,6 +29,7 @@ from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError, check_range
 
 from .fixed import FixedTPM
+from .registry import BuildContext, register
 
 
 def scaled_bank(
@@ -92,4 +93,10 @@ def tune_classical(
     return BBSCATunedIMM(base.bank, tuned.q_scale), notes
 
 
-__all__ = ["BBSCATunedIMM", "TunedBank", "scaled_bank", "tune_classical"]
+@register("bbsca", help="classical IMM with the bank's Q factors tuned by BBSCA on training runs")
+def build_bbsca(context: BuildContext) -> tuple[BBSCATunedIMM, dict[str, Any]]:
+    """:func:`tune_classical` on the first fifth of the training runs; notes as it returns them."""
+    return tune_classical(context.base, context.train_runs // 5, context.train_seed)
+
+
+__all__ = ["BBSCATunedIMM", "TunedBank", "build_bbsca", "scaled_bank", "tune_classical"]

@@ -10,8 +10,10 @@ from numpy.typing import NDArray
 from imm_gym.tracking.tip import tip_factors
 
 from .base import Baseline
+from .registry import register
 
 
+@register("tip-imm", help="TIP-IMM, the temporal-information TPM rule of seed 000")
 class TIPIMM(Baseline):
     """The TIP-IMM rule as a ``scale`` action: ``a_ij = log(f_ij) / log(max_factor)``.
 
@@ -28,8 +30,6 @@ class TIPIMM(Baseline):
         parallel: run the parallel bank with entropy fusion.
         max_factor: the environment's ``scale`` range (must exceed ``alpha`` and ``1/beta``).
     """
-
-    name = "tip-imm"
 
     def __init__(
         self,

@@ -21,8 +21,10 @@ from imm_gym.tracking.tpm import stay_tpm
 
 from .amp_imm import tpm_to_logits
 from .base import Baseline
+from .registry import register
 
 
+@register("window", help="the TPM estimated from the model probabilities of a sliding window")
 class SlidingWindowTPM(Baseline):
     """Windowed expected-transition-count TPM estimate.
 
@@ -33,8 +35,6 @@ class SlidingWindowTPM(Baseline):
         prior_stay: diagonal of the prior TPM.
         logit_scale: must match the environment's ``logit_scale``.
     """
-
-    name = "window"
 
     def __init__(
         self,

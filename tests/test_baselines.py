@@ -10,7 +10,17 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 
 import imm_gym  # noqa: F401  (registers the ids)
-from baselines import AMPIMM, BASELINES, TIPIMM, FixedTPM, SlidingWindowTPM, make_baseline
+from baselines import (
+    AMPIMM,
+    REGISTRY,
+    STAY_GRID,
+    TIPIMM,
+    BuildContext,
+    FixedTPM,
+    Registry,
+    SlidingWindowTPM,
+    make_baseline,
+)
 from baselines.amp_imm import tpm_to_logits
 from imm_gym import EnvConfig, TrackingCore
 from imm_gym.evaluation.rollout import evaluation_config, paired_bootstrap, rollout, score
@@ -18,13 +28,15 @@ from imm_gym.tracking.tip import tip_factors
 from imm_gym.tracking.tpm import stay_tpm
 
 PAPER = EnvConfig(scenario="paper")
+#: The baselines built from the number of models alone.
+UNTUNED = [name for name, entry in REGISTRY.items() if entry.cls is not None]
 
 
 def _env_for(policy, env_id: str = "imm_gym/TPMAdaptPaper-v0") -> gym.Env:
     return gym.make(env_id, **policy.env_overrides)
 
 
-@pytest.mark.parametrize("name", sorted(BASELINES))
+@pytest.mark.parametrize("name", UNTUNED)
 def test_predict_protocol_batched_and_single(name: str) -> None:
     policy = make_baseline(name)
     env = _env_for(policy)
@@ -39,12 +51,66 @@ def test_predict_protocol_batched_and_single(name: str) -> None:
     env.step(single)
 
 
-@pytest.mark.parametrize("name", sorted(BASELINES))
+@pytest.mark.parametrize("name", UNTUNED)
 def test_runs_through_sb3_evaluate_policy(name: str) -> None:
     policy = make_baseline(name)
     env = Monitor(_env_for(policy))
     mean, std = evaluate_policy(policy, env, n_eval_episodes=2, deterministic=True)
     assert np.isfinite(mean) and np.isfinite(std)
+
+
+def test_registry_lists_every_shipped_baseline_in_order() -> None:
+    assert list(REGISTRY) == ["fixed", "tip-imm", "best-fixed", "amp-imm", "window", "bbsca"]
+    assert UNTUNED == ["fixed", "tip-imm", "amp-imm", "window"]
+    assert all(REGISTRY[name].cls.name == name for name in UNTUNED)
+    assert all(entry.help for entry in REGISTRY.values())
+    with pytest.raises(ValueError, match="tuned on training runs"):
+        make_baseline("best-fixed")
+    with pytest.raises(ValueError, match="unknown baseline 'nope'"):
+        make_baseline("nope")
+
+
+def test_register_builds_classes_from_m_and_functions_from_the_context() -> None:
+    registry = Registry()
+
+    @registry.register("half", help="stay 1/2")
+    def build_half(context: BuildContext) -> tuple[FixedTPM, dict[str, float]]:
+        policy = FixedTPM(context.n_models, 0.5)
+        return policy, {"train": context.train_armse(policy)}
+
+    @registry.register("plain", help="a subclass built from M")
+    class Plain(FixedTPM):
+        pass
+
+    with pytest.raises(ValueError, match="already registered"):
+        registry.register("plain", help="again")(FixedTPM)
+    context = BuildContext(PAPER, 7, 2, train_armse=lambda policy: policy.stay)
+    assert list(registry) == ["half", "plain"] and registry["half"].cls is None
+    policy, notes = registry["half"].build(context)
+    assert (policy.stay, notes) == (0.5, {"train": 0.5})
+    plain, notes = registry["plain"].build(context)
+    assert type(plain) is Plain and plain.n_models == 3 and notes == {}
+    assert Plain.name == "plain" and FixedTPM.name == "fixed"
+    registry.unregister("plain")
+    assert "plain" not in registry and len(registry) == 1
+    assert "half" not in REGISTRY  # a registry of its own
+
+
+def test_best_fixed_picks_the_lowest_training_armse_on_the_grid() -> None:
+    scored: list[float] = []
+
+    def train_armse(policy: FixedTPM) -> float:
+        scored.append(policy.stay)
+        return abs(policy.stay - 0.72)
+
+    context = BuildContext(PAPER, 1_000_000, 40, train_armse)
+    policy, notes = REGISTRY["best-fixed"].build(context)
+    assert scored == list(STAY_GRID)
+    assert isinstance(policy, FixedTPM) and policy.stay == 0.7
+    assert policy.env_overrides["initial_stay"] == 0.7
+    assert notes["stay"] == 0.7 and notes["search"]["0.7000"] == pytest.approx(0.02)
+    assert len(notes["search"]) == len(STAY_GRID)
+    assert (notes["train_runs"], notes["train_seeds"]) == (40, "1000000..1000039")
 
 
 def test_fixed_policy_is_classical_imm_with_zero_reward() -> None:

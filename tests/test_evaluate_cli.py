@@ -7,7 +7,10 @@ import json
 import numpy as np
 import pytest
 
+from baselines import REGISTRY, BuildContext, FixedTPM, register
 from imm_gym.cli.evaluate import evaluate, main
+from imm_gym.evaluation.rollout import evaluation_config, rollout, score
+from imm_gym.sim.env_config import EnvConfig
 
 
 def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:
@@ -91,3 +94,39 @@ def test_cli_rejects_bad_arguments(argv, message, capsys) -> None:
         main([*argv, "--quiet"])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.fixture
+def throwaway_baseline():
+    """A tuned baseline registered for one test: the fixed TPM at stay 1/2, its training ARMSE
+    in the notes; unregistered afterwards (if the test did not)."""
+
+    @register("throwaway", help="test only: the fixed TPM at stay 1/2")
+    def build(context: BuildContext) -> tuple[FixedTPM, dict[str, object]]:
+        policy = FixedTPM(context.n_models, 0.5)
+        return policy, {"train_armse": context.train_armse(policy), "seeds": context.train_seeds()}
+
+    yield "throwaway"
+    if "throwaway" in REGISTRY:
+        REGISTRY.unregister("throwaway")
+
+
+def test_a_registered_baseline_is_listed_and_evaluated(throwaway_baseline, tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    listed = " ".join(capsys.readouterr().out.split())
+    assert "window: the TPM estimated from the model probabilities of a sliding window;" in listed
+    assert "throwaway: test only: the fixed TPM at stay 1/2" in listed
+    out = tmp_path / "res.json"
+    argv = ["--policy", "throwaway", "--runs", "3", "--seed", "2", "--quiet", "--json", str(out)]
+    assert main(argv) == 0
+    row = json.loads(out.read_text())["policies"]["throwaway"]
+    policy = FixedTPM(3, 0.5)
+    cfg = evaluation_config(EnvConfig(scenario="paper"), policy.env_overrides)
+    assert row["armse_pos"] == score(rollout(policy, cfg, 3, 2))["armse_pos"]
+    assert row["train_armse"] == score(rollout(policy, cfg, 100, 1_000_002))["armse_pos"]
+    assert row["seeds"] == "1000002..1000101"
+    REGISTRY.unregister("throwaway")
+    with pytest.raises(SystemExit):
+        main(argv)
+    assert "unknown policy 'throwaway'" in capsys.readouterr().err

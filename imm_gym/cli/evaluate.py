@@ -31,10 +31,10 @@ from typing import Any
 
 import numpy as np
 
+from baselines import REGISTRY, Baseline, BuildContext
 from imm_gym.cli.tables import render_tables
 from imm_gym.evaluation.clairvoyant import clairvoyant_filter
 from imm_gym.evaluation.metrics import tracking_errors
-from imm_gym.evaluation.montecarlo import draw_batch
 from imm_gym.evaluation.rollout import (
     Rollout,
     evaluation_config,
@@ -46,10 +46,10 @@ from imm_gym.papers.systems import SEED_SCENARIOS
 from imm_gym.scenarios.segments import Scenario
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.episodes import draw_batch
 from imm_gym.tracking.hetero import SONAR_HETERO_BANK
 from imm_gym.validation import ConfigError, from_dict
 
-BUILTIN_POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window", "bbsca")
 #: ``--bank``: environment overrides of each bank.
 BANKS: dict[str, dict[str, Any]] = {
     "paper": {},
@@ -77,34 +77,21 @@ def load_source(name: str) -> str | Scenario:
 def make_policy(
     name: str, base: EnvConfig, seed: int, train_runs: int = TRAIN_RUNS
 ) -> tuple[Any, dict[str, Any], dict[str, Any]]:
-    """``(policy, env_overrides, notes)`` for a policy name or a saved SB3 model path."""
-    from baselines import FixedTPM, best_fixed_stay, make_baseline
+    """``(policy, env_overrides, notes)`` for a policy name or a saved SB3 model path.
 
-    M = len(base.bank)
-    if name == "best-fixed":
+    A registered baseline is built by its registry entry; a tuned one sees ``train_runs``
+    training runs seeded ``seed + TRAIN_SEED_OFFSET + r``, scored by their position ARMSE.
+    """
+    if name in REGISTRY:
+        train_seed = seed + TRAIN_SEED_OFFSET
 
-        def armse(stay: float) -> float:
-            policy = FixedTPM(M, stay)
+        def train_armse(policy: Baseline) -> float:
             cfg = evaluation_config(base, policy.env_overrides)
-            return score(rollout(policy, cfg, train_runs, seed + TRAIN_SEED_OFFSET))["armse_pos"]
+            return score(rollout(policy, cfg, train_runs, train_seed))["armse_pos"]
 
-        stay, grid = best_fixed_stay(armse)
-        policy = FixedTPM(M, stay)
-        notes = {
-            "stay": stay,
-            "search": {f"{p:.4f}": v for p, v in grid.items()},
-            "train_runs": train_runs,
-            "train_seeds": f"{seed + TRAIN_SEED_OFFSET}..{seed + TRAIN_SEED_OFFSET + train_runs - 1}",  # noqa: E501
-        }
+        context = BuildContext(base, train_seed, train_runs, train_armse)
+        policy, notes = REGISTRY[name].build(context)
         return policy, policy.env_overrides, notes
-    if name == "bbsca":
-        from baselines.bbsca import tune_classical
-
-        policy, notes = tune_classical(base, train_runs // 5, seed + TRAIN_SEED_OFFSET)
-        return policy, policy.env_overrides, notes
-    if name in BUILTIN_POLICIES:
-        policy = make_baseline(name, M)
-        return policy, policy.env_overrides, {}
     if name == "pretrained":
         from agents import PRETRAINED
 
@@ -113,7 +100,7 @@ def make_policy(
     if path.suffix == ".zip" or path.is_dir() or path.exists():
         return load_trained(path)
     raise ConfigError(
-        f"unknown policy {name!r}: use one of {list(BUILTIN_POLICIES)}, 'pretrained' or a "
+        f"unknown policy {name!r}: use one of {list(REGISTRY)}, 'pretrained' or a "
         "trained agent (its directory or its model.zip)"
     )
 
@@ -250,8 +237,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--policy",
         action="append",
         required=True,
-        help=f"policy to evaluate (repeatable): {', '.join(BUILTIN_POLICIES)}, pretrained (the "
-        "shipped PPO agent), or a trained agent's directory",
+        help="policy to evaluate (repeatable): "
+        + "; ".join(f"{name}: {entry.help}" for name, entry in REGISTRY.items()).replace("%", "%%")
+        + "; pretrained: the shipped PPO agent; or a trained agent's directory",
     )
     parser.add_argument(
         "--scenario",
