@@ -6,7 +6,6 @@ environment ids (``imm_gym/TPMAdapt-v0`` ...) with Gymnasium. See README.md.
 """
 
 from imm_gym.evaluation.clairvoyant import clairvoyant_filter
-from imm_gym.evaluation.montecarlo import Batch, draw_batch
 from imm_gym.scenarios.segments import (
     RandomFamily,
     Scenario,
@@ -19,6 +18,7 @@ from imm_gym.seeding import streams
 from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.episodes import Batch, draw_batch
 from imm_gym.tracking.filters import (
     ExtendedKalmanFilter,
     KalmanFilter,

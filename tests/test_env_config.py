@@ -10,7 +10,7 @@ import imm_gym
 from imm_gym import ConfigError, EnvConfig, MotionModel, RandomFamily, Scenario, Segment, Sonar
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptVecEnv
-from imm_gym.evaluation.montecarlo import draw_batch
+from imm_gym.sim.episodes import draw_batch
 
 FOUR_MODELS = [
     {"kind": "cv"},

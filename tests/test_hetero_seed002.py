@@ -36,13 +36,13 @@ def test_profile_truth_matches_segment_truth_on_turns() -> None:
         np.array([math.atan2(8.0, 6.0)]),
         1.0,
     )
-    np.testing.assert_allclose(pt.truth.states, ref.states, atol=1e-9)
+    np.testing.assert_allclose(pt.states, ref.states, atol=1e-9)
 
 
 def test_seed002_family_has_its_maneuvers() -> None:
     fam = Seed002Family()
-    pt = fam.sample([np.random.default_rng(s) for s in range(4)])
-    w, speed = pt.truth.turn_rate, np.linalg.norm(pt.truth.states[..., 2:], axis=-1)
+    pt = fam.truth([np.random.default_rng(s) for s in range(4)])
+    w, speed = pt.turn_rate, np.linalg.norm(pt.states[..., 2:], axis=-1)
     T = fam.T
     sharp = np.abs(w) > 0.3
     # two sharp 90° turns per run
@@ -98,7 +98,7 @@ def test_seed003_profile_follows_the_source() -> None:
     assert p.omega.shape == p.accel.shape == (430,) and p.cart_accel.shape == (430, 2)
     assert p.speed == 5.0
     pt = seed003_truth(1)
-    x, vel = pt.truth.states[0, :, :2], pt.truth.states[0, :, 2:]
+    x, vel = pt.states[0, :, :2], pt.states[0, :, 2:]
     k = {t: round(t / 0.1) for t in (10, 14, 34, 38, 43)}
     np.testing.assert_allclose(vel[: k[10] + 1], np.tile((0.0, -5.0), (k[10] + 1, 1)), atol=1e-12)
     # 10-14 s: constant Cartesian acceleration (0.25, 1) m/s^2, ending at v = (1, -1) m/s
@@ -112,7 +112,7 @@ def test_seed003_profile_follows_the_source() -> None:
     # 14-34 s: a uniform (left) turn at |(1, -1)| m/s
     speed = np.linalg.norm(vel, axis=-1)
     np.testing.assert_allclose(speed[k[14] : k[34] + 1], math.sqrt(2.0), atol=1e-12)
-    assert np.all(pt.truth.turn_rate[0, k[14] : k[34]] > 0)
+    assert np.all(pt.turn_rate[0, k[14] : k[34]] > 0)
     # 34-38 s: uniform acceleration ending at v = (0, 8) m/s; straight to 43 s
     np.testing.assert_allclose(
         vel[k[38] :], np.tile((0.0, 8.0), (k[43] - k[38] + 1, 1)), atol=1e-12
@@ -120,10 +120,10 @@ def test_seed003_profile_follows_the_source() -> None:
     accel = np.diff(vel[k[34] : k[38] + 1], axis=0)
     np.testing.assert_allclose(accel, np.tile(accel[0], (40, 1)), atol=1e-12)
     # the recorded profile marks both accelerations (the bank's CA), the turn and the legs
-    assert np.all(pt.truth.accel[0, k[10] : k[14]] != 0) and np.all(
-        pt.truth.accel[0, k[34] : k[38]] != 0
+    assert np.all(pt.accel[0, k[10] : k[14]] != 0) and np.all(
+        pt.accel[0, k[34] : k[38]] != 0
     )
-    assert np.all(pt.truth.accel[0, : k[10]] == 0) and np.all(pt.truth.turn_rate[0, k[38] :] == 0)
+    assert np.all(pt.accel[0, : k[10]] == 0) and np.all(pt.turn_rate[0, k[38] :] == 0)
     with pytest.raises(ConfigError, match="Cartesian"):
         profile_truth(
             np.full((1, 3), 0.1),
@@ -140,10 +140,10 @@ def test_seed003_family_keeps_the_turn_direction() -> None:
     from imm_gym.papers.systems import Seed003Family
 
     fam = Seed003Family()
-    pt = fam.sample([np.random.default_rng(s) for s in range(20)])
-    assert np.all(pt.truth.turn_rate >= 0) and np.any(pt.truth.turn_rate > 0.05)
+    pt = fam.truth([np.random.default_rng(s) for s in range(20)])
+    assert np.all(pt.turn_rate >= 0) and np.any(pt.turn_rate > 0.05)
     # the 10-14 s Cartesian acceleration, rotated with the run's heading and scaled
-    vel = pt.truth.states[..., 2:]
+    vel = pt.states[..., 2:]
     dv = vel[:, 140] - vel[:, 100]
     rot = pt.heading[:, 0] + math.pi / 2
     back = np.stack(

@@ -13,8 +13,8 @@ from imm_gym.evaluation.metrics import (
     nees,
     rmse_over_time,
     tracking_errors,
-    true_model_index,
 )
+from imm_gym.scenarios.segments import true_model_index
 
 
 def _truth_array(R: int = 7, K: int = 20) -> np.ndarray:

@@ -7,15 +7,11 @@ Shapes: R runs, K scored steps; estimates ``(R, K, n >= 4)`` and truth ``(R, K, 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
-from imm_gym.scenarios.segments import Truth
 from imm_gym.tracking.linalg import inv_logdet, mahalanobis
-from imm_gym.tracking.models import MotionModel
 
 Array = NDArray[np.float64]
 
@@ -71,42 +67,6 @@ def consistency(
         "bound": bound,
         "dof": dof,
     }
-
-
-def true_model_index(truth: Truth, models: Sequence[MotionModel]) -> NDArray[np.int64]:
-    """The bank model that matches the true motion of each step, ``(R, K)``; -1 if none.
-
-    Straight -> the first CV model; turn -> the CT model turning the same way whose rate is
-    closest; tangential acceleration -> the first CA model. For a heterogeneous bank
-    (:class:`~imm_gym.tracking.hetero.HeteroBank`): straight -> NCV, turn -> CT (turn rate
-    estimated), acceleration -> CTRA.
-    """
-    idx = np.full(truth.turn_rate.shape, -1, dtype=np.int64)
-    omega, accel = truth.turn_rate, truth.accel
-    if hasattr(models, "build"):  # a HeteroBank: kinds ncv / ct / ctra
-        kinds = list(models.models)  # type: ignore[attr-defined]
-        for kind, where in (
-            ("ncv", (omega == 0) & (accel == 0)),
-            ("ct", (omega != 0) & (accel == 0)),
-            ("ctra", accel != 0),
-        ):
-            if kind in kinds:
-                idx[where] = kinds.index(kind)
-        return idx
-    kinds = [m.kind for m in models]
-    if "cv" in kinds:
-        idx[(omega == 0) & (accel == 0)] = kinds.index("cv")
-    if "ca" in kinds:
-        idx[accel != 0] = kinds.index("ca")
-    for sign in (1.0, -1.0):
-        cts = [(i, m.omega) for i, m in enumerate(models) if m.kind == "ct" and m.omega * sign > 0]
-        if not cts:
-            continue
-        turning = omega * sign > 0
-        rates = np.array([w for _, w in cts])
-        nearest = np.argmin(np.abs(omega[..., None] - rates), axis=-1)
-        idx[turning] = np.array([i for i, _ in cts])[nearest[turning]]
-    return idx
 
 
 def mode_accuracy(mode_probs: Array, true_index: NDArray[np.int64]) -> float:

@@ -30,10 +30,10 @@ from numpy.typing import NDArray
 from imm_gym.evaluation.metrics import consistency, nees, trajectory_metrics
 from imm_gym.scenarios.profiles import (
     SEED003_TURN_RATE,
-    ProfileTruth,
     Seed002Family,
     Seed003Family,
 )
+from imm_gym.scenarios.segments import Truth
 from imm_gym.seeding import streams
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, linear_models
 from imm_gym.tracking.models import MotionModel
@@ -88,7 +88,7 @@ class SeedBatch:
         x0, P0: ``(R, 4)`` and ``(R, 4, 4)`` initial Cartesian estimate.
     """
 
-    truth: ProfileTruth
+    truth: Truth
     measurements: Measurements
     x0: Array
     P0: Array
@@ -107,8 +107,8 @@ def draw(
     if sensor.sigma_vel is None:
         raise ConfigError("the seed evaluations need a position+velocity sensor (sigma_vel)")
     scen, noise = zip(*(streams(seed + r) for r in range(runs)), strict=True)
-    truth = family.sample(list(scen))
-    meas = sensor.measure(truth.truth.states, noise)
+    truth = family.truth(scen)
+    meas = sensor.measure(truth.states, noise)
     P0 = np.broadcast_to(sensor.R, (runs, 4, 4)).copy()
     return SeedBatch(truth, meas, meas.z[:, 0, :4].copy(), P0)
 
@@ -176,7 +176,7 @@ def run_bank(
 
 def score_run(run: BankRun, batch: SeedBatch, dim_z: int) -> dict[str, float]:
     """Seed 002's metrics of one bank run (``repeat = 1``)."""
-    truth = batch.truth.truth.states[:, 1:]
+    truth = batch.truth.states[:, 1:]
     out: dict[str, float] = trajectory_metrics(run.estimate, truth, batch.truth.heading[:, 1:])
     nis = consistency(run.nis, dim_z, mask=batch.measurements.detected[:, 1:])
     nes = consistency(nees(run.estimate, run.covariance, truth), 4)

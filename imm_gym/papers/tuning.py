@@ -174,7 +174,7 @@ def bank_objective(
 
     Args:
         imm: the bank (its models' own ``q_scale`` are the reference, 1 = untuned).
-        batch: the training runs (S >= 1; a :class:`~imm_gym.evaluation.montecarlo.Batch` works
+        batch: the training runs (S >= 1; a :class:`~imm_gym.sim.episodes.Batch` works
         too). tpm: the fixed TPM. sigma: the sensor's nominal standard deviations ``(m,)``.
         tune_r: particles carry the ``R`` factor as last component (else ``M`` components and
             ``R`` as the sensor has it).

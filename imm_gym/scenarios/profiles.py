@@ -4,7 +4,7 @@ A profile gives, for every step k, the turn rate ``omega_k`` (rad/s) and the tan
 acceleration ``a_k`` (m/s²) held during that step. The truth is the exact CTRA motion
 (:func:`imm_gym.tracking.conversions.ctra_transition`, closed form, no integration error), so a step
 can turn and accelerate at once; states are reported as ``[x, y, vx, vy]`` (:class:`Truth`), with
-the heading ``psi`` (yaw, zero sideslip) kept for the yaw metrics.
+the heading ``psi`` (yaw, zero sideslip) kept for the yaw metrics (``Truth.heading``).
 
 **Seed 002** (vehicle trajectory from MATLAB's Driving Scenario Designer; the data set is not
 published, so this family is "like theirs"): straight segments, a gentle S-curve and two sharp 90°
@@ -21,6 +21,7 @@ the values filled in here are marked "filled" in :func:`seed003_profile`.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -34,19 +35,6 @@ from imm_gym.validation import ConfigError, check_int, check_range
 Array = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class ProfileTruth:
-    """Truth of N runs driven by per-step profiles.
-
-    Attributes:
-        truth: the :class:`Truth` (states ``(N, K+1, 4)``, ``turn_rate``, ``accel``).
-        heading: ``(N, K+1)`` true heading / yaw (rad).
-    """
-
-    truth: Truth
-    heading: Array
-
-
 def profile_truth(
     omega: Array,
     accel: Array,
@@ -55,8 +43,8 @@ def profile_truth(
     heading: Array,
     T: float,
     cart_accel: Array | None = None,
-) -> ProfileTruth:
-    """Exact truth from per-step profiles, batched over runs.
+) -> Truth:
+    """Exact truth from per-step profiles, batched over runs, with the heading ``psi``.
 
     A step is either CTRA (turn rate ``omega`` and tangential acceleration ``accel`` held, the
     closed form of :func:`~imm_gym.tracking.conversions.ctra_transition`) or, where ``cart_accel``
@@ -110,7 +98,7 @@ def profile_truth(
     omega[cartesian] = (np.diff(psi, axis=1) / T)[cartesian]
     accel[cartesian] = (np.diff(v, axis=1) / T)[cartesian]
     cart = np.stack([states[..., 0], states[..., 1], v * np.cos(psi), v * np.sin(psi)], axis=-1)
-    return ProfileTruth(Truth(cart, omega, accel, T), psi)
+    return Truth(cart, omega, accel, T, heading=psi)
 
 
 @dataclass(frozen=True)
@@ -165,10 +153,10 @@ class Seed002Family:
             (6.0, 0.0, 0.0),
         ], cruise
 
-    def sample(self, rngs: list[np.random.Generator]) -> ProfileTruth:
-        """The truth of one run per generator."""
+    def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
+        """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""
         if not rngs:
-            raise ConfigError("Seed002Family.sample needs at least one generator")
+            raise ConfigError("Seed002Family.truth needs at least one generator")
         omegas, accels, pos, speed, heading = [], [], [], [], []
         for rng in rngs:
             pos.append(rng.uniform(-50.0, 50.0, size=2))
@@ -250,7 +238,7 @@ def seed003_profile(T: float = 0.1) -> Seed003Profile:
     return Seed003Profile(w, a, cart, (0.0, 0.0), speed0, heading0)
 
 
-def seed003_truth(runs: int, T: float = 0.1) -> ProfileTruth:
+def seed003_truth(runs: int, T: float = 0.1) -> Truth:
     """``runs`` copies of the seed-003 trajectory (the noise makes the runs differ)."""
     check_int("runs", runs, 1)
     p = seed003_profile(T)
@@ -288,10 +276,10 @@ class Seed003Family:
             check_range(f"family.{name}[1]", hi, lo)
         check_range("family.T", self.T, 0.0, 1.0, lo_open=True)
 
-    def sample(self, rngs: list[np.random.Generator]) -> ProfileTruth:
-        """The truth of one run per generator."""
+    def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
+        """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""
         if not rngs:
-            raise ConfigError("Seed003Family.sample needs at least one generator")
+            raise ConfigError("Seed003Family.truth needs at least one generator")
         p = seed003_profile(self.T)
         w, a, ca, pos, v, psi = [], [], [], [], [], []
         for rng in rngs:

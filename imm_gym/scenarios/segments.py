@@ -11,14 +11,36 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.tracking.models import ct_ratios, ct_transition
+from imm_gym.tracking.hetero import HeteroBank
+from imm_gym.tracking.models import MotionModel, ct_ratios, ct_transition
 from imm_gym.validation import ConfigError, check_finite, check_int, check_range
 
 Array = NDArray[np.float64]
+
+
+class TruthSource(Protocol):
+    """Where targets come from: every source (a fixed :class:`Scenario`, the
+    :class:`RandomFamily`, the profile families of :mod:`imm_gym.scenarios.profiles`, a user's
+    scenario file) draws the truth of R runs from one generator per run.
+
+    Attributes:
+        T: sampling period (s).
+        horizon: steps K of a run.
+    """
+
+    T: float
+
+    @property
+    def horizon(self) -> int: ...
+
+    def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
+        """The :class:`Truth` of ``len(rngs)`` runs, run r drawn from ``rngs[r]`` alone."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -102,6 +124,11 @@ class Scenario:
         """Number of steps K."""
         return sum(s.duration for s in self.segments)
 
+    def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
+        """The truth of one run per generator (:class:`TruthSource`): this scenario each time
+        (the generators draw its truth noise, if any)."""
+        return generate_truth([self] * len(rngs), rngs)
+
     def profile(self) -> tuple[Array, Array]:
         """Per-step turn rate (rad/s) and tangential acceleration (m/s²), each ``(K,)``."""
         durations = [s.duration for s in self.segments]
@@ -164,6 +191,11 @@ class RandomFamily:
             )
         check_range("family.T", self.T, 0.0, lo_open=True)
 
+    def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
+        """The truth of one run per generator (:class:`TruthSource`): a scenario drawn from each
+        (:meth:`sample`), then its truth noise, if any, from the same generator."""
+        return generate_truth([self.sample(rng) for rng in rngs], rngs)
+
     def sample(self, rng: np.random.Generator) -> Scenario:
         """Draw one scenario; the sequence of draws is fixed, so a seeded ``rng`` reproduces it."""
         rng_range = rng.uniform(*self.range_m)
@@ -204,12 +236,15 @@ class Truth:
         turn_rate: ``(N, K)`` turn rate (rad/s) of step k (moving from k-1 to k).
         accel: ``(N, K)`` tangential acceleration (m/s²) of step k.
         T: sampling period.
+        heading: ``(N, K+1)`` true heading / yaw (rad) where the source keeps it (the profile
+            sources of :mod:`imm_gym.scenarios.profiles`), else None.
     """
 
     states: Array
     turn_rate: Array
     accel: Array
     T: float = field(default=1.0)
+    heading: Array | None = None
 
     @property
     def n_runs(self) -> int:
@@ -218,6 +253,44 @@ class Truth:
     @property
     def horizon(self) -> int:
         return self.turn_rate.shape[1]
+
+
+def true_model_index(
+    truth: Truth, models: Sequence[MotionModel] | HeteroBank
+) -> NDArray[np.int64]:
+    """The bank model that matches the true motion of each step, ``(R, K)``; -1 if none.
+
+    Straight -> the first CV model; turn -> the CT model turning the same way whose rate is
+    closest; tangential acceleration -> the first CA model. For a heterogeneous bank
+    (:class:`~imm_gym.tracking.hetero.HeteroBank`): straight -> NCV, turn -> CT (turn rate
+    estimated), acceleration -> CTRA.
+    """
+    idx = np.full(truth.turn_rate.shape, -1, dtype=np.int64)
+    omega, accel = truth.turn_rate, truth.accel
+    if isinstance(models, HeteroBank):  # kinds ncv / ct / ctra
+        kinds = list(models.models)
+        for kind, where in (
+            ("ncv", (omega == 0) & (accel == 0)),
+            ("ct", (omega != 0) & (accel == 0)),
+            ("ctra", accel != 0),
+        ):
+            if kind in kinds:
+                idx[where] = kinds.index(kind)
+        return idx
+    kinds = [m.kind for m in models]
+    if "cv" in kinds:
+        idx[(omega == 0) & (accel == 0)] = kinds.index("cv")
+    if "ca" in kinds:
+        idx[accel != 0] = kinds.index("ca")
+    for sign in (1.0, -1.0):
+        cts = [(i, m.omega) for i, m in enumerate(models) if m.kind == "ct" and m.omega * sign > 0]
+        if not cts:
+            continue
+        turning = omega * sign > 0
+        rates = np.array([w for _, w in cts])
+        nearest = np.argmin(np.abs(omega[..., None] - rates), axis=-1)
+        idx[turning] = np.array([i for i, _ in cts])[nearest[turning]]
+    return idx
 
 
 def _constant_speed_truth(p0: Array, v0: Array, omega: Array, T: float) -> Array:

@@ -19,18 +19,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.evaluation.metrics import true_model_index
-from imm_gym.scenarios.segments import RandomFamily, generate_truth
+from imm_gym.scenarios.segments import true_model_index
 from imm_gym.seeding import streams
 from imm_gym.sim.actions import tpm_from_action, validate_action
 from imm_gym.sim.engines import choose_engine
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds
 from imm_gym.sim.kernels import step_inputs
 from imm_gym.sim.rewards import reward
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
-from imm_gym.tracking.initiation import initiate
 from imm_gym.tracking.tpm import stay_tpm
 
 Array = NDArray[np.float64]
@@ -149,20 +148,15 @@ class TrackingCore:
                 self._rngs[i] = streams(int(np.random.SeedSequence().generate_state(1)[0]))
         scen_rngs = [self._rngs[i][0] for i in indices]  # type: ignore[index]
         noise_rngs = [self._rngs[i][1] for i in indices]  # type: ignore[index]
-        source = self.config.source
-        if isinstance(source, RandomFamily):
-            scenarios = [source.sample(rng) for rng in scen_rngs]
-        else:
-            scenarios = [source] * indices.size
-        truth = generate_truth(scenarios, scen_rngs)
-        meas = self.config.sensor.measure(truth.states, noise_rngs)
-        velocity = np.array([s.velocity for s in scenarios])
-        x0, P0 = initiate(self.config.sensor, meas.z[:, 0], velocity, self.config.velocity_std)
+        batch = draw_episodes(
+            self.config.source, self.config.sensor, scen_rngs, noise_rngs, self.config.velocity_std
+        )
+        truth, meas, x0 = batch.truth, batch.measurements, batch.x0
         self.truth[indices] = truth.states
         self.z[indices] = meas.z
         self.detected[indices] = meas.detected
         self.true_model[indices] = true_model_index(truth, self.models)
-        init = self.imm.init(x0, P0)
+        init = self.imm.init(x0, batch.P0)
         # copy-on-write: arrays handed out earlier (infos) must not change under the caller
         for bank in ("state_a", "state_b", "state_s"):
             state = getattr(self, bank)

@@ -13,26 +13,42 @@ both returning a :class:`~imm_gym.sim.bank_step.BankStep`:
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.actions import tpm_from_action
 from imm_gym.sim.bank_step import BankStep
+from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.kernels import env_step
 from imm_gym.tracking.fusion import fuse
+from imm_gym.tracking.imm import IMMState, Tracker
 from imm_gym.validation import ConfigError
 
-if TYPE_CHECKING:
-    from imm_gym.sim.core import TrackingCore
-
 Array = NDArray[np.float64]
-Engine = Callable[["TrackingCore", Array, Array, NDArray[np.bool_], Array], BankStep]
+
+
+class Banks(Protocol):
+    """What an engine reads of the core (:class:`imm_gym.sim.core.TrackingCore`): the
+    configuration, the tracker and the banks' state before the step (N slots, M models)."""
+
+    config: EnvConfig
+    imm: Tracker
+    tpm: Array  # (N, M, M) bank A's current TPMs
+    state_a: IMMState  # bank A's posterior
+    state_b: IMMState  # bank B's (parallel)
+    state_s: IMMState  # the shadow IMM's
+    mu_b: Array  # (N, M) bank B's last probabilities before the fusion
+    fixed_tpms: Array  # (N, M, M) bank B's TPM
+    shadow_tpms: Array  # (N, M, M) the shadow's TPM
+
+
+Engine = Callable[[Banks, Array, Array, NDArray[np.bool_], Array], BankStep]
 
 
 def compiled_step(
-    core: TrackingCore, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array
+    banks: Banks, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array
 ) -> BankStep:
     """All banks' step as one call of the compiled :func:`imm_gym.sim.kernels.env_step`.
 
@@ -40,13 +56,13 @@ def compiled_step(
         action: ``(N, M*M)`` finite actions; z: ``(N, m)``; detected: ``(N,)``; truth:
             ``(N, 4)`` the slots' true states (for the errors).
     """
-    cfg = core.config
+    cfg = banks.config
     set_mode = cfg.action_mode == "set"
-    a, b, s = core.state_a, core.state_b, core.state_s
+    a, b, s = banks.state_a, banks.state_b, banks.state_s
     return env_step(
-        action, core.tpm, set_mode, cfg.logit_scale if set_mode else cfg.max_factor, cfg.p_min,
-        a.x, a.P, a.mu, b.x, b.P, b.mu, s.x, s.P, s.mu, core.fixed_tpms, core.shadow_tpms,
-        z, detected, truth, core.imm.kernel_args, cfg.parallel, cfg.shadow == "fixed",
+        action, banks.tpm, set_mode, cfg.logit_scale if set_mode else cfg.max_factor, cfg.p_min,
+        a.x, a.P, a.mu, b.x, b.P, b.mu, s.x, s.P, s.mu, banks.fixed_tpms, banks.shadow_tpms,
+        z, detected, truth, banks.imm.kernel_args, cfg.parallel, cfg.shadow == "fixed",
         cfg.divergence_error, cfg.divergence_cov,
     )
 
@@ -59,17 +75,17 @@ def _capped_error(x: Array, truth: Array, cap: float) -> tuple[Array, Array]:
 
 
 def numpy_step(
-    core: TrackingCore, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array
+    banks: Banks, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array
 ) -> BankStep:
     """All banks' step composed of the tracker's own operations (any tracker)."""
-    cfg, imm = core.config, core.imm
-    tpm = tpm_from_action(action, core.tpm, cfg)
-    state_a, out_a = imm.step(core.state_a, tpm, z, detected, check=False, allow_failure=True)
+    cfg, imm = banks.config, banks.imm
+    tpm = tpm_from_action(action, banks.tpm, cfg)
+    state_a, out_a = imm.step(banks.state_a, tpm, z, detected, check=False, allow_failure=True)
     failed = out_a.failed
-    state_b, mu_b = core.state_b, core.mu_b
+    state_b, mu_b = banks.state_b, banks.mu_b
     if cfg.parallel:
         state_b, out_b = imm.step(
-            core.state_b, core.fixed_tpms, z, detected, check=False, allow_failure=True
+            banks.state_b, banks.fixed_tpms, z, detected, check=False, allow_failure=True
         )
         failed = failed | out_b.failed
         mu_b = out_b.mode_probs
@@ -79,10 +95,10 @@ def numpy_step(
         U, x_hat, P_hat = out_a.mode_probs, out_a.x, out_a.P
     error, capped = _capped_error(x_hat, truth, cfg.divergence_error)
     N = action.shape[0]
-    state_s, velocity_s, shadow_error = core.state_s, np.zeros((N, 2)), np.zeros(N)
+    state_s, velocity_s, shadow_error = banks.state_s, np.zeros((N, 2)), np.zeros(N)
     if cfg.shadow == "fixed":
         state_s, out_s = imm.step(
-            core.state_s, core.shadow_tpms, z, detected, check=False, allow_failure=True
+            banks.state_s, banks.shadow_tpms, z, detected, check=False, allow_failure=True
         )
         shadow_error = _capped_error(out_s.x, truth, cfg.divergence_error)[1]
         velocity_s = out_s.x[:, 2:4].copy()
