@@ -21,6 +21,7 @@ train: install
 
 test: install
 	$(PY) -m ruff check .
+	$(VENV)/bin/lint-imports --no-cache --no-logo
 	$(PY) -m pytest $(ARGS)
 
 bench: install
