@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from imm_gym.sim.episodes import draw_batch
 from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, tune
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.episodes import draw_batch
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, linear_models
 from imm_gym.tracking.models import MotionModel
 from imm_gym.tracking.tpm import stay_tpm

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imm_gym.papers.systems import draw, run_bank, score_run, seed_setup
+from imm_gym.papers.systems import draw, run_bank, score_run, system_setup
 from imm_gym.papers.tuning import TunerConfig, bank_objective, tune
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 
@@ -33,7 +33,7 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=["bbsca", "sca"])
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
-    imm, family, sensor, tpm = seed_setup(args.bank)
+    imm, family, sensor, tpm = system_setup(args.bank)
     train = draw(family, sensor, args.train_runs, TRAIN_SEED_OFFSET)
     test = draw(family, sensor, args.test_runs, 0)
     held_out = bank_objective(imm, test, tpm, sensor.sigma)

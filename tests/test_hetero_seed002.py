@@ -9,12 +9,12 @@ import pytest
 
 from imm_gym import ConfigError, Scenario, Segment, generate_truth
 from imm_gym.evaluation.metrics import trajectory_metrics
-from imm_gym.papers.systems import draw, seed002_evaluation, seed002_sensor
+from imm_gym.papers.systems import draw, hetero_ekf_evaluation, hetero_ekf_sensor
 from imm_gym.scenarios.profiles import (
-    Seed002Family,
+    DrivingFamily,
+    maneuver_profile,
+    maneuver_truth,
     profile_truth,
-    seed003_profile,
-    seed003_truth,
 )
 
 
@@ -39,8 +39,8 @@ def test_profile_truth_matches_segment_truth_on_turns() -> None:
     np.testing.assert_allclose(pt.states, ref.states, atol=1e-9)
 
 
-def test_seed002_family_has_its_maneuvers() -> None:
-    fam = Seed002Family()
+def test_driving_family_has_its_maneuvers() -> None:
+    fam = DrivingFamily()
     pt = fam.truth([np.random.default_rng(s) for s in range(4)])
     w, speed = pt.turn_rate, np.linalg.norm(pt.states[..., 2:], axis=-1)
     T = fam.T
@@ -69,9 +69,9 @@ def test_trajectory_metrics_closed_form() -> None:
     assert m["yaw_rmse_deg"] == pytest.approx(math.sqrt(45.0**2 / 2))
 
 
-def test_heterogeneous_imm_is_consistent_on_seed002_family() -> None:
+def test_heterogeneous_imm_is_consistent_on_the_driving_family() -> None:
     """Seed 002 reports 94.16 % of NIS inside the 95 % bound, mean 4.39 (dimension 4)."""
-    result = seed002_evaluation(runs=20, seed=0)
+    result = hetero_ekf_evaluation(runs=20, seed=0)
     m = result["metrics"]
     assert m["failed"] == 0
     assert m["nis_inside"] >= 0.90
@@ -81,23 +81,23 @@ def test_heterogeneous_imm_is_consistent_on_seed002_family() -> None:
 
 
 def test_seed_batches_are_reproducible_and_reject_bad_input() -> None:
-    a = draw(Seed002Family(), seed002_sensor(), 3, 7)
-    b = draw(Seed002Family(), seed002_sensor(), 3, 7)
+    a = draw(DrivingFamily(), hetero_ekf_sensor(), 3, 7)
+    b = draw(DrivingFamily(), hetero_ekf_sensor(), 3, 7)
     np.testing.assert_array_equal(a.measurements.z, b.measurements.z)
     with pytest.raises(ConfigError, match="runs"):
-        draw(Seed002Family(), seed002_sensor(), 0, 7)
+        draw(DrivingFamily(), hetero_ekf_sensor(), 0, 7)
     with pytest.raises(ConfigError, match="shape"):
         profile_truth(
             np.zeros((1, 3)), np.zeros((1, 4)), np.zeros((1, 2)), np.ones(1), np.zeros(1), 0.1
         )
 
 
-def test_seed003_profile_follows_the_source() -> None:
+def test_maneuver_profile_follows_the_source() -> None:
     """Seed 003 §4's stated velocities at the segment ends, exact (closed-form truth)."""
-    p = seed003_profile(0.1)
+    p = maneuver_profile(0.1)
     assert p.omega.shape == p.accel.shape == (430,) and p.cart_accel.shape == (430, 2)
     assert p.speed == 5.0
-    pt = seed003_truth(1)
+    pt = maneuver_truth(1)
     x, vel = pt.states[0, :, :2], pt.states[0, :, 2:]
     k = {t: round(t / 0.1) for t in (10, 14, 34, 38, 43)}
     np.testing.assert_allclose(vel[: k[10] + 1], np.tile((0.0, -5.0), (k[10] + 1, 1)), atol=1e-12)
@@ -136,10 +136,10 @@ def test_seed003_profile_follows_the_source() -> None:
         )
 
 
-def test_seed003_family_keeps_the_turn_direction() -> None:
-    from imm_gym.papers.systems import Seed003Family
+def test_maneuver_family_keeps_the_turn_direction() -> None:
+    from imm_gym.papers.systems import ManeuverFamily
 
-    fam = Seed003Family()
+    fam = ManeuverFamily()
     pt = fam.truth([np.random.default_rng(s) for s in range(20)])
     assert np.all(pt.turn_rate >= 0) and np.any(pt.turn_rate > 0.05)
     # the 10-14 s Cartesian acceleration, rotated with the run's heading and scaled
@@ -171,9 +171,9 @@ def test_consistency_uses_the_one_sided_chi2_bound() -> None:
     assert masked["inside"] == 0.0
 
 
-def test_seed002_evaluation_takes_a_bank() -> None:
+def test_hetero_ekf_evaluation_takes_a_bank() -> None:
     from imm_gym.tracking.hetero import HeteroBank
 
-    a = seed002_evaluation(runs=1, seed=4)["metrics"]
-    b = seed002_evaluation(runs=1, seed=4, bank=HeteroBank(q_scale=(0.1, 0.1, 0.1)))["metrics"]
+    a = hetero_ekf_evaluation(runs=1, seed=4)["metrics"]
+    b = hetero_ekf_evaluation(runs=1, seed=4, bank=HeteroBank(q_scale=(0.1, 0.1, 0.1)))["metrics"]
     assert a["pos_rmse"] != b["pos_rmse"]

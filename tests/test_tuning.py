@@ -8,12 +8,12 @@ import pytest
 from imm_gym import ConfigError
 from imm_gym.cli.evaluate import main as evaluate_main
 from imm_gym.papers.systems import (
-    Seed003Family,
-    SeedBatch,
+    ManeuverFamily,
+    SystemBatch,
+    bbsca_imm,
+    bbsca_sensor,
     draw,
     run_bank,
-    seed003_imm,
-    seed003_sensor,
 )
 from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, optimize, tune
 from imm_gym.tracking.tpm import stay_tpm
@@ -46,9 +46,9 @@ def test_bbsca_beats_sca_at_equal_budget_on_a_quadratic() -> None:
 
 def test_batched_particles_equal_separate_runs() -> None:
     """Particle p of a batched run is the bank run alone with that particle's scales."""
-    sensor = seed003_sensor()
-    imm = seed003_imm(sensor)
-    batch = draw(Seed003Family(), sensor, 2, 5)
+    sensor = bbsca_sensor()
+    imm = bbsca_imm(sensor)
+    batch = draw(ManeuverFamily(), sensor, 2, 5)
     tpm = stay_tpm(3, 0.9)
     theta = np.array([[0.0, 0.0, 0.0, 0.0], [0.5, -1.0, 0.3, 0.2]])
     both = bank_objective(imm, batch, tpm, sensor.sigma)(theta)
@@ -60,9 +60,9 @@ def test_batched_particles_equal_separate_runs() -> None:
 
 
 def test_tuning_lowers_the_training_objective_and_round_trips(tmp_path) -> None:
-    sensor = seed003_sensor()
-    imm = seed003_imm(sensor)
-    batch = draw(Seed003Family(), sensor, 2, 1_000_000)
+    sensor = bbsca_sensor()
+    imm = bbsca_imm(sensor)
+    batch = draw(ManeuverFamily(), sensor, 2, 1_000_000)
     cfg = TunerConfig(particles=4, generations=2, seed=0)
     tuned, res = tune(imm, batch, stay_tpm(3, 0.9), sensor.sigma, cfg, bank="seed003")
     assert res.value <= res.history[0]  # particle 0 is the untuned bank
@@ -82,10 +82,10 @@ def test_bad_tuning_input_is_rejected(tmp_path) -> None:
         TunerConfig(particles=1)
     with pytest.raises(ConfigError, match="bounds"):
         TunerConfig(bounds=(1.0, 1.0))
-    sensor = seed003_sensor()
-    empty = SeedBatch(None, None, np.zeros((0, 4)), np.zeros((0, 4, 4)))  # type: ignore[arg-type]
+    sensor = bbsca_sensor()
+    empty = SystemBatch(None, None, np.zeros((0, 4)), np.zeros((0, 4, 4)))  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="tuning set is empty"):
-        bank_objective(seed003_imm(sensor), empty, stay_tpm(3, 0.9), sensor.sigma)
+        bank_objective(bbsca_imm(sensor), empty, stay_tpm(3, 0.9), sensor.sigma)
     bad = tmp_path / "bad.json"
     bad.write_text('{"bank": "seed003", "q_scale": [1, 1, 1], "typo": 1}')
     with pytest.raises(ConfigError, match="typo"):
@@ -128,9 +128,9 @@ def test_bbsca_baseline_scales_the_bank_and_runs_through_the_evaluation() -> Non
 
 
 def test_malformed_tuning_inputs_name_the_field(tmp_path, capsys) -> None:
-    sensor = seed003_sensor()
+    sensor = bbsca_sensor()
     objective = bank_objective(
-        seed003_imm(sensor), draw(Seed003Family(), sensor, 1, 3), stay_tpm(3, 0.9), sensor.sigma
+        bbsca_imm(sensor), draw(ManeuverFamily(), sensor, 1, 3), stay_tpm(3, 0.9), sensor.sigma
     )
     with pytest.raises(ConfigError, match=r"4 components .* got particles of shape \(1, 3\)"):
         objective(np.zeros((1, 3)))
@@ -152,10 +152,10 @@ def test_tuned_banks_beat_the_untuned_bank_on_held_out_runs() -> None:
     """Seed 002's bank, a small budget (6 particles x 6 generations, 3 training runs): both
     optimizers lower the innovation objective on held-out runs. (BBSCA below SCA at equal budget
     is measured by benchmarks/tune_compare.py; at this budget it depends on the optimizer seed.)"""
-    from imm_gym.papers.systems import seed_setup
+    from imm_gym.papers.systems import system_setup
     from imm_gym.seeding import TRAIN_SEED_OFFSET
 
-    imm, family, sensor, tpm = seed_setup("seed002")
+    imm, family, sensor, tpm = system_setup("seed002")
     train = draw(family, sensor, 3, TRAIN_SEED_OFFSET)
     held_out = bank_objective(imm, draw(family, sensor, 6, 0), tpm, sensor.sigma)
     untuned = held_out(np.zeros((1, 4)))[0]

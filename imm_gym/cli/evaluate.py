@@ -42,7 +42,7 @@ from imm_gym.evaluation.rollout import (
     rollout,
     score,
 )
-from imm_gym.papers.systems import SEED_SCENARIOS
+from imm_gym.papers.systems import SYSTEMS
 from imm_gym.scenarios.segments import Scenario
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.sim.env_config import EnvConfig
@@ -276,8 +276,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--runs must be >= 1, got {args.runs}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
-    if args.scenario in SEED_SCENARIOS:
-        return _main_seed(parser, args)
+    if args.scenario in SYSTEMS:
+        return _main_system(parser, args)
     try:
         results, rollouts = evaluate(
             args.policy,
@@ -305,10 +305,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _main_seed(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     """``--scenario seed002|seed003``: classical IMM-EKF and its BBSCA / SCA-tuned versions."""
-    from imm_gym.cli.tables import render_seed_tables
-    from imm_gym.papers.tuned_comparison import evaluate_seed_scenario
+    from imm_gym.cli.tables import render_system_tables
+    from imm_gym.papers.tuned_comparison import evaluate_system
 
     unused = {"--bank": args.bank != "paper", "--reference": args.reference, "--plots": args.plots}
     for flag in (f for f, given in unused.items() if given):
@@ -320,11 +320,11 @@ def _main_seed(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int
             parser.error(f"--tuned must be POLICY=FILE (e.g. bbsca=tuned.json), got {item!r}")
         tuned[policy] = path
     try:
-        results = evaluate_seed_scenario(args.scenario, args.policy, args.runs, args.seed, tuned)
+        results = evaluate_system(args.scenario, args.policy, args.runs, args.seed, tuned)
     except ValueError as err:
         parser.error(str(err))
     results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
-    render_seed_tables(results)
+    render_system_tables(results)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))

@@ -67,7 +67,7 @@ def render_tables(results: dict[str, Any]) -> None:
         console.print(diff)
 
 
-SEED_COLUMNS = (
+SYSTEM_COLUMNS = (
     ("pos_rmse", "pos RMSE (m)", "{:.4f}"),
     ("pos_mae", "MAE (m)", "{:.4f}"),
     ("pos_max", "max (m)", "{:.3f}"),
@@ -82,7 +82,7 @@ SEED_COLUMNS = (
 )
 
 
-def render_seed_tables(results: dict[str, object]) -> None:
+def render_system_tables(results: dict[str, object]) -> None:
     """Print the seed-scenario table (seed 002's paper row beside it) with rich."""
     from rich.console import Console
     from rich.table import Table
@@ -94,16 +94,16 @@ def render_seed_tables(results: dict[str, object]) -> None:
         f"{meta['steps']} steps, IMM-EKF"
     )
     table.add_column("policy")
-    for _, label, _ in SEED_COLUMNS:
+    for _, label, _ in SYSTEM_COLUMNS:
         table.add_column(label, justify="right")
     rows = dict(results["policies"])  # type: ignore[call-overload]
     paper = results.get("paper") or {}
     for name, r in rows.items():
-        table.add_row(name, *(fmt.format(r[k]) for k, _, fmt in SEED_COLUMNS))
+        table.add_row(name, *(fmt.format(r[k]) for k, _, fmt in SYSTEM_COLUMNS))
     if paper:
         table.add_row(
             "seed 002 paper (their trajectory)",
-            *(fmt.format(paper[k]) if k in paper else "—" for k, _, fmt in SEED_COLUMNS),
+            *(fmt.format(paper[k]) if k in paper else "—" for k, _, fmt in SYSTEM_COLUMNS),
             style="dim",
         )
     console.print(table)

@@ -2,14 +2,14 @@ r"""Seed 002's and seed 003's evaluations: their banks, sensors, scenarios and m
 
 * **seed 002** — the NCV/CT/CTRA IMM-EKF (:class:`~imm_gym.tracking.hetero.HeteroBank`, Table I: TPM
 0.90 /
-  0.05, ``mu_0 = (0.90, 0.08, 0.02)``) on :class:`~imm_gym.scenarios.profiles.Seed002Family`, a
+  0.05, ``mu_0 = (0.90, 0.08, 0.02)``) on :class:`~imm_gym.scenarios.profiles.DrivingFamily`, a
   position+velocity sensor (``sigma_p = 0.5`` m, ``sigma_v = 0.5`` m/s), ``T = 0.1`` s. Metrics:
   :func:`~imm_gym.evaluation.metrics.trajectory_metrics` (position RMSE / MAE / max / FDE, velocity
   and yaw RMSE) and NIS / NEES (dof 4) with the share inside the 95 % χ² bound and the mean.
 * **seed 003** — a CV / CA / CT(+6.75°/s, the profile's turn rate) linear bank on
   ``[x, y, vx, vy, ax, ay]`` (Kalman filters in the same engine), position+velocity measurements
-  at ``T = 0.1`` s, the 43 s trajectory of §4 (:func:`~imm_gym.scenarios.profiles.seed003_profile`)
-  and a family around it for training and held-out evaluation (:class:`Seed003Family`). The
+  at ``T = 0.1`` s, the 43 s trajectory of §4 (:func:`~imm_gym.scenarios.profiles.maneuver_profile`)
+  and a family around it for training and held-out evaluation (:class:`ManeuverFamily`). The
   noise values the extraction lost are filled: ``Q_CV = diag(1e-3, 1e-3, 1e-2, 1e-2)`` with
   ``q_acc = 1e-2``, ``Q_CA = diag(1e-3, 1e-3, 1e-2, 1e-2, 1e-1, 1e-1)``, ``Q_CT = Q_CV``,
   ``sigma_p = 1`` m, ``sigma_v = 0.5`` m/s, TPM 0.90 / 0.05, uniform ``mu_0``.
@@ -29,9 +29,9 @@ from numpy.typing import NDArray
 
 from imm_gym.evaluation.metrics import consistency, nees, trajectory_metrics
 from imm_gym.scenarios.profiles import (
-    SEED003_TURN_RATE,
-    Seed002Family,
-    Seed003Family,
+    MANEUVER_TURN_RATE,
+    DrivingFamily,
+    ManeuverFamily,
 )
 from imm_gym.scenarios.segments import Truth
 from imm_gym.seeding import streams
@@ -44,7 +44,7 @@ from imm_gym.validation import ConfigError, check_int
 Array = NDArray[np.float64]
 
 #: Seed 002 Table II / III (their single MATLAB trajectory).
-SEED002_PAPER = {
+HETERO_EKF_PAPER = {
     "pos_rmse": 0.3117,
     "pos_mae": 0.2794,
     "pos_max": 0.6722,
@@ -58,28 +58,28 @@ SEED002_PAPER = {
 }
 
 
-def seed002_sensor() -> PositionSensor:
+def hetero_ekf_sensor() -> PositionSensor:
     """Seed 002's position+velocity sensor (Table I)."""
     return PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
 
 
-def seed003_sensor() -> PositionSensor:
+def bbsca_sensor() -> PositionSensor:
     """Seed 003's position+velocity sensor (noise values filled, see the module docstring)."""
     return PositionSensor(sigma_pos=1.0, sigma_vel=0.5)
 
 
-def seed003_models() -> tuple[MotionModel, ...]:
+def bbsca_models() -> tuple[MotionModel, ...]:
     """Seed 003's CV / CA / CT bank (noise values filled, see the module docstring)."""
     q4 = (1e-3, 1e-3, 1e-2, 1e-2)
     return (
         MotionModel("cv", q=q4, q_acc=1e-2),
         MotionModel("ca", q=(*q4, 1e-1, 1e-1)),
-        MotionModel("ct", math.degrees(SEED003_TURN_RATE), q=q4, q_acc=1e-2),
+        MotionModel("ct", math.degrees(MANEUVER_TURN_RATE), q=q4, q_acc=1e-2),
     )
 
 
 @dataclass(frozen=True)
-class SeedBatch:
+class SystemBatch:
     """R runs of truth and measurements of a seed family.
 
     Attributes:
@@ -99,8 +99,8 @@ class SeedBatch:
 
 
 def draw(
-    family: Seed002Family | Seed003Family, sensor: PositionSensor, runs: int, seed: int
-) -> SeedBatch:
+    family: DrivingFamily | ManeuverFamily, sensor: PositionSensor, runs: int, seed: int
+) -> SystemBatch:
     """Draw R runs seeded ``seed + r`` (trajectory stream, noise stream)."""
     check_int("runs", runs, 1)
     check_int("seed", seed, 0)
@@ -110,7 +110,7 @@ def draw(
     truth = family.truth(scen)
     meas = sensor.measure(truth.states, noise)
     P0 = np.broadcast_to(sensor.R, (runs, 4, 4)).copy()
-    return SeedBatch(truth, meas, meas.z[:, 0, :4].copy(), P0)
+    return SystemBatch(truth, meas, meas.z[:, 0, :4].copy(), P0)
 
 
 @dataclass(frozen=True)
@@ -133,7 +133,7 @@ class BankRun:
 
 def run_bank(
     imm: HeteroIMM,
-    batch: SeedBatch,
+    batch: SystemBatch,
     tpm: Array,
     q_scale: Array | None = None,
     r_scale: Array | None = None,
@@ -174,7 +174,7 @@ def run_bank(
     return BankRun(est, cov, probs, nis, z_pred, failed)
 
 
-def score_run(run: BankRun, batch: SeedBatch, dim_z: int) -> dict[str, float]:
+def score_run(run: BankRun, batch: SystemBatch, dim_z: int) -> dict[str, float]:
     """Seed 002's metrics of one bank run (``repeat = 1``)."""
     truth = batch.truth.states[:, 1:]
     out: dict[str, float] = trajectory_metrics(run.estimate, truth, batch.truth.heading[:, 1:])
@@ -191,7 +191,7 @@ def score_run(run: BankRun, batch: SeedBatch, dim_z: int) -> dict[str, float]:
     return out
 
 
-def seed002_evaluation(
+def hetero_ekf_evaluation(
     runs: int = 100, seed: int = 0, bank: HeteroBank | None = None
 ) -> dict[str, object]:
     """The heterogeneous IMM-EKF on the seed-002-like family (see the module docstring).
@@ -200,38 +200,38 @@ def seed002_evaluation(
         runs, seed: runs ``seed .. seed + runs - 1``.
         bank: the bank (default :class:`~imm_gym.tracking.hetero.HeteroBank`, seed 002 Table I).
     """
-    imm, family, sensor, tpm = seed_setup("seed002", bank)
+    imm, family, sensor, tpm = system_setup("seed002", bank)
     batch = draw(family, sensor, runs, seed)
     run = run_bank(imm, batch, tpm)
     return {
         "metrics": score_run(run, batch, sensor.dim_z),
         "mean_mode_probs": run.mode_probs.mean(axis=(0, 1)).tolist(),
-        "paper": SEED002_PAPER,
+        "paper": HETERO_EKF_PAPER,
         "meta": {"runs": runs, "seeds": f"{seed}..{seed + runs - 1}", "steps": run.nis.shape[1]},
     }
 
 
-def seed003_imm(sensor: PositionSensor | None = None) -> HeteroIMM:
+def bbsca_imm(sensor: PositionSensor | None = None) -> HeteroIMM:
     """Seed 003's CV / CA / CT bank in the engine (Kalman filters: all models are linear)."""
-    return HeteroIMM(linear_models(seed003_models()), sensor or seed003_sensor(), T=0.1)
+    return HeteroIMM(linear_models(bbsca_models()), sensor or bbsca_sensor(), T=0.1)
 
 
-SEED_SCENARIOS = ("seed002", "seed003")
+SYSTEMS = ("seed002", "seed003")
 
-def seed_setup(
+def system_setup(
     name: str, bank: HeteroBank | None = None
-) -> tuple[HeteroIMM, Seed002Family | Seed003Family, PositionSensor, Array]:
+) -> tuple[HeteroIMM, DrivingFamily | ManeuverFamily, PositionSensor, Array]:
     """``(imm, family, sensor, tpm)`` of ``seed002`` or ``seed003``.
 
     Args:
         bank: seed 002's heterogeneous bank (default Table I's); not used by ``seed003``.
     """
     if name == "seed002":
-        sensor = seed002_sensor()
+        sensor = hetero_ekf_sensor()
         bank = HeteroBank() if bank is None else bank
         imm = HeteroIMM(bank, sensor, T=0.1)
-        return imm, Seed002Family(), sensor, stay_tpm(len(bank), 0.90)
+        return imm, DrivingFamily(), sensor, stay_tpm(len(bank), 0.90)
     if name == "seed003":
-        sensor = seed003_sensor()
-        return seed003_imm(sensor), Seed003Family(), sensor, stay_tpm(3, 0.9)
-    raise ConfigError(f"scenario must be one of {list(SEED_SCENARIOS)}, got {name!r}")
+        sensor = bbsca_sensor()
+        return bbsca_imm(sensor), ManeuverFamily(), sensor, stay_tpm(3, 0.9)
+    raise ConfigError(f"scenario must be one of {list(SYSTEMS)}, got {name!r}")

@@ -7,19 +7,19 @@ from __future__ import annotations
 import numpy as np
 
 from imm_gym.papers.systems import (
-    SEED002_PAPER,
+    HETERO_EKF_PAPER,
     draw,
     run_bank,
     score_run,
-    seed_setup,
+    system_setup,
 )
 from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, tune
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.validation import ConfigError
 
-SEED_POLICIES = ("fixed", "bbsca", "sca")
+SYSTEM_POLICIES = ("fixed", "bbsca", "sca")
 
-def evaluate_seed_scenario(
+def evaluate_system(
     name: str,
     policies: list[str],
     runs: int,
@@ -36,11 +36,11 @@ def evaluate_seed_scenario(
     ``seed .. seed + runs - 1``), with the held-out innovation objective ``J`` beside seed 002's
     metrics.
     """
-    imm, family, sensor, tpm = seed_setup(name)
+    imm, family, sensor, tpm = system_setup(name)
     for p in policies:
-        if p not in SEED_POLICIES:
+        if p not in SYSTEM_POLICIES:
             raise ConfigError(
-                f"on scenario {name!r} the policies are {list(SEED_POLICIES)} (classical IMM and "
+                f"on scenario {name!r} the policies are {list(SYSTEM_POLICIES)} (classical IMM and "
                 f"its tuned versions), got {p!r}"
             )
     if len(set(policies)) != len(policies):
@@ -80,7 +80,7 @@ def evaluate_seed_scenario(
         }
     return {
         "policies": results,
-        "paper": SEED002_PAPER if name == "seed002" else {},
+        "paper": HETERO_EKF_PAPER if name == "seed002" else {},
         "meta": {
             "scenario": name,
             "runs": runs,

@@ -8,14 +8,14 @@ the heading ``psi`` (yaw, zero sideslip) kept for the yaw metrics (``Truth.headi
 
 **Seed 002** (vehicle trajectory from MATLAB's Driving Scenario Designer; the data set is not
 published, so this family is "like theirs"): straight segments, a gentle S-curve and two sharp 90°
-turns, with the speed falling before each curve and rising after it (:class:`Seed002Family`);
+turns, with the speed falling before each curve and rising after it (:class:`DrivingFamily`);
 ``T = 0.1 s``; a position+velocity sensor with ``sigma_p = 0.5`` m, ``sigma_v = 0.5`` m/s
 (Table I).
 
 **Seed 003** §4 (43 s at ``T = 0.1 s``, position+velocity measurements): a straight leg, a
 constant Cartesian acceleration, a uniform turn, a straight acceleration, a straight leg. The
 extraction lost the initial state, the turn rate, the last acceleration and most noise values;
-the values filled in here are marked "filled" in :func:`seed003_profile`.
+the values filled in here are marked "filled" in :func:`maneuver_profile`.
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ def profile_truth(
 
 
 @dataclass(frozen=True)
-class Seed002Family:
+class DrivingFamily:
     """Seed-002-like trajectories (T = 0.1 s, 67 s): straight, gentle S-curve, two sharp 90° turns.
 
     Segments (seconds): cruise 8; slow down 4; S-curve left 5 + right 5 at ``s_rate``; straight 3;
@@ -156,7 +156,7 @@ class Seed002Family:
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""
         if not rngs:
-            raise ConfigError("Seed002Family.truth needs at least one generator")
+            raise ConfigError("DrivingFamily.truth needs at least one generator")
         omegas, accels, pos, speed, heading = [], [], [], [], []
         for rng in rngs:
             pos.append(rng.uniform(-50.0, 50.0, size=2))
@@ -185,10 +185,10 @@ def _expand(segments: list[tuple[float, float, float]], T: float) -> tuple[Array
 
 #: Seed 003's 14-34 s turn rate (filled): the heading turns from -45° (``v = (1, -1)`` m/s) to
 #: north (``v = (0, 8)`` m/s at 38 s after a straight acceleration), 135° in 20 s.
-SEED003_TURN_RATE = 3.0 * math.pi / 4.0 / 20.0
+MANEUVER_TURN_RATE = 3.0 * math.pi / 4.0 / 20.0
 
 
-class Seed003Profile(NamedTuple):
+class ManeuverProfile(NamedTuple):
     """Per-step profile of one seed-003 trajectory (see :func:`profile_truth`)."""
 
     omega: Array
@@ -199,7 +199,7 @@ class Seed003Profile(NamedTuple):
     heading: float
 
 
-def seed003_profile(T: float = 0.1) -> Seed003Profile:
+def maneuver_profile(T: float = 0.1) -> ManeuverProfile:
     """Seed 003 §4: 43 s at ``T = 0.1`` s, one deterministic trajectory.
 
     From the source (every value it kept):
@@ -212,12 +212,12 @@ def seed003_profile(T: float = 0.1) -> Seed003Profile:
     * 38-43 s straight (so at ``v = (0, 8)`` m/s).
 
     **Filled** (lost in extraction): the start position (0, 0) m; the 14-34 s turn rate,
-    :data:`SEED003_TURN_RATE` = 3π/80 ≈ 0.1178 rad/s (left), so that the heading is north at 34 s
+    :data:`MANEUVER_TURN_RATE` = 3π/80 ≈ 0.1178 rad/s (left), so that the heading is north at 34 s
     and the 34-38 s acceleration is straight, (0, (8 - √2)/4) ≈ (0, 1.646) m/s² (its value was
     lost too: this is the one that reaches ``v = (0, 8)`` from the turn's end along the heading).
 
     Returns:
-        :class:`Seed003Profile`: ``omega (K,)``, ``accel (K,)``, ``cart_accel (K, 2)``, start
+        :class:`ManeuverProfile`: ``omega (K,)``, ``accel (K,)``, ``cart_accel (K, 2)``, start
         position, speed, heading.
     """
     check_range("T", T, 0.0, 1.0, lo_open=True)
@@ -227,7 +227,7 @@ def seed003_profile(T: float = 0.1) -> Seed003Profile:
     segs = [
         (10.0, 0.0, 0.0),
         (4.0, 0.0, 0.0),  # constant Cartesian acceleration, below
-        (20.0, SEED003_TURN_RATE, 0.0),
+        (20.0, MANEUVER_TURN_RATE, 0.0),
         (4.0, 0.0, (8.0 - v14) / 4.0),
         (5.0, 0.0, 0.0),
     ]
@@ -235,13 +235,13 @@ def seed003_profile(T: float = 0.1) -> Seed003Profile:
     cart = np.zeros((w.size, 2))
     k10, k14 = round(10.0 / T), round(14.0 / T)
     cart[k10:k14] = (0.25, 1.0)
-    return Seed003Profile(w, a, cart, (0.0, 0.0), speed0, heading0)
+    return ManeuverProfile(w, a, cart, (0.0, 0.0), speed0, heading0)
 
 
-def seed003_truth(runs: int, T: float = 0.1) -> Truth:
+def maneuver_truth(runs: int, T: float = 0.1) -> Truth:
     """``runs`` copies of the seed-003 trajectory (the noise makes the runs differ)."""
     check_int("runs", runs, 1)
-    p = seed003_profile(T)
+    p = maneuver_profile(T)
     return profile_truth(
         np.tile(p.omega, (runs, 1)),
         np.tile(p.accel, (runs, 1)),
@@ -254,8 +254,8 @@ def seed003_truth(runs: int, T: float = 0.1) -> Truth:
 
 
 @dataclass(frozen=True)
-class Seed003Family:
-    """Trajectories around seed 003's (``seed003_profile``), rotated to a random heading.
+class ManeuverFamily:
+    """Trajectories around seed 003's (``maneuver_profile``), rotated to a random heading.
 
     Per run: the turn rate scaled by ``U(rate_scale)`` **keeping the source's (left) turn
     direction** — the bank has a single left-turning CT model —, the accelerations (the 10-14 s
@@ -279,8 +279,8 @@ class Seed003Family:
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""
         if not rngs:
-            raise ConfigError("Seed003Family.truth needs at least one generator")
-        p = seed003_profile(self.T)
+            raise ConfigError("ManeuverFamily.truth needs at least one generator")
+        p = maneuver_profile(self.T)
         w, a, ca, pos, v, psi = [], [], [], [], [], []
         for rng in rngs:
             w.append(p.omega * rng.uniform(*self.rate_scale))
