@@ -43,30 +43,28 @@ from imm_gym.evaluation.rollout import (
     score,
 )
 from imm_gym.papers.systems import SYSTEMS
+from imm_gym.scenarios.catalog import SCENARIOS
 from imm_gym.scenarios.segments import Scenario
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
-from imm_gym.tracking.hetero import SONAR_HETERO_BANK
+from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.validation import ConfigError, from_dict
 
 #: ``--bank``: environment overrides of each bank.
-BANKS: dict[str, dict[str, Any]] = {
-    "paper": {},
-    "hetero": {"bank": dict(SONAR_HETERO_BANK), "filter": "ekf"},
-}
+BANKS = BANK_PRESETS
 TRAIN_RUNS = 100
 
 
 def load_source(name: str) -> str | Scenario:
-    """``paper``, ``random`` or a JSON file holding a :class:`Scenario` (``segments`` list...)."""
-    if name in ("paper", "random"):
+    """``random``, a named scenario (:data:`imm_gym.scenarios.catalog.SCENARIOS`) or a JSON file
+    holding a :class:`Scenario` (``segments`` list...)."""
+    if name == "random" or name in SCENARIOS:
         return name
     path = Path(name)
     if not path.is_file():
-        raise ConfigError(
-            f"--scenario must be 'paper', 'random' or a JSON file; {name!r} is neither"
-        )
+        names = ", ".join(repr(n) for n in ("random", *SCENARIOS))
+        raise ConfigError(f"--scenario must be {names} or a JSON file; {name!r} is neither")
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as err:
@@ -244,7 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--scenario",
         default="paper",
-        help="paper | random | a scenario JSON file | seed002 | seed003 (the NCV/CT/CTRA IMM-EKF "
+        help=" | ".join((*SCENARIOS, "random"))
+        + " | a scenario JSON file | seed002 | seed003 (the NCV/CT/CTRA IMM-EKF "
         "of seed 002, the CV/CA/CT bank of seed 003; policies fixed, bbsca, sca)",
     )
     parser.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")

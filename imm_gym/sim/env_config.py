@@ -12,7 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from imm_gym.scenarios.segments import RandomFamily, Scenario, paper_scenario
+from imm_gym.scenarios.catalog import SCENARIOS
+from imm_gym.scenarios.segments import RandomFamily, Scenario, TruthSource
 from imm_gym.sim.features import FEATURES, shadow_features
 from imm_gym.sim.rewards import REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
@@ -38,7 +39,8 @@ class EnvConfig:
     """Everything that defines a TPM-adaptation environment.
 
     Attributes:
-        scenario: ``"random"`` (the randomized family), ``"paper"`` (SPEC §3) or a
+        scenario: ``"random"`` (the randomized family), a named scenario of
+            :data:`imm_gym.scenarios.catalog.SCENARIOS` (``"paper"``: SPEC §3) or a
             :class:`~imm_gym.scenarios.segments.Scenario`.
         family: the randomized family's parameters (used when ``scenario == "random"``).
         sensor: the sonar (noise, position, outliers, missed detections).
@@ -109,7 +111,7 @@ class EnvConfig:
         if isinstance(self.scenario, Mapping):
             object.__setattr__(self, "scenario", from_dict(Scenario, self.scenario, "scenario"))
         elif not isinstance(self.scenario, Scenario):
-            check_choice("scenario", self.scenario, ("random", "paper"))
+            check_choice("scenario", self.scenario, ("random", *SCENARIOS))
         for name, cls in (("family", RandomFamily), ("sensor", Sonar)):
             value = getattr(self, name)
             if isinstance(value, Mapping):
@@ -165,11 +167,11 @@ class EnvConfig:
         check_choice("engine", self.engine, ENGINES)
 
     @property
-    def source(self) -> Scenario | RandomFamily:
+    def source(self) -> TruthSource:
         """What ``reset`` draws a scenario from."""
         if isinstance(self.scenario, Scenario):
             return self.scenario
-        return paper_scenario() if self.scenario == "paper" else self.family
+        return self.family if self.scenario == "random" else SCENARIOS[self.scenario]()
 
     def replace(self, **changes: Any) -> EnvConfig:
         """A copy with some fields changed (validated)."""
