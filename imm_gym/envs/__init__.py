@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import gymnasium as gym
 
 from imm_gym.envs.tpm_adapt import TPMAdaptEnv
