@@ -2,7 +2,7 @@
 
 The environment appends :meth:`imm_gym.sim.core.TrackingCore.critic_state` (each tracker's error and
 the coming true model) to every observation frame when trained with ``critic_state: true``
-(:class:`imm_gym.envs.sb3.TPMAdaptVecEnv`). :class:`AsymmetricActorCriticPolicy` feeds the whole
+(:class:`imm_gym.envs.sb3.TPMAdaptSB3VecEnv`). :class:`AsymmetricActorCriticPolicy` feeds the whole
 stacked observation to the value network and only the first ``frame - critic_dims`` entries of
 each frame to the policy network, so the actor's output does not depend on ground truth: at
 evaluation those entries are zeros (:class:`agents.policy.LearnedPolicy`). The critic only

@@ -3,7 +3,7 @@
 Hyperparameters live in ``agents/hyperparams/ppo.yml`` in rl-zoo3's format, keyed by environment
 id (``n_envs``, ``n_timesteps``, ``policy``, ``normalize``, ``frame_stack``, ``env_kwargs``,
 ``policy_kwargs`` and the algorithm's own arguments). The environment stack is
-``VecFrameStack(VecNormalize(VecMonitor(TPMAdaptVecEnv)))`` — one batched core, no subprocesses.
+``VecFrameStack(VecNormalize(VecMonitor(TPMAdaptSB3VecEnv)))`` — one batched core, no subprocesses.
 
 Seeds: training slot ``i`` of run seed ``s`` starts its streams from ``TRAIN_SEED_BASE + 10_000 s
 + i`` and continues them across episodes; the validation runs that pick the best checkpoint use
@@ -88,9 +88,11 @@ def make_training_env(
     ground truth for an asymmetric critic (:mod:`agents.asymmetric`)."""
     from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
 
-    from imm_gym.envs.sb3 import TPMAdaptVecEnv
+    from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 
-    venv = TPMAdaptVecEnv(num_envs=n_envs, env_id=env_id, critic_state=critic_state, **env_kwargs)
+    venv = TPMAdaptSB3VecEnv(
+        num_envs=n_envs, env_id=env_id, critic_state=critic_state, **env_kwargs
+    )
     venv.seed(TRAIN_SEED_BASE + 10_000 * seed)
     env: Any = VecMonitor(venv)
     if normalize:

@@ -16,7 +16,7 @@ import train
 from agents.asymmetric import AsymmetricActorCriticPolicy, actor_index
 from agents.policy import load_agent
 from imm_gym.cli.evaluate import main as evaluate_main
-from imm_gym.envs.sb3 import TPMAdaptVecEnv
+from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.core import CRITIC_CLIP, critic_state_size
 
 ENV = dict(action_mode="set", shadow_stay=1 / 3)
@@ -31,7 +31,7 @@ def test_actor_index_skips_the_critic_entries_of_every_frame() -> None:
 
 
 def test_critic_state_is_the_trackers_errors_and_the_coming_model() -> None:
-    env = TPMAdaptVecEnv(num_envs=3, env_id="imm_gym/TPMAdapt-v0", critic_state=True, **ENV)
+    env = TPMAdaptSB3VecEnv(num_envs=3, env_id="imm_gym/TPMAdapt-v0", critic_state=True, **ENV)
     core = env.core
     n_obs = core.obs_dim
     obs = env.reset()

@@ -9,7 +9,7 @@ import pytest
 import imm_gym
 from imm_gym import ConfigError, EnvConfig, MotionModel, RandomFamily, Scenario, Segment, Sonar
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
-from imm_gym.envs.sb3 import TPMAdaptVecEnv
+from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.episodes import draw_batch
 
 FOUR_MODELS = [
@@ -110,7 +110,7 @@ def test_bad_config_through_every_front(overrides: dict, word: str) -> None:
     with pytest.raises(ConfigError, match=word):
         TPMAdaptVectorEnv(2, config=overrides)
     with pytest.raises(ConfigError, match=word):
-        TPMAdaptVecEnv(2, config=overrides)
+        TPMAdaptSB3VecEnv(2, config=overrides)
 
 
 def test_config_error_is_a_value_error_exported_at_top_level() -> None:
@@ -172,7 +172,7 @@ def test_object_dict_and_kwargs_give_equal_configs() -> None:
         ).unwrapped.config,
         gym.make("imm_gym/TPMAdapt-v0", config=obj).unwrapped.config,
         TPMAdaptVectorEnv(2, config=as_dict).config,
-        TPMAdaptVecEnv(2, config=obj).config,
+        TPMAdaptSB3VecEnv(2, config=obj).config,
     ]
     for c in configs:
         assert c == obj

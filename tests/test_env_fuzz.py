@@ -9,7 +9,7 @@ import pytest
 from stable_baselines3.common.vec_env import VecCheckNan
 
 from imm_gym.envs import TPMAdaptVectorEnv
-from imm_gym.envs.sb3 import TPMAdaptVecEnv
+from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.env_config import OBS_FEATURES
 
 ALL_FEATURES = tuple(f for f in OBS_FEATURES if f != "bank_b")  # bank_b needs parallel
@@ -146,7 +146,7 @@ def test_fuzz_sb3_adapter_under_vec_check_nan() -> None:
     """SB3's VecCheckNan raises on any NaN/inf in actions, observations or rewards."""
     N = 128
     config = {**FUZZ_CONFIGS["set_pmin0_sharp_outliers_missed"], "divergence_error": 30.0}
-    venv = VecCheckNan(TPMAdaptVecEnv(num_envs=N, config=config), raise_exception=True)
+    venv = VecCheckNan(TPMAdaptSB3VecEnv(num_envs=N, config=config), raise_exception=True)
     venv.seed(7)
     venv.reset()
     rng = np.random.default_rng(7)

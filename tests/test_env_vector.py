@@ -10,7 +10,7 @@ from gymnasium.vector import AutoresetMode
 
 from imm_gym import EnvConfig
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
-from imm_gym.envs.sb3 import TPMAdaptVecEnv
+from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.env_config import OBS_FEATURES
 
 SHORT = {
@@ -174,7 +174,7 @@ def test_mutating_vector_info_does_not_change_the_env(key: str) -> None:
 
 def test_sb3_vecenv_api_shapes_and_dtypes() -> None:
     N = 4
-    venv = TPMAdaptVecEnv(num_envs=N, config={**SHORT, "obs_features": ("tpm", "time")})
+    venv = TPMAdaptSB3VecEnv(num_envs=N, config={**SHORT, "obs_features": ("tpm", "time")})
     d = 6 + 9 + 1
     assert venv.num_envs == N
     assert venv.observation_space.shape == (d,) and venv.observation_space.dtype == np.float32
@@ -202,7 +202,7 @@ def test_sb3_same_step_reset_matches_scalar_envs() -> None:
     reset within the same step, its last observation in ``terminal_observation``."""
     N, seed, steps = 4, 5, 70
     config = {**SHORT, "divergence_error": 60.0, "obs_features": ("tpm", "loglik")}
-    venv = TPMAdaptVecEnv(num_envs=N, config=config)
+    venv = TPMAdaptSB3VecEnv(num_envs=N, config=config)
     venv.seed(seed)
     obs = venv.reset()
     envs = [TPMAdaptEnv(config=config) for _ in range(N)]
@@ -233,7 +233,7 @@ def test_sb3_same_step_reset_matches_scalar_envs() -> None:
 
 
 def test_sb3_horizon_end_and_divergence_flags() -> None:
-    venv = TPMAdaptVecEnv(num_envs=3, config=SHORT)
+    venv = TPMAdaptSB3VecEnv(num_envs=3, config=SHORT)
     venv.seed(4)
     obs = venv.reset()
     last = obs
@@ -247,7 +247,7 @@ def test_sb3_horizon_end_and_divergence_flags() -> None:
         assert info["terminal_observation"].shape == obs.shape[1:]
         assert not np.array_equal(info["terminal_observation"], last[0])
     np.testing.assert_allclose(obs[:, :6], 1 / 3, rtol=1e-6)  # reset observations
-    diverging = TPMAdaptVecEnv(num_envs=2, config={**SHORT, "divergence_error": 1.0})
+    diverging = TPMAdaptSB3VecEnv(num_envs=2, config={**SHORT, "divergence_error": 1.0})
     diverging.reset()
     obs, rewards, dones, infos = diverging.step(np.zeros((2, 9), np.float32))
     assert dones.all() and np.all(np.isfinite(obs)) and np.all(np.isfinite(rewards))
@@ -257,7 +257,7 @@ def test_sb3_horizon_end_and_divergence_flags() -> None:
 
 
 def test_sb3_returns_fresh_arrays() -> None:
-    venv = TPMAdaptVecEnv(num_envs=2, config=SHORT)
+    venv = TPMAdaptSB3VecEnv(num_envs=2, config=SHORT)
     venv.seed(0)
     first = venv.reset()
     outs = []
@@ -270,7 +270,7 @@ def test_sb3_returns_fresh_arrays() -> None:
     term = outs[19][3][0]["terminal_observation"]
     assert not np.shares_memory(term, outs[19][0])
     # scribbling on a returned observation does not change the env
-    twin = TPMAdaptVecEnv(num_envs=2, config=SHORT)
+    twin = TPMAdaptSB3VecEnv(num_envs=2, config=SHORT)
     twin.seed(0)
     twin.reset()
     for _ in range(21):
@@ -284,7 +284,7 @@ def test_sb3_returns_fresh_arrays() -> None:
 
 def test_sb3_seed_then_reset_reproduces_the_gymnasium_vector_reset() -> None:
     config = {**SHORT, "parallel": True, "obs_features": ("bank_b", "tpm")}
-    sb3 = TPMAdaptVecEnv(num_envs=3, config=config)
+    sb3 = TPMAdaptSB3VecEnv(num_envs=3, config=config)
     seeds = sb3.seed(42)
     assert list(seeds) == [42, 43, 44]
     obs = sb3.reset()
@@ -304,14 +304,14 @@ def test_sb3_seed_then_reset_reproduces_the_gymnasium_vector_reset() -> None:
 
 
 def test_sb3_env_id_gives_the_preset() -> None:
-    venv = TPMAdaptVecEnv(num_envs=2, env_id="imm_gym/TPMAdaptParallel-v0")
+    venv = TPMAdaptSB3VecEnv(num_envs=2, env_id="imm_gym/TPMAdaptParallel-v0")
     assert venv.config == EnvConfig.build(gym.spec("imm_gym/TPMAdaptParallel-v0").kwargs["config"])
-    venv = TPMAdaptVecEnv(num_envs=2, env_id="imm_gym/TPMAdaptPaper-v0", parallel=True)
+    venv = TPMAdaptSB3VecEnv(num_envs=2, env_id="imm_gym/TPMAdaptPaper-v0", parallel=True)
     assert venv.config.scenario == "paper" and venv.config.parallel
 
 
 def test_sb3_env_id_preset_is_the_base_of_a_given_config() -> None:
-    venv = TPMAdaptVecEnv(num_envs=2, env_id="imm_gym/TPMAdaptPaper-v0", config={"p_min": 0.01})
+    venv = TPMAdaptSB3VecEnv(num_envs=2, env_id="imm_gym/TPMAdaptPaper-v0", config={"p_min": 0.01})
     assert venv.config.scenario == "paper" and venv.config.p_min == 0.01
 
 
@@ -320,7 +320,7 @@ def test_ppo_learns_on_the_sb3_adapter_without_error() -> None:
     from stable_baselines3 import PPO
 
     torch.set_num_threads(1)
-    venv = TPMAdaptVecEnv(num_envs=4, config={**SHORT, "obs_features": ("tpm", "time")})
+    venv = TPMAdaptSB3VecEnv(num_envs=4, config={**SHORT, "obs_features": ("tpm", "time")})
     model = PPO(
         "MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu", verbose=0
     )

@@ -11,7 +11,7 @@ from hypothesis.extra.numpy import arrays
 
 from imm_gym import ActionError, ConfigError, EnvConfig, TrackingCore
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
-from imm_gym.envs.sb3 import TPMAdaptVecEnv
+from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.tracking.tpm import apply_floor, row_divergence, stay_tpm
 
 _CORES: dict[tuple, TrackingCore] = {}
@@ -248,7 +248,7 @@ def test_bad_actions_raise_in_the_vector_env_core_and_sb3_adapter(bad) -> None:
     with pytest.raises(ActionError):
         core.tpm_from_action(bad)
     if np.size(bad) == 27 and not np.isfinite(bad).all():
-        sb3 = TPMAdaptVecEnv(3, config={"scenario": "paper"})
+        sb3 = TPMAdaptSB3VecEnv(3, config={"scenario": "paper"})
         sb3.reset()
         with pytest.raises(ActionError):
             sb3.step(bad)

@@ -1,4 +1,4 @@
-"""stable-baselines3 ``VecEnv`` over the batched core: :class:`TPMAdaptVecEnv`.
+"""stable-baselines3 ``VecEnv`` over the batched core: :class:`TPMAdaptSB3VecEnv`.
 
 SB3 conventions: same-step reset (a finished episode is reset inside ``step_wait``, its last
 observation goes to ``info["terminal_observation"]``), ``info["TimeLimit.truncated"]`` for a
@@ -31,7 +31,7 @@ SB3_INFO_KEYS = (
 )
 
 
-class TPMAdaptVecEnv(VecEnv):
+class TPMAdaptSB3VecEnv(VecEnv):
     """N TPM-adaptation episodes for stable-baselines3 (see :class:`TPMAdaptEnv` for the MDP).
 
     Args:
@@ -115,7 +115,7 @@ class TPMAdaptVecEnv(VecEnv):
         return [getattr(self, attr_name) for _ in self._get_indices(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        raise AttributeError(f"TPMAdaptVecEnv sub-envs share one core; cannot set {attr_name!r}")
+        raise AttributeError(f"TPMAdaptSB3VecEnv sub-envs share one core; cannot set {attr_name!r}")
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **kwargs: Any
@@ -130,3 +130,8 @@ class TPMAdaptVecEnv(VecEnv):
 
     def get_images(self) -> Sequence[NDArray[Any] | None]:
         return [None for _ in range(self.num_envs)]
+
+
+#: The adapter's name before it was told apart from the Gymnasium vector env by name; kept so that
+#: ``from imm_gym.envs.sb3 import TPMAdaptVecEnv`` in existing scripts still works.
+TPMAdaptVecEnv = TPMAdaptSB3VecEnv

@@ -90,7 +90,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ## Vectorized environment
     :class:`~imm_gym.envs.vector.TPMAdaptVectorEnv` runs N episodes in one batched core
     (``gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``); sub-env
-    ``i`` reproduces this env reset with ``seed + i``. :class:`~imm_gym.envs.sb3.TPMAdaptVecEnv`
+    ``i`` reproduces this env reset with ``seed + i``. :class:`~imm_gym.envs.sb3.TPMAdaptSB3VecEnv`
     is the stable-baselines3 ``VecEnv`` over the same core.
 
     ## Version History
