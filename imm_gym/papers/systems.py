@@ -22,7 +22,6 @@ draws its trajectory and its noise from :func:`imm_gym.seeding.streams` with see
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,11 +32,12 @@ from imm_gym.scenarios.profiles import (
     DrivingFamily,
     ManeuverFamily,
 )
-from imm_gym.scenarios.segments import Truth
 from imm_gym.seeding import streams
+from imm_gym.sim.episodes import Batch
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, linear_models
+from imm_gym.tracking.imm import IMMResult, run
 from imm_gym.tracking.models import MotionModel
-from imm_gym.tracking.sensors import Measurements, PositionSensor
+from imm_gym.tracking.sensors import PositionSensor
 from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError, check_int
 
@@ -78,30 +78,11 @@ def bbsca_models() -> tuple[MotionModel, ...]:
     )
 
 
-@dataclass(frozen=True)
-class SystemBatch:
-    """R runs of truth and measurements of a seed family.
-
-    Attributes:
-        truth: the profile truth (states at ``t = 0..K``, heading).
-        measurements: ``z (R, K+1, m)``; ``z[:, 0]`` initiates the track.
-        x0, P0: ``(R, 4)`` and ``(R, 4, 4)`` initial Cartesian estimate.
-    """
-
-    truth: Truth
-    measurements: Measurements
-    x0: Array
-    P0: Array
-
-    @property
-    def n_runs(self) -> int:
-        return self.x0.shape[0]
-
-
 def draw(
     family: DrivingFamily | ManeuverFamily, sensor: PositionSensor, runs: int, seed: int
-) -> SystemBatch:
-    """Draw R runs seeded ``seed + r`` (trajectory stream, noise stream)."""
+) -> Batch:
+    """Draw R runs seeded ``seed + r`` (trajectory stream, noise stream); the track starts from
+    the first position+velocity measurement with ``P0 = R``."""
     check_int("runs", runs, 1)
     check_int("seed", seed, 0)
     if sensor.sigma_vel is None:
@@ -110,36 +91,19 @@ def draw(
     truth = family.truth(scen)
     meas = sensor.measure(truth.states, noise)
     P0 = np.broadcast_to(sensor.R, (runs, 4, 4)).copy()
-    return SystemBatch(truth, meas, meas.z[:, 0, :4].copy(), P0)
-
-
-@dataclass(frozen=True)
-class BankRun:
-    """Outputs of a bank over R runs x K steps.
-
-    Attributes:
-        estimate: ``(R, K, 4)``; covariance: ``(R, K, 4, 4)``; mode_probs: ``(R, K, M)``;
-        nis: ``(R, K)``; z_pred: ``(R, K, m)`` the IMM's predicted measurements;
-        failed: ``(R,)`` runs whose filter failed at some step.
-    """
-
-    estimate: Array
-    covariance: Array
-    mode_probs: Array
-    nis: Array
-    z_pred: Array
-    failed: NDArray[np.bool_]
+    return Batch(truth, meas, meas.z[:, 0, :4].copy(), P0)
 
 
 def run_bank(
     imm: HeteroIMM,
-    batch: SystemBatch,
+    batch: Batch,
     tpm: Array,
     q_scale: Array | None = None,
     r_scale: Array | None = None,
     repeat: int = 1,
-) -> BankRun:
-    """Run ``imm`` with a fixed TPM over the batch, optionally ``repeat`` times side by side.
+) -> IMMResult:
+    """Run ``imm`` with a fixed TPM over the batch (:func:`imm_gym.tracking.imm.run`, failures
+    flagged), optionally ``repeat`` times side by side.
 
     With ``repeat = P`` the trackers are ``P x R`` (particle-major): tracker ``p R + r`` runs
     run ``r`` with ``q_scale[p R + r]`` and ``r_scale[p R + r]`` — how the tuner evaluates P
@@ -148,45 +112,32 @@ def run_bank(
     Args:
         q_scale: ``(P R, M)`` per-tracker factors on the models' ``Q``; r_scale: ``(P R,)``.
     """
-    z = np.tile(batch.measurements.z[:, 1:], (repeat, 1, 1))
-    det = np.tile(batch.measurements.detected[:, 1:], (repeat, 1))
-    N, K, m = z.shape
-    state = imm.init(np.tile(batch.x0, (repeat, 1)), np.tile(batch.P0, (repeat, 1, 1)))
-    M = imm.n_models
-    est, cov = np.empty((N, K, 4)), np.empty((N, K, 4, 4))
-    probs, nis, z_pred = np.empty((N, K, M)), np.empty((N, K)), np.empty((N, K, m))
-    failed = np.zeros(N, dtype=bool)
-    tpm = np.asarray(tpm, dtype=np.float64)
-    for k in range(K):
-        state, out = imm.step(
-            state,
-            tpm,
-            z[:, k],
-            det[:, k],
-            check=k == 0,
-            allow_failure=True,
-            q_scale=q_scale,
-            r_scale=r_scale,
-        )
-        est[:, k], cov[:, k], probs[:, k], nis[:, k] = out.x, out.P, out.mode_probs, out.nis
-        z_pred[:, k] = out.z_pred
-        failed |= out.failed
-    return BankRun(est, cov, probs, nis, z_pred, failed)
+    return run(
+        imm,
+        np.tile(batch.measurements.z[:, 1:], (repeat, 1, 1)),
+        tpm,
+        np.tile(batch.x0, (repeat, 1)),
+        np.tile(batch.P0, (repeat, 1, 1)),
+        detected=np.tile(batch.measurements.detected[:, 1:], (repeat, 1)),
+        allow_failure=True,
+        q_scale=q_scale,
+        r_scale=r_scale,
+    )
 
 
-def score_run(run: BankRun, batch: SystemBatch, dim_z: int) -> dict[str, float]:
+def score_run(result: IMMResult, batch: Batch, dim_z: int) -> dict[str, float]:
     """Seed 002's metrics of one bank run (``repeat = 1``)."""
     truth = batch.truth.states[:, 1:]
-    out: dict[str, float] = trajectory_metrics(run.estimate, truth, batch.truth.heading[:, 1:])
-    nis = consistency(run.nis, dim_z, mask=batch.measurements.detected[:, 1:])
-    nes = consistency(nees(run.estimate, run.covariance, truth), 4)
+    out: dict[str, float] = trajectory_metrics(result.x, truth, batch.truth.heading[:, 1:])
+    nis = consistency(result.nis, dim_z, mask=batch.measurements.detected[:, 1:])
+    nes = consistency(nees(result.x, result.P, truth), 4)
     out.update(
         nis_inside=nis["inside"],
         nis_mean=nis["mean"],
         nis_bound=nis["bound"],
         nees_inside=nes["inside"],
         nees_mean=nes["mean"],
-        failed=int(run.failed.sum()),
+        failed=int(result.failed.sum()),
     )
     return out
 
@@ -202,12 +153,12 @@ def hetero_ekf_evaluation(
     """
     imm, family, sensor, tpm = system_setup("seed002", bank)
     batch = draw(family, sensor, runs, seed)
-    run = run_bank(imm, batch, tpm)
+    result = run_bank(imm, batch, tpm)
     return {
-        "metrics": score_run(run, batch, sensor.dim_z),
-        "mean_mode_probs": run.mode_probs.mean(axis=(0, 1)).tolist(),
+        "metrics": score_run(result, batch, sensor.dim_z),
+        "mean_mode_probs": result.mode_probs.mean(axis=(0, 1)).tolist(),
         "paper": HETERO_EKF_PAPER,
-        "meta": {"runs": runs, "seeds": f"{seed}..{seed + runs - 1}", "steps": run.nis.shape[1]},
+        "meta": {"runs": runs, "seeds": f"{seed}..{seed + runs - 1}", "steps": result.nis.shape[1]},
     }
 
 

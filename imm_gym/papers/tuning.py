@@ -50,7 +50,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.papers.systems import SystemBatch, run_bank
+from imm_gym.papers.systems import run_bank
+from imm_gym.sim.episodes import Batch
 from imm_gym.tracking.hetero import HeteroIMM
 from imm_gym.validation import ConfigError, check_choice, check_int, check_range, from_dict
 
@@ -168,7 +169,7 @@ def innovation_mse(residual: Array, sigma: Array, failed: Array) -> Array:
 
 
 def bank_objective(
-    imm: HeteroIMM, batch: SystemBatch, tpm: Array, sigma: Array, tune_r: bool = True
+    imm: HeteroIMM, batch: Batch, tpm: Array, sigma: Array, tune_r: bool = True
 ) -> Callable[[Array], Array]:
     """``J`` of every particle of a swarm, in one batched run over the training batch.
 
@@ -260,7 +261,7 @@ class TunedBank:
 
 def tune(
     imm: HeteroIMM,
-    batch: SystemBatch,
+    batch: Batch,
     tpm: Array,
     sigma: Array,
     config: TunerConfig,

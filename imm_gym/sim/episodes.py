@@ -41,7 +41,7 @@ class Batch:
 
     @property
     def n_runs(self) -> int:
-        return self.truth.n_runs
+        return self.x0.shape[0]
 
     @property
     def horizon(self) -> int:

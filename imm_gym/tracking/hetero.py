@@ -62,12 +62,14 @@ from imm_gym.tracking.conversions import (
 from imm_gym.tracking.filters import ExtendedKalmanFilter, MeasurementModel, Update
 from imm_gym.tracking.imm import (
     IMM,
+    IMMResult,
     IMMState,
     IMMStep,
     Tracker,
     combine,
     measurement_mixture,
     mix,
+    run,
     update_mode_probs,
 )
 from imm_gym.tracking.linalg import inv_logdet, mahalanobis
@@ -300,18 +302,6 @@ SONAR_HETERO_BANK = {
 }
 
 
-@dataclass(frozen=True)
-class HeteroStep(IMMStep):
-    """:class:`~imm_gym.tracking.imm.IMMStep` plus the IMM's predicted measurement.
-
-    Attributes:
-        z_pred: ``(N, m)`` mean of the predicted measurement mixture (weights ``cbar``), the
-            one-step prediction whose error the tuner's objective measures.
-    """
-
-    z_pred: Array | None = None
-
-
 class _ModelSensor:
     """The sensor seen from model space: ``h_j = h(g(x))``, ``H_j = H(g(x)) J``; ``R`` is the
     sensor's ``(m, m)`` or a per-tracker ``(N, m, m)`` array (``r_scale``)."""
@@ -347,8 +337,9 @@ class HeteroIMM:
     """IMM-EKF over models with different state spaces, batched over N trackers (a
     :class:`~imm_gym.tracking.imm.Tracker` without a compiled kernel).
 
-    The interface of :class:`imm_gym.tracking.imm.IMM` (``init``, ``step``; no ``run``): the
-    combined output ``IMMStep.x`` is Cartesian ``[x, y, vx, vy]`` with its ``4 x 4`` covariance.
+    The interface of :class:`imm_gym.tracking.imm.IMM` (``init``, ``step``, ``combine``,
+    ``run``): the combined output ``IMMStep.x`` is Cartesian ``[x, y, vx, vy]`` with its
+    ``4 x 4`` covariance.
 
     Args:
         models: :class:`HeteroModel` / :class:`LinearModel` objects, or a :class:`HeteroBank`.
@@ -461,7 +452,7 @@ class HeteroIMM:
         allow_failure: bool = False,
         q_scale: Array | None = None,
         r_scale: Array | None = None,
-    ) -> tuple[IMMState, HeteroStep]:
+    ) -> tuple[IMMState, IMMStep]:
         """One IMM-EKF cycle for N trackers (see the module docstring).
 
         Args:
@@ -531,10 +522,23 @@ class HeteroIMM:
         if failed.any():
             for a in (x_hat, P_hat, mu, nis, z_mix):
                 a[failed] = np.nan
-        out = HeteroStep(
+        out = IMMStep(
             x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, failed, z_mix
         )
         return posterior, out
+
+    def run(
+        self,
+        z: Array,
+        tpm: Array,
+        x0: Array,
+        P0: Array,
+        mode_probs: Array | None = None,
+        detected: BoolArray | None = None,
+    ) -> IMMResult:
+        """Run the bank over recorded measurements with a fixed TPM
+        (:func:`imm_gym.tracking.imm.run`)."""
+        return run(self, z, tpm, x0, P0, mode_probs, detected)
 
     def combine(self, mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
         """Combination in the common Cartesian space: every model's posterior ``x (N, M, n)``,

@@ -15,7 +15,7 @@ runs the cycle; :meth:`IMM.run` runs it over a recorded measurement sequence.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Protocol
 
 import numpy as np
@@ -77,6 +77,9 @@ class IMMStep:
         detected: ``(N,)`` whether a measurement was used.
         failed: ``(N,)`` trackers whose innovation covariance lost positive definiteness
             (outputs NaN); only with ``IMM.step(..., allow_failure=True)``, else an error.
+        z_pred: ``(N, m)`` mean of the predicted measurement mixture (weights ``cbar``), the
+            one-step prediction whose error the tuner's objective measures, where the tracker
+            computes it (:class:`~imm_gym.tracking.hetero.HeteroIMM`); else None.
     """
 
     x: Array
@@ -89,15 +92,18 @@ class IMMStep:
     nis: Array
     detected: BoolArray
     failed: BoolArray
+    z_pred: Array | None = None
 
 
 @dataclass(frozen=True)
 class IMMResult:
-    """:meth:`IMM.run` outputs over K steps (the N axis is dropped for a single sequence).
+    """:func:`run` outputs over K steps (the N axis is dropped for a single sequence).
 
     Attributes:
         x: ``(N, K, n)`` combined estimates; P: ``(N, K, n, n)``.
         mode_probs: ``(N, K, M)``; loglik: ``(N, K, M)``; model_nis: ``(N, K, M)``; nis: ``(N, K)``.
+        failed: ``(N,)`` trackers that failed at some step (``allow_failure=True`` only).
+        z_pred: ``(N, K, m)`` predicted measurements, where the tracker computes them; else None.
     """
 
     x: Array
@@ -106,6 +112,8 @@ class IMMResult:
     loglik: Array
     model_nis: Array
     nis: Array
+    failed: BoolArray
+    z_pred: Array | None = None
 
 
 def moment_match(w: Array, x: Array, P: Array) -> tuple[Array, Array]:
@@ -205,12 +213,14 @@ class Tracker(Protocol):
     Attributes:
         n: dimension of the model-conditioned states (the largest model's).
         T: sampling period (s).
+        sensor: the measurement model.
         kernel_args: the constants of the compiled cycle
             (:func:`imm_gym.tracking.kernels.imm.imm_step`), or None where the tracker has none.
     """
 
     n: int
     T: float
+    sensor: MeasurementModel
     kernel_args: tuple | None
 
     @property
@@ -504,46 +514,74 @@ class IMM:
         mode_probs: Array | None = None,
         detected: BoolArray | None = None,
     ) -> IMMResult:
-        """Run the IMM over recorded measurements with a fixed TPM.
+        """Run the IMM over recorded measurements with a fixed TPM (:func:`run`)."""
+        return run(self, z, tpm, x0, P0, mode_probs, detected)
 
-        Args:
-            z: ``(K, m)`` one sequence or ``(N, K, m)`` N sequences (measurements at steps 1..K;
-                ``x0, P0`` is the prior at step 0).
-            tpm: ``(M, M)`` or ``(N, M, M)``.
-            x0, P0, mode_probs: see :meth:`init`.
-            detected: ``(K,)`` or ``(N, K)`` detection flags; all True by default.
 
-        Returns:
-            An :class:`IMMResult`; for a single ``(K, m)`` sequence the N axis is dropped.
-        """
-        z = np.asarray(z, dtype=np.float64)
-        single = z.ndim == 2
-        if single:
-            z = z[None]
-            detected = None if detected is None else np.asarray(detected)[None]
-        if z.ndim != 3 or z.shape[-1] != self.sensor.dim_z:
-            raise ConfigError(
-                f"z must have shape (K, m) or (N, K, m) with m = {self.sensor.dim_z}, got {z.shape}"
-            )
-        N, K, _ = z.shape
-        if detected is not None and np.shape(detected) != (N, K):
-            raise ConfigError(
-                f"detected must have shape {(N, K)[1 if single else 0 :]}, got {np.shape(detected)}"
-            )
-        tpm = validate_tpm(tpm, self.n_models)
-        state = self.init(x0, P0, mode_probs)
-        if state.x.shape[0] == 1 and N > 1:
-            state = IMMState(*(np.repeat(a, N, axis=0) for a in (state.x, state.P, state.mu)))
-        M, n = self.n_models, self.n
-        out_x, out_P = np.empty((N, K, n)), np.empty((N, K, n, n))
-        out_mu, out_ll, out_mnis = np.empty((N, K, M)), np.empty((N, K, M)), np.empty((N, K, M))
-        out_nis = np.empty((N, K))
-        for k in range(K):
-            det = None if detected is None else np.asarray(detected[:, k], dtype=bool)
-            state, o = self.step(state, tpm, z[:, k], det)
-            out_x[:, k], out_P[:, k], out_mu[:, k] = o.x, o.P, o.mode_probs
-            out_ll[:, k], out_mnis[:, k], out_nis[:, k] = o.loglik, o.model_nis, o.nis
-        arrays = (out_x, out_P, out_mu, out_ll, out_mnis, out_nis)
-        if single:
-            arrays = tuple(a[0] for a in arrays)
-        return IMMResult(*arrays)
+def run(
+    tracker: Tracker,
+    z: Array,
+    tpm: Array,
+    x0: Array,
+    P0: Array,
+    mode_probs: Array | None = None,
+    detected: BoolArray | None = None,
+    allow_failure: bool = False,
+    **step_options: Array | None,
+) -> IMMResult:
+    """Run a tracker over recorded measurements with a fixed TPM: ``init`` then K ``step`` s.
+
+    Args:
+        tracker: an :class:`IMM`, a :class:`~imm_gym.tracking.hetero.HeteroIMM`...
+        z: ``(K, m)`` one sequence or ``(N, K, m)`` N sequences (measurements at steps 1..K;
+            ``x0, P0`` is the prior at step 0).
+        tpm: ``(M, M)`` or ``(N, M, M)``.
+        x0, P0, mode_probs: the tracker's ``init`` arguments.
+        detected: ``(K,)`` or ``(N, K)`` detection flags; all True by default.
+        allow_failure: flag failed trackers in ``IMMResult.failed`` instead of raising.
+        step_options: further ``step`` arguments (``HeteroIMM``'s ``q_scale``, ``r_scale``).
+
+    Returns:
+        An :class:`IMMResult`; for a single ``(K, m)`` sequence the N axis is dropped.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    dim_z = tracker.sensor.dim_z
+    single = z.ndim == 2
+    if single:
+        z = z[None]
+        detected = None if detected is None else np.asarray(detected)[None]
+    if z.ndim != 3 or z.shape[-1] != dim_z:
+        raise ConfigError(f"z must have shape (K, m) or (N, K, m) with m = {dim_z}, got {z.shape}")
+    N, K, _ = z.shape
+    if not np.all(np.isfinite(z)):
+        raise ConfigError("z must be finite (mark missed detections with detected=False)")
+    if detected is not None and np.shape(detected) != (N, K):
+        raise ConfigError(
+            f"detected must have shape {(N, K)[1 if single else 0 :]}, got {np.shape(detected)}"
+        )
+    tpm = validate_tpm(tpm, tracker.n_models)
+    state = tracker.init(x0, P0, mode_probs)
+    if state.x.shape[0] == 1 and N > 1:
+        state = IMMState(*(np.repeat(a, N, axis=0) for a in (state.x, state.P, state.mu)))
+    if K == 0:
+        raise ConfigError("z must hold at least one step")
+    steps = []
+    for k in range(K):
+        det = None if detected is None else np.asarray(detected[:, k], dtype=bool)
+        state, out = tracker.step(
+            state, tpm, z[:, k], det, check=k == 0, allow_failure=allow_failure, **step_options
+        )
+        steps.append(out)
+
+    def stack(name: str) -> Array:
+        return np.stack([getattr(o, name) for o in steps], axis=1)
+
+    result = IMMResult(
+        stack("x"), stack("P"), stack("mode_probs"), stack("loglik"), stack("model_nis"),
+        stack("nis"), np.logical_or.reduce([o.failed for o in steps]),
+        None if steps[0].z_pred is None else stack("z_pred"),
+    )
+    if single:
+        parts = (getattr(result, f.name) for f in fields(result))
+        return IMMResult(*(None if a is None else a[0] for a in parts))
+    return result

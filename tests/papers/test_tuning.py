@@ -9,13 +9,13 @@ from imm_gym import ConfigError
 from imm_gym.cli.evaluate import main as evaluate_main
 from imm_gym.papers.systems import (
     ManeuverFamily,
-    SystemBatch,
     bbsca_imm,
     bbsca_sensor,
     draw,
     run_bank,
 )
 from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, optimize, tune
+from imm_gym.sim.episodes import Batch
 from imm_gym.tracking.tpm import stay_tpm
 
 
@@ -83,7 +83,7 @@ def test_bad_tuning_input_is_rejected(tmp_path) -> None:
     with pytest.raises(ConfigError, match="bounds"):
         TunerConfig(bounds=(1.0, 1.0))
     sensor = bbsca_sensor()
-    empty = SystemBatch(None, None, np.zeros((0, 4)), np.zeros((0, 4, 4)))  # type: ignore[arg-type]
+    empty = Batch(None, None, np.zeros((0, 4)), np.zeros((0, 4, 4)))  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="tuning set is empty"):
         bank_objective(bbsca_imm(sensor), empty, stay_tpm(3, 0.9), sensor.sigma)
     bad = tmp_path / "bad.json"
