@@ -16,7 +16,7 @@ unless stated:
    off (``shadow="none", reward="error"``). The timed call is ``venv.step(actions)``; a repeat
    runs whole cycles of 151 batch steps (150 steps of an episode + the ``NEXT_STEP`` autoreset
    step, so each repeat holds its share of resets).
-3. stable-baselines3 adapter ``imm_gym.envs.sb3.TPMAdaptVecEnv(num_envs=N)`` for N = 64, 1024,
+3. stable-baselines3 adapter ``imm_gym.envs.sb3.TPMAdaptSB3VecEnv(num_envs=N)`` for N = 64, 1024,
    timed call ``venv.step(actions)`` (same-step resets), whole cycles of 150 batch steps.
 4. FilterPy ``IMMEstimator`` over three UKFs, one tracker, ``predict(); update(z)`` on the
    paper scenario — ``bench_imm.filterpy_episode`` (``bench_imm.py`` is imported from this
@@ -49,42 +49,28 @@ from __future__ import annotations
 
 import os
 
-# Single core: must happen before numpy (and numba) are imported.
-os.environ["OMP_NUM_THREADS"] = "1"
-os.environ["OPENBLAS_NUM_THREADS"] = "1"
-os.environ["MKL_NUM_THREADS"] = "1"
-os.environ["NUMBA_NUM_THREADS"] = "1"
+import harness
+
+os.environ.update(harness.ONE_THREAD)  # single core: before numpy (and numba) are imported
 
 import argparse
-import gc
-import hashlib
-import importlib.util
-import json
 import math
 import operator
-import statistics
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
-from types import ModuleType
 from typing import Any
 
+import bench_imm  # from this directory (the script's directory is on sys.path)
 import gymnasium as gym
 import numpy as np
 import stable_baselines3
 from rich.console import Console
-from rich.table import Table
+from rich.table import Column
 
-import imm_gym
 from imm_gym import IMM, Sonar, draw_batch, paper_bank, paper_scenario
-from imm_gym.envs.sb3 import TPMAdaptVecEnv
-
-try:  # Belt and braces: also pin already-loaded thread pools if threadpoolctl is available.
-    from threadpoolctl import threadpool_limits
-except ImportError:  # pragma: no cover - depends on the environment
-    threadpool_limits = None
+from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 
 ENV_ID = "imm_gym/TPMAdapt-v0"
 TARGET_VEC_ENV_STEPS_PER_S = 50_000.0
@@ -105,43 +91,6 @@ LONG_REPEAT_S = 1.0  # repeats longer than this use --long-repeats
 WARMUP_STEPS = 10
 
 Array = np.ndarray
-# block(units) -> (wall s, process CPU s, batch steps, episode ends) for `units` whole episodes /
-# cycles
-Block = Callable[[int], tuple[float, float, int, int]]
-
-
-def _load_bench_imm() -> ModuleType:
-    """``bench_imm.py`` from this directory, imported as a module (its ``main`` is not run)."""
-    path = Path(__file__).resolve().with_name("bench_imm.py")
-    spec = importlib.util.spec_from_file_location("bench_imm", path)
-    if spec is None or spec.loader is None:
-        raise SystemExit(f"cannot import {path}")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_imm"] = module  # dataclasses look their module up while being created
-    spec.loader.exec_module(module)
-    return module
-
-
-bench_imm = _load_bench_imm()
-
-
-def _timed(loop: Callable[[], None]) -> tuple[float, float]:
-    """Wall and process-CPU seconds taken by ``loop()`` with the garbage collector off.
-
-    CPU time is reported too because the machine is shared: under load the wall time also holds
-    the time this process waited for a core.
-    """
-    gc_was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        loop()
-        t1 = time.perf_counter()
-        return t1 - t0, time.process_time() - c0
-    finally:
-        if gc_was_enabled:
-            gc.enable()
 
 
 @dataclass
@@ -186,7 +135,7 @@ def bench(
     config: str,
     actions: str,
     n: int,
-    block: Block,
+    block: harness.Block,
     warmup: Callable[[], float],
     unit_steps: int,
     repeats: int,
@@ -198,34 +147,25 @@ def bench(
     ``warmup()`` runs (and compiles) a few steps and returns the estimated seconds per step;
     ``unit_steps`` is the number of steps of one episode / cycle.
     """
-    per_unit = warmup() * unit_steps
-    units = max(1, math.ceil(min_repeat_s / per_unit)) if min_repeat_s > 0 else 1
-    if units * per_unit > LONG_REPEAT_S:
-        repeats = long_repeats
-    per_step, cpu_per_step, steps_timed, ends = [], [], 0, 0
-    for _ in range(repeats):
-        seconds, cpu, steps, e = block(units)
-        per_step.append(seconds / steps)
-        cpu_per_step.append(cpu / steps)
-        steps_timed += steps
-        ends += e
-    med = statistics.median(per_step)
+    m = harness.measure(
+        warmup, block, unit_steps, repeats, min_repeat_s, long_repeats, LONG_REPEAT_S
+    )
     return Result(
         front=front,
         config=config,
         actions=actions,
         n_envs=n,
-        us_per_step=med * 1e6,
-        env_steps_per_s=n / med,
-        us_per_step_min=min(per_step) * 1e6,
-        us_per_step_max=max(per_step) * 1e6,
-        cpu_us_per_step=statistics.median(cpu_per_step) * 1e6,
-        repeats=repeats,
-        units_per_repeat=units,
-        batch_steps_timed=steps_timed,
-        episode_ends=ends,
-        per_repeat_us=[t * 1e6 for t in per_step],
-        per_repeat_cpu_us=[t * 1e6 for t in cpu_per_step],
+        us_per_step=m.us_per_step,
+        env_steps_per_s=n / m.median_s,
+        us_per_step_min=m.us_per_step_min,
+        us_per_step_max=m.us_per_step_max,
+        cpu_us_per_step=m.cpu_us_per_step,
+        repeats=m.repeats,
+        units_per_repeat=m.units,
+        batch_steps_timed=m.steps,
+        episode_ends=m.ends,
+        per_repeat_us=m.per_repeat_us,
+        per_repeat_cpu_us=m.per_repeat_cpu_us,
     )
 
 
@@ -243,7 +183,9 @@ def action_pool(space: gym.spaces.Box, kind: str, length: int, seed: int) -> lis
 # ---------------------------------------------------------------------------------------------
 
 
-def scalar_case(env: gym.Env, pool: list[Array], seed: int) -> tuple[Callable[[], float], Block]:
+def scalar_case(
+    env: gym.Env, pool: list[Array], seed: int
+) -> tuple[Callable[[], float], harness.Block]:
     """Warm-up and timed block (whole episodes, resets included) of a scalar env."""
     P = len(pool)
 
@@ -257,9 +199,9 @@ def scalar_case(env: gym.Env, pool: list[Array], seed: int) -> tuple[Callable[[]
             for i in range(WARMUP_STEPS):
                 env.step(pool[i])
 
-        return _timed(loop)[0] / WARMUP_STEPS
+        return harness.timed(loop)[0] / WARMUP_STEPS
 
-    def block(episodes: int) -> tuple[float, float, int, int]:
+    def block(episodes: int) -> harness.Sample:
         reset, step = env.reset, env.step
         count = [0]
 
@@ -276,8 +218,8 @@ def scalar_case(env: gym.Env, pool: list[Array], seed: int) -> tuple[Callable[[]
                 steps += i
             count[0] = steps
 
-        seconds, cpu = _timed(loop)
-        return seconds, cpu, count[0], episodes
+        seconds, cpu = harness.timed(loop)
+        return harness.Sample(seconds, cpu, count[0], episodes)
 
     return warmup, block
 
@@ -293,7 +235,7 @@ def vector_case(
     pool: list[Array],
     cycle: int,
     done_flags: Callable[[tuple[Any, ...]], Any],
-) -> tuple[Callable[[], float], Block]:
+) -> tuple[Callable[[], float], harness.Block]:
     """Warm-up and timed block (``cycle`` batch steps per unit) of a vector env.
 
     The env keeps running across repeats (autoresets inside the timed steps). ``done_flags(out)``
@@ -312,11 +254,11 @@ def vector_case(
             for i in range(WARMUP_STEPS, 2 * WARMUP_STEPS):
                 step(pool[i % P])
 
-        seconds, _ = _timed(loop)
+        seconds, _ = harness.timed(loop)
         k[0] = 2 * WARMUP_STEPS
         return seconds / WARMUP_STEPS
 
-    def block(cycles: int) -> tuple[float, float, int, int]:
+    def block(cycles: int) -> harness.Sample:
         steps = cycles * cycle
         start = k[0]
         flags: list[Any] = []
@@ -326,10 +268,10 @@ def vector_case(
             for i in range(start, start + steps):
                 append(done_flags(step(pool[i % P])))
 
-        seconds, cpu = _timed(loop)
+        seconds, cpu = harness.timed(loop)
         k[0] = start + steps
         ends = sum(int(np.count_nonzero(np.logical_or.reduce(np.atleast_2d(f)))) for f in flags)
-        return seconds, cpu, steps, ends
+        return harness.Sample(seconds, cpu, steps, ends)
 
     return warmup, block
 
@@ -343,7 +285,7 @@ def make_vec(n: int, overrides: dict[str, Any]) -> Any:
 # ---------------------------------------------------------------------------------------------
 
 
-def filterpy_case(seed: int) -> tuple[Callable[[], float], Block, int]:
+def filterpy_case(seed: int) -> tuple[Callable[[], float], harness.Block, int]:
     """One FilterPy IMM-UKF tracker over the paper scenario, set up as ``bench_imm.py`` does.
 
     Whole 150-step episodes of ``predict(); update(z)`` by ``bench_imm.filterpy_episode`` (which
@@ -358,17 +300,8 @@ def filterpy_case(seed: int) -> tuple[Callable[[], float], Block, int]:
     episode = bench_imm.filterpy_episode(
         imm.F, imm.Q, sonar.R, b.measurements.z[0], b.x0[0], b.P0[0]
     )
-
-    def warmup() -> float:
-        episode(WARMUP_STEPS)
-        return episode(WARMUP_STEPS) / WARMUP_STEPS
-
-    def block(episodes: int) -> tuple[float, float, int, int]:
-        c0 = time.process_time()
-        seconds = sum(episode(horizon) for _ in range(episodes))
-        return seconds, time.process_time() - c0, episodes * horizon, episodes
-
-    return warmup, block, horizon
+    warmup = harness.episode_warmup(episode, WARMUP_STEPS)
+    return warmup, harness.episode_block(episode, horizon), horizon
 
 
 # ---------------------------------------------------------------------------------------------
@@ -377,29 +310,15 @@ def filterpy_case(seed: int) -> tuple[Callable[[], float], Block, int]:
 
 
 def environment() -> dict[str, Any]:
-    env = bench_imm.environment()
-    env["gymnasium"] = gym.__version__
-    env["stable_baselines3"] = stable_baselines3.__version__
-    env["imm_gym_source_sha1"] = _source_digest()
-    return env
-
-
-def _source_digest() -> str:
-    """SHA-1 over imm_gym's and imm_gym/envs' ``*.py`` files (identifies a dirty tree's code)."""
-    root = Path(imm_gym.__file__).resolve().parent
-    h = hashlib.sha1()
-    for f in sorted([*root.glob("*.py"), *root.glob("envs/*.py")]):
-        h.update(str(f.relative_to(root)).encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()
-
-
-def _loadavg() -> float:
-    return os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    return {
+        **bench_imm.environment(),
+        "gymnasium": gym.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+    }
 
 
 def _range(r: Result) -> str:
-    return f"({r.us_per_step_min:,.1f} – {r.us_per_step_max:,.1f})"
+    return harness.range_cell(r.us_per_step_min, r.us_per_step_max)
 
 
 def render(
@@ -410,22 +329,22 @@ def render(
     env: dict[str, Any],
     loadavg_end: float,
 ) -> dict[str, Any]:
-    t1 = Table(
-        title=f"Scalar env steps — {ENV_ID}, default config, 1 core",
+    t1 = harness.table(
+        f"Scalar env steps — {ENV_ID}, default config, 1 core",
+        Column("front", no_wrap=True),
+        "actions",
+        harness.right("µs / env step"),
+        harness.range_column(),
+        harness.right("CPU µs / step"),
+        harness.right("env-steps/s"),
+        harness.right("repeats × episodes"),
+        harness.right("steps / episode"),
+        harness.right("speed-up vs FilterPy"),
         caption=(
             "medians over repeats of whole episodes, resets included; CPU = process CPU time; "
             "speed-up = FilterPy µs per IMM-UKF step / this row's µs per env step"
         ),
     )
-    t1.add_column("front", no_wrap=True)
-    t1.add_column("actions")
-    t1.add_column("µs / env step", justify="right")
-    t1.add_column("(min – max)", justify="right", style="dim", no_wrap=True)
-    t1.add_column("CPU µs / step", justify="right")
-    t1.add_column("env-steps/s", justify="right")
-    t1.add_column("repeats × episodes", justify="right")
-    t1.add_column("steps / episode", justify="right")
-    t1.add_column("speed-up vs FilterPy", justify="right")
     for r in [*scalar, fp]:
         if r is fp:
             t1.add_section()
@@ -443,24 +362,24 @@ def render(
     console.print(t1)
 
     kinds = sorted({r.actions for r in vector})
-    t2 = Table(
-        title=f"Vector env steps — {ENV_ID}, {'/'.join(kinds)} actions, 1 core",
+    t2 = harness.table(
+        f"Vector env steps — {ENV_ID}, {'/'.join(kinds)} actions, 1 core",
+        Column("front", no_wrap=True),
+        Column("config", no_wrap=True),
+        harness.right("N"),
+        harness.right("µs / batch step"),
+        harness.range_column(),
+        harness.right("CPU µs / batch step"),
+        harness.right("µs / env step"),
+        harness.right("env-steps/s"),
+        harness.right("repeats × cycles"),
+        harness.right("vs 50k aim"),
         caption=(
             "medians over repeats of whole cycles (make_vec: 150 steps + 1 autoreset step; "
             "SB3: 150 steps, same-step resets); env-steps/s = N × batch steps / time; "
             "CPU = process CPU time"
         ),
     )
-    t2.add_column("front", no_wrap=True)
-    t2.add_column("config", no_wrap=True)
-    t2.add_column("N", justify="right")
-    t2.add_column("µs / batch step", justify="right")
-    t2.add_column("(min – max)", justify="right", style="dim", no_wrap=True)
-    t2.add_column("CPU µs / batch step", justify="right")
-    t2.add_column("µs / env step", justify="right")
-    t2.add_column("env-steps/s", justify="right")
-    t2.add_column("repeats × cycles", justify="right")
-    t2.add_column("vs 50k aim", justify="right")
     previous = None
     for r in vector:
         key = (r.front, r.config)
@@ -485,28 +404,24 @@ def render(
     hv = next(r for r in vector if r.front == "make_vec" and r.config == config and r.n_envs == n)
     ratio = hv.env_steps_per_s / TARGET_VEC_ENV_STEPS_PER_S
     cpu_rate = n / (hv.cpu_us_per_step * 1e-6)
-    headline = Table(
-        title="Headline checks",
+    headline = harness.table(
+        "Headline checks",
+        "check",
+        harness.right("wall time"),
+        harness.right("CPU time"),
+        harness.right("aim"),
+        Column("met?", justify="center"),
         caption=(
             "verdicts on wall time; CPU time leaves out waiting for a core (not cache or "
             "hyper-thread sharing)"
         ),
     )
-    headline.add_column("check")
-    headline.add_column("wall time", justify="right")
-    headline.add_column("CPU time", justify="right")
-    headline.add_column("aim", justify="right")
-    headline.add_column("met?", justify="center")
-
-    def verdict(ok: bool) -> str:
-        return "[green]yes[/green]" if ok else "[bold red]no[/bold red]"
-
     headline.add_row(
         f"(1) make_vec N={n}, {config.replace('  ', ' ')}: env-steps/s",
         f"{hv.env_steps_per_s:,.0f}  ({ratio:.2f} of aim)",
         f"{cpu_rate:,.0f}  ({cpu_rate / TARGET_VEC_ENV_STEPS_PER_S:.2f})",
         f"≥ {TARGET_VEC_ENV_STEPS_PER_S:,.0f}",
-        verdict(ratio >= 1.0),
+        harness.verdict(ratio >= 1.0),
     )
     speedups: dict[str, dict[str, float]] = {}
     for r in scalar:
@@ -520,16 +435,14 @@ def render(
             f"{s:,.1f}×  ({r.us_per_step:,.1f} vs {fp.us_per_step:,.1f} µs)",
             f"{s_cpu:,.1f}×  ({r.cpu_us_per_step:,.1f} vs {fp.cpu_us_per_step:,.1f} µs)",
             f"≥ {TARGET_SPEEDUP_VS_FILTERPY:.0f}×",
-            verdict(s >= TARGET_SPEEDUP_VS_FILTERPY),
+            harness.verdict(s >= TARGET_SPEEDUP_VS_FILTERPY),
         )
     console.print(headline)
 
-    threads = ", ".join(f"{k}={v}" for k, v in env["thread_env"].items())
     load0 = env["loadavg_at_start"][0] if env["loadavg_at_start"] else math.nan
     console.print(
-        f"[dim]{env['processor']}; {env['cpus_available']} CPUs available; {threads}; "
-        f"threadpoolctl {'used' if env['threadpoolctl'] else 'not installed'}; "
-        f"numpy {env['numpy']}, gymnasium {env['gymnasium']}, "
+        f"[dim]{env['processor']}; {env['cpus_available']} CPUs available; "
+        f"{harness.thread_summary(env)}; numpy {env['numpy']}, gymnasium {env['gymnasium']}, "
         f"stable-baselines3 {env['stable_baselines3']}, filterpy {env['filterpy']}, "
         f"Python {env['python']}; load avg (1 min) at start {load0:.2f}, at end "
         f"{loadavg_end:.2f}[/dim]"
@@ -548,10 +461,8 @@ def render(
 
 
 def run(args: argparse.Namespace, console: Console) -> int:
-    repeats = args.repeats if args.repeats is not None else (3 if args.quick else 5)
-    long_repeats = args.long_repeats if args.long_repeats is not None else (1 if args.quick else 3)
-    if repeats < 1 or long_repeats < 1:
-        raise SystemExit("--repeats and --long-repeats must be >= 1")
+    repeats = harness.count(args.repeats, args.quick, 5, 3, "--repeats")
+    long_repeats = harness.count(args.long_repeats, args.quick, 3, 1, "--long-repeats")
     min_repeat_s = 0.0 if args.quick else MIN_REPEAT_S
     env_info = environment()
     t_start = time.perf_counter()
@@ -608,20 +519,22 @@ def run(args: argparse.Namespace, console: Console) -> int:
     for n in N_SB3:
         if args.quick and n > QUICK_MAX_N:
             continue
-        console.print(f"[dim]timing SB3 TPMAdaptVecEnv N={n} ...[/dim]")
-        venv = TPMAdaptVecEnv(num_envs=n)
+        console.print(f"[dim]timing SB3 TPMAdaptSB3VecEnv N={n} ...[/dim]")
+        venv = TPMAdaptSB3VecEnv(num_envs=n)
         venv.seed(args.seed)
         cycle = venv.core.horizon  # same-step reset
         batched = gym.spaces.Box(-1.0, 1.0, (n, venv.core.action_dim), dtype=np.float32)
         pool = action_pool(batched, kind, cycle, args.seed)
         warmup, block = vector_case(venv.step, venv.reset, pool, cycle, operator.itemgetter(2))
         vector.append(
-            bench("SB3 VecEnv", "default (TPMAdaptVecEnv)", kind, n, block, warmup, cycle, **common)
+            bench(
+                "SB3 VecEnv", "default (TPMAdaptSB3VecEnv)", kind, n, block, warmup, cycle, **common
+            )
         )
         venv.close()
 
     elapsed = time.perf_counter() - t_start
-    loadavg_end = _loadavg()
+    loadavg_end = harness.loadavg()
     headline = render(console, scalar, vector, fp, env_info, loadavg_end)
     console.print(f"[dim]timing took {elapsed:.0f} s[/dim]")
 
@@ -653,26 +566,21 @@ def run(args: argparse.Namespace, console: Console) -> int:
             "headline": headline,
             "elapsed_s": elapsed,
         }
-        Path(args.json).write_text(json.dumps(payload, indent=2) + "\n")
-        console.print(f"[dim]wrote {args.json}[/dim]")
+        harness.write_json(args.json, payload, console)
     return 0
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument(
-        "--repeats", type=int, default=None, help="timed repeats per configuration (5; 3 quick)"
-    )
+    harness.add_repeats(p, "timed repeats per configuration (5; 3 quick)")
     p.add_argument(
         "--long-repeats",
         type=int,
         default=None,
         help=f"repeats of configurations whose repeat lasts > {LONG_REPEAT_S:g} s (3; 1 quick)",
     )
-    p.add_argument(
-        "--quick",
-        action="store_true",
-        help="3 repeats of one episode / cycle each (1 at N = 1024, headline config only)",
+    harness.add_quick(
+        p, "3 repeats of one episode / cycle each (1 at N = 1024, headline config only)"
     )
     p.add_argument(
         "--vec-actions",
@@ -680,20 +588,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default="random",
         help="actions of the vector fronts (default random)",
     )
-    p.add_argument("--json", metavar="FILE", default=None, help="also write the results as JSON")
-    p.add_argument("--seed", type=int, default=0, help="reset / action seed (default 0)")
+    harness.add_json(p)
+    harness.add_seed(p, "reset / action seed (default 0)")
     return p.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
-    console = Console()
-    if not console.is_terminal:
-        console = Console(width=200)  # don't let rich wrap the tables at 80 columns in a pipe
-    if threadpool_limits is not None:
-        with threadpool_limits(limits=1):
-            return run(args, console)
-    return run(args, console)
+    return harness.main(run, parse_args(argv))
 
 
 if __name__ == "__main__":

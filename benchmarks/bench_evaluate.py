@@ -12,16 +12,12 @@ from __future__ import annotations
 
 import os
 
-os.environ["OMP_NUM_THREADS"] = "1"
-os.environ["OPENBLAS_NUM_THREADS"] = "1"
-os.environ["MKL_NUM_THREADS"] = "1"
-os.environ["NUMBA_NUM_THREADS"] = "1"
+import harness
+
+os.environ.update(harness.ONE_THREAD)  # single core: before numpy (and numba) are imported
 
 import argparse
 import time
-
-from rich.console import Console
-from rich.table import Table
 
 POLICIES = ("fixed", "tip-imm", "best-fixed", "amp-imm", "window")
 
@@ -38,9 +34,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     evaluate(["fixed"], args.scenario, 2, 0, clairvoyant=False)  # first kernel load
     t_warm = time.perf_counter() - t0
-    table = Table(title=f"Evaluation wall time, scenario {args.scenario}, {args.runs} runs, 1 core")
-    table.add_column("what")
-    table.add_column("seconds", justify="right")
+    table = harness.table(
+        f"Evaluation wall time, scenario {args.scenario}, {args.runs} runs, 1 core",
+        "what",
+        harness.right("seconds"),
+    )
     table.add_row("import imm_gym.cli.evaluate", f"{t_import:.2f}")
     table.add_row("first kernel load (numba cache)", f"{t_warm:.2f}")
     for name in POLICIES:
@@ -50,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     evaluate(list(POLICIES), args.scenario, args.runs, 0)
     table.add_row("all five + clairvoyant bound", f"{time.perf_counter() - t0:.2f}")
-    Console(width=100).print(table)
+    harness.make_console(width=100).print(table)
     return 0
 
 

@@ -40,40 +40,24 @@ from __future__ import annotations
 
 import os
 
-# Single core: must happen before numpy (and numba) are imported.
-os.environ["OMP_NUM_THREADS"] = "1"
-os.environ["OPENBLAS_NUM_THREADS"] = "1"
-os.environ["MKL_NUM_THREADS"] = "1"
-os.environ["NUMBA_NUM_THREADS"] = "1"
+import harness
+
+os.environ.update(harness.ONE_THREAD)  # single core: before numpy (and numba) are imported
 
 import argparse
-import gc
-import hashlib
-import json
 import math
-import platform
-import statistics
-import subprocess
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Any
 
 import filterpy
 import numpy as np
 from filterpy.kalman import IMMEstimator, MerweScaledSigmaPoints, UnscentedKalmanFilter
 from rich.console import Console
-from rich.table import Table
+from rich.table import Column
 
-import imm_gym
 from imm_gym import IMM, Sonar, draw_batch, paper_bank, paper_scenario, stay_tpm
-
-try:  # Belt and braces: also pin already-loaded thread pools if threadpoolctl is available.
-    from threadpoolctl import threadpool_limits
-except ImportError:  # pragma: no cover - depends on the environment
-    threadpool_limits = None
 
 TARGET_TRACKER_STEPS_PER_S = 150_000.0
 STAY = 0.995
@@ -84,8 +68,6 @@ WARMUP_STEPS = 10
 SANITY_TOL_M = 50.0
 
 Array = np.ndarray
-# episode(steps) -> seconds spent in the timed loop of `steps` steps (init not timed)
-Episode = Callable[[int], float]
 
 
 @dataclass
@@ -113,48 +95,34 @@ class Result:
 # ---------------------------------------------------------------------------------------------
 
 
-def _timed(loop: Callable[[], None]) -> float:
-    """Seconds taken by ``loop()`` with the garbage collector off."""
-    gc_was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        t0 = time.perf_counter()
-        loop()
-        return time.perf_counter() - t0
-    finally:
-        if gc_was_enabled:
-            gc.enable()
-
-
 def bench(
     impl: str,
     filt: str,
     n: int,
-    episode: Episode,
+    episode: harness.Episode,
     horizon: int,
     repeats: int,
     min_repeat_s: float,
 ) -> Result:
     """Warm up, size the repeats, then time ``repeats`` repeats of whole episodes."""
-    episode(WARMUP_STEPS)  # compiles / warms caches
-    probe = episode(WARMUP_STEPS) / WARMUP_STEPS * horizon  # rough seconds per episode
-    n_ep = max(1, math.ceil(min_repeat_s / probe)) if min_repeat_s > 0 else 1
-    per_step = []
-    for _ in range(repeats):
-        total = sum(episode(horizon) for _ in range(n_ep))
-        per_step.append(total / (n_ep * horizon))
-    med = statistics.median(per_step)
+    m = harness.measure(
+        harness.episode_warmup(episode, WARMUP_STEPS),
+        harness.episode_block(episode, horizon),
+        horizon,
+        repeats,
+        min_repeat_s,
+    )
     return Result(
         impl=impl,
         filter=filt,
         n_trackers=n,
-        us_per_step=med * 1e6,
-        tracker_steps_per_s=n / med,
-        us_per_step_min=min(per_step) * 1e6,
-        us_per_step_max=max(per_step) * 1e6,
-        episodes_per_repeat=n_ep,
-        steps_timed=repeats * n_ep * horizon,
-        per_repeat_us=[t * 1e6 for t in per_step],
+        us_per_step=m.us_per_step,
+        tracker_steps_per_s=n / m.median_s,
+        us_per_step_min=m.us_per_step_min,
+        us_per_step_max=m.us_per_step_max,
+        episodes_per_repeat=m.units,
+        steps_timed=m.steps,
+        per_repeat_us=m.per_repeat_us,
     )
 
 
@@ -163,7 +131,7 @@ def bench(
 # ---------------------------------------------------------------------------------------------
 
 
-def imm_gym_episode(imm: IMM, z: Array, x0: Array, P0: Array, tpm: Array) -> Episode:
+def imm_gym_episode(imm: IMM, z: Array, x0: Array, P0: Array, tpm: Array) -> harness.Episode:
     """Episodes of ``imm.step`` over measurements ``z`` of shape ``(N, K+1, 2)``.
 
     ``z[:, 0]`` initiated the track (it gave ``x0, P0``); steps 1..K are filtered.
@@ -180,7 +148,7 @@ def imm_gym_episode(imm: IMM, z: Array, x0: Array, P0: Array, tpm: Array) -> Epi
             for zk in todo:
                 s, _ = step(s, tpm, zk)
 
-        return _timed(loop)
+        return harness.timed(loop)[0]
 
     return episode
 
@@ -249,7 +217,9 @@ def make_filterpy_imm(
     return IMMEstimator(filters, mu=[1.0 / 3.0] * 3, M=tpm.copy())
 
 
-def filterpy_episode(F: Array, Q: Array, R: Array, z: Array, x0: Array, P0: Array) -> Episode:
+def filterpy_episode(
+    F: Array, Q: Array, R: Array, z: Array, x0: Array, P0: Array
+) -> harness.Episode:
     """Episodes of FilterPy ``predict(); update(z)`` over one tracker's ``z`` of shape (K+1, 2)."""
     zs = [np.array(z[k]) for k in range(1, z.shape[0])]
     tpm = stay_tpm(3, STAY)
@@ -264,7 +234,7 @@ def filterpy_episode(F: Array, Q: Array, R: Array, z: Array, x0: Array, P0: Arra
                 predict()
                 update(zk)
 
-        return _timed(loop)
+        return harness.timed(loop)[0]
 
     return episode
 
@@ -324,60 +294,8 @@ def sanity_check(imm: IMM, seed: int) -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------------
 
 
-def _git(*args: str) -> str | None:
-    try:
-        out = subprocess.run(
-            ["git", *args],
-            cwd=Path(__file__).resolve().parents[1],  # repository root
-            capture_output=True,
-            text=True,
-            check=True,
-            timeout=10,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip()
-
-
 def environment() -> dict[str, Any]:
-    status = _git("status", "--porcelain", "--", "imm_gym")
-    return {
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "filterpy": filterpy.__version__,
-        "platform": platform.platform(),
-        "processor": _cpu_model(),
-        "cpus_available": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0,
-        "loadavg_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        "thread_env": {
-            k: os.environ.get(k)
-            for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-        },
-        "threadpoolctl": threadpool_limits is not None,
-        "git_commit": _git("rev-parse", "HEAD"),
-        "imm_gym_dirty": None if status is None else bool(status),
-        "imm_gym_source_sha1": _source_digest(),
-    }
-
-
-def _source_digest() -> str:
-    """SHA-1 over imm_gym's ``*.py`` files: identifies the code timed even in a dirty tree."""
-    root = Path(imm_gym.__file__).resolve().parent
-    h = hashlib.sha1()
-    for f in sorted(root.glob("*.py")):
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
+    return harness.environment(filterpy=filterpy.__version__)
 
 
 def _fmt_rate(x: float) -> str:
@@ -393,22 +311,22 @@ def render(
     repeats: int,
 ) -> dict[str, float]:
     fp_us_per_tracker_step = fp.us_per_tracker_step
-    table = Table(
-        title="IMM bank step throughput — M = 3 models, paper scenario, sonar, 1 core",
+    table = harness.table(
+        "IMM bank step throughput — M = 3 models, paper scenario, sonar, 1 core",
+        Column("implementation", no_wrap=True),
+        "filter",
+        harness.right("N"),
+        harness.right("µs / batch step"),
+        harness.range_column(),
+        harness.right("µs / tracker-step"),
+        harness.right("tracker-steps/s (1 core)"),
+        harness.right("speed-up vs FilterPy"),
+        harness.right("vs 150k target"),
         caption=(
             f"median of {repeats} repeats; µs per batch step = one step of all N trackers; "
             "speed-up = FilterPy µs per tracker-step / this row's"
         ),
     )
-    table.add_column("implementation", no_wrap=True)
-    table.add_column("filter")
-    table.add_column("N", justify="right")
-    table.add_column("µs / batch step", justify="right")
-    table.add_column("(min – max)", justify="right", style="dim", no_wrap=True)
-    table.add_column("µs / tracker-step", justify="right")
-    table.add_column("tracker-steps/s (1 core)", justify="right")
-    table.add_column("speed-up vs FilterPy", justify="right")
-    table.add_column("vs 150k target", justify="right")
     for r in [*results, fp]:
         if r is fp:
             table.add_section()
@@ -417,7 +335,7 @@ def render(
             r.filter,
             str(r.n_trackers),
             f"{r.us_per_step:,.1f}",
-            f"({r.us_per_step_min:,.1f} – {r.us_per_step_max:,.1f})",
+            harness.range_cell(r.us_per_step_min, r.us_per_step_max),
             f"{r.us_per_tracker_step:,.2f}",
             _fmt_rate(r.tracker_steps_per_s),
             f"{fp_us_per_tracker_step / r.us_per_tracker_step:,.1f}×",
@@ -428,9 +346,7 @@ def render(
     ukf = {r.n_trackers: r for r in results if r.impl == "imm_gym" and r.filter == "ukf"}
     speedup_n1 = fp.us_per_step / ukf[1].us_per_step
     target_ratio = ukf[1024].tracker_steps_per_s / TARGET_TRACKER_STEPS_PER_S
-    headline = Table(title="Headline (imm_gym SVD-UKF)", show_header=True)
-    headline.add_column("metric")
-    headline.add_column("value", justify="right")
+    headline = harness.table("Headline (imm_gym SVD-UKF)", "metric", harness.right("value"))
     headline.add_row(
         "speed-up: imm_gym N=1 per step vs FilterPy per step",
         f"{speedup_n1:,.1f}×  ({ukf[1].us_per_step:,.1f} vs {fp.us_per_step:,.1f} µs)",
@@ -453,10 +369,8 @@ def render(
         f"FilterPy {sanity['final_truth_err_filterpy_m']:.2f} m; position RMSE: imm_gym "
         f"{sanity['pos_rmse_imm_gym_m']:.2f} m, FilterPy {sanity['pos_rmse_filterpy_m']:.2f} m"
     )
-    threads = ", ".join(f"{k}={v}" for k, v in env["thread_env"].items())
     console.print(
-        f"[dim]{env['processor']}; {threads}; threadpoolctl "
-        f"{'used' if env['threadpoolctl'] else 'not installed'}; numpy {env['numpy']}, "
+        f"[dim]{env['processor']}; {harness.thread_summary(env)}; numpy {env['numpy']}, "
         f"filterpy {env['filterpy']}, Python {env['python']}; load avg at start "
         f"{env['loadavg_at_start'][0] if env['loadavg_at_start'] else float('nan'):.2f}[/dim]"
     )
@@ -469,9 +383,7 @@ def render(
 
 
 def run(args: argparse.Namespace, console: Console) -> int:
-    repeats = args.repeats if args.repeats is not None else (3 if args.quick else 7)
-    if repeats < 1:
-        raise SystemExit("--repeats must be >= 1")
+    repeats = harness.count(args.repeats, args.quick, 7, 3, "--repeats")
     min_repeat_s = 0.0 if args.quick else MIN_REPEAT_S
     env = environment()
     sonar = Sonar()
@@ -523,33 +435,21 @@ def run(args: argparse.Namespace, console: Console) -> int:
             "headline": headline,
             "sanity": sanity,
         }
-        Path(args.json).write_text(json.dumps(payload, indent=2) + "\n")
-        console.print(f"[dim]wrote {args.json}[/dim]")
+        harness.write_json(args.json, payload, console)
     return 0 if sanity["ok"] else 1
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument(
-        "--repeats", type=int, default=None, help="timed repeats per configuration (7; 3 quick)"
-    )
-    p.add_argument(
-        "--quick", action="store_true", help="3 repeats of a single 150-step episode each"
-    )
-    p.add_argument("--json", metavar="FILE", default=None, help="also write the results as JSON")
-    p.add_argument("--seed", type=int, default=0, help="draw_batch seed (default 0)")
+    harness.add_repeats(p, "timed repeats per configuration (7; 3 quick)")
+    harness.add_quick(p, "3 repeats of a single 150-step episode each")
+    harness.add_json(p)
+    harness.add_seed(p, "draw_batch seed (default 0)")
     return p.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
-    console = Console()
-    if not console.is_terminal:
-        console = Console(width=200)  # don't let rich wrap the table at 80 columns in a pipe
-    if threadpool_limits is not None:
-        with threadpool_limits(limits=1):
-            return run(args, console)
-    return run(args, console)
+    return harness.main(run, parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -10,10 +10,9 @@ banks are then scored on held-out runs (seeds 0 ..). Prints a table; ``--json`` 
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
+import harness
 import numpy as np
 
 from imm_gym.papers.systems import draw, run_bank, score_run, system_setup
@@ -31,7 +30,7 @@ def main() -> None:
     parser.add_argument("--opt-seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--decay", type=float, default=4.0, help="BBSCA's r1 decay lambda")
     parser.add_argument("--methods", nargs="+", default=["bbsca", "sca"])
-    parser.add_argument("--json", type=Path)
+    harness.add_json(parser)
     args = parser.parse_args()
     imm, family, sensor, tpm = system_setup(args.bank)
     train = draw(family, sensor, args.train_runs, TRAIN_SEED_OFFSET)
@@ -86,10 +85,8 @@ def main() -> None:
         pairs = zip(rows["bbsca"], rows["sca"], strict=True)
         wins = sum(b["test_J"] < s["test_J"] for b, s in pairs)
         print(f"BBSCA below SCA on held-out J for {wins} of {len(args.opt_seeds)} optimizer seeds")
-    if args.json:
-        args.json.write_text(
-            json.dumps({"untuned": untuned, **rows, "args": vars(args)}, default=str, indent=2)
-        )
+    if args.json is not None:
+        harness.write_json(args.json, {"untuned": untuned, **rows, "args": vars(args)})
 
 
 if __name__ == "__main__":
