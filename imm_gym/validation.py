@@ -5,13 +5,25 @@ Every configurable object of imm_gym is a frozen dataclass that validates its fi
 Dictionaries
 (JSON/YAML files, ``gymnasium.make(..., config={...})``) are turned into dataclasses by
 :func:`from_dict`, which rejects unknown keys instead of silently ignoring a misspelling.
+
+**Numbers are numbers.** A numeric field accepts a real number (``int``, ``float`` or a numpy
+scalar) and nothing else: a string such as ``"0.01"`` is rejected, never parsed, and so is a
+boolean (``True`` is not 1 m). The helpers return the converted value — ``float`` for a real
+field, ``int`` for an integer field (``50`` and ``50.0`` give ``50``; ``50.5`` and ``"50"`` are
+rejected) — and every dataclass stores that value (:func:`store`), so a validated configuration
+holds only Python floats and ints. The one place where text becomes a number is reading a file:
+JSON already types its numbers, and YAML files are read with :func:`load_yaml`, whose YAML 1.2
+float rule reads ``1e-3`` as the float 0.001 (PyYAML's default YAML 1.1 rule reads it as the
+string ``"1e-3"``). A number quoted in a file (``p_min: "0.01"``) stays a string and is rejected.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+import numbers
+import re
+from collections.abc import Mapping, Sequence
 from typing import Any, TypeVar
 
 import numpy as np
@@ -23,12 +35,20 @@ class ConfigError(ValueError):
     """A configuration field or an input array is invalid; the message names it."""
 
 
+def _real(name: str, value: Any, expected: str) -> float:
+    """``value`` as float if it is a real number (not a bool, not a string), else raise."""
+    if type(value) is float:
+        return value
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+        value = value[()]
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ConfigError(f"{name} must be {expected}, got {value!r} ({type(value).__name__})")
+    return float(value)
+
+
 def check_finite(name: str, value: float) -> float:
     """Return ``value`` as float, or raise if it is not a finite real number."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name} must be a real number, got {value!r}") from None
+    v = _real(name, value, "a finite real number")
     if not math.isfinite(v):
         raise ConfigError(f"{name} must be finite, got {value!r}")
     return v
@@ -43,42 +63,80 @@ def check_range(
     lo_open: bool = False,
     hi_open: bool = False,
 ) -> float:
-    """Return ``value`` as float, or raise naming ``name`` and the allowed interval."""
-    v = check_finite(name, value)
+    """Return ``value`` as float, or raise naming ``name`` and the allowed interval.
+
+    The interval is ``[lo, hi]``, open at ``lo`` with ``lo_open`` and at ``hi`` with ``hi_open``;
+    NaN and infinities are outside it.
+    """
+    interval = f"{'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}"
+    v = _real(name, value, f"a real number in {interval}")
     bad_lo = v <= lo if lo_open else v < lo
     bad_hi = v >= hi if hi_open else v > hi
-    if bad_lo or bad_hi:
-        left = "(" if lo_open else "["
-        right = ")" if hi_open else "]"
-        raise ConfigError(f"{name} must be in {left}{lo}, {hi}{right}, got {value!r}")
+    if bad_lo or bad_hi or not math.isfinite(v):
+        raise ConfigError(f"{name} must be in {interval}, got {value!r}")
     return v
 
 
 def check_int(name: str, value: int, lo: int, hi: float = math.inf) -> int:
-    """Return ``value`` as int, or raise if it is not an integer in ``[lo, hi]``."""
+    """Return ``value`` as int, or raise if it is not an integer in ``[lo, hi]``.
+
+    An integral float (``50.0``) is the integer 50; ``50.5``, strings and booleans are rejected.
+    """
+    interval = f"[{lo}, {hi}]"
     integral = isinstance(value, (int, np.integer)) or (
         isinstance(value, (float, np.floating)) and float(value).is_integer()
     )
     if isinstance(value, (bool, np.bool_)) or not integral:
-        raise ConfigError(f"{name} must be an integer, got {value!r}")
+        raise ConfigError(
+            f"{name} must be an integer in {interval}, got {value!r} ({type(value).__name__})"
+        )
     v = int(value)
     if v < lo or v > hi:
-        raise ConfigError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
+        raise ConfigError(f"{name} must be an integer in {interval}, got {value!r}")
     return v
 
 
 def check_choice(name: str, value: str, choices: tuple[str, ...]) -> str:
     """Return ``value`` if it is one of ``choices``, else raise listing them."""
-    if value not in choices:
+    if not isinstance(value, str) or value not in choices:
         raise ConfigError(f"{name} must be one of {list(choices)}, got {value!r}")
     return value
 
 
+def check_sequence(name: str, value: Any, length: int | None = None) -> tuple[Any, ...]:
+    """Return ``value`` as a tuple if it is a list, tuple or 1-d array (of ``length`` entries).
+
+    A string or a mapping is not a sequence of entries here: ``"ab"`` is rejected, not read as
+    ``("a", "b")``.
+    """
+    if isinstance(value, np.ndarray) and value.ndim == 1:
+        value = tuple(value.tolist())
+    if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Sequence):
+        raise ConfigError(f"{name} must be a list, got {value!r} ({type(value).__name__})")
+    if length is not None and len(value) != length:
+        raise ConfigError(f"{name} must have {length} entries, got {len(value)}: {value!r}")
+    return tuple(value)
+
+
+def store(obj: object, name: str, value: T) -> T:
+    """Set the field ``name`` of the frozen dataclass ``obj`` to its checked ``value``.
+
+    ``__post_init__`` stores what the ``check_*`` helpers return (``float``, ``int``, ``tuple``)
+    instead of what it was given, and returns it for further checks.
+    """
+    object.__setattr__(obj, name, value)
+    return value
+
+
 def from_dict(cls: type[T], data: Mapping[str, Any] | T, name: str | None = None) -> T:
-    """Build the dataclass ``cls`` from a mapping, rejecting unknown keys.
+    """Build the dataclass ``cls`` from a mapping, rejecting unknown and missing keys.
 
     Nested dataclass fields are built recursively when their value is a mapping. An instance of
     ``cls`` is returned unchanged.
+
+    Raises:
+        ConfigError: ``data`` is not a mapping, has a key ``cls`` does not know, lacks a key
+            without a default, or a field's value is invalid (the message names ``name``).
     """
     if isinstance(data, cls):
         return data
@@ -88,9 +146,17 @@ def from_dict(cls: type[T], data: Mapping[str, Any] | T, name: str | None = None
             f"{label} must be a mapping or a {cls.__name__}, got {type(data).__name__}"
         )
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    unknown = sorted(set(data) - set(fields))
+    unknown = sorted(str(k) for k in set(data) - set(fields))
     if unknown:
         raise ConfigError(f"{label}: unknown key(s) {unknown}; allowed keys are {sorted(fields)}")
+    required = [
+        f.name
+        for f in fields.values()
+        if f.init and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    missing = [k for k in required if k not in data]
+    if missing:
+        raise ConfigError(f"{label}: missing key(s) {missing} (required: {required})")
     kwargs: dict[str, Any] = {}
     hints = _resolved_types(cls)
     for key, value in data.items():
@@ -110,3 +176,33 @@ def _resolved_types(cls: type) -> dict[str, Any]:
         return typing.get_type_hints(cls)
     except Exception:  # pragma: no cover - unresolved forward references: no nesting
         return {}
+
+
+#: YAML 1.2's float: a decimal point or an exponent (``1e-3``, ``.5``, ``2.``), ``.inf``, ``.nan``.
+_YAML12_FLOAT = re.compile(
+    r"""^(?:[-+]?(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?
+    |[-+]?[0-9]+[eE][-+]?[0-9]+
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""",
+    re.X,
+)
+
+
+def load_yaml(text: str) -> Any:
+    """Parse YAML ``text`` safely (no Python objects), with YAML 1.2's float rule.
+
+    PyYAML follows YAML 1.1, whose floats need a decimal point: ``1e-3`` is read as the string
+    ``"1e-3"``. Here a plain scalar that YAML 1.2 calls a float (``1e-3``, ``3.0e-4``, ``.5``)
+    is a float; an integer (``50``) stays an int and a quoted scalar stays a string.
+    """
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        """SafeLoader whose implicit float resolver is YAML 1.2's."""
+
+    Loader.yaml_implicit_resolvers = {
+        first: [(tag, rx) for tag, rx in resolvers if tag != "tag:yaml.org,2002:float"]
+        for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+    }
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", _YAML12_FLOAT, list("-+.0123456789"))
+    return yaml.load(text, Loader=Loader)  # a SafeLoader: plain data only

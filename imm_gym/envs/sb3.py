@@ -2,7 +2,9 @@
 
 SB3 conventions: same-step reset (a finished episode is reset inside ``step_wait``, its last
 observation goes to ``info["terminal_observation"]``), ``info["TimeLimit.truncated"]`` for a
-truncation, ``dones = terminated | truncated``, fresh arrays every step. ``seed(s)`` seeds the
+truncation, ``dones = terminated | truncated``, fresh arrays every step. Actions have shape
+``(num_envs, M*M)``; another shape or a NaN/inf entry raises
+:class:`~imm_gym.sim.actions.ActionError`, as in the Gymnasium fronts. ``seed(s)`` seeds the
 next ``reset`` with ``s + i`` per sub-env, like the Gymnasium vector env.
 """
 
@@ -17,6 +19,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
+from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import CRITIC_CLIP, TrackingCore, critic_state_size
 from imm_gym.sim.env_config import EnvConfig
 
@@ -82,12 +85,19 @@ class TPMAdaptSB3VecEnv(VecEnv):
         return obs
 
     def step_async(self, actions: NDArray[Any]) -> None:
-        self._actions = np.asarray(actions)
+        """Take ``(num_envs, M*M)`` actions; any other shape raises ``ActionError`` (never
+        reshaped: a ``(M*M, num_envs)`` array is not the same actions)."""
+        a = np.asarray(actions)
+        if a.shape != (self.num_envs, self.core.action_dim):
+            raise ActionError(
+                f"actions must have shape ({self.num_envs}, {self.core.action_dim}), got {a.shape}"
+            )
+        self._actions = a
 
     def step_wait(self) -> VecEnvStepReturn:
         if self._actions is None:
             raise RuntimeError("step_wait called without step_async")
-        a = self._actions.reshape(self.num_envs, self.core.action_dim)
+        a = self._actions
         self._actions = None
         result = self.core.step(a)
         obs = self._with_critic_state(result.obs)

@@ -53,7 +53,15 @@ from numpy.typing import NDArray
 from imm_gym.papers.systems import run_bank
 from imm_gym.sim.episodes import Batch
 from imm_gym.tracking.hetero import HeteroIMM
-from imm_gym.validation import ConfigError, check_choice, check_int, check_range, from_dict
+from imm_gym.validation import (
+    ConfigError,
+    check_choice,
+    check_int,
+    check_range,
+    check_sequence,
+    from_dict,
+    store,
+)
 
 Array = NDArray[np.float64]
 
@@ -82,13 +90,14 @@ class TunerConfig:
 
     def __post_init__(self) -> None:
         check_choice("tuner.method", self.method, OPTIMIZERS)
-        check_int("tuner.particles", self.particles, 2)
-        check_int("tuner.generations", self.generations, 1)
-        lo = check_range("tuner.bounds[0]", self.bounds[0], -10.0, 10.0)
-        check_range("tuner.bounds[1]", self.bounds[1], lo, 10.0, lo_open=True)
-        check_range("tuner.a", self.a, 0.0, lo_open=True)
-        check_range("tuner.decay", self.decay, 0.0, lo_open=True)
-        check_int("tuner.seed", self.seed, 0)
+        store(self, "particles", check_int("tuner.particles", self.particles, 2))
+        store(self, "generations", check_int("tuner.generations", self.generations, 1))
+        lo, hi = check_sequence("tuner.bounds (low, high)", self.bounds, 2)
+        lo = check_range("tuner.bounds[0]", lo, -10.0, 10.0)
+        store(self, "bounds", (lo, check_range("tuner.bounds[1]", hi, lo, 10.0, lo_open=True)))
+        store(self, "a", check_range("tuner.a", self.a, 0.0, lo_open=True))
+        store(self, "decay", check_range("tuner.decay", self.decay, 0.0, lo_open=True))
+        store(self, "seed", check_int("tuner.seed", self.seed, 0))
 
 
 @dataclass(frozen=True)
@@ -223,14 +232,15 @@ class TunedBank:
     notes: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if not self.q_scale:
+        q_scale = check_sequence("tuned.q_scale", self.q_scale)
+        if not q_scale:
             raise ConfigError("tuned.q_scale must have one entry per model")
-        object.__setattr__(
+        store(
             self,
             "q_scale",
-            tuple(check_range("tuned.q_scale[i]", s, 0.0, lo_open=True) for s in self.q_scale),
+            tuple(check_range("tuned.q_scale[i]", s, 0.0, lo_open=True) for s in q_scale),
         )
-        check_range("tuned.r_scale", self.r_scale, 0.0, lo_open=True)
+        store(self, "r_scale", check_range("tuned.r_scale", self.r_scale, 0.0, lo_open=True))
         check_choice("tuned.method", self.method, (*OPTIMIZERS, "none"))
 
     @classmethod

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import Truth
 from imm_gym.tracking.conversions import ctra_transition
-from imm_gym.validation import ConfigError, check_int, check_range
+from imm_gym.validation import ConfigError, check_int, check_range, check_sequence, store
 
 Array = NDArray[np.float64]
 
@@ -101,6 +101,14 @@ def profile_truth(
     return Truth(cart, omega, accel, T, heading=psi)
 
 
+def _check_ranges(family: object, names: tuple[str, ...]) -> None:
+    """Check and store the ``(low, high)`` fields ``names`` of ``family``: ``0 < low <= high``."""
+    for name in names:
+        lo, hi = check_sequence(f"family.{name} (low, high)", getattr(family, name), 2)
+        lo = check_range(f"family.{name}[0]", lo, 0.0, lo_open=True)
+        store(family, name, (lo, check_range(f"family.{name}[1]", hi, lo)))
+
+
 @dataclass(frozen=True)
 class DrivingFamily:
     """Seed-002-like trajectories (T = 0.1 s, 67 s): straight, gentle S-curve, two sharp 90° turns.
@@ -123,11 +131,8 @@ class DrivingFamily:
     T: float = 0.1
 
     def __post_init__(self) -> None:
-        for name in ("cruise", "curve", "turn", "s_rate"):
-            lo, hi = getattr(self, name)
-            check_range(f"family.{name}[0]", lo, 0.0, lo_open=True)
-            check_range(f"family.{name}[1]", hi, lo)
-        check_range("family.T", self.T, 0.0, 0.5, lo_open=True)
+        _check_ranges(self, ("cruise", "curve", "turn", "s_rate"))
+        store(self, "T", check_range("family.T", self.T, 0.0, 0.5, lo_open=True))
 
     def segments(self, rng: np.random.Generator) -> tuple[list[tuple[float, float, float]], float]:
         """``[(duration s, omega, accel)]`` and the initial speed of one draw."""
@@ -270,11 +275,8 @@ class ManeuverFamily:
     T: float = 0.1
 
     def __post_init__(self) -> None:
-        for name in ("rate_scale", "accel_scale", "speed"):
-            lo, hi = getattr(self, name)
-            check_range(f"family.{name}[0]", lo, 0.0, lo_open=True)
-            check_range(f"family.{name}[1]", hi, lo)
-        check_range("family.T", self.T, 0.0, 1.0, lo_open=True)
+        _check_ranges(self, ("rate_scale", "accel_scale", "speed"))
+        store(self, "T", check_range("family.T", self.T, 0.0, 1.0, lo_open=True))
 
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""

@@ -9,16 +9,24 @@ that contains it; state 0 is the start.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, ct_ratios, ct_transition
-from imm_gym.validation import ConfigError, check_finite, check_int, check_range
+from imm_gym.validation import (
+    ConfigError,
+    check_finite,
+    check_int,
+    check_range,
+    check_sequence,
+    from_dict,
+    store,
+)
 
 Array = NDArray[np.float64]
 
@@ -60,9 +68,9 @@ class Segment:
     accel: float = 0.0
 
     def __post_init__(self) -> None:
-        check_int("segment.duration", self.duration, 1)
-        check_finite("segment.turn_rate_deg", self.turn_rate_deg)
-        check_finite("segment.accel", self.accel)
+        store(self, "duration", check_int("segment.duration", self.duration, 1))
+        store(self, "turn_rate_deg", check_finite("segment.turn_rate_deg", self.turn_rate_deg))
+        store(self, "accel", check_finite("segment.accel", self.accel))
         if self.turn_rate_deg != 0.0 and self.accel != 0.0:
             raise ConfigError("a segment has either turn_rate_deg or accel non-zero, not both")
 
@@ -72,6 +80,16 @@ class Segment:
         if self.turn_rate_deg != 0.0:
             return "turn"
         return "accel" if self.accel != 0.0 else "straight"
+
+
+def _segment(i: int, value: Segment | Mapping[str, Any]) -> Segment:
+    """Entry ``i`` of ``scenario.segments``: a :class:`Segment` or a mapping of its fields."""
+    try:
+        return from_dict(Segment, value, f"scenario.segments[{i}]")
+    except ConfigError as err:
+        if str(err).startswith(f"scenario.segments[{i}]"):
+            raise
+        raise ConfigError(f"scenario.segments[{i}]: {err}") from None
 
 
 @dataclass(frozen=True)
@@ -95,29 +113,18 @@ class Scenario:
 
     def __post_init__(self) -> None:
         segs = tuple(
-            s if isinstance(s, Segment) else Segment(**s)
-            for s in self.segments  # type: ignore[arg-type]
+            _segment(i, s) for i, s in enumerate(check_sequence("scenario.segments", self.segments))
         )
         if not segs:
             raise ConfigError("scenario.segments must contain at least one segment")
-        object.__setattr__(self, "segments", segs)
-        if len(self.position) != 2 or len(self.velocity) != 2:
-            raise ConfigError("scenario.position and scenario.velocity must have 2 entries")
-        object.__setattr__(
-            self, "position", tuple(check_finite("scenario.position", v) for v in self.position)
-        )
-        object.__setattr__(
-            self, "velocity", tuple(check_finite("scenario.velocity", v) for v in self.velocity)
-        )
-        check_range("scenario.T", self.T, 0.0, lo_open=True)
+        store(self, "segments", segs)
+        for name in ("position", "velocity"):
+            value = check_sequence(f"scenario.{name}", getattr(self, name), 2)
+            store(self, name, tuple(check_finite(f"scenario.{name}", v) for v in value))
+        store(self, "T", check_range("scenario.T", self.T, 0.0, lo_open=True))
         if self.truth_q is not None:
-            if len(self.truth_q) != 4:
-                raise ConfigError("scenario.truth_q must have 4 entries (x, y, vx, vy) or be None")
-            object.__setattr__(
-                self,
-                "truth_q",
-                tuple(check_range("scenario.truth_q", v, 0.0) for v in self.truth_q),
-            )
+            q = check_sequence("scenario.truth_q (x, y, vx, vy)", self.truth_q, 4)
+            store(self, "truth_q", tuple(check_range("scenario.truth_q", v, 0.0) for v in q))
 
     @property
     def horizon(self) -> int:
@@ -173,23 +180,24 @@ class RandomFamily:
     truth_q: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        check_int("family.horizon", self.horizon, 1)
-        check_int("family.min_duration", self.min_duration, 1)
-        for name, (lo, hi), low in (
-            ("family.range_m", self.range_m, 0.0),
-            ("family.speed", self.speed, 0.0),
-            ("family.turn_rate_deg", self.turn_rate_deg, 0.0),
-        ):
-            check_range(f"{name}[0]", lo, low)
-            check_range(f"{name}[1]", hi, lo)
-        n_lo = check_int("family.n_segments[0]", self.n_segments[0], 1)
-        check_int("family.n_segments[1]", self.n_segments[1], n_lo)
+        store(self, "horizon", check_int("family.horizon", self.horizon, 1))
+        store(self, "min_duration", check_int("family.min_duration", self.min_duration, 1))
+        for name in ("range_m", "speed", "turn_rate_deg"):
+            lo, hi = check_sequence(f"family.{name} (low, high)", getattr(self, name), 2)
+            lo = check_range(f"family.{name}[0]", lo, 0.0)
+            store(self, name, (lo, check_range(f"family.{name}[1]", hi, lo)))
+        n_lo, n_hi = check_sequence("family.n_segments (low, high)", self.n_segments, 2)
+        n_lo = check_int("family.n_segments[0]", n_lo, 1)
+        store(self, "n_segments", (n_lo, check_int("family.n_segments[1]", n_hi, n_lo)))
         if self.n_segments[1] * self.min_duration > self.horizon:
             raise ConfigError(
                 f"family.n_segments[1] * family.min_duration must be <= family.horizon "
                 f"({self.n_segments[1]} * {self.min_duration} > {self.horizon})"
             )
-        check_range("family.T", self.T, 0.0, lo_open=True)
+        store(self, "T", check_range("family.T", self.T, 0.0, lo_open=True))
+        if self.truth_q is not None:
+            q = check_sequence("family.truth_q (x, y, vx, vy)", self.truth_q, 4)
+            store(self, "truth_q", tuple(check_range("family.truth_q", v, 0.0) for v in q))
 
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`TruthSource`): a scenario drawn from each

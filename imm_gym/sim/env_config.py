@@ -20,7 +20,14 @@ from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, paper_bank
 from imm_gym.tracking.sensors import Sonar
-from imm_gym.validation import ConfigError, check_choice, check_range, from_dict
+from imm_gym.validation import (
+    ConfigError,
+    check_choice,
+    check_range,
+    check_sequence,
+    from_dict,
+    store,
+)
 
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
@@ -109,13 +116,13 @@ class EnvConfig:
 
     def __post_init__(self) -> None:
         if isinstance(self.scenario, Mapping):
-            object.__setattr__(self, "scenario", from_dict(Scenario, self.scenario, "scenario"))
+            store(self, "scenario", from_dict(Scenario, self.scenario, "scenario"))
         elif not isinstance(self.scenario, Scenario):
             check_choice("scenario", self.scenario, ("random", *SCENARIOS))
         for name, cls in (("family", RandomFamily), ("sensor", Sonar)):
             value = getattr(self, name)
             if isinstance(value, Mapping):
-                object.__setattr__(self, name, from_dict(cls, value, name))
+                store(self, name, from_dict(cls, value, name))
             elif not isinstance(value, cls):
                 raise ConfigError(f"{name} must be a {cls.__name__} or a mapping")
         if isinstance(self.bank, (Mapping, HeteroBank)):
@@ -124,34 +131,38 @@ class EnvConfig:
                 raise ConfigError("a heterogeneous bank (NCV/CT/CTRA) needs filter 'ekf'")
         else:
             bank = tuple(
-                from_dict(MotionModel, m, "bank[i]") if isinstance(m, Mapping) else m
-                for m in self.bank
+                from_dict(MotionModel, m, f"bank[{i}]") if isinstance(m, Mapping) else m
+                for i, m in enumerate(check_sequence("bank", self.bank))
             )
             if len(bank) < 2 or not all(isinstance(m, MotionModel) for m in bank):
                 raise ConfigError("bank must hold at least 2 MotionModel entries")
-        object.__setattr__(self, "bank", bank)
+        store(self, "bank", bank)
         check_choice("filter", self.filter, tuple(f for f in FILTERS if f != "kf"))
         M = len(bank)
-        check_range("initial_stay", self.initial_stay, 0.0, 1.0)
-        check_range("p_min", self.p_min, 0.0, 1.0 / M, hi_open=True)
+        store(self, "initial_stay", check_range("initial_stay", self.initial_stay, 0.0, 1.0))
+        store(self, "p_min", check_range("p_min", self.p_min, 0.0, 1.0 / M, hi_open=True))
         check_choice("action_mode", self.action_mode, ACTION_MODES)
-        check_range("max_factor", self.max_factor, 1.0, lo_open=True)
-        check_range("logit_scale", self.logit_scale, 0.0, lo_open=True)
+        store(self, "max_factor", check_range("max_factor", self.max_factor, 1.0, lo_open=True))
+        store(self, "logit_scale", check_range("logit_scale", self.logit_scale, 0.0, lo_open=True))
         if not isinstance(self.parallel, bool):
             raise ConfigError(f"parallel must be a bool, got {self.parallel!r}")
         check_choice("shadow", self.shadow, SHADOWS)
         if self.shadow_stay is not None:
-            check_range("shadow_stay", self.shadow_stay, 0.0, 1.0)
+            store(self, "shadow_stay", check_range("shadow_stay", self.shadow_stay, 0.0, 1.0))
         check_choice("reward", self.reward, REWARDS)
         if REWARD_TERMS[self.reward].needs_shadow and self.shadow == "none":
             raise ConfigError(f"reward {self.reward!r} needs shadow 'fixed'")
-        check_range("reward_scale", self.reward_scale, 0.0, lo_open=True)
-        check_range("tpm_cost", self.tpm_cost, 0.0)
+        store(
+            self,
+            "reward_scale",
+            check_range("reward_scale", self.reward_scale, 0.0, lo_open=True),
+        )
+        store(self, "tpm_cost", check_range("tpm_cost", self.tpm_cost, 0.0))
         if self.tpm_cost > 0.0 and self.shadow == "none":
             raise ConfigError("tpm_cost > 0 needs shadow 'fixed' (the TPM it is measured from)")
-        features = tuple(self.obs_features)
-        for f in features:
-            check_choice("obs_features[i]", f, OBS_FEATURES)
+        features = check_sequence("obs_features", self.obs_features)
+        for i, f in enumerate(features):
+            check_choice(f"obs_features[{i}]", f, OBS_FEATURES)
         if len(set(features)) != len(features):
             raise ConfigError(f"obs_features has duplicates: {features}")
         for f in features:
@@ -159,11 +170,9 @@ class EnvConfig:
                 raise ConfigError(f"obs_features {f!r} needs parallel=True")
             if FEATURES[f].needs_shadow and self.shadow == "none":
                 raise ConfigError(f"obs_features {f!r} needs shadow 'fixed'")
-        object.__setattr__(self, "obs_features", features)
-        check_range("loglik_clip", self.loglik_clip, 0.0, lo_open=True)
-        check_range("velocity_std", self.velocity_std, 0.0, lo_open=True)
-        check_range("divergence_error", self.divergence_error, 0.0, lo_open=True)
-        check_range("divergence_cov", self.divergence_cov, 0.0, lo_open=True)
+        store(self, "obs_features", features)
+        for name in ("loglik_clip", "velocity_std", "divergence_error", "divergence_cov"):
+            store(self, name, check_range(name, getattr(self, name), 0.0, lo_open=True))
         check_choice("engine", self.engine, ENGINES)
 
     @property

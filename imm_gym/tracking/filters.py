@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.tracking.linalg import LOG_2PI, inv_logdet, sym_eig, symmetrize
-from imm_gym.validation import ConfigError, check_range
+from imm_gym.validation import ConfigError, check_range, store
 
 Array = NDArray[np.float64]
 
@@ -170,9 +170,9 @@ class UnscentedKalmanFilter:
     name = "ukf"
 
     def __post_init__(self) -> None:
-        check_range("ukf.alpha", self.alpha, 0.0, 1.0, lo_open=True)
-        check_range("ukf.beta", self.beta, 0.0)
-        check_range("ukf.kappa", self.kappa, 0.0)
+        store(self, "alpha", check_range("ukf.alpha", self.alpha, 0.0, 1.0, lo_open=True))
+        store(self, "beta", check_range("ukf.beta", self.beta, 0.0))
+        store(self, "kappa", check_range("ukf.kappa", self.kappa, 0.0))
 
     def weights(self, n: int) -> tuple[Array, Array, float]:
         """Mean and covariance weights ``(2n+1,)`` and ``gamma = sqrt(n + lambda)``."""

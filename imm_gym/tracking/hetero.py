@@ -71,11 +71,19 @@ from imm_gym.tracking.imm import (
     mix,
     run,
     update_mode_probs,
+    used_measurements,
 )
 from imm_gym.tracking.linalg import inv_logdet, mahalanobis
 from imm_gym.tracking.models import MotionModel, bank_dim
 from imm_gym.tracking.tpm import validate_tpm
-from imm_gym.validation import ConfigError, check_choice, check_range
+from imm_gym.validation import (
+    ConfigError,
+    check_choice,
+    check_int,
+    check_range,
+    check_sequence,
+    store,
+)
 
 Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -102,15 +110,9 @@ class HeteroModel:
     def __post_init__(self) -> None:
         check_choice("model.kind", self.kind, HETERO_KINDS)
         want = 1 if self.kind == "ncv" else 2
-        if len(self.sigma) != want:
-            raise ConfigError(
-                f"model.sigma must have {want} entries for a {self.kind!r} model, "
-                f"got {self.sigma!r}"
-            )
-        object.__setattr__(
-            self, "sigma", tuple(check_range("model.sigma", s, 0.0) for s in self.sigma)
-        )
-        check_range("model.q_scale", self.q_scale, 0.0, lo_open=True)
+        sigma = check_sequence(f"model.sigma (a {self.kind!r} model)", self.sigma, want)
+        store(self, "sigma", tuple(check_range("model.sigma", s, 0.0) for s in sigma))
+        store(self, "q_scale", check_range("model.q_scale", self.q_scale, 0.0, lo_open=True))
 
     @property
     def space(self) -> str:
@@ -178,9 +180,11 @@ class LinearModel:
     q_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.dim not in (4, 6):
+        dim = check_int("model.dim (the bank's state: 4 or 6)", self.dim, 4, 6)
+        if dim == 5:
             raise ConfigError(f"model.dim must be 4 or 6 (the bank's state), got {self.dim!r}")
-        check_range("model.q_scale", self.q_scale, 0.0, lo_open=True)
+        store(self, "dim", dim)
+        store(self, "q_scale", check_range("model.q_scale", self.q_scale, 0.0, lo_open=True))
 
     @property
     def space(self) -> str:
@@ -237,36 +241,44 @@ class HeteroBank:
     accel_var: float = 1.0
 
     def __post_init__(self) -> None:
-        models = tuple(self.models)
+        models = check_sequence("bank.models", self.models)
         if len(models) < 2:
             raise ConfigError(f"bank.models must hold at least 2 models, got {models!r}")
-        for k in models:
-            check_choice("bank.models[i]", k, HETERO_KINDS)
-        object.__setattr__(self, "models", models)
+        for i, k in enumerate(models):
+            check_choice(f"bank.models[{i}]", k, HETERO_KINDS)
+        store(self, "models", models)
         M = len(models)
-        scale = (1.0,) * M if self.q_scale is None else tuple(self.q_scale)
-        if len(scale) != M:
-            raise ConfigError(f"bank.q_scale must have {M} entries (one per model), got {scale!r}")
-        for s in scale:
-            check_range("bank.q_scale[i]", s, 0.0, lo_open=True)
-        object.__setattr__(self, "q_scale", scale)
-        check_range("bank.sigma_ncv", self.sigma_ncv, 0.0)
+        if self.q_scale is None:
+            scale = (1.0,) * M
+        else:
+            scale = check_sequence("bank.q_scale (one entry per model)", self.q_scale, M)
+        store(
+            self,
+            "q_scale",
+            tuple(
+                check_range(f"bank.q_scale[{i}]", s, 0.0, lo_open=True) for i, s in enumerate(scale)
+            ),
+        )
+        store(self, "sigma_ncv", check_range("bank.sigma_ncv", self.sigma_ncv, 0.0))
         for name in ("sigma_ct", "sigma_ctra"):
-            value = tuple(getattr(self, name))
-            if len(value) != 2:
-                raise ConfigError(f"bank.{name} must have 2 entries, got {value!r}")
-            for s in value:
-                check_range(f"bank.{name}[i]", s, 0.0)
-            object.__setattr__(self, name, value)
+            value = check_sequence(f"bank.{name}", getattr(self, name), 2)
+            store(
+                self,
+                name,
+                tuple(check_range(f"bank.{name}[{i}]", s, 0.0) for i, s in enumerate(value)),
+            )
         if self.initial_probs is not None:
-            p = tuple(float(v) for v in self.initial_probs)
-            if len(p) != M or min(p) < 0 or abs(sum(p) - 1.0) > 1e-9:
+            p = tuple(
+                check_range(f"bank.initial_probs[{i}]", v, 0.0, 1.0)
+                for i, v in enumerate(check_sequence("bank.initial_probs", self.initial_probs, M))
+            )
+            if abs(sum(p) - 1.0) > 1e-9:
                 raise ConfigError(
                     f"bank.initial_probs must have {M} non-negative entries summing to 1, got {p!r}"
                 )
-            object.__setattr__(self, "initial_probs", p)
-        check_range("bank.turn_rate_var", self.turn_rate_var, 0.0, lo_open=True)
-        check_range("bank.accel_var", self.accel_var, 0.0, lo_open=True)
+            store(self, "initial_probs", p)
+        for name in ("turn_rate_var", "accel_var"):
+            store(self, name, check_range(f"bank.{name}", getattr(self, name), 0.0, lo_open=True))
 
     def __len__(self) -> int:
         return len(self.models)
@@ -477,8 +489,7 @@ class HeteroIMM:
             z = np.asarray(z, dtype=np.float64)
             if z.shape != (N, self.sensor.dim_z):
                 raise ConfigError(f"z must have shape ({N}, {self.sensor.dim_z}), got {z.shape}")
-            if not np.all(np.isfinite(z)):
-                raise ConfigError("z must be finite (mark missed detections with detected=False)")
+            z = used_measurements(z, det)
             _check_scales("q_scale", q_scale, (N, M))
             _check_scales("r_scale", r_scale, (N,))
         R = self.sensor.R if r_scale is None else np.asarray(r_scale)[:, None, None] * self.sensor.R

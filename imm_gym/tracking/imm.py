@@ -34,7 +34,7 @@ from imm_gym.tracking.kernels import imm as kernels
 from imm_gym.tracking.linalg import inv_logdet, mahalanobis
 from imm_gym.tracking.models import MotionModel, bank_dim
 from imm_gym.tracking.tpm import validate_tpm
-from imm_gym.validation import ConfigError
+from imm_gym.validation import ConfigError, check_range
 
 Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -114,6 +114,28 @@ class IMMResult:
     nis: Array
     failed: BoolArray
     z_pred: Array | None = None
+
+
+def used_measurements(z: Array, detected: BoolArray | None) -> Array:
+    """``z`` ``(..., m)`` after checking that every measurement used is finite.
+
+    A missed detection's measurement (``detected`` False, same leading shape as ``z``) is not
+    used by the filters, so it may hold anything, NaN included: a row of ``z`` that is not finite
+    there is replaced by zeros (any finite value gives the same outputs). ``z`` is returned as
+    given when it is finite.
+
+    Raises:
+        ConfigError: a measurement marked detected (or every one, without ``detected``) is not
+            finite.
+    """
+    finite = np.isfinite(z).all(axis=-1)
+    if finite.all():
+        return z
+    if detected is None or not finite[detected].all():
+        raise ConfigError(
+            "z must be finite where detected (mark missed detections with detected=False)"
+        )
+    return np.where(finite[..., None], z, 0.0)
 
 
 def moment_match(w: Array, x: Array, P: Array) -> tuple[Array, Array]:
@@ -284,7 +306,7 @@ class IMM:
         self.filter = make_filter(filter) if isinstance(filter, str) else filter
         if self.filter.name == "kf" and sensor.linear_matrix(4) is None:
             raise ConfigError("filter 'kf' needs a linear sensor; use 'ekf' or 'ukf' for the sonar")
-        self.T = float(T)
+        self.T = check_range("T", T, 0.0, lo_open=True)
         self.n = bank_dim(self.models)
         self.F = np.stack([m.transition_matrix(self.T, self.n) for m in self.models])
         self.Q = np.stack([m.noise_covariance(self.n) for m in self.models])
@@ -426,8 +448,7 @@ class IMM:
             z = np.asarray(z, dtype=np.float64)
             if z.shape != (N, self.sensor.dim_z):
                 raise ConfigError(f"z must have shape ({N}, {self.sensor.dim_z}), got {z.shape}")
-            if not np.all(np.isfinite(z)):
-                raise ConfigError("z must be finite (mark missed detections with detected=False)")
+            z = used_measurements(z, detected)
         if self.engine == "compiled":
             return self._step_compiled(state, tpm, z, detected, allow_failure)
         cbar, x0, P0 = mix(state.mu, state.x, state.P, tpm)
@@ -553,12 +574,11 @@ def run(
     if z.ndim != 3 or z.shape[-1] != dim_z:
         raise ConfigError(f"z must have shape (K, m) or (N, K, m) with m = {dim_z}, got {z.shape}")
     N, K, _ = z.shape
-    if not np.all(np.isfinite(z)):
-        raise ConfigError("z must be finite (mark missed detections with detected=False)")
     if detected is not None and np.shape(detected) != (N, K):
         raise ConfigError(
             f"detected must have shape {(N, K)[1 if single else 0 :]}, got {np.shape(detected)}"
         )
+    z = used_measurements(z, None if detected is None else np.asarray(detected, dtype=bool))
     tpm = validate_tpm(tpm, tracker.n_models)
     state = tracker.init(x0, P0, mode_probs)
     if state.x.shape[0] == 1 and N > 1:

@@ -19,7 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.validation import ConfigError, check_choice, check_finite, check_range
+from imm_gym.validation import (
+    ConfigError,
+    check_choice,
+    check_finite,
+    check_range,
+    check_sequence,
+    store,
+)
 
 Array = NDArray[np.float64]
 
@@ -100,16 +107,16 @@ class MotionModel:
 
     def __post_init__(self) -> None:
         check_choice("model.kind", self.kind, MODEL_KINDS)
-        check_finite("model.turn_rate_deg", self.turn_rate_deg)
-        if self.kind == "ct" and self.turn_rate_deg == 0.0:
+        turn = store(self, "turn_rate_deg", check_finite("model.turn_rate_deg", self.turn_rate_deg))
+        if self.kind == "ct" and turn == 0.0:
             raise ConfigError("model.turn_rate_deg must be non-zero for a 'ct' model (use 'cv')")
-        if self.kind != "ct" and self.turn_rate_deg != 0.0:
+        if self.kind != "ct" and turn != 0.0:
             raise ConfigError(f"model.turn_rate_deg must be 0 for a {self.kind!r} model")
-        want = 6 if self.kind == "ca" else 4
-        if len(self.q) != want:
-            raise ConfigError(f"model.q must have {want} entries for a {self.kind!r} model")
-        object.__setattr__(self, "q", tuple(check_range("model.q", v, 0.0) for v in self.q))
-        check_range("model.q_acc", self.q_acc, 0.0, lo_open=True)
+        q = check_sequence(
+            f"model.q (a {self.kind!r} model)", self.q, 6 if self.kind == "ca" else 4
+        )
+        store(self, "q", tuple(check_range("model.q", v, 0.0) for v in q))
+        store(self, "q_acc", check_range("model.q_acc", self.q_acc, 0.0, lo_open=True))
 
     @property
     def dim(self) -> int:

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.tracking.linalg import wrap_angle
-from imm_gym.validation import ConfigError, check_finite, check_range
+from imm_gym.validation import ConfigError, check_finite, check_range, check_sequence, store
 
 Array = NDArray[np.float64]
 
@@ -48,9 +48,13 @@ class _Clutter:
     detection_prob: float = 1.0
 
     def _check_clutter(self, prefix: str) -> None:
-        check_range(f"{prefix}.outlier_prob", self.outlier_prob, 0.0, 1.0)
-        check_range(f"{prefix}.outlier_scale", self.outlier_scale, 1.0)
-        check_range(f"{prefix}.detection_prob", self.detection_prob, 0.0, 1.0, lo_open=True)
+        for name, lo, hi, lo_open in (
+            ("outlier_prob", 0.0, 1.0, False),
+            ("outlier_scale", 1.0, math.inf, False),
+            ("detection_prob", 0.0, 1.0, True),
+        ):
+            value = check_range(f"{prefix}.{name}", getattr(self, name), lo, hi, lo_open=lo_open)
+            store(self, name, value)
 
     def measure(self, states: Array, rngs: Sequence[np.random.Generator]) -> Measurements:
         """Draw measurements of true states ``(N, K+1, 4)``, one generator per run.
@@ -104,13 +108,14 @@ class Sonar(_Clutter):
     dim_z = 2
 
     def __post_init__(self) -> None:
-        check_range("sonar.sigma_r", self.sigma_r, 0.0, lo_open=True)
-        check_range("sonar.sigma_theta_deg", self.sigma_theta_deg, 0.0, 180.0, lo_open=True)
-        if len(self.position) != 2:
-            raise ConfigError("sonar.position must have 2 entries (x, y)")
-        object.__setattr__(
-            self, "position", tuple(check_finite("sonar.position", v) for v in self.position)
+        store(self, "sigma_r", check_range("sonar.sigma_r", self.sigma_r, 0.0, lo_open=True))
+        store(
+            self,
+            "sigma_theta_deg",
+            check_range("sonar.sigma_theta_deg", self.sigma_theta_deg, 0.0, 180.0, lo_open=True),
         )
+        position = check_sequence("sonar.position", self.position, 2)
+        store(self, "position", tuple(check_finite("sonar.position", v) for v in position))
         self._check_clutter("sonar")
 
     @property
@@ -197,9 +202,11 @@ class PositionSensor(_Clutter):
     sigma_vel: float | None = None
 
     def __post_init__(self) -> None:
-        check_range("position_sensor.sigma_pos", self.sigma_pos, 0.0, lo_open=True)
+        sigma_pos = check_range("position_sensor.sigma_pos", self.sigma_pos, 0.0, lo_open=True)
+        store(self, "sigma_pos", sigma_pos)
         if self.sigma_vel is not None:
-            check_range("position_sensor.sigma_vel", self.sigma_vel, 0.0, lo_open=True)
+            sigma_vel = check_range("position_sensor.sigma_vel", self.sigma_vel, 0.0, lo_open=True)
+            store(self, "sigma_vel", sigma_vel)
         self._check_clutter("position_sensor")
 
     @property

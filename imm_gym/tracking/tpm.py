@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import rel_entr
 
-from imm_gym.validation import ConfigError, check_range
+from imm_gym.validation import ConfigError, check_int, check_range
 
 Array = NDArray[np.float64]
 
@@ -26,9 +26,8 @@ def stay_tpm(n_models: int, stay: float) -> Array:
     ``stay = 0.995`` with M = 3 is the paper-preset fixed TPM (SPEC §6); ``stay = 1/M`` is the
     uniform TPM.
     """
-    if n_models < 1:
-        raise ConfigError(f"n_models must be >= 1, got {n_models}")
-    check_range("stay", stay, 0.0, 1.0)
+    n_models = check_int("n_models", n_models, 1)
+    stay = check_range("stay", stay, 0.0, 1.0)
     if n_models == 1:
         return np.ones((1, 1))
     tpm = np.full((n_models, n_models), (1.0 - stay) / (n_models - 1))
