@@ -13,7 +13,9 @@ Example::
 
 ``--json`` writes ``{"policies": {NAME: {"armse_pos": ..., "armse_pos_x": ..., "armse_pos_y": ...,
 "armse_vel_x": ..., "armse_vel_y": ..., ...}}, "clairvoyant": {...}, "paired": {...},
-"meta": {...}}``.
+"meta": {...}}``; with ``--runs 1`` the paired differences' confidence bounds ``low`` and
+``high`` are null (undefined). ``--json`` and ``--plots`` are checked before anything is evaluated:
+an output that cannot be written is a usage error (exit 2).
 
 The best fixed TPM is searched on training runs whose seeds (``seed + 1_000_000 + r``) never
 overlap the evaluation seeds.
@@ -23,13 +25,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from baselines import REGISTRY, Baseline, BuildContext
 from imm_gym.cli.tables import render_tables
@@ -69,7 +74,12 @@ def load_source(name: str) -> str | Scenario:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as err:
         raise ConfigError(f"scenario file {name}: not valid JSON ({err})") from None
-    return from_dict(Scenario, data, f"scenario file {name}")
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"scenario file {name}: cannot read ({err})") from None
+    try:
+        return from_dict(Scenario, data, "scenario")
+    except ConfigError as err:
+        raise ConfigError(f"scenario file {name}: {err}") from None
 
 
 def make_policy(
@@ -159,7 +169,7 @@ def evaluate(
     results["paired"] = {
         "reference": ref,
         "differences": {
-            name: paired_bootstrap(r.squared_position_error, rollouts[ref].squared_position_error)
+            name: paired_difference(r.squared_position_error, rollouts[ref].squared_position_error)
             for name, r in rollouts.items()
             if name != ref
         },
@@ -177,6 +187,18 @@ def evaluate(
         "versions": _versions(),
     }
     return results, rollouts
+
+
+def paired_difference(
+    err2: NDArray[np.float64], err2_ref: NDArray[np.float64]
+) -> dict[str, float | None]:
+    """:func:`~imm_gym.evaluation.rollout.paired_bootstrap` of ``(R, K)`` squared errors against
+    the reference's; with one run (R = 1) every resample is that run, so the confidence interval
+    is undefined: ``low`` and ``high`` are None (JSON null)."""
+    d: dict[str, float | None] = {**paired_bootstrap(err2, err2_ref)}
+    if err2.shape[0] < 2:
+        d["low"] = d["high"] = None
+    return d
 
 
 def clairvoyant_bound(base: EnvConfig, runs: int, seed: int) -> dict[str, float]:
@@ -268,6 +290,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def output_problem(path: Path, kind: str) -> str | None:
+    """Why ``path`` cannot receive the output ``kind`` (``"file"`` or ``"directory"``), or None.
+
+    Checked before any evaluation runs, so an unwritable output costs nothing: ``path`` must not
+    be an existing entry of the other kind, and a file must be created (a temporary one, removed
+    at once) in it (a directory), next to it (a file) or in the nearest existing ancestor (where
+    the missing directories will go).
+    """
+    if path.exists():
+        if kind == "file" and path.is_dir():
+            return "is a directory; give a file name"
+        if kind == "directory" and not path.is_dir():
+            return "exists and is not a directory"
+    target = path if path.is_dir() else path.absolute().parent
+    while not target.exists():
+        target = target.parent
+    if not target.is_dir():
+        return f"{target} is not a directory"
+    try:
+        with tempfile.TemporaryFile(dir=target):
+            pass
+    except OSError as err:
+        return f"cannot write in {target} ({err.strerror or err})"
+    if path.is_file() and not os.access(path, os.W_OK):
+        return "is not writable"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -275,6 +325,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--runs must be >= 1, got {args.runs}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
+    for flag, path, kind in (("--json", args.json, "file"), ("--plots", args.plots, "directory")):
+        problem = None if path is None else output_problem(path, kind)
+        if problem:
+            parser.error(f"{flag} {str(path)!r}: {problem}")
     if args.scenario in SYSTEMS:
         return _main_system(parser, args)
     try:

@@ -61,7 +61,7 @@ def render_tables(results: dict[str, Any]) -> None:
             diff.add_row(
                 name,
                 f"{d['diff']:+.3f}",
-                f"[{d['low']:+.3f}, {d['high']:+.3f}]",
+                "undefined (1 run)" if d["low"] is None else f"[{d['low']:+.3f}, {d['high']:+.3f}]",
                 f"{100 * d['relative']:+.2f}%",
             )
         console.print(diff)
