@@ -10,10 +10,12 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
+from imm_gym.envs.render import CoreRenderer, scenario_title
 from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import datasheet_table
+from imm_gym.sim.render import RENDER_FPS
 
 
 class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -72,6 +74,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     | name      | type                    | default  | meaning                                    |
     |-----------|-------------------------|----------|--------------------------------------------|
     | config    | EnvConfig or dict       | preset   | the full configuration (replaces the preset)|
+    | render_mode | str or None           | None     | ``"rgb_array"``, ``"human"`` (see Rendering)|
     | **kwargs  | EnvConfig fields        |          | override single fields, e.g. parallel=True |
 
     ``gymnasium.make("imm_gym/TPMAdapt-v0", parallel=True, obs_features=("tpm", "loglik"))``.
@@ -81,6 +84,19 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ``true_state``, ``true_model`` (bank index of the true motion, −1 if none), ``estimate``,
     ``covariance``, ``position_error``, ``shadow_position_error``, ``mode_probs``, ``loglik``,
     ``model_nis``, ``nis``, ``detected``, ``tpm``, ``step``, ``diverged``, ``reward_*``.
+
+    ## Rendering
+    ``render_mode="rgb_array"``: ``render()`` returns the picture of the current step, an
+    ``(H, W, 3)`` ``uint8`` array (640 x 400) drawn by matplotlib's Agg canvas into one figure
+    reused across steps (:mod:`imm_gym.sim.render`): the sensor, the truth, the combined
+    estimates and the measurements so far (outliers and missed detections marked), a zoom on the
+    target with the estimate's 95 % covariance ellipse, the TPM the step used and the mode
+    probabilities of the last 40 steps under the true model. ``render_mode="human"`` draws the
+    same picture in a pyplot window at every ``reset`` and ``step`` (``metadata["render_fps"]``
+    pictures per second) when pyplot's backend is interactive; without a display (the Agg
+    backend) the pictures are drawn and not shown. Without a render mode nothing is recorded or
+    drawn. ``gymnasium.wrappers.RecordVideo`` records the ``"rgb_array"`` frames (it needs
+    moviepy).
 
     ## Seeding
     ``reset(seed=s)`` derives two streams from ``s`` — scenario and sensor noise — so two
@@ -97,7 +113,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     * v0: initial release.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": RENDER_FPS}
 
     def __init__(
         self,
@@ -105,12 +121,23 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         render_mode: str | None = None,
         **kwargs: Any,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"TPMAdaptEnv has no render modes, got render_mode={render_mode!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
         self.config = EnvConfig.build(config, **kwargs)
         self.core = TrackingCore(self.config, n_envs=1)
         self.observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (self.core.action_dim,), dtype=np.float32)
+        self.render_mode = render_mode
+        self._renderer = (
+            None
+            if render_mode is None
+            else CoreRenderer(
+                self.core, window=render_mode == "human", title=scenario_title(self.config.scenario)
+            )
+        )
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -118,6 +145,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         super().reset(seed=seed)
         self.core.reset(np.array([0]), [seed])
         info = {"true_state": self.core.truth[0, 0].copy(), "tpm": self.core.tpm[0].copy()}
+        if self._renderer is not None:
+            self._renderer.start(np.array([0]))
+            if self.render_mode == "human":
+                self._renderer.show()
         return self.core.observe()[0], info
 
     def step(
@@ -127,6 +158,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if a.shape != (self.core.action_dim,):
             raise ActionError(f"action must have shape ({self.core.action_dim},), got {a.shape}")
         result = self.core.step(a[None])
+        if self._renderer is not None:
+            self._renderer.record(result.info)
+            if self.render_mode == "human":
+                self._renderer.show()
         # row 0 of arrays created fresh by this step: a new object every call
         info = {key: value[0] for key, value in result.info.items()}
         return (
@@ -136,6 +171,24 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             bool(result.truncated[0]),
             info,
         )
+
+    def render(self) -> NDArray[np.uint8] | None:
+        """The current picture (``"rgb_array"``: an ``(H, W, 3)`` ``uint8`` frame; ``"human"``:
+        None, the window is drawn by ``reset`` and ``step``); see ``## Rendering``."""
+        if self._renderer is None:
+            gym.logger.warn(
+                "render() called without a render mode: make the env with "
+                "render_mode='rgb_array' or 'human'"
+            )
+            return None
+        if self.render_mode == "human":
+            return None
+        return self._renderer.frame()
+
+    def close(self) -> None:
+        """Release the render figure, if any."""
+        if self._renderer is not None:
+            self._renderer.close()
 
 
 # The observation table of the datasheet comes from the feature registry (one declaration each).

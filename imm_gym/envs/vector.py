@@ -5,15 +5,18 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
+from imm_gym.envs.render import CoreRenderer, scenario_title
 from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.render import RENDER_FPS
 
 
 class TPMAdaptVectorEnv(VectorEnv):
@@ -24,21 +27,38 @@ class TPMAdaptVectorEnv(VectorEnv):
     seed, including the later episodes of its autoresets. Autoreset mode ``NEXT_STEP``: the step
     after an episode ends resets that sub-env and returns its first observation with reward 0
     (its action is ignored). Infos are dicts of arrays with ``_key`` masks.
+
+    ``render_mode="rgb_array"``: ``render()`` returns a tuple of frames, one per sub-env of
+    ``render_envs`` (default: all of them, as Gymnasium's vector envs do; ``render_envs=[0]``
+    draws sub-env 0 only, a picture costs milliseconds), each the picture
+    :class:`~imm_gym.envs.tpm_adapt.TPMAdaptEnv` draws. For a window, wrap the env in
+    ``gymnasium.wrappers.vector.HumanRendering`` or use the scalar env's ``"human"`` mode.
     """
 
-    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata = {
+        "render_modes": ["rgb_array"],
+        "render_fps": RENDER_FPS,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
 
     def __init__(
         self,
         num_envs: int = 1,
         config: EnvConfig | Mapping[str, Any] | None = None,
         render_mode: str | None = None,
+        render_envs: Sequence[int] | None = None,
         **kwargs: Any,
     ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"no render modes, got render_mode={render_mode!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        envs = range(num_envs) if render_envs is None else render_envs
+        if not all(isinstance(i, int) and 0 <= i < num_envs for i in envs):
+            raise ValueError(f"render_envs must be indices in [0, {num_envs}), got {render_envs!r}")
         self.config = EnvConfig.build(config, **kwargs)
         self.num_envs = num_envs
         self.core = TrackingCore(self.config, n_envs=num_envs)
@@ -49,6 +69,15 @@ class TPMAdaptVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self._autoreset = np.zeros(num_envs, dtype=bool)
+        self.render_mode = render_mode
+        self.render_envs = tuple(envs)
+        self._renderer = (
+            None
+            if render_mode is None
+            else CoreRenderer(
+                self.core, title=scenario_title(self.config.scenario) + ", sub-env {slot}"
+            )
+        )
 
     def reset(
         self,
@@ -68,6 +97,8 @@ class TPMAdaptVectorEnv(VectorEnv):
                 raise ValueError(f"seed list must have {N} entries, got {len(seeds)}")
         self.core.reset(np.arange(N), seeds)
         self._autoreset[:] = False
+        if self._renderer is not None:
+            self._renderer.start(np.arange(N))
         return self.core.observe(), {}
 
     def step(
@@ -89,6 +120,9 @@ class TPMAdaptVectorEnv(VectorEnv):
             self.core.validate_action(a)  # a rejected action must not consume the autoresets
             self.core.reset(np.flatnonzero(restart), [None] * int(restart.sum()))
         result = self.core.step(a, active=~restart)
+        if self._renderer is not None:
+            self._renderer.start(np.flatnonzero(restart))
+            self._renderer.record(result.info, ~restart)
         obs, reward = result.obs, result.reward
         terminated, truncated = result.terminated, result.truncated
         if restart.any():
@@ -102,3 +136,20 @@ class TPMAdaptVectorEnv(VectorEnv):
             info[f"_{key}"] = stepped.copy()
         self._autoreset = terminated | truncated
         return obs, reward, terminated, truncated, info
+
+    def render(self) -> tuple[NDArray[np.uint8], ...] | None:
+        """The pictures of the sub-envs ``render_envs`` (all by default, as Gymnasium's
+        ``SyncVectorEnv`` returns them): a tuple of ``(H, W, 3)`` ``uint8`` frames, drawn as
+        :meth:`TPMAdaptEnv.render <imm_gym.envs.tpm_adapt.TPMAdaptEnv.render>` draws one."""
+        if self._renderer is None:
+            gym.logger.warn(
+                "render() called without a render mode: make the env with "
+                "render_mode='rgb_array'"
+            )
+            return None
+        return tuple(self._renderer.frame(i) for i in self.render_envs)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        """Release the render figure, if any."""
+        if self._renderer is not None:
+            self._renderer.close()

@@ -1,0 +1,247 @@
+"""The render modes: frames, determinism, the env checkers, the vector env's frames, the
+histories behind a picture, ``"human"`` without a display, and nothing done without a mode."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from PIL import Image
+
+import imm_gym.envs.tpm_adapt as tpm_adapt
+import imm_gym.envs.vector as vector
+from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
+from imm_gym.envs.render import outlying
+from imm_gym.sim.episodes import draw_batch
+from imm_gym.sim.render import CHI2_2_95, ellipse_axes
+
+PAPER = "imm_gym/TPMAdaptPaper-v0"
+#: a short episode with outliers and missed detections
+CLUTTER = {
+    "scenario": {"segments": [{"duration": 12}, {"duration": 13, "turn_rate_deg": 3.0}]},
+    "sensor": {"outlier_prob": 0.2, "detection_prob": 0.8},
+}
+
+
+def _frames(env: gym.Env, seed: int, steps: int) -> list[np.ndarray]:
+    env.reset(seed=seed)
+    frames = [env.render()]
+    action = np.full(env.action_space.shape, 0.3, dtype=np.float32)
+    for _ in range(steps):
+        env.step(action)
+        frames.append(env.render())
+    return frames
+
+
+def test_frames_are_rgb_uint8_change_every_step_and_repeat_with_the_seed() -> None:
+    env = gym.make(PAPER, render_mode="rgb_array")
+    first = _frames(env, 5, 6)
+    again = _frames(gym.make(PAPER, render_mode="rgb_array"), 5, 6)
+    other = _frames(env, 6, 6)
+    for frame in first:
+        assert frame.dtype == np.uint8 and frame.shape == (400, 640, 3)
+    for a, b in itertools.pairwise(first):
+        assert np.count_nonzero(np.any(a != b, axis=-1)) > 100  # the picture moves every step
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert any(np.any(a != b) for a, b in zip(first, other, strict=True))
+    assert env.render() is not first[-1]  # a fresh array every call
+
+
+def test_a_new_episode_redraws_the_scene() -> None:
+    """The scene's extent changes with the episode; the background must follow it."""
+    env = gym.make("imm_gym/TPMAdapt-v0", render_mode="rgb_array")
+    env.reset(seed=1)
+    env.render()
+    env.reset(seed=2)
+    after_switch = env.render()
+    fresh = gym.make("imm_gym/TPMAdapt-v0", render_mode="rgb_array")
+    fresh.reset(seed=2)
+    np.testing.assert_array_equal(after_switch, fresh.render())
+
+
+@pytest.mark.parametrize("mode", ["rgb_array", "human"])
+def test_gymnasium_checker_passes_without_warnings_with_a_render_mode(mode: str) -> None:
+    env = gym.make(PAPER, render_mode=mode)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    assert [f"{w.category.__name__}: {w.message}" for w in caught] == []
+    env.close()
+
+
+def test_passive_checker_is_silent_with_rgb_array() -> None:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = gym.make(PAPER, render_mode="rgb_array")
+        env.reset(seed=0)
+        env.render()
+        env.step(env.action_space.sample())
+        frame = env.render()
+    assert [str(w.message) for w in caught] == []
+    assert frame.shape == (400, 640, 3)
+
+
+def test_metadata_follows_gymnasium() -> None:
+    for cls in (TPMAdaptEnv, TPMAdaptVectorEnv):
+        assert "rgb_array" in cls.metadata["render_modes"]
+        assert cls.metadata["render_fps"] > 0
+    assert "human" in TPMAdaptEnv.metadata["render_modes"]
+
+
+def test_bad_render_modes_and_render_before_reset() -> None:
+    with pytest.raises(ValueError, match="render_mode"):
+        TPMAdaptEnv(render_mode="ansi")
+    with pytest.raises(ValueError, match="render_mode"):
+        TPMAdaptVectorEnv(2, render_mode="human")
+    with pytest.raises(ValueError, match="render_envs"):
+        TPMAdaptVectorEnv(2, render_mode="rgb_array", render_envs=[2])
+    with pytest.raises(RuntimeError, match="reset"):
+        TPMAdaptEnv(render_mode="rgb_array").render()
+
+
+def test_render_without_a_mode_warns_and_returns_none() -> None:
+    env = TPMAdaptEnv()
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match="render_mode"):
+        assert env.render() is None
+
+
+def test_rendering_off_builds_no_renderer(monkeypatch) -> None:
+    """Without a render mode no figure exists and no step records anything."""
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a renderer was built without a render mode")
+
+    monkeypatch.setattr(tpm_adapt, "CoreRenderer", refuse)
+    monkeypatch.setattr(vector, "CoreRenderer", refuse)
+    env = gym.make(PAPER)
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    venv = gym.make_vec(PAPER, num_envs=2, vectorization_mode="vector_entry_point")
+    venv.reset(seed=0)
+    venv.step(venv.action_space.sample())
+    with pytest.raises(AssertionError, match="renderer"):
+        gym.make(PAPER, render_mode="rgb_array")
+
+
+def test_human_mode_without_a_display_draws_and_returns_none() -> None:
+    import matplotlib.pyplot as plt
+
+    probe = plt.figure()
+    interactive = probe.canvas.required_interactive_framework is not None
+    plt.close(probe)
+    if interactive:
+        pytest.skip("a display exists: 'human' would open a window during the tests")
+    before = plt.get_fignums()
+    env = gym.make(PAPER, render_mode="human")
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    assert env.render() is None
+    assert plt.get_fignums() == before  # no pyplot figure left behind without a display
+    env.close()
+
+
+def test_vector_env_frames_are_the_sub_envs_pictures_through_autoresets() -> None:
+    """Sub-env i's picture data equals that of a scalar env reset with seed + i, also after an
+    autoreset; render() returns one frame per chosen sub-env."""
+    venv = TPMAdaptVectorEnv(3, config=CLUTTER, render_mode="rgb_array", render_envs=[0, 2])
+    scalars = [TPMAdaptEnv(config=CLUTTER, render_mode="rgb_array") for _ in range(3)]
+    venv.reset(seed=10)
+    for i, env in enumerate(scalars):
+        env.reset(seed=10 + i)
+    rng = np.random.default_rng(0)
+    horizon = 25
+    for k in range(horizon + 4):
+        actions = rng.uniform(-1, 1, (3, 9)).astype(np.float32)
+        venv.step(actions)
+        for i, env in enumerate(scalars):
+            if k == horizon:  # the vector env's autoreset step: the scalar envs reset
+                env.reset()
+            else:
+                env.step(actions[i])
+        if k in (3, horizon - 1, horizon, horizon + 3):
+            for i, env in enumerate(scalars):
+                a, b = venv._renderer.view(i), env._renderer.view(0)
+                assert a.step == b.step
+                for field in ("truth", "estimate", "covariance", "measurements", "detected",
+                              "outlier", "mode_probs", "true_model", "tpm"):
+                    np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    frames = venv.render()
+    assert isinstance(frames, tuple) and len(frames) == 2
+    assert all(f.shape == (400, 640, 3) and f.dtype == np.uint8 for f in frames)
+    assert np.any(frames[0] != frames[1])
+    assert len(TPMAdaptVectorEnv(2, render_mode="rgb_array").render_envs) == 2  # default: all
+
+
+def test_the_picture_marks_misses_and_outliers_of_the_episode() -> None:
+    env = TPMAdaptEnv(config=CLUTTER, render_mode="rgb_array")
+    env.reset(seed=3)
+    for _ in range(25):
+        env.step(np.zeros(9, dtype=np.float32))
+    view = env._renderer.view(0)
+    cfg = env.config
+    batch = draw_batch(cfg.source, cfg.sensor, 1, 3, cfg.velocity_std)
+    drawn = batch.measurements
+    np.testing.assert_array_equal(view.detected, drawn.detected[0])
+    assert not view.detected.all()
+    # the 4-sigma rule finds the inflated draws that landed far, and nothing else
+    true = drawn.outlier[0]
+    assert not np.any(view.outlier & ~true)
+    assert np.count_nonzero(view.outlier) >= 0.6 * np.count_nonzero(true) > 0
+    np.testing.assert_allclose(view.truth, batch.truth.states[0, :, :2])
+
+
+def test_outlying_is_the_four_sigma_rule() -> None:
+    env = TPMAdaptEnv(config=CLUTTER)
+    sensor = env.config.sensor
+    x = np.array([[3000.0, 4000.0, 0.0, 0.0]] * 3)
+    sigma_r, sigma_theta = sensor.sigma
+    noise = [[3.9 * sigma_r, 0.0], [4.1 * sigma_r, 0.0], [0.0, -4.1 * sigma_theta]]
+    z = sensor.h(x) + np.array(noise)
+    np.testing.assert_array_equal(outlying(sensor, z, x), [False, True, True])
+
+
+def test_ellipse_axes_are_the_95_percent_contour() -> None:
+    width, height, angle = ellipse_axes(np.diag([4.0, 1.0]))
+    assert width == pytest.approx(2 * math.sqrt(CHI2_2_95 * 4.0))
+    assert height == pytest.approx(2 * math.sqrt(CHI2_2_95))
+    assert angle % 180.0 == pytest.approx(0.0, abs=1e-9)
+    c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
+    rot = np.array([[c, -s], [s, c]])
+    width, height, angle = ellipse_axes(rot @ np.diag([9.0, 1.0]) @ rot.T)
+    assert (width, height) == pytest.approx((6 * math.sqrt(CHI2_2_95), 2 * math.sqrt(CHI2_2_95)))
+    assert angle % 180.0 == pytest.approx(30.0)
+    assert CHI2_2_95 == pytest.approx(5.991464547107979)
+
+
+def test_a_frame_loop_writes_a_gif(tmp_path) -> None:
+    env = gym.make(PAPER, render_mode="rgb_array")
+    frames = _frames(env, 0, 4)
+    path = tmp_path / "episode.gif"
+    images = [Image.fromarray(f) for f in frames]
+    images[0].save(path, save_all=True, append_images=images[1:], duration=100, loop=0)
+    with Image.open(path) as gif:
+        assert gif.n_frames == 5 and gif.size == (640, 400)
+
+
+def test_record_video_writes_a_file_when_moviepy_is_installed(tmp_path) -> None:
+    pytest.importorskip("moviepy", reason="RecordVideo needs moviepy (not a dependency)")
+    env = gym.wrappers.RecordVideo(
+        gym.make(PAPER, render_mode="rgb_array", scenario={"segments": [{"duration": 5}]}),
+        str(tmp_path),
+        episode_trigger=lambda episode: True,
+    )
+    env.reset(seed=0)
+    done = False
+    while not done:
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        done = terminated or truncated
+    env.close()
+    assert list(tmp_path.glob("*.mp4"))
