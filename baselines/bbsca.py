@@ -39,8 +39,7 @@ def scaled_bank(
     ``q_scale``) multiplied by ``q_scale[j]`` (> 0)."""
     if len(q_scale) != len(bank):
         raise ConfigError(f"q_scale must have {len(bank)} entries (one per model), got {q_scale!r}")
-    for s in q_scale:
-        check_range("q_scale[i]", s, 0.0, lo_open=True)
+    q_scale = [check_range(f"q_scale[{j}]", s, 0.0, lo_open=True) for j, s in enumerate(q_scale)]
     if isinstance(bank, HeteroBank):
         return dataclasses.replace(
             bank, q_scale=tuple(s * b for s, b in zip(q_scale, bank.q_scale, strict=True))

@@ -83,8 +83,8 @@ def draw(
 ) -> Batch:
     """Draw R runs seeded ``seed + r`` (trajectory stream, noise stream); the track starts from
     the first position+velocity measurement with ``P0 = R``."""
-    check_int("runs", runs, 1)
-    check_int("seed", seed, 0)
+    runs = check_int("runs", runs, 1)
+    seed = check_int("seed", seed, 0)
     if sensor.sigma_vel is None:
         raise ConfigError("the seed evaluations need a position+velocity sensor (sigma_vel)")
     scen, noise = zip(*(streams(seed + r) for r in range(runs)), strict=True)

@@ -72,8 +72,8 @@ def draw_batch(
 ) -> Batch:
     """R runs of ``source`` (a fixed scenario or a family) seen by ``sensor``, run ``r`` from the
     streams of seed ``seed + r``."""
-    check_int("runs", runs, 1)
-    check_int("seed", seed, 0)
+    runs = check_int("runs", runs, 1)
+    seed = check_int("seed", seed, 0)
     if not callable(getattr(source, "truth", None)):
         raise ConfigError(
             f"source must be a Scenario, a RandomFamily or another truth source, got "
