@@ -287,6 +287,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="POLICY=FILE",
         help="seed scenarios: load the tuned bank of bbsca/sca from FILE instead of tuning",
     )
+    parser.add_argument(
+        "--animate",
+        type=Path,
+        metavar="FILE",
+        help="write an animation of run 0 (seed --seed), every policy side by side on the same "
+        "target and noise: FILE.gif (Pillow) or FILE.mp4 (needs ffmpeg)",
+    )
     return parser
 
 
@@ -329,6 +336,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         problem = None if path is None else output_problem(path, kind)
         if problem:
             parser.error(f"{flag} {str(path)!r}: {problem}")
+    _check_animate(parser, args)
     if args.scenario in SYSTEMS:
         return _main_system(parser, args)
     try:
@@ -355,7 +363,36 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         for path in write_figures(rollouts, args.plots, results["meta"]):
             print(f"wrote {path}")
+    if args.animate:
+        _write_animation(args, rollouts)
     return 0
+
+
+def _check_animate(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--animate FILE``, before any evaluation: an episode scenario, a ``.gif`` (or a ``.mp4``
+    with ffmpeg installed) that can be written."""
+    from imm_gym.evaluation.animation import check_animation_path
+
+    if args.animate is None:
+        return
+    if args.scenario in SYSTEMS:
+        parser.error(f"--animate does not apply to --scenario {args.scenario}")
+    try:
+        check_animation_path(args.animate)
+    except ConfigError as err:
+        parser.error(f"--animate: {err}")
+    problem = output_problem(args.animate, "file")
+    if problem:
+        parser.error(f"--animate {str(args.animate)!r}: {problem}")
+
+
+def _write_animation(args: argparse.Namespace, rollouts: dict[str, Rollout]) -> None:
+    """Run 0 of every policy's roll-out side by side (:mod:`imm_gym.evaluation.animation`)."""
+    from imm_gym.evaluation.animation import write_animation
+
+    base = EnvConfig(scenario=load_source(args.scenario), **BANKS[args.bank])
+    frames = write_animation(rollouts, base, args.seed, args.animate)
+    print(f"wrote {args.animate} ({frames} frames of seed {args.seed}: {', '.join(rollouts)})")
 
 
 def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:

@@ -1,0 +1,139 @@
+"""``python -m imm_gym.evaluate --animate``: the file, its frames, the panels' common random
+numbers, and the errors raised before any evaluation."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from matplotlib.animation import FFMpegWriter
+from matplotlib.colors import to_rgb
+from PIL import Image
+
+import imm_gym.cli.evaluate as cli
+from baselines import REGISTRY, BuildContext
+from imm_gym.evaluation.animation import (
+    gif_palette,
+    rollout_view,
+    side_by_side_frames,
+    write_animation,
+)
+from imm_gym.evaluation.rollout import evaluation_config, rollout
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.episodes import draw_batch
+
+#: 20 steps with a turn, outliers and missed detections
+SCENARIO = {
+    "segments": [{"duration": 8}, {"duration": 12, "turn_rate_deg": 3.0}],
+    "position": [3000.0, 4500.0],
+    "velocity": [20.0, 15.0],
+}
+CLUTTER = EnvConfig(
+    scenario=SCENARIO, sensor={"outlier_prob": 0.2, "detection_prob": 0.8}
+)
+
+
+def _rollouts(config: EnvConfig, seed: int, names=("fixed", "tip-imm")) -> dict:
+    out = {}
+    for name in names:
+        policy, _ = REGISTRY[name].build(BuildContext(config, seed, 1, None))
+        out[name] = rollout(policy, evaluation_config(config, policy.env_overrides), 2, seed)
+    return out
+
+
+def test_cli_writes_one_frame_per_step_with_the_policies_side_by_side(tmp_path, capsys) -> None:
+    scenario = tmp_path / "short.json"
+    scenario.write_text(json.dumps(SCENARIO))
+    out = tmp_path / "anim" / "episode.gif"
+    code = cli.main(
+        ["--policy", "fixed", "--policy", "tip-imm", "--scenario", str(scenario), "--runs", "2",
+         "--seed", "4", "--no-clairvoyant", "--quiet", "--animate", str(out)]
+    )
+    assert code == 0
+    with Image.open(out) as gif:
+        assert gif.n_frames == 20
+        assert gif.size == (2 * 560, 350)
+        assert gif.info["duration"] == 100 and gif.info["loop"] == 0
+        gif.seek(0)
+        first = np.asarray(gif.convert("RGB"))
+        gif.seek(19)
+        last = np.asarray(gif.convert("RGB"))
+    assert np.any(first != last)
+    assert f"wrote {out} (20 frames of seed 4: fixed, tip-imm)" in capsys.readouterr().out
+
+
+def test_panels_share_the_target_and_the_noise_and_frames_repeat() -> None:
+    rollouts = _rollouts(CLUTTER, 7)
+    batch = draw_batch(CLUTTER.source, CLUTTER.sensor, 1, 7, CLUTTER.velocity_std)
+    views = {
+        name: rollout_view(r, batch, CLUTTER.sensor, name, 12) for name, r in rollouts.items()
+    }
+    fixed, tip = views["fixed"], views["tip-imm"]
+    for field in ("truth", "measurements", "detected", "outlier", "true_model"):
+        np.testing.assert_array_equal(getattr(fixed, field), getattr(tip, field))
+    assert not fixed.detected.all() and fixed.outlier.any()  # both marks are exercised
+    assert np.any(fixed.estimate != tip.estimate) and np.any(fixed.tpm != tip.tpm)
+    np.testing.assert_array_equal(fixed.estimate[1:], rollouts["fixed"].estimate[0, :12, :2])
+    np.testing.assert_array_equal(fixed.mode_probs[0], np.full(3, 1 / 3))
+    once = list(side_by_side_frames(rollouts, CLUTTER, 7, scale=0.5))
+    again = list(side_by_side_frames(rollouts, CLUTTER, 7, scale=0.5))
+    assert len(once) == 20 and once[0].shape == (200, 2 * 320, 3) and once[0].dtype == np.uint8
+    for a, b in zip(once, again, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_rollout_of_another_seed_is_refused(tmp_path) -> None:
+    family = EnvConfig(scenario="random", family={"horizon": 20, "n_segments": [1, 2]})
+    rollouts = _rollouts(family, 7, names=("fixed",))
+    with pytest.raises(ValueError, match="not run 0 of seed 8"):
+        write_animation(rollouts, family, 8, tmp_path / "a.gif")
+    assert not (tmp_path / "a.gif").exists()
+
+
+def test_the_palette_keeps_the_figure_colours() -> None:
+    palette = gif_palette()
+    assert palette.shape == (256, 3) and palette.dtype == np.uint8
+    colours = {tuple(c) for c in palette}
+    for i in range(10):
+        assert tuple(np.round(np.array(to_rgb(f"C{i}")) * 255).astype(np.uint8)) in colours
+    assert (0, 0, 0) in colours and (255, 255, 255) in colours
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--animate", "episode.avi"], "must end in .gif or .mp4"),
+        (["--animate", "{tmp}"], "is a directory"),
+        (["--animate", "a.gif", "--scenario", "seed002"], "does not apply"),
+    ],
+)
+def test_bad_animation_requests_stop_before_evaluating(
+    monkeypatch, capsys, tmp_path, extra, message
+) -> None:
+    (tmp_path / "dir.gif").mkdir()
+    extra = [arg.format(tmp=tmp_path / "dir.gif") for arg in extra]
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("evaluated before checking --animate")
+
+    monkeypatch.setattr(cli, "evaluate", refuse)
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["--policy", "fixed", "--runs", "1", *extra])
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.skipif(FFMpegWriter.isAvailable(), reason="ffmpeg is installed")
+def test_mp4_without_ffmpeg_is_a_clear_usage_error(monkeypatch, capsys, tmp_path) -> None:
+    monkeypatch.setattr(cli, "evaluate", lambda *a, **k: pytest.fail("evaluated"))
+    with pytest.raises(SystemExit):
+        cli.main(["--policy", "fixed", "--animate", str(tmp_path / "a.mp4")])
+    assert "needs ffmpeg" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not FFMpegWriter.isAvailable(), reason="ffmpeg is not installed")
+def test_mp4_is_written_where_ffmpeg_is_installed(tmp_path) -> None:
+    path = tmp_path / "a.mp4"
+    assert write_animation(_rollouts(CLUTTER, 7), CLUTTER, 7, path, scale=0.5) == 20
+    assert path.stat().st_size > 1000
