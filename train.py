@@ -5,7 +5,7 @@
     python train.py --timesteps 200000 --out runs/quick
     python train.py --resume runs/default/seed_0/checkpoints/latest
 
-Each seed writes ``OUT/seed_S/``: ``agent/`` (model, normalizer, env overrides), ``best/``,
+Each seed writes ``OUT/seed_S/``: ``agent/`` (network, normalizer, env overrides), ``best/``,
 ``checkpoints/``, ``tb/`` (TensorBoard), ``training.json``, ``results.json``, ``report.md`` and
 ``plots/``. Every ``--validate-every`` steps the live policy is scored on validation runs (seeds
 from 50,000,000 on) and the best one is kept in ``best/``. ``agent/`` is the mean of the
@@ -15,22 +15,33 @@ validation scenarios, never on the held-out ones). The evaluation compares the
 agent with classical IMM, TIP-IMM and the best fixed TPM on (a) the paper scenario (100 runs,
 seeds 0..99) and (b) held-out randomized scenarios (``--random-runs``, seeds 0..R-1; training
 uses seeds from 100,000,000 on), with common random numbers and paired bootstrap CIs.
-``OUT/summary.json`` and ``OUT/report.md`` gather the seeds. Ctrl-C saves a checkpoint and exits
-cleanly.
+``OUT/summary.json`` and ``OUT/report.md`` gather the seeds.
+
+Ctrl-C (or SIGTERM) never loses training: the signal only sets a flag, checked after every
+environment step, upon which ``checkpoints/latest`` is saved and the job exits with status 130
+(143). ``--resume`` continues a checkpoint as the run it came from (:mod:`agents.checkpoint`): its
+hyperparameters, its seed (another ``--seed`` is refused), its step count, optimizer, normalizer
+and weight average, and each training slot's random streams where they stopped. Agents and
+checkpoints are data only (JSON and safetensors): nothing is unpickled. Without a progress bar
+(``--no-progress``, or output not to a terminal) a line per checkpoint and validation gives the
+step, steps/s, the validation ARMSE and the time left.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import shutil
+import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from types import FrameType, TracebackType
+from typing import Any, NoReturn
 
-from agents.training import set_threads
+from agents.training import DEFAULT_ENTRY, set_threads
 
 BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
 ALGOS = ("ppo", "recurrent-ppo")
@@ -42,15 +53,24 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train a PPO agent to adapt the IMM's TPM, then evaluate it.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("--env", default="imm_gym/TPMAdapt-v0", help="registered environment id")
-    p.add_argument("--algo", default="ppo", choices=ALGOS)
+    p.add_argument(
+        "--env",
+        help=f"registered imm_gym environment id ({DEFAULT_ENTRY}; with --resume the checkpoint's)",
+    )
+    p.add_argument("--algo", choices=ALGOS, help="algorithm (ppo; with --resume the checkpoint's)")
     p.add_argument("--timesteps", type=int, help="training steps (default: the YAML entry's)")
-    p.add_argument("--seed", type=int, nargs="+", default=[0], help="training seed(s)")
+    p.add_argument(
+        "--seed", type=int, nargs="+", help="training seed(s) (0; with --resume the checkpoint's)"
+    )
     p.add_argument(
         "--config", type=Path, help="YAML file with hyperparameters overriding the entry"
     )
     p.add_argument("--out", type=Path, default=Path("runs/default"), help="output directory")
-    p.add_argument("--resume", type=Path, help="checkpoint directory to continue from")
+    p.add_argument(
+        "--resume",
+        type=Path,
+        help="checkpoint directory to continue from (OUT/seed_S/checkpoints/latest or step_N)",
+    )
     p.add_argument(
         "--checkpoint-every", type=int, default=250_000, help="steps between checkpoints"
     )
@@ -75,13 +95,40 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    import gymnasium as gym
+def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, Any] | None:
+    """Reject bad arguments (usage error, status 2) before any work; fill in ``--env``,
+    ``--algo`` and ``--seed`` (from the checkpoint with ``--resume``). Returns the checkpoint's
+    checked ``resume.json``, or None."""
+    from agents.checkpoint import read_checkpoint
+    from imm_gym.envs import PRESETS
+    from imm_gym.validation import ConfigError
 
-    import imm_gym  # noqa: F401  (registers the ids)
-
-    if args.env not in gym.registry:
-        ids = sorted(k for k in gym.registry if k.startswith("imm_gym/"))
+    resume = None
+    if args.resume is not None:
+        try:
+            resume = read_checkpoint(args.resume)
+        except ConfigError as err:
+            parser.error(f"--resume {err}")
+        for name, value, recorded in (
+            ("--env", args.env, resume["env_id"]),
+            ("--algo", args.algo, resume["algo"]),
+            ("--seed", args.seed, [resume["seed"]]),
+        ):
+            if value is not None and value != recorded:
+                shown = " ".join(map(str, value)) if isinstance(value, list) else value
+                was = " ".join(map(str, recorded)) if isinstance(recorded, list) else recorded
+                parser.error(
+                    f"--resume {str(args.resume)!r} continues a run started with {name} {was}; "
+                    f"got {name} {shown} (leave {name} out to continue it)"
+                )
+        args.env, args.algo, args.seed = resume["env_id"], resume["algo"], [resume["seed"]]
+    args.env = DEFAULT_ENTRY if args.env is None else args.env
+    args.algo = "ppo" if args.algo is None else args.algo
+    args.seed = [0] if args.seed is None else args.seed
+    ids = sorted(PRESETS)
+    if not args.env.startswith("imm_gym/"):
+        parser.error(f"--env {args.env!r} is not an imm_gym environment; available: {ids}")
+    if args.env not in PRESETS:
         parser.error(f"--env {args.env!r} is not registered; available: {ids}")
     if args.timesteps is not None and args.timesteps < 1:
         parser.error(f"--timesteps must be >= 1, got {args.timesteps}")
@@ -97,42 +144,119 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Non
         parser.error("--paper-runs and --random-runs must be >= 1")
     if args.config is not None and not args.config.is_file():
         parser.error(f"--config file {str(args.config)!r} does not exist")
-    if args.resume is not None:
-        if not (args.resume / "model.zip").is_file():
-            parser.error(f"--resume {str(args.resume)!r} is not a checkpoint (model.zip missing)")
-        if len(args.seed) != 1:
-            parser.error("--resume continues one run: give a single --seed")
+    return resume
 
 
-def hyperparams(args: argparse.Namespace) -> dict[str, Any]:
-    import yaml
+def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict[str, Any]:
+    """The run's checked hyperparameters: the YAML entry of ``--env`` (or the default entry,
+    which is said) updated by ``--config``, or the checkpoint's with ``--resume`` (a ``--config``
+    may then change only the budget); ``--timesteps`` sets the budget.
 
-    from agents.training import load_hyperparams
+    Raises:
+        ConfigError: a file is malformed, or ``--config`` changes a resumed run.
+    """
+    from agents.training import check_hyperparams, load_hyperparams, read_yaml
+    from imm_gym.envs import PRESETS
+    from imm_gym.sim.env_config import EnvConfig
+    from imm_gym.validation import ConfigError
 
-    params = load_hyperparams(args.env, args.algo)
+    if resume is not None:
+        params = dict(resume["hyperparams"])
+    else:
+        params, entry = load_hyperparams(args.env, args.algo)
+        if entry != args.env:
+            print(f"no hyperparameter entry for {args.env}: using the {entry} entry", flush=True)
     if args.config is not None:
-        extra = yaml.safe_load(args.config.read_text()) or {}
+        extra = check_hyperparams(
+            str(args.config), read_yaml(args.config), args.algo, complete=False
+        )
         env_kwargs = {**params.get("env_kwargs", {}), **extra.pop("env_kwargs", {})}
-        params.update(extra)
-        params["env_kwargs"] = env_kwargs
-        if isinstance(params.get("policy_kwargs"), str):
-            from agents.training import _eval_policy_kwargs
-
-            params["policy_kwargs"] = _eval_policy_kwargs(params["policy_kwargs"])
+        updated = {**params, **extra, "env_kwargs": env_kwargs}
+        if resume is not None:
+            changed = sorted(
+                k
+                for k in set(updated) | set(params)
+                if k != "n_timesteps" and updated.get(k) != params.get(k)
+            )
+            if changed:
+                raise ConfigError(
+                    f"--config {args.config} changes {changed} of the resumed run; --resume "
+                    "continues with the checkpoint's hyperparameters (only the budget, "
+                    "n_timesteps or --timesteps, may change)"
+                )
+        params = updated
     if args.timesteps is not None:
         params["n_timesteps"] = args.timesteps
-    params["n_timesteps"] = int(params["n_timesteps"])
+    try:
+        EnvConfig.build({**PRESETS[args.env], **params.get("env_kwargs", {})})
+    except ConfigError as err:
+        raise ConfigError(f"env_kwargs of the hyperparameters: {err}") from None
     return params
 
 
-def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_dir: Path) -> Any:
-    """Train (or resume) one seed; returns the trained agent's directory."""
+class StopRequest:
+    """Ctrl-C (SIGINT) and SIGTERM as a request honoured between environment steps.
+
+    The handler only records the signal: no exception is raised wherever it lands (inside the
+    compiled environment step a ``KeyboardInterrupt`` would surface as ``SystemError`` and skip
+    the checkpoint). Training checks :attr:`requested` after every step, then saves
+    ``checkpoints/latest`` and exits with ``128 + signal`` (130 for Ctrl-C); the evaluation
+    checks it between scenarios and seeds. Further signals while stopping are ignored.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> StopRequest:
+        for sig in self.SIGNALS:
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        trace: TracebackType | None,
+    ) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.signum is None:
+            self.signum = signum
+            # os.write, not print: safe wherever the main thread was interrupted
+            os.write(2, b"\nstopping at the next safe point...\n")
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    def exit(self, message: str) -> NoReturn:
+        """Print ``message`` and exit with ``128 + signal``."""
+        assert self.signum is not None
+        print(message, flush=True)
+        raise SystemExit(128 + self.signum)
+
+
+def train_one(
+    args: argparse.Namespace,
+    params: dict[str, Any],
+    seed: int,
+    run_dir: Path,
+    resume: dict[str, Any] | None,
+    stop: StopRequest,
+) -> Any:
+    """Train (or resume) one seed; returns the trained agent's directory and the statistics."""
     from stable_baselines3.common.callbacks import BaseCallback
 
+    from agents.checkpoint import restore, save_checkpoint
     from agents.training import (
         WeightAverage,
         algo_kwargs,
-        find_normalizer,
+        jsonable,
         make_training_env,
         save_agent,
         validation_armse,
@@ -157,43 +281,45 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     ckpt_dir = run_dir / "checkpoints"
     critic_dims = critic_state_size(env.unwrapped.core.M) if critic_state else 0
     extra = {"env_id": args.env, "seed": seed, "critic_dims": critic_dims}
-    if args.resume is not None:
-        model = algo_cls.load(args.resume / "model.zip", env=env, device="cpu")
-        _load_normalizer(find_normalizer(env), args.resume)
-        done = model.num_timesteps
-        print(f"resuming from {args.resume} at {done} steps")
-    else:
-        kwargs = algo_kwargs(params)
-        policy = params["policy"]
-        if critic_dims:
-            from agents.asymmetric import AsymmetricActorCriticPolicy
+    run = {"algo": args.algo, "env_id": args.env, "seed": seed, "hyperparams": jsonable(params)}
+    kwargs = algo_kwargs(params)
+    policy = params["policy"]
+    if critic_dims:
+        from agents.asymmetric import AsymmetricActorCriticPolicy
 
-            policy = AsymmetricActorCriticPolicy
-            kwargs["policy_kwargs"] = {
-                **kwargs.get("policy_kwargs", {}),
-                "critic_dims": critic_dims,
-                "frame_stack": frame_stack,
-            }
-        model = algo_cls(
-            policy,
-            env,
-            seed=seed,
-            device="cpu",
-            verbose=0,
-            tensorboard_log=str(run_dir / "tb"),
-            **kwargs,
-        )
-        done = 0
-    remaining = max(params["n_timesteps"] - done, 0)
+        policy = AsymmetricActorCriticPolicy
+        kwargs["policy_kwargs"] = {
+            **kwargs.get("policy_kwargs", {}),
+            "critic_dims": critic_dims,
+            "frame_stack": frame_stack,
+        }
+    model = algo_cls(
+        policy,
+        env,
+        seed=seed,
+        device="cpu",
+        verbose=0,
+        tensorboard_log=str(run_dir / "tb"),
+        **kwargs,
+    )
     swa = None
     if params.get("swa_start") is not None:
         swa = WeightAverage(int(float(params["swa_start"]) * params["n_timesteps"]))
-        if args.resume is not None:
-            swa.load(args.resume)
+    if resume is not None:
+        restore(args.resume, resume, model, env, swa)
+        print(f"resuming from {args.resume} at {model.num_timesteps} steps", flush=True)
+    done = model.num_timesteps
+    total = params["n_timesteps"]
+    remaining = max(total - done, 0)
+    print(
+        f"seed {seed}: training {args.algo} on {args.env} from step {done:,} to {total:,}",
+        flush=True,
+    )
     best_dir = run_dir / "best"
     best_file = best_dir / "validation.json"
     best = json.loads(best_file.read_text()) if best_file.is_file() else {"armse_pos": None}
     history: list[dict[str, float]] = best.get("history", [])
+    progress_bar = not args.no_progress and sys.stderr.isatty()
 
     def validation_score() -> float:
         """The live model's position ARMSE on the validation runs."""
@@ -208,7 +334,7 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
             critic_dims,
         )
 
-    def validate() -> None:
+    def validate() -> float:
         """Score the live model on the validation runs; keep it in ``best/`` if it is the best."""
         armse = validation_score()
         history.append({"timesteps": int(model.num_timesteps), "armse_pos": armse})
@@ -218,13 +344,17 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         best["history"] = history
         best_dir.mkdir(parents=True, exist_ok=True)
         best_file.write_text(json.dumps(best, indent=2))
+        return armse
 
     class Checkpoint(BaseCallback):
+        """Checkpoints and validations on schedule, the weight average, the stop request."""
+
         def __init__(self, every: int, validate_every: int) -> None:
             super().__init__()
             self.every, self.next = every, done + every
             self.validate_every = validate_every
             self.next_validation = done + validate_every
+            self.start = time.perf_counter()
 
         def _on_rollout_start(self) -> None:
             if swa is not None:  # the weights after the previous update
@@ -235,14 +365,25 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
                 swa.update(model)
 
         def _on_step(self) -> bool:
+            if stop.requested:
+                return False
+            saved, armse = False, None
             if self.num_timesteps >= self.next:
                 self.next += self.every
                 checkpoint("latest")
                 if args.keep_checkpoints:
                     checkpoint(f"step_{self.num_timesteps}")
+                saved = True
             if self.validate_every and self.num_timesteps >= self.next_validation:
                 self.next_validation += self.validate_every
-                validate()
+                armse = validate()
+            if (saved or armse is not None) and not progress_bar:
+                print(
+                    progress_line(
+                        self.num_timesteps, done, total, time.perf_counter() - self.start, armse
+                    ),
+                    flush=True,
+                )
             return True
 
     def save(directory: Path, **more: Any) -> None:
@@ -257,29 +398,26 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
         )
 
     def checkpoint(name: str) -> None:
-        """``checkpoints/NAME``: the live model and, once begun, the weight average."""
-        save(ckpt_dir / name)
-        if swa is not None:
-            swa.save(ckpt_dir / name)
+        """``checkpoints/NAME``: the agent and everything ``--resume`` needs."""
+        meta = {**extra, "num_timesteps": int(model.num_timesteps)}
+        save_checkpoint(ckpt_dir / name, model, env, run, meta, swa)
 
     start = time.perf_counter()
-    try:
-        model.learn(
-            remaining,
-            callback=Checkpoint(args.checkpoint_every, args.validate_every),
-            progress_bar=not args.no_progress and sys.stderr.isatty(),
-            reset_num_timesteps=args.resume is None,
-            tb_log_name=f"{args.algo}_seed{seed}",
-        )
-    except KeyboardInterrupt:
-        checkpoint("latest")
-        print(
-            f"\ninterrupted: checkpoint saved to {ckpt_dir / 'latest'} "
-            f"({model.num_timesteps} steps); resume with --resume {ckpt_dir / 'latest'}"
-        )
-        raise SystemExit(130) from None
+    model.learn(
+        remaining,
+        callback=Checkpoint(args.checkpoint_every, args.validate_every),
+        progress_bar=progress_bar,
+        reset_num_timesteps=args.resume is None,
+        tb_log_name=f"{args.algo}_seed{seed}",
+    )
     seconds = time.perf_counter() - start
     checkpoint("latest")
+    if stop.requested:
+        latest = ckpt_dir / "latest"
+        stop.exit(
+            f"interrupted: checkpoint saved to {latest} ({model.num_timesteps} steps); "
+            f"continue with: python train.py --resume {latest} --out {args.out}"
+        )
     agent_dir = run_dir / "agent"
     if args.validate_every:
         validate()
@@ -309,6 +447,27 @@ def train_one(args: argparse.Namespace, params: dict[str, Any], seed: int, run_d
     return agent_dir, stats
 
 
+def progress_line(step: int, start: int, total: int, seconds: float, armse: float | None) -> str:
+    """``step 250,000/4,000,000, 7,350 steps/s, validation ARMSE 17.912 m, 8 min 30 s left``:
+    the rate since this call began (validations included) and the time left at that rate."""
+    rate = (step - start) / seconds if seconds > 0 else 0.0
+    left = (total - step) / rate if rate > 0 else float("inf")
+    validation = "" if armse is None else f", validation ARMSE {armse:.3f} m"
+    return f"step {step:,}/{total:,}, {rate:,.0f} steps/s{validation}, {_duration(left)} left"
+
+
+def _duration(seconds: float) -> str:
+    """``45 s``, ``8 min 30 s``, ``2 h 05 min``; ``?`` before a rate is known."""
+    if not seconds < float("inf"):
+        return "?"
+    s = max(round(seconds), 0)
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
 def _algo_class(algo: str) -> Any:
     if algo == "recurrent-ppo":
         from sb3_contrib import RecurrentPPO
@@ -319,20 +478,11 @@ def _algo_class(algo: str) -> Any:
     return PPO
 
 
-def _load_normalizer(norm: Any, directory: Path) -> None:
-    import numpy as np
-
-    file = directory / "vecnormalize.json"
-    if norm is None or not file.is_file():
-        return
-    stats = json.loads(file.read_text())
-    norm.obs_rms.mean = np.array(stats["mean"])
-    norm.obs_rms.var = np.array(stats["var"])
-    norm.obs_rms.count = stats["count"]
-
-
-def evaluate_agent(agent_dir: Path, args: argparse.Namespace, run_dir: Path) -> dict[str, Any]:
-    """Paper scenario and held-out random scenarios, learned agent vs the baselines."""
+def evaluate_agent(
+    agent_dir: Path, args: argparse.Namespace, run_dir: Path, stop: StopRequest
+) -> dict[str, Any]:
+    """Paper scenario and held-out random scenarios, learned agent vs the baselines; a stop
+    request is honoured before each scenario (the agent is saved by then)."""
     from agents.policy import load_agent
     from imm_gym.cli.evaluate import evaluate
     from imm_gym.cli.tables import render_tables
@@ -341,6 +491,11 @@ def evaluate_agent(agent_dir: Path, args: argparse.Namespace, run_dir: Path) -> 
     policy = load_agent(agent_dir)
     out: dict[str, Any] = {}
     for scenario, runs in (("paper", args.paper_runs), ("random", args.random_runs)):
+        if stop.requested:
+            stop.exit(
+                f"interrupted before evaluating on the {scenario} scenario; the trained agent "
+                f"is {agent_dir} (python -m imm_gym.evaluate --policy {agent_dir} ...)"
+            )
         results, rollouts = evaluate(
             BASELINES_COMPARED,
             scenario,
@@ -403,56 +558,66 @@ def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None
 
 
 def main(argv: list[str] | None = None) -> int:
+    from imm_gym.validation import ConfigError
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    check_args(parser, args)
+    resume = check_args(parser, args)
     set_threads(1)
-    params = hyperparams(args)
-    if params.get("critic_state") and args.algo != "ppo":
-        parser.error(f"critic_state: true needs --algo ppo, got --algo {args.algo}")
-    swa_start = params.get("swa_start")
-    is_number = isinstance(swa_start, (int, float)) and not isinstance(swa_start, bool)
-    if swa_start is not None and not (is_number and 0 <= swa_start < 1):
-        parser.error(f"swa_start must be a fraction of the budget in [0, 1), got {swa_start!r}")
+    try:
+        params = hyperparams(args, resume)
+    except ConfigError as err:
+        parser.error(str(err))
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
     versions = _versions()
     summary: dict[str, Any] = {"command": command, "versions": versions, "seeds": {}}
-    for seed in args.seed:
-        run_dir = args.out / f"seed_{seed}"
-        run_dir.mkdir(parents=True, exist_ok=True)
-        from agents.training import jsonable
+    with StopRequest() as stop:
+        for seed in args.seed:
+            if stop.requested:
+                stop.exit(f"interrupted before training seed {seed}")
+            run_dir = args.out / f"seed_{seed}"
+            run_dir.mkdir(parents=True, exist_ok=True)
+            from agents.training import jsonable
 
-        (run_dir / "config.json").write_text(
-            json.dumps(
-                {"env": args.env, "algo": args.algo, "seed": seed, "hyperparams": jsonable(params)},
-                indent=2,
-                default=str,
+            (run_dir / "config.json").write_text(
+                json.dumps(
+                    {
+                        "env": args.env,
+                        "algo": args.algo,
+                        "seed": seed,
+                        "hyperparams": jsonable(params),
+                    },
+                    indent=2,
+                )
             )
-        )
-        agent_dir, stats = train_one(args, params, seed, run_dir)
-        print(
-            f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
-            f"({stats['fps']:.0f} steps/s)"
-        )
-        entry: dict[str, Any] = {"training": stats}
-        if not args.no_eval:
-            results = evaluate_agent(agent_dir, args, run_dir)
-            entry.update(results)
-            (run_dir / "results.json").write_text(json.dumps(results, indent=2))
-            write_report(
-                run_dir / "report.md",
-                results,
-                [
-                    f"# {args.algo.upper()} on {args.env}, seed {seed}",
-                    "",
-                    f"Command: `{command}`. Training: {stats['timesteps']} steps in "
-                    f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, SB3 on 1 thread).",
-                    f"Agent: {_describe_selection(stats['selected'])}.",
-                    f"Versions: {versions}.",
-                ],
+            try:
+                agent_dir, stats = train_one(args, params, seed, run_dir, resume, stop)
+            except ConfigError as err:  # a checkpoint that does not fit the model
+                parser.error(str(err))
+            print(
+                f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
+                f"({stats['fps']:.0f} steps/s)"
             )
-        summary["seeds"][str(seed)] = entry
+            entry: dict[str, Any] = {"training": stats}
+            if not args.no_eval:
+                results = evaluate_agent(agent_dir, args, run_dir, stop)
+                entry.update(results)
+                (run_dir / "results.json").write_text(json.dumps(results, indent=2))
+                write_report(
+                    run_dir / "report.md",
+                    results,
+                    [
+                        f"# {args.algo.upper()} on {args.env}, seed {seed}",
+                        "",
+                        f"Command: `{command}`. Training: {stats['timesteps']} steps in "
+                        f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, SB3 on 1 "
+                        "thread).",
+                        f"Agent: {_describe_selection(stats['selected'])}.",
+                        f"Versions: {versions}.",
+                    ],
+                )
+            summary["seeds"][str(seed)] = entry
     if not args.no_eval:
         summary["across_seeds"] = _across_seeds(summary["seeds"])
         _write_summary_report(args.out / "report.md", summary)

@@ -1,13 +1,19 @@
 """A trained agent as a policy with the ``predict`` protocol of the evaluation tool.
 
-A trained agent is a directory (a "run" or the shipped ``pretrained/``) holding
+A trained agent is a directory (a run's ``agent/``, ``best/``, a checkpoint, or the shipped
+``pretrained/``) of data files only — loading it never unpickles, so it cannot run code:
 
-* ``model.zip`` — the stable-baselines3 model (PPO or RecurrentPPO), needed to resume training,
-  and ``policy.pt`` — the policy network alone (no optimizer state: a third of the size), enough
-  to act;
-* ``env.json`` — the environment overrides it was trained with (action mode, features...);
-* ``vecnormalize.json`` — the observation normalizer's running mean/variance (optional);
-* ``agent.json`` — the algorithm name and the frame-stack depth.
+* ``agent.json`` — the algorithm, the frame-stack depth, the critic-only entries per frame and,
+  under ``"policy"``, the network's description (:mod:`agents.schema`: class and activation by
+  name, layer sizes, observation and action sizes);
+* ``policy.safetensors`` — the network's tensors (policy and value heads; no optimizer state);
+* ``env.json`` — the :class:`~imm_gym.EnvConfig` overrides it was trained with (action mode,
+  features...);
+* ``vecnormalize.json`` — the observation normalizer's running mean/variance (optional).
+
+A checkpoint adds the files that resume training (:mod:`agents.checkpoint`). The pickled files of
+earlier versions (``policy.pt``, ``model.zip``) are refused, with the command that converts them
+on a machine where they are trusted (``python -m agents.export --from-pickle``).
 
 :class:`LearnedPolicy` applies the normalizer and then the frame stack itself (the order of
 SB3's ``VecFrameStack(VecNormalize(env))``), so a model runs through
@@ -23,7 +29,24 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.validation import ConfigError
+
 ALGOS = ("ppo", "recurrent-ppo")
+#: The files of an agent directory (``vecnormalize.json`` only when trained with a normalizer).
+AGENT_FILE, ENV_FILE, NORMALIZER_FILE = "agent.json", "env.json", "vecnormalize.json"
+#: The keys of ``agent.json`` (``policy``, ``algo`` and ``frame_stack`` required).
+AGENT_KEYS = (
+    "algo",
+    "frame_stack",
+    "critic_dims",
+    "policy",
+    "env_id",
+    "seed",
+    "num_timesteps",
+    "swa",
+)
+#: The keys of ``vecnormalize.json``.
+NORMALIZER_KEYS = ("mean", "var", "count", "clip_obs", "epsilon")
 
 
 class LearnedPolicy:
@@ -38,6 +61,7 @@ class LearnedPolicy:
         recurrent: whether the model keeps an LSTM state.
         critic_dims: entries of each frame that only its critic reads (ground truth in
             training, :mod:`agents.asymmetric`); they are zeros here, which the actor ignores.
+        source: where the agent comes from, for the message on an observation of the wrong size.
     """
 
     name = "learned"
@@ -53,6 +77,7 @@ class LearnedPolicy:
         frame_stack: int = 1,
         recurrent: bool = False,
         critic_dims: int = 0,
+        source: str = "the agent",
     ) -> None:
         self.model = model
         self.env_overrides = env_overrides
@@ -61,6 +86,9 @@ class LearnedPolicy:
         self.frame_stack = frame_stack
         self.recurrent = recurrent
         self.critic_dims = critic_dims
+        self.source = source
+        #: entries of one environment observation, the critic's excluded
+        self.obs_size = int(model.observation_space.shape[0]) // frame_stack - critic_dims
 
     def normalize(self, obs: NDArray[Any]) -> NDArray[np.float32]:
         if self.obs_mean is None or self.obs_var is None:
@@ -78,6 +106,12 @@ class LearnedPolicy:
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1
         obs = obs[None] if single else obs
+        if obs.ndim != 2 or obs.shape[1] != self.obs_size:
+            raise ConfigError(
+                f"{self.source} reads observations of {self.obs_size} entries, the environment "
+                f"gives {obs.shape[1:]} (other obs_features or another bank than it was trained "
+                "with)"
+            )
         if self.critic_dims:
             obs = np.concatenate([obs, np.zeros((obs.shape[0], self.critic_dims))], axis=-1)
         N, d = obs.shape
@@ -103,48 +137,160 @@ class LearnedPolicy:
 
 
 def load_agent(path: str | Path) -> LearnedPolicy:
-    """Load a trained agent from its directory (or from its ``model.zip``)."""
+    """Load a trained agent from its directory (or a file in it), checking every file.
+
+    Raises:
+        FileNotFoundError: there is no ``agent.json``.
+        ConfigError: a file is unreadable, malformed or inconsistent with the others (bad JSON,
+            an unknown key, truncated weights, an observation size that the environment of
+            ``env.json`` does not give), or the agent is in the pickled format of earlier
+            versions; the message names the file.
+    """
+    from agents.network import build_policy, load_weights
+    from agents.schema import check_spec
+
     path = Path(path)
-    directory = path.parent if path.suffix in (".zip", ".pt") else path
-    if not (directory / "agent.json").is_file():
+    directory = path.parent if path.suffix in (".zip", ".pt", ".safetensors", ".json") else path
+    agent_file = directory / AGENT_FILE
+    if not agent_file.is_file():
         raise FileNotFoundError(f"no trained agent at {str(directory)!r} (agent.json missing)")
-    meta = json.loads((directory / "agent.json").read_text())
-    algo = meta.get("algo", "ppo")
-    if algo == "recurrent-ppo":
-        # sb3-contrib's recurrent policy does not save its LSTM size with the policy alone
-        from sb3_contrib import RecurrentPPO
-
-        model = RecurrentPPO.load(directory / "model.zip", device="cpu")
-    else:
-        from stable_baselines3.common.policies import ActorCriticPolicy
-
-        policy_file = directory / "policy.pt"
-        if not policy_file.is_file():
-            raise FileNotFoundError(f"no trained agent at {str(directory)!r} (policy.pt missing)")
-        policy_cls = ActorCriticPolicy
-        if meta.get("critic_dims", 0):
-            from agents.asymmetric import AsymmetricActorCriticPolicy
-
-            policy_cls = AsymmetricActorCriticPolicy
-        model = policy_cls.load(str(policy_file), device="cpu")
-    env_overrides = json.loads((directory / "env.json").read_text())
-    if "obs_features" in env_overrides:
-        env_overrides["obs_features"] = tuple(env_overrides["obs_features"])
-    norm_file = directory / "vecnormalize.json"
-    mean = var = None
-    clip_obs, eps = 10.0, 1e-8
-    if norm_file.is_file():
-        norm = json.loads(norm_file.read_text())
-        mean, var = np.array(norm["mean"]), np.array(norm["var"])
-        clip_obs, eps = norm["clip_obs"], norm["epsilon"]
+    meta = read_json(agent_file)
+    if "policy" not in meta and any((directory / f).exists() for f in ("policy.pt", "model.zip")):
+        raise ConfigError(pickled_agent_message(directory))
+    meta = check_agent_meta(agent_file, meta)
+    where = f"{agent_file}: policy"
+    spec = check_spec(where, meta["policy"])
+    frame_stack, critic_dims = meta["frame_stack"], meta["critic_dims"]
+    expected_class = {
+        (False, False): "MlpPolicy",
+        (False, True): "AsymmetricMlpPolicy",
+        (True, False): "MlpLstmPolicy",
+    }.get((meta["algo"] == "recurrent-ppo", critic_dims > 0))
+    if spec["class"] != expected_class:
+        raise ConfigError(
+            f"{where}.class is {spec['class']!r}, but algo {meta['algo']!r} with critic_dims "
+            f"{critic_dims} needs {expected_class!r}"
+        )
+    if spec["class"] == "AsymmetricMlpPolicy" and (
+        spec["critic_dims"] != critic_dims or spec["frame_stack"] != frame_stack
+    ):
+        raise ConfigError(f"{where}: critic_dims/frame_stack differ from the agent's")
+    env_overrides, frame, actions = _check_env(directory / ENV_FILE, meta.get("env_id"))
+    frame += critic_dims
+    if spec["observation_size"] != frame_stack * frame or spec["action_size"] != actions:
+        raise ConfigError(
+            f"{where}: the network reads {spec['observation_size']} entries and writes "
+            f"{spec['action_size']}, but the environment of {directory / ENV_FILE} gives "
+            f"{frame_stack} frames of {frame} entries and takes {actions}"
+        )
+    norm = _check_normalizer(directory / NORMALIZER_FILE, frame)
+    model = build_policy(spec, where)
+    load_weights(model, directory)
     return LearnedPolicy(
         model,
         env_overrides,
-        mean,
-        var,
-        clip_obs,
-        eps,
-        frame_stack=int(meta.get("frame_stack", 1)),
-        recurrent=algo == "recurrent-ppo",
-        critic_dims=int(meta.get("critic_dims", 0)),
+        *norm,
+        frame_stack=frame_stack,
+        recurrent=meta["algo"] == "recurrent-ppo",
+        critic_dims=critic_dims,
+        source=f"agent {str(directory)!r}",
     )
+
+
+def pickled_agent_message(directory: Path) -> str:
+    """Why an agent of the earlier pickled format is refused, and how to convert it."""
+    return (
+        f"{directory}: an agent in the pickled format of earlier versions (policy.pt, "
+        "model.zip), which can run code when loaded, so it is not loaded; on a machine where you "
+        f"trust these files convert it with: python -m agents.export --from-pickle {directory} "
+        "--to NEW_DIR"
+    )
+
+
+def read_json(file: Path) -> dict[str, Any]:
+    """A JSON object from ``file``.
+
+    Raises:
+        ConfigError: the file is missing, not valid JSON or not an object.
+    """
+    try:
+        data = json.loads(file.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: missing") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ConfigError(f"{file}: not valid JSON ({err})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{file}: must hold a JSON object, got {type(data).__name__}")
+    return data
+
+
+def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
+    """``agent.json`` checked: known keys; ``algo``, ``frame_stack``, ``critic_dims`` valid (the
+    ``policy`` entry is checked by :func:`agents.schema.check_spec`)."""
+    unknown = sorted(set(meta) - set(AGENT_KEYS))
+    if unknown:
+        raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(AGENT_KEYS)}")
+    if "policy" not in meta:
+        raise ConfigError(f"{file}: no 'policy' entry (the network's description)")
+    if meta.get("algo") not in ALGOS:
+        raise ConfigError(f"{file}: algo must be one of {list(ALGOS)}, got {meta.get('algo')!r}")
+    out = dict(meta)
+    for key, low, default in (("frame_stack", 1, None), ("critic_dims", 0, 0)):
+        value = meta.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f"{file}: {key} must be an integer >= {low}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def _check_env(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
+    """``env.json``'s overrides (validated on the preset of ``env_id``), the size of one
+    observation and of an action in that environment."""
+    from imm_gym.envs import PRESETS
+    from imm_gym.sim.env_config import EnvConfig
+    from imm_gym.sim.features import bounds
+
+    overrides = read_json(file)
+    if env_id is not None and env_id not in PRESETS:
+        raise ConfigError(f"{file.parent / AGENT_FILE}: env_id must be one of {list(PRESETS)}")
+    if "obs_features" in overrides and isinstance(overrides["obs_features"], list):
+        overrides["obs_features"] = tuple(overrides["obs_features"])
+    try:
+        config = EnvConfig.build({**PRESETS.get(env_id, {}), **overrides})
+    except ConfigError as err:
+        raise ConfigError(f"{file}: {err}") from None
+    M = len(config.bank)
+    obs_size = bounds(config.obs_features, M, config.sensor.dim_z)[0].size
+    return overrides, int(obs_size), M * M
+
+
+def _check_normalizer(
+    file: Path, size: int
+) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, float, float]:
+    """``vecnormalize.json``'s mean, variance (``size`` entries each), clip and epsilon; no
+    normalizer (None, None, 10, 1e-8) when the file does not exist."""
+    if not file.exists():
+        return None, None, 10.0, 1e-8
+    stats = read_json(file)
+    if set(stats) != set(NORMALIZER_KEYS):
+        raise ConfigError(f"{file}: keys must be {list(NORMALIZER_KEYS)}, got {sorted(stats)}")
+    arrays = []
+    for key in ("mean", "var"):
+        value = stats[key]
+        ok = isinstance(value, list) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+        )
+        array = np.array(value, dtype=np.float64) if ok else np.empty(0)
+        if not ok or array.shape != (size,) or not np.all(np.isfinite(array)):
+            raise ConfigError(f"{file}: {key} must be {size} finite numbers")
+        arrays.append(array)
+    if np.any(arrays[1] < 0):
+        raise ConfigError(f"{file}: var must be >= 0")
+    scalars = []
+    for key in ("clip_obs", "epsilon"):
+        value = stats[key]
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not number or not (0 < value < np.inf):
+            raise ConfigError(f"{file}: {key} must be a positive number, got {value!r}")
+        scalars.append(float(value))
+    return arrays[0], arrays[1], scalars[0], scalars[1]

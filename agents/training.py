@@ -2,7 +2,10 @@
 
 Hyperparameters live in ``agents/hyperparams/ppo.yml`` in rl-zoo3's format, keyed by environment
 id (``n_envs``, ``n_timesteps``, ``policy``, ``normalize``, ``frame_stack``, ``env_kwargs``,
-``policy_kwargs`` and the algorithm's own arguments). The environment stack is
+``policy_kwargs`` and the algorithm's own arguments). They are data: every key is checked
+against an allow-list (:data:`STACK_KEYS`, :data:`ALGO_KEYS`), ``policy_kwargs`` is structured
+YAML (``net_arch`` as lists, ``activation_fn`` by name) and nothing is evaluated as Python. The
+environment stack is
 ``VecFrameStack(VecNormalize(VecMonitor(TPMAdaptSB3VecEnv)))`` — one batched core, no subprocesses.
 
 Seeds: training slot ``i`` of run seed ``s`` starts its streams from ``TRAIN_SEED_BASE + 10_000 s
@@ -14,28 +17,27 @@ are neither trained on nor used for model selection.
 from __future__ import annotations
 
 import json
+import math
 import os
+import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
+
+from agents.schema import check_flag, check_number, check_policy_kwargs, check_size
+from imm_gym.validation import ConfigError
 
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
 TRAIN_SEED_BASE = 100_000_000
 VALIDATION_SEED_BASE = 50_000_000
 ALGO_FILES = {"ppo": "ppo.yml", "recurrent-ppo": "recurrent_ppo.yml"}
-
-#: Keys of a hyperparameter entry that configure the environment stack, not the algorithm.
-_STACK_KEYS = (
-    "n_envs",
-    "n_timesteps",
-    "policy",
-    "normalize",
-    "frame_stack",
-    "env_kwargs",
-    "critic_state",
-    "swa_start",
-)
+#: The entry used for an environment id that has none in the hyperparameter file.
+DEFAULT_ENTRY = "imm_gym/TPMAdapt-v0"
+#: The policy each algorithm trains.
+POLICIES = {"ppo": "MlpPolicy", "recurrent-ppo": "MlpLstmPolicy"}
 
 
 def set_threads(n: int = 1) -> None:
@@ -50,28 +52,170 @@ def set_threads(n: int = 1) -> None:
     torch.set_num_threads(n)
 
 
-def load_hyperparams(env_id: str, algo: str = "ppo", path: Path | None = None) -> dict[str, Any]:
-    """The hyperparameter entry of ``env_id`` (rl-zoo3 YAML); ``policy_kwargs`` evaluated."""
-    import yaml
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader (plain data: no tags that build objects), reading ``1e-3`` and
+    ``4e6`` as numbers as YAML 1.2 does (YAML 1.1 wants a dot: ``1.0e-3``)."""
 
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)?\.?[0-9_]*[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+def read_yaml(file: Path) -> dict[str, Any]:
+    """A YAML mapping of plain data (mappings, lists, strings, numbers, booleans, null).
+
+    Raises:
+        ConfigError: the file is not valid YAML or does not hold a mapping.
+    """
+    try:
+        data = yaml.load(file.read_text(), Loader=_Loader)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{file}: not valid YAML ({err})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{file}: must hold a mapping, got {type(data).__name__}")
+    return data
+
+
+def load_hyperparams(
+    env_id: str, algo: str = "ppo", path: Path | None = None
+) -> tuple[dict[str, Any], str]:
+    """The checked hyperparameter entry of ``env_id`` (rl-zoo3 YAML) and the entry's key:
+    ``env_id``, or :data:`DEFAULT_ENTRY` if the file has no entry for it.
+
+    Raises:
+        ConfigError: the file or the entry is malformed (see :func:`check_hyperparams`).
+    """
     if algo not in ALGO_FILES:
-        raise ValueError(f"algo must be one of {list(ALGO_FILES)}, got {algo!r}")
+        raise ConfigError(f"algo must be one of {list(ALGO_FILES)}, got {algo!r}")
     file = path or HYPERPARAMS / ALGO_FILES[algo]
-    table = yaml.safe_load(file.read_text())
-    if env_id not in table:
-        raise ValueError(f"{file.name} has no entry for {env_id!r}; entries: {sorted(table)}")
-    params = dict(table[env_id])
-    if isinstance(params.get("policy_kwargs"), str):
-        params["policy_kwargs"] = _eval_policy_kwargs(params["policy_kwargs"])
-    return params
+    table = read_yaml(file)
+    entry = env_id if env_id in table else DEFAULT_ENTRY
+    if entry not in table:
+        raise ConfigError(f"{file}: no entry for {env_id!r} nor {DEFAULT_ENTRY!r}")
+    return check_hyperparams(f"{file}: {entry}", table[entry], algo), entry
 
 
-def _eval_policy_kwargs(text: str) -> dict[str, Any]:
-    """rl-zoo3 writes ``policy_kwargs`` as a Python expression such as ``dict(net_arch=[64])``."""
-    import torch
+def _unit(where: str, value: Any) -> float:
+    number = check_number(where, value)
+    if not 0.0 < number <= 1.0:
+        raise ConfigError(f"{where} must be in (0, 1], got {value!r}")
+    return number
 
-    namespace = {"dict": dict, "nn": torch.nn, "__builtins__": {}}
-    return dict(eval(text, namespace))
+
+def _rate(where: str, value: Any) -> float | str:
+    """A positive number, or rl-zoo3's ``lin_<number>`` (a linear schedule to 0), kept as is."""
+    if isinstance(value, str) and value.startswith("lin_"):
+        try:
+            initial = float(value[4:])
+        except ValueError:
+            initial = math.nan
+        if not initial > 0:
+            raise ConfigError(f"{where} must be a number or 'lin_<number>', got {value!r}")
+        return value
+    if isinstance(value, str) or not check_number(where, value) > 0:
+        raise ConfigError(f"{where} must be a positive number or 'lin_<number>', got {value!r}")
+    return value
+
+
+def _optional(check: Callable[[str, Any], Any]) -> Callable[[str, Any], Any]:
+    return lambda where, value: None if value is None else check(where, value)
+
+
+def _sde_sample_freq(where: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < -1:
+        raise ConfigError(f"{where} must be an integer >= -1, got {value!r}")
+    return value
+
+
+def _timesteps(where: str, value: Any) -> int:
+    number = check_number(where, value)
+    if number < 1 or not number.is_integer():
+        raise ConfigError(f"{where} must be a whole number >= 1, got {value!r}")
+    return int(number)
+
+
+def _swa_start(where: str, value: Any) -> float | None:
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if value is not None and not (number and 0 <= value < 1):
+        raise ConfigError(f"{where} must be a fraction of the budget in [0, 1), got {value!r}")
+    return value
+
+
+def _mapping(where: str, value: Any) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where} must be a mapping, got {value!r}")
+    return value
+
+
+#: Keys of a hyperparameter entry that configure the environment stack, with their checks.
+STACK_KEYS: dict[str, Callable[[str, Any], Any]] = {
+    "n_envs": check_size,
+    "n_timesteps": _timesteps,
+    "policy": lambda where, value: value,  # checked against the algorithm below
+    "normalize": check_flag,
+    "frame_stack": check_size,
+    "env_kwargs": _mapping,
+    "critic_state": check_flag,
+    "swa_start": _swa_start,
+}
+
+#: The algorithm's own arguments a hyperparameter entry may set, with their checks
+#: (``policy_kwargs`` by :func:`agents.network.check_policy_kwargs`).
+ALGO_KEYS: dict[str, Callable[[str, Any], Any]] = {
+    "learning_rate": _rate,
+    "n_steps": check_size,
+    "batch_size": check_size,
+    "n_epochs": check_size,
+    "gamma": _unit,
+    "gae_lambda": _unit,
+    "clip_range": _rate,
+    "clip_range_vf": _optional(_rate),
+    "normalize_advantage": check_flag,
+    "ent_coef": check_number,
+    "vf_coef": check_number,
+    "max_grad_norm": check_number,
+    "use_sde": check_flag,
+    "sde_sample_freq": _sde_sample_freq,
+    "target_kl": _optional(check_number),
+    "stats_window_size": check_size,
+}
+
+
+def check_hyperparams(where: str, params: Any, algo: str, complete: bool = True) -> dict[str, Any]:
+    """A hyperparameter entry (or, with ``complete=False``, the part a ``--config`` file
+    overrides) checked key by key; the result is plain data.
+
+    Raises:
+        ConfigError: not a mapping, an unknown key, a value of the wrong kind, a missing
+            ``n_envs``/``n_timesteps``/``policy``, a policy the algorithm does not train, or
+            ``critic_state`` with a recurrent agent; the message names ``where`` and the key.
+    """
+    params = _mapping(where, params)
+    known = [*STACK_KEYS, *ALGO_KEYS, "policy_kwargs"]
+    unknown = sorted(set(params) - set(known))
+    if unknown:
+        raise ConfigError(f"{where}: unknown hyperparameters {unknown}; allowed: {sorted(known)}")
+    out: dict[str, Any] = {}
+    for key, value in params.items():
+        if key == "policy_kwargs":
+            out[key] = check_policy_kwargs(where, value, algo == "recurrent-ppo")
+        else:
+            out[key] = {**STACK_KEYS, **ALGO_KEYS}[key](f"{where}: {key}", value)
+    missing = [k for k in ("n_envs", "n_timesteps", "policy") if k not in params]
+    if complete and missing:
+        raise ConfigError(f"{where}: missing {missing}")
+    if "policy" in out and out["policy"] != POLICIES[algo]:
+        raise ConfigError(
+            f"{where}: policy must be {POLICIES[algo]!r} for {algo}, got {out['policy']!r}"
+        )
+    if out.get("critic_state") and algo != "ppo":
+        raise ConfigError(f"{where}: critic_state: true needs --algo ppo, got --algo {algo}")
+    return out
 
 
 def make_training_env(
@@ -122,10 +266,12 @@ def save_agent(
     frame_stack: int,
     extra: dict[str, Any] | None = None,
 ) -> None:
-    """Write ``model.zip``, ``policy.pt``, ``env.json``, ``vecnormalize.json``, ``agent.json``."""
+    """Write the acting files of :mod:`agents.policy`: ``policy.safetensors``, ``agent.json``
+    (with the network's description), ``env.json`` and ``vecnormalize.json``."""
+    from agents.network import policy_spec, save_weights
+
     directory.mkdir(parents=True, exist_ok=True)
-    model.save(directory / "model.zip")
-    model.policy.save(str(directory / "policy.pt"))
+    save_weights(model.policy, directory)
     (directory / "env.json").write_text(json.dumps(jsonable(env_kwargs), indent=2))
     norm = find_normalizer(env)
     if norm is not None:
@@ -137,7 +283,12 @@ def save_agent(
             "epsilon": float(norm.epsilon),
         }
         (directory / "vecnormalize.json").write_text(json.dumps(stats))
-    meta = {"algo": algo, "frame_stack": frame_stack, **(extra or {})}
+    meta = {
+        "algo": algo,
+        "frame_stack": frame_stack,
+        **(extra or {}),
+        "policy": policy_spec(model.policy),
+    }
     (directory / "agent.json").write_text(json.dumps(meta, indent=2))
 
 
@@ -151,10 +302,15 @@ def jsonable(value: Any) -> Any:
 
 
 def algo_kwargs(params: dict[str, Any]) -> dict[str, Any]:
-    """The algorithm's own arguments from a hyperparameter entry; rl-zoo3's ``lin_X`` strings
-    (``learning_rate``, ``clip_range``) become :func:`linear_schedule` ``(X)``."""
-    kwargs = {k: v for k, v in params.items() if k not in _STACK_KEYS}
-    for key in ("learning_rate", "clip_range"):
+    """The algorithm's own arguments from a hyperparameter entry, as SB3 takes them: rl-zoo3's
+    ``lin_X`` strings (``learning_rate``, ``clip_range``, ``clip_range_vf``) become
+    :func:`linear_schedule` ``(X)``, ``policy_kwargs``' activation its ``nn.Module`` class."""
+    from agents.network import sb3_policy_kwargs
+
+    kwargs = {k: v for k, v in params.items() if k not in STACK_KEYS}
+    if "policy_kwargs" in kwargs:
+        kwargs["policy_kwargs"] = sb3_policy_kwargs(kwargs["policy_kwargs"])
+    for key in ("learning_rate", "clip_range", "clip_range_vf"):
         value = kwargs.get(key)
         if isinstance(value, str):
             if not value.startswith("lin_"):
@@ -181,9 +337,10 @@ class WeightAverage:
 
     Args:
         start: the first training step whose post-update weights enter the mean.
-    """
 
-    FILE = "swa.pt"
+    A checkpoint keeps ``average``, ``snapshots`` and ``last_update``
+    (:mod:`agents.checkpoint`), so a resumed run continues the mean.
+    """
 
     def __init__(self, start: int) -> None:
         self.start = start
@@ -212,28 +369,6 @@ class WeightAverage:
         if not self.snapshots:
             raise RuntimeError(f"no weights averaged: training ended before step {self.start}")
         model.policy.load_state_dict(self.average)
-
-    def save(self, directory: Path) -> None:
-        import torch
-
-        if self.snapshots:
-            state = {
-                "average": self.average,
-                "snapshots": self.snapshots,
-                "last_update": self.last_update,
-            }
-            torch.save(state, directory / self.FILE)
-
-    def load(self, directory: Path) -> None:
-        """Continue the mean saved beside a checkpoint (if averaging had begun there)."""
-        import torch
-
-        file = directory / self.FILE
-        if file.is_file():
-            state = torch.load(file, weights_only=True)
-            self.average = state["average"]
-            self.snapshots = int(state["snapshots"])
-            self.last_update = int(state["last_update"])
 
 
 def validation_armse(

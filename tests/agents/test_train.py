@@ -107,7 +107,8 @@ def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
     assert stats["selected"]["timesteps"] == stats["validation"][best]["timesteps"]
     agent = json.loads((run / "agent" / "agent.json").read_text())
     assert agent["num_timesteps"] == stats["selected"]["timesteps"]
-    assert (run / "agent" / "policy.pt").read_bytes() == (run / "best" / "policy.pt").read_bytes()
+    agent, best = run / "agent" / "policy.safetensors", run / "best" / "policy.safetensors"
+    assert agent.read_bytes() == best.read_bytes()
 
 
 def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> None:
@@ -219,7 +220,7 @@ def test_export_copies_the_acting_files(trained, tmp_path) -> None:
     obs_dim = TrackingCore(EnvConfig.build(policy.env_overrides), 1).obs_dim
     actions, _ = policy.predict(np.zeros((1, obs_dim), dtype=np.float32))
     assert actions.shape == (1, 9)
-    with pytest.raises(FileNotFoundError, match="not a trained agent"):
+    with pytest.raises(FileNotFoundError, match="no trained agent"):
         export(tmp_path / "nothing", tmp_path / "other")
 
 

@@ -1,0 +1,281 @@
+"""Training checkpoints as data: everything ``train.py --resume`` needs, nothing pickled.
+
+A checkpoint directory is an agent directory (the acting files of :mod:`agents.policy`:
+``agent.json``, ``policy.safetensors``, ``env.json``, ``vecnormalize.json`` with the observation
+normalizer's statistics) plus
+
+* ``resume.json`` — the run: algorithm, environment id, seed and hyperparameters; the algorithm's
+  counters (steps, updates, episodes); each training slot's two random streams (the numpy
+  bit-generator states of its scenario and noise generators), so that a resumed run draws the
+  episodes that come next instead of replaying the first ones; the global numpy generator
+  (minibatch order); the reward normalizer's running mean, variance and count; the weight
+  average's counters;
+* ``resume.safetensors`` — the optimizer's state (Adam's step counts and moments per
+  parameter), torch's generator state (action sampling) and the weight average's tensors.
+
+A resumed run rebuilds the model from the recorded hyperparameters and loads these; the episodes
+in progress at the checkpoint and the partial rollout are not kept (each slot starts its next
+episode from its continued streams). Checkpoints are written to a sibling directory and then
+renamed into place, so an existing checkpoint is never left half-written. SB3's ``model.zip``
+(pickled objects) is neither written nor read.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.policy import ALGOS, load_agent, read_json
+from agents.training import WeightAverage, check_hyperparams, find_normalizer, save_agent
+from imm_gym.validation import ConfigError
+
+RESUME_FILE = "resume.json"
+TENSORS_FILE = "resume.safetensors"
+#: The version of the layout above, recorded in ``resume.json``.
+FORMAT = 1
+#: The keys of ``resume.json``.
+RESUME_KEYS = (
+    "format",
+    "algo",
+    "env_id",
+    "seed",
+    "hyperparams",
+    "num_timesteps",
+    "n_updates",
+    "episode_num",
+    "streams",
+    "numpy_rng",
+    "reward_normalizer",
+    "swa",
+)
+
+
+def save_checkpoint(
+    directory: Path,
+    model: Any,
+    env: Any,
+    run: dict[str, Any],
+    agent_meta: dict[str, Any],
+    swa: WeightAverage | None,
+) -> None:
+    """Write the checkpoint ``directory`` (replacing it once complete).
+
+    Args:
+        directory: the checkpoint directory.
+        model: the SB3 algorithm (PPO or RecurrentPPO) being trained.
+        env: its VecEnv stack (:func:`agents.training.make_training_env`).
+        run: ``algo``, ``env_id``, ``seed`` and the checked ``hyperparams`` (plain data).
+        agent_meta: the extra entries of ``agent.json`` (critic_dims, steps...).
+        swa: the weight average, if the run keeps one.
+    """
+    import torch
+
+    from agents.network import save_tensors
+
+    partial = directory.with_name(f".{directory.name}.partial")
+    if partial.exists():
+        shutil.rmtree(partial)
+    hyperparams = run["hyperparams"]
+    frame_stack = int(hyperparams.get("frame_stack", 1))
+    env_kwargs = hyperparams.get("env_kwargs", {})
+    save_agent(partial, model, env, env_kwargs, run["algo"], frame_stack, agent_meta)
+    tensors = _optimizer_tensors(model.policy.optimizer)
+    tensors["rng/torch"] = torch.get_rng_state()
+    averaging = swa is not None and swa.snapshots > 0
+    if averaging:
+        tensors.update({f"swa/{name}": value for name, value in swa.average.items()})
+    save_tensors(partial / TENSORS_FILE, tensors)
+    norm = find_normalizer(env)
+    numpy_state = np.random.get_state(legacy=False)  # noqa: NPY002 (SB3 shuffles with it)
+    numpy_state["state"]["key"] = numpy_state["state"]["key"].tolist()
+    state = {
+        "format": FORMAT,
+        **{key: run[key] for key in ("algo", "env_id", "seed", "hyperparams")},
+        "num_timesteps": int(model.num_timesteps),
+        "n_updates": int(model._n_updates),
+        "episode_num": int(model._episode_num),
+        "streams": stream_states(env.unwrapped.core),
+        "numpy_rng": numpy_state,
+        "reward_normalizer": None
+        if norm is None
+        else {
+            "mean": float(norm.ret_rms.mean),
+            "var": float(norm.ret_rms.var),
+            "count": float(norm.ret_rms.count),
+        },
+        "swa": {"snapshots": swa.snapshots, "last_update": swa.last_update} if averaging else None,
+    }
+    (partial / RESUME_FILE).write_text(json.dumps(state))
+    old = directory.with_name(f".{directory.name}.old")
+    if directory.exists():
+        if old.exists():
+            shutil.rmtree(old)
+        directory.rename(old)
+    partial.rename(directory)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+def read_checkpoint(directory: Path) -> dict[str, Any]:
+    """The checked ``resume.json`` of a checkpoint whose acting files and tensors load.
+
+    Raises:
+        ConfigError: ``directory`` is not a checkpoint of this version (a ``model.zip`` of an
+            earlier version is refused: it is a pickle), or one of its files is malformed; the
+            message names the file.
+    """
+    from agents.network import load_tensors
+
+    file = directory / RESUME_FILE
+    if not file.is_file():
+        if (directory / "model.zip").exists():
+            raise ConfigError(
+                f"{directory} is a checkpoint of an earlier version (SB3's model.zip: pickled "
+                "objects, which can run code when loaded), so it is not loaded; this version "
+                f"resumes only from its own data-only checkpoints ({RESUME_FILE} + "
+                f"{TENSORS_FILE}). The run cannot be continued; its policy can be converted "
+                f"on a machine where you trust the files: python -m agents.export --from-pickle "
+                f"{directory} --to NEW_DIR"
+            )
+        raise ConfigError(f"{directory} is not a checkpoint ({RESUME_FILE} missing)")
+    state = read_json(file)
+    if sorted(state) != sorted(RESUME_KEYS):
+        raise ConfigError(f"{file}: keys must be {list(RESUME_KEYS)}, got {sorted(state)}")
+    if state["format"] != FORMAT:
+        raise ConfigError(f"{file}: format {state['format']!r} is not {FORMAT}")
+    if state["algo"] not in ALGOS:
+        raise ConfigError(f"{file}: algo must be one of {list(ALGOS)}, got {state['algo']!r}")
+    for key in ("seed", "num_timesteps", "n_updates", "episode_num"):
+        value = state[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ConfigError(f"{file}: {key} must be a non-negative integer, got {value!r}")
+    if not isinstance(state["streams"], list):
+        raise ConfigError(f"{file}: streams must be a list")
+    state["hyperparams"] = check_hyperparams(
+        f"{file}: hyperparams", state["hyperparams"], state["algo"]
+    )
+    load_agent(directory)
+    load_tensors(directory / TENSORS_FILE)
+    return state
+
+
+def restore(directory: Path, state: dict[str, Any], model: Any, env: Any, swa: Any) -> None:
+    """Load a checkpoint into a model freshly built from its hyperparameters and seed.
+
+    Sets the policy's weights, the optimizer's state, the step/update/episode counters, the
+    normalizer's statistics, each training slot's streams (the next reset continues them), the
+    weight average, and torch's and numpy's global generators.
+
+    Raises:
+        ConfigError: a file does not fit the model (the message names it).
+    """
+    import torch
+
+    from agents.network import load_tensors, load_weights
+
+    file = directory / RESUME_FILE
+    load_weights(model.policy, directory)
+    tensors = load_tensors(directory / TENSORS_FILE)
+    _load_optimizer(model.policy, tensors, directory / TENSORS_FILE)
+    model.num_timesteps = state["num_timesteps"]
+    model._n_updates = state["n_updates"]
+    model._episode_num = state["episode_num"]
+    norm = find_normalizer(env)
+    if (norm is None) != (state["reward_normalizer"] is None):
+        raise ConfigError(f"{file}: the normalizer does not match the hyperparameters")
+    if norm is not None:
+        stats = read_json(directory / "vecnormalize.json")
+        norm.obs_rms.mean = np.array(stats["mean"])
+        norm.obs_rms.var = np.array(stats["var"])
+        norm.obs_rms.count = stats["count"]
+        reward = state["reward_normalizer"]
+        norm.ret_rms.mean = np.array(_number(file, reward, "mean"))
+        norm.ret_rms.var = np.array(_number(file, reward, "var"))
+        norm.ret_rms.count = _number(file, reward, "count")
+    restore_streams(env.unwrapped, state["streams"], file)
+    if swa is not None and state["swa"] is not None:
+        swa.average = {k[4:]: v for k, v in tensors.items() if k.startswith("swa/")}
+        swa.snapshots = int(state["swa"]["snapshots"])
+        swa.last_update = int(state["swa"]["last_update"])
+    try:
+        numpy_state = dict(state["numpy_rng"])
+        numpy_state["state"] = dict(numpy_state["state"])
+        numpy_state["state"]["key"] = np.array(numpy_state["state"]["key"], dtype=np.uint32)
+        np.random.set_state(numpy_state)  # noqa: NPY002
+        torch.set_rng_state(tensors["rng/torch"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as err:
+        raise ConfigError(f"{file}: the generator states are malformed ({err!r})") from None
+
+
+def _number(file: Path, mapping: Any, key: str) -> float:
+    value = mapping.get(key) if isinstance(mapping, dict) else None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise ConfigError(f"{file}: reward_normalizer.{key} must be a finite number")
+    return float(value)
+
+
+def stream_states(core: Any) -> list[list[dict[str, Any]]]:
+    """Each slot's ``[scenario, noise]`` bit-generator states (JSON-able: PCG64 holds ints).
+
+    Reads :class:`~imm_gym.sim.core.TrackingCore`'s per-slot generators, which it keeps across
+    episodes (a slot reset without a seed continues them).
+    """
+    return [[rng.bit_generator.state for rng in pair] for pair in core._rngs]
+
+
+def restore_streams(venv: Any, states: list[Any], file: Path) -> None:
+    """Give each slot of the SB3 adapter ``venv`` the generators of ``states`` and drop the
+    seeds pending for its next reset, so that the reset continues the recorded streams."""
+    core = venv.core
+    if len(states) != core.n_envs:
+        raise ConfigError(f"{file}: {len(states)} streams for {core.n_envs} training slots")
+    rngs = []
+    for i, pair in enumerate(states):
+        try:
+            generators = [np.random.Generator(np.random.PCG64()) for _ in range(2)]
+            for generator, recorded in zip(generators, pair, strict=True):
+                generator.bit_generator.state = recorded
+        except (KeyError, TypeError, ValueError) as err:
+            raise ConfigError(f"{file}: streams[{i}] is not two PCG64 states ({err!r})") from None
+        rngs.append(tuple(generators))
+    core._rngs = rngs
+    venv._reset_seeds()
+
+
+def _optimizer_tensors(optimizer: Any) -> dict[str, Any]:
+    """``optimizer/<parameter index>/<name>`` for each tensor of the optimizer's state."""
+    return {
+        f"optimizer/{index}/{name}": value
+        for index, entries in optimizer.state_dict()["state"].items()
+        for name, value in entries.items()
+    }
+
+
+def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path) -> None:
+    """Load the ``optimizer/...`` tensors into ``policy.optimizer`` (its hyperparameters are the
+    recorded ones, rebuilt; only the per-parameter state is loaded), checking every shape."""
+    optimizer = policy.optimizer
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    state: dict[int, dict[str, Any]] = {}
+    for key, value in tensors.items():
+        parts = key.split("/")
+        if parts[0] != "optimizer":
+            continue
+        if len(parts) != 3 or not parts[1].isdigit() or int(parts[1]) >= len(params):
+            raise ConfigError(f"{file}: {key!r} names no parameter of the optimizer")
+        index = int(parts[1])
+        if value.dim() and value.shape != params[index].shape:
+            raise ConfigError(
+                f"{file}: {key!r} is {tuple(value.shape)}, its parameter "
+                f"{tuple(params[index].shape)}"
+            )
+        state.setdefault(index, {})[parts[2]] = value
+    if state and sorted(state) != list(range(len(params))):
+        raise ConfigError(f"{file}: optimizer state for {len(state)} of {len(params)} parameters")
+    optimizer.load_state_dict(
+        {"state": state, "param_groups": optimizer.state_dict()["param_groups"]}
+    )

@@ -1,0 +1,190 @@
+"""The policy network as data: described in JSON, its tensors in safetensors, nothing unpickled.
+
+A network is rebuilt (:func:`build_policy`) from a description checked by
+:func:`agents.schema.check_spec` — the policy class by name from :data:`POLICY_CLASSES`, the
+activation by name, sizes as integers, flags as booleans — and its weights are read with
+``safetensors`` (a header of names, dtypes and shapes, then raw numbers: reading it cannot run
+code). :func:`policy_spec` writes the description of a live policy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import FlattenExtractor
+from torch import nn
+
+from agents.asymmetric import AsymmetricActorCriticPolicy
+from agents.schema import ACTIVATIONS, SDE_KEYS
+from imm_gym.validation import ConfigError
+
+#: The ``nn.Module`` class of each activation name of :data:`agents.schema.ACTIVATIONS`.
+ACTIVATION_CLASSES: dict[str, type[nn.Module]] = {
+    name: getattr(nn, cls) for name, cls in ACTIVATIONS.items()
+}
+
+
+def _recurrent_policy() -> type[ActorCriticPolicy]:
+    from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
+
+    return RecurrentActorCriticPolicy
+
+
+#: Policy classes by the name an agent records (sb3-contrib imported only for a recurrent one).
+POLICY_CLASSES: dict[str, Callable[[], type[ActorCriticPolicy]]] = {
+    "MlpPolicy": lambda: ActorCriticPolicy,
+    "AsymmetricMlpPolicy": lambda: AsymmetricActorCriticPolicy,
+    "MlpLstmPolicy": _recurrent_policy,
+}
+
+#: File of an agent's network weights.
+WEIGHTS = "policy.safetensors"
+
+
+def sb3_policy_kwargs(kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """Checked ``policy_kwargs`` as SB3 takes them: ``activation_fn`` the ``nn.Module`` class."""
+    out = dict(kwargs)
+    if "activation_fn" in out:
+        out["activation_fn"] = ACTIVATION_CLASSES[out["activation_fn"]]
+    return out
+
+
+def policy_spec(policy: ActorCriticPolicy) -> dict[str, Any]:
+    """The JSON description of a live SB3 policy from which :func:`build_policy` rebuilds it.
+
+    Raises:
+        ValueError: the policy is not one of :data:`POLICY_CLASSES` with a flat Box observation,
+            a Box(-1, 1) action, the flatten feature extractor and an activation of
+            :data:`ACTIVATION_CLASSES` — it could not be described as data.
+    """
+    names = {factory(): name for name, factory in POLICY_CLASSES.items()}
+    name = names.get(type(policy))
+    activation = {cls: key for key, cls in ACTIVATION_CLASSES.items()}.get(policy.activation_fn)
+    obs_space, act_space = policy.observation_space, policy.action_space
+    describable = (
+        name is not None
+        and activation is not None
+        and isinstance(obs_space, spaces.Box)
+        and len(obs_space.shape) == 1
+        and isinstance(act_space, spaces.Box)
+        and len(act_space.shape) == 1
+        and np.all(act_space.low == -1.0)
+        and np.all(act_space.high == 1.0)
+        and policy.features_extractor_class is FlattenExtractor
+        and not policy.features_extractor_kwargs
+        and not getattr(policy, "lstm_kwargs", None)
+    )
+    if not describable:
+        raise ValueError(f"a {type(policy).__name__} of this configuration cannot be saved as data")
+    net_arch = policy.net_arch
+    spec: dict[str, Any] = {
+        "class": name,
+        "observation_size": int(obs_space.shape[0]),
+        "action_size": int(act_space.shape[0]),
+        "net_arch": dict(net_arch) if isinstance(net_arch, dict) else list(net_arch),
+        "activation_fn": activation,
+        "log_std_init": float(policy.log_std_init),
+        "ortho_init": bool(policy.ortho_init),
+        "share_features_extractor": bool(policy.share_features_extractor),
+        "use_sde": bool(policy.use_sde),
+    }
+    if policy.use_sde:
+        spec.update({k: bool(policy.dist_kwargs[k]) for k in SDE_KEYS})
+    if name == "AsymmetricMlpPolicy":
+        spec.update(critic_dims=policy.critic_dims, frame_stack=policy.frame_stack)
+    if name == "MlpLstmPolicy":
+        spec.update(
+            lstm_hidden_size=policy.lstm_actor.hidden_size,
+            n_lstm_layers=policy.lstm_actor.num_layers,
+            shared_lstm=bool(policy.shared_lstm),
+            enable_critic_lstm=bool(policy.enable_critic_lstm),
+        )
+    return spec
+
+
+def build_policy(spec: dict[str, Any], where: str) -> ActorCriticPolicy:
+    """A freshly initialized policy network from a description checked by :func:`check_spec`.
+
+    Raises:
+        ConfigError: SB3 refuses the combination of settings (the message names ``where``).
+    """
+    kwargs = {
+        k: v for k, v in spec.items() if k not in ("class", "observation_size", "action_size")
+    }
+    obs = spaces.Box(-np.inf, np.inf, (spec["observation_size"],), np.float32)
+    act = spaces.Box(-1.0, 1.0, (spec["action_size"],), np.float32)
+    try:
+        return POLICY_CLASSES[spec["class"]]()(obs, act, _no_schedule, **sb3_policy_kwargs(kwargs))
+    except (AssertionError, TypeError, ValueError, RuntimeError) as err:
+        raise ConfigError(f"{where}: SB3 cannot build this network ({err})") from None
+
+
+def _no_schedule(progress_remaining: float) -> float:
+    """The learning rate of a policy that only acts: never used."""
+    del progress_remaining
+    return 0.0
+
+
+def save_tensors(file: Path, tensors: Mapping[str, torch.Tensor], **metadata: str) -> None:
+    """Write named tensors (copied: safetensors refuses shared storage) to ``file``."""
+    save_file(
+        {k: v.detach().clone().contiguous() for k, v in tensors.items()},
+        str(file),
+        metadata=metadata or None,
+    )
+
+
+def load_tensors(file: Path) -> dict[str, torch.Tensor]:
+    """Named tensors from a safetensors ``file``, every floating one finite.
+
+    Raises:
+        ConfigError: the file is missing, truncated or not safetensors, or holds NaN/inf.
+    """
+    if not file.is_file():
+        raise ConfigError(f"{file}: missing")
+    try:
+        tensors = load_file(str(file))
+    except (SafetensorError, OSError, ValueError) as err:
+        raise ConfigError(f"{file}: not a readable safetensors file ({err})") from None
+    for name, tensor in tensors.items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise ConfigError(f"{file}: tensor {name!r} holds NaN or infinite values")
+    return tensors
+
+
+def save_weights(policy: nn.Module, directory: Path) -> None:
+    """``directory/policy.safetensors``: the policy's state dict."""
+    save_tensors(directory / WEIGHTS, policy.state_dict())
+
+
+def load_weights(policy: nn.Module, directory: Path) -> None:
+    """Load ``directory/policy.safetensors`` into ``policy`` (every tensor, exact shapes).
+
+    Raises:
+        ConfigError: the file is unreadable, or its tensors do not fit the network.
+    """
+    file = directory / WEIGHTS
+    state = load_tensors(file)
+    expected = policy.state_dict()
+    missing = sorted(set(expected) - set(state))
+    unexpected = sorted(set(state) - set(expected))
+    if missing or unexpected:
+        raise ConfigError(
+            f"{file}: the tensors do not fit the network of agent.json (missing {missing}, "
+            f"unexpected {unexpected})"
+        )
+    for name, tensor in state.items():
+        if tensor.shape != expected[name].shape or tensor.dtype != expected[name].dtype:
+            raise ConfigError(
+                f"{file}: tensor {name!r} is {tensor.dtype} {tuple(tensor.shape)}, the network "
+                f"of agent.json needs {expected[name].dtype} {tuple(expected[name].shape)}"
+            )
+    policy.load_state_dict(state)

@@ -1,0 +1,179 @@
+"""The vocabulary of the data files that describe training and agents: checked, never evaluated.
+
+The ``policy_kwargs`` of a hyperparameter file (:func:`check_policy_kwargs`) and the network
+description in an agent's ``agent.json`` (:func:`check_spec`) use the same allow-list: the policy
+class by name (:data:`POLICY_CLASS_NAMES`), the activation by name (:data:`ACTIVATIONS`), layer
+sizes as integers, flags as booleans. A name outside it is an error naming the file and the key,
+never a lookup in a Python namespace. :mod:`agents.network` turns a checked description into a
+network.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from imm_gym.validation import ConfigError
+
+#: Activations by name (the ``torch.nn`` class of each): the only ones a hyperparameter file or
+#: an agent may ask for.
+ACTIVATIONS = {
+    "tanh": "Tanh",
+    "relu": "ReLU",
+    "elu": "ELU",
+    "leaky_relu": "LeakyReLU",
+    "silu": "SiLU",
+    "gelu": "GELU",
+}
+
+#: The policy classes an agent may record (:data:`agents.network.POLICY_CLASSES`).
+POLICY_CLASS_NAMES = ("MlpPolicy", "AsymmetricMlpPolicy", "MlpLstmPolicy")
+
+
+def check_flag(where: str, value: Any) -> bool:
+    """``value`` if it is a boolean (not 0/1, not a string); ``where`` names it."""
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where} must be true or false, got {value!r}")
+    return value
+
+
+def check_size(where: str, value: Any) -> int:
+    """``value`` if it is an integer >= 1 (not a float, a boolean or a string)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"{where} must be a positive integer, got {value!r}")
+    return value
+
+
+def check_count(where: str, value: Any) -> int:
+    """``value`` if it is an integer >= 0 (not a float, a boolean or a string)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ConfigError(f"{where} must be a non-negative integer, got {value!r}")
+    return value
+
+
+def check_number(where: str, value: Any) -> float:
+    """``value`` as a float if it is a finite int or float (not a boolean or a string)."""
+    number = math.nan
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        try:
+            number = float(value)
+        except OverflowError:  # an integer beyond the floats
+            number = math.inf
+    if not math.isfinite(number):
+        raise ConfigError(f"{where} must be a finite number, got {value!r}")
+    return number
+
+
+def _activation(where: str, value: Any) -> str:
+    if not isinstance(value, str) or value not in ACTIVATIONS:
+        raise ConfigError(f"{where} must be one of {list(ACTIVATIONS)}, got {value!r}")
+    return value
+
+
+def _layers(where: str, value: Any) -> list[int]:
+    if not isinstance(value, list):
+        raise ConfigError(f"{where} must be a list of layer sizes, got {value!r}")
+    return [check_size(f"{where}[{i}]", n) for i, n in enumerate(value)]
+
+
+def _net_arch(where: str, value: Any) -> list[int] | dict[str, list[int]]:
+    """``[64, 64]`` (shared sizes) or ``{pi: [...], vf: [...]}`` (actor and critic)."""
+    if isinstance(value, Mapping):
+        if set(value) != {"pi", "vf"}:
+            raise ConfigError(f"{where} must have the keys pi and vf, got {sorted(value)}")
+        return {key: _layers(f"{where}.{key}", value[key]) for key in ("pi", "vf")}
+    return _layers(where, value)
+
+
+#: ``policy_kwargs`` a hyperparameter file may set, with their checks.
+POLICY_KWARGS: dict[str, Callable[[str, Any], Any]] = {
+    "net_arch": _net_arch,
+    "activation_fn": _activation,
+    "log_std_init": check_number,
+    "ortho_init": check_flag,
+    "full_std": check_flag,
+    "use_expln": check_flag,
+    "squash_output": check_flag,
+    "share_features_extractor": check_flag,
+    "lstm_hidden_size": check_size,
+    "n_lstm_layers": check_size,
+    "shared_lstm": check_flag,
+    "enable_critic_lstm": check_flag,
+}
+
+#: the recurrent policy's own keys, and those of the gSDE distribution
+LSTM_KEYS = ("lstm_hidden_size", "n_lstm_layers", "shared_lstm", "enable_critic_lstm")
+SDE_KEYS = ("full_std", "use_expln", "squash_output")
+
+#: Entries of an agent's network description beyond :data:`POLICY_KWARGS`.
+SPEC_FIELDS: dict[str, Callable[[str, Any], Any]] = {
+    "observation_size": check_size,
+    "action_size": check_size,
+    "use_sde": check_flag,
+    "critic_dims": check_count,
+    "frame_stack": check_size,
+}
+
+#: description keys of every policy class, and those of one class only
+_COMMON_KEYS = (
+    *(k for k in POLICY_KWARGS if k not in LSTM_KEYS),
+    "observation_size",
+    "action_size",
+    "use_sde",
+)
+_CLASS_KEYS = {
+    "MlpPolicy": (),
+    "AsymmetricMlpPolicy": ("critic_dims", "frame_stack"),
+    "MlpLstmPolicy": LSTM_KEYS,
+}
+
+
+def check_policy_kwargs(where: str, value: Any, recurrent: bool) -> dict[str, Any]:
+    """The ``policy_kwargs`` of a hyperparameter entry, checked; still data (activation by name).
+
+    Args:
+        where: the file and entry, for the messages.
+        value: a mapping of :data:`POLICY_KWARGS` keys, e.g. ``{net_arch: {pi: [128, 128],
+            vf: [128, 128]}, activation_fn: tanh, log_std_init: -1.0}``.
+        recurrent: whether the policy is RecurrentPPO's (the LSTM keys are its only).
+
+    Raises:
+        ConfigError: ``value`` is not a mapping (a Python expression such as
+            ``"dict(net_arch=[64])"`` is refused, never evaluated), has an unknown key or a value
+            of the wrong kind.
+    """
+    if not isinstance(value, Mapping):
+        raise ConfigError(
+            f"{where}: policy_kwargs must be a mapping in YAML (e.g. net_arch: {{pi: [64], "
+            f"vf: [64]}}, activation_fn: tanh), not {value!r}; Python expressions are not "
+            "evaluated"
+        )
+    allowed = [k for k in POLICY_KWARGS if recurrent or k not in LSTM_KEYS]
+    unknown = sorted(set(value) - set(allowed))
+    if unknown:
+        raise ConfigError(f"{where}: unknown policy_kwargs {unknown}; allowed: {sorted(allowed)}")
+    return {k: POLICY_KWARGS[k](f"{where}: policy_kwargs.{k}", v) for k, v in value.items()}
+
+
+def check_spec(where: str, spec: Any) -> dict[str, Any]:
+    """An agent's network description (``agent.json``'s ``"policy"``), checked.
+
+    Raises:
+        ConfigError: not a mapping, an unknown class or key, a missing size, a wrong kind.
+    """
+    if not isinstance(spec, Mapping):
+        raise ConfigError(f"{where} must be a mapping, got {spec!r}")
+    name = spec.get("class")
+    if name not in POLICY_CLASS_NAMES:
+        raise ConfigError(f"{where}.class must be one of {list(POLICY_CLASS_NAMES)}, got {name!r}")
+    unknown = sorted(set(spec) - {"class", *_COMMON_KEYS, *_CLASS_KEYS[name]})
+    if unknown:
+        raise ConfigError(f"{where}: unknown keys {unknown} for a {name}")
+    missing = [k for k in ("observation_size", "action_size", *_CLASS_KEYS[name]) if k not in spec]
+    if missing:
+        raise ConfigError(f"{where}: missing {missing}")
+    checks = {**POLICY_KWARGS, **SPEC_FIELDS}
+    return {"class": name} | {
+        k: checks[k](f"{where}.{k}", v) for k, v in spec.items() if k != "class"
+    }

@@ -1,0 +1,166 @@
+"""Checkpoints (agents/checkpoint.py): a restored model is the saved one — weights, optimizer
+moments, counters, normalizer statistics, weight average, generator states — and each training
+slot continues its random streams instead of replaying its first episodes."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import PPO
+
+from agents.asymmetric import AsymmetricActorCriticPolicy
+from agents.checkpoint import (
+    TENSORS_FILE,
+    read_checkpoint,
+    restore,
+    restore_streams,
+    save_checkpoint,
+    stream_states,
+)
+from agents.training import (
+    WeightAverage,
+    algo_kwargs,
+    find_normalizer,
+    jsonable,
+    load_hyperparams,
+    make_training_env,
+)
+from imm_gym.validation import ConfigError
+
+ENV = "imm_gym/TPMAdapt-v0"
+SMALL = {"n_envs": 4, "n_steps": 32, "batch_size": 64, "n_epochs": 1, "n_timesteps": 256}
+
+
+def build(params: dict, seed: int = 0) -> tuple[PPO, object]:
+    """The PPO and environment stack ``train.py`` builds for ``params`` (asymmetric critic)."""
+    env = make_training_env(
+        ENV, params["n_envs"], seed, params["env_kwargs"], True, params["frame_stack"], 0.9, True
+    )
+    kwargs = algo_kwargs(params)
+    kwargs["policy_kwargs"] = {**kwargs["policy_kwargs"], "critic_dims": 11, "frame_stack": 4}
+    return PPO(AsymmetricActorCriticPolicy, env, seed=seed, device="cpu", **kwargs), env
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> SimpleNamespace:
+    """A model trained 256 steps and its checkpoint (and the generator states it recorded)."""
+    params = {**load_hyperparams(ENV)[0], **SMALL}
+    model, env = build(params)
+    swa = WeightAverage(0)
+    model.learn(256)
+    swa.update(model)
+    directory = tmp_path_factory.mktemp("ckpt") / "latest"
+    run = {"algo": "ppo", "env_id": ENV, "seed": 0, "hyperparams": jsonable(params)}
+    meta = {"env_id": ENV, "seed": 0, "critic_dims": 11, "num_timesteps": model.num_timesteps}
+    generators = torch.get_rng_state(), np.random.get_state()[1]  # noqa: NPY002
+    save_checkpoint(directory, model, env, run, meta, swa)
+    return SimpleNamespace(
+        directory=directory, params=params, model=model, env=env, swa=swa, generators=generators
+    )
+
+
+def test_restore_gives_back_the_saved_training_state(saved) -> None:
+    directory, params, model, env, swa = (
+        saved.directory,
+        saved.params,
+        saved.model,
+        saved.env,
+        saved.swa,
+    )
+    torch_rng, numpy_rng = saved.generators
+    state = read_checkpoint(directory)
+    other, other_env = build(params, seed=0)
+    other_swa = WeightAverage(0)
+    restore(directory, state, other, other_env, other_swa)
+    for name, value in model.policy.state_dict().items():
+        assert torch.equal(value, other.policy.state_dict()[name]), name
+    saved_opt = model.policy.optimizer.state_dict()["state"]
+    restored_opt = other.policy.optimizer.state_dict()["state"]
+    assert saved_opt.keys() == restored_opt.keys() and len(saved_opt) > 0
+    for index, entries in saved_opt.items():
+        for key, value in entries.items():
+            assert torch.equal(value, restored_opt[index][key]), (index, key)
+    assert (other.num_timesteps, other._n_updates) == (model.num_timesteps, model._n_updates)
+    a, b = find_normalizer(env), find_normalizer(other_env)
+    for rms in ("obs_rms", "ret_rms"):
+        np.testing.assert_array_equal(getattr(a, rms).mean, getattr(b, rms).mean)
+        np.testing.assert_array_equal(getattr(a, rms).var, getattr(b, rms).var)
+        assert getattr(a, rms).count == getattr(b, rms).count
+    assert other_swa.snapshots == swa.snapshots == 1 and other_swa.last_update == swa.last_update
+    for name, value in swa.average.items():
+        assert torch.equal(value, other_swa.average[name])
+    # the generators are those of the moment of the checkpoint, not of the fresh build
+    assert torch.equal(torch.get_rng_state(), torch_rng)
+    np.testing.assert_array_equal(np.random.get_state()[1], numpy_rng)  # noqa: NPY002
+
+
+def test_a_resumed_slot_continues_its_streams_instead_of_replaying_them(saved) -> None:
+    directory, params, env = saved.directory, saved.params, saved.env
+    recorded = json.loads((directory / "resume.json").read_text())["streams"]
+    core = env.unwrapped.core
+    assert recorded == json.loads(json.dumps(stream_states(core)))
+    fresh_env = build(params)[1]
+    resumed_env = build(params)[1]
+    restore_streams(resumed_env.unwrapped, recorded, directory / "resume.json")
+    fresh_env.reset()  # a new run: the first episodes of the run's seeds
+    resumed_env.reset()  # the resumed run: the episodes that come next
+    core.reset(np.arange(core.n_envs), [None] * core.n_envs)  # the run, uninterrupted
+    np.testing.assert_array_equal(resumed_env.unwrapped.core.truth, core.truth)
+    np.testing.assert_array_equal(resumed_env.unwrapped.core.z, core.z)
+    assert not np.array_equal(fresh_env.unwrapped.core.truth, core.truth)
+
+
+def test_a_checkpoint_is_replaced_whole(saved, tmp_path) -> None:
+    params, model, env, swa = saved.params, saved.model, saved.env, saved.swa
+    target = tmp_path / "latest"
+    run = {"algo": "ppo", "env_id": ENV, "seed": 0, "hyperparams": jsonable(params)}
+    meta = {"critic_dims": 11, "num_timesteps": model.num_timesteps}
+    (tmp_path / ".latest.partial").mkdir()  # left by a process killed while writing
+    (tmp_path / ".latest.partial" / "junk").write_text("x")
+    for _ in range(2):
+        save_checkpoint(target, model, env, run, meta, swa)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["latest"]
+    assert read_checkpoint(target)["num_timesteps"] == model.num_timesteps
+
+
+def _truncate(directory: Path) -> None:
+    file = directory / TENSORS_FILE
+    file.write_bytes(file.read_bytes()[:5000])
+
+
+def _edit(directory: Path, **changes: object) -> None:
+    file = directory / "resume.json"
+    file.write_text(json.dumps({**json.loads(file.read_text()), **changes}))
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (_truncate, f"{TENSORS_FILE}: not a readable safetensors file"),
+        (lambda d: (d / "resume.json").write_text("{"), "resume.json: not valid JSON"),
+        (lambda d: _edit(d, seed=-1), "seed must be a non-negative integer"),
+        (lambda d: _edit(d, format=2), "format 2 is not 1"),
+        (lambda d: _edit(d, surprise=1), "resume.json: keys must be"),
+        (lambda d: _edit(d, algo="dqn"), "algo must be one of"),
+        (lambda d: _edit(d, hyperparams={"n_envs": "4"}), "n_envs must be a positive integer"),
+    ],
+)
+def test_a_damaged_checkpoint_is_refused_naming_the_file(saved, tmp_path, damage, message) -> None:
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    damage(directory)
+    with pytest.raises(ConfigError, match=message):
+        read_checkpoint(directory)
+
+
+def test_streams_of_another_slot_count_are_refused(saved) -> None:
+    directory, params = saved.directory, saved.params
+    recorded = json.loads((directory / "resume.json").read_text())["streams"]
+    env = build({**params, "n_envs": 2})[1]
+    with pytest.raises(ConfigError, match="4 streams for 2 training slots"):
+        restore_streams(env.unwrapped, recorded, directory / "resume.json")
