@@ -9,7 +9,10 @@ unless stated:
    and the passive env checker) and the same env's ``.unwrapped``, with zero actions and with
    uniform random actions in [-1, 1] (drawn before timing). A repeat runs whole episodes —
    ``reset()`` then ``step(a)`` until ``terminated or truncated`` — and the time per env step is
-   the repeat's time (resets included) over the env steps it took.
+   the repeat's time (resets included) over the env steps it took. The cost of watching: the
+   same env made with ``render_mode="rgb_array"`` (random actions), once stepping only (the
+   picture's histories recorded at every step) and once calling ``render()`` after every
+   ``reset`` and ``step`` (one frame each); without a render mode nothing is recorded or drawn.
 2. Native vector env, ``gymnasium.make_vec(id, num_envs=N, vectorization_mode=
    "vector_entry_point")`` for N = 1, 64, 1024 in four configurations: parallel bank B off / on
    (``parallel=True``) x shadow tracker on (default: ``shadow="fixed"``, ``reward="advantage"``) /
@@ -97,7 +100,9 @@ Array = np.ndarray
 class Result:
     """Timing of one configuration."""
 
-    front: str  # "gymnasium.make", ".unwrapped", "make_vec", "SB3 VecEnv", "FilterPy"
+    # "gymnasium.make", ".unwrapped", "make rgb_array", "make rgb_array + render()", "make_vec",
+    # "SB3 VecEnv", "FilterPy"
+    front: str
     config: str
     actions: str
     n_envs: int
@@ -184,25 +189,37 @@ def action_pool(space: gym.spaces.Box, kind: str, length: int, seed: int) -> lis
 
 
 def scalar_case(
-    env: gym.Env, pool: list[Array], seed: int
+    env: gym.Env, pool: list[Array], seed: int, render: bool = False
 ) -> tuple[Callable[[], float], harness.Block]:
-    """Warm-up and timed block (whole episodes, resets included) of a scalar env."""
+    """Warm-up and timed block (whole episodes, resets included) of a scalar env; ``render``:
+    ``env.render()`` after every ``reset`` and ``step``."""
     P = len(pool)
+    reset, step = env.reset, env.step
+    if render:
+
+        def reset(**kwargs: Any) -> Any:
+            out = env.reset(**kwargs)
+            env.render()
+            return out
+
+        def step(action: Array) -> Any:
+            out = env.step(action)
+            env.render()
+            return out
 
     def warmup() -> float:
-        env.reset(seed=seed)
+        reset(seed=seed)
         for i in range(WARMUP_STEPS):
-            env.step(pool[i])
-        env.reset()
+            step(pool[i])
+        reset()
 
         def loop() -> None:
             for i in range(WARMUP_STEPS):
-                env.step(pool[i])
+                step(pool[i])
 
         return harness.timed(loop)[0] / WARMUP_STEPS
 
     def block(episodes: int) -> harness.Sample:
-        reset, step = env.reset, env.step
         count = [0]
 
         def loop() -> None:
@@ -480,6 +497,13 @@ def run(args: argparse.Namespace, console: Console) -> int:
             warmup, block = scalar_case(env, pool, args.seed)
             scalar.append(bench(front, "default", kind, 1, block, warmup, horizon, **common))
     made.close()
+    for front, draws in (("make rgb_array", False), ("make rgb_array + render()", True)):
+        console.print(f"[dim]timing scalar env {front} random actions ...[/dim]")
+        env = gym.make(ENV_ID, render_mode="rgb_array")
+        pool = action_pool(env.action_space, "random", horizon, args.seed)
+        warmup, block = scalar_case(env, pool, args.seed, draws)
+        scalar.append(bench(front, "default", "random", 1, block, warmup, horizon, **common))
+        env.close()
 
     # 2. FilterPy reference
     console.print("[dim]timing FilterPy IMMEstimator (UKF) N=1 (bench_imm.py) ...[/dim]")
