@@ -91,12 +91,12 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     reused across steps (:mod:`imm_gym.sim.render`): the sensor, the truth, the combined
     estimates and the measurements so far (outliers and missed detections marked), a zoom on the
     target with the estimate's 95 % covariance ellipse, the TPM the step used and the mode
-    probabilities of the last 40 steps under the true model. ``render_mode="human"`` draws the
-    same picture in a pyplot window at every ``reset`` and ``step`` (``metadata["render_fps"]``
-    pictures per second) when pyplot's backend is interactive; without a display (the Agg
-    backend) the pictures are drawn and not shown. Without a render mode nothing is recorded or
-    drawn. ``gymnasium.wrappers.RecordVideo`` records the ``"rgb_array"`` frames (it needs
-    moviepy).
+    probabilities of the recent steps (a 40-step window) under the true model.
+    ``render_mode="human"`` draws the same picture in a pyplot window at every ``reset`` and
+    ``step`` (``metadata["render_fps"]`` pictures per second) when pyplot's backend is
+    interactive; without a display (the Agg backend) the pictures are drawn and not shown.
+    Without a render mode nothing is recorded or drawn. ``gymnasium.wrappers.RecordVideo``
+    records the ``"rgb_array"`` frames (it needs moviepy).
 
     ## Seeding
     ``reset(seed=s)`` derives two streams from ``s`` — scenario and sensor noise — so two

@@ -160,7 +160,12 @@ def _write_gif(frames: Iterator[NDArray[np.uint8]], path: Path, fps: float) -> i
         for frame in frames
     ]
     images[0].save(
-        path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0
+        path,
+        save_all=True,
+        append_images=images[1:],
+        duration=round(1000 / fps),
+        loop=0,
+        optimize=True,  # pixels equal to the previous frame's stored as transparent
     )
     return len(images)
 

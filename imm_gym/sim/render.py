@@ -18,8 +18,9 @@ The picture, left to right:
   eigenvectors of the position block ``P``;
 * the TPM the step used, a heatmap on a log scale, ``tpm[i, j] = P(model j at k | model i at
   k−1)``;
-* the mode probabilities ``μ_j(t)`` over the last ``window_steps`` steps, with a bar on top
-  coloured by the true model of each step.
+* the mode probabilities ``μ_j(t)`` of the recent steps, with a bar on top coloured by the true
+  model of each step: a window of ``window_steps`` steps that moves on by half its width when
+  ``t`` reaches its right end (so at least the last ``window_steps / 2`` steps are shown).
 """
 
 from __future__ import annotations
@@ -126,15 +127,17 @@ def ellipse_axes(covariance: Array, quantile: float = CHI2_2_95) -> tuple[float,
 class TrackFigure:
     """One figure, built once, that draws :class:`TrackView` s (see the module docstring).
 
-    Every axis limit but the scene's is fixed (the zoom is centred on the true target, the mode
-    probabilities are plotted against the steps before ``t``), so the axes, ticks, legends and
-    titles are drawn once into a background (again when the scene's extent changes, at a new
-    episode) and a frame restores it and draws only the artists that move (blitting).
+    The axis limits stay fixed for many frames (the zoom is centred on the true target, the
+    scene is the episode's, the mode probabilities' window moves every ``window_steps / 2``
+    steps), so the axes, ticks, legends and titles are drawn into a background when a limit
+    changes and a frame restores it and draws only the artists that move (blitting). The mode
+    probabilities and the true-model bar only grow between two moves of their window, which also
+    keeps consecutive frames alike (a small GIF).
 
     Args:
         labels: the M models' names.
         scale: the frame is ``640·scale`` x ``400·scale`` pixels, text and lines scaled alike.
-        window_steps: steps of mode probabilities shown.
+        window_steps: width of the mode probabilities' window (an even number of steps).
         zoom: the half-width (m) of the zoom on the target.
         window: draw into a pyplot figure that is shown when pyplot's backend is interactive
             (``"human"``) instead of an off-screen Agg canvas.
@@ -219,9 +222,8 @@ class TrackFigure:
             mu.plot([], [], "-", color=f"C{j + 4}", lw=4.0, solid_capstyle="butt")[0]
             for j in range(M)
         ]
-        mu.set(xlim=(-window_steps, 0), ylim=(-0.03, 1.14), yticks=[0.0, 0.5, 1.0])
-        mu.set_xlabel("steps before t; mode probabilities, bar: the true model", fontsize=6,
-                      labelpad=1)
+        mu.set(ylim=(-0.03, 1.14), yticks=[0.0, 0.5, 1.0])
+        mu.set_xlabel("step; mode probabilities, bar: the true model", fontsize=6, labelpad=1)
         mu.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=M, fontsize=6,
                   frameon=False, handlelength=1.5, borderaxespad=0.1)
 
@@ -233,6 +235,7 @@ class TrackFigure:
         for artist in self.moving:
             artist.set_animated(True)
         self._extent: tuple[float, float, float, float] | None = None
+        self._first = -1  # first step of the mode probabilities' window
         self._background: Any = None
         self._shown = False
         fig.canvas.mpl_connect("draw_event", self._on_draw)
@@ -273,12 +276,17 @@ class TrackFigure:
             stay.set_text(f"{value:.3f}")
             stay.set_color("k" if value > 0.1 else "w")
 
-        first = max(0, k - self.window_steps)
+        shift = self.window_steps // 2
+        first = max(0, (k // shift - 1) * shift)  # the window [first, first + window_steps)
+        if first != self._first:
+            self._first = first
+            self.ax_mu.set_xlim(first, first + self.window_steps)
+            self._background = None
         for j, line in enumerate(self.mu_lines):
-            line.set_data(np.arange(first - k, 1), view.mode_probs[first:, j])
+            line.set_data(np.arange(first, k + 1), view.mode_probs[first:, j])
         # the true model of step t is a bar over (t - 1/2, t + 1/2), from step max(first, 1)
         start = max(first, 1)
-        centres = np.arange(start - k, 1, dtype=np.float64)
+        centres = np.arange(start, k + 1, dtype=np.float64)
         edges = np.column_stack([centres - 0.5, centres + 0.5]).ravel()
         for j, bar in enumerate(self.true_bars):
             bar.set_data(edges, np.repeat(np.where(view.true_model[start:] == j, 1.08, np.nan), 2))
