@@ -73,7 +73,10 @@ def read_yaml(file: Path) -> dict[str, Any]:
     try:
         data = yaml.load(file.read_text(), Loader=_Loader)
     except yaml.YAMLError as err:
-        raise ConfigError(f"{file}: not valid YAML ({err})") from None
+        mark = getattr(err, "problem_mark", None)
+        where = "" if mark is None else f" at line {mark.line + 1}, column {mark.column + 1}"
+        problem = getattr(err, "problem", None) or str(err).replace("\n", " ")
+        raise ConfigError(f"{file}: not valid YAML ({problem}{where})") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

@@ -4,6 +4,7 @@ continues the step count; bad arguments are rejected with a clear message."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -109,6 +110,32 @@ def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
     assert agent["num_timesteps"] == stats["selected"]["timesteps"]
     agent, best = run / "agent" / "policy.safetensors", run / "best" / "policy.safetensors"
     assert agent.read_bytes() == best.read_bytes()
+
+
+def test_without_a_progress_bar_each_checkpoint_and_validation_prints_a_line(
+    tmp_path, capsys
+) -> None:
+    argv = ("--timesteps", "1024", "--checkpoint-every", "256", "--validate-every", "512")
+    assert train_small(tmp_path, *argv, "--validation-runs", "3", "--no-eval") == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("step ")]
+    pattern = r"step ([\d,]+)/1,024, [\d,]+ steps/s(, validation ARMSE \d+\.\d{3} m)?, .+ left"
+    matches = [re.fullmatch(pattern, line) for line in lines]
+    assert all(matches), lines
+    assert [m[1] for m in matches] == ["256", "512", "768", "1,024"]
+    assert [bool(m[2]) for m in matches] == [False, True, False, True]
+
+
+@pytest.mark.parametrize(
+    ("seconds", "text"),
+    [(44.6, "45 s"), (510, "8 min 30 s"), (7500, "2 h 05 min"), (float("inf"), "?")],
+)
+def test_time_left_reads_as_a_duration(seconds, text) -> None:
+    assert train._duration(seconds) == text
+
+
+def test_the_progress_line_rates_the_steps_of_this_call() -> None:
+    line = train.progress_line(3000, 1000, 5000, 4.0, 17.5)
+    assert line == "step 3,000/5,000, 500 steps/s, validation ARMSE 17.500 m, 4 s left"
 
 
 def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> None:

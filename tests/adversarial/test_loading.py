@@ -1,0 +1,307 @@
+"""Loading an agent, a checkpoint or a hyperparameter file runs no code, and a bad file is one
+line naming it.
+
+Planted payloads are pickles whose ``__reduce__`` creates a marker file when unpickled (each is
+first shown to fire when unpickled the unsafe way): planted as ``policy.pt``, ``model.zip``, the
+weights file and the checkpoint's tensors, and as the issue's ``policy_kwargs`` escape, loading
+fails with a clear message and the marker never appears. Corrupt or mismatched agents (truncated
+weights, bad JSON, unknown keys, sizes the environment does not give, names outside the
+allow-lists) are refused by ``agents.policy.load_agent`` and ``python -m imm_gym.evaluate``
+alike."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import pickle
+import shutil
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import load_file, save_file
+
+import train
+from agents import PRETRAINED
+from agents.policy import load_agent
+from imm_gym.cli.evaluate import main as evaluate_main
+from imm_gym.validation import ConfigError
+
+SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
+
+
+class Payload:
+    """Unpickling it creates ``marker`` (``open(marker, "w")``): code run by loading."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self) -> tuple[Callable[..., object], tuple[str, str]]:
+        return open, (str(self.marker), "w")
+
+
+def planted_pickle(file: Path, marker: Path) -> None:
+    """``file`` holds a pickled :class:`Payload`; unpickling it creates ``marker`` (checked)."""
+    data = pickle.dumps(Payload(marker))
+    pickle.loads(data).close()
+    assert marker.exists()
+    marker.unlink()
+    file.write_bytes(data)
+
+
+def planted_torch(file: Path, marker: Path) -> None:
+    """``file`` is a ``torch.save`` of a :class:`Payload` (as SB3's ``policy.pt``); loading it
+    with ``weights_only=False`` creates ``marker`` (checked)."""
+    buffer = io.BytesIO()
+    torch.save(Payload(marker), buffer)
+    torch.load(io.BytesIO(buffer.getvalue()), weights_only=False).close()
+    assert marker.exists()
+    marker.unlink()
+    file.write_bytes(buffer.getvalue())
+
+
+def planted_sb3_zip(file: Path, marker: Path) -> None:
+    """``file`` is an SB3 ``model.zip`` whose ``data`` entry holds a serialized
+    :class:`Payload`, as SB3 stores its schedules (fires in SB3's loader, checked)."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    blob = base64.b64encode(pickle.dumps(Payload(marker))).decode()
+    data = {"learning_rate": {":type:": "<class 'function'>", ":serialized:": blob}}
+    with zipfile.ZipFile(file, "w") as archive:
+        archive.writestr("data", json.dumps(data))
+    load_from_zip_file(file, device="cpu")
+    assert marker.exists()
+    marker.unlink()
+
+
+@pytest.fixture
+def agent(tmp_path) -> Path:
+    """A copy of the shipped agent, to damage."""
+    return Path(shutil.copytree(PRETRAINED, tmp_path / "agent"))
+
+
+def old_format(directory: Path) -> None:
+    """``agent.json`` as earlier versions wrote it (no network description)."""
+    meta = json.loads((directory / "agent.json").read_text())
+    del meta["policy"]
+    (directory / "agent.json").write_text(json.dumps(meta))
+    (directory / "policy.safetensors").unlink()
+
+
+def refused_by_evaluate(directory: Path, capsys) -> str:
+    """``python -m imm_gym.evaluate --policy DIRECTORY``: a usage error; its message."""
+    with pytest.raises(SystemExit) as exc:
+        evaluate_main(["--policy", str(directory), "--runs", "2", "--quiet", "--no-clairvoyant"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return err.strip().splitlines()[-1]
+
+
+def test_a_planted_policy_pt_is_not_unpickled(agent, tmp_path, capsys) -> None:
+    marker = tmp_path / "ran"
+    old_format(agent)
+    planted_torch(agent / "policy.pt", marker)
+    with pytest.raises(
+        ConfigError, match=r"pickled format.*python -m agents\.export --from-pickle"
+    ):
+        load_agent(agent)
+    assert "can run code" in refused_by_evaluate(agent, capsys)
+    assert not marker.exists()
+
+
+def test_a_planted_model_zip_is_not_unpickled(agent, tmp_path, capsys) -> None:
+    marker = tmp_path / "ran"
+    old_format(agent)
+    planted_sb3_zip(agent / "model.zip", marker)
+    with pytest.raises(ConfigError, match="pickled format"):
+        load_agent(agent / "model.zip")
+    assert "pickled format" in refused_by_evaluate(agent / "model.zip", capsys)
+    assert not marker.exists()
+
+
+def test_a_pickle_planted_as_the_weights_file_is_not_unpickled(agent, tmp_path, capsys) -> None:
+    marker = tmp_path / "ran"
+    planted_pickle(agent / "policy.safetensors", marker)
+    with pytest.raises(ConfigError, match=r"policy\.safetensors: not a readable safetensors file"):
+        load_agent(agent)
+    assert "policy.safetensors" in refused_by_evaluate(agent, capsys)
+    planted_torch(agent / "policy.safetensors", marker)
+    with pytest.raises(ConfigError, match=r"policy\.safetensors: not a readable safetensors file"):
+        load_agent(agent)
+    assert not marker.exists()
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    """checkpoints/latest of a 256-step run."""
+    out = tmp_path_factory.mktemp("run")
+    (out / "small.yml").write_text(SMALL)
+    argv = ["--config", str(out / "small.yml"), "--out", str(out), "--timesteps", "256"]
+    assert train.main([*argv, "--no-eval", "--no-progress", "--validate-every", "0"]) == 0
+    return out / "seed_0" / "checkpoints" / "latest"
+
+
+def resume_error(directory: Path, tmp_path: Path, capsys) -> str:
+    """``train.py --resume DIRECTORY``: a usage error before training; its message."""
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--resume", str(directory), "--out", str(tmp_path / "out"), "--no-eval"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and not (tmp_path / "out").exists()
+    return err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize("planted", ["resume.safetensors", "policy.safetensors"])
+def test_a_pickle_planted_in_a_checkpoint_is_not_unpickled(
+    checkpoint, tmp_path, capsys, planted
+) -> None:
+    marker = tmp_path / "ran"
+    directory = Path(shutil.copytree(checkpoint, tmp_path / "latest"))
+    planted_pickle(directory / planted, marker)
+    assert f"{planted}: not a readable safetensors file" in resume_error(
+        directory, tmp_path, capsys
+    )
+    assert not marker.exists()
+
+
+def test_an_sb3_checkpoint_is_not_unpickled(checkpoint, tmp_path, capsys) -> None:
+    marker = tmp_path / "ran"
+    directory = tmp_path / "sb3"
+    directory.mkdir()
+    planted_sb3_zip(directory / "model.zip", marker)
+    message = resume_error(directory, tmp_path, capsys)
+    assert "checkpoint of an earlier version (SB3's model.zip" in message
+    assert "can run code" in message
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize(
+    "policy_kwargs",
+    [
+        # the issue's escape from the restricted eval namespace
+        "\"dict(x=nn.modules.module.torch.os.system('touch {marker}'))\"",
+        '\'__import__("os").system("touch {marker}")\'',
+    ],
+)
+def test_policy_kwargs_are_never_evaluated(policy_kwargs, tmp_path, capsys) -> None:
+    marker = tmp_path / "ran"
+    config = tmp_path / "evil.yml"
+    config.write_text(f"policy_kwargs: {policy_kwargs.format(marker=marker)}\n")
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--config", str(config), "--out", str(tmp_path / "out"), "--no-eval"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"{config}: policy_kwargs must be a mapping" in err
+    assert "Python expressions are not evaluated" in err
+    assert not marker.exists() and not (tmp_path / "out").exists()
+
+
+def test_yaml_tags_that_build_objects_are_refused(tmp_path, capsys) -> None:
+    marker = tmp_path / "ran"
+    config = tmp_path / "evil.yml"
+    config.write_text(f'n_envs: !!python/object/apply:os.system ["touch {marker}"]\n')
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--config", str(config), "--out", str(tmp_path / "out"), "--no-eval"])
+    assert exc.value.code == 2
+    assert f"{config}: not valid YAML" in capsys.readouterr().err
+    assert not marker.exists()
+
+
+def _json(file: str, **changes: object) -> Callable[[Path], None]:
+    def damage(directory: Path) -> None:
+        path = directory / file
+        data = json.loads(path.read_text())
+        for key, value in changes.items():
+            if value is None:
+                del data[key]
+            else:
+                data[key] = value
+        path.write_text(json.dumps(data))
+
+    return damage
+
+
+def _policy(**changes: object) -> Callable[[Path], None]:
+    def damage(directory: Path) -> None:
+        path = directory / "agent.json"
+        data = json.loads(path.read_text())
+        data["policy"].update(changes)
+        path.write_text(json.dumps(data))
+
+    return damage
+
+
+def _truncate(directory: Path) -> None:
+    file = directory / "policy.safetensors"
+    file.write_bytes(file.read_bytes()[: file.stat().st_size // 2])
+
+
+def _nan_weights(directory: Path) -> None:
+    file = directory / "policy.safetensors"
+    tensors = load_file(file)
+    tensors["action_net.bias"][0] = float("nan")
+    save_file(tensors, file)
+
+
+def _wide_weights(directory: Path) -> None:
+    file = directory / "policy.safetensors"
+    tensors = load_file(file)
+    tensors["action_net.weight"] = torch.zeros(9, 64)
+    save_file(tensors, file)
+
+
+def _obs_features(directory: Path) -> None:
+    _json("env.json", obs_features=["loglik", "innovation"])(directory)
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (_truncate, "policy.safetensors: not a readable safetensors file"),
+        (_nan_weights, "policy.safetensors: tensor 'action_net.bias' holds NaN"),
+        (
+            _wide_weights,
+            r"policy\.safetensors: tensor 'action_net\.weight' is torch\.float32 \(9, 64\)",
+        ),
+        (lambda d: (d / "agent.json").write_text("{'algo': "), "agent.json: not valid JSON"),
+        (lambda d: (d / "env.json").write_text("[1, 2"), "env.json: not valid JSON"),
+        (lambda d: (d / "agent.json").write_text("[]"), "agent.json: must hold a JSON object"),
+        (_json("agent.json", frame_stak=4), r"agent\.json: unknown keys \['frame_stak'\]"),
+        (_json("agent.json", algo="dqn"), "agent.json: algo must be one of"),
+        (_json("agent.json", frame_stack=2), "critic_dims/frame_stack differ from the agent's"),
+        (_json("agent.json", critic_dims=0), "needs 'MlpPolicy'"),
+        (_json("env.json", sigma_r=50.0), r"env\.json: EnvConfig: unknown key\(s\) \['sigma_r'\]"),
+        (_json("env.json", p_min="0.01"), "env.json: p_min must be a real number"),
+        (
+            _obs_features,
+            "reads 168 entries and writes 9, but the environment of .*env.json gives 4 frames of",
+        ),
+        (_json("vecnormalize.json", mean=[0.0] * 41), "vecnormalize.json: mean must be 42"),
+        (_json("vecnormalize.json", var=[-1.0] * 42), "vecnormalize.json: var must be >= 0"),
+        (_json("vecnormalize.json", epsilon=None), "vecnormalize.json: keys must be"),
+        (_policy(activation_fn="os.system"), r"policy.activation_fn must be one of \['tanh'"),
+        (_policy(**{"class": "builtins.eval"}), "policy.class must be one of"),
+        (_policy(net_arch={"pi": [64], "vf": [128, 128]}), r"missing \[.*policy_net\.2"),
+        (_policy(lstm_hidden_size=64), "unknown keys \\['lstm_hidden_size'\\]"),
+        (_policy(observation_size="168"), "policy.observation_size must be a positive integer"),
+    ],
+)
+def test_a_corrupt_or_mismatched_agent_is_one_line_naming_the_file(
+    agent, capsys, damage, message
+) -> None:
+    damage(agent)
+    with pytest.raises(ConfigError, match=message):
+        load_agent(agent)
+    line = refused_by_evaluate(agent, capsys)
+    assert str(agent) in line
+
+
+def test_an_observation_of_the_wrong_size_is_named(agent) -> None:
+    policy = load_agent(agent)
+    with pytest.raises(ConfigError, match=f"agent '{agent}' reads observations of 31 entries"):
+        policy.predict(np.zeros((2, 30)))

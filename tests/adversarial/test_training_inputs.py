@@ -1,0 +1,138 @@
+"""``train.py``'s inputs: every bad hyperparameter, environment id or resume request is a usage
+error (status 2) naming the file and the key before any training; hyperparameter YAML is plain
+data (``1e-3`` a number, ``policy_kwargs`` structured)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+import train
+from agents.training import read_yaml
+
+SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
+
+
+def usage_error(argv: list[str], tmp_path: Path, capsys) -> str:
+    """``train.py ARGV --out TMP/out``: status 2 and nothing written; the message."""
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        train.main([*argv, "--out", str(out), "--no-eval", "--no-progress"])
+    assert exc.value.code == 2
+    assert not out.exists()
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    ("yaml", "message"),
+    [
+        ("policy_kwargs: 'dict(net_arch=[64])'", "policy_kwargs must be a mapping in YAML"),
+        ("policy_kwargs: {activation_fn: selu}", "policy_kwargs.activation_fn must be one of"),
+        ("policy_kwargs: {activation_fn: torch.nn.Tanh}", "policy_kwargs.activation_fn"),
+        ("policy_kwargs: {net_arch: [64, '64']}", "net_arch[1] must be a positive integer"),
+        ("policy_kwargs: {net_arch: {pi: [64]}}", "net_arch must have the keys pi and vf"),
+        ("policy_kwargs: {optimizer_class: SGD}", "unknown policy_kwargs ['optimizer_class']"),
+        ("policy_kwargs: {lstm_hidden_size: 32}", "unknown policy_kwargs ['lstm_hidden_size']"),
+        ("policy_kwargs: {ortho_init: 'no'}", "policy_kwargs.ortho_init must be true or false"),
+        ("n_steps: '32'", "n_steps must be a positive integer, got '32'"),
+        ("n_envs: true", "n_envs must be a positive integer, got True"),
+        ("n_timesteps: 1.5", "n_timesteps must be a whole number >= 1"),
+        ("gamma: 1.5", "gamma must be in (0, 1]"),
+        ("gae_lambda: '0.9'", "gae_lambda must be a finite number"),
+        ("learning_rate: fast", "learning_rate must be a positive number or 'lin_<number>'"),
+        ("clip_range: lin_x", "clip_range must be a number or 'lin_<number>'"),
+        ("ent_coef: .nan", "ent_coef must be a finite number"),
+        ("frobnicate: 1", "unknown hyperparameters ['frobnicate']"),
+        ("policy: CnnPolicy", "policy must be 'MlpPolicy' for ppo"),
+        ("env_kwargs: [1, 2]", "env_kwargs must be a mapping"),
+        ("env_kwargs: {no_such_field: 1}", "unknown key(s) ['no_such_field']"),
+        ("env_kwargs: {p_min: '0.01'}", "p_min must be a real number"),
+        ("[1, 2]", "must hold a mapping, got list"),
+        ("n_envs: [", "not valid YAML"),
+    ],
+)
+def test_a_bad_hyperparameter_is_a_usage_error_naming_it(yaml, message, tmp_path, capsys) -> None:
+    config = tmp_path / "bad.yml"
+    config.write_text(yaml + "\n")
+    line = usage_error(["--config", str(config)], tmp_path, capsys)
+    assert message in line
+    if "env_kwargs of" not in line:
+        assert str(config) in line
+
+
+def test_yaml_numbers_without_a_dot_are_numbers(tmp_path) -> None:
+    """PyYAML (YAML 1.1) reads 1e-3 as the string '1e-3'; these files read it as YAML 1.2 does."""
+    file = tmp_path / "h.yml"
+    file.write_text("learning_rate: 1e-3\nn_timesteps: 4e6\nenv_kwargs: {p_min: 5E-2}\nx: 1e\n")
+    data = read_yaml(file)
+    assert data == {
+        "learning_rate": 0.001,
+        "n_timesteps": 4e6,
+        "env_kwargs": {"p_min": 0.05},
+        "x": "1e",
+    }
+    assert isinstance(data["learning_rate"], float)
+
+
+def test_a_non_imm_gym_id_is_a_usage_error_listing_the_ids(tmp_path, capsys) -> None:
+    line = usage_error(["--env", "CartPole-v1"], tmp_path, capsys)
+    assert "'CartPole-v1' is not an imm_gym environment; available:" in line
+    assert "imm_gym/TPMAdaptPaper-v0" in line
+
+
+def test_an_id_without_an_entry_trains_with_the_default_entry_and_says_so(tmp_path, capsys) -> None:
+    config = tmp_path / "small.yml"
+    config.write_text(SMALL)
+    argv = ["--env", "imm_gym/TPMAdaptPaper-v0", "--config", str(config), "--timesteps", "256"]
+    argv += ["--out", str(tmp_path), "--no-eval", "--no-progress", "--validate-every", "0"]
+    assert train.main(argv) == 0
+    out = capsys.readouterr().out
+    assert (
+        "no hyperparameter entry for imm_gym/TPMAdaptPaper-v0: using the imm_gym/TPMAdapt-v0 "
+        "entry" in out
+    )
+    meta = json.loads((tmp_path / "seed_0" / "agent" / "agent.json").read_text())
+    assert meta["env_id"] == "imm_gym/TPMAdaptPaper-v0"
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    """checkpoints/latest of a 256-step run of seed 3."""
+    out = tmp_path_factory.mktemp("run")
+    (out / "small.yml").write_text(SMALL)
+    argv = ["--config", str(out / "small.yml"), "--out", str(out), "--timesteps", "256"]
+    argv += ["--seed", "3", "--no-eval", "--no-progress", "--validate-every", "0"]
+    assert train.main(argv) == 0
+    return out / "seed_3" / "checkpoints" / "latest"
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--seed", "5"], "continues a run started with --seed 3; got --seed 5"),
+        (["--seed", "3", "4"], "continues a run started with --seed 3; got --seed 3 4"),
+        (["--env", "imm_gym/TPMAdaptPaper-v0"], "started with --env imm_gym/TPMAdapt-v0"),
+        (["--algo", "recurrent-ppo"], "started with --algo ppo; got --algo recurrent-ppo"),
+    ],
+)
+def test_resume_refuses_another_seed_env_or_algo(checkpoint, argv, message, tmp_path, capsys):
+    line = usage_error(["--resume", str(checkpoint), *argv], tmp_path, capsys)
+    assert message in line and "leave" in line
+
+
+def test_resume_refuses_other_hyperparameters_but_takes_a_new_budget(
+    checkpoint, tmp_path, capsys
+) -> None:
+    config = tmp_path / "other.yml"
+    config.write_text(SMALL + "gamma: 0.5\nn_timesteps: 100\n")
+    line = usage_error(["--resume", str(checkpoint), "--config", str(config)], tmp_path, capsys)
+    assert "changes ['gamma'] of the resumed run" in line
+    config.write_text(SMALL + "n_timesteps: 512\n")
+    argv = ["--resume", str(checkpoint), "--config", str(config), "--out", str(tmp_path / "r")]
+    assert train.main([*argv, "--no-eval", "--no-progress", "--validate-every", "0"]) == 0
+    stats = json.loads((tmp_path / "r" / "seed_3" / "training.json").read_text())
+    assert stats["timesteps"] >= 512 and stats["trained_this_call"] == 512 - 256
