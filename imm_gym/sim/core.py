@@ -27,7 +27,7 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds
 from imm_gym.sim.kernels import step_inputs
-from imm_gym.sim.rewards import reward
+from imm_gym.sim.rewards import Reward
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
 from imm_gym.tracking.tpm import stay_tpm
@@ -87,6 +87,13 @@ class TrackingCore:
         shadow_stay = config.initial_stay if config.shadow_stay is None else config.shadow_stay
         self.shadow_tpms = np.repeat(stay_tpm(M, shadow_stay)[None], n_envs, axis=0)
         self._advance = choose_engine(config.engine, self.imm.kernel_args)
+        self._reward = Reward(
+            config.reward,
+            config.reward_scale,
+            config.shadow == "fixed",
+            config.tpm_cost,
+            self.shadow_tpms[0],
+        )
         self.horizon = config.source.horizon
         self.action_dim = M * M
         self.obs_low, self.obs_high = bounds(config.obs_features, M, config.sensor.dim_z)
@@ -237,9 +244,7 @@ class TrackingCore:
             "step": step,
         }
         shadow = cfg.shadow == "fixed"
-        value, terms = reward(
-            out, cfg.reward, cfg.reward_scale, shadow, cfg.tpm_cost, self.shadow_tpms[0]
-        )
+        value, terms = self._reward(out)
         info.update(terms)
         self.state_a = IMMState(out.x_a, out.P_a, out.mode_probs)
         if cfg.parallel:

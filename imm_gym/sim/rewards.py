@@ -15,7 +15,7 @@ term                   value                           meaning
 Every term the configuration allows is in ``info`` as ``reward_<term>``; the reward is the term
 ``EnvConfig.reward`` names, minus ``tpm_cost`` times ``info["tpm_divergence"]``, the mean KL
 divergence of the TPM's rows from the shadow's (:func:`imm_gym.tracking.tpm.row_divergence`).
-Adding a term is one :func:`register` call here.
+Adding a term is one :func:`register` call here; :class:`Reward` evaluates them.
 """
 
 from __future__ import annotations
@@ -54,7 +54,8 @@ def register(term: RewardTerm) -> RewardTerm:
     return term
 
 
-register(RewardTerm("error", lambda step, s: -step.position_error / s))
+# -e / s written e / (-s): the same IEEE result, one array operation fewer
+register(RewardTerm("error", lambda step, s: step.position_error / -s))
 register(RewardTerm(
     "advantage",
     lambda step, s: (step.shadow_position_error - step.position_error) / s,
@@ -67,23 +68,33 @@ register(RewardTerm(
 ))
 
 
-def reward(
-    step: BankStep, name: str, scale: float, shadow: bool, tpm_cost: float, shadow_tpm: Array
-) -> tuple[Array, dict[str, Array]]:
-    """The reward of every slot and the ``info`` entries of its terms.
+class Reward:
+    """The reward of one configuration, its terms resolved once (a step costs only the terms'
+    arithmetic).
 
     Args:
-        step: the banks' step.
-        name: the rewarded term; scale: ``reward_scale``; shadow: the shadow IMM ran.
+        name: the rewarded term; scale: ``reward_scale``; shadow: the shadow IMM runs.
         tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)``.
     """
-    terms = {
-        f"reward_{t.name}": t.value(step, scale)
-        for t in REWARD_TERMS.values()
-        if shadow or not t.needs_shadow
-    }
-    value = terms[f"reward_{name}"].copy()
-    if tpm_cost > 0.0:
-        terms["tpm_divergence"] = row_divergence(step.tpm, shadow_tpm)
-        value -= tpm_cost * terms["tpm_divergence"]
-    return value, terms
+
+    def __init__(
+        self, name: str, scale: float, shadow: bool, tpm_cost: float, shadow_tpm: Array
+    ) -> None:
+        self._terms = tuple(
+            (f"reward_{t.name}", t.value)
+            for t in REWARD_TERMS.values()
+            if shadow or not t.needs_shadow
+        )
+        self._rewarded = f"reward_{name}"
+        self._scale = scale
+        self._tpm_cost = tpm_cost
+        self._shadow_tpm = shadow_tpm
+
+    def __call__(self, step: BankStep) -> tuple[Array, dict[str, Array]]:
+        """The reward of every slot ``(N,)`` and the ``info`` entries of its terms."""
+        terms = {key: value(step, self._scale) for key, value in self._terms}
+        reward = terms[self._rewarded].copy()
+        if self._tpm_cost > 0.0:
+            terms["tpm_divergence"] = row_divergence(step.tpm, self._shadow_tpm)
+            reward -= self._tpm_cost * terms["tpm_divergence"]
+        return reward, terms
