@@ -9,18 +9,20 @@ tracks drawn so far, never with the number of frames drawn before). Frames are `
 (``window=True``, the ``"human"`` render mode) is drawn by pyplot's backend and shown when that
 backend is interactive.
 
-The picture, left to right:
+The picture:
 
-* the whole scene: the sensor, the truth so far, the combined estimates so far, the measurements
-  (outliers marked), the missed detections (on the truth), the zoom window;
-* the zoom on the target: the same, with the current estimate and its 95 % position covariance
-  ellipse ``{p : (p - x̂)ᵀ P⁻¹ (p - x̂) ≤ χ²₂(0.95)}``, half-axes ``√(χ²₂(0.95) λ_i)`` along the
+* left, around the true target (its position at the origin): the truth so far, the combined
+  estimates so far, the measurements (outliers marked), the missed detections (on the truth),
+  the current estimate and its 95 % position covariance ellipse
+  ``{p : (p - x̂)ᵀ P⁻¹ (p - x̂) ≤ χ²₂(0.95)}``, half-axes ``√(χ²₂(0.95) λ_i)`` along the
   eigenvectors of the position block ``P``;
-* the TPM the step used, a heatmap on a log scale, ``tpm[i, j] = P(model j at k | model i at
-  k−1)``;
-* the mode probabilities ``μ_j(t)`` of the recent steps, with a bar on top coloured by the true
-  model of each step: a window of ``window_steps`` steps that moves on by half its width when
-  ``t`` reaches its right end (so at least the last ``window_steps / 2`` steps are shown).
+* top middle, the whole scene: the same tracks, the sensor and the window of the left panel;
+* top right, the TPM the step used, a heatmap on a log scale, ``tpm[i, j] = P(model j at k |
+  model i at k−1)``;
+* bottom right, the mode probabilities ``μ_j(t)`` of the recent steps, with a bar on top
+  coloured by the true model of each step: a window of ``window_steps`` steps that moves on by
+  half its width when ``t`` reaches its right end (so at least the last ``window_steps / 2``
+  steps are shown).
 """
 
 from __future__ import annotations
