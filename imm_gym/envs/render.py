@@ -1,15 +1,10 @@
 """The environments' render modes: pictures of a :class:`~imm_gym.sim.core.TrackingCore`'s slots.
 
-The core keeps each slot's whole truth, measurements and detection flags, and the current
-TPM; :class:`CoreRenderer` keeps the rest of a picture's history — the combined estimates'
+The core keeps each slot's whole truth, measurements, detection and outlier flags, and the
+current TPM; :class:`CoreRenderer` keeps the rest of a picture's history — the combined estimates'
 positions and the mode probabilities of every step so far, and the current position covariance —
 and only exists when a render mode is set, so an environment without one records nothing. The
 drawing is :class:`imm_gym.sim.render.TrackFigure`'s.
-
-Outliers: the core does not keep the sensor's outlier draws, so a measurement is marked as an
-outlier when it lies more than :data:`OUTLIER_SIGMAS` standard deviations from the true target in
-some component, ``max_i |[z - h(x)]_i| / σ_i > 4`` (a normal draw does so with probability
-``6e-5`` per component; an inflated draw that lands closer looks, and is drawn, like any other).
 """
 
 from __future__ import annotations
@@ -21,16 +16,6 @@ from numpy.typing import NDArray
 
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.render import TrackFigure, TrackView, model_labels, scene_extent
-
-#: Standard deviations from the truth beyond which a measurement is drawn as an outlier.
-OUTLIER_SIGMAS = 4.0
-
-
-def outlying(sensor: Any, z: NDArray[np.float64], states: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """``max_i |[z - h(x)]_i| / σ_i > OUTLIER_SIGMAS`` for measurements ``z (..., m)`` of true
-    states ``(..., 4)`` (bearing residuals wrapped)."""
-    residual = sensor.residual(z, sensor.h(states)) / sensor.sigma
-    return np.max(np.abs(residual), axis=-1) > OUTLIER_SIGMAS
 
 
 def scenario_title(scenario: object) -> str:
@@ -58,7 +43,6 @@ class CoreRenderer:
         self.covariance = np.repeat(np.eye(2)[None], N, axis=0)
         self.mode_probs = np.full((N, K + 1, M), np.nan)
         self.positions = np.zeros((N, K + 1, 2))
-        self.outlier = np.zeros((N, K + 1), dtype=bool)
         self.extent = [(0.0, 1.0, 0.0, 1.0)] * N
         self.started = np.zeros(N, dtype=bool)
         self.sensor = np.asarray(core.config.sensor.position, dtype=np.float64)
@@ -77,7 +61,6 @@ class CoreRenderer:
         self.mode_probs[indices] = np.nan
         self.mode_probs[indices, 0] = core.mu[indices]
         self.positions[indices] = sensor.initial_position(core.z[indices])[0]
-        self.outlier[indices] = outlying(sensor, core.z[indices], core.truth[indices])
         for i in indices:
             self.extent[i] = scene_extent(core.truth[i], self.sensor)
         self.started[indices] = True
@@ -107,7 +90,7 @@ class CoreRenderer:
             covariance=self.covariance[slot],
             measurements=self.positions[slot, : k + 1],
             detected=core.detected[slot, : k + 1],
-            outlier=self.outlier[slot, : k + 1],
+            outlier=core.outlier[slot, : k + 1],
             mode_probs=self.mode_probs[slot, : k + 1],
             true_model=np.concatenate([[-1], core.true_model[slot, :k]]),
             tpm=core.tpm[slot],

@@ -104,6 +104,7 @@ class TrackingCore:
         self.truth = np.zeros((N, K + 1, 4))
         self.z = np.zeros((N, K + 1, m))
         self.detected = np.ones((N, K + 1), dtype=bool)
+        self.outlier = np.zeros((N, K + 1), dtype=bool)  # the sensor's inflated draws (pictures)
         self.true_model = np.full((N, K), -1, dtype=np.int64)
         self.k = np.zeros(N, dtype=np.int64)
         self.done = np.ones(N, dtype=bool)
@@ -162,6 +163,7 @@ class TrackingCore:
         self.truth[indices] = truth.states
         self.z[indices] = meas.z
         self.detected[indices] = meas.detected
+        self.outlier[indices] = meas.outlier
         self.true_model[indices] = true_model_index(truth, self.models)
         init = self.imm.init(x0, batch.P0)
         # copy-on-write: arrays handed out earlier (infos) must not change under the caller
