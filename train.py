@@ -47,11 +47,20 @@ BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
 ALGOS = ("ppo", "recurrent-ppo")
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows an option's default where it has one (not for the None of "see the help")."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python train.py",
         description="Train a PPO agent to adapt the IMM's TPM, then evaluate it.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_HelpFormatter,
     )
     p.add_argument(
         "--env",
@@ -63,7 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--seed", type=int, nargs="+", help="training seed(s) (0; with --resume the checkpoint's)"
     )
     p.add_argument(
-        "--config", type=Path, help="YAML file with hyperparameters overriding the entry"
+        "--config",
+        type=Path,
+        help="YAML file with hyperparameters overriding the entry (with --resume: only the "
+        "budget, n_timesteps)",
     )
     p.add_argument("--out", type=Path, default=Path("runs/default"), help="output directory")
     p.add_argument(

@@ -150,20 +150,26 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
     if state["algo"] not in ALGOS:
         raise ConfigError(f"{file}: algo must be one of {list(ALGOS)}, got {state['algo']!r}")
     for key in ("seed", "num_timesteps", "n_updates", "episode_num"):
-        value = state[key]
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ConfigError(f"{file}: {key} must be a non-negative integer, got {value!r}")
-    if not isinstance(state["streams"], list):
-        raise ConfigError(f"{file}: streams must be a list")
+        if not _is_count(state[key]):
+            raise ConfigError(f"{file}: {key} must be a non-negative integer, got {state[key]!r}")
     state["hyperparams"] = check_hyperparams(
         f"{file}: hyperparams", state["hyperparams"], state["algo"]
     )
+    _generators(file, state["streams"])
+    _numpy_state(file, state["numpy_rng"])
+    state["reward_normalizer"] = _reward_normalizer(file, state["reward_normalizer"])
+    swa = state["swa"]
+    counts = isinstance(swa, dict) and sorted(swa) == ["last_update", "snapshots"]
+    if swa is not None and not (counts and all(_is_count(v) for v in swa.values())):
+        raise ConfigError(f"{file}: swa must be null or {{snapshots, last_update}}, got {swa!r}")
     load_agent(directory)
     load_tensors(directory / TENSORS_FILE)
     return state
 
 
-def restore(directory: Path, state: dict[str, Any], model: Any, env: Any, swa: Any) -> None:
+def restore(
+    directory: Path, state: dict[str, Any], model: Any, env: Any, swa: WeightAverage | None
+) -> None:
     """Load a checkpoint into a model freshly built from its hyperparameters and seed.
 
     Sets the policy's weights, the optimizer's state, the step/update/episode counters, the
@@ -185,37 +191,77 @@ def restore(directory: Path, state: dict[str, Any], model: Any, env: Any, swa: A
     model._n_updates = state["n_updates"]
     model._episode_num = state["episode_num"]
     norm = find_normalizer(env)
-    if (norm is None) != (state["reward_normalizer"] is None):
-        raise ConfigError(f"{file}: the normalizer does not match the hyperparameters")
+    reward = state["reward_normalizer"]
+    if (norm is None) != (reward is None):
+        raise ConfigError(f"{file}: the reward normalizer does not match the hyperparameters")
     if norm is not None:
         stats = read_json(directory / "vecnormalize.json")
         norm.obs_rms.mean = np.array(stats["mean"])
         norm.obs_rms.var = np.array(stats["var"])
         norm.obs_rms.count = stats["count"]
-        reward = state["reward_normalizer"]
-        norm.ret_rms.mean = np.array(_number(file, reward, "mean"))
-        norm.ret_rms.var = np.array(_number(file, reward, "var"))
-        norm.ret_rms.count = _number(file, reward, "count")
+        norm.ret_rms.mean = np.array(reward["mean"])
+        norm.ret_rms.var = np.array(reward["var"])
+        norm.ret_rms.count = reward["count"]
     restore_streams(env.unwrapped, state["streams"], file)
     if swa is not None and state["swa"] is not None:
         swa.average = {k[4:]: v for k, v in tensors.items() if k.startswith("swa/")}
-        swa.snapshots = int(state["swa"]["snapshots"])
-        swa.last_update = int(state["swa"]["last_update"])
+        swa.snapshots = state["swa"]["snapshots"]
+        swa.last_update = state["swa"]["last_update"]
+    np.random.set_state(_numpy_state(file, state["numpy_rng"]))  # noqa: NPY002
     try:
-        numpy_state = dict(state["numpy_rng"])
-        numpy_state["state"] = dict(numpy_state["state"])
-        numpy_state["state"]["key"] = np.array(numpy_state["state"]["key"], dtype=np.uint32)
-        np.random.set_state(numpy_state)  # noqa: NPY002
         torch.set_rng_state(tensors["rng/torch"])
-    except (KeyError, TypeError, ValueError, RuntimeError) as err:
-        raise ConfigError(f"{file}: the generator states are malformed ({err!r})") from None
+    except (KeyError, TypeError, RuntimeError) as err:
+        raise ConfigError(
+            f"{directory / TENSORS_FILE}: no torch generator state ({err!r})"
+        ) from None
 
 
-def _number(file: Path, mapping: Any, key: str) -> float:
-    value = mapping.get(key) if isinstance(mapping, dict) else None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise ConfigError(f"{file}: reward_normalizer.{key} must be a finite number")
-    return float(value)
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _reward_normalizer(file: Path, value: Any) -> dict[str, float] | None:
+    """``reward_normalizer``: null, or the return's running ``mean``, ``var`` (>= 0) and
+    ``count`` as finite numbers."""
+    if value is None:
+        return None
+    keys = ("mean", "var", "count")
+    numbers = isinstance(value, dict) and sorted(value) == sorted(keys)
+    numbers = numbers and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+        for v in value.values()
+    )
+    if not numbers or value["var"] < 0:
+        raise ConfigError(f"{file}: reward_normalizer must be null or finite {list(keys)}")
+    return {k: float(value[k]) for k in keys}
+
+
+def _numpy_state(file: Path, value: Any) -> dict[str, Any]:
+    """``numpy_rng`` (``np.random.get_state(legacy=False)`` with the key as a list) as
+    ``np.random.set_state`` takes it, checked on a scratch generator."""
+    try:
+        state = {**value, "state": {**value["state"]}}
+        state["state"]["key"] = np.array(state["state"]["key"], dtype=np.uint32)
+        np.random.RandomState().set_state(state)
+    except (KeyError, TypeError, ValueError, OverflowError) as err:
+        raise ConfigError(f"{file}: numpy_rng is not an MT19937 state ({err!r})") from None
+    return state
+
+
+def _generators(file: Path, states: Any) -> list[tuple[np.random.Generator, np.random.Generator]]:
+    """``streams``: for each slot, its scenario and noise generators from their PCG64 states."""
+    if not isinstance(states, list):
+        raise ConfigError(f"{file}: streams must be a list")
+    out = []
+    for i, pair in enumerate(states):
+        try:
+            generators = [np.random.Generator(np.random.PCG64()) for _ in range(2)]
+            for generator, recorded in zip(generators, pair, strict=True):
+                generator.bit_generator.state = recorded
+        except (KeyError, TypeError, ValueError, OverflowError) as err:
+            raise ConfigError(f"{file}: streams[{i}] is not two PCG64 states ({err!r})") from None
+        out.append((generators[0], generators[1]))
+    return out
 
 
 def stream_states(core: Any) -> list[list[dict[str, Any]]]:
@@ -233,16 +279,7 @@ def restore_streams(venv: Any, states: list[Any], file: Path) -> None:
     core = venv.core
     if len(states) != core.n_envs:
         raise ConfigError(f"{file}: {len(states)} streams for {core.n_envs} training slots")
-    rngs = []
-    for i, pair in enumerate(states):
-        try:
-            generators = [np.random.Generator(np.random.PCG64()) for _ in range(2)]
-            for generator, recorded in zip(generators, pair, strict=True):
-                generator.bit_generator.state = recorded
-        except (KeyError, TypeError, ValueError) as err:
-            raise ConfigError(f"{file}: streams[{i}] is not two PCG64 states ({err!r})") from None
-        rngs.append(tuple(generators))
-    core._rngs = rngs
+    core._rngs = _generators(file, states)
     venv._reset_seeds()
 
 

@@ -161,11 +161,12 @@ def load_agent(path: str | Path) -> LearnedPolicy:
     where = f"{agent_file}: policy"
     spec = check_spec(where, meta["policy"])
     frame_stack, critic_dims = meta["frame_stack"], meta["critic_dims"]
-    expected_class = {
-        (False, False): "MlpPolicy",
-        (False, True): "AsymmetricMlpPolicy",
-        (True, False): "MlpLstmPolicy",
-    }.get((meta["algo"] == "recurrent-ppo", critic_dims > 0))
+    recurrent = meta["algo"] == "recurrent-ppo"
+    if recurrent and critic_dims:
+        raise ConfigError(f"{agent_file}: critic_dims {critic_dims} with algo 'recurrent-ppo'")
+    expected_class = (
+        "MlpLstmPolicy" if recurrent else "AsymmetricMlpPolicy" if critic_dims else "MlpPolicy"
+    )
     if spec["class"] != expected_class:
         raise ConfigError(
             f"{where}.class is {spec['class']!r}, but algo {meta['algo']!r} with critic_dims "
@@ -191,7 +192,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
         env_overrides,
         *norm,
         frame_stack=frame_stack,
-        recurrent=meta["algo"] == "recurrent-ppo",
+        recurrent=recurrent,
         critic_dims=critic_dims,
         source=f"agent {str(directory)!r}",
     )

@@ -149,6 +149,11 @@ def _edit(directory: Path, **changes: object) -> None:
         (lambda d: _edit(d, surprise=1), "resume.json: keys must be"),
         (lambda d: _edit(d, algo="dqn"), "algo must be one of"),
         (lambda d: _edit(d, hyperparams={"n_envs": "4"}), "n_envs must be a positive integer"),
+        (lambda d: _edit(d, streams=[[{"state": 1}, {}]]), r"streams\[0\] is not two PCG64"),
+        (lambda d: _edit(d, streams={}), "streams must be a list"),
+        (lambda d: _edit(d, numpy_rng={"state": {}}), "numpy_rng is not an MT19937 state"),
+        (lambda d: _edit(d, reward_normalizer={"mean": 0}), "reward_normalizer must be null"),
+        (lambda d: _edit(d, swa={"snapshots": -1, "last_update": 0}), "swa must be null or"),
     ],
 )
 def test_a_damaged_checkpoint_is_refused_naming_the_file(saved, tmp_path, damage, message) -> None:
