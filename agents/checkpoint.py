@@ -267,10 +267,10 @@ def _generators(file: Path, states: Any) -> list[tuple[np.random.Generator, np.r
 def stream_states(core: Any) -> list[list[dict[str, Any]]]:
     """Each slot's ``[scenario, noise]`` bit-generator states (JSON-able: PCG64 holds ints).
 
-    Reads :class:`~imm_gym.sim.core.TrackingCore`'s per-slot generators, which it keeps across
-    episodes (a slot reset without a seed continues them).
+    Reads :meth:`~imm_gym.sim.core.TrackingCore.streams`, the per-slot generators it keeps
+    across episodes (a slot reset without a seed continues them).
     """
-    return [[rng.bit_generator.state for rng in pair] for pair in core._rngs]
+    return [[rng.bit_generator.state for rng in pair] for pair in core.streams()]
 
 
 def restore_streams(venv: Any, states: list[Any], file: Path) -> None:
@@ -279,7 +279,7 @@ def restore_streams(venv: Any, states: list[Any], file: Path) -> None:
     core = venv.core
     if len(states) != core.n_envs:
         raise ConfigError(f"{file}: {len(states)} streams for {core.n_envs} training slots")
-    core._rngs = _generators(file, states)
+    core.set_streams(_generators(file, states))
     venv._reset_seeds()
 
 

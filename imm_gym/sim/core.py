@@ -198,6 +198,20 @@ class TrackingCore:
             state[indices] = memory.initial(init.mu)
             self.memories[name] = state
 
+    def streams(self) -> list[tuple[np.random.Generator, np.random.Generator] | None]:
+        """Each slot's ``(scenario, noise)`` generators (None for a slot never reset): the
+        sequence of episodes a slot reset without a seed continues (what a checkpoint records)."""
+        return list(self._rngs)
+
+    def set_streams(
+        self, generators: list[tuple[np.random.Generator, np.random.Generator]]
+    ) -> None:
+        """Give every slot its ``(scenario, noise)`` generators: its next reset without a seed
+        draws from them (a checkpoint's slots continue where they were)."""
+        if len(generators) != self.n_envs:
+            raise ValueError(f"{len(generators)} stream pairs for {self.n_envs} slots")
+        self._rngs = list(generators)
+
     # ------------------------------------------------------------------ actions
     def tpm_from_action(self, action: NDArray[Any], tpm: Array | None = None) -> Array:
         """The TPMs an action ``(N, M*M)`` produces from ``tpm`` (default: the current TPMs),
