@@ -1,5 +1,6 @@
 """Tracking metrics: RMSE(t) and ARMSE (SPEC §3, eqs. 20-21), NIS/NEES consistency (seed 002),
-mode-identification accuracy.
+mode-identification accuracy, and what IMM users look at besides: the mode probabilities'
+step-to-step variation, the peak error and the error just after each maneuver starts.
 
 Shapes: R runs, K scored steps; estimates ``(R, K, n >= 4)`` and truth ``(R, K, 4)`` on
 ``[x, y, vx, vy]``.
@@ -75,6 +76,78 @@ def mode_accuracy(mode_probs: Array, true_index: NDArray[np.int64]) -> float:
     if not np.any(valid):
         return 0.0
     return float(np.mean(np.argmax(mode_probs, axis=-1)[valid] == true_index[valid]))
+
+
+def mode_prob_tv(mode_probs: Array) -> float:
+    r"""Mean per-step total variation of the mode probabilities.
+
+    ``TV_k = 1/2 * sum_j |mu_j(k) - mu_j(k-1)|`` for ``k = 2..K`` — the first scored step has no
+    predecessor here (the initial probabilities ``mu(0)`` are not part of the record), so the
+    mean is over the ``K - 1`` differences of each run and over the R runs. 0 for probabilities
+    that never move, 1 for one-hot probabilities that switch model every step; a jittery IMM
+    scores high even where its estimates are good.
+
+    Args:
+        mode_probs: ``(R, K, M)``.
+
+    Returns:
+        The mean of ``TV_k`` (0 when K < 2: no step-to-step change is recorded).
+    """
+    if mode_probs.shape[-2] < 2:
+        return 0.0
+    return float(0.5 * np.abs(np.diff(mode_probs, axis=-2)).sum(axis=-1).mean())
+
+
+def peak_error(estimate: Array, truth: Array) -> float:
+    r"""Mean over runs of each run's largest position error: ``mean_r max_k ||e_{r,k}||``.
+
+    The peak a user meets on one track (seed 002's ``pos_max``), rather than ``max_k RMSE(k)``,
+    the peak of the curve averaged over runs, which hides when each run's worst moment comes.
+
+    Args:
+        estimate: ``(R, K, >= 2)``; truth: ``(R, K, >= 2)`` (position first).
+    """
+    e = np.linalg.norm(estimate[..., :2] - truth[..., :2], axis=-1)
+    return float(np.mean(e.max(axis=-1)))
+
+
+def maneuver_starts(true_model: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """``(R, K)``: True at the steps ``k >= 2`` whose true model differs from step ``k - 1``'s
+    (a turn's start and its end; -1, no matching bank model, counts as a model of its own)."""
+    starts = np.zeros(true_model.shape, dtype=bool)
+    starts[..., 1:] = true_model[..., 1:] != true_model[..., :-1]
+    return starts
+
+
+def maneuver_response(
+    estimate: Array, truth: Array, true_model: NDArray[np.int64], window: int = 10
+) -> float | None:
+    r"""Position RMSE over the ``window`` steps after each maneuver starts.
+
+    With ``S`` the maneuver starts (:func:`maneuver_starts`: ``(r, s)`` such that the true model
+    of step ``s`` differs from step ``s - 1``'s) and ``c_{r,k} = #{s in S_r : s <= k < s + window}``
+    the number of windows step ``k`` of run ``r`` lies in,
+    ``sqrt(sum_{r,k} c_{r,k} ||e_{r,k}||^2 / sum_{r,k} c_{r,k})``: every maneuver's window weighs
+    the same (overlapping windows count a step once per window, a window cut by the episode end
+    counts its steps inside it), pooled over runs.
+
+    Args:
+        estimate: ``(R, K, >= 2)``; truth: ``(R, K, >= 2)``; true_model: ``(R, K)`` the bank index
+            of each step's true motion (``Rollout.true_model``).
+        window: steps per maneuver, the start included.
+
+    Returns:
+        The RMSE (m), or None when no run has a maneuver.
+    """
+    if window < 1:
+        raise ValueError(f"window must be >= 1 step, got {window}")
+    starts = np.cumsum(maneuver_starts(true_model), axis=-1)
+    count = starts.copy()
+    count[..., window:] -= starts[..., :-window]
+    if not count.any():
+        return None
+    e2 = np.sum((estimate[..., :2] - truth[..., :2]) ** 2, axis=-1)
+    return float(np.sqrt(np.sum(count * e2) / count.sum()))
 
 
 def trajectory_metrics(estimate: Array, truth: Array, heading: Array) -> dict[str, float]:

@@ -4,7 +4,7 @@
 :class:`~imm_gym.sim.core.TrackingCore` with R slots, slot ``r`` reset with seed ``seed + r`` — so
 all policies see the same targets and the same sensor noise (common random numbers) whatever
 environment settings they need. A run whose tracker diverges keeps an error of
-``divergence_error`` for the rest of its episode.
+``divergence_error`` and uniform mode probabilities for the rest of its episode.
 """
 
 from __future__ import annotations
@@ -16,7 +16,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.evaluation.metrics import consistency, mode_accuracy, nees, tracking_errors
+from imm_gym.evaluation.metrics import (
+    consistency,
+    maneuver_response,
+    mode_accuracy,
+    mode_prob_tv,
+    nees,
+    peak_error,
+    tracking_errors,
+)
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import SHADOW_FEATURES, EnvConfig
 
@@ -111,12 +119,21 @@ def rollout(
 
 
 def score(rollout: Rollout, dim_z: int = 2) -> dict[str, Any]:
-    """Table-2 ARMSEs, NIS/NEES consistency, mode-identification accuracy, divergences."""
+    """Table-2 ARMSEs, NIS/NEES consistency, mode-identification accuracy, divergences, and the
+    IMM behaviour: ``mode_prob_tv`` (:func:`~imm_gym.evaluation.metrics.mode_prob_tv`),
+    ``peak_error`` (:func:`~imm_gym.evaluation.metrics.peak_error`) and ``maneuver_response``
+    (:func:`~imm_gym.evaluation.metrics.maneuver_response`, 10 steps; None without maneuvers).
+    A diverged run counts with its held error and uniform mode probabilities (:func:`rollout`)."""
     out: dict[str, Any] = tracking_errors(rollout.estimate, rollout.truth)
     out["nis"] = consistency(rollout.nis, dim_z, mask=rollout.detected)
     out["nees"] = consistency(nees(rollout.estimate, rollout.covariance, rollout.truth), 4)
     out["mode_accuracy"] = mode_accuracy(rollout.mode_probs, rollout.true_model)
     out["diverged"] = int(rollout.diverged.sum())
+    out["mode_prob_tv"] = mode_prob_tv(rollout.mode_probs)
+    out["peak_error"] = peak_error(rollout.estimate, rollout.truth)
+    out["maneuver_response"] = maneuver_response(
+        rollout.estimate, rollout.truth, rollout.true_model
+    )
     return out
 
 

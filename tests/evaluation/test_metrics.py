@@ -1,4 +1,5 @@
-"""Tests of imm_gym.evaluation.metrics: RMSE/ARMSE, NIS/NEES consistency, model identification."""
+"""Tests of imm_gym.evaluation.metrics: RMSE/ARMSE, NIS/NEES consistency, model identification,
+mode-probability total variation, peak error and maneuver response."""
 
 from __future__ import annotations
 
@@ -9,8 +10,12 @@ from scipy import stats
 from imm_gym import MotionModel, Scenario, Segment, generate_truth, paper_bank, paper_scenario
 from imm_gym.evaluation.metrics import (
     consistency,
+    maneuver_response,
+    maneuver_starts,
     mode_accuracy,
+    mode_prob_tv,
     nees,
+    peak_error,
     rmse_over_time,
     tracking_errors,
 )
@@ -159,3 +164,98 @@ def test_mode_accuracy() -> None:
     always_cv[:, :40] = [0.0, 1.0, 0.0]
     assert mode_accuracy(always_cv, idx2) == pytest.approx(55 / 110)
     assert mode_accuracy(perfect, np.full_like(idx, -1)) == 0.0
+
+
+def test_mode_prob_tv_constant_is_zero_alternating_one_hots_is_one() -> None:
+    rng = np.random.default_rng(3)
+    p = rng.dirichlet(np.ones(3), size=4)  # (R=4, M=3), each run its own constant probabilities
+    constant = np.repeat(p[:, None, :], 20, axis=1)
+    assert mode_prob_tv(constant) == 0.0
+    alternating = np.eye(3)[np.tile([0, 2], (4, 10))]  # one-hot, switching every step
+    assert alternating.shape == (4, 20, 3)
+    assert mode_prob_tv(alternating) == 1.0
+    # half of each: every run switches on 9 of its 19 differences (steps 2..10), none after
+    half = alternating.copy()
+    half[:, 10:] = half[:, 9:10]
+    assert mode_prob_tv(half) == pytest.approx(9 / 19)
+    assert mode_prob_tv(constant[:, :1]) == 0.0  # one step: no change recorded
+
+
+def test_mode_prob_tv_by_hand() -> None:
+    # one run: (0.5, 0.5) -> (0.9, 0.1) -> (0.9, 0.1) -> (0.2, 0.8): TV 0.4, 0, 0.7
+    mu = np.array([[[0.5, 0.5], [0.9, 0.1], [0.9, 0.1], [0.2, 0.8]]])
+    assert mode_prob_tv(mu) == pytest.approx((0.4 + 0.0 + 0.7) / 3)
+    # two runs are averaged with the steps: the second run never moves
+    assert mode_prob_tv(np.concatenate([mu, mu[:, :1].repeat(4, axis=1)])) == pytest.approx(
+        (0.4 + 0.7) / 6
+    )
+
+
+def _positions(errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Estimates and truth ``(R, K, 4)`` whose position errors have norms ``errors (R, K)``
+    (3-4-5 triangles, the velocity 0)."""
+    truth = _truth_array(*errors.shape)
+    est = truth.copy()
+    est[..., 0] += 0.6 * errors
+    est[..., 1] -= 0.8 * errors
+    return est, truth
+
+
+def test_peak_error_is_the_mean_of_each_runs_peak() -> None:
+    errors = np.array([[1.0, 9.0, 2.0, 1.0], [1.0, 2.0, 3.0, 7.0], [4.0, 1.0, 1.0, 1.0]])
+    est, truth = _positions(errors)
+    assert peak_error(est, truth) == pytest.approx((9.0 + 7.0 + 4.0) / 3)
+    # not the peak of RMSE(t), which averages the runs before taking the maximum
+    assert rmse_over_time(est[..., :2] - truth[..., :2]).max() == pytest.approx(
+        np.sqrt((81 + 4 + 1) / 3)
+    )
+
+
+def test_maneuver_starts() -> None:
+    true_model = np.array([[0, 0, 1, 1, 1, 0, -1, -1, 2], [2, 2, 2, 2, 2, 2, 2, 2, 2]])
+    np.testing.assert_array_equal(
+        maneuver_starts(true_model),
+        [[0, 0, 1, 0, 0, 1, 1, 0, 1], [0] * 9],
+    )
+
+
+def test_maneuver_response_on_hand_made_errors() -> None:
+    # run 0: turns at step index 5 (model 0 -> 1) and back at 8 (1 -> 0): windows 5..14 and
+    # 8..17 overlap on 8..14, counted twice; run 1: straight only; run 2: a turn at 22 of 25,
+    # its window cut to 22..24 by the episode end
+    K = 25
+    true_model = np.zeros((3, K), dtype=np.int64)
+    true_model[0, 5:8] = 1
+    true_model[2, 22:] = 2
+    errors = np.arange(1.0, 3 * K + 1).reshape(3, K)  # every step its own error
+    est, truth = _positions(errors)
+    windows = [errors[0, 5:15], errors[0, 8:18], errors[2, 22:25]]
+    squares = np.concatenate(windows) ** 2
+    expected = np.sqrt(squares.mean())
+    assert squares.size == 23
+    assert maneuver_response(est, truth, true_model) == pytest.approx(expected, rel=1e-12)
+    # a window of 3 steps: 5..7, 8..10, 22..24
+    short = np.concatenate([errors[0, 5:8], errors[0, 8:11], errors[2, 22:25]])
+    assert maneuver_response(est, truth, true_model, window=3) == pytest.approx(
+        np.sqrt(np.mean(short**2)), rel=1e-12
+    )
+    # straight runs only: no maneuver, no response
+    assert maneuver_response(est[1:2], truth[1:2], true_model[1:2]) is None
+    with pytest.raises(ValueError, match="window"):
+        maneuver_response(est, truth, true_model, window=0)
+
+
+def test_maneuver_response_matches_a_loop_over_maneuvers() -> None:
+    rng = np.random.default_rng(5)
+    R, K, window = 6, 40, 10
+    true_model = np.repeat(rng.integers(-1, 3, size=(R, K // 4)), 4, axis=1)
+    errors = rng.uniform(0.0, 50.0, (R, K))
+    est, truth = _positions(errors)
+    squares = [
+        errors[r, s : s + window] ** 2
+        for r in range(R)
+        for s in range(1, K)
+        if true_model[r, s] != true_model[r, s - 1]
+    ]
+    expected = np.sqrt(np.concatenate(squares).mean())
+    assert maneuver_response(est, truth, true_model, window) == pytest.approx(expected, rel=1e-12)

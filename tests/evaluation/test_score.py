@@ -1,0 +1,54 @@
+"""Tests of imm_gym.evaluation.rollout.score on a hand-made roll-out: the IMM behaviour beside the
+ARMSE (mode-probability total variation, peak error, maneuver response)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym.evaluation.rollout import Rollout, score
+
+
+def _rollout(true_model: np.ndarray, errors: np.ndarray, mode_probs: np.ndarray) -> Rollout:
+    """A roll-out of R runs and K steps whose position errors are ``errors (R, K)`` along x."""
+    R, K = errors.shape
+    M = mode_probs.shape[-1]
+    truth = np.zeros((R, K, 4))
+    truth[..., 0] = np.arange(K) * 10.0
+    truth[..., 2] = 10.0
+    estimate = truth.copy()
+    estimate[..., 0] += errors
+    return Rollout(
+        estimate=estimate,
+        covariance=np.broadcast_to(np.eye(4), (R, K, 4, 4)).copy(),
+        truth=truth,
+        mode_probs=mode_probs,
+        tpm=np.broadcast_to(np.full((M, M), 1.0 / M), (R, K, M, M)).copy(),
+        nis=np.ones((R, K)),
+        detected=np.ones((R, K), dtype=bool),
+        true_model=true_model,
+        diverged=np.zeros(R, dtype=bool),
+    )
+
+
+def test_score_reports_the_imm_behaviour() -> None:
+    # two runs of 15 steps; run 0 turns at step index 3 and ends its turn at 6, run 1 is straight
+    true_model = np.zeros((2, 15), dtype=np.int64)
+    true_model[0, 3:6] = 1
+    errors = np.ones((2, 15))
+    errors[0, 4] = 20.0  # run 0's peak, inside both of its windows (3..12 and 6..15)
+    errors[1, 14] = 5.0  # run 1's peak, no maneuver there
+    # run 0 follows the truth one step late; run 1 stays at (0.5, 0.5)
+    mode_probs = np.full((2, 15, 2), 0.5)
+    mode_probs[0] = np.eye(2)[np.concatenate([[0], true_model[0, :-1]])]
+    s = score(_rollout(true_model, errors, mode_probs))
+    assert s["peak_error"] == pytest.approx((20.0 + 5.0) / 2)
+    windows = np.concatenate([errors[0, 3:13], errors[0, 6:15]])  # 10 steps + 9 (episode end)
+    assert s["maneuver_response"] == pytest.approx(np.sqrt(np.mean(windows**2)))
+    assert s["maneuver_response"] == pytest.approx(np.sqrt((400.0 + 18.0) / 19.0))
+    # run 0 switches twice in 14 differences, run 1 never
+    assert s["mode_prob_tv"] == pytest.approx(2.0 / 28.0)
+    assert s["armse_pos"] > 1.0 and s["diverged"] == 0
+    # the straight run alone has no maneuver
+    straight = _rollout(true_model[1:], errors[1:], mode_probs[1:])
+    assert score(straight)["maneuver_response"] is None
