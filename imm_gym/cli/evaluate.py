@@ -3,8 +3,11 @@
 Every policy — a baseline by name or a saved stable-baselines3 model by path — runs through
 :func:`imm_gym.evaluation.rollout.rollout` on the same R runs: same targets, same sensor noise
 (common random numbers). The report follows the paper's Table 2 (position ARMSE overall / X / Y,
-velocity ARMSE X / Y) and adds NIS/NEES consistency, mode-identification accuracy, the clairvoyant
-bound and paired differences with 95 % bootstrap confidence intervals against a reference policy.
+velocity ARMSE X / Y) and adds NIS/NEES consistency, mode-identification accuracy, the
+mode-probability total variation, the peak error and the maneuver response, the clairvoyant
+filter (a bound where no policy beats it, else a reference; skipped, with the reason, where it
+cannot follow the scenario) and paired differences with 95 % bootstrap confidence intervals
+against a reference policy.
 
 Example::
 
@@ -38,8 +41,8 @@ from numpy.typing import NDArray
 
 from baselines import REGISTRY, Baseline, BuildContext
 from imm_gym.cli.tables import render_tables
-from imm_gym.evaluation.clairvoyant import clairvoyant_filter
-from imm_gym.evaluation.metrics import tracking_errors
+from imm_gym.evaluation.clairvoyant import clairvoyant_filter, clairvoyant_role, unsupported
+from imm_gym.evaluation.metrics import maneuver_response, peak_error, tracking_errors
 from imm_gym.evaluation.rollout import (
     Rollout,
     evaluation_config,
@@ -49,7 +52,7 @@ from imm_gym.evaluation.rollout import (
 )
 from imm_gym.papers.systems import SYSTEMS
 from imm_gym.scenarios.catalog import SCENARIOS
-from imm_gym.scenarios.segments import Scenario
+from imm_gym.scenarios.segments import Scenario, true_model_index
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
@@ -109,7 +112,7 @@ def make_policy(
         return load_trained(path)
     raise ConfigError(
         f"unknown policy {name!r}: use one of {list(REGISTRY)}, 'pretrained' or a "
-        "trained agent (its directory or its model.zip)"
+        "trained agent's directory"
     )
 
 
@@ -139,12 +142,13 @@ def evaluate(
 
     ``extra`` adds policy objects by name: ``{name: (policy, env_overrides)}`` (a freshly trained
     agent, say); they are evaluated first. ``bank``: ``paper`` (CV, CT(±4°/s), SVD-UKF) or
-    ``hetero`` (NCV/CT/CTRA IMM-EKF, ``SONAR_HETERO_BANK``; no clairvoyant bound).
+    ``hetero`` (NCV/CT/CTRA IMM-EKF, ``SONAR_HETERO_BANK``; no clairvoyant filter, said in the
+    results). The clairvoyant row is labelled a bound or a reference, or skipped with the reason
+    (:func:`clairvoyant_bound`).
     """
     if bank not in BANKS:
         raise ConfigError(f"--bank must be one of {list(BANKS)}, got {bank!r}")
     base = EnvConfig(scenario=scenario, **BANKS[bank])
-    clairvoyant = clairvoyant and bank == "paper"
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {list(policies)}")
     made = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
@@ -175,7 +179,7 @@ def evaluate(
         },
     }
     if clairvoyant:
-        results["clairvoyant"] = clairvoyant_bound(base, runs, seed)
+        results["clairvoyant"] = clairvoyant_bound(base, runs, seed, results["policies"])
     results["meta"] = {
         "scenario": scenario if isinstance(scenario, str) else "file",
         "runs": runs,
@@ -201,9 +205,23 @@ def paired_difference(
     return d
 
 
-def clairvoyant_bound(base: EnvConfig, runs: int, seed: int) -> dict[str, float]:
-    """The clairvoyant filter's errors on the same runs (same seeds, same draws)."""
+def clairvoyant_bound(
+    base: EnvConfig, runs: int, seed: int, policies: dict[str, dict[str, Any]]
+) -> dict[str, Any]:
+    """The clairvoyant filter's errors on the same runs (same seeds, same draws) and its role.
+
+    Returns:
+        Its :func:`~imm_gym.evaluation.metrics.tracking_errors`, ``peak_error`` and
+        ``maneuver_response``, with ``role`` ``"bound"`` or ``"reference"``, ``note`` and
+        ``beaten_by`` (:func:`~imm_gym.evaluation.clairvoyant.clairvoyant_role` against
+        ``policies``' scores); where the filter cannot follow the scenario or the bank
+        (:func:`~imm_gym.evaluation.clairvoyant.unsupported`) only ``role`` ``"skipped"`` and
+        the ``note`` saying why.
+    """
     batch = draw_batch(base.source, base.sensor, runs, seed, base.velocity_std)
+    reason = unsupported(batch.truth, base.bank)
+    if reason is not None:
+        return {"role": "skipped", "note": f"skipped: {reason}"}
     xs, _ = clairvoyant_filter(
         batch.truth,
         batch.measurements.z[:, 1:],
@@ -214,7 +232,15 @@ def clairvoyant_bound(base: EnvConfig, runs: int, seed: int) -> dict[str, float]
         base.filter,
         batch.measurements.detected[:, 1:],
     )
-    return tracking_errors(xs, batch.truth.states[:, 1:])
+    truth = batch.truth.states[:, 1:]
+    errors = tracking_errors(xs, truth)
+    true_model = true_model_index(batch.truth, base.bank)
+    return {
+        **errors,
+        "peak_error": peak_error(xs, truth),
+        "maneuver_response": maneuver_response(xs, truth, true_model),
+        **clairvoyant_role(errors, policies),
+    }
 
 
 class _NoBar:

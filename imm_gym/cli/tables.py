@@ -1,5 +1,5 @@
-"""The tables the command lines print (rich): Table 2's layout with the paired differences, and
-the seed-system comparison."""
+"""The tables the command lines print (rich): Table 2's layout, the IMM behaviour beyond the
+ARMSE, the paired differences, and the seed-system comparison."""
 
 from __future__ import annotations
 
@@ -17,8 +17,24 @@ TABLE_COLUMNS = (
 )
 
 
+#: The IMM behaviour table: (key, header, format); a None value prints as "—".
+BEHAVIOUR_COLUMNS = (
+    ("mode_accuracy", "mode acc.", "{:.1%}"),
+    ("mode_prob_tv", "mode-prob. TV / step", "{:.4f}"),
+    ("peak_error", "peak error (m)", "{:.3f}"),
+    ("maneuver_response", "maneuver response (m)", "{:.3f}"),
+)
+
+
+def _cell(row: dict[str, Any], key: str, fmt: str) -> str:
+    value = row.get(key)
+    return "—" if value is None else fmt.format(value)
+
+
 def render_tables(results: dict[str, Any]) -> None:
-    """Print the Table-2 layout and the paired differences with rich."""
+    """Print the Table-2 layout (the clairvoyant row labelled by its role, its note below), the
+    IMM behaviour (mode accuracy, mode-probability total variation, peak error, maneuver
+    response) and the paired differences with rich."""
     from rich.console import Console
     from rich.table import Table
 
@@ -43,15 +59,32 @@ def render_tables(results: dict[str, Any]) -> None:
             f"{100 * r['mode_accuracy']:.1f}%",
             str(r["diverged"]),
         )
-    if "clairvoyant" in results:
-        c = results["clairvoyant"]
-        table.add_row(
-            "clairvoyant (bound)", *(f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim"
-        )
+    c = results.get("clairvoyant")
+    if c is not None:
+        if c["role"] != "skipped":
+            label = f"clairvoyant ({c['role']})"
+            table.add_row(label, *(f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
+        if c["role"] != "bound":
+            table.caption = c["note"]
     if meta["scenario"] == "paper":
         for name, r in PAPER_TABLE2.items():
             table.add_row(name, *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
     console.print(table)
+    behaviour = Table(
+        title="IMM behaviour: mode-probability total variation ½·Σ|μ(k) − μ(k−1)| per step, "
+        "mean of each run's peak position error, position RMSE over the 10 steps after each "
+        "maneuver starts"
+    )
+    behaviour.add_column("policy")
+    for _, label, _ in BEHAVIOUR_COLUMNS:
+        behaviour.add_column(label, justify="right")
+    for name, r in results["policies"].items():
+        behaviour.add_row(name, *(_cell(r, k, fmt) for k, _, fmt in BEHAVIOUR_COLUMNS))
+    if c is not None and c["role"] != "skipped":
+        behaviour.add_row(
+            "clairvoyant", *(_cell(c, k, fmt) for k, _, fmt in BEHAVIOUR_COLUMNS), style="dim"
+        )
+    console.print(behaviour)
     paired = results["paired"]
     if paired["differences"]:
         diff = Table(title=f"Position ARMSE minus {paired['reference']}'s, 95% paired bootstrap CI")

@@ -1,39 +1,109 @@
-"""The clairvoyant filter: a bound no TPM policy can beat (SPEC §6).
+"""The clairvoyant filter: one filter told the true motion of every step (SPEC §6), and whether
+its errors bound the policies' on a given run set.
 
-One filter that knows the true motion of every step — the exact transition ``F_CT(omega_k)`` of
-the truth (CV when ``omega_k = 0``) — and uses the process noise of the bank's model of that type
-(the CV model's ``Q`` on straight steps, the ``Q`` of the CT model turning the same way on turns).
-It runs through the same predict/update code as the IMM bank.
+The filter knows the exact transition ``F_CT(omega_k)`` of the truth (CV when ``omega_k = 0``)
+and uses the process noise of the bank's model of that type (the CV model's ``Q`` on straight
+steps, the ``Q`` of the CT model turning the same way on turns). It runs through the same
+predict/update code as the IMM bank.
+
+It lower-bounds what a TPM policy on the same bank can reach only in expectation, and only where
+its models and noise match the bank's: a finite run set, a target close to the nonlinear sensor
+(the UKF's approximation is then poor for both) or a noise-free truth that a smaller ``Q`` would
+follow better can let a policy beat it. :func:`clairvoyant_role` therefore calls it a ``bound``
+only when no policy beat it on the runs at hand, a ``reference`` otherwise; motion it cannot
+follow (tangential acceleration, a bank without CV or CT models) is named by
+:func:`unsupported`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import Truth
 from imm_gym.tracking.filters import Filter, MeasurementModel, make_filter, predict
+from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, ct_transition
 from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
 
+#: The errors a policy is compared on (:func:`~imm_gym.evaluation.metrics.tracking_errors`).
+BOUNDED_KEYS = (
+    "armse_pos",
+    "armse_pos_x",
+    "armse_pos_y",
+    "armse_vel",
+    "armse_vel_x",
+    "armse_vel_y",
+)
+
+#: The bank models the filter borrows ``Q`` from: (description, test).
+_NEEDED = (
+    ("CV", lambda m: m.kind == "cv"),
+    ("left-turn CT", lambda m: m.kind == "ct" and m.omega > 0),
+    ("right-turn CT", lambda m: m.kind == "ct" and m.omega < 0),
+)
+
+
+def unsupported(truth: Truth, models: Sequence[MotionModel] | HeteroBank) -> str | None:
+    """Why the clairvoyant filter cannot run on ``truth`` with the bank ``models``, or None.
+
+    It follows straight and turn motion only (no tangential acceleration) and needs a CV, a
+    left-turn CT and a right-turn CT model among linear bank models.
+    """
+    if isinstance(models, HeteroBank):
+        return "the clairvoyant filter runs linear CV/CT models; this bank is NCV/CT/CTRA"
+    accelerating = np.any(truth.accel != 0.0, axis=-1)
+    if np.any(accelerating):
+        return (
+            "the clairvoyant filter is defined for straight and turn segments only; "
+            f"{int(accelerating.sum())} of {accelerating.size} runs have acceleration segments"
+        )
+    for what, needed in _NEEDED:
+        if not any(needed(m) for m in models):
+            return f"the clairvoyant filter needs a {what} model in the bank"
+    return None
+
 
 def _noise_by_motion(models: Sequence[MotionModel]) -> tuple[Array, Array, Array]:
     """``Q`` for straight, left-turn and right-turn steps from the bank's CV / CT models."""
-
-    def first(pred: object, what: str) -> Array:
-        for m in models:
-            if pred(m):  # type: ignore[operator]
-                return m.noise_covariance(4)
-        raise ConfigError(f"the clairvoyant filter needs a {what} model in the bank")
-
-    q_cv = first(lambda m: m.kind == "cv", "CV")
-    q_left = first(lambda m: m.kind == "ct" and m.omega > 0, "left-turn CT")
-    q_right = first(lambda m: m.kind == "ct" and m.omega < 0, "right-turn CT")
+    q_cv, q_left, q_right = (
+        next(m for m in models if needed(m)).noise_covariance(4) for _, needed in _NEEDED
+    )
     return q_cv, q_left, q_right
+
+
+def clairvoyant_role(
+    errors: Mapping[str, float], policies: Mapping[str, Mapping[str, Any]]
+) -> dict[str, Any]:
+    """Whether the clairvoyant filter's ``errors`` bound the ``policies``' on these runs.
+
+    A policy beats it when any of its :data:`BOUNDED_KEYS` is below the filter's.
+
+    Args:
+        errors: the filter's :func:`~imm_gym.evaluation.metrics.tracking_errors`.
+        policies: each policy's scores, holding at least :data:`BOUNDED_KEYS`.
+
+    Returns:
+        ``role`` (``"bound"`` or ``"reference"``), ``note`` (one sentence) and ``beaten_by``
+        (``{policy: [keys it is lower on]}``, empty for a bound).
+    """
+    beaten_by = {
+        name: [k for k in BOUNDED_KEYS if row[k] < errors[k]] for name, row in policies.items()
+    }
+    beaten_by = {name: keys for name, keys in beaten_by.items() if keys}
+    if beaten_by:
+        note = f"reference: beaten by {', '.join(beaten_by)}"
+        return {"role": "reference", "note": note, "beaten_by": beaten_by}
+    note = (
+        "bound: a lower bound in expectation for TPM policies on this bank (the true motion at "
+        "every step, the bank's noise); no policy beat it on these runs"
+    )
+    return {"role": "bound", "note": note, "beaten_by": {}}
 
 
 def clairvoyant_filter(
@@ -49,7 +119,8 @@ def clairvoyant_filter(
     """Run the clairvoyant filter over R runs.
 
     Args:
-        truth: the runs' truth (turn rates per step); tangential accelerations are not supported.
+        truth: the runs' truth (turn rates per step); tangential accelerations are not supported
+            (:func:`unsupported`).
         z: ``(R, K, m)`` measurements at steps 1..K.
         sensor, models: the sensor and the bank whose noise levels the filter borrows.
         x0, P0: ``(R, 4)``, ``(R, 4, 4)`` initial estimate.
@@ -59,8 +130,9 @@ def clairvoyant_filter(
     Returns:
         Estimates ``(R, K, 4)`` and covariances ``(R, K, 4, 4)``.
     """
-    if np.any(truth.accel != 0.0):
-        raise ConfigError("the clairvoyant filter is defined for straight and turn segments only")
+    reason = unsupported(truth, models)
+    if reason is not None:
+        raise ConfigError(reason)
     flt = make_filter(filter) if isinstance(filter, str) else filter
     q_cv, q_left, q_right = _noise_by_motion(models)
     R, K = truth.turn_rate.shape

@@ -42,15 +42,20 @@ def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:
         for key in ("armse_pos", "armse_pos_x", "armse_pos_y", "armse_vel_x", "armse_vel_y"):
             assert np.isfinite(row[key]) and row[key] > 0
         assert 0.0 <= row["nis"]["inside"] <= 1.0 and 0.0 <= row["mode_accuracy"] <= 1.0
+        assert 0.0 < row["mode_prob_tv"] < 1.0
+        assert row["peak_error"] > row["maneuver_response"] > row["armse_pos"] / 2
     assert data["paired"]["reference"] == "fixed"
     d = data["paired"]["differences"]["tip-imm"]
     assert d["low"] <= d["diff"] <= d["high"]
     assert data["clairvoyant"]["armse_pos"] < data["policies"]["fixed"]["armse_pos"]
+    assert data["clairvoyant"]["role"] == "bound" and data["clairvoyant"]["beaten_by"] == {}
+    assert data["clairvoyant"]["maneuver_response"] < data["policies"]["fixed"]["maneuver_response"]
     assert data["meta"]["runs"] == 6 and data["meta"]["seeds"] == "3..8"
     for png in ("trajectory.png", "mode_probs.png", "rmse.png"):
         assert (figs / png).stat().st_size > 1000
     printed = capsys.readouterr().out
     assert "paper: TIP-IMM" in printed and "17.0247" in printed
+    assert "clairvoyant (bound)" in printed and "maneuver response (m)" in printed
 
 
 def test_common_random_numbers_across_policies() -> None:
@@ -75,6 +80,54 @@ def test_scenario_file(tmp_path) -> None:
         )
     )
     assert main(["--policy", "fixed", "--scenario", str(path), "--runs", "3", "--quiet"]) == 0
+
+
+def test_clairvoyant_beaten_on_a_tiny_run_set_is_a_reference(tmp_path, capsys) -> None:
+    # one run (seed 5) of the paper scenario: the fixed TPM's position ARMSE is below the
+    # clairvoyant filter's, TIP-IMM's X ARMSE too
+    out = tmp_path / "res.json"
+    argv = ["--policy", "fixed", "--policy", "tip-imm", "--runs", "1", "--seed", "5"]
+    assert main([*argv, "--quiet", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    c = data["clairvoyant"]
+    assert c["role"] == "reference"
+    assert c["note"] == "reference: beaten by fixed, tip-imm"
+    assert "armse_pos" in c["beaten_by"]["fixed"] and "armse_pos_x" in c["beaten_by"]["tip-imm"]
+    assert data["policies"]["fixed"]["armse_pos"] < c["armse_pos"]
+    printed = capsys.readouterr().out
+    assert "clairvoyant (reference)" in printed and "clairvoyant (bound)" not in printed
+    assert "reference: beaten by fixed, tip-imm" in printed
+
+
+def test_scenario_with_acceleration_has_no_clairvoyant_row(tmp_path, capsys) -> None:
+    path = tmp_path / "accel.json"
+    path.write_text(
+        json.dumps(
+            {
+                "segments": [
+                    {"duration": 20},
+                    {"duration": 10, "accel": 1.0},
+                    {"duration": 20, "turn_rate_deg": 2.0},
+                ],
+                "position": [4000.0, 1000.0],
+                "velocity": [-10.0, 12.0],
+            }
+        )
+    )
+    out = tmp_path / "res.json"
+    argv = ["--policy", "fixed", "--policy", "tip-imm", "--scenario", str(path), "--runs", "2"]
+    assert main([*argv, "--quiet", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["clairvoyant"] == {
+        "role": "skipped",
+        "note": "skipped: the clairvoyant filter is defined for straight and turn segments only; "
+        "2 of 2 runs have acceleration segments",
+    }
+    for row in data["policies"].values():
+        assert np.isfinite(row["armse_pos"]) and row["maneuver_response"] is not None
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "clairvoyant (" not in printed
+    assert "skipped: the clairvoyant filter is defined for straight and turn" in printed
 
 
 @pytest.mark.parametrize(
@@ -130,3 +183,13 @@ def test_a_registered_baseline_is_listed_and_evaluated(throwaway_baseline, tmp_p
     with pytest.raises(SystemExit):
         main(argv)
     assert "unknown policy 'throwaway'" in capsys.readouterr().err
+
+
+def test_the_hetero_bank_says_why_there_is_no_clairvoyant_row() -> None:
+    results, _ = evaluate(["fixed"], "paper", 2, 0, bank="hetero")
+    assert results["clairvoyant"] == {
+        "role": "skipped",
+        "note": "skipped: the clairvoyant filter runs linear CV/CT models; this bank is "
+        "NCV/CT/CTRA",
+    }
+    assert results["policies"]["fixed"]["maneuver_response"] > 0.0
