@@ -549,11 +549,12 @@ def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None
                 f"{row['armse_pos_y']:.3f} | {row['armse_vel_x']:.3f} | "
                 f"{row['armse_vel_y']:.3f} |"
             )
-        c = r["clairvoyant"]
-        lines.append(
-            f"| clairvoyant (bound) | {c['armse_pos']:.3f} | {c['armse_pos_x']:.3f} | "
-            f"{c['armse_pos_y']:.3f} | {c['armse_vel_x']:.3f} | {c['armse_vel_y']:.3f} |"
-        )
+        c = r.get("clairvoyant", {})
+        if "armse_pos" in c:
+            lines.append(
+                f"| clairvoyant ({c['role']}) | {c['armse_pos']:.3f} | {c['armse_pos_x']:.3f} | "
+                f"{c['armse_pos_y']:.3f} | {c['armse_vel_x']:.3f} | {c['armse_vel_y']:.3f} |"
+            )
         lines += ["", "Paired differences of position ARMSE (95 % bootstrap CI):", ""]
         for name, d in r["paired"]["differences"].items():
             lines.append(
