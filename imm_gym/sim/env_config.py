@@ -41,6 +41,20 @@ SHADOW_FEATURES = shadow_features()
 TIP_READINGS = ("literal", "intent")
 
 
+def _bank_model(i: int, model: Any) -> Any:
+    """Entry ``i`` of a linear bank: a mapping becomes a :class:`MotionModel`, whose errors are
+    prefixed with ``bank[i]`` (``bank[1]: model.intensity must be in (0.0, inf], got -1``)."""
+    if not isinstance(model, Mapping):
+        return model
+    try:
+        return from_dict(MotionModel, model, f"bank[{i}]")
+    except ConfigError as err:
+        message = str(err)
+        if message.startswith(f"bank[{i}]"):
+            raise
+        raise ConfigError(f"bank[{i}]: {message}") from None
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """Everything that defines a TPM-adaptation environment.
@@ -130,10 +144,7 @@ class EnvConfig:
             if self.filter != "ekf":
                 raise ConfigError("a heterogeneous bank (NCV/CT/CTRA) needs filter 'ekf'")
         else:
-            bank = tuple(
-                from_dict(MotionModel, m, f"bank[{i}]") if isinstance(m, Mapping) else m
-                for i, m in enumerate(check_sequence("bank", self.bank))
-            )
+            bank = tuple(_bank_model(i, m) for i, m in enumerate(check_sequence("bank", self.bank)))
             if len(bank) < 2 or not all(isinstance(m, MotionModel) for m in bank):
                 raise ConfigError("bank must hold at least 2 MotionModel entries")
         store(self, "bank", bank)

@@ -203,7 +203,7 @@ class LinearModel:
 
     def noise(self, x: Array, T: float) -> Array:
         """The model's ``Q`` (before ``q_scale``), ``(..., n, n)``."""
-        return np.broadcast_to(self.model.noise_covariance(self.dim), (*x.shape, self.dim))
+        return np.broadcast_to(self.model.noise_covariance(self.dim, T), (*x.shape, self.dim))
 
 
 AnyModel = HeteroModel | LinearModel

@@ -309,7 +309,7 @@ class IMM:
         self.T = check_range("T", T, 0.0, lo_open=True)
         self.n = bank_dim(self.models)
         self.F = np.stack([m.transition_matrix(self.T, self.n) for m in self.models])
-        self.Q = np.stack([m.noise_covariance(self.n) for m in self.models])
+        self.Q = np.stack([m.noise_covariance(self.n, self.T) for m in self.models])
         self._Ft = np.ascontiguousarray(np.swapaxes(self.F, -1, -2))
         self._FFt = np.stack([np.kron(F, F).T for F in self.F])
         #: the engine that runs :meth:`step`: ``"compiled"`` or ``"numpy"``

@@ -1,4 +1,5 @@
-"""Tests of imm_gym.tracking.models: CV / CT / CA transition matrices, process noise, validation."""
+"""Tests of imm_gym.tracking.models: CV / CT / CA transition matrices, process noise (per step
+and continuous-time, discretized), validation."""
 
 from __future__ import annotations
 
@@ -6,9 +7,33 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.integrate import quad_vec
+from scipy.linalg import expm
 
-from imm_gym import ConfigError, MotionModel, ct_transition, paper_bank
-from imm_gym.tracking.models import PAPER_Q, bank_dim
+from imm_gym import (
+    IMM,
+    ConfigError,
+    EnvConfig,
+    MotionModel,
+    RandomFamily,
+    Sonar,
+    ct_transition,
+    draw_batch,
+    paper_bank,
+    stay_tpm,
+)
+from imm_gym.sim.presets import BANK_PRESETS, CONTINUOUS_BANK
+from imm_gym.tracking.hetero import LinearModel
+from imm_gym.tracking.models import (
+    PAPER_Q,
+    TURN_NOISE_SERIES_BELOW,
+    bank_dim,
+    turn_noise_ratios,
+    white_acceleration_noise,
+    white_jerk_noise,
+)
 
 CV_F = np.array(
     [
@@ -165,8 +190,263 @@ def test_paper_bank() -> None:
         ({"kind": "cv", "q_acc": 0.0}, "model.q_acc"),
         ({"kind": "ct", "turn_rate_deg": float("inf")}, "model.turn_rate_deg"),
         ({"kind": "singer"}, "model.kind"),
+        ({"kind": "cv", "noise": "white"}, "model.noise"),
+        ({"kind": "cv", "noise": "continuous"}, "model.intensity"),
+        ({"kind": "cv", "intensity": 0.1}, "model.intensity"),
+        ({"kind": "cv", "noise": "continuous", "intensity": 0.0}, "model.intensity"),
+        ({"kind": "cv", "noise": "continuous", "intensity": -0.1}, "model.intensity"),
+        ({"kind": "cv", "noise": "continuous", "intensity": float("nan")}, "model.intensity"),
+        ({"kind": "cv", "noise": "continuous", "intensity": float("inf")}, "model.intensity"),
+        ({"kind": "cv", "noise": "continuous", "intensity": "0.1"}, "model.intensity"),
+        ({"kind": "cv", "noise": "continuous", "intensity": True}, "model.intensity"),
+        ({"kind": "ca", "noise": "continuous", "intensity": 1.0, "q": (0.1,) * 6}, "model.q"),
+        ({"kind": "ca"}, "model.q"),
     ],
 )
 def test_invalid_model_config(kwargs: dict, field: str) -> None:
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
         MotionModel(**kwargs)
+
+
+# --- process noise given as a continuous-time intensity ---------------------------------------
+
+
+def _cv_textbook(q: float, T: float) -> np.ndarray:
+    """Bar-Shalom et al. 2001 §6.2.2 on [x, y, vx, vy], written out entry by entry."""
+    return q * np.array(
+        [
+            [T**3 / 3, 0.0, T**2 / 2, 0.0],
+            [0.0, T**3 / 3, 0.0, T**2 / 2],
+            [T**2 / 2, 0.0, T, 0.0],
+            [0.0, T**2 / 2, 0.0, T],
+        ]
+    )
+
+
+def _ct_integral(omega: float, T: float, q: float) -> np.ndarray:
+    """``∫_0^T F(τ) G q G^T F(τ)^T dτ`` numerically, ``F(τ) G`` written out from the turn's
+    rotation (``1 - cos`` as ``2 sin²`` so small angles keep their digits)."""
+
+    def integrand(tau: float) -> np.ndarray:
+        s, c = math.sin(omega * tau), math.cos(omega * tau)
+        one_minus_c = 2.0 * math.sin(0.5 * omega * tau) ** 2
+        a = np.array([s / omega, one_minus_c / omega, c, s])  # response to an x kick
+        b = np.array([-one_minus_c / omega, s / omega, -s, c])  # response to a y kick
+        return q * (np.outer(a, a) + np.outer(b, b))
+
+    value, _ = quad_vec(integrand, 0.0, T, epsabs=0.0, epsrel=1e-13)
+    return value
+
+
+def _continuous(kind: str, turn_deg: float = 0.0, q: float = 0.1) -> MotionModel:
+    return MotionModel(kind, turn_deg, noise="continuous", intensity=q)
+
+
+@pytest.mark.parametrize("T", [1.0, 5.0, 0.1])
+@pytest.mark.parametrize("q", [0.12, 3.0])
+def test_continuous_cv_noise_is_textbook(T: float, q: float) -> None:
+    Q = _continuous("cv", q=q).noise_covariance(4, T)
+    np.testing.assert_allclose(Q, _cv_textbook(q, T), rtol=1e-15, atol=0.0)
+    if T == 1.0:  # the numbers themselves: q/3, q/2, q
+        np.testing.assert_allclose(np.diag(Q), [q / 3, q / 3, q, q], rtol=1e-15)
+        assert Q[0, 2] == Q[1, 3] == pytest.approx(q / 2, rel=1e-15)
+    if T == 5.0:
+        np.testing.assert_allclose(np.diag(Q), q * np.array([125 / 3, 125 / 3, 5, 5]), rtol=1e-15)
+        assert Q[0, 2] == pytest.approx(q * 12.5, rel=1e-15)
+
+
+@pytest.mark.parametrize("turn_deg", [4.0, -4.0, 1.0, -3.0, 30.0, 0.05])
+@pytest.mark.parametrize("T", [0.1, 1.0, 5.0])
+def test_continuous_ct_noise_is_the_integral(turn_deg: float, T: float) -> None:
+    omega = math.radians(turn_deg)
+    Q = _continuous("ct", turn_deg, 0.7).noise_covariance(4, T)
+    ref = _ct_integral(omega, T, 0.7)
+    scale = np.abs(ref).max()
+    np.testing.assert_allclose(Q, ref, rtol=1e-9, atol=1e-9 * scale)
+    # the closed form's entries as the docstring prints them (where u - sin u keeps its digits)
+    wt, q = omega * T, 0.7
+    if abs(wt) > 0.05:
+        np.testing.assert_allclose(Q[0, 0], q * 2 * (wt - math.sin(wt)) / omega**3, rtol=1e-9)
+        np.testing.assert_allclose(Q[0, 2], q * (1 - math.cos(wt)) / omega**2, rtol=1e-9)
+        np.testing.assert_allclose(Q[0, 3], q * (wt - math.sin(wt)) / omega**2, rtol=1e-9)
+    assert Q[1, 2] == -Q[0, 3] and Q[0, 1] == 0.0 and Q[2, 3] == 0.0
+
+
+@pytest.mark.parametrize("T", [1.0, 5.0, 0.1])
+def test_continuous_ca_noise_is_textbook_and_the_integral(T: float) -> None:
+    q = 0.4
+    Q = _continuous("ca", q=q).noise_covariance(6, T)
+    axis = np.array(
+        [[T**5 / 20, T**4 / 8, T**3 / 6], [T**4 / 8, T**3 / 3, T**2 / 2], [T**3 / 6, T**2 / 2, T]]
+    )
+    for i in range(3):  # per axis, (position, velocity, acceleration) = state entries 2i + axis
+        for j in range(3):
+            assert Q[2 * i, 2 * j] == Q[2 * i + 1, 2 * j + 1] == pytest.approx(q * axis[i, j])
+            assert Q[2 * i, 2 * j + 1] == Q[2 * i + 1, 2 * j] == 0.0
+    A = np.zeros((6, 6))
+    A[:4, 2:] = np.eye(4)
+    G = np.zeros((6, 2))
+    G[4:, :] = np.eye(2)
+    ref, _ = quad_vec(
+        lambda t: expm(A * t) @ G @ (q * G.T) @ expm(A * t).T, 0.0, T, epsabs=0.0, epsrel=1e-13
+    )
+    np.testing.assert_allclose(Q, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+    np.testing.assert_array_equal(Q, white_jerk_noise(T, q))
+
+
+@pytest.mark.parametrize("T", [1.0, 5.0])
+def test_continuous_ct_tends_to_cv(T: float) -> None:
+    cv = _cv_textbook(1.0, T)
+    np.testing.assert_allclose(white_acceleration_noise(0.0, T, 1.0), cv, rtol=1e-15, atol=0.0)
+    previous = math.inf
+    for omega in (1e-2, 1e-3, 1e-5, 1e-7, 1e-9, -1e-9):
+        gap = np.abs(white_acceleration_noise(omega, T, 1.0) - cv).max()
+        # the cross term q T³ ω/6 is the first-order difference
+        assert gap == pytest.approx(T**3 * abs(omega) / 6, rel=0.02)
+        assert gap <= previous
+        previous = gap
+
+
+def test_turn_noise_series_branch_is_continuous() -> None:
+    edge = TURN_NOISE_SERIES_BELOW
+    u = np.array([edge * (1 - 1e-12), edge * (1 + 1e-12), -edge * (1 - 1e-12)])
+    s1, s2 = turn_noise_ratios(u)
+    np.testing.assert_allclose(s1, s1[0], rtol=1e-12)
+    np.testing.assert_allclose(s2, s2[0], rtol=1e-12)
+    s1, s2 = turn_noise_ratios(0.0)
+    assert (s1, s2) == (0.5, 1 / 6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    q=st.floats(1e-4, 1e3),
+    T=st.floats(0.01, 10.0),
+    T2=st.floats(0.01, 10.0),
+    omega=st.floats(-0.5, 0.5),
+)
+def test_continuous_noise_invariants(q: float, T: float, T2: float, omega: float) -> None:
+    Q = white_acceleration_noise(omega, T, q)
+    np.testing.assert_array_equal(Q, Q.T)
+    assert np.linalg.eigvalsh(Q).min() > 0.0
+    np.linalg.cholesky(Q)
+    np.testing.assert_allclose(Q, q * white_acceleration_noise(omega, T, 1.0), rtol=1e-14)
+    # mirroring y (S = diag(1, -1, 1, -1)) turns CT(ω) into CT(-ω)
+    S = np.diag([1.0, -1.0, 1.0, -1.0])
+    scale = np.abs(Q).max()
+    np.testing.assert_allclose(
+        S @ Q @ S, white_acceleration_noise(-omega, T, q), atol=1e-13 * scale
+    )
+    # exact discretization: noise over T + T2 = noise over T carried through T2, plus T2's own
+    F2 = ct_transition(omega, T2)
+    both = F2 @ Q @ F2.T + white_acceleration_noise(omega, T2, q)
+    total = white_acceleration_noise(omega, T + T2, q)
+    np.testing.assert_allclose(both, total, rtol=1e-9, atol=1e-9 * np.abs(total).max())
+    J = white_jerk_noise(T, q)
+    np.testing.assert_array_equal(J, J.T)
+    assert np.linalg.eigvalsh(J).min() > 0.0
+
+
+def test_continuous_cv_ct_in_six_dim_bank() -> None:
+    for m in (_continuous("cv", q=0.2), _continuous("ct", -3.0, 0.2)):
+        Q6 = m.noise_covariance(6, 2.0)
+        np.testing.assert_array_equal(Q6[:4, :4], m.noise_covariance(4, 2.0))
+        np.testing.assert_array_equal(Q6[4:, 4:], m.q_acc * np.eye(2))
+        np.testing.assert_array_equal(Q6[:4, 4:], 0.0)
+    ca = _continuous("ca", q=0.2)
+    IMM((_continuous("cv"), ca), Sonar(), T=2.0)  # a mixed bank builds
+    with pytest.raises(ConfigError, match="CA does not fit a 4-dimensional"):
+        ca.noise_covariance(4, 1.0)
+    with pytest.raises(ConfigError, match="5-dimensional"):
+        _continuous("cv").noise_covariance(5, 1.0)
+
+
+def test_continuous_noise_needs_a_sampling_period() -> None:
+    m = _continuous("ct", 4.0)
+    with pytest.raises(ConfigError, match="sampling period T"):
+        m.noise_covariance(4)
+    for T in (0.0, -1.0, float("nan"), "1"):
+        with pytest.raises(ConfigError, match=r"^T must be"):
+            m.noise_covariance(4, T)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("T", [0.1, 1.0, 5.0])
+def test_paper_bank_noise_unchanged_bit_for_bit(T: float) -> None:
+    """The per-step Q of the paper bank, whatever T: the literal numbers of the paper."""
+    cv = np.diag([0.1, 0.1, 0.12, 0.12])
+    ct = np.diag([0.05, 0.05, 0.06, 0.06])
+    numpy_imm = IMM(paper_bank(), Sonar(), T=T, engine="numpy")
+    compiled = IMM(paper_bank(), Sonar(), T=T, engine="compiled")
+    np.testing.assert_array_equal(numpy_imm.Q, np.stack([cv, ct, ct]))
+    assert compiled.kernel_args is not None
+    np.testing.assert_array_equal(compiled.kernel_args[1], np.stack([cv, ct, ct]))
+    assert all(m.noise == "discrete" and m.intensity is None for m in paper_bank())
+    assert EnvConfig().bank == paper_bank()
+    assert BANK_PRESETS["paper"] == {}
+
+
+def test_continuous_preset_bank() -> None:
+    bank = BANK_PRESETS["cv-ct-continuous"]["bank"]
+    assert bank == CONTINUOUS_BANK
+    assert [m.label for m in bank] == [m.label for m in paper_bank()]
+    paper_Q = IMM(paper_bank(), Sonar()).Q
+    for T in (0.1, 1.0, 5.0):
+        imm = IMM(bank, Sonar(), T=T)
+        for m, Q in zip(bank, imm.Q, strict=True):
+            np.testing.assert_array_equal(Q, m.noise_covariance(4, T))
+            np.testing.assert_array_equal(Q, white_acceleration_noise(m.omega, T, m.intensity))
+        if T == 1.0:
+            # one second adds the paper bank's velocity variance; the position variance is q/3
+            velocity = np.diagonal(imm.Q, axis1=1, axis2=2)[:, 2:]
+            np.testing.assert_allclose(velocity, [[0.12, 0.12], [0.06, 0.06], [0.06, 0.06]])
+            np.testing.assert_allclose(velocity, np.diagonal(paper_Q, axis1=1, axis2=2)[:, 2:])
+    assert EnvConfig(**BANK_PRESETS["cv-ct-continuous"]).bank == CONTINUOUS_BANK
+
+
+@pytest.mark.parametrize("T", [1.0, 5.0])
+def test_continuous_bank_engines_agree(T: float) -> None:
+    """The compiled kernel and the numpy reference run the full (non-diagonal) Q alike (the
+    tolerance of tests/tracking/test_imm.py::test_engines_agree)."""
+    batch = draw_batch(RandomFamily(T=T, horizon=60), Sonar(), 6, 77)
+    z = batch.measurements.z[:, 1:]
+    imms = [IMM(CONTINUOUS_BANK, Sonar(), T=T, engine=e) for e in ("numpy", "compiled")]
+    runs = [imm.run(z, stay_tpm(3, 0.95), batch.x0, batch.P0) for imm in imms]
+    for f in ("x", "P", "mode_probs", "loglik"):
+        a, b = getattr(runs[0], f), getattr(runs[1], f)
+        np.testing.assert_allclose(
+            a, b, rtol=1e-7, atol=1e-9 * max(1.0, np.abs(a).max()), err_msg=f
+        )
+
+
+def test_linear_model_noise_uses_the_sampling_period() -> None:
+    m = _continuous("ct", 4.0, 0.3)
+    x = np.zeros((2, 4))
+    np.testing.assert_array_equal(LinearModel(m, 4).noise(x, 5.0)[1], m.noise_covariance(4, 5.0))
+
+
+def test_scaled_scales_the_noise() -> None:
+    for m in (*paper_bank(), MotionModel("ca", q=(1.0, 2.0, 3.0, 4.0, 5.0, 6.0))):
+        s = m.scaled(2.5)
+        assert s.q == tuple(2.5 * v for v in m.q) and s.q_acc == 2.5 * m.q_acc
+    for m in (_continuous("cv"), _continuous("ct", -4.0), _continuous("ca")):
+        s = m.scaled(0.5)
+        assert s.intensity == 0.5 * m.intensity and s.q_acc == 0.5 * m.q_acc
+        np.testing.assert_allclose(
+            s.noise_covariance(6, 2.0), 0.5 * m.noise_covariance(6, 2.0), rtol=1e-15
+        )
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ConfigError, match="factor"):
+            paper_bank()[0].scaled(bad)
+
+
+def test_bank_entry_errors_name_the_entry() -> None:
+    bank = [{"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 4.0, "noise": "continuous"}]
+    with pytest.raises(ConfigError, match=r"^bank\[1\]: model\.intensity"):
+        EnvConfig(bank=bank)
+    bank[1]["intensity"] = -1.0
+    with pytest.raises(ConfigError, match=r"^bank\[1\]: model\.intensity must be in"):
+        EnvConfig(bank=bank)
+    with pytest.raises(ConfigError, match=r"^bank\[0\]: unknown key"):
+        EnvConfig(bank=[{"kind": "cv", "nosie": "continuous"}, {"kind": "cv"}])
+    bank[1]["intensity"] = 0.06
+    config = EnvConfig(bank=bank)
+    assert config.bank[1] == MotionModel("ct", 4.0, noise="continuous", intensity=0.06)
