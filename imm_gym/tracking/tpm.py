@@ -5,19 +5,30 @@ Convention, used everywhere in imm_gym::
     tpm[..., i, j] = P(model j at step k | model i at step k-1),   each row sums to 1.
 
 (FilterPy's docstring states it the other way round; its code uses this one.)
+
+A TPM is either given per step (:func:`stay_tpm`) or derived from the models' mean sojourn times
+and the sampling period (:func:`tpm_from_sojourn`: a continuous-time Markov chain discretized), so
+that one definition is right at any ``T``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import expm
 from scipy.special import rel_entr
 
-from imm_gym.validation import ConfigError, check_int, check_range
+from imm_gym.validation import ConfigError, check_int, check_range, check_sequence
 
 Array = NDArray[np.float64]
 
 ROW_SUM_TOL = 1e-8
+
+#: Largest ``T / τ_i`` of :func:`tpm_from_sojourn` (``expm`` overflows near ``1e38``; at ``1e12``
+#: the chain has long forgotten its model within one step).
+MAX_T_OVER_SOJOURN = 1e12
 
 
 def stay_tpm(n_models: int, stay: float) -> Array:
@@ -33,6 +44,116 @@ def stay_tpm(n_models: int, stay: float) -> Array:
     tpm = np.full((n_models, n_models), (1.0 - stay) / (n_models - 1))
     np.fill_diagonal(tpm, stay)
     return tpm
+
+
+def sojourn_generator(sojourn_s: Sequence[float], switch: ArrayLike | None = None) -> Array:
+    r"""Generator of the continuous-time Markov chain of the models with mean sojourn times
+    ``sojourn_s``:
+
+    .. math::
+        A_{ii} = -\frac{1}{\tau_i}, \qquad A_{ij} = \frac{s_{ij}}{\tau_i} \quad (j \ne i),
+
+    each row summing to 0: model i is left at the rate ``1/τ_i`` (an exponential sojourn of mean
+    ``τ_i``) for model j with probability ``s_ij``.
+
+    Args:
+        sojourn_s: ``τ_i`` (s), one per model (at least 2), each > 0 and finite.
+        switch: ``(M, M)`` ``s_ij``: each row non-negative, summing to 1, zero on the diagonal.
+            ``None``: departures split equally among the other models, ``1/(M - 1)``.
+
+    Raises:
+        ConfigError: naming ``sojourn_s[i]``, ``switch`` or ``switch[i][j]``.
+    """
+    taus = check_sequence("sojourn_s", sojourn_s)
+    M = len(taus)
+    if M < 2:
+        raise ConfigError(f"sojourn_s needs one mean sojourn time per model (>= 2), got {taus!r}")
+    rates = np.array(
+        [1.0 / check_range(f"sojourn_s[{i}]", t, 0.0, lo_open=True) for i, t in enumerate(taus)]
+    )
+    if switch is None:
+        shares = np.full((M, M), 1.0 / (M - 1))
+        np.fill_diagonal(shares, 0.0)
+    else:
+        shares = _switch_shares(switch, M)
+    A = rates[:, None] * shares
+    np.fill_diagonal(A, -rates)
+    return A
+
+
+def _switch_shares(switch: ArrayLike, M: int) -> Array:
+    """``switch`` checked as ``(M, M)``, non-negative rows summing to 1 with a zero diagonal."""
+    if isinstance(switch, np.ndarray):
+        switch = switch.tolist()
+    rows = check_sequence("switch", switch, M)
+    shares = np.array(
+        [
+            [
+                check_range(f"switch[{i}][{j}]", v, 0.0, 1.0)
+                for j, v in enumerate(check_sequence(f"switch[{i}]", row, M))
+            ]
+            for i, row in enumerate(rows)
+        ]
+    )
+    for i in range(M):
+        if shares[i, i] != 0.0:
+            raise ConfigError(
+                f"switch[{i}][{i}] must be 0 (model {i} is left at the rate 1/sojourn_s[{i}]), "
+                f"got {shares[i, i]!r}"
+            )
+        total = float(shares[i].sum())
+        if abs(total - 1.0) > ROW_SUM_TOL:
+            raise ConfigError(
+                f"switch[{i}] must sum to 1 (where departures from model {i} go), got {total!r}"
+            )
+    return shares
+
+
+def tpm_from_sojourn(
+    sojourn_s: Sequence[float], T: float, switch: ArrayLike | None = None
+) -> Array:
+    r"""TPM of the continuous-time Markov chain of :func:`sojourn_generator` sampled every ``T``:
+
+    .. math::
+        \Pi = e^{A T}, \qquad \Pi_{ij} = P(\text{model } j \text{ at } t + T \mid
+        \text{model } i \text{ at } t),
+
+    computed by :func:`scipy.linalg.expm`; entries below 0 by rounding are set to 0 and each row
+    divided by its sum. ``Π_ii >= exp(-T/τ_i)`` (staying throughout, or leaving and coming back),
+    equal to first order in ``T/τ_i``; the discrete chain's mean sojourn ``T / (1 - Π_ii)`` tends to
+    ``τ_i`` as ``T -> 0``. With two models, ``a = 1/τ_1``, ``b = 1/τ_2``:
+    ``Π_11 = (b + a e^{-(a+b)T}) / (a + b)``.
+
+    Args:
+        sojourn_s: mean sojourn time of each model ``τ_i`` (s), > 0.
+        T: sampling period (s), > 0.
+        switch: ``(M, M)`` split of departures (:func:`sojourn_generator`); ``None``: equal.
+
+    Returns:
+        ``(M, M)`` row-stochastic TPM.
+
+    Raises:
+        ConfigError: naming the invalid argument (``sojourn_s[i]``, ``T``, ``switch[i][j]``), or
+            ``T / τ_i`` above :data:`MAX_T_OVER_SOJOURN`.
+
+    Example:
+        >>> tpm_from_sojourn([60.0, 20.0, 20.0], T=1.0).round(4)  # CV 60 s, turns 20 s
+        array([[0.9837, 0.0082, 0.0082],
+               [0.0245, 0.9516, 0.0239],
+               [0.0245, 0.0239, 0.9516]])
+    """
+    A = sojourn_generator(sojourn_s, switch)
+    T = check_range("T", T, 0.0, lo_open=True)
+    steps = -T * np.diag(A)  # T / τ_i
+    i = int(steps.argmax())
+    if steps[i] > MAX_T_OVER_SOJOURN:
+        raise ConfigError(
+            f"T / sojourn_s[{i}] must be at most {MAX_T_OVER_SOJOURN:g} (the exponential's range), "
+            f"got T = {T!r}, sojourn_s[{i}] = {-1.0 / A[i, i]!r}"
+        )
+    tpm = np.maximum(expm(A * T), 0.0)
+    tpm /= tpm.sum(axis=1, keepdims=True)
+    return validate_tpm(tpm, len(A), "exp(A T)")
 
 
 def validate_tpm(tpm: Array, n_models: int, name: str = "tpm") -> Array:

@@ -1,0 +1,167 @@
+"""Tests of imm_gym.tracking.tpm.tpm_from_sojourn: a TPM from the models' mean sojourn times, the
+continuous-time Markov generator discretized as exp(A T)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from imm_gym import ConfigError
+from imm_gym.tracking.tpm import (
+    MAX_T_OVER_SOJOURN,
+    sojourn_generator,
+    tpm_from_sojourn,
+    validate_tpm,
+)
+
+
+@st.composite
+def chains(draw: st.DrawFn) -> tuple[list[float], float, np.ndarray | None]:
+    """Sojourn times 0.1-1000 s of 2-5 models, T 0.01-100 s, equal or random switch shares."""
+    M = draw(st.integers(2, 5))
+    taus = draw(st.lists(st.floats(0.1, 1000.0), min_size=M, max_size=M))
+    T = draw(st.floats(0.01, 100.0))
+    if draw(st.booleans()):
+        return taus, T, None
+    weights = draw(st.lists(st.floats(0.0, 1.0), min_size=M * M, max_size=M * M))
+    w = np.array(weights).reshape(M, M)
+    np.fill_diagonal(w, 0.0)
+    w[w.sum(axis=1) == 0.0, :] = 1.0  # a row without weight: equal shares
+    np.fill_diagonal(w, 0.0)
+    return taus, T, w / w.sum(axis=1, keepdims=True)
+
+
+@settings(max_examples=80, deadline=None)
+@given(chain=chains(), T2=st.floats(0.01, 100.0))
+def test_exp_tpm_invariants(chain: tuple[list[float], float, np.ndarray | None], T2: float) -> None:
+    taus, T, switch = chain
+    tpm = tpm_from_sojourn(taus, T, switch)
+    M = len(taus)
+    assert tpm.shape == (M, M)
+    assert tpm.min() >= 0.0 and tpm.max() <= 1.0
+    np.testing.assert_allclose(tpm.sum(axis=1), 1.0, rtol=0, atol=1e-14)
+    validate_tpm(tpm, M)
+    # staying throughout has probability exp(-T/τ_i); leaving and coming back adds to it
+    assert np.all(np.diag(tpm) >= np.exp(-T / np.array(taus)) - 1e-12)
+    # the generator: rows sum to 0, the diagonal is -1/τ
+    A = sojourn_generator(taus, switch)
+    np.testing.assert_allclose(A.sum(axis=1), 0.0, atol=1e-12 / min(taus))
+    np.testing.assert_allclose(np.diag(A), -1.0 / np.array(taus), rtol=1e-15)
+    # Chapman-Kolmogorov: T then T2 is T + T2
+    np.testing.assert_allclose(
+        tpm @ tpm_from_sojourn(taus, T2, switch), tpm_from_sojourn(taus, T + T2, switch), atol=1e-9
+    )
+
+
+@pytest.mark.parametrize(
+    ("tau1", "tau2", "T"), [(60.0, 20.0, 1.0), (10.0, 10.0, 5.0), (3.0, 200.0, 0.1)]
+)
+def test_two_models_closed_form(tau1: float, tau2: float, T: float) -> None:
+    """Two models, a = 1/τ1, b = 1/τ2: Π11 = (b + a e^{-(a+b)T}) / (a + b)."""
+    a, b = 1.0 / tau1, 1.0 / tau2
+    decay = math.exp(-(a + b) * T)
+    expected = np.array(
+        [
+            [(b + a * decay) / (a + b), a * (1 - decay) / (a + b)],
+            [b * (1 - decay) / (a + b), (a + b * decay) / (a + b)],
+        ]
+    )
+    np.testing.assert_allclose(tpm_from_sojourn([tau1, tau2], T), expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("tau", [5.0, 60.0, 600.0])
+def test_stay_probability_is_exp_minus_T_over_tau_for_short_steps(tau: float) -> None:
+    T = tau * 1e-3
+    tpm = tpm_from_sojourn([tau, 2 * tau, 0.5 * tau], T)
+    for i, t in enumerate((tau, 2 * tau, 0.5 * tau)):
+        # equal to first order: 1 - Π_ii = T/τ (1 + O(T/τ))
+        assert tpm[i, i] == pytest.approx(math.exp(-T / t), abs=(T / t) ** 2)
+        assert 1 - tpm[i, i] == pytest.approx(T / t, rel=3 * T / t)
+
+
+@pytest.mark.parametrize("switch", [None, [[0, 1, 0], [0, 0, 1], [0.25, 0.75, 0]]])
+def test_mean_sojourn_of_the_discrete_chain_tends_to_tau(switch: list | None) -> None:
+    """The chain stays a geometric number of steps, of mean T / (1 - Π_ii) -> τ_i as T -> 0."""
+    taus = np.array([60.0, 20.0, 5.0])
+    errors = []
+    for T in (1.0, 0.1, 0.01, 0.001):
+        tpm = tpm_from_sojourn(taus, T, switch)
+        mean = T / (1.0 - np.diag(tpm))
+        errors.append(np.abs(mean / taus - 1.0).max())
+    assert errors == sorted(errors, reverse=True)
+    assert errors[-1] < 1e-3
+    assert errors[0] > 1e-3  # at T = 1 s the 5 s sojourn is visibly longer: the test can fail
+
+
+def test_switch_shares_and_the_time_shares() -> None:
+    taus = [40.0, 10.0, 10.0]
+    switch = [[0, 1, 0], [0, 0, 1], [1, 0, 0]]  # a cycle
+    A = sojourn_generator(taus, switch)
+    np.testing.assert_array_equal(A, [[-1 / 40, 1 / 40, 0], [0, -0.1, 0.1], [0.1, 0, -0.1]])
+    tpm = tpm_from_sojourn(taus, 0.01, switch)
+    # over a short step the first jump goes where the shares say: 0 -> 1, never straight to 2
+    assert tpm[0, 1] > 1e3 * tpm[0, 2]
+    # the time each model holds in the long run is proportional to its sojourn (equal shares)
+    long = np.linalg.matrix_power(tpm_from_sojourn(taus, 10.0), 1000)
+    np.testing.assert_allclose(long, np.tile([2 / 3, 1 / 6, 1 / 6], (3, 1)), atol=1e-12)
+    # the default splits departures equally
+    np.testing.assert_array_equal(
+        sojourn_generator(taus),
+        sojourn_generator(taus, [[0, 0.5, 0.5], [0.5, 0, 0.5], [0.5, 0.5, 0]]),
+    )
+    np.testing.assert_array_equal(
+        tpm_from_sojourn(taus, 1.0, np.array(switch, dtype=float)),
+        tpm_from_sojourn(taus, 1.0, switch),
+    )
+
+
+def test_long_steps_forget_the_model() -> None:
+    tpm = tpm_from_sojourn([1e-3, 1e-3, 1e-3], 1e5)
+    np.testing.assert_allclose(tpm, 1 / 3, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("args", "field"),
+    [
+        (([60.0, 0.0], 1.0), r"sojourn_s\[1\]"),
+        (([60.0, -5.0], 1.0), r"sojourn_s\[1\]"),
+        (([float("nan"), 5.0], 1.0), r"sojourn_s\[0\]"),
+        (([float("inf"), 5.0], 1.0), r"sojourn_s\[0\]"),
+        ((["60", 5.0], 1.0), r"sojourn_s\[0\]"),
+        (([60.0], 1.0), "sojourn_s"),
+        (([], 1.0), "sojourn_s"),
+        ((60.0, 1.0), "sojourn_s"),
+        (([60.0, 20.0], 0.0), "^T must be"),
+        (([60.0, 20.0], -1.0), "^T must be"),
+        (([60.0, 20.0], float("nan")), "^T must be"),
+        (([60.0, 20.0], "1"), "^T must be"),
+        (([1e-9, 20.0], 1e4), r"T / sojourn_s\[0\]"),
+        (([60.0, 20.0], 1.0, [[0, 1]]), "switch must have 2 entries"),
+        (([60.0, 20.0], 1.0, [[0, 1], [1]]), r"switch\[1\] must have 2 entries"),
+        (([60.0, 20.0], 1.0, [[0, 1], [1, 0, 0]]), r"switch\[1\] must have 2 entries"),
+        (([60.0, 20.0], 1.0, np.zeros((2, 3))), r"switch\[0\] must have 2 entries"),
+        (([60.0, 20.0], 1.0, [[0, 1], [1.5, -0.5]]), r"switch\[1\]\[0\]"),
+        (([60.0, 20.0], 1.0, [[0, 1], [1, "0"]]), r"switch\[1\]\[1\]"),
+        (
+            ([60.0, 20.0, 5.0], 1.0, [[0.5, 0.5, 0], [0.5, 0, 0.5], [0.5, 0.5, 0]]),
+            r"switch\[0\]\[0\] must be 0",
+        ),
+        (
+            ([60.0, 20.0, 5.0], 1.0, [[0, 0.5, 0.4], [0.5, 0, 0.5], [0.5, 0.5, 0]]),
+            r"switch\[0\] must sum to 1",
+        ),
+        (([60.0, 20.0], 1.0, "ab"), "switch must be a list"),
+    ],
+)
+def test_invalid_inputs_name_the_field(args: tuple, field: str) -> None:
+    with pytest.raises(ConfigError, match=field):
+        tpm_from_sojourn(*args)
+
+
+def test_largest_step_ratio_is_accepted() -> None:
+    tpm = tpm_from_sojourn([1.0, 1.0], MAX_T_OVER_SOJOURN)
+    np.testing.assert_allclose(tpm, 0.5, rtol=1e-12)
