@@ -69,10 +69,11 @@ def unsupported(truth: Truth, models: Sequence[MotionModel] | HeteroBank) -> str
     return None
 
 
-def _noise_by_motion(models: Sequence[MotionModel]) -> tuple[Array, Array, Array]:
-    """``Q`` for straight, left-turn and right-turn steps from the bank's CV / CT models."""
+def _noise_by_motion(models: Sequence[MotionModel], T: float) -> tuple[Array, Array, Array]:
+    """``Q`` for straight, left-turn and right-turn steps from the bank's CV / CT models, at the
+    sampling period ``T``."""
     q_cv, q_left, q_right = (
-        next(m for m in models if needed(m)).noise_covariance(4) for _, needed in _NEEDED
+        next(m for m in models if needed(m)).noise_covariance(4, T) for _, needed in _NEEDED
     )
     return q_cv, q_left, q_right
 
@@ -134,7 +135,7 @@ def clairvoyant_filter(
     if reason is not None:
         raise ConfigError(reason)
     flt = make_filter(filter) if isinstance(filter, str) else filter
-    q_cv, q_left, q_right = _noise_by_motion(models)
+    q_cv, q_left, q_right = _noise_by_motion(models, truth.T)
     R, K = truth.turn_rate.shape
     omega = truth.turn_rate
     Q = np.where(

@@ -19,11 +19,13 @@ from imm_gym import (
     MotionModel,
     RandomFamily,
     Sonar,
+    clairvoyant_filter,
     ct_transition,
     draw_batch,
     paper_bank,
     stay_tpm,
 )
+from imm_gym.evaluation.metrics import tracking_errors
 from imm_gym.sim.presets import BANK_PRESETS, CONTINUOUS_BANK
 from imm_gym.tracking.hetero import LinearModel
 from imm_gym.tracking.models import (
@@ -450,3 +452,14 @@ def test_bank_entry_errors_name_the_entry() -> None:
     bank[1]["intensity"] = 0.06
     config = EnvConfig(bank=bank)
     assert config.bank[1] == MotionModel("ct", 4.0, noise="continuous", intensity=0.06)
+
+
+def test_clairvoyant_filter_runs_a_continuous_bank() -> None:
+    """The clairvoyant filter borrows a continuous bank's Q, discretized at the truth's T."""
+    batch = draw_batch(RandomFamily(T=5.0, horizon=60), Sonar(), 20, 3)
+    z, truth = batch.measurements.z[:, 1:], batch.truth.states[:, 1:]
+    x_cv, _ = clairvoyant_filter(batch.truth, z, Sonar(), CONTINUOUS_BANK, batch.x0, batch.P0)
+    imm = IMM(CONTINUOUS_BANK, Sonar(), T=5.0).run(z, stay_tpm(3, 0.995), batch.x0, batch.P0)
+    bound = tracking_errors(x_cv, truth)["armse_pos"]
+    assert np.isfinite(bound)
+    assert bound < tracking_errors(imm.x, truth)["armse_pos"]
