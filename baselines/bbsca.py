@@ -45,7 +45,7 @@ def scaled_bank(
             bank, q_scale=tuple(s * b for s, b in zip(q_scale, bank.q_scale, strict=True))
         )
     return tuple(
-        dataclasses.replace(m, q=tuple(s * v for v in m.q), q_acc=s * m.q_acc)
+        m.scaled(s)
         for m, s in zip(bank, q_scale, strict=True)
     )
 

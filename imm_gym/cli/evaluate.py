@@ -304,7 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--bank",
         default="paper",
-        help="paper (CV, CT(±4°/s), SVD-UKF) | hetero (NCV/CT/CTRA IMM-EKF, seed 002)",
+        help=" | ".join(BANK_PRESETS)
+        + " (paper: CV, CT(±4°/s), SVD-UKF; hetero: the NCV/CT/CTRA IMM-EKF of seed 002; "
+        "cv-ct-continuous: the paper's models with white-noise-acceleration intensities)",
     )
     parser.add_argument(
         "--tuned",

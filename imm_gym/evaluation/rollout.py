@@ -26,7 +26,8 @@ from imm_gym.evaluation.metrics import (
     tracking_errors,
 )
 from imm_gym.sim.core import TrackingCore
-from imm_gym.sim.env_config import SHADOW_FEATURES, EnvConfig
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.features import FEATURES
 
 Array = NDArray[np.float64]
 
@@ -61,9 +62,10 @@ class Rollout:
 
 def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
     """``base`` with a policy's overrides; the shadow tracker is turned off (it only shapes
-    rewards) unless the policy observes it (:data:`~imm_gym.sim.env_config.SHADOW_FEATURES`)."""
+    rewards) unless the policy observes a feature computed from it
+    (:attr:`imm_gym.sim.features.Feature.needs_shadow`)."""
     features = overrides.get("obs_features", ())
-    observed = any(f in SHADOW_FEATURES for f in features)
+    observed = any(FEATURES[f].needs_shadow for f in features if f in FEATURES)
     defaults = {} if observed else {"shadow": "none", "reward": "error"}
     return base.replace(**{**defaults, **overrides})
 

@@ -31,12 +31,14 @@ from imm_gym.validation import (
 
 ACTION_MODES = ("scale", "set")
 SHADOWS = ("fixed", "none")
-#: The reward terms (:data:`imm_gym.sim.rewards.REWARD_TERMS`).
+#: The built-in reward terms (the registry, :data:`imm_gym.sim.rewards.REWARD_TERMS`, is what
+#: ``reward`` is checked against).
 REWARDS = tuple(REWARD_TERMS)
 ENGINES = ("auto", "compiled", "numpy")
-#: The optional observation blocks (:data:`imm_gym.sim.features.FEATURES`).
+#: The built-in optional observation blocks (the registry, :data:`imm_gym.sim.features.FEATURES`,
+#: is what ``obs_features`` is checked against).
 OBS_FEATURES = tuple(FEATURES)
-#: Observation features computed from the shadow IMM (they need ``shadow="fixed"``).
+#: The built-in observation features computed from the shadow IMM (they need ``shadow="fixed"``).
 SHADOW_FEATURES = shadow_features()
 TIP_READINGS = ("literal", "intent")
 
@@ -160,7 +162,7 @@ class EnvConfig:
         check_choice("shadow", self.shadow, SHADOWS)
         if self.shadow_stay is not None:
             store(self, "shadow_stay", check_range("shadow_stay", self.shadow_stay, 0.0, 1.0))
-        check_choice("reward", self.reward, REWARDS)
+        check_choice("reward", self.reward, tuple(REWARD_TERMS))
         if REWARD_TERMS[self.reward].needs_shadow and self.shadow == "none":
             raise ConfigError(f"reward {self.reward!r} needs shadow 'fixed'")
         store(
@@ -173,7 +175,7 @@ class EnvConfig:
             raise ConfigError("tpm_cost > 0 needs shadow 'fixed' (the TPM it is measured from)")
         features = check_sequence("obs_features", self.obs_features)
         for i, f in enumerate(features):
-            check_choice(f"obs_features[{i}]", f, OBS_FEATURES)
+            check_choice(f"obs_features[{i}]", f, tuple(FEATURES))
         if len(set(features)) != len(features):
             raise ConfigError(f"obs_features has duplicates: {features}")
         for f in features:
