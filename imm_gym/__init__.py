@@ -30,7 +30,7 @@ from imm_gym.tracking.imm import IMM, IMMResult, IMMState, IMMStep, combine, mix
 from imm_gym.tracking.initiation import initiate
 from imm_gym.tracking.models import MotionModel, ct_transition, paper_bank
 from imm_gym.tracking.sensors import Measurements, PositionSensor, Sonar
-from imm_gym.tracking.tpm import stay_tpm, validate_tpm
+from imm_gym.tracking.tpm import stay_tpm, tpm_from_sojourn, validate_tpm
 from imm_gym.validation import ConfigError
 
 __version__ = "0.1.0"
@@ -78,6 +78,7 @@ __all__ = [
     "paper_scenario",
     "predict",
     "stay_tpm",
+    "tpm_from_sojourn",
     "streams",
     "update_mode_probs",
     "validate_tpm",
