@@ -78,8 +78,8 @@ __all__ = [
     "paper_scenario",
     "predict",
     "stay_tpm",
-    "tpm_from_sojourn",
     "streams",
+    "tpm_from_sojourn",
     "update_mode_probs",
     "validate_tpm",
 ]
