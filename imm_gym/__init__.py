@@ -19,6 +19,7 @@ from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import Batch, draw_batch
+from imm_gym.sim.replay import TrackResult, track
 from imm_gym.tracking.filters import (
     ExtendedKalmanFilter,
     KalmanFilter,
@@ -62,6 +63,7 @@ __all__ = [
     "Scenario",
     "Segment",
     "Sonar",
+    "TrackResult",
     "TrackingCore",
     "Truth",
     "UnscentedKalmanFilter",
@@ -80,6 +82,7 @@ __all__ = [
     "stay_tpm",
     "streams",
     "tpm_from_sojourn",
+    "track",
     "update_mode_probs",
     "validate_tpm",
 ]

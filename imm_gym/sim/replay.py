@@ -1,0 +1,234 @@
+r"""Running a policy on recorded measurements: the environment's step without its truth.
+
+:func:`track` feeds measurements ``z (N, K+1, m)`` of N recorded sequences through a policy's
+whole observation pipeline, as :class:`~imm_gym.sim.core.TrackingCore` does in an episode: bank A
+with the TPM the policy's action produces, bank B and the fused probabilities (``parallel``), the
+shadow IMM, the features' memories and the observation — by the same engine
+(:mod:`imm_gym.sim.engines`), so a simulated episode's measurements handed to :func:`track`
+give the environment's estimates, mode probabilities and TPMs bit for bit. No truth is drawn or
+read: the replay core has no truth arrays, and the engine's truth-based outputs (errors, the
+divergence flag) are computed against a NaN stand-in and discarded.
+
+The track starts as the environment's does (SPEC §6): the position from ``z[:, 0]``, the velocity
+given (``velocity``); ``P0 = blockdiag(J R Jᵀ, σ_v² I)``
+(:func:`imm_gym.tracking.initiation.initiate`) with ``σ_v`` the configuration's
+``velocity_std`` when the velocity is known, :data:`UNKNOWN_VELOCITY_STD` around a zero velocity
+when it is not. ``z[:, 1:]`` are filtered: step ``k`` uses ``z[:, k]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.tracking.imm import IMMState
+from imm_gym.tracking.initiation import initiate
+from imm_gym.validation import ConfigError
+
+Array = NDArray[np.float64]
+
+#: Standard deviation (m/s) of the initial velocity when none is given (zero velocity assumed):
+#: a target of up to about 2σ = 60 m/s starts inside the covariance.
+UNKNOWN_VELOCITY_STD = 30.0
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """The per-step outputs of :func:`track` (N sequences, K filtered steps, M models).
+
+    Attributes:
+        estimate: ``(N, K, 4)`` combined estimates ``[x, y, vx, vy]`` after step ``k = 1..K``.
+        covariance: ``(N, K, 4, 4)`` their covariances.
+        mode_probs: ``(N, K, M)`` the mode probabilities (the fused ``U`` with ``parallel``).
+        tpm: ``(N, K, M, M)`` the TPM bank A used at each step (the policy's).
+        x0, P0: ``(N, 4)``, ``(N, 4, 4)`` the initial estimate from ``z[:, 0]``.
+        diverged: ``(N,)`` sequences whose estimate became non-finite or whose position variance
+            ``P_xx + P_yy`` exceeded the configuration's ``divergence_cov`` at some step.
+    """
+
+    estimate: Array
+    covariance: Array
+    mode_probs: Array
+    tpm: Array
+    x0: Array
+    P0: Array
+    diverged: NDArray[np.bool_]
+
+
+class ReplayCore(TrackingCore):
+    """A :class:`~imm_gym.sim.core.TrackingCore` fed measurements instead of drawing episodes.
+
+    It keeps the core's banks, features and observation and drops its truth, measurement and
+    random-stream arrays: :meth:`start` initiates the slots from given estimates and
+    :meth:`advance` takes each step's measurements.
+
+    Args:
+        config: the environment configuration (its source is never drawn from; its horizon is
+            the ``K`` of the ``time`` feature and its ``T`` the sampling period).
+        n_envs: number of sequences N.
+    """
+
+    def __init__(self, config: EnvConfig, n_envs: int = 1) -> None:
+        super().__init__(config, n_envs)
+        del self.truth, self.z, self.detected, self.outlier, self.true_model, self._rngs
+
+    def start(self, x0: Array, P0: Array) -> None:
+        """Initiate every slot from ``x0 (N, n)`` and ``P0 (N, n, n)`` as the core's reset does."""
+        init = self.imm.init(x0, P0)
+        for bank in ("state_a", "state_b", "state_s"):
+            setattr(self, bank, IMMState(init.x.copy(), init.P.copy(), init.mu.copy()))
+        N = self.n_envs
+        self.tpm = np.repeat(self.fixed_tpm[None], N, axis=0)
+        self.mu = init.mu.copy()
+        for name in ("mu_prev", "mu_b", "mu_s"):
+            setattr(self, name, init.mu.copy())
+        self.loglik = np.zeros((N, self.M))
+        self.model_nis = np.zeros((N, self.M))
+        self.innovation = np.zeros_like(self.innovation)
+        for name in ("velocity", "velocity_prev", "velocity_s", "velocity_s_prev"):
+            setattr(self, name, x0[:, 2:4].copy())
+        self.k = np.zeros(N, dtype=np.int64)
+        self.done = np.zeros(N, dtype=bool)
+        for name, memory in self._memories.items():
+            state = np.zeros_like(self.memories[name])
+            state[:] = memory.initial(init.mu)
+            self.memories[name] = state
+
+    def advance(self, action: NDArray[Any], z: Array, detected: NDArray[np.bool_]) -> Any:
+        """One step of every slot with the policy's ``action (N, M*M)``, the measurements
+        ``z (N, m)`` and their flags ``detected (N,)``; the state is updated as
+        :meth:`TrackingCore.step` updates it. Returns the engine's
+        :class:`~imm_gym.sim.bank_step.BankStep` (its error and divergence fields are
+        meaningless: no truth)."""
+        no_truth = np.full((self.n_envs, self.n), np.nan)
+        out = self._advance(self, self.validate_action(action), z, detected, no_truth)
+        self.state_a = IMMState(out.x_a, out.P_a, out.mode_probs)
+        if self.config.parallel:
+            self.state_b = IMMState(out.x_b, out.P_b, out.mode_probs)
+            self.mu_b = out.mu_b
+        if self.config.shadow == "fixed":
+            self.state_s = IMMState(out.x_s, out.P_s, out.mu_s)
+            self.mu_s = out.mu_s
+            self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s
+        self.k = self.k + 1
+        self.tpm = out.tpm
+        self.mu_prev = self.mu
+        self.mu = out.mode_probs
+        self.loglik = out.loglik
+        self.model_nis = out.model_nis
+        self.innovation = out.innovation
+        self.velocity_prev, self.velocity = self.velocity, out.velocity
+        self._update_memories()
+        return out
+
+
+def _as_batch(name: str, value: Any, ndim: int, single: bool) -> Array:
+    """``value`` as a float array with a leading sequence axis (added for a single sequence)."""
+    array = np.asarray(value, dtype=np.float64)
+    if single:
+        array = array[None]
+    if array.ndim != ndim:
+        raise ConfigError(f"{name} must have {ndim - 1 if single else ndim} dimensions, "
+                          f"got shape {np.shape(value)}")
+    return array
+
+
+def track(
+    z: Any,
+    policy: Any,
+    config: EnvConfig | None = None,
+    detected: Any = None,
+    x0: Any = None,
+    P0: Any = None,
+    velocity: Any = None,
+) -> TrackResult:
+    r"""Run ``policy`` on recorded measurements (see the module docstring).
+
+    Args:
+        z: ``(N, K+1, m)`` measurements of N sequences (or ``(K+1, m)`` for one) in the sensor's
+            components (the sonar's range and bearing); ``z[:, 0]`` initiates the track. A NaN
+            row is a missed detection when ``detected`` is not given.
+        policy: anything with SB3's ``predict(obs, state, episode_start, deterministic)``; its
+            ``env_overrides`` (if any) are applied to ``config``.
+        config: the tracker's configuration (default :class:`EnvConfig`): sensor, bank, filter,
+            TPM settings and observation features.
+        detected: ``(N, K+1)`` detection flags (default: the rows of ``z`` without NaN); an
+            undetected step is a prediction only.
+        x0, P0: ``(N, 4)`` and ``(N, 4, 4)`` initial estimate and covariance (default: from
+            ``z[:, 0]`` and ``velocity``).
+        velocity: ``(N, 2)`` or ``(2,)`` initial velocity (m/s) with standard deviation
+            ``config.velocity_std``; default zero with :data:`UNKNOWN_VELOCITY_STD`.
+
+    Returns:
+        The :class:`TrackResult`, batched (``N = 1`` for a single sequence).
+
+    Raises:
+        ConfigError: inconsistent shapes, a detected non-finite measurement, or ``P0`` without
+            ``x0``.
+    """
+    base = EnvConfig() if config is None else config
+    cfg = base.replace(**getattr(policy, "env_overrides", {}))
+    z_in = np.asarray(z, dtype=np.float64)
+    single = z_in.ndim == 2
+    z_all = _as_batch("z", z_in, 3, single)
+    N, K1, m = z_all.shape
+    if m != cfg.sensor.dim_z or K1 < 2:
+        raise ConfigError(f"z must be (N, K+1, {cfg.sensor.dim_z}) with K >= 1, got {z_in.shape}")
+    finite = np.all(np.isfinite(z_all), axis=-1)
+    if detected is None:
+        det = finite
+    else:
+        det = np.asarray(detected, dtype=bool)
+        det = det[None] if single else det
+        if det.shape != (N, K1):
+            raise ConfigError(f"detected must have shape {(N, K1)[1 if single else 0:]}, "
+                              f"got {np.shape(detected)}")
+        if not np.all(finite | ~det):
+            raise ConfigError("a detected measurement is not finite")
+    if not det[:, 0].all():
+        raise ConfigError("z[:, 0] initiates the track: it must be a finite detection")
+    # step-major and contiguous: each step's (N, m) slice is what the engine takes
+    z_steps = np.ascontiguousarray(np.where(det[..., None], z_all, 0.0).transpose(1, 0, 2))
+    det_steps = np.ascontiguousarray(det.T)
+    if x0 is None:
+        if P0 is not None:
+            raise ConfigError("P0 needs x0")
+        if velocity is None:
+            start, cov = initiate(cfg.sensor, z_steps[0], np.zeros(2), UNKNOWN_VELOCITY_STD)
+        else:
+            start, cov = initiate(cfg.sensor, z_steps[0], velocity, cfg.velocity_std)
+    else:
+        start = _as_batch("x0", x0, 2, single)
+        cov = _as_batch("P0", P0, 3, single) if P0 is not None else None
+        if cov is None:
+            raise ConfigError("x0 needs P0")
+        if start.shape != (N, 4) or cov.shape != (N, 4, 4):
+            raise ConfigError(f"x0 and P0 must be ({N}, 4) and ({N}, 4, 4)")
+    core = ReplayCore(cfg, n_envs=N)
+    core.start(start, cov)
+    K, M = K1 - 1, core.M
+    estimate, covariance = np.empty((N, K, 4)), np.empty((N, K, 4, 4))
+    probs, tpms = np.empty((N, K, M)), np.empty((N, K, M, M))
+    obs, state = core.observe(), None
+    episode_start = np.ones(N, dtype=bool)
+    for k in range(K):
+        actions, state = policy.predict(
+            obs, state=state, episode_start=episode_start, deterministic=True
+        )
+        episode_start = np.zeros(N, dtype=bool)
+        out = core.advance(actions, z_steps[k + 1], det_steps[k + 1])
+        estimate[:, k] = out.estimate[:, :4]
+        covariance[:, k] = out.covariance[:, :4, :4]
+        probs[:, k] = out.mode_probs
+        tpms[:, k] = out.tpm
+        obs = core.observe()
+    position_var = covariance[..., 0, 0] + covariance[..., 1, 1]
+    diverged = ~np.all(np.isfinite(estimate), axis=(1, 2)) | ~np.all(
+        position_var <= cfg.divergence_cov, axis=1
+    )
+    return TrackResult(estimate, covariance, probs, tpms, start, cov, diverged)

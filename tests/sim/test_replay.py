@@ -1,0 +1,138 @@
+"""imm_gym.track replays the environment: a simulated episode's measurements, detection flags and
+initial velocity handed to track() give the env's estimates, covariances, mode probabilities and
+TPMs bit for bit (fixed TPM, TIP-IMM, the shipped agent; two sequences in one batch), without any
+truth."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+import imm_gym
+from agents import PRETRAINED
+from agents.policy import load_agent
+from baselines import make_baseline
+from imm_gym import ConfigError, EnvConfig, paper_scenario
+from imm_gym.envs.tpm_adapt import TPMAdaptEnv
+from imm_gym.sim.replay import UNKNOWN_VELOCITY_STD, ReplayCore, TrackResult, track
+from imm_gym.tracking.initiation import initiate
+from imm_gym.tracking.sensors import Sonar
+
+SEEDS = (3, 11)
+
+
+def _policy(name: str) -> Any:
+    return load_agent(PRETRAINED) if name == "pretrained" else make_baseline(name)
+
+
+def _episodes(name: str, config: EnvConfig) -> dict[str, np.ndarray]:
+    """Each seed's episode in the scalar env, stacked: its inputs and per-step outputs."""
+    records: dict[str, list[np.ndarray]] = {}
+    for seed in SEEDS:
+        policy = _policy(name)
+        env = TPMAdaptEnv(config.replace(**policy.env_overrides))
+        obs, _ = env.reset(seed=seed)
+        core = env.core
+        rows: dict[str, list[np.ndarray]] = {
+            "estimate": [], "covariance": [], "mode_probs": [], "tpm": []
+        }
+        state, start, done = None, True, False
+        while not done:
+            action, state = policy.predict(
+                obs, state=state, episode_start=np.array([start]), deterministic=True
+            )
+            start = False
+            obs, _, terminated, truncated, info = env.step(action)
+            assert not terminated
+            done = truncated
+            for key in rows:
+                rows[key].append(info[key])
+        episode = {key: np.stack(value) for key, value in rows.items()}
+        episode["z"], episode["detected"] = core.z[0].copy(), core.detected[0].copy()
+        episode["velocity"] = core.truth[0, 0, 2:4].copy()
+        for key, value in episode.items():
+            records.setdefault(key, []).append(value)
+    return {key: np.stack(value) for key, value in records.items()}
+
+
+def _assert_replayed(out: TrackResult, env: dict[str, np.ndarray], i: int, row: int) -> None:
+    """Row ``row`` of ``out`` is episode ``i`` bit for bit."""
+    for key in ("estimate", "covariance", "mode_probs", "tpm"):
+        np.testing.assert_array_equal(getattr(out, key)[row], env[key][i], err_msg=key)
+    assert not out.diverged[row]
+
+
+@pytest.mark.parametrize("name", ["fixed", "tip-imm", "pretrained"])
+def test_track_reproduces_the_env_bit_for_bit(name: str) -> None:
+    config = EnvConfig(sensor=Sonar(detection_prob=0.8))
+    env = _episodes(name, config)
+    assert not env["detected"].all()  # missed detections are replayed too
+    # the recorded z of a missed detection is never read
+    z = np.where(env["detected"][..., None], env["z"], np.nan)
+    # one sequence at a time, as the scalar env ran them (a network's actions may differ in the
+    # last bit between batch sizes), and, for the rule policies, both in one batch
+    for i in range(len(SEEDS)):
+        out = imm_gym.track(z[i], _policy(name), config, velocity=env["velocity"][i])
+        _assert_replayed(out, env, i, 0)
+    if name != "pretrained":
+        out = imm_gym.track(z, _policy(name), config, velocity=env["velocity"])
+        for i in range(len(SEEDS)):
+            _assert_replayed(out, env, i, i)
+
+
+def test_track_reads_no_truth() -> None:
+    """The replay core keeps no truth, and a configuration whose scenario draws another truth
+    (the paper scenario instead of the random family, same T) tracks the same."""
+    core = ReplayCore(EnvConfig(), n_envs=2)
+    for name in ("truth", "true_model", "z", "detected"):
+        assert not hasattr(core, name)
+    env = _episodes("pretrained", EnvConfig())
+    other = EnvConfig(scenario=paper_scenario())
+    assert other.source.T == EnvConfig().source.T
+    for i in range(len(SEEDS)):
+        out = track(
+            env["z"][i], _policy("pretrained"), other, env["detected"][i],
+            velocity=env["velocity"][i],
+        )
+        np.testing.assert_array_equal(out.estimate[0], env["estimate"][i])
+        np.testing.assert_array_equal(out.tpm[0], env["tpm"][i])
+
+
+def test_single_sequence_initial_state_and_engines() -> None:
+    """One sequence (K+1, m) comes back batched; the default start is a zero velocity with
+    UNKNOWN_VELOCITY_STD; x0/P0 given are used as they are; the numpy engine agrees."""
+    env = _episodes("tip-imm", EnvConfig())
+    z = env["z"][0]
+    out = track(z, _policy("tip-imm"))
+    x0, P0 = initiate(Sonar(), z[:1], np.zeros(2), UNKNOWN_VELOCITY_STD)
+    np.testing.assert_array_equal(out.x0, x0)
+    np.testing.assert_array_equal(out.P0, P0)
+    assert out.estimate.shape == (1, z.shape[0] - 1, 4)
+    start_x, start_P = initiate(Sonar(), z[:1], env["velocity"][0], 5.0)
+    given = track(z, _policy("tip-imm"), x0=start_x[0], P0=start_P[0])
+    np.testing.assert_array_equal(given.estimate[0], env["estimate"][0])
+    numpy_engine = track(
+        z, _policy("tip-imm"), EnvConfig(engine="numpy"), x0=start_x[0], P0=start_P[0]
+    )
+    np.testing.assert_allclose(numpy_engine.estimate, given.estimate, rtol=1e-9, atol=1e-6)
+    # a wrong start moves the estimates: the start is really used
+    assert not np.array_equal(out.estimate, given.estimate)
+
+
+def test_bad_inputs_are_config_errors() -> None:
+    z = np.ones((5, 2)) * [1000.0, 0.1]
+    policy = _policy("fixed")
+    with pytest.raises(ConfigError, match="z must be"):
+        track(np.ones((5, 3)), policy)
+    with pytest.raises(ConfigError, match="detected must have shape"):
+        track(z, policy, detected=np.ones(4, dtype=bool))
+    with pytest.raises(ConfigError, match="not finite"):
+        track(np.where(np.arange(5)[:, None] == 2, np.nan, z), policy, detected=np.ones(5, bool))
+    with pytest.raises(ConfigError, match="initiates the track"):
+        track(np.where(np.arange(5)[:, None] == 0, np.nan, z), policy)
+    with pytest.raises(ConfigError, match="x0 needs P0"):
+        track(z, policy, x0=np.zeros(4))
+    with pytest.raises(ConfigError, match="P0 needs x0"):
+        track(z, policy, P0=np.eye(4))
