@@ -4,6 +4,7 @@
     python train.py --seed 0 1 2         # several training seeds: each reported, then mean ± std
     python train.py --timesteps 200000 --out runs/quick
     python train.py --resume runs/default/seed_0/checkpoints/latest
+    python train.py --env-config examples/my_tracker.yaml --timesteps 200000
 
 Each seed writes ``OUT/seed_S/``: ``agent/`` (network, normalizer, env overrides), ``best/``,
 ``checkpoints/``, ``tb/`` (TensorBoard), ``training.json``, ``results.json``, ``report.md`` and
@@ -16,6 +17,12 @@ agent with classical IMM, TIP-IMM and the best fixed TPM on (a) the paper scenar
 seeds 0..99) and (b) held-out randomized scenarios (``--random-runs``, seeds 0..R-1; training
 uses seeds from 100,000,000 on), with common random numbers and paired bootstrap CIs.
 ``OUT/summary.json`` and ``OUT/report.md`` gather the seeds.
+
+``--env-config FILE`` (YAML or JSON of EnvConfig fields, :mod:`imm_gym.sim.config_file`) trains
+on that configuration: its fields are applied over the entry's ``env_kwargs`` and recorded with
+them in the checkpoint and in the agent's ``env.json`` (what ``python -m imm_gym.evaluate``
+reports as the agent's ``trained_on``); the evaluation after training runs the paper scenario
+and the held-out randomized family (the file's ``family``) on the file's tracker.
 
 Ctrl-C (or SIGTERM) never loses training: the signal only sets a flag, checked after every
 environment step, upon which ``checkpoints/latest`` is saved and the job exits with status 130
@@ -76,6 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="YAML file with hyperparameters overriding the entry (with --resume: only the "
         "budget, n_timesteps)",
+    )
+    p.add_argument(
+        "--env-config",
+        type=Path,
+        help="YAML or JSON file of EnvConfig fields (scenario, family, sensor, bank, filter, ...) "
+        "applied over the entry's env_kwargs and recorded in the agent",
     )
     p.add_argument("--out", type=Path, default=Path("runs/default"), help="output directory")
     p.add_argument(
@@ -156,6 +169,14 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
         parser.error("--paper-runs and --random-runs must be >= 1")
     if args.config is not None and not args.config.is_file():
         parser.error(f"--config file {str(args.config)!r} does not exist")
+    args.env_overrides = {}
+    if args.env_config is not None:
+        from imm_gym.sim.config_file import read_env_config
+
+        try:
+            args.env_overrides = read_env_config(args.env_config)
+        except ConfigError as err:
+            parser.error(f"--env-config {err}")
     return resume
 
 
@@ -199,6 +220,16 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
         params = updated
     if args.timesteps is not None:
         params["n_timesteps"] = args.timesteps
+    if args.env_overrides:
+        from agents.training import jsonable
+
+        env_kwargs = jsonable({**params.get("env_kwargs", {}), **args.env_overrides})
+        if resume is not None and env_kwargs != jsonable(params.get("env_kwargs", {})):
+            raise ConfigError(
+                f"--env-config {args.env_config} changes the environment of the resumed run; "
+                "--resume continues with the checkpoint's (leave --env-config out)"
+            )
+        params = {**params, "env_kwargs": env_kwargs}
     try:
         EnvConfig.build({**PRESETS[args.env], **params.get("env_kwargs", {})})
     except ConfigError as err:
@@ -515,6 +546,7 @@ def evaluate_agent(
             seed=0,
             reference="best-fixed",
             extra={"learned": (policy, policy.env_overrides)},
+            env_config={k: v for k, v in args.env_overrides.items() if k != "scenario"},
         )
         results["vs_tip_imm"] = _paired(rollouts, "learned", "tip-imm")
         results["meta"]["scenario"] = scenario

@@ -22,6 +22,14 @@ an output that cannot be written is a usage error (exit 2).
 
 The best fixed TPM is searched on training runs whose seeds (``seed + 1_000_000 + r``) never
 overlap the evaluation seeds.
+
+``--env-config FILE`` (YAML or JSON, :mod:`imm_gym.sim.config_file`) sets the EnvConfig of every
+policy — baselines, the best-fixed search and trained agents —; ``--scenario``, when given,
+replaces the file's scenario and ``--bank`` its bank and filter. A trained agent runs on the
+evaluated tracker (sensor, bank, filter) with its own settings (action mode, features...); the
+JSON gives its ``trained_on`` and ``evaluated_on`` trackers and ``tracker_differs`` (the fields
+that differ, also said under the table); an agent whose observation or action size the evaluated
+configuration does not give is refused before any work.
 """
 
 from __future__ import annotations
@@ -32,7 +40,7 @@ import os
 import platform
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,8 +62,17 @@ from imm_gym.papers.systems import SYSTEMS
 from imm_gym.scenarios.catalog import SCENARIOS
 from imm_gym.scenarios.segments import Scenario, true_model_index
 from imm_gym.seeding import TRAIN_SEED_OFFSET
+from imm_gym.sim.config_file import (
+    TARGET_FIELDS,
+    TRACKER_FIELDS,
+    expand_presets,
+    plain,
+    read_env_config,
+    tracker_of,
+)
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
+from imm_gym.sim.features import bounds
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.validation import ConfigError, from_dict
 
@@ -129,7 +146,7 @@ def load_trained(path: Path) -> tuple[Any, dict[str, Any], dict[str, Any]]:
 
 def evaluate(
     policies: Sequence[str],
-    scenario: str | Scenario,
+    scenario: str | Scenario | Mapping[str, Any],
     runs: int,
     seed: int,
     reference: str | None = None,
@@ -137,22 +154,34 @@ def evaluate(
     progress: bool = False,
     extra: dict[str, tuple[Any, dict[str, Any]]] | None = None,
     bank: str = "paper",
+    env_config: Mapping[str, Any] | None = None,
 ) -> tuple[dict[str, Any], dict[str, Rollout]]:
     """Score ``policies`` on R common-random-number runs; see the module docstring.
 
     ``extra`` adds policy objects by name: ``{name: (policy, env_overrides)}`` (a freshly trained
-    agent, say); they are evaluated first. ``bank``: ``paper`` (CV, CT(±4°/s), SVD-UKF) or
-    ``hetero`` (NCV/CT/CTRA IMM-EKF, ``SONAR_HETERO_BANK``; no clairvoyant filter, said in the
-    results). The clairvoyant row is labelled a bound or a reference, or skipped with the reason
-    (:func:`clairvoyant_bound`).
+    agent, say); they are evaluated first. ``bank``: a preset of
+    :data:`~imm_gym.sim.presets.BANK_PRESETS` applied over ``env_config`` (``paper``, the
+    default, changes nothing: EnvConfig's bank or the file's); ``hetero`` has no clairvoyant
+    filter, said in the results. ``env_config``: EnvConfig overrides (a configuration file's,
+    :func:`~imm_gym.sim.config_file.read_env_config`) every policy runs on, ``scenario``
+    replacing theirs. Trained agents (``extra`` and paths) are checked against it before any
+    work (:func:`agent_overrides`). The clairvoyant row is labelled a bound or a reference, or
+    skipped with the reason (:func:`clairvoyant_bound`).
     """
     if bank not in BANKS:
         raise ConfigError(f"--bank must be one of {list(BANKS)}, got {bank!r}")
-    base = EnvConfig(scenario=scenario, **BANKS[bank])
+    base = EnvConfig.build({**(env_config or {}), **BANKS[bank], "scenario": scenario})
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {list(policies)}")
-    made = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
-    made.update({name: make_policy(name, base, seed) for name in policies})
+    agents = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
+    loaded = (name for name in policies if name not in REGISTRY)
+    agents.update({name: make_policy(name, base, seed) for name in loaded})
+    for name, (policy, overrides, notes) in agents.items():
+        kept, tracker = agent_overrides(policy, overrides, base)
+        agents[name] = (policy, kept, {**notes, **tracker})
+    made = {name: agents[name] for name in extra or {}}
+    for name in policies:
+        made[name] = agents[name] if name in agents else make_policy(name, base, seed)
     rollouts: dict[str, Rollout] = {}
     results: dict[str, Any] = {"policies": {}}
     bar = _progress_bar(len(made) * base.source.horizon, progress)
@@ -188,9 +217,49 @@ def evaluate(
         "steps": base.source.horizon,
         "filter": base.filter,
         "bank": bank,
+        "env_config": None,
         "versions": _versions(),
     }
     return results, rollouts
+
+
+def agent_overrides(
+    policy: Any, overrides: Mapping[str, Any], base: EnvConfig
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A trained agent's overrides for the evaluated configuration ``base`` and its notes.
+
+    The agent keeps its own settings (action mode, features, ...) and runs on ``base``'s tracker
+    and targets: its recorded :data:`~imm_gym.sim.config_file.TRACKER_FIELDS` and
+    :data:`~imm_gym.sim.config_file.TARGET_FIELDS` are dropped. The notes give ``trained_on``
+    (the recorded tracker), ``evaluated_on`` (``base``'s) and ``tracker_differs`` (the fields
+    that differ).
+
+    Raises:
+        ConfigError: the observation (one frame, ``policy.obs_size``) or the action (M² entries)
+            that ``base`` gives is not the size the agent's network reads or writes.
+    """
+    kept = {k: v for k, v in overrides.items() if k not in (*TRACKER_FIELDS, *TARGET_FIELDS)}
+    cfg = evaluation_config(base, kept)
+    M = len(cfg.bank)
+    obs_size = int(bounds(cfg.obs_features, M, cfg.sensor.dim_z)[0].size)
+    source = getattr(policy, "source", "the agent")
+    if hasattr(policy, "obs_size") and obs_size != policy.obs_size:
+        raise ConfigError(
+            f"{source} reads observations of {policy.obs_size} entries, but the evaluated "
+            f"configuration gives {obs_size} (a bank of {M} models, features "
+            f"{list(cfg.obs_features)}): it cannot be evaluated on this configuration"
+        )
+    space = getattr(getattr(policy, "model", None), "action_space", None)
+    if space is not None and int(np.prod(space.shape)) != M * M:
+        raise ConfigError(
+            f"{source} writes actions of {int(np.prod(space.shape))} entries, but a bank of {M} "
+            f"models takes {M * M}: it cannot be evaluated on this configuration"
+        )
+    trained_on = tracker_of(overrides)
+    evaluated_on = {name: plain(getattr(base, name)) for name in TRACKER_FIELDS}
+    differs = [f for f in TRACKER_FIELDS if trained_on[f] != evaluated_on[f]]
+    notes = {"trained_on": trained_on, "evaluated_on": evaluated_on, "tracker_differs": differs}
+    return kept, notes
 
 
 def paired_difference(
@@ -289,10 +358,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--scenario",
-        default="paper",
         help=" | ".join((*SCENARIOS, "random"))
         + " | a scenario JSON file | seed002 | seed003 (the NCV/CT/CTRA IMM-EKF "
-        "of seed 002, the CV/CA/CT bank of seed 003; policies fixed, bbsca, sca)",
+        "of seed 002, the CV/CA/CT bank of seed 003; policies fixed, bbsca, sca); default: "
+        "the --env-config file's scenario, else paper",
+    )
+    parser.add_argument(
+        "--env-config",
+        type=Path,
+        metavar="FILE",
+        help="YAML or JSON file of EnvConfig fields (scenario, family, sensor, bank, filter, "
+        "...) every policy runs on; --scenario replaces its scenario, --bank its bank and filter",
     )
     parser.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="run r uses seed + r (default 0)")
@@ -303,9 +379,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument(
         "--bank",
-        default="paper",
         help=" | ".join(BANK_PRESETS)
-        + " (paper: CV, CT(±4°/s), SVD-UKF; hetero: the NCV/CT/CTRA IMM-EKF of seed 002; "
+        + " (default: the --env-config file's bank, else paper; paper: CV, CT(±4°/s), "
+        "SVD-UKF; hetero: the NCV/CT/CTRA IMM-EKF of seed 002; "
         "cv-ct-continuous: the paper's models with white-noise-acceleration intensities)",
     )
     parser.add_argument(
@@ -368,19 +444,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.scenario in SYSTEMS:
         return _main_system(parser, args)
     try:
+        overrides = _run_config(args)
         results, rollouts = evaluate(
             args.policy,
-            load_source(args.scenario),
+            overrides.pop("scenario"),
             args.runs,
             args.seed,
             reference=args.reference,
             clairvoyant=not args.no_clairvoyant,
             progress=not args.quiet and sys.stderr.isatty(),
-            bank=args.bank,
+            env_config=overrides,
         )
     except ConfigError as err:
         parser.error(str(err))
-    results["meta"]["scenario"] = args.scenario
+    results["meta"]["bank"] = args.bank or ("env-config" if "bank" in overrides else "paper")
+    results["meta"]["env_config"] = None if args.env_config is None else str(args.env_config)
+    if args.scenario is not None:
+        results["meta"]["scenario"] = args.scenario
+    elif results["meta"]["scenario"] == "file":
+        results["meta"]["scenario"] = str(args.env_config)
     results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
     render_tables(results)
     if args.json:
@@ -394,6 +476,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.animate:
         _write_animation(args, rollouts)
     return 0
+
+
+def _run_config(args: argparse.Namespace) -> dict[str, Any]:
+    """The EnvConfig overrides of the command line: the ``--env-config`` file's, its scenario
+    replaced by ``--scenario`` (``paper`` when neither gives one) and its bank and filter by
+    ``--bank``'s preset."""
+    overrides = {} if args.env_config is None else read_env_config(args.env_config)
+    if args.scenario is not None:
+        overrides["scenario"] = load_source(args.scenario)
+    overrides.setdefault("scenario", "paper")
+    if args.bank is not None:
+        if args.bank not in BANKS:
+            raise ConfigError(f"--bank must be one of {list(BANKS)}, got {args.bank!r}")
+        overrides.pop("filter", None)
+        overrides = {**overrides, **expand_presets({"bank": args.bank}, "--bank")}
+    EnvConfig.build(overrides)
+    return overrides
 
 
 def _check_animate(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -418,7 +517,7 @@ def _write_animation(args: argparse.Namespace, rollouts: dict[str, Rollout]) -> 
     """Run 0 of every policy's roll-out side by side (:mod:`imm_gym.evaluation.animation`)."""
     from imm_gym.evaluation.animation import write_animation
 
-    base = EnvConfig(scenario=load_source(args.scenario), **BANKS[args.bank])
+    base = EnvConfig.build(_run_config(args))
     frames = write_animation(rollouts, base, args.seed, args.animate)
     print(f"wrote {args.animate} ({frames} frames of seed {args.seed}: {', '.join(rollouts)})")
 
@@ -428,7 +527,12 @@ def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
     from imm_gym.cli.tables import render_system_tables
     from imm_gym.papers.tuned_comparison import evaluate_system
 
-    unused = {"--bank": args.bank != "paper", "--reference": args.reference, "--plots": args.plots}
+    unused = {
+        "--bank": args.bank is not None,
+        "--env-config": args.env_config,
+        "--reference": args.reference,
+        "--plots": args.plots,
+    }
     for flag in (f for f, given in unused.items() if given):
         parser.error(f"{flag} does not apply to --scenario {args.scenario}")
     tuned: dict[str, str] = {}

@@ -66,7 +66,7 @@ def render_tables(results: dict[str, Any]) -> None:
             table.add_row(label, *(f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
         if c["role"] != "bound":
             table.caption = c["note"]
-    if meta["scenario"] == "paper":
+    if meta["scenario"] == "paper" and not meta.get("env_config"):
         for name, r in PAPER_TABLE2.items():
             table.add_row(name, *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
     console.print(table)
@@ -85,6 +85,13 @@ def render_tables(results: dict[str, Any]) -> None:
             "clairvoyant", *(_cell(c, k, fmt) for k, _, fmt in BEHAVIOUR_COLUMNS), style="dim"
         )
     console.print(behaviour)
+    for name, r in results["policies"].items():
+        if r.get("tracker_differs"):
+            console.print(
+                f"{name} was trained on another tracker than the evaluated one "
+                f"({', '.join(r['tracker_differs'])} differ: see trained_on and evaluated_on in "
+                "the JSON)"
+            )
     paired = results["paired"]
     if paired["differences"]:
         diff = Table(title=f"Position ARMSE minus {paired['reference']}'s, 95% paired bootstrap CI")

@@ -1,0 +1,112 @@
+"""``python -m imm_gym.evaluate --env-config FILE``: one configuration for every policy, checked
+before any work; trained agents evaluated on another tracker are reported, unreadable ones refused.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import imm_gym.cli.evaluate as cli
+from imm_gym.cli.evaluate import evaluate, main
+
+SENSOR_FILE = "scenario: paper\nsensor: {sigma_r: 10.0, sigma_theta_deg: 0.02}\n"
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fail the test if any roll-out starts."""
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a roll-out ran before the error")
+
+    monkeypatch.setattr(cli, "rollout", refuse)
+
+
+def test_the_file_applies_to_every_policy(tmp_path) -> None:
+    file = tmp_path / "sensor.yaml"
+    file.write_text(SENSOR_FILE)
+    out = tmp_path / "out.json"
+    argv = ["--env-config", str(file), "--policy", "fixed", "--policy", "best-fixed"]
+    assert main([*argv, "--runs", "3", "--quiet", "--json", str(out), "--no-clairvoyant"]) == 0
+    got = json.loads(out.read_text())
+    overrides = {"sensor": {"sigma_r": 10.0, "sigma_theta_deg": 0.02}}
+    direct, _ = evaluate(["fixed", "best-fixed"], "paper", 3, 0, env_config=overrides)
+    plain, _ = evaluate(["fixed", "best-fixed"], "paper", 3, 0)
+    for name in ("fixed", "best-fixed"):
+        assert got["policies"][name]["armse_pos"] == direct["policies"][name]["armse_pos"]
+        assert got["policies"][name]["armse_pos"] < plain["policies"][name]["armse_pos"]
+    assert got["meta"]["env_config"] == str(file) and got["meta"]["scenario"] == "paper"
+
+
+def test_scenario_flag_replaces_the_files_scenario(tmp_path) -> None:
+    file = tmp_path / "random.yaml"
+    file.write_text("scenario: random\nfamily: {horizon: 40, min_duration: 5}\n")
+    out = tmp_path / "out.json"
+    common = ["--env-config", str(file), "--policy", "fixed", "--runs", "2", "--quiet"]
+    main([*common, "--json", str(out), "--no-clairvoyant"])
+    assert json.loads(out.read_text())["meta"]["steps"] == 40
+    main([*common, "--scenario", "paper", "--json", str(out), "--no-clairvoyant"])
+    meta = json.loads(out.read_text())["meta"]
+    assert meta["steps"] == 150 and meta["scenario"] == "paper"
+
+
+@pytest.mark.parametrize(
+    ("content", "words"),
+    [
+        ("sensor: {sigma_r: 10.0}\nbogus_key: 1\n", ["bogus_key"]),
+        ("sensor: {sigma_r: ten}\n", ["sonar.sigma_r"]),
+        ('initial_stay: "0.9"\n', ["initial_stay", "'0.9'"]),
+        ("bank: [{kind: cv}]\n", ["bank"]),
+    ],
+)
+def test_a_bad_file_is_a_usage_error_before_any_work(
+    tmp_path, capsys, no_work, content, words
+) -> None:
+    file = tmp_path / "bad.yaml"
+    file.write_text(content)
+    with pytest.raises(SystemExit) as exit_:
+        main(["--env-config", str(file), "--policy", "best-fixed", "--runs", "2"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    for word in (str(file), *words):
+        assert word in err
+
+
+def test_env_config_does_not_apply_to_the_seed_systems(tmp_path, capsys) -> None:
+    file = tmp_path / "c.yaml"
+    file.write_text("p_min: 0.01\n")
+    with pytest.raises(SystemExit):
+        main(["--env-config", str(file), "--scenario", "seed002", "--policy", "fixed"])
+    assert "--env-config does not apply" in capsys.readouterr().err
+
+
+def test_an_agent_on_another_tracker_is_reported(tmp_path, capsys) -> None:
+    file = tmp_path / "sensor.yaml"
+    file.write_text(SENSOR_FILE)
+    out = tmp_path / "out.json"
+    argv = ["--env-config", str(file), "--policy", "pretrained", "--policy", "fixed"]
+    main([*argv, "--runs", "2", "--quiet", "--json", str(out), "--no-clairvoyant"])
+    assert "pretrained was trained on another tracker" in capsys.readouterr().out
+    row = json.loads(out.read_text())["policies"]["pretrained"]
+    assert row["tracker_differs"] == ["sensor"]
+    assert row["trained_on"]["sensor"]["sigma_r"] == 50.0
+    assert row["evaluated_on"]["sensor"]["sigma_r"] == 10.0
+    assert row["trained_on"]["bank"] == row["evaluated_on"]["bank"]
+    results, _ = evaluate(["pretrained"], "paper", 2, 0, clairvoyant=False)
+    assert results["policies"]["pretrained"]["tracker_differs"] == []
+
+
+def test_an_agent_that_cannot_read_the_observation_is_refused_before_any_work(
+    tmp_path, capsys, no_work
+) -> None:
+    file = tmp_path / "four.yaml"
+    file.write_text(
+        "bank: [{kind: cv}, {kind: ct, turn_rate_deg: 2.0}, {kind: ct, turn_rate_deg: -2.0},\n"
+        "       {kind: ct, turn_rate_deg: 6.0}]\n"
+    )
+    with pytest.raises(SystemExit):
+        main(["--env-config", str(file), "--policy", "fixed", "--policy", "pretrained"])
+    err = capsys.readouterr().err
+    assert "reads observations of 31 entries" in err and "4 models" in err
