@@ -1,0 +1,270 @@
+"""Any policy on recorded measurements (command line: ``python -m imm_gym.track``).
+
+Example::
+
+    python -m imm_gym.track --measurements radar.csv --policy pretrained --out tracks.csv
+    python -m imm_gym.track --measurements radar.npz --policy tip-imm \\
+        --env-config my_tracker.yaml --out tracks.npz
+
+Runs :func:`imm_gym.sim.replay.track` (the policy's whole observation pipeline, no truth) on
+every recorded sequence and writes, per step, the estimate, its covariance, the mode
+probabilities and the TPM used. ``--policy`` is a baseline's name, ``pretrained`` or a trained
+agent's directory, resolved as ``python -m imm_gym.evaluate`` resolves them (a tuned baseline
+such as ``best-fixed`` is tuned on simulated runs of the configuration, seeds from ``--seed``).
+``--env-config FILE`` (YAML or JSON) is a mapping of EnvConfig fields: the sensor (whose
+components ``z`` are), the bank, the filter, the TPM settings.
+
+Input, by the file's suffix:
+
+* ``.csv``: a header and one row per step; columns ``z0 .. z{m-1}`` (the sensor's components in
+  its order: the sonar's range in m and bearing in rad), optionally ``sequence`` (rows of a
+  sequence are consecutive; default: one sequence), ``detected`` (0/1; default: 1 where every
+  ``z`` cell is a number, an empty cell is a missed detection) and ``vx``, ``vy`` (the initial
+  velocity in m/s, read from a sequence's first row). The first row of a sequence initiates the
+  track; each later row is one filter step.
+* ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected``, ``velocity (N, 2)``, or
+  ``x0 (N, 4)`` and ``P0 (N, 4, 4)``.
+
+Without a velocity the track starts at zero velocity with standard deviation
+:data:`~imm_gym.sim.replay.UNKNOWN_VELOCITY_STD`; ``--velocity VX VY`` gives one for every
+sequence that has none. Sequences of different lengths run in batches of equal length.
+
+Output, by the suffix of ``--out``:
+
+* ``.csv``: one row per filtered step: ``sequence, step`` (1..K), ``x, y, vx, vy``,
+  ``P00 .. P33`` (the covariance, row-major), ``mu0 .. mu{M-1}``, ``tpm00 .. tpm{M-1}{M-1}``
+  (row-major);
+* ``.npz``: ``estimate (N, K, 4)``, ``covariance (N, K, 4, 4)``, ``mode_probs (N, K, M)``,
+  ``tpm (N, K, M, M)``, ``x0``, ``P0``, ``diverged (N,)`` (one sequence length only).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from imm_gym.cli.evaluate import make_policy
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.replay import TrackResult, track
+from imm_gym.validation import ConfigError, load_yaml
+
+#: Optional input columns of a CSV file besides ``z0 .. z{m-1}``.
+OPTIONAL_COLUMNS = ("sequence", "detected", "vx", "vy")
+
+
+def read_env_config(path: Path) -> EnvConfig:
+    """The EnvConfig of a YAML or JSON mapping of its fields (a wrong key or type names it)."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path}: cannot read ({err})") from None
+    if path.suffix not in (".yaml", ".yml", ".json"):
+        raise ConfigError(f"{path}: a configuration file ends in .yaml, .yml or .json")
+    import yaml
+
+    try:
+        data = json.loads(text) if path.suffix == ".json" else load_yaml(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as err:
+        reason = " ".join(str(err).split())
+        raise ConfigError(f"{path}: not valid {path.suffix[1:].upper()} ({reason})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: must hold a mapping of EnvConfig fields")
+    try:
+        return EnvConfig.build(data)
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from None
+
+
+def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
+    """The sequences of a measurement CSV: per sequence ``name``, ``z (K+1, m)``, ``detected``
+    and ``velocity`` (None where not given)."""
+    with path.open(newline="") as handle:
+        reader = csv.DictReader(handle)
+        header = reader.fieldnames or []
+        z_cols = [f"z{i}" for i in range(dim_z)]
+        unknown = [c for c in header if c not in z_cols and c not in OPTIONAL_COLUMNS]
+        if [c for c in z_cols if c not in header] or unknown:
+            raise ConfigError(
+                f"{path}: columns must be {', '.join(z_cols)} and optionally "
+                f"{', '.join(OPTIONAL_COLUMNS)}; got {', '.join(header)}"
+            )
+        rows = list(reader)
+    groups: dict[str, list[dict[str, str]]] = {}
+    previous = None
+    for line, row in enumerate(rows, start=2):
+        name = row.get("sequence") or "0"
+        if name in groups and name != previous:
+            raise ConfigError(f"{path}:{line}: the rows of sequence {name!r} are not consecutive")
+        groups.setdefault(name, []).append(row)
+        previous = name
+    sequences = []
+    for name, group in groups.items():
+        z = np.array([[_number(path, row[c], c) for c in z_cols] for row in group])
+        detected = (
+            np.array([_number(path, row["detected"], "detected") == 1 for row in group])
+            if "detected" in header
+            else None
+        )
+        first = group[0]
+        velocity = (
+            np.array([_number(path, first["vx"], "vx"), _number(path, first["vy"], "vy")])
+            if "vx" in header and "vy" in header
+            else None
+        )
+        sequences.append({"name": name, "z": z, "detected": detected, "velocity": velocity})
+    return sequences
+
+
+def _number(path: Path, text: str | None, column: str) -> float:
+    """A CSV cell as a float (an empty cell is NaN)."""
+    if text is None or text.strip() == "":
+        return float("nan")
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(f"{path}: column {column}: {text!r} is not a number") from None
+
+
+def read_npz(path: Path) -> list[dict[str, Any]]:
+    """The sequences of a measurement NPZ (see the module docstring)."""
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {key: data[key] for key in data.files}
+    if "z" not in arrays:
+        raise ConfigError(f"{path}: needs an array 'z' (N, K+1, m)")
+    unknown = set(arrays) - {"z", "detected", "velocity", "x0", "P0"}
+    if unknown:
+        raise ConfigError(f"{path}: unknown arrays {sorted(unknown)}")
+    z = arrays.pop("z")
+    single = z.ndim == 2
+    z = z[None] if single else z
+    if z.ndim != 3:
+        raise ConfigError(f"{path}: z must be (N, K+1, m) or (K+1, m), got {z.shape}")
+    extra = {k: (v[None] if single else v) for k, v in arrays.items()}
+    return [
+        {"name": str(i), "z": z[i], **{k: v[i] for k, v in extra.items()}}
+        for i in range(z.shape[0])
+    ]
+
+
+def run(sequences: list[dict[str, Any]], policy: Any, config: EnvConfig,
+        velocity: Sequence[float] | None) -> list[tuple[list[str], TrackResult]]:
+    """:func:`track` on the sequences, batched by length: ``(names, result)`` per batch."""
+    if not sequences:
+        raise ConfigError("no measurements")
+    by_length: dict[int, list[dict[str, Any]]] = {}
+    for seq in sequences:
+        seq = dict(seq)
+        if seq.get("velocity") is None and velocity is not None and "x0" not in seq:
+            seq["velocity"] = np.asarray(velocity, dtype=np.float64)
+        by_length.setdefault(seq["z"].shape[0], []).append(seq)
+    out = []
+    for batch in by_length.values():
+        # sequences with and without a velocity start differently: batch them apart
+        for kind in ("x0", "velocity", None):
+            group = [s for s in batch if _start_kind(s) == kind]
+            if not group:
+                continue
+            args: dict[str, Any] = {"detected": _stack(group, "detected")}
+            if kind == "x0":
+                args["x0"], args["P0"] = _stack(group, "x0"), _stack(group, "P0")
+            elif kind == "velocity":
+                args["velocity"] = _stack(group, "velocity")
+            result = track(np.stack([s["z"] for s in group]), policy, config, **args)
+            out.append(([s["name"] for s in group], result))
+    return out
+
+
+def _start_kind(seq: dict[str, Any]) -> str | None:
+    if seq.get("x0") is not None:
+        return "x0"
+    return "velocity" if seq.get("velocity") is not None else None
+
+
+def _stack(group: list[dict[str, Any]], key: str) -> Any:
+    values = [s.get(key) for s in group]
+    if all(v is None for v in values):
+        return None
+    if any(v is None for v in values):
+        raise ConfigError(f"'{key}' is given for some sequences and not for others")
+    return np.stack(values)
+
+
+def write(path: Path, results: list[tuple[list[str], TrackResult]]) -> None:
+    """Write the results as CSV or NPZ (see the module docstring)."""
+    if path.suffix == ".npz":
+        if len(results) != 1:
+            raise ConfigError(f"{path}: an NPZ output holds sequences of one length only")
+        r = results[0][1]
+        np.savez(
+            path, estimate=r.estimate, covariance=r.covariance, mode_probs=r.mode_probs,
+            tpm=r.tpm, x0=r.x0, P0=r.P0, diverged=r.diverged,
+        )
+        return
+    M = results[0][1].mode_probs.shape[-1]
+    header = ["sequence", "step", "x", "y", "vx", "vy"]
+    header += [f"P{i}{j}" for i in range(4) for j in range(4)]
+    header += [f"mu{i}" for i in range(M)] + [f"tpm{i}{j}" for i in range(M) for j in range(M)]
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        for names, r in results:
+            for n, name in enumerate(names):
+                for k in range(r.estimate.shape[1]):
+                    values = np.concatenate([
+                        r.estimate[n, k], r.covariance[n, k].ravel(), r.mode_probs[n, k],
+                        r.tpm[n, k].ravel(),
+                    ])
+                    writer.writerow([name, k + 1, *(repr(float(v)) for v in values)])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m imm_gym.track",
+        description="Run a TPM policy on recorded measurements (no truth): estimates, "
+        "covariances, mode probabilities and the TPM used at each step.",
+    )
+    parser.add_argument("--measurements", required=True, type=Path,
+                        help="CSV (columns z0.., optional sequence, detected, vx, vy) or NPZ")
+    parser.add_argument("--policy", required=True,
+                        help="a baseline's name, 'pretrained' or a trained agent's directory")
+    parser.add_argument("--env-config", type=Path, default=None,
+                        help="YAML or JSON mapping of EnvConfig fields (sensor, bank, filter...)")
+    parser.add_argument("--out", required=True, type=Path, help="output file: .csv or .npz")
+    parser.add_argument("--velocity", type=float, nargs=2, metavar=("VX", "VY"), default=None,
+                        help="initial velocity (m/s) of sequences that give none "
+                        "(default: zero, standard deviation 30 m/s)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of a tuned baseline's simulated training runs")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The command line; returns the exit status (2: a usage or input error)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    for name, path in (("--measurements", args.measurements), ("--out", args.out)):
+        if path.suffix not in (".csv", ".npz"):
+            parser.error(f"{name} must end in .csv or .npz, got {path}")
+    try:
+        config = EnvConfig() if args.env_config is None else read_env_config(args.env_config)
+        if not args.measurements.is_file():
+            raise ConfigError(f"{args.measurements}: no such file")
+        sequences = (
+            read_csv(args.measurements, config.sensor.dim_z)
+            if args.measurements.suffix == ".csv"
+            else read_npz(args.measurements)
+        )
+        policy, _, _ = make_policy(args.policy, config, args.seed)
+        results = run(sequences, policy, config, args.velocity)
+        write(args.out, results)
+    except ConfigError as err:
+        parser.error(str(err))
+    n = sum(len(names) for names, _ in results)
+    print(f"{args.policy}: {n} sequence(s) tracked -> {args.out}")
+    return 0

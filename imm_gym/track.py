@@ -1,0 +1,6 @@
+"""``python -m imm_gym.track``: any policy on recorded measurements (:mod:`imm_gym.cli.track`)."""
+
+from imm_gym.cli.track import main
+
+if __name__ == "__main__":
+    raise SystemExit(main())

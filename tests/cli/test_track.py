@@ -1,0 +1,161 @@
+"""python -m imm_gym.track: recorded measurements in (CSV, NPZ), per-step estimates, covariances,
+mode probabilities and TPMs out, equal to the env's episode and to imm_gym.track; --env-config
+sets the tracker; bad inputs are usage errors naming the file and the column or key."""
+
+from __future__ import annotations
+
+import csv
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import imm_gym
+from agents import PRETRAINED
+from agents.policy import load_agent
+from baselines import make_baseline
+from imm_gym import EnvConfig, Sonar, TrackingCore
+from imm_gym.cli.track import main
+
+SEEDS = [5, 6]
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _episodes(config: EnvConfig, policy_name: str) -> tuple[TrackingCore, dict[str, np.ndarray]]:
+    """Two episodes of the env's core run by a policy: the core and the per-step outputs."""
+    policy = make_baseline(policy_name)
+    core = TrackingCore(config.replace(**policy.env_overrides), n_envs=len(SEEDS))
+    core.reset(np.arange(len(SEEDS)), SEEDS)
+    obs, state, start = core.observe(), None, np.ones(len(SEEDS), dtype=bool)
+    rows: dict[str, list[np.ndarray]] = {"estimate": [], "covariance": [], "mode_probs": [],
+                                         "tpm": []}
+    for _ in range(core.horizon):
+        action, state = policy.predict(obs, state=state, episode_start=start, deterministic=True)
+        start[:] = False
+        result = core.step(action)
+        obs = result.obs
+        for key in rows:
+            rows[key].append(result.info[key])
+    return core, {key: np.stack(value, axis=1) for key, value in rows.items()}
+
+
+def _write_csv(path: Path, core: TrackingCore) -> None:
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["sequence", "z0", "z1", "detected", "vx", "vy"])
+        for n, seed in enumerate(SEEDS):
+            vx, vy = core.truth[n, 0, 2:4]
+            for k in range(core.z.shape[1]):
+                z0, z1 = (repr(float(v)) for v in core.z[n, k])
+                if not core.detected[n, k]:
+                    z0 = z1 = ""
+                writer.writerow([f"run{seed}", z0, z1, int(core.detected[n, k]), vx, vy])
+
+
+def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
+    with path.open(newline="") as handle:
+        rows = list(csv.reader(handle))
+    return rows[0], np.array([[float(v) for v in row[1:]] for row in rows[1:]])
+
+
+def test_csv_in_csv_out_is_the_env_episode(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    config = EnvConfig(sensor=Sonar(detection_prob=0.9))
+    core, env = _episodes(config, "tip-imm")
+    _write_csv(tmp_path / "z.csv", core)
+    assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "tip-imm",
+                 "--out", str(tmp_path / "out.csv")]) == 0
+    assert "2 sequence(s) tracked" in capsys.readouterr().out
+    # a missed detection is an empty cell, a prediction step (the tracker does not use the
+    # detection probability: the default configuration replays the episode)
+    header, table = _read_csv(tmp_path / "out.csv")
+    K, M = core.horizon, core.M
+    assert header[:6] == ["sequence", "step", "x", "y", "vx", "vy"]
+    assert header[-1] == f"tpm{M - 1}{M - 1}" and len(header) == 2 + 4 + 16 + M + M * M
+    assert table.shape == (len(SEEDS) * K, len(header) - 1)
+    steps = table.reshape(len(SEEDS), K, -1)
+    np.testing.assert_array_equal(steps[..., 0], np.tile(np.arange(1, K + 1), (2, 1)))
+    np.testing.assert_array_equal(steps[..., 1:5], env["estimate"])
+    np.testing.assert_array_equal(steps[..., 5:21], env["covariance"].reshape(2, K, 16))
+    np.testing.assert_array_equal(steps[..., 21:21 + M], env["mode_probs"])
+    np.testing.assert_array_equal(steps[..., 21 + M:], env["tpm"].reshape(2, K, M * M))
+
+
+def test_npz_through_python_m_with_the_agent_and_a_config_file(tmp_path: Path) -> None:
+    """``python -m imm_gym.track`` (the shim) with the shipped agent on a tracker given by a
+    YAML file: the NPZ holds what imm_gym.track returns for that configuration."""
+    config = EnvConfig(sensor=Sonar(sigma_r=20.0))
+    core = TrackingCore(config, n_envs=2)
+    core.reset(np.arange(2), SEEDS)
+    np.savez(tmp_path / "z.npz", z=core.z, velocity=core.truth[:, 0, 2:4])
+    (tmp_path / "tracker.yaml").write_text("sensor:\n  sigma_r: 20.0\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "imm_gym.track", "--measurements", str(tmp_path / "z.npz"),
+         "--policy", "pretrained", "--env-config", str(tmp_path / "tracker.yaml"),
+         "--out", str(tmp_path / "out.npz")],
+        cwd=ROOT, capture_output=True, text=True, check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    expected = imm_gym.track(core.z, load_agent(PRETRAINED), config,
+                             velocity=core.truth[:, 0, 2:4])
+    default = imm_gym.track(core.z, load_agent(PRETRAINED), velocity=core.truth[:, 0, 2:4])
+    with np.load(tmp_path / "out.npz") as out:
+        for key in ("estimate", "covariance", "mode_probs", "tpm", "x0", "P0", "diverged"):
+            np.testing.assert_array_equal(out[key], getattr(expected, key), err_msg=key)
+        assert not np.array_equal(out["covariance"], default.covariance)  # the file was read
+
+
+def test_velocity_flag_and_sequences_of_different_lengths(tmp_path: Path) -> None:
+    """``--velocity`` starts sequences that give none; a short and a long sequence both come
+    back, each as imm_gym.track gives it alone."""
+    core = TrackingCore(EnvConfig(), n_envs=2)
+    core.reset(np.arange(2), SEEDS)
+    with (tmp_path / "z.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["z0", "z1", "sequence"])
+        for n, length in enumerate((30, 50)):
+            for k in range(length + 1):
+                writer.writerow([repr(float(core.z[n, k, 0])), repr(float(core.z[n, k, 1])), n])
+    assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                 "--velocity", "3", "-4", "--out", str(tmp_path / "out.csv")]) == 0
+    _, table = _read_csv(tmp_path / "out.csv")
+    assert table.shape[0] == 30 + 50
+    for n, (first, length) in enumerate(((0, 30), (30, 50))):
+        alone = imm_gym.track(core.z[n, : length + 1], make_baseline("fixed"),
+                              velocity=[3.0, -4.0])
+        np.testing.assert_array_equal(table[first:first + length, 1:5], alone.estimate[0])
+
+
+@pytest.mark.parametrize(
+    ("content", "extra", "message"),
+    [
+        ("z0,z1,range\n1,2,3\n", [], "columns must be z0, z1"),
+        ("z0,z1\n1000,0.1\n1000,abc\n", [], "column z1: 'abc' is not a number"),
+        ("sequence,z0,z1\na,1000,0\nb,1000,0\na,1000,0\n", [], "sequence 'a' are not consecut"),
+        ("z0,z1\n1000,0.1\n1010,0.1\n", ["--env-config", "{cfg}"],
+         r"tracker.yaml: .*sensor.*sigma_rr"),
+        ("z0,z1\n1000,0.1\n1010,0.1\n", ["--policy", "no-such"], "unknown policy 'no-such'"),
+    ],
+)
+def test_bad_inputs_are_usage_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture, content: str, extra: list[str], message: str
+) -> None:
+    (tmp_path / "z.csv").write_text(content)
+    (tmp_path / "tracker.yaml").write_text("sensor:\n  sigma_rr: 20.0\n")
+    args = ["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+            "--out", str(tmp_path / "out.csv")]
+    args += [a.format(cfg=tmp_path / "tracker.yaml") for a in extra]
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    assert exit_info.value.code == 2
+    assert re.search(message, capsys.readouterr().err)
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_output_suffix_is_checked_first(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    with pytest.raises(SystemExit):
+        main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+              "--out", str(tmp_path / "out.txt")])
+    assert "--out must end in .csv or .npz" in capsys.readouterr().err
