@@ -59,7 +59,7 @@ from imm_gym.evaluation.rollout import (
     score,
 )
 from imm_gym.papers.systems import SYSTEMS
-from imm_gym.scenarios.catalog import SCENARIOS
+from imm_gym.scenarios.catalog import SCENARIOS, SUITES
 from imm_gym.scenarios.segments import Scenario, true_model_index
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.sim.config_file import (
@@ -79,6 +79,8 @@ from imm_gym.validation import ConfigError, from_dict
 #: ``--bank``: environment overrides of each bank.
 BANKS = BANK_PRESETS
 TRAIN_RUNS = 100
+#: The shipped configuration files, one per suite scenario (``NAME.yaml``).
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def load_source(name: str) -> str | Scenario:
@@ -262,6 +264,72 @@ def agent_overrides(
     return kept, notes
 
 
+def suite_configs(suite: str) -> dict[str, dict[str, Any]]:
+    """The EnvConfig overrides of every scenario of ``suite``: ``examples/NAME.yaml`` each.
+
+    Raises:
+        ConfigError: an unknown suite, or a configuration file missing or invalid.
+    """
+    if suite not in SUITES:
+        raise ConfigError(f"--suite must be one of {list(SUITES)}, got {suite!r}")
+    configs = {}
+    for name in SUITES[suite]:
+        overrides = read_env_config(EXAMPLES / f"{name}.yaml")
+        if overrides.get("scenario", "random") != name:
+            raise ConfigError(f"{EXAMPLES / f'{name}.yaml'}: scenario must be {name!r}")
+        configs[name] = overrides
+    return configs
+
+
+def evaluate_suite(
+    policies: Sequence[str],
+    suite: str,
+    runs: int,
+    seed: int,
+    reference: str | None = None,
+    clairvoyant: bool = True,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """:func:`evaluate` on every scenario of ``suite`` with its own configuration file
+    (:func:`suite_configs`; baselines, best-fixed search and trained agents on it), the same
+    seeds on each. Every file and every trained agent is checked against every configuration
+    before any work.
+
+    Returns:
+        ``{"scenarios": {NAME: evaluate's results}, "meta": {...}}``.
+    """
+    configs = suite_configs(suite)
+    for overrides in configs.values():
+        base = EnvConfig.build(overrides)
+        for name in policies:
+            if name not in REGISTRY:
+                policy, recorded, _ = make_policy(name, base, seed)
+                agent_overrides(policy, recorded, base)
+    out: dict[str, Any] = {"scenarios": {}}
+    for name, overrides in configs.items():
+        env_config = {k: v for k, v in overrides.items() if k != "scenario"}
+        results, _ = evaluate(
+            policies,
+            name,
+            runs,
+            seed,
+            reference=reference,
+            clairvoyant=clairvoyant,
+            progress=progress,
+            env_config=env_config,
+        )
+        results["meta"]["env_config"] = str(EXAMPLES / f"{name}.yaml")
+        out["scenarios"][name] = results
+    out["meta"] = {
+        "suite": suite,
+        "runs": runs,
+        "seed": seed,
+        "seeds": f"{seed}..{seed + runs - 1}",
+        "versions": _versions(),
+    }
+    return out
+
+
 def paired_difference(
     err2: NDArray[np.float64], err2_ref: NDArray[np.float64]
 ) -> dict[str, float | None]:
@@ -364,6 +432,13 @@ def build_parser() -> argparse.ArgumentParser:
         "the --env-config file's scenario, else paper",
     )
     parser.add_argument(
+        "--suite",
+        choices=list(SUITES),
+        help="evaluate on every scenario of the suite ("
+        + "; ".join(f"{k}: {', '.join(v)}" for k, v in SUITES.items())
+        + "), each with its configuration file examples/NAME.yaml, and print one table",
+    )
+    parser.add_argument(
         "--env-config",
         type=Path,
         metavar="FILE",
@@ -441,6 +516,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if problem:
             parser.error(f"{flag} {str(path)!r}: {problem}")
     _check_animate(parser, args)
+    if args.suite is not None:
+        return _main_suite(parser, args)
     if args.scenario in SYSTEMS:
         return _main_system(parser, args)
     try:
@@ -520,6 +597,40 @@ def _write_animation(args: argparse.Namespace, rollouts: dict[str, Rollout]) -> 
     base = EnvConfig.build(_run_config(args))
     frames = write_animation(rollouts, base, args.seed, args.animate)
     print(f"wrote {args.animate} ({frames} frames of seed {args.seed}: {', '.join(rollouts)})")
+
+
+def _main_suite(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """``--suite NAME``: every scenario of the suite with its configuration file, one table."""
+    from imm_gym.cli.tables import render_suite_table
+
+    unused = {
+        "--scenario": args.scenario,
+        "--env-config": args.env_config,
+        "--bank": args.bank,
+        "--plots": args.plots,
+        "--animate": args.animate,
+        "--tuned": args.tuned,
+    }
+    for flag in (f for f, given in unused.items() if given):
+        parser.error(f"{flag} does not apply to --suite (each scenario has its configuration)")
+    try:
+        results = evaluate_suite(
+            args.policy,
+            args.suite,
+            args.runs,
+            args.seed,
+            reference=args.reference,
+            clairvoyant=not args.no_clairvoyant,
+            progress=not args.quiet and sys.stderr.isatty(),
+        )
+    except ConfigError as err:
+        parser.error(str(err))
+    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
+    render_suite_table(results)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
 
 
 def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:

@@ -107,6 +107,66 @@ def render_tables(results: dict[str, Any]) -> None:
         console.print(diff)
 
 
+def render_suite_table(results: dict[str, Any]) -> None:
+    """Print one table of a suite's evaluation: a row per scenario and policy with the position
+    ARMSE, the mode accuracy, the share of NEES values inside the 95 % χ² interval, the
+    diverged runs and the paired difference of the position ARMSE against the reference with its
+    95 % bootstrap CI; the clairvoyant row by its role."""
+    from rich.console import Console
+    from rich.table import Table
+
+    meta = results["meta"]
+    console = Console(width=None if sys.stdout.isatty() else 150)
+    table = Table(
+        title=f"Suite '{meta['suite']}', {meta['runs']} runs (seeds {meta['seeds']}) per scenario, "
+        "each with its configuration file"
+    )
+    for col in ("scenario", "policy", "pos ARMSE (m)", "mode acc.", "NEES ≤ χ²95", "diverged"):
+        table.add_column(col, justify="left" if col in ("scenario", "policy") else "right")
+    table.add_column("Δ vs reference (m), 95% CI", justify="right")
+    for scenario, r in results["scenarios"].items():
+        paired = r["paired"]
+        steps = f"{scenario} ({r['meta']['steps']} steps)"
+        for i, (name, row) in enumerate(r["policies"].items()):
+            d = paired["differences"].get(name)
+            if d is None:
+                delta = f"reference ({name})"
+            elif d["low"] is None:
+                delta = f"{d['diff']:+.2f}"
+            else:
+                delta = f"{d['diff']:+.2f} [{d['low']:+.2f}, {d['high']:+.2f}]"
+            table.add_row(
+                steps if i == 0 else "",
+                name,
+                f"{row['armse_pos']:.2f}",
+                f"{100 * row['mode_accuracy']:.1f}%",
+                f"{100 * row['nees']['inside']:.1f}%",
+                str(row["diverged"]),
+                delta,
+                end_section=False,
+            )
+        c = r.get("clairvoyant")
+        if c is not None and c["role"] != "skipped":
+            table.add_row(
+                "", f"clairvoyant ({c['role']})", f"{c['armse_pos']:.2f}", *[""] * 4, style="dim"
+            )
+        table.add_section()
+    moved = sorted(
+        {
+            name
+            for r in results["scenarios"].values()
+            for name, row in r["policies"].items()
+            if row.get("tracker_differs")
+        }
+    )
+    if moved:
+        table.caption = (
+            f"{', '.join(moved)}: trained on another tracker than some scenarios' (JSON: "
+            "trained_on, evaluated_on, tracker_differs)"
+        )
+    console.print(table)
+
+
 SYSTEM_COLUMNS = (
     ("pos_rmse", "pos RMSE (m)", "{:.4f}"),
     ("pos_mae", "MAE (m)", "{:.4f}"),

@@ -6,9 +6,10 @@ user's scenario file. Adding one is one :func:`register` call here with a factor
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Sequence
 
-from imm_gym.scenarios.segments import TruthSource, paper_scenario
+from imm_gym.scenarios.segments import Scenario, Segment, TruthSource, paper_scenario
 
 #: Every named scenario's factory, in declaration order.
 SCENARIOS: dict[str, Callable[[], TruthSource]] = {}
@@ -21,4 +22,90 @@ def register(name: str, factory: Callable[[], TruthSource]) -> None:
     SCENARIOS[name] = factory
 
 
+def timed_scenario(
+    table: Sequence[tuple[float, float]],
+    position: tuple[float, float],
+    velocity: tuple[float, float],
+    T: float,
+) -> Scenario:
+    """A :class:`~imm_gym.scenarios.segments.Scenario` from a table in seconds.
+
+    Args:
+        table: ``(duration_s, turn_rate_deg)`` per segment; each duration a whole number of
+            sampling periods (a segment lasts ``duration_s / T`` steps).
+        position: start ``(x, y)`` (m).
+        velocity: start ``(vx, vy)`` (m/s).
+        T: sampling period (s).
+
+    Raises:
+        ValueError: a duration is not a multiple of ``T``.
+    """
+    segments = []
+    for duration_s, turn_rate_deg in table:
+        steps = round(duration_s / T)
+        if steps < 1 or not math.isclose(steps * T, duration_s):
+            raise ValueError(f"segment of {duration_s} s is not a multiple of T = {T} s")
+        segments.append(Segment(steps, turn_rate_deg))
+    return Scenario(tuple(segments), position, velocity, T)
+
+
+def atc_scenario() -> Scenario:
+    """Bar-Shalom, Li and Kirubarajan (2001) §11.7.4, the air-traffic-control benchmark: T = 5 s,
+    start (25, 10) km at 120 m/s west; straight 125 s, +1 °/s for 90 s, straight 125 s, −3 °/s
+    for 30 s, straight 125 s (495 s, 99 steps)."""
+    table = ((125, 0.0), (90, 1.0), (125, 0.0), (30, -3.0), (125, 0.0))
+    return timed_scenario(table, (25_000.0, 10_000.0), (-120.0, 0.0), 5.0)
+
+
+#: The VSMM guide's (Li, Bar-Shalom and Blair, §10.8.3) start velocity of S1 and S2 (m/s):
+#: 300 m/s heading south-west.
+VSMM_VELOCITY = (-172.0, -246.0)
+#: Sampling period of the VSMM scenarios here (s).
+VSMM_T = 1.0
+
+
+def vsmm_s1() -> Scenario:
+    """VSMM guide S1: start (30, 30) km, v = (−172, −246) m/s; straight to 61 s, +3.74 °/s to
+    106 s, straight to 150 s (T = 1 s)."""
+    table = ((61, 0.0), (45, 3.74), (44, 0.0))
+    return timed_scenario(table, (30_000.0, 30_000.0), VSMM_VELOCITY, VSMM_T)
+
+
+def vsmm_s2() -> Scenario:
+    """VSMM guide S2: start (20, 50) km, v = (−172, −246) m/s; straight to 61 s, +4.68 °/s to
+    96 s, straight to 150 s (T = 1 s)."""
+    table = ((61, 0.0), (35, 4.68), (54, 0.0))
+    return timed_scenario(table, (20_000.0, 50_000.0), VSMM_VELOCITY, VSMM_T)
+
+
+def vsmm_s3() -> Scenario:
+    """VSMM guide S3: start (60, 40) km, 300 m/s at 135° (counter-clockwise from +x); straight
+    50 s, +1.87 °/s 96 s, straight 30 s, −2.8 °/s 64 s, straight 30 s, +5.6 °/s 32 s, straight
+    30 s, −4.68 °/s 38 s, straight 30 s (400 s, T = 1 s)."""
+    table = (
+        (50, 0.0),
+        (96, 1.87),
+        (30, 0.0),
+        (64, -2.8),
+        (30, 0.0),
+        (32, 5.6),
+        (30, 0.0),
+        (38, -4.68),
+        (30, 0.0),
+    )
+    heading = math.radians(135.0)
+    velocity = (300.0 * math.cos(heading), 300.0 * math.sin(heading))
+    return timed_scenario(table, (60_000.0, 40_000.0), velocity, VSMM_T)
+
+
 register("paper", paper_scenario)  # the TIP-IMM paper's Table 1 (SPEC §3)
+register("atc", atc_scenario)
+register("vsmm-s1", vsmm_s1)
+register("vsmm-s2", vsmm_s2)
+register("vsmm-s3", vsmm_s3)
+
+#: Named suites of scenarios (``python -m imm_gym.evaluate --suite NAME``); ``"random"`` is the
+#: randomized family. Each scenario runs with its configuration file ``examples/NAME.yaml``.
+SUITES: dict[str, tuple[str, ...]] = {
+    "benchmark": ("paper", "random", "atc", "vsmm-s1", "vsmm-s2", "vsmm-s3"),
+}

@@ -110,3 +110,35 @@ def test_an_agent_that_cannot_read_the_observation_is_refused_before_any_work(
         main(["--env-config", str(file), "--policy", "fixed", "--policy", "pretrained"])
     err = capsys.readouterr().err
     assert "reads observations of 31 entries" in err and "4 models" in err
+
+
+def test_the_benchmark_suite_runs_end_to_end(tmp_path, capsys) -> None:
+    out = tmp_path / "suite.json"
+    argv = ["--suite", "benchmark", "--policy", "fixed", "--policy", "pretrained", "--runs", "2"]
+    assert main([*argv, "--quiet", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    results = json.loads(out.read_text())
+    assert list(results["scenarios"]) == ["paper", "random", "atc", "vsmm-s1", "vsmm-s2", "vsmm-s3"]
+    for name, r in results["scenarios"].items():
+        assert r["meta"]["scenario"] == name and r["meta"]["env_config"].endswith(f"{name}.yaml")
+        assert r["paired"]["reference"] == "fixed"
+        assert set(r["policies"]) == {"fixed", "pretrained"}
+        assert f"{name} ({r['meta']['steps']} steps)" in printed
+    assert results["scenarios"]["atc"]["meta"]["steps"] == 99
+    assert results["scenarios"]["vsmm-s3"]["meta"]["steps"] == 400
+    assert results["scenarios"]["atc"]["policies"]["pretrained"]["tracker_differs"] == [
+        "sensor",
+        "bank",
+    ]
+    assert results["scenarios"]["paper"]["policies"]["pretrained"]["tracker_differs"] == []
+    # the suite's configuration, not the default tracker: the atc file's sensor and bank
+    alone, _ = evaluate(["fixed"], "atc", 2, 0, clairvoyant=False)
+    atc = results["scenarios"]["atc"]["policies"]["fixed"]["armse_pos"]
+    assert atc != alone["policies"]["fixed"]["armse_pos"]
+
+
+@pytest.mark.parametrize("flag", [["--scenario", "paper"], ["--bank", "hetero"]])
+def test_the_suite_refuses_per_scenario_flags(capsys, flag) -> None:
+    with pytest.raises(SystemExit):
+        main(["--suite", "benchmark", "--policy", "fixed", *flag])
+    assert "does not apply to --suite" in capsys.readouterr().err

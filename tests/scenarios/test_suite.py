@@ -1,0 +1,101 @@
+"""The benchmark suite's named scenarios: each truth matches its segment table (in seconds) at
+every segment end, by the closed form of straight and constant-turn motion."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from imm_gym.scenarios.catalog import SCENARIOS, SUITES, timed_scenario
+
+#: name: (T, start position, start speed, start heading (deg), [(seconds, turn rate (deg/s))])
+TABLES = {
+    "atc": (
+        5.0,
+        (25_000.0, 10_000.0),
+        120.0,
+        180.0,
+        [(125, 0.0), (90, 1.0), (125, 0.0), (30, -3.0), (125, 0.0)],
+    ),
+    "vsmm-s1": (
+        1.0,
+        (30_000.0, 30_000.0),
+        math.hypot(172.0, 246.0),
+        math.degrees(math.atan2(-246.0, -172.0)),
+        [(61, 0.0), (106 - 61, 3.74), (150 - 106, 0.0)],
+    ),
+    "vsmm-s2": (
+        1.0,
+        (20_000.0, 50_000.0),
+        math.hypot(172.0, 246.0),
+        math.degrees(math.atan2(-246.0, -172.0)),
+        [(61, 0.0), (96 - 61, 4.68), (150 - 96, 0.0)],
+    ),
+    "vsmm-s3": (
+        1.0,
+        (60_000.0, 40_000.0),
+        300.0,
+        135.0,
+        [
+            (50, 0.0),
+            (96, 1.87),
+            (30, 0.0),
+            (64, -2.8),
+            (30, 0.0),
+            (32, 5.6),
+            (30, 0.0),
+            (38, -4.68),
+            (30, 0.0),
+        ],
+    ),
+}
+
+
+def segment_ends(position, speed, heading_deg, table):
+    """Position, heading (rad) and time at the end of every segment, by closed form: straight
+    ``p + v t (cos h, sin h)``; turn at ``w``: ``p + (v / w) (sin(h + w t) - sin h,
+    cos h - cos(h + w t))``, heading ``h + w t``."""
+    x, y = position
+    h = math.radians(heading_deg)
+    t = 0.0
+    ends = []
+    for seconds, rate_deg in table:
+        w = math.radians(rate_deg)
+        if w == 0.0:
+            x, y = x + speed * seconds * math.cos(h), y + speed * seconds * math.sin(h)
+        else:
+            x += speed / w * (math.sin(h + w * seconds) - math.sin(h))
+            y += speed / w * (math.cos(h) - math.cos(h + w * seconds))
+            h += w * seconds
+        t += seconds
+        ends.append((x, y, h, t))
+    return ends
+
+
+@pytest.mark.parametrize("name", list(TABLES))
+def test_truth_matches_the_table_at_segment_ends(name) -> None:
+    T, position, speed, heading, table = TABLES[name]
+    scenario = SCENARIOS[name]()
+    assert scenario.T == T
+    assert scenario.horizon * T == sum(seconds for seconds, _ in table)
+    states = scenario.truth([np.random.default_rng(0)]).states[0]
+    for x, y, h, t in segment_ends(position, speed, heading, table):
+        k = round(t / T)
+        px, py, vx, vy = states[k]
+        assert math.hypot(px - x, py - y) < 1e-6 * max(1.0, math.hypot(x, y)), (name, t)
+        assert math.hypot(vx, vy) == pytest.approx(speed, rel=1e-9)
+        assert math.remainder(math.atan2(vy, vx) - h, 2 * math.pi) == pytest.approx(0, abs=1e-9)
+
+
+def test_the_benchmark_suite_names_known_scenarios() -> None:
+    suite = SUITES["benchmark"]
+    assert suite[:2] == ("paper", "random")
+    assert set(suite[2:]) == set(TABLES) <= set(SCENARIOS)
+
+
+def test_a_duration_that_is_not_a_multiple_of_T_is_refused() -> None:
+    with pytest.raises(ValueError, match="not a multiple"):
+        timed_scenario([(12, 0.0)], (0.0, 0.0), (1.0, 0.0), 5.0)
+    assert timed_scenario([(10, 1.0)], (0.0, 0.0), (1.0, 0.0), 5.0).segments[0].duration == 2
