@@ -11,8 +11,11 @@ every recorded sequence and writes, per step, the estimate, its covariance, the 
 probabilities and the TPM used. ``--policy`` is a baseline's name, ``pretrained`` or a trained
 agent's directory, resolved as ``python -m imm_gym.evaluate`` resolves them (a tuned baseline
 such as ``best-fixed`` is tuned on simulated runs of the configuration, seeds from ``--seed``).
-``--env-config FILE`` (YAML or JSON) is a mapping of EnvConfig fields: the sensor (whose
-components ``z`` are), the bank, the filter, the TPM settings.
+``--env-config FILE`` (YAML or JSON, :mod:`imm_gym.sim.config_file`) is a mapping of
+EnvConfig fields: the sensor (whose components ``z`` are), the bank, the filter, the TPM settings,
+the scenario (its sampling period). A trained agent keeps its own settings (action mode,
+features) and tracks with this tracker; an agent whose observation or action size it does not
+give is refused, one trained on another tracker is said on stderr.
 
 Input, by the file's suffix:
 
@@ -42,43 +45,22 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
-from collections.abc import Sequence
+import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from imm_gym.cli.evaluate import make_policy
+from baselines import REGISTRY
+from imm_gym.cli.evaluate import agent_overrides, make_policy
+from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.replay import TrackResult, track
-from imm_gym.validation import ConfigError, load_yaml
+from imm_gym.validation import ConfigError
 
 #: Optional input columns of a CSV file besides ``z0 .. z{m-1}``.
 OPTIONAL_COLUMNS = ("sequence", "detected", "vx", "vy")
-
-
-def read_env_config(path: Path) -> EnvConfig:
-    """The EnvConfig of a YAML or JSON mapping of its fields (a wrong key or type names it)."""
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as err:
-        raise ConfigError(f"{path}: cannot read ({err})") from None
-    if path.suffix not in (".yaml", ".yml", ".json"):
-        raise ConfigError(f"{path}: a configuration file ends in .yaml, .yml or .json")
-    import yaml
-
-    try:
-        data = json.loads(text) if path.suffix == ".json" else load_yaml(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as err:
-        reason = " ".join(str(err).split())
-        raise ConfigError(f"{path}: not valid {path.suffix[1:].upper()} ({reason})") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: must hold a mapping of EnvConfig fields")
-    try:
-        return EnvConfig.build(data)
-    except ConfigError as err:
-        raise ConfigError(f"{path}: {err}") from None
 
 
 def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
@@ -152,8 +134,13 @@ def read_npz(path: Path) -> list[dict[str, Any]]:
     ]
 
 
-def run(sequences: list[dict[str, Any]], policy: Any, config: EnvConfig,
-        velocity: Sequence[float] | None) -> list[tuple[list[str], TrackResult]]:
+def run(
+    sequences: list[dict[str, Any]],
+    policy: Any,
+    config: EnvConfig,
+    velocity: Sequence[float] | None,
+    overrides: Mapping[str, Any],
+) -> list[tuple[list[str], TrackResult]]:
     """:func:`track` on the sequences, batched by length: ``(names, result)`` per batch."""
     if not sequences:
         raise ConfigError("no measurements")
@@ -175,7 +162,9 @@ def run(sequences: list[dict[str, Any]], policy: Any, config: EnvConfig,
                 args["x0"], args["P0"] = _stack(group, "x0"), _stack(group, "P0")
             elif kind == "velocity":
                 args["velocity"] = _stack(group, "velocity")
-            result = track(np.stack([s["z"] for s in group]), policy, config, **args)
+            result = track(
+                np.stack([s["z"] for s in group]), policy, config, overrides=overrides, **args
+            )
             out.append(([s["name"] for s in group], result))
     return out
 
@@ -252,7 +241,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if path.suffix not in (".csv", ".npz"):
             parser.error(f"{name} must end in .csv or .npz, got {path}")
     try:
-        config = EnvConfig() if args.env_config is None else read_env_config(args.env_config)
+        config = EnvConfig.build(
+            None if args.env_config is None else read_env_config(args.env_config)
+        )
         if not args.measurements.is_file():
             raise ConfigError(f"{args.measurements}: no such file")
         sequences = (
@@ -260,8 +251,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.measurements.suffix == ".csv"
             else read_npz(args.measurements)
         )
-        policy, _, _ = make_policy(args.policy, config, args.seed)
-        results = run(sequences, policy, config, args.velocity)
+        policy, overrides, _ = make_policy(args.policy, config, args.seed)
+        if args.policy not in REGISTRY:  # a trained agent: sizes checked, tracker config's
+            overrides, notes = agent_overrides(policy, overrides, config)
+            if notes["tracker_differs"]:
+                print(f"{args.policy} was trained on another {', '.join(notes['tracker_differs'])}"
+                      " than the one it tracks with here", file=sys.stderr)
+        results = run(sequences, policy, config, args.velocity, overrides)
         write(args.out, results)
     except ConfigError as err:
         parser.error(str(err))

@@ -18,6 +18,7 @@ when it is not. ``z[:, 1:]`` are filtered: step ``k`` uses ``z[:, k]``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -146,6 +147,7 @@ def track(
     x0: Any = None,
     P0: Any = None,
     velocity: Any = None,
+    overrides: Mapping[str, Any] | None = None,
 ) -> TrackResult:
     r"""Run ``policy`` on recorded measurements (see the module docstring).
 
@@ -153,16 +155,20 @@ def track(
         z: ``(N, K+1, m)`` measurements of N sequences (or ``(K+1, m)`` for one) in the sensor's
             components (the sonar's range and bearing); ``z[:, 0]`` initiates the track. A NaN
             row is a missed detection when ``detected`` is not given.
-        policy: anything with SB3's ``predict(obs, state, episode_start, deterministic)``; its
-            ``env_overrides`` (if any) are applied to ``config``.
+        policy: anything with SB3's ``predict(obs, state, episode_start, deterministic)``.
         config: the tracker's configuration (default :class:`EnvConfig`): sensor, bank, filter,
-            TPM settings and observation features.
+            TPM settings; its scenario gives the sampling period ``T``.
         detected: ``(N, K+1)`` detection flags (default: the rows of ``z`` without NaN); an
             undetected step is a prediction only.
         x0, P0: ``(N, 4)`` and ``(N, 4, 4)`` initial estimate and covariance (default: from
             ``z[:, 0]`` and ``velocity``).
         velocity: ``(N, 2)`` or ``(2,)`` initial velocity (m/s) with standard deviation
             ``config.velocity_std``; default zero with :data:`UNKNOWN_VELOCITY_STD`.
+        overrides: the EnvConfig fields the policy needs, applied to ``config`` (default: its
+            ``env_overrides``, if any: action mode, observation features, a tuned bank...). A
+            trained agent records the tracker it was trained on among them; to track with
+            ``config``'s, pass them without the sensor, bank and filter (as
+            ``python -m imm_gym.track`` does).
 
     Returns:
         The :class:`TrackResult`, batched (``N = 1`` for a single sequence).
@@ -172,7 +178,9 @@ def track(
             ``x0``.
     """
     base = EnvConfig() if config is None else config
-    cfg = base.replace(**getattr(policy, "env_overrides", {}))
+    if overrides is None:
+        overrides = getattr(policy, "env_overrides", {})
+    cfg = base.replace(**overrides)
     z_in = np.asarray(z, dtype=np.float64)
     single = z_in.ndim == 2
     z_all = _as_batch("z", z_in, 3, single)

@@ -159,3 +159,32 @@ def test_output_suffix_is_checked_first(tmp_path: Path, capsys: pytest.CaptureFi
         main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
               "--out", str(tmp_path / "out.txt")])
     assert "--out must end in .csv or .npz" in capsys.readouterr().err
+
+
+def test_an_agent_tracks_with_the_configured_tracker(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A trained agent recorded with another sensor keeps its own settings and tracks with the
+    configuration's sensor (said on stderr); a bank whose size its network cannot take is
+    refused before any work."""
+    agent = load_agent(PRETRAINED)
+    recorded = {**agent.env_overrides, "sensor": {"sigma_r": 20.0}}
+    monkeypatch.setattr(
+        "imm_gym.cli.track.make_policy", lambda name, base, seed: (agent, recorded, {})
+    )
+    core = TrackingCore(EnvConfig(), n_envs=1)
+    core.reset(np.arange(1), SEEDS[:1])
+    np.savez(tmp_path / "z.npz", z=core.z[0])
+    out = ["--measurements", str(tmp_path / "z.npz"), "--policy", "pretrained",
+           "--out", str(tmp_path / "out.npz")]
+    assert main(out) == 0
+    assert "trained on another sensor" in capsys.readouterr().err
+    expected = imm_gym.track(core.z[0], load_agent(PRETRAINED))
+    with np.load(tmp_path / "out.npz") as result:
+        np.testing.assert_array_equal(result["estimate"], expected.estimate)
+    (tmp_path / "two.yaml").write_text("bank: [{kind: cv}, {kind: ct, turn_rate_deg: 3.0}]\n")
+    (tmp_path / "out.npz").unlink()
+    with pytest.raises(SystemExit):
+        main([*out, "--env-config", str(tmp_path / "two.yaml")])
+    assert "cannot be evaluated on this configuration" in capsys.readouterr().err
+    assert not (tmp_path / "out.npz").exists()
