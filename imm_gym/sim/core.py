@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from imm_gym.scenarios.segments import true_model_index
 from imm_gym.seeding import streams
 from imm_gym.sim.actions import tpm_from_action, validate_action
+from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.engines import choose_engine
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_episodes
@@ -165,8 +166,28 @@ class TrackingCore:
         self.detected[indices] = meas.detected
         self.outlier[indices] = meas.outlier
         self.true_model[indices] = true_model_index(truth, self.models)
-        init = self.imm.init(x0, batch.P0)
-        # copy-on-write: arrays handed out earlier (infos) must not change under the caller
+        self._start(indices, x0, batch.P0)
+
+    def streams(self) -> list[tuple[np.random.Generator, np.random.Generator] | None]:
+        """Each slot's ``(scenario, noise)`` generators (None for a slot never reset): the
+        sequence of episodes a slot reset without a seed continues (what a checkpoint records)."""
+        return list(self._rngs)
+
+    def set_streams(
+        self, generators: list[tuple[np.random.Generator, np.random.Generator]]
+    ) -> None:
+        """Give every slot its ``(scenario, noise)`` generators: its next reset without a seed
+        draws from them (a checkpoint's slots continue where they were)."""
+        if len(generators) != self.n_envs:
+            raise ValueError(f"{len(generators)} stream pairs for {self.n_envs} slots")
+        self._rngs = list(generators)
+
+    def _start(self, indices: NDArray[np.int64], x0: Array, P0: Array) -> None:
+        """Start the slots ``indices`` from the estimate ``x0 (n, 4)``, ``P0 (n, 4, 4)``: every
+        bank at it with uniform probabilities, the TPM at the fixed one, the features'
+        quantities and memories at their start (copy-on-write: arrays handed out earlier, in
+        infos, do not change under the caller)."""
+        init = self.imm.init(x0, P0)
         for bank in ("state_a", "state_b", "state_s"):
             state = getattr(self, bank)
             parts = [a.copy() for a in (state.x, state.P, state.mu)]
@@ -197,20 +218,6 @@ class TrackingCore:
             state = self.memories[name].copy()
             state[indices] = memory.initial(init.mu)
             self.memories[name] = state
-
-    def streams(self) -> list[tuple[np.random.Generator, np.random.Generator] | None]:
-        """Each slot's ``(scenario, noise)`` generators (None for a slot never reset): the
-        sequence of episodes a slot reset without a seed continues (what a checkpoint records)."""
-        return list(self._rngs)
-
-    def set_streams(
-        self, generators: list[tuple[np.random.Generator, np.random.Generator]]
-    ) -> None:
-        """Give every slot its ``(scenario, noise)`` generators: its next reset without a seed
-        draws from them (a checkpoint's slots continue where they were)."""
-        if len(generators) != self.n_envs:
-            raise ValueError(f"{len(generators)} stream pairs for {self.n_envs} slots")
-        self._rngs = list(generators)
 
     # ------------------------------------------------------------------ actions
     def tpm_from_action(self, action: NDArray[Any], tpm: Array | None = None) -> Array:
@@ -259,21 +266,34 @@ class TrackingCore:
             "tpm": out.tpm.copy(),
             "step": step,
         }
-        shadow = cfg.shadow == "fixed"
-        value, terms = self._reward(out)
+        reward, terms = self._reward(out)
         info.update(terms)
+        if cfg.shadow == "fixed":
+            info["shadow_position_error"] = out.shadow_position_error
+        info["diverged"] = diverged = out.diverged
+        self._record(out, k1)
+        truncated = (k1 >= self.horizon) & ~diverged
+        self.done = diverged | truncated
+        if before is not None:
+            self._restore(before, ~np.asarray(active, dtype=bool))
+        if np.count_nonzero(diverged):  # only a diverged slot can carry NaN/inf
+            info = {key: _finite(value) for key, value in info.items()}
+        return StepResult(self.observe(), reward, diverged, truncated, info)
+
+    def _record(self, out: BankStep, k: NDArray[np.int64]) -> None:
+        """Take the banks' step ``out`` as every slot's state at step ``k``: the banks'
+        posteriors (bank A's and B's probabilities are the fused ``U``), the quantities the
+        features read, and the features' memories advanced."""
+        cfg = self.config
         self.state_a = IMMState(out.x_a, out.P_a, out.mode_probs)
         if cfg.parallel:
             self.state_b = IMMState(out.x_b, out.P_b, out.mode_probs)
             self.mu_b = out.mu_b
-        if shadow:
-            info["shadow_position_error"] = out.shadow_position_error
+        if cfg.shadow == "fixed":
             self.state_s = IMMState(out.x_s, out.P_s, out.mu_s)
             self.mu_s = out.mu_s
             self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s
-        diverged = out.diverged
-        info["diverged"] = diverged
-        self.k = k1
+        self.k = k
         self.tpm = out.tpm
         self.mu_prev = self.mu
         self.mu = out.mode_probs
@@ -282,13 +302,6 @@ class TrackingCore:
         self.innovation = out.innovation
         self.velocity_prev, self.velocity = self.velocity, out.velocity
         self._update_memories()
-        truncated = (k1 >= self.horizon) & ~diverged
-        self.done = diverged | truncated
-        if before is not None:
-            self._restore(before, ~np.asarray(active, dtype=bool))
-        if np.count_nonzero(diverged):  # only a diverged slot can carry NaN/inf
-            info = {key: _finite(value) for key, value in info.items()}
-        return StepResult(self.observe(), value, diverged, truncated, info)
 
     _SLOT_ARRAYS = (
         "k",
