@@ -28,8 +28,9 @@ policy — baselines, the best-fixed search and trained agents —; ``--scenario
 replaces the file's scenario and ``--bank`` its bank and filter. A trained agent runs on the
 evaluated tracker (sensor, bank, filter) with its own settings (action mode, features...); the
 JSON gives its ``trained_on`` and ``evaluated_on`` trackers and ``tracker_differs`` (the fields
-that differ, also said under the table); an agent whose observation or action size the evaluated
-configuration does not give is refused before any work.
+that differ, also said under the table) and ``meta.env_config`` the file (the overrides when
+called from Python; the paper's Table 2 rows are printed only without one); an agent whose
+observation or action size the evaluated configuration does not give is refused before any work.
 """
 
 from __future__ import annotations
@@ -219,7 +220,7 @@ def evaluate(
         "steps": base.source.horizon,
         "filter": base.filter,
         "bank": bank,
-        "env_config": None,
+        "env_config": plain(dict(env_config)) if env_config else None,
         "versions": _versions(),
     }
     return results, rollouts
