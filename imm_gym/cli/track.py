@@ -255,8 +255,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.policy not in REGISTRY:  # a trained agent: sizes checked, tracker config's
             overrides, notes = agent_overrides(policy, overrides, config)
             if notes["tracker_differs"]:
-                print(f"{args.policy} was trained on another {', '.join(notes['tracker_differs'])}"
-                      " than the one it tracks with here", file=sys.stderr)
+                fields = notes["tracker_differs"]
+                verb = "differs" if len(fields) == 1 else "differ"
+                print(f"{args.policy} was trained on another tracker (its {' and '.join(fields)} "
+                      f"{verb}): it tracks with the configured one", file=sys.stderr)
         results = run(sequences, policy, config, args.velocity, overrides)
         write(args.out, results)
     except ConfigError as err:

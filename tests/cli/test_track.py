@@ -178,7 +178,7 @@ def test_an_agent_tracks_with_the_configured_tracker(
     out = ["--measurements", str(tmp_path / "z.npz"), "--policy", "pretrained",
            "--out", str(tmp_path / "out.npz")]
     assert main(out) == 0
-    assert "trained on another sensor" in capsys.readouterr().err
+    assert "trained on another tracker (its sensor differs)" in capsys.readouterr().err
     expected = imm_gym.track(core.z[0], load_agent(PRETRAINED))
     with np.load(tmp_path / "out.npz") as result:
         np.testing.assert_array_equal(result["estimate"], expected.estimate)

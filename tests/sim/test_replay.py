@@ -16,6 +16,7 @@ from agents.policy import load_agent
 from baselines import make_baseline
 from imm_gym import ConfigError, EnvConfig, paper_scenario
 from imm_gym.envs.tpm_adapt import TPMAdaptEnv
+from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.sim.replay import UNKNOWN_VELOCITY_STD, ReplayCore, TrackResult, track
 from imm_gym.tracking.initiation import initiate
 from imm_gym.tracking.sensors import Sonar
@@ -80,6 +81,20 @@ def test_track_reproduces_the_env_bit_for_bit(name: str) -> None:
         out = imm_gym.track(z, _policy(name), config, velocity=env["velocity"])
         for i in range(len(SEEDS)):
             _assert_replayed(out, env, i, i)
+
+
+@pytest.mark.parametrize(("name", "bank"), [("window", "paper"), ("tip-imm", "hetero")])
+def test_other_policies_and_banks(name: str, bank: str) -> None:
+    """A rule with a memory (window) and the heterogeneous NCV/CT/CTRA bank (numpy engine,
+    6-d states; tip-imm runs bank B and the fusion) replay bit for bit too."""
+    config = EnvConfig().replace(**BANK_PRESETS[bank])
+    env = _episodes(name, config)
+    out = imm_gym.track(env["z"], _policy(name), config, env["detected"], velocity=env["velocity"])
+    for i in range(len(SEEDS)):
+        for key in ("mode_probs", "tpm"):
+            np.testing.assert_array_equal(getattr(out, key)[i], env[key][i], err_msg=key)
+        np.testing.assert_array_equal(out.estimate[i], env["estimate"][i][..., :4])
+        np.testing.assert_array_equal(out.covariance[i], env["covariance"][i][..., :4, :4])
 
 
 def test_track_reads_no_truth() -> None:
