@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.tracking.imm import IMMState
 from imm_gym.tracking.initiation import initiate
 from imm_gym.validation import ConfigError
 
@@ -79,52 +79,17 @@ class ReplayCore(TrackingCore):
         del self.truth, self.z, self.detected, self.outlier, self.true_model, self._rngs
 
     def start(self, x0: Array, P0: Array) -> None:
-        """Initiate every slot from ``x0 (N, n)`` and ``P0 (N, n, n)`` as the core's reset does."""
-        init = self.imm.init(x0, P0)
-        for bank in ("state_a", "state_b", "state_s"):
-            setattr(self, bank, IMMState(init.x.copy(), init.P.copy(), init.mu.copy()))
-        N = self.n_envs
-        self.tpm = np.repeat(self.fixed_tpm[None], N, axis=0)
-        self.mu = init.mu.copy()
-        for name in ("mu_prev", "mu_b", "mu_s"):
-            setattr(self, name, init.mu.copy())
-        self.loglik = np.zeros((N, self.M))
-        self.model_nis = np.zeros((N, self.M))
-        self.innovation = np.zeros_like(self.innovation)
-        for name in ("velocity", "velocity_prev", "velocity_s", "velocity_s_prev"):
-            setattr(self, name, x0[:, 2:4].copy())
-        self.k = np.zeros(N, dtype=np.int64)
-        self.done = np.zeros(N, dtype=bool)
-        for name, memory in self._memories.items():
-            state = np.zeros_like(self.memories[name])
-            state[:] = memory.initial(init.mu)
-            self.memories[name] = state
+        """Initiate every slot from ``x0 (N, 4)`` and ``P0 (N, 4, 4)`` as the core's reset does."""
+        self._start(np.arange(self.n_envs), x0, P0)
 
-    def advance(self, action: NDArray[Any], z: Array, detected: NDArray[np.bool_]) -> Any:
+    def advance(self, action: NDArray[Any], z: Array, detected: NDArray[np.bool_]) -> BankStep:
         """One step of every slot with the policy's ``action (N, M*M)``, the measurements
-        ``z (N, m)`` and their flags ``detected (N,)``; the state is updated as
-        :meth:`TrackingCore.step` updates it. Returns the engine's
-        :class:`~imm_gym.sim.bank_step.BankStep` (its error and divergence fields are
-        meaningless: no truth)."""
+        ``z (N, m)`` and their flags ``detected (N,)``, recorded as :meth:`TrackingCore.step`
+        records it. Returns the engine's :class:`~imm_gym.sim.bank_step.BankStep` (its error and
+        divergence fields are meaningless: no truth)."""
         no_truth = np.full((self.n_envs, self.n), np.nan)
         out = self._advance(self, self.validate_action(action), z, detected, no_truth)
-        self.state_a = IMMState(out.x_a, out.P_a, out.mode_probs)
-        if self.config.parallel:
-            self.state_b = IMMState(out.x_b, out.P_b, out.mode_probs)
-            self.mu_b = out.mu_b
-        if self.config.shadow == "fixed":
-            self.state_s = IMMState(out.x_s, out.P_s, out.mu_s)
-            self.mu_s = out.mu_s
-            self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s
-        self.k = self.k + 1
-        self.tpm = out.tpm
-        self.mu_prev = self.mu
-        self.mu = out.mode_probs
-        self.loglik = out.loglik
-        self.model_nis = out.model_nis
-        self.innovation = out.innovation
-        self.velocity_prev, self.velocity = self.velocity, out.velocity
-        self._update_memories()
+        self._record(out, self.k + 1)
         return out
 
 
