@@ -19,7 +19,7 @@ from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import Batch, draw_batch
-from imm_gym.sim.replay import TrackResult, track
+from imm_gym.sim.replay import TrackResult, run_policy
 from imm_gym.tracking.filters import (
     ExtendedKalmanFilter,
     KalmanFilter,
@@ -79,10 +79,10 @@ __all__ = [
     "paper_bank",
     "paper_scenario",
     "predict",
+    "run_policy",
     "stay_tpm",
     "streams",
     "tpm_from_sojourn",
-    "track",
     "update_mode_probs",
     "validate_tpm",
 ]

@@ -1,5 +1,5 @@
-"""``python -m imm_gym.track``: any policy on recorded measurements (:mod:`imm_gym.cli.track`).
-Run it, don't import it: importing ``imm_gym.track`` would shadow the function ``imm_gym.track``."""
+"""``python -m imm_gym.track``: any policy on recorded measurements (:mod:`imm_gym.cli.track`;
+from Python, :func:`imm_gym.run_policy`)."""
 
 from imm_gym.cli.track import main
 

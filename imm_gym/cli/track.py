@@ -6,7 +6,7 @@ Example::
     python -m imm_gym.track --measurements radar.npz --policy tip-imm \\
         --env-config my_tracker.yaml --out tracks.npz
 
-Runs :func:`imm_gym.sim.replay.track` (the policy's whole observation pipeline, no truth) on
+Runs :func:`imm_gym.sim.replay.run_policy` (the policy's whole observation pipeline, no truth) on
 every recorded sequence and writes, per step, the estimate, its covariance, the mode
 probabilities and the TPM used. ``--policy`` is a baseline's name, ``pretrained`` or a trained
 agent's directory, resolved as ``python -m imm_gym.evaluate`` resolves them (a tuned baseline
@@ -56,7 +56,7 @@ from baselines import REGISTRY
 from imm_gym.cli.evaluate import agent_overrides, make_policy
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.replay import TrackResult, track
+from imm_gym.sim.replay import TrackResult, run_policy
 from imm_gym.validation import ConfigError
 
 #: Optional input columns of a CSV file besides ``z0 .. z{m-1}``.
@@ -141,7 +141,7 @@ def run(
     velocity: Sequence[float] | None,
     overrides: Mapping[str, Any],
 ) -> list[tuple[list[str], TrackResult]]:
-    """:func:`track` on the sequences, batched by length: ``(names, result)`` per batch."""
+    """:func:`run_policy` on the sequences, batched by length: ``(names, result)`` per batch."""
     if not sequences:
         raise ConfigError("no measurements")
     by_length: dict[int, list[dict[str, Any]]] = {}
@@ -162,7 +162,7 @@ def run(
                 args["x0"], args["P0"] = _stack(group, "x0"), _stack(group, "P0")
             elif kind == "velocity":
                 args["velocity"] = _stack(group, "velocity")
-            result = track(
+            result = run_policy(
                 np.stack([s["z"] for s in group]), policy, config, overrides=overrides, **args
             )
             out.append(([s["name"] for s in group], result))

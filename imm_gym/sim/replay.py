@@ -1,10 +1,10 @@
 r"""Running a policy on recorded measurements: the environment's step without its truth.
 
-:func:`track` feeds measurements ``z (N, K+1, m)`` of N recorded sequences through a policy's
+:func:`run_policy` feeds measurements ``z (N, K+1, m)`` of N recorded sequences through a policy's
 whole observation pipeline, as :class:`~imm_gym.sim.core.TrackingCore` does in an episode: bank A
 with the TPM the policy's action produces, bank B and the fused probabilities (``parallel``), the
 shadow IMM, the features' memories and the observation — by the same engine
-(:mod:`imm_gym.sim.engines`), so a simulated episode's measurements handed to :func:`track`
+(:mod:`imm_gym.sim.engines`), so a simulated episode's measurements handed to :func:`run_policy`
 give the environment's estimates, mode probabilities and TPMs bit for bit. No truth is drawn or
 read: the replay core has no truth arrays, and the engine's truth-based outputs (errors, the
 divergence flag) are computed against a NaN stand-in and discarded.
@@ -40,7 +40,7 @@ UNKNOWN_VELOCITY_STD = 30.0
 
 @dataclass(frozen=True)
 class TrackResult:
-    """The per-step outputs of :func:`track` (N sequences, K filtered steps, M models).
+    """The per-step outputs of :func:`run_policy` (N sequences, K filtered steps, M models).
 
     Attributes:
         estimate: ``(N, K, 4)`` combined estimates ``[x, y, vx, vy]`` after step ``k = 1..K``.
@@ -104,7 +104,7 @@ def _as_batch(name: str, value: Any, ndim: int, single: bool) -> Array:
     return array
 
 
-def track(
+def run_policy(
     z: Any,
     policy: Any,
     config: EnvConfig | None = None,

@@ -1,5 +1,5 @@
 """python -m imm_gym.track: recorded measurements in (CSV, NPZ), per-step estimates, covariances,
-mode probabilities and TPMs out, equal to the env's episode and to imm_gym.track; --env-config
+mode probabilities and TPMs out, equal to the env's episode and to imm_gym.run_policy; --env-config
 sets the tracker; bad inputs are usage errors naming the file and the column or key."""
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def test_csv_in_csv_out_is_the_env_episode(tmp_path: Path, capsys: pytest.Captur
 
 def test_npz_through_python_m_with_the_agent_and_a_config_file(tmp_path: Path) -> None:
     """``python -m imm_gym.track`` (the shim) with the shipped agent on a tracker given by a
-    YAML file: the NPZ holds what imm_gym.track returns for that configuration."""
+    YAML file: the NPZ holds what imm_gym.run_policy returns for that configuration."""
     config = EnvConfig(sensor=Sonar(sigma_r=20.0))
     core = TrackingCore(config, n_envs=2)
     core.reset(np.arange(2), SEEDS)
@@ -98,9 +98,9 @@ def test_npz_through_python_m_with_the_agent_and_a_config_file(tmp_path: Path) -
         cwd=ROOT, capture_output=True, text=True, check=False,
     )
     assert done.returncode == 0, done.stderr
-    expected = imm_gym.track(core.z, load_agent(PRETRAINED), config,
+    expected = imm_gym.run_policy(core.z, load_agent(PRETRAINED), config,
                              velocity=core.truth[:, 0, 2:4])
-    default = imm_gym.track(core.z, load_agent(PRETRAINED), velocity=core.truth[:, 0, 2:4])
+    default = imm_gym.run_policy(core.z, load_agent(PRETRAINED), velocity=core.truth[:, 0, 2:4])
     with np.load(tmp_path / "out.npz") as out:
         for key in ("estimate", "covariance", "mode_probs", "tpm", "x0", "P0", "diverged"):
             np.testing.assert_array_equal(out[key], getattr(expected, key), err_msg=key)
@@ -109,7 +109,7 @@ def test_npz_through_python_m_with_the_agent_and_a_config_file(tmp_path: Path) -
 
 def test_velocity_flag_and_sequences_of_different_lengths(tmp_path: Path) -> None:
     """``--velocity`` starts sequences that give none; a short and a long sequence both come
-    back, each as imm_gym.track gives it alone."""
+    back, each as imm_gym.run_policy gives it alone."""
     core = TrackingCore(EnvConfig(), n_envs=2)
     core.reset(np.arange(2), SEEDS)
     with (tmp_path / "z.csv").open("w", newline="") as handle:
@@ -123,7 +123,7 @@ def test_velocity_flag_and_sequences_of_different_lengths(tmp_path: Path) -> Non
     _, table = _read_csv(tmp_path / "out.csv")
     assert table.shape[0] == 30 + 50
     for n, (first, length) in enumerate(((0, 30), (30, 50))):
-        alone = imm_gym.track(core.z[n, : length + 1], make_baseline("fixed"),
+        alone = imm_gym.run_policy(core.z[n, : length + 1], make_baseline("fixed"),
                               velocity=[3.0, -4.0])
         np.testing.assert_array_equal(table[first:first + length, 1:5], alone.estimate[0])
 
@@ -179,7 +179,7 @@ def test_an_agent_tracks_with_the_configured_tracker(
            "--out", str(tmp_path / "out.npz")]
     assert main(out) == 0
     assert "trained on another tracker (its sensor differs)" in capsys.readouterr().err
-    expected = imm_gym.track(core.z[0], load_agent(PRETRAINED))
+    expected = imm_gym.run_policy(core.z[0], load_agent(PRETRAINED))
     with np.load(tmp_path / "out.npz") as result:
         np.testing.assert_array_equal(result["estimate"], expected.estimate)
     (tmp_path / "two.yaml").write_text("bank: [{kind: cv}, {kind: ct, turn_rate_deg: 3.0}]\n")

@@ -1,7 +1,7 @@
-"""imm_gym.track replays the environment: a simulated episode's measurements, detection flags and
-initial velocity handed to track() give the env's estimates, covariances, mode probabilities and
-TPMs bit for bit (fixed TPM, TIP-IMM, the shipped agent; two sequences in one batch), without any
-truth."""
+"""imm_gym.run_policy replays the environment: a simulated episode's measurements, detection
+flags and initial velocity handed to run_policy() give the env's estimates, covariances, mode
+probabilities and TPMs bit for bit (fixed TPM, TIP-IMM, the shipped agent; two sequences in one
+batch), without any truth."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from baselines import make_baseline
 from imm_gym import ConfigError, EnvConfig, paper_scenario
 from imm_gym.envs.tpm_adapt import TPMAdaptEnv
 from imm_gym.sim.presets import BANK_PRESETS
-from imm_gym.sim.replay import UNKNOWN_VELOCITY_STD, ReplayCore, TrackResult, track
+from imm_gym.sim.replay import UNKNOWN_VELOCITY_STD, ReplayCore, TrackResult, run_policy
 from imm_gym.tracking.initiation import initiate
 from imm_gym.tracking.sensors import Sonar
 
@@ -75,10 +75,10 @@ def test_track_reproduces_the_env_bit_for_bit(name: str) -> None:
     # one sequence at a time, as the scalar env ran them (a network's actions may differ in the
     # last bit between batch sizes), and, for the rule policies, both in one batch
     for i in range(len(SEEDS)):
-        out = imm_gym.track(z[i], _policy(name), config, velocity=env["velocity"][i])
+        out = imm_gym.run_policy(z[i], _policy(name), config, velocity=env["velocity"][i])
         _assert_replayed(out, env, i, 0)
     if name != "pretrained":
-        out = imm_gym.track(z, _policy(name), config, velocity=env["velocity"])
+        out = imm_gym.run_policy(z, _policy(name), config, velocity=env["velocity"])
         for i in range(len(SEEDS)):
             _assert_replayed(out, env, i, i)
 
@@ -89,7 +89,9 @@ def test_other_policies_and_banks(name: str, bank: str) -> None:
     6-d states; tip-imm runs bank B and the fusion) replay bit for bit too."""
     config = EnvConfig().replace(**BANK_PRESETS[bank])
     env = _episodes(name, config)
-    out = imm_gym.track(env["z"], _policy(name), config, env["detected"], velocity=env["velocity"])
+    out = imm_gym.run_policy(
+        env["z"], _policy(name), config, env["detected"], velocity=env["velocity"]
+    )
     for i in range(len(SEEDS)):
         for key in ("mode_probs", "tpm"):
             np.testing.assert_array_equal(getattr(out, key)[i], env[key][i], err_msg=key)
@@ -107,7 +109,7 @@ def test_track_reads_no_truth() -> None:
     other = EnvConfig(scenario=paper_scenario())
     assert other.source.T == EnvConfig().source.T
     for i in range(len(SEEDS)):
-        out = track(
+        out = run_policy(
             env["z"][i], _policy("pretrained"), other, env["detected"][i],
             velocity=env["velocity"][i],
         )
@@ -120,15 +122,15 @@ def test_single_sequence_initial_state_and_engines() -> None:
     UNKNOWN_VELOCITY_STD; x0/P0 given are used as they are; the numpy engine agrees."""
     env = _episodes("tip-imm", EnvConfig())
     z = env["z"][0]
-    out = track(z, _policy("tip-imm"))
+    out = run_policy(z, _policy("tip-imm"))
     x0, P0 = initiate(Sonar(), z[:1], np.zeros(2), UNKNOWN_VELOCITY_STD)
     np.testing.assert_array_equal(out.x0, x0)
     np.testing.assert_array_equal(out.P0, P0)
     assert out.estimate.shape == (1, z.shape[0] - 1, 4)
     start_x, start_P = initiate(Sonar(), z[:1], env["velocity"][0], 5.0)
-    given = track(z, _policy("tip-imm"), x0=start_x[0], P0=start_P[0])
+    given = run_policy(z, _policy("tip-imm"), x0=start_x[0], P0=start_P[0])
     np.testing.assert_array_equal(given.estimate[0], env["estimate"][0])
-    numpy_engine = track(
+    numpy_engine = run_policy(
         z, _policy("tip-imm"), EnvConfig(engine="numpy"), x0=start_x[0], P0=start_P[0]
     )
     np.testing.assert_allclose(numpy_engine.estimate, given.estimate, rtol=1e-9, atol=1e-6)
@@ -140,14 +142,15 @@ def test_bad_inputs_are_config_errors() -> None:
     z = np.ones((5, 2)) * [1000.0, 0.1]
     policy = _policy("fixed")
     with pytest.raises(ConfigError, match="z must be"):
-        track(np.ones((5, 3)), policy)
+        run_policy(np.ones((5, 3)), policy)
     with pytest.raises(ConfigError, match="detected must have shape"):
-        track(z, policy, detected=np.ones(4, dtype=bool))
+        run_policy(z, policy, detected=np.ones(4, dtype=bool))
     with pytest.raises(ConfigError, match="not finite"):
-        track(np.where(np.arange(5)[:, None] == 2, np.nan, z), policy, detected=np.ones(5, bool))
+        run_policy(np.where(np.arange(5)[:, None] == 2, np.nan, z), policy, detected=np.ones(5,
+        bool))
     with pytest.raises(ConfigError, match="initiates the track"):
-        track(np.where(np.arange(5)[:, None] == 0, np.nan, z), policy)
+        run_policy(np.where(np.arange(5)[:, None] == 0, np.nan, z), policy)
     with pytest.raises(ConfigError, match="x0 needs P0"):
-        track(z, policy, x0=np.zeros(4))
+        run_policy(z, policy, x0=np.zeros(4))
     with pytest.raises(ConfigError, match="P0 needs x0"):
-        track(z, policy, P0=np.eye(4))
+        run_policy(z, policy, P0=np.eye(4))
