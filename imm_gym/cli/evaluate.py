@@ -541,11 +541,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         results["meta"]["scenario"] = args.scenario
     elif results["meta"]["scenario"] == "file":
         results["meta"]["scenario"] = str(args.env_config)
-    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
     render_tables(results)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(results, indent=2))
+    _record(results, args.json)
     if args.plots:
         from imm_gym.evaluation.plots import write_figures
 
@@ -626,11 +623,8 @@ def _main_suite(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
         )
     except ConfigError as err:
         parser.error(str(err))
-    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
     render_suite_table(results)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(results, indent=2))
+    _record(results, args.json)
     return 0
 
 
@@ -657,11 +651,14 @@ def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
         results = evaluate_system(args.scenario, args.policy, args.runs, args.seed, tuned)
     except ValueError as err:
         parser.error(str(err))
-    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
     render_system_tables(results)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(results, indent=2))
+    _record(results, args.json)
     return 0
 
 
+def _record(results: dict[str, Any], path: Path | None) -> None:
+    """The command line in the results' ``meta`` and, with ``--json``, the results written."""
+    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
+    if path:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(results, indent=2))
