@@ -315,8 +315,8 @@ class IMM:
         #: the engine that runs :meth:`step`: ``"compiled"`` or ``"numpy"``
         self.engine = self._choose_engine(engine)
         #: the compiled kernel's bank constants ``(F, Q, R, sensor kind, sensor params, filter
-        #: kind, wm, wc, gamma)`` (:func:`imm_gym.tracking.kernels.imm.imm_step`); None with the
-        #: numpy engine
+        #: kind, wm, wc, gamma)`` (:func:`imm_gym.tracking.kernels.imm.imm_step`; ``F``, ``Q``,
+        #: ``R`` with a leading axis of 1: one bank for all trackers); None with the numpy engine
         self.kernel_args: tuple | None = None
         if self.engine == "compiled":
             kind, params = kernels.sensor_spec(sensor)  # type: ignore[misc]
@@ -327,7 +327,9 @@ class IMM:
                 wm = wc = np.zeros(1)
                 gamma, fkind = 0.0, kernels.EKF
             R = np.ascontiguousarray(sensor.R, dtype=np.float64)
-            self.kernel_args = (self.F, self.Q, R, kind, params, fkind, wm, wc, gamma)
+            self.kernel_args = (
+                self.F[None], self.Q[None], R[None], kind, params, fkind, wm, wc, gamma
+            )
 
     def _choose_engine(self, engine: str) -> str:
         if engine not in ENGINES:

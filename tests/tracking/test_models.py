@@ -380,7 +380,7 @@ def test_paper_bank_noise_unchanged_bit_for_bit(T: float) -> None:
     compiled = IMM(paper_bank(), Sonar(), T=T, engine="compiled")
     np.testing.assert_array_equal(numpy_imm.Q, np.stack([cv, ct, ct]))
     assert compiled.kernel_args is not None
-    np.testing.assert_array_equal(compiled.kernel_args[1], np.stack([cv, ct, ct]))
+    np.testing.assert_array_equal(compiled.kernel_args[1][0], np.stack([cv, ct, ct]))
     assert all(m.noise == "discrete" and m.intensity is None for m in paper_bank())
     assert EnvConfig().bank == paper_bank()
     assert BANK_PRESETS["paper"] == {}

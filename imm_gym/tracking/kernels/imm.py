@@ -145,21 +145,22 @@ def _ukf_moments_lanes(
     wm: Array,
     wc: Array,
     gamma: float,
-    R: Array,
     zp: Array,
     S: Array,
     C: Array,
     O: Array,
     Z: Array,
 ) -> None:  # pragma: no cover
-    """SVD-UKF predicted measurements ``zp[:, l]``, innovation covariances ``S[:, :, l]`` and
-    cross covariances ``C[:, :, l]`` of the lanes ``l < lanes`` (one model of one tracker each).
+    """SVD-UKF predicted measurements ``zp[:, l]``, spreads of the predicted measurement
+    ``S[:, :, l]`` (the innovation covariance without ``R``, added per tracker by
+    :func:`_from_lanes`) and cross covariances ``C[:, :, l]`` of the lanes ``l < lanes`` (one
+    model of one tracker each).
 
     Sigma offsets ``O_0 = 0``, ``O_{1+i} = -O_{1+n+i} = gamma sqrt|s_i| U_{:, i}`` from the
     eigendecomposition ``Pp = U diag(s) U^T`` of the predicted covariance (lane ``l`` of
     :func:`jacobi_eig_lanes`'s output; ``xp[l]`` the predicted state), ``Z_k = h(xp + O_k) -
     h(xp)`` (bearing wrapped: averaged as residuals about the centre point),
-    ``zp = h(xp) + sum_k wm_k Z_k``, ``S = sum_k wc_k dZ_k dZ_k^T + R``,
+    ``zp = h(xp) + sum_k wm_k Z_k``, ``S = sum_k wc_k dZ_k dZ_k^T``,
     ``C = sum_k wc_k O_k dZ_k^T`` with ``dZ_k = Z_k - sum_k wm_k Z_k``. Lane by lane the
     operations and their order are those of a single model; each step is a loop over the lanes
     (``O``, ``Z``: ``(2n+1, n, L)``, ``(2n+1, m, L)`` scratch), vectorized except ``atan2``.
@@ -224,9 +225,6 @@ def _ukf_moments_lanes(
             for k in range(L):
                 for lane in range(lanes):
                     S[r, c, lane] += wc[k] * Z[k, r, lane] * Z[k, c, lane]
-            for lane in range(lanes):
-                S[r, c, lane] = S[r, c, lane] + 0.5 * (R[r, c] + R[c, r])
-                S[c, r, lane] = S[r, c, lane]
     for r in range(n):
         for c in range(m):
             for lane in range(lanes):
@@ -238,15 +236,17 @@ def _ukf_moments_lanes(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _from_lanes(
-    zp_l: Array, S_l: Array, C_l: Array, lane: int, j: int, zp: Array, S: Array, C: Array
+    zp_l: Array, S_l: Array, C_l: Array, R: Array, lane: int, j: int, zp: Array, S: Array,
+    C: Array,
 ) -> None:  # pragma: no cover
-    """Model ``j``'s ``zp[j]``, ``S[j]``, ``C`` from lane ``lane`` of
-    :func:`_ukf_moments_lanes`'s outputs."""
+    """Model ``j``'s ``zp[j]``, ``S[j] = S_l + (R + R^T) / 2``, ``C`` from lane ``lane`` of
+    :func:`_ukf_moments_lanes`'s outputs (``R``: the tracker's measurement noise)."""
     n, m = C.shape
     for r in range(m):
         zp[j, r] = zp_l[r, lane]
-        for c in range(m):
-            S[j, r, c] = S_l[r, c, lane]
+        for c in range(r, m):
+            S[j, r, c] = S_l[r, c, lane] + 0.5 * (R[r, c] + R[c, r])
+            S[j, c, r] = S[j, r, c]
     for r in range(n):
         for c in range(m):
             C[r, c] = C_l[r, c, lane]
@@ -326,7 +326,9 @@ def imm_step(
     diverged tracker); those are flagged in ``failed_out`` and their outputs filled with NaN, the
     others are unaffected.
 
-    ``tpm`` is ``(N, M, M)`` (a broadcast view is fine). Per tracker: mixing (SPEC §1 step 1),
+    ``tpm`` is ``(N, M, M)`` (a broadcast view is fine). ``F``, ``Q`` (``(B, M, n, n)``) and
+    ``R`` (``(B, m, m)``) hold one bank per tracker (``B = N``: trackers at their own sampling
+    period and sensor noise) or one for all (``B = 1``). Per tracker: mixing (SPEC §1 step 1),
     ``x = F x0``, ``P = F P0 F^T + Q``, the UKF or EKF update (Joseph form for the EKF), the
     log-domain probability update, the combination with the spread term, and (with
     ``mixture_nis``; else ``nis_out`` is 0) the NIS of the moment-matched predicted measurement
@@ -371,24 +373,28 @@ def imm_step(
     IKH = np.empty((n, n))
     T1 = np.empty((n, n))
     logpost = np.empty(M)
+    per_tracker = F.shape[0] > 1  # else one bank for all trackers
     failures = 0
     for t in range(N):
         b = t % TRACKER_BLOCK  # row of tracker t in its block
         if b == 0:  # 1. mixing and prediction of the block, 2a. its eigendecompositions
             nb = min(TRACKER_BLOCK, N - t)
             for i in range(nb):
-                _mix_predict(t + i, i, x, P, mu, tpm, F, Q, cbar, xp, Pp, x0, P0, w, spread, FP)
+                g = t + i if per_tracker else 0
+                _mix_predict(t + i, i, x, P, mu, tpm, F[g], Q[g], cbar, xp, Pp, x0, P0, w, spread,
+                             FP)
             if filter_kind == UKF:
                 _to_lanes(Pp, nb, eig)
                 jacobi_eig_lanes(eig, U, nb * M, JACOBI_MAX_SWEEPS)
                 _ukf_moments_lanes(xp_lanes, eig, U, nb * M, sensor_kind, sensor_params, wm, wc,
-                                   gamma, R, zp_l, S_l, C_l, O_l, Z_l)
+                                   gamma, zp_l, S_l, C_l, O_l, Z_l)
+        Rt = R[t if per_tracker else 0]
         failed_out[t] = False
         for j in range(M):
             if filter_kind == UKF:
-                _from_lanes(zp_l, S_l, C_l, b * M + j, j, zp, S, C)
+                _from_lanes(zp_l, S_l, C_l, Rt, b * M + j, j, zp, S, C)
             else:
-                _ekf_moments(xp, Pp, b, sensor_kind, sensor_params, R, j, zp, S, C, H, hz)
+                _ekf_moments(xp, Pp, b, sensor_kind, sensor_params, Rt, j, zp, S, C, H, hz)
             for r in range(m):
                 for c in range(m):
                     Sj[r, c] = S[j, r, c]
@@ -463,7 +469,7 @@ def imm_step(
                             acc += FP[r, k] * IKH[c, k]
                         for k in range(m):
                             for l in range(m):
-                                acc += K[r, k] * R[k, l] * K[c, l]
+                                acc += K[r, k] * Rt[k, l] * K[c, l]
                         T1[r, c] = acc
             for r in range(n):
                 for c in range(n):
