@@ -1,11 +1,15 @@
 # Two entry points: `make train` (the main job) and `make test`.
 # Both create .venv and install the CPU build of PyTorch first, so pip never pulls a CUDA build.
-PYTHON ?= python3
-VENV   ?= .venv
-PY     := $(VENV)/bin/python
-TORCH  ?= torch==2.13.0
+# `make install-ray` / `make test-ray`: a second venv, .venv-ray, with the `ray` optional group
+# (RLlib pins gymnasium 1.2.2); README, "Scaling out".
+PYTHON   ?= python3
+VENV     ?= .venv
+PY       := $(VENV)/bin/python
+TORCH    ?= torch==2.13.0
+VENV_RAY ?= .venv-ray
+PY_RAY   := $(VENV_RAY)/bin/python
 
-.PHONY: install train test lint bench clean
+.PHONY: install train test lint bench clean install-ray test-ray
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,8 +28,23 @@ test: install
 	$(VENV)/bin/lint-imports --no-cache --no-logo
 	$(PY) -m pytest $(ARGS)
 
+$(VENV_RAY)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV_RAY)
+	$(PY_RAY) -m pip install --quiet --upgrade pip
+	$(PY_RAY) -m pip install --quiet "$(TORCH)"
+	$(PY_RAY) -m pip install --quiet -e ".[dev,ray]"
+	touch $@
+
+install-ray: $(VENV_RAY)/.installed
+
+# The Ray tests (tests/ray: a two-node cluster on this machine), then the core suite under the
+# gymnasium that RLlib pins.
+test-ray: install-ray
+	$(PY_RAY) -m pytest -m ray tests/ray $(ARGS)
+	$(PY_RAY) -m pytest $(ARGS)
+
 bench: install
 	$(PY) benchmarks/bench_imm.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) $(VENV_RAY) build *.egg-info .pytest_cache .ruff_cache .hypothesis

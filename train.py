@@ -5,6 +5,7 @@
     python train.py --timesteps 200000 --out runs/quick
     python train.py --resume runs/default/seed_0/checkpoints/latest
     python train.py --env-config examples/my_tracker.yaml --timesteps 200000
+    python train.py --engine rllib --env-runners 2 --timesteps 200000   # Ray RLlib (pip .[ray])
 
 Each seed writes ``OUT/seed_S/``: ``agent/`` (network, normalizer, env overrides), ``best/``,
 ``checkpoints/``, ``tb/`` (TensorBoard), ``training.json``, ``results.json``, ``report.md`` and
@@ -23,6 +24,12 @@ on that configuration: its fields are applied over the entry's ``env_kwargs`` an
 them in the checkpoint and in the agent's ``env.json`` (what ``python -m imm_gym.evaluate``
 reports as the agent's ``trained_on``); the evaluation after training runs the paper scenario
 and the held-out randomized family (the file's ``family``) on the file's tracker.
+
+``--engine rllib`` trains with Ray RLlib's PPO instead (:mod:`agents.rllib`: ``--env-runners K``
+runners each stepping the native vector env, on a local Ray instance or the cluster at
+``--ray-address``); the agent is exported to the same data files, validated and evaluated
+the same way. It writes no resumable checkpoints (``--resume`` is SB3's), and trains without the
+asymmetric critic and the weight average (said when it starts; README, "Scaling out").
 
 Ctrl-C (or SIGTERM) never loses training: the signal only sets a flag, checked after every
 environment step, upon which ``checkpoints/latest`` is saved and the job exits with status 130
@@ -52,6 +59,7 @@ from agents.training import DEFAULT_ENTRY, set_threads
 
 BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
 ALGOS = ("ppo", "recurrent-ppo")
+ENGINES = ("sb3", "rllib")
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -117,6 +125,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--random-runs", type=int, default=1000)
     p.add_argument("--no-eval", action="store_true", help="train only")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--engine",
+        choices=ENGINES,
+        default="sb3",
+        help="sb3: stable-baselines3 in this process; rllib: Ray RLlib's PPO (needs the ray "
+        "optional group; no resumable checkpoints)",
+    )
+    p.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="--engine rllib: the Ray cluster to join (auto, or HOST:PORT of `ray start --head`);"
+        " default: a local Ray instance",
+    )
+    p.add_argument(
+        "--env-runners",
+        type=int,
+        default=1,
+        metavar="K",
+        help="--engine rllib: env runners sampling in parallel (0: the driver samples)",
+    )
     return p
 
 
@@ -169,6 +197,19 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
         parser.error("--paper-runs and --random-runs must be >= 1")
     if args.config is not None and not args.config.is_file():
         parser.error(f"--config file {str(args.config)!r} does not exist")
+    if args.engine == "rllib":
+        if args.resume is not None:
+            parser.error("--resume continues SB3 runs; --engine rllib writes no checkpoints")
+        if args.algo != "ppo":
+            parser.error(f"--engine rllib trains --algo ppo, got --algo {args.algo}")
+        if args.env_runners < 0:
+            parser.error(f"--env-runners must be >= 0, got {args.env_runners}")
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            parser.error("--engine rllib needs Ray: pip install -e '.[ray]' (make install-ray)")
+    elif args.ray_address is not None or args.env_runners != 1:
+        parser.error("--ray-address and --env-runners apply to --engine rllib")
     args.env_overrides = {}
     if args.env_config is not None:
         from imm_gym.sim.config_file import read_env_config
@@ -490,6 +531,122 @@ def train_one(
     return agent_dir, stats
 
 
+def train_one_rllib(
+    args: argparse.Namespace,
+    params: dict[str, Any],
+    seed: int,
+    run_dir: Path,
+    stop: StopRequest,
+) -> Any:
+    """Train one seed with RLlib's PPO (:mod:`agents.rllib`); returns the agent's directory and
+    the statistics, as :func:`train_one`. Every ``--validate-every`` steps the policy is exported
+    and scored on the validation runs, the best kept in ``best/``; ``agent/`` is that best (the
+    last policy with ``--validate-every 0``)."""
+    import tempfile
+
+    import ray
+
+    from agents import rllib
+    from agents.policy import load_agent
+    from agents.training import VALIDATION_SEED_BASE
+    from imm_gym.envs import PRESETS
+    from imm_gym.evaluation.rollout import evaluation_config, rollout, score
+    from imm_gym.sim.env_config import EnvConfig
+
+    for key, instead in rllib.not_ported(params).items():
+        print(f"--engine rllib: {key} not ported: {instead}", flush=True)
+    if not ray.is_initialized():
+        ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False)
+    ledger, ledger_name = rllib.start_ledger(seed)
+    algo = rllib.ppo_config(params, args.env, seed, args.env_runners, ledger_name).build_algo()
+    log_std = params.get("policy_kwargs", {}).get("log_std_init")
+    if log_std is not None:
+        rllib.set_log_std(algo, float(log_std))
+    total = int(params["n_timesteps"])
+    best_dir, agent_dir = run_dir / "best", run_dir / "agent"
+    best: dict[str, Any] = {"armse_pos": None}
+    history: list[dict[str, float]] = []
+    steps = 0
+
+    def export(directory: Path) -> None:
+        rllib.export_agent(
+            algo, directory, params, args.env, {"seed": seed, "num_timesteps": steps}
+        )
+
+    def validate() -> float:
+        """Export the live policy, score it on the validation runs, keep it if the best."""
+        with tempfile.TemporaryDirectory(dir=run_dir) as tmp:
+            export(Path(tmp))
+            policy = load_agent(tmp)
+            config = evaluation_config(EnvConfig.build(PRESETS[args.env]), policy.env_overrides)
+            runs = args.validation_runs
+            armse = float(score(rollout(policy, config, runs, VALIDATION_SEED_BASE))["armse_pos"])
+            history.append({"timesteps": steps, "armse_pos": armse})
+            if best["armse_pos"] is None or armse < best["armse_pos"]:
+                best.update(armse_pos=armse, timesteps=steps)
+                if best_dir.exists():
+                    shutil.rmtree(best_dir)
+                shutil.copytree(tmp, best_dir)
+        (best_dir / "validation.json").write_text(json.dumps({**best, "history": history}))
+        return armse
+
+    print(
+        f"seed {seed}: training ppo on {args.env} with RLlib, {args.env_runners} env runner(s), "
+        f"to {total:,} steps",
+        flush=True,
+    )
+    start = time.perf_counter()
+    next_validation = args.validate_every
+    while steps < total and not stop.requested:
+        steps = rllib.env_steps(algo.train())
+        armse = None
+        if args.validate_every and steps >= next_validation:
+            next_validation += args.validate_every
+            armse = validate()
+        if armse is not None or not args.no_progress:
+            elapsed = time.perf_counter() - start
+            print(progress_line(steps, 0, total, elapsed, armse), flush=True)
+    seconds = time.perf_counter() - start
+    if stop.requested:
+        export(agent_dir)
+        algo.stop()
+        stop.exit(f"interrupted at {steps:,} steps: the last policy is in {agent_dir}")
+    if args.validate_every:
+        if not history or history[-1]["timesteps"] != steps:
+            validate()
+        if agent_dir.exists():
+            shutil.rmtree(agent_dir)
+        shutil.copytree(best_dir, agent_dir)
+        selected = {k: v for k, v in best.items() if k != "history"}
+    else:
+        export(agent_dir)
+        selected = {"timesteps": steps}
+    assignments = ray.get(ledger.records.remote())
+    seeds = [s for a in assignments for s in a["seeds"]]
+    algo.stop()
+    stats = {
+        "engine": "rllib",
+        "env_runners": args.env_runners,
+        "timesteps": steps,
+        "trained_this_call": steps,
+        "seconds": seconds,
+        "fps": steps / seconds if seconds > 0 else 0.0,
+        "selected": selected,
+        "validation": history,
+        "not_ported": rllib.not_ported(params),
+        "sub_env_seeds": {
+            "count": len(seeds),
+            "distinct": len(set(seeds)),
+            "runners": [
+                {k: a[k] for k in ("runner", "generation", "node")} | {"first": a["seeds"][0]}
+                for a in assignments
+            ],
+        },
+    }
+    (run_dir / "training.json").write_text(json.dumps(stats, indent=2))
+    return agent_dir, stats
+
+
 def progress_line(step: int, start: int, total: int, seconds: float, armse: float | None) -> str:
     """``step 250,000/4,000,000, 7,350 steps/s, validation ARMSE 17.912 m, 8 min 30 s left``:
     the rate since this call began (validations included) and the time left at that rate."""
@@ -615,7 +772,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(err))
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
-    versions = _versions()
+    versions = _versions(args.engine)
     summary: dict[str, Any] = {"command": command, "versions": versions, "seeds": {}}
     with StopRequest() as stop:
         for seed in args.seed:
@@ -637,7 +794,10 @@ def main(argv: list[str] | None = None) -> int:
                 )
             )
             try:
-                agent_dir, stats = train_one(args, params, seed, run_dir, resume, stop)
+                if args.engine == "rllib":
+                    agent_dir, stats = train_one_rllib(args, params, seed, run_dir, stop)
+                else:
+                    agent_dir, stats = train_one(args, params, seed, run_dir, resume, stop)
             except ConfigError as err:  # a checkpoint that does not fit the model
                 parser.error(str(err))
             print(
@@ -656,8 +816,8 @@ def main(argv: list[str] | None = None) -> int:
                         f"# {args.algo.upper()} on {args.env}, seed {seed}",
                         "",
                         f"Command: `{command}`. Training: {stats['timesteps']} steps in "
-                        f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, SB3 on 1 "
-                        "thread).",
+                        f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, "
+                        f"{_engine(args)}).",
                         f"Agent: {_describe_selection(stats['selected'])}.",
                         f"Versions: {versions}.",
                     ],
@@ -721,19 +881,31 @@ def _write_summary_report(path: Path, summary: dict[str, Any]) -> None:
     path.write_text("\n".join(lines))
 
 
-def _versions() -> dict[str, str]:
+def _engine(args: argparse.Namespace) -> str:
+    """How the report says the agent was trained."""
+    if args.engine == "rllib":
+        return f"RLlib PPO, {args.env_runners} env runner(s)"
+    return "SB3 on 1 thread"
+
+
+def _versions(engine: str = "sb3") -> dict[str, str]:
     import gymnasium
     import numpy
     import stable_baselines3
     import torch
 
-    return {
+    versions = {
         "python": platform.python_version(),
         "numpy": numpy.__version__,
         "gymnasium": gymnasium.__version__,
         "stable_baselines3": stable_baselines3.__version__,
         "torch": torch.__version__,
     }
+    if engine == "rllib":
+        import ray
+
+        versions["ray"] = ray.__version__
+    return versions
 
 
 if __name__ == "__main__":

@@ -13,6 +13,37 @@ import numpy as np
 #: Training runs of the tuners use seeds ``seed + TRAIN_SEED_OFFSET + r`` (never evaluation seeds).
 TRAIN_SEED_OFFSET = 1_000_000
 
+#: RLlib training (``train.py --engine rllib``): sub-env seeds from ``2**62`` on, above every
+#: evaluation (``0..``), validation (``50,000,000..``) and SB3 training (``100,000,000 +
+#: 10,000 s + i``) seed of training seeds ``s < 4 * 10**14``.
+RLLIB_SEED_BASE = 1 << 62
+#: Each field of an RLlib sub-env seed (environment built, runner, sub-env) is below this.
+RLLIB_SEED_FIELD = 1 << 16
+
+
+def rllib_seed(seed: int, runner: int, sub_env: int, generation: int = 0) -> int:
+    """The seed of sub-env ``sub_env`` of RLlib env runner ``runner`` in the ``generation``-th
+    environment that runner built (0, then 1, ... after a restart), for training seed ``seed``:
+
+    ``RLLIB_SEED_BASE + ((seed F + generation) F + runner) F + sub_env``, ``F = RLLIB_SEED_FIELD``
+
+    Distinct tuples give distinct seeds (mixed radix), all in the RLlib range.
+
+    Raises:
+        ValueError: a negative argument, or a field other than ``seed`` not below ``F``.
+    """
+    F = RLLIB_SEED_FIELD
+    fields = {"generation": generation, "runner": runner, "sub_env": sub_env}
+    for name, value in {"seed": seed, **fields}.items():
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+    for name, value in fields.items():
+        if value >= F:
+            raise ValueError(f"{name} must be below {F}, got {value}")
+    return (
+        RLLIB_SEED_BASE + ((int(seed) * F + int(generation)) * F + int(runner)) * F + int(sub_env)
+    )
+
 
 def streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
     """``(scenario_rng, noise_rng)`` spawned from ``SeedSequence(seed)``."""
