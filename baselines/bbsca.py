@@ -25,7 +25,6 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, linear_models
 from imm_gym.tracking.models import MotionModel
-from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError, check_range
 
 from .fixed import FixedTPM
@@ -76,10 +75,15 @@ def tune_classical(
 ) -> tuple[BBSCATunedIMM, dict[str, Any]]:
     """Tune ``base``'s bank on ``train_runs`` runs seeded ``seed + r``; the policy and notes."""
     config = config or TunerConfig()
+    if base.vary.active:
+        raise ConfigError(
+            "the bbsca baseline tunes one bank for one sampling period and sensor; it does not "
+            f"take varied conditions (vary: {', '.join(base.vary.varied)})"
+        )
     batch = draw_batch(base.source, base.sensor, train_runs, seed, base.velocity_std)
     models = base.bank if isinstance(base.bank, HeteroBank) else linear_models(base.bank)
     imm = HeteroIMM(models, base.sensor, T=base.source.T)
-    tpm = stay_tpm(len(base.bank), base.initial_stay)
+    tpm = base.initial_tpm(base.source.T)
     tuned, result = tune(imm, batch, tpm, base.sensor.sigma, config, bank="env", tune_r=False)
     untuned = bank_objective(imm, batch, tpm, base.sensor.sigma, tune_r=False)
     notes = {

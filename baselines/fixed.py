@@ -15,8 +15,8 @@ from .registry import register
 class FixedTPM(Baseline):
     """Classical IMM with ``stay`` on the diagonal of the TPM at every step.
 
-    The environment starts from this TPM (``initial_stay``) and the policy's zero ``scale``
-    action keeps it.
+    The environment starts from this TPM (``initial_stay``; without ``stay``, the configured
+    initial TPM, sojourn-based if configured) and the policy's zero ``scale`` action keeps it.
     """
 
     def __init__(self, n_models: int = 3, stay: float | None = None) -> None:
@@ -25,7 +25,9 @@ class FixedTPM(Baseline):
         self.env_overrides = {"action_mode": "scale"}
         if stay is not None:
             off = (1.0 - stay) / (n_models - 1)
-            self.env_overrides.update({"initial_stay": stay, "p_min": min(1e-3, stay, off)})
+            self.env_overrides.update(
+                {"initial_stay": stay, "sojourn": None, "p_min": min(1e-3, stay, off)}
+            )
 
     def act(
         self, obs: NDArray[np.float64], state: Any, episode_start: NDArray[np.bool_]

@@ -356,6 +356,13 @@ def clairvoyant_bound(
         (:func:`~imm_gym.evaluation.clairvoyant.unsupported`) only ``role`` ``"skipped"`` and
         the ``note`` saying why.
     """
+    if base.vary.active:
+        varied = ", ".join(base.vary.varied)
+        return {
+            "role": "skipped",
+            "note": f"skipped: conditions vary per run ({varied}); the filter runs one sensor "
+            "and sampling period",
+        }
     batch = draw_batch(base.source, base.sensor, runs, seed, base.velocity_std)
     reason = unsupported(batch.truth, base.bank)
     if reason is not None:

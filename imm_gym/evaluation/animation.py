@@ -94,7 +94,9 @@ def side_by_side_frames(
             of a random family; a fixed scenario's truth is the same for every seed) or whose
             bank is not ``config``'s.
     """
-    batch = draw_batch(config.source, config.sensor, run + 1, seed, config.velocity_std)
+    batch = draw_batch(
+        config.source, config.sensor, run + 1, seed, config.velocity_std, config.vary
+    )
     labels = model_labels(config.bank)
     for name, rollout in rollouts.items():
         if not np.array_equal(rollout.truth[run], batch.truth.states[run, 1:]):

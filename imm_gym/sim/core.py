@@ -23,7 +23,8 @@ from imm_gym.scenarios.segments import true_model_index
 from imm_gym.seeding import streams
 from imm_gym.sim.actions import tpm_from_action, validate_action
 from imm_gym.sim.bank_step import BankStep
-from imm_gym.sim.engines import choose_engine
+from imm_gym.sim.conditions import Conditions, bank_constants
+from imm_gym.sim.engines import choose_engine, compiled_step
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds
@@ -31,7 +32,7 @@ from imm_gym.sim.kernels import step_inputs
 from imm_gym.sim.rewards import Reward
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
-from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
 
@@ -82,24 +83,29 @@ class TrackingCore:
             config.bank, config.sensor, config.filter, config.source.T, engine=config.engine
         )
         self.n = self.imm.n
-        self.fixed_tpm = stay_tpm(M, config.initial_stay)
-        #: ``(N, M, M)`` the fixed TPMs of bank B and of the shadow IMM
-        self.fixed_tpms = np.repeat(self.fixed_tpm[None], n_envs, axis=0)
-        shadow_stay = config.initial_stay if config.shadow_stay is None else config.shadow_stay
-        self.shadow_tpms = np.repeat(stay_tpm(M, shadow_stay)[None], n_envs, axis=0)
+        T = config.source.T
+        #: ``(N, M, M)`` the slots' initial TPMs (bank B's fixed TPMs) and the shadow IMM's, at
+        #: each slot's sampling period (updated in place at a reset with varied conditions)
+        self.fixed_tpms = np.repeat(config.initial_tpm(T)[None], n_envs, axis=0)
+        self.shadow_tpms = np.repeat(config.shadow_tpm(T)[None], n_envs, axis=0)
         self._advance = choose_engine(config.engine, self.imm.kernel_args)
+        #: the compiled engine's bank constants (``kernel_args`` of the tracker); with
+        #: ``config.vary`` one bank per slot, ``F``, ``Q``, ``R`` set at each reset for the
+        #: episode's sampling period and sensor (:mod:`imm_gym.sim.conditions`)
+        self.kernel_args = self._bank_per_slot() if config.vary.active else self.imm.kernel_args
         self._reward = Reward(
             config.reward,
             config.reward_scale,
             config.shadow == "fixed",
             config.tpm_cost,
-            self.shadow_tpms[0],
+            self.shadow_tpms,
         )
         self.horizon = config.source.horizon
         self.action_dim = M * M
         self.obs_low, self.obs_high = bounds(config.obs_features, M, config.sensor.dim_z)
         self.obs_dim = self.obs_low.size
-        self.sampling_period = config.source.T
+        #: ``(N,)`` each slot's sampling period (s)
+        self.sampling_period = np.full(n_envs, float(config.source.T))
         N, K, m = n_envs, self.horizon, config.sensor.dim_z
         self._rngs: list[tuple[np.random.Generator, np.random.Generator] | None] = [None] * N
         self.truth = np.zeros((N, K + 1, 4))
@@ -109,7 +115,7 @@ class TrackingCore:
         self.true_model = np.full((N, K), -1, dtype=np.int64)
         self.k = np.zeros(N, dtype=np.int64)
         self.done = np.ones(N, dtype=bool)
-        self.tpm = np.repeat(self.fixed_tpm[None], N, axis=0)
+        self.tpm = self.fixed_tpms.copy()
         self.state_a = self._blank_state()
         self.state_b = self._blank_state()
         self.state_s = self._blank_state()
@@ -131,6 +137,16 @@ class TrackingCore:
         self.memories = {
             name: np.zeros((N, *memory.shape(M))) for name, memory in self._memories.items()
         }
+
+    def _bank_per_slot(self) -> tuple:
+        """The tracker's kernel constants with ``F``, ``Q``, ``R`` repeated for every slot."""
+        if self.imm.kernel_args is None or self._advance is not compiled_step:
+            raise ConfigError(
+                "vary needs the compiled engine: a linear bank, a built-in sensor and filter"
+            )
+        F, Q, R, *rest = self.imm.kernel_args
+        N = self.n_envs
+        return (*(np.repeat(a, N, axis=0) for a in (F, Q, R)), *rest)
 
     def _blank_state(self) -> IMMState:
         N, M, n = self.n_envs, self.M, self.n
@@ -157,16 +173,33 @@ class TrackingCore:
                 self._rngs[i] = streams(int(np.random.SeedSequence().generate_state(1)[0]))
         scen_rngs = [self._rngs[i][0] for i in indices]  # type: ignore[index]
         noise_rngs = [self._rngs[i][1] for i in indices]  # type: ignore[index]
+        cfg = self.config
         batch = draw_episodes(
-            self.config.source, self.config.sensor, scen_rngs, noise_rngs, self.config.velocity_std
+            cfg.source, cfg.sensor, scen_rngs, noise_rngs, cfg.velocity_std, cfg.vary
         )
         truth, meas, x0 = batch.truth, batch.measurements, batch.x0
+        if batch.conditions is not None:
+            self._set_conditions(indices, batch.conditions)
         self.truth[indices] = truth.states
         self.z[indices] = meas.z
         self.detected[indices] = meas.detected
         self.outlier[indices] = meas.outlier
         self.true_model[indices] = true_model_index(truth, self.models)
         self._start(indices, x0, batch.P0)
+
+    def _set_conditions(self, indices: NDArray[np.int64], conditions: Conditions) -> None:
+        """The slots ``indices`` at their episodes' sampling periods and sensors: their
+        ``F (M, n, n)``, ``Q`` for their ``T`` and their ``R``."""
+        F, Q = bank_constants(self.models, conditions.T)
+        self.kernel_args[0][indices] = F
+        self.kernel_args[1][indices] = Q
+        self.kernel_args[2][indices] = conditions.R
+        self.sampling_period = self.sampling_period.copy()
+        self.sampling_period[indices] = conditions.T
+        if self.config.sojourn is not None and self.config.vary.T is not None:
+            for i, T in zip(indices, conditions.T, strict=True):
+                self.fixed_tpms[i] = self.config.initial_tpm(T)
+                self.shadow_tpms[i] = self.config.shadow_tpm(T)
 
     def streams(self) -> list[tuple[np.random.Generator, np.random.Generator] | None]:
         """Each slot's ``(scenario, noise)`` generators (None for a slot never reset): the
@@ -195,7 +228,7 @@ class TrackingCore:
                 a[indices] = value
             setattr(self, bank, IMMState(*parts))
         values = {
-            "tpm": self.fixed_tpm,
+            "tpm": self.fixed_tpms[indices],
             "mu": init.mu,
             "mu_prev": init.mu,
             "mu_b": init.mu,

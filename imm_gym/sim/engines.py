@@ -40,6 +40,7 @@ class Banks(Protocol):
     state_b: IMMState  # bank B's (parallel)
     state_s: IMMState  # the shadow IMM's
     mu_b: Array  # (N, M) bank B's last probabilities before the fusion
+    kernel_args: tuple | None  # the compiled bank constants (F, Q, R per slot or shared)
     fixed_tpms: Array  # (N, M, M) bank B's TPM
     shadow_tpms: Array  # (N, M, M) the shadow's TPM
 
@@ -62,7 +63,7 @@ def compiled_step(
     return env_step(
         action, banks.tpm, set_mode, cfg.logit_scale if set_mode else cfg.max_factor, cfg.p_min,
         a.x, a.P, a.mu, b.x, b.P, b.mu, s.x, s.P, s.mu, banks.fixed_tpms, banks.shadow_tpms,
-        z, detected, truth, banks.imm.kernel_args, cfg.parallel, cfg.shadow == "fixed",
+        z, detected, truth, banks.kernel_args, cfg.parallel, cfg.shadow == "fixed",
         cfg.divergence_error, cfg.divergence_cov,
     )
 

@@ -12,14 +12,19 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from imm_gym.scenarios.catalog import SCENARIOS
 from imm_gym.scenarios.segments import RandomFamily, Scenario, TruthSource
+from imm_gym.sim.conditions import Variation, check_variation
 from imm_gym.sim.features import FEATURES, shadow_features
 from imm_gym.sim.rewards import REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, paper_bank
 from imm_gym.tracking.sensors import Sonar
+from imm_gym.tracking.tpm import stay_tpm, tpm_from_sojourn
 from imm_gym.validation import (
     ConfigError,
     check_choice,
@@ -41,6 +46,8 @@ OBS_FEATURES = tuple(FEATURES)
 #: The built-in observation features computed from the shadow IMM (they need ``shadow="fixed"``).
 SHADOW_FEATURES = shadow_features()
 TIP_READINGS = ("literal", "intent")
+
+Array = NDArray[np.float64]
 
 
 def _bank_model(i: int, model: Any) -> Any:
@@ -67,11 +74,19 @@ class EnvConfig:
             :class:`~imm_gym.scenarios.segments.Scenario`.
         family: the randomized family's parameters (used when ``scenario == "random"``).
         sensor: the sonar (noise, position, outliers, missed detections).
+        vary: ranges of the conditions each episode draws for itself — sampling period, sensor
+            noise, outlier and detection probabilities (:class:`~imm_gym.sim.conditions.
+            Variation`; nothing varies by default). Needs the compiled engine and a linear bank;
+            a varied ``T`` needs ``scenario="random"`` and continuous-time process noise.
         bank: the motion models of the IMM bank, or a
             :class:`~imm_gym.tracking.hetero.HeteroBank` (or a mapping of its fields): seed 002's
             NCV/CT/CTRA models in their own state spaces (needs ``filter="ekf"``).
         filter: ``"ukf"`` (SVD-UKF) or ``"ekf"``.
         initial_stay: diagonal of the initial (and fixed-bank) TPM, off-diagonal entries equal.
+        sojourn: mean sojourn time of each model (s), or None: the initial (and fixed-bank) TPM
+            is then ``exp(A T)`` of the continuous-time chain with these sojourns
+            (:func:`~imm_gym.tracking.tpm.tpm_from_sojourn`), for each episode's ``T``, in place
+            of ``initial_stay``; the shadow's too unless ``shadow_stay`` is set.
         p_min: every TPM an action produces has its entries in ``[p_min, 1 - p_min]`` (< 1/M).
             The initial TPM is used as configured: with ``p_min`` at most its smallest entry the
             zero ``scale`` action keeps it (classical IMM); TIP-IMM's floor 0.05 (SPEC §6) lies
@@ -110,9 +125,11 @@ class EnvConfig:
     scenario: str | Scenario = "random"
     family: RandomFamily = field(default_factory=RandomFamily)
     sensor: Sonar = field(default_factory=Sonar)
+    vary: Variation = field(default_factory=Variation)
     bank: tuple[MotionModel, ...] | HeteroBank = field(default_factory=paper_bank)
     filter: str = "ukf"
     initial_stay: float = 0.995
+    sojourn: tuple[float, ...] | None = None
     p_min: float = 1e-3
     action_mode: str = "scale"
     max_factor: float = 2.0
@@ -135,7 +152,7 @@ class EnvConfig:
             store(self, "scenario", from_dict(Scenario, self.scenario, "scenario"))
         elif not isinstance(self.scenario, Scenario):
             check_choice("scenario", self.scenario, ("random", *SCENARIOS))
-        for name, cls in (("family", RandomFamily), ("sensor", Sonar)):
+        for name, cls in (("family", RandomFamily), ("sensor", Sonar), ("vary", Variation)):
             value = getattr(self, name)
             if isinstance(value, Mapping):
                 store(self, name, from_dict(cls, value, name))
@@ -153,6 +170,11 @@ class EnvConfig:
         check_choice("filter", self.filter, tuple(f for f in FILTERS if f != "kf"))
         M = len(bank)
         store(self, "initial_stay", check_range("initial_stay", self.initial_stay, 0.0, 1.0))
+        if self.sojourn is not None:
+            sojourn = check_sequence("sojourn", self.sojourn, M)
+            store(self, "sojourn", tuple(
+                check_range(f"sojourn[{i}]", t, 0.0, lo_open=True) for i, t in enumerate(sojourn)
+            ))
         store(self, "p_min", check_range("p_min", self.p_min, 0.0, 1.0 / M, hi_open=True))
         check_choice("action_mode", self.action_mode, ACTION_MODES)
         store(self, "max_factor", check_range("max_factor", self.max_factor, 1.0, lo_open=True))
@@ -187,6 +209,9 @@ class EnvConfig:
         for name in ("loglik_clip", "velocity_std", "divergence_error", "divergence_cov"):
             store(self, name, check_range(name, getattr(self, name), 0.0, lo_open=True))
         check_choice("engine", self.engine, ENGINES)
+        check_variation(self.vary, self.scenario, self.bank, self.sensor)
+        if self.vary.active and self.engine == "numpy":
+            raise ConfigError("vary needs engine 'compiled' or 'auto' (a bank per episode)")
 
     @property
     def source(self) -> TruthSource:
@@ -194,6 +219,20 @@ class EnvConfig:
         if isinstance(self.scenario, Scenario):
             return self.scenario
         return self.family if self.scenario == "random" else SCENARIOS[self.scenario]()
+
+    def initial_tpm(self, T: float) -> Array:
+        """The ``(M, M)`` TPM episodes at sampling period ``T`` start from (and bank B keeps):
+        ``exp(A T)`` of the sojourns, or ``initial_stay`` on the diagonal."""
+        if self.sojourn is not None:
+            return tpm_from_sojourn(self.sojourn, T)
+        return stay_tpm(len(self.bank), self.initial_stay)
+
+    def shadow_tpm(self, T: float) -> Array:
+        """The shadow IMM's ``(M, M)`` TPM at ``T``: ``shadow_stay`` on the diagonal, or the
+        initial TPM."""
+        if self.shadow_stay is None:
+            return self.initial_tpm(T)
+        return stay_tpm(len(self.bank), self.shadow_stay)
 
     def replace(self, **changes: Any) -> EnvConfig:
         """A copy with some fields changed (validated)."""

@@ -5,10 +5,15 @@ stream (:func:`imm_gym.seeding.streams`): the environment's slots (a stream pair
 Monte-Carlo batches (:func:`draw_batch`, run ``r`` of a batch seeded ``s`` with seed ``s + r``)
 draw through the same :func:`draw_episodes`, so every policy evaluated on a batch sees the same
 targets and the same noise as an environment reset with those seeds.
+
+With a :class:`~imm_gym.sim.conditions.Variation` (``EnvConfig.vary``), each run first draws its
+conditions (sampling period, sensor noise, outlier and detection probabilities) from its scenario
+stream, then its target at its ``T`` and its measurements from its own sensor.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -17,6 +22,7 @@ from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import Truth, TruthSource
 from imm_gym.seeding import streams
+from imm_gym.sim.conditions import Conditions, Variation, draw_conditions
 from imm_gym.tracking.initiation import initiate
 from imm_gym.tracking.sensors import Measurements
 from imm_gym.validation import ConfigError, check_int
@@ -32,12 +38,14 @@ class Batch:
         truth: states ``(R, K+1, 4)`` at ``t = 0..K``.
         measurements: ``z (R, K+1, m)``; ``z[:, 0]`` initiates the track, ``z[:, 1:]`` are filtered.
         x0, P0: ``(R, 4)``, ``(R, 4, 4)`` initial estimate from ``z[:, 0]``.
+        conditions: each run's sampling period and sensor where they vary, else None.
     """
 
     truth: Truth
     measurements: Measurements
     x0: Array
     P0: Array
+    conditions: Conditions | None = None
 
     @property
     def n_runs(self) -> int:
@@ -54,13 +62,52 @@ def draw_episodes(
     scenario_rngs: Sequence[np.random.Generator],
     noise_rngs: Sequence[np.random.Generator],
     velocity_std: float = 5.0,
+    variation: Variation | None = None,
 ) -> Batch:
     """One run per pair of generators: the truth of ``source``, the measurements of ``sensor``,
-    and the filter start from the first measurement and the true initial velocity (SPEC §6)."""
+    and the filter start from the first measurement and the true initial velocity (SPEC §6);
+    with an active ``variation``, run by run at its own conditions (:func:`_draw_varied`)."""
+    if variation is not None and variation.active:
+        return _draw_varied(source, sensor, scenario_rngs, noise_rngs, velocity_std, variation)
     truth = source.truth(scenario_rngs)
     meas = sensor.measure(truth.states, noise_rngs)  # type: ignore[attr-defined]
     x0, P0 = initiate(sensor, meas.z[:, 0], truth.states[:, 0, 2:4], velocity_std)
     return Batch(truth, meas, x0, P0)
+
+
+def _draw_varied(
+    source: TruthSource,
+    sensor: object,
+    scenario_rngs: Sequence[np.random.Generator],
+    noise_rngs: Sequence[np.random.Generator],
+    velocity_std: float,
+    variation: Variation,
+) -> Batch:
+    """Run ``r``: its conditions from ``scenario_rngs[r]``
+    (:func:`~imm_gym.sim.conditions.draw_conditions`), then the truth of ``source`` at its ``T``
+    from the same generator, its measurements and start from its sensor; the runs stacked
+    (``truth.T`` holds the R sampling periods)."""
+    conditions = draw_conditions(variation, source.T, sensor, scenario_rngs)
+    runs = []
+    for r, (scen_rng, noise_rng) in enumerate(zip(scenario_rngs, noise_rngs, strict=True)):
+        T = float(conditions.T[r])
+        run_source = source if T == source.T else dataclasses.replace(source, T=T)  # type: ignore[type-var]
+        runs.append(draw_episodes(run_source, conditions.sensors[r], [scen_rng], [noise_rng],
+                                  velocity_std))
+    truth = Truth(
+        states=np.concatenate([b.truth.states for b in runs]),
+        turn_rate=np.concatenate([b.truth.turn_rate for b in runs]),
+        accel=np.concatenate([b.truth.accel for b in runs]),
+        T=conditions.T,
+    )
+    meas = Measurements(
+        z=np.concatenate([b.measurements.z for b in runs]),
+        detected=np.concatenate([b.measurements.detected for b in runs]),
+        outlier=np.concatenate([b.measurements.outlier for b in runs]),
+    )
+    x0 = np.concatenate([b.x0 for b in runs])
+    P0 = np.concatenate([b.P0 for b in runs])
+    return Batch(truth, meas, x0, P0, conditions)
 
 
 def draw_batch(
@@ -69,9 +116,10 @@ def draw_batch(
     runs: int,
     seed: int,
     velocity_std: float = 5.0,
+    variation: Variation | None = None,
 ) -> Batch:
     """R runs of ``source`` (a fixed scenario or a family) seen by ``sensor``, run ``r`` from the
-    streams of seed ``seed + r``."""
+    streams of seed ``seed + r`` (at conditions drawn from ``variation``, if given)."""
     runs = check_int("runs", runs, 1)
     seed = check_int("seed", seed, 0)
     if not callable(getattr(source, "truth", None)):
@@ -80,4 +128,4 @@ def draw_batch(
             f"{type(source).__name__}"
         )
     scenario_rngs, noise_rngs = zip(*(streams(seed + r) for r in range(runs)), strict=True)
-    return draw_episodes(source, sensor, scenario_rngs, noise_rngs, velocity_std)
+    return draw_episodes(source, sensor, scenario_rngs, noise_rngs, velocity_std, variation)

@@ -57,7 +57,7 @@ class StepView(Protocol):
     velocity_prev: Array  # (N, 2) at t-1
     velocity_s: Array  # (N, 2) the shadow's estimate at t
     velocity_s_prev: Array  # (N, 2) at t-1
-    sampling_period: float  # T (s)
+    sampling_period: Array  # (N,) each slot's T (s)
     memories: dict[str, Array]  # each memory feature's state
 
 
@@ -157,7 +157,7 @@ def datasheet_table() -> str:
 
 
 # ---------------------------------------------------------------------------- computations
-def heading_rate(v_prev: Array, v: Array, T: float) -> Array:
+def heading_rate(v_prev: Array, v: Array, T: Array | float) -> Array:
     r"""Heading rate between two velocity estimates ``(N, 2)``:
     :math:`\dot\psi = \operatorname{atan2}(v_{k-1} \times v_k,\ v_{k-1} \cdot v_k) / T`
     (0 where either velocity is zero)."""

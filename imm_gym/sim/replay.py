@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.bank_step import BankStep
+from imm_gym.sim.conditions import Variation
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.tracking.initiation import initiate
@@ -70,12 +71,13 @@ class ReplayCore(TrackingCore):
 
     Args:
         config: the environment configuration (its source is never drawn from; its horizon is
-            the ``K`` of the ``time`` feature and its ``T`` the sampling period).
+            the ``K`` of the ``time`` feature and its ``T`` the sampling period; ``vary`` is
+            ignored: the measurements were taken at the configured sensor and ``T``).
         n_envs: number of sequences N.
     """
 
     def __init__(self, config: EnvConfig, n_envs: int = 1) -> None:
-        super().__init__(config, n_envs)
+        super().__init__(config.replace(vary=Variation()) if config.vary.active else config, n_envs)
         del self.truth, self.z, self.detected, self.outlier, self.true_model, self._rngs
 
     def start(self, x0: Array, P0: Array) -> None:

@@ -74,7 +74,8 @@ class Reward:
 
     Args:
         name: the rewarded term; scale: ``reward_scale``; shadow: the shadow IMM runs.
-        tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)``.
+        tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)`` or ``(N, M, M)``
+            (the slots', read at each call).
     """
 
     def __init__(

@@ -26,6 +26,11 @@ CONFIGS = {
     "continuous bank": {**BANK_PRESETS["cv-ct-continuous"], "initial_stay": 0.9},
     "hetero": BANK_PRESETS["hetero"],
     "agent settings": {"action_mode": "set", "obs_features": ("loglik", "speed"), "p_min": 1e-3},
+    "varied conditions": {
+        **BANK_PRESETS["cv-ct-continuous"],
+        "vary": {"T": (0.5, 5.0), "sigma_r": (10.0, 100.0), "detection_prob": (0.8, 1.0)},
+        "sojourn": (60.0, 20.0, 20.0),
+    },
 }
 
 
@@ -76,6 +81,8 @@ BAD = [
     ("l.yaml", "bank: [{kind: cv}, {kind: ct, turn_rate_deg: 3.0, intensity: x}]\n", ["bank[1]"]),
     ("p.yaml", "bank: no-such-bank\n", ["p.yaml", "bank", "cv-ct-continuous"]),
     ("f.yaml", "family: {T: fast}\n", ["f.yaml", "family.T"]),
+    ("v.yaml", "vary: {sigma_r: [100.0, 10.0]}\n", ["v.yaml", "vary.sigma_r[1]"]),
+    ("o.yaml", "sojourn: [60.0, 20.0]\n", ["o.yaml", "sojourn"]),
     ("m.yaml", "- 1\n- 2\n", ["m.yaml", "mapping"]),
     ("y.yaml", "sensor: {sigma_r: [1\n", ["y.yaml", "YAML"]),
     ("j.json", "{", ["j.json", "JSON"]),

@@ -1,0 +1,183 @@
+"""Tracking conditions drawn per episode: sampling period, sensor noise, outliers, detections.
+
+A policy that has to work on someone else's tracker must see more than one sensor and one
+sampling period. :class:`Variation` gives each condition a range in the configuration
+(``EnvConfig.vary``); every episode draws its own value from its scenario stream, before its
+target (so a run's conditions and target are fixed by its seed alone). Together with the
+randomized family's own ranges (speed, turn rate, range: :class:`~imm_gym.scenarios.segments.
+RandomFamily`) this is the broadened family of the "Bring your own tracker" issue.
+
+Scale parameters (the sampling period and the noise standard deviations) are drawn
+log-uniformly, ``exp(U(log lo, log hi))``, so that 0.5-5 s is as likely below 1.6 s as above;
+probabilities uniformly. The tracker of each episode is built for that episode's conditions:
+its transition and process noise for its ``T`` (right at every ``T`` only for a bank with
+continuous-time noise, which ``vary.T`` therefore requires), its measurement noise ``R`` for its
+sensor (:func:`bank_constants`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.tracking.models import MotionModel, bank_dim
+from imm_gym.validation import ConfigError, check_range, check_sequence, store
+
+Array = NDArray[np.float64]
+
+#: The varied conditions in the order each episode draws them, with how: ``log`` (log-uniform,
+#: a scale) or ``uniform``; the sensor fields among them are replaced in the episode's sensor.
+DRAWS: dict[str, str] = {
+    "T": "log",
+    "sigma_r": "log",
+    "sigma_theta_deg": "log",
+    "sigma_pos": "log",
+    "outlier_prob": "uniform",
+    "detection_prob": "uniform",
+}
+#: Each condition's allowed range (the sensor's own checks apply to a drawn sensor too).
+LIMITS: dict[str, tuple[float, float]] = {
+    "T": (0.0, math.inf),
+    "sigma_r": (0.0, math.inf),
+    "sigma_theta_deg": (0.0, 180.0),
+    "sigma_pos": (0.0, math.inf),
+    "outlier_prob": (0.0, 1.0),
+    "detection_prob": (0.0, 1.0),
+}
+
+
+@dataclass(frozen=True)
+class Variation:
+    """Per-episode ranges ``(low, high)`` of the tracking conditions; ``None`` keeps the
+    configured value (the default: nothing varies).
+
+    Attributes:
+        T: sampling period (s), log-uniform; replaces the randomized family's ``T`` (needs
+            ``scenario="random"``, whose segments are counted in steps, and a bank with
+            continuous-time noise).
+        sigma_r, sigma_theta_deg: the sonar's range (m) and bearing (°) noise, log-uniform.
+        sigma_pos: the position sensor's noise (m), log-uniform.
+        outlier_prob, detection_prob: the sensor's outlier and detection (> 0) probabilities,
+            uniform.
+    """
+
+    T: tuple[float, float] | None = None
+    sigma_r: tuple[float, float] | None = None
+    sigma_theta_deg: tuple[float, float] | None = None
+    sigma_pos: tuple[float, float] | None = None
+    outlier_prob: tuple[float, float] | None = None
+    detection_prob: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        for name, (lo_limit, hi_limit) in LIMITS.items():
+            value = getattr(self, name)
+            if value is None:
+                continue
+            lo, hi = check_sequence(f"vary.{name} (low, high)", value, 2)
+            positive = DRAWS[name] == "log" or name == "detection_prob"
+            lo = check_range(f"vary.{name}[0]", lo, lo_limit, hi_limit, lo_open=positive)
+            hi = check_range(f"vary.{name}[1]", hi, lo, hi_limit)
+            store(self, name, (lo, hi))
+
+    @property
+    def active(self) -> bool:
+        """Whether any condition varies."""
+        return any(getattr(self, name) is not None for name in DRAWS)
+
+    @property
+    def varied(self) -> tuple[str, ...]:
+        """The varied conditions, in drawing order."""
+        return tuple(name for name in DRAWS if getattr(self, name) is not None)
+
+    def check(self, sensor: object) -> None:
+        """Raise :class:`ConfigError` if a varied sensor field is not one of ``sensor``'s."""
+        fields = {f.name for f in dataclasses.fields(sensor)}  # type: ignore[arg-type]
+        for name in self.varied:
+            if name != "T" and name not in fields:
+                raise ConfigError(
+                    f"vary.{name}: the sensor {type(sensor).__name__} has no field {name!r} "
+                    f"(its fields: {sorted(fields)})"
+                )
+
+    def draw(self, rng: np.random.Generator) -> dict[str, float]:
+        """One episode's conditions from its generator: one draw per varied condition, in the
+        order of :data:`DRAWS`."""
+        values = {}
+        for name in self.varied:
+            lo, hi = getattr(self, name)
+            if DRAWS[name] == "log":
+                values[name] = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+            else:
+                values[name] = float(rng.uniform(lo, hi))
+        return values
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """Each run's sampling period and sensor.
+
+    Attributes:
+        T: ``(R,)`` sampling periods (s).
+        sensors: the R runs' sensors (the configured one with the varied fields replaced).
+    """
+
+    T: Array
+    sensors: tuple[Any, ...]
+
+    @property
+    def R(self) -> Array:
+        """``(R, m, m)`` the runs' measurement noise covariances."""
+        return np.stack([np.asarray(s.R, dtype=np.float64) for s in self.sensors])
+
+
+def draw_conditions(
+    variation: Variation, T: float, sensor: object, rngs: Sequence[np.random.Generator]
+) -> Conditions:
+    """The conditions of one run per generator: ``T`` and ``sensor`` with the varied values
+    drawn from each (:meth:`Variation.draw`)."""
+    periods = np.full(len(rngs), float(T))
+    sensors = []
+    for r, rng in enumerate(rngs):
+        values = variation.draw(rng)
+        periods[r] = values.pop("T", T)
+        sensors.append(dataclasses.replace(sensor, **values) if values else sensor)  # type: ignore[type-var]
+    return Conditions(periods, tuple(sensors))
+
+
+def bank_constants(models: Sequence[MotionModel], T: Array) -> tuple[Array, Array]:
+    """Per-run transition matrices and process noise of a linear bank, ``F (R, M, n, n)`` and
+    ``Q (R, M, n, n)``: ``F_j(T_r)``, ``Q_j(T_r)`` (:meth:`MotionModel.transition_matrix`,
+    :meth:`MotionModel.noise_covariance`)."""
+    n = bank_dim(models)
+    F = np.stack([np.stack([m.transition_matrix(t, n) for m in models]) for t in T])
+    Q = np.stack([np.stack([m.noise_covariance(n, t) for m in models]) for t in T])
+    return F, Q
+
+
+def check_variation(variation: Variation, scenario: object, bank: object, sensor: object) -> None:
+    """Raise :class:`ConfigError` where ``variation`` cannot apply: ``T`` varied outside the
+    randomized family or with a bank whose process noise is per step, a varied field the sensor
+    lacks, a heterogeneous bank (no per-run bank in its engine)."""
+    if not variation.active:
+        return
+    variation.check(sensor)
+    if not isinstance(bank, tuple):
+        raise ConfigError("vary needs a linear bank (the heterogeneous bank has one T and R)")
+    if variation.T is not None:
+        if scenario != "random":
+            raise ConfigError(
+                f"vary.T needs scenario 'random' (a named scenario's segments are timed for its "
+                f"own T), got {scenario!r}"
+            )
+        per_step = [i for i, m in enumerate(bank) if m.noise != "continuous"]
+        if per_step:
+            raise ConfigError(
+                f"vary.T needs a bank with continuous-time process noise (noise: continuous); "
+                f"bank[{per_step[0]}] has per-step noise, right at one T only"
+            )

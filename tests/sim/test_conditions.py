@@ -1,0 +1,188 @@
+"""Conditions drawn per episode (EnvConfig.vary): checks, draws, and each slot's tracker equal to
+an independent numpy IMM built for that slot's sampling period and sensor."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium
+import numpy as np
+import pytest
+
+import imm_gym  # noqa: F401  (registers the envs)
+from imm_gym.scenarios.segments import RandomFamily
+from imm_gym.seeding import streams
+from imm_gym.sim.conditions import Variation, draw_conditions
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.episodes import draw_batch
+from imm_gym.sim.presets import CONTINUOUS_BANK
+from imm_gym.tracking.imm import IMM
+from imm_gym.tracking.sensors import PositionSensor, Sonar
+from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError
+
+BROAD = {
+    "T": (0.5, 5.0),
+    "sigma_r": (10.0, 100.0),
+    "sigma_theta_deg": (0.02, 0.5),
+    "outlier_prob": (0.0, 0.05),
+    "detection_prob": (0.8, 1.0),
+}
+
+
+def broad_config(**changes: object) -> EnvConfig:
+    return EnvConfig(bank=CONTINUOUS_BANK, vary=BROAD, **changes)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"vary": {"T": (0.5, 5.0)}}, "bank[0] has per-step noise"),
+        ({"vary": {"T": (0.5, 5.0)}, "bank": CONTINUOUS_BANK, "scenario": "paper"},
+         "vary.T needs scenario 'random'"),
+        ({"vary": {"sigma_pos": (1.0, 5.0)}}, "vary.sigma_pos: the sensor Sonar has no field"),
+        ({"vary": {"sigma_r": (50.0, 10.0)}}, "vary.sigma_r[1] must be in [50.0"),
+        ({"vary": {"sigma_r": (0.0, 10.0)}}, "vary.sigma_r[0] must be in (0.0"),
+        ({"vary": {"detection_prob": (0.0, 1.0)}}, "vary.detection_prob[0] must be in (0.0"),
+        ({"vary": {"outlier_prob": (0.0, 1.5)}}, "vary.outlier_prob[1] must be in [0.0, 1.0]"),
+        ({"vary": {"sigma_r": "10-50"}}, "vary.sigma_r (low, high)"),
+        ({"vary": {"sigmar": (1.0, 2.0)}}, "unknown key(s) ['sigmar']"),
+        ({"vary": {"sigma_r": (10.0, 50.0)}, "engine": "numpy"}, "vary needs engine"),
+        ({"vary": {"sigma_r": (10.0, 50.0)}, "bank": "hetero"}, "bank"),
+    ],
+)
+def test_a_variation_that_cannot_apply_is_a_config_error(changes, message) -> None:
+    if changes.get("bank") == "hetero":
+        from imm_gym.sim.presets import BANK_PRESETS
+
+        changes = {**changes, **BANK_PRESETS["hetero"]}
+    with pytest.raises(ConfigError) as err:
+        EnvConfig(**changes)
+    assert message in str(err.value)
+
+
+def test_nothing_varies_by_default_and_the_draws_are_unchanged() -> None:
+    assert not EnvConfig().vary.active
+    plain = draw_batch(RandomFamily(), Sonar(), 6, 11)
+    none = draw_batch(RandomFamily(), Sonar(), 6, 11, variation=Variation())
+    np.testing.assert_array_equal(plain.measurements.z, none.measurements.z)
+    assert none.conditions is None
+
+
+def test_conditions_are_a_function_of_the_seed_and_lie_in_their_ranges() -> None:
+    variation = Variation(**BROAD)
+    rngs = [streams(s)[0] for s in range(2000)]
+    c = draw_conditions(variation, 1.0, Sonar(), rngs)
+    again = draw_conditions(variation, 1.0, Sonar(), [streams(s)[0] for s in range(2000)])
+    np.testing.assert_array_equal(c.T, again.T)
+    assert np.all((c.T >= 0.5) & (c.T <= 5.0))
+    sigma_r = np.array([s.sigma_r for s in c.sensors])
+    p_d = np.array([s.detection_prob for s in c.sensors])
+    assert np.all((sigma_r >= 10.0) & (sigma_r <= 100.0)) and np.all((p_d >= 0.8) & (p_d <= 1.0))
+    # log-uniform scales: half below the geometric mean; uniform probabilities: half below the mean
+    assert abs(np.mean(c.T < math.sqrt(0.5 * 5.0)) - 0.5) < 0.04
+    assert abs(np.mean(sigma_r < math.sqrt(10.0 * 100.0)) - 0.5) < 0.04
+    assert abs(np.mean(p_d < 0.9) - 0.5) < 0.04
+    np.testing.assert_allclose(c.R[:, 0, 0], sigma_r**2)
+
+
+def test_a_position_sensor_varies_its_own_noise() -> None:
+    variation = Variation(sigma_pos=(5.0, 50.0))
+    variation.check(PositionSensor())
+    batch = draw_batch(RandomFamily(), PositionSensor(), 50, 0, variation=variation)
+    sigmas = np.array([s.sigma_pos for s in batch.conditions.sensors])
+    assert np.all((sigmas >= 5.0) & (sigmas <= 50.0)) and np.ptp(sigmas) > 10.0
+
+
+def test_each_run_moves_at_its_own_sampling_period() -> None:
+    config = broad_config()
+    batch = draw_batch(config.source, config.sensor, 8, 5, variation=config.vary)
+    truth = batch.truth
+    assert truth.T.shape == (8,) and np.ptp(truth.T) > 0.5
+    straight = truth.turn_rate == 0.0
+    step = np.linalg.norm(np.diff(truth.states[:, :, :2], axis=1), axis=-1)
+    speed = np.linalg.norm(truth.states[:, :-1, 2:], axis=-1)
+    np.testing.assert_allclose(step[straight], (speed * truth.T[:, None])[straight], rtol=1e-9)
+
+
+def test_each_slot_tracks_as_an_imm_built_for_its_own_conditions() -> None:
+    """Slot i of the compiled core = the numpy reference IMM at slot i's T and sensor, on the
+    slot's measurements (zero actions in scale mode keep the initial TPM)."""
+    N, K = 5, 60
+    config = broad_config(shadow="none", reward="error", p_min=1e-4)
+    core = TrackingCore(config, N)
+    core.reset(np.arange(N), list(range(100, 100 + N)))
+    assert np.ptp(core.sampling_period) > 0.5
+    x0 = core.state_a.x[:, 0].copy()
+    P0 = core.state_a.P[:, 0].copy()
+    estimates = []
+    for _ in range(K):
+        result = core.step(np.zeros((N, 9)))
+        estimates.append(result.info["estimate"])
+    estimates = np.stack(estimates, axis=1)
+    R = core.kernel_args[2]
+    for i in range(N):
+        T = float(core.sampling_period[i])
+        sensor = Sonar(
+            sigma_r=math.sqrt(R[i, 0, 0]), sigma_theta_deg=math.degrees(math.sqrt(R[i, 1, 1]))
+        )
+        reference = IMM(CONTINUOUS_BANK, sensor, T=T, engine="numpy")
+        run = reference.run(
+            core.z[i, 1 : K + 1], stay_tpm(3, config.initial_stay), x0[i], P0[i],
+            detected=core.detected[i, 1 : K + 1],
+        )
+        np.testing.assert_allclose(estimates[i], run.x, rtol=1e-9, atol=1e-9)
+
+
+def test_the_heading_rate_feature_uses_each_slot_period() -> None:
+    config = broad_config(obs_features=("turn_rate",))
+    env = gymnasium.make_vec(
+        "imm_gym/TPMAdapt-v0", num_envs=3, vectorization_mode="vector_entry_point", config=config
+    )
+    env.reset(seed=7)
+    core = env.unwrapped.core
+    env.step(np.zeros((3, 9)))
+    obs, *_ = env.step(np.zeros((3, 9)))
+    v0, v1 = core.velocity_prev, core.velocity
+    rate = np.arctan2(v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0], np.sum(v0 * v1, axis=-1))
+    from imm_gym.sim.features import TURN_RATE_SCALE
+
+    expected = np.clip(rate / core.sampling_period / TURN_RATE_SCALE, -1.0, 1.0)
+    np.testing.assert_allclose(obs[:, -1], expected, rtol=1e-5, atol=1e-6)
+
+
+def test_replay_ignores_the_variation() -> None:
+    from imm_gym.sim.replay import ReplayCore
+
+    core = ReplayCore(broad_config(), 2)
+    assert not core.config.vary.active
+    np.testing.assert_array_equal(core.sampling_period, [1.0, 1.0])
+
+
+def test_a_sojourn_tpm_follows_each_episode_period() -> None:
+    """``sojourn``: every slot starts at exp(A T) for its own T (bank B and the shadow too)."""
+    from imm_gym.tracking.tpm import tpm_from_sojourn
+
+    config = broad_config(sojourn=(60.0, 20.0, 20.0), parallel=True)
+    core = TrackingCore(config, 4)
+    core.reset(np.arange(4), [1, 2, 3, 4])
+    for i in range(4):
+        expected = tpm_from_sojourn((60.0, 20.0, 20.0), float(core.sampling_period[i]))
+        np.testing.assert_array_equal(core.tpm[i], expected)
+        np.testing.assert_array_equal(core.fixed_tpms[i], expected)
+        np.testing.assert_array_equal(core.shadow_tpms[i], expected)
+    assert np.ptp(core.tpm[:, 0, 0]) > 0.01  # the stay differs with T
+
+
+def test_a_sojourn_tpm_replaces_the_stay_and_is_checked() -> None:
+    from imm_gym.tracking.tpm import tpm_from_sojourn
+
+    config = EnvConfig(sojourn=(60.0, 20.0, 20.0), shadow_stay=0.6)
+    core = TrackingCore(config, 2)
+    np.testing.assert_array_equal(core.tpm[0], tpm_from_sojourn((60.0, 20.0, 20.0), 1.0))
+    np.testing.assert_array_equal(core.shadow_tpms[0], stay_tpm(3, 0.6))
+    with pytest.raises(ConfigError, match=r"sojourn\[1\]"):
+        EnvConfig(sojourn=(60.0, -1.0, 20.0))
+    with pytest.raises(ConfigError, match="sojourn"):
+        EnvConfig(sojourn=(60.0, 20.0))
