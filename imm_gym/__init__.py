@@ -16,6 +16,7 @@ from imm_gym.scenarios.segments import (
 )
 from imm_gym.seeding import streams
 from imm_gym.sim.actions import ActionError
+from imm_gym.sim.conditions import Variation
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import Batch, draw_batch
@@ -67,6 +68,7 @@ __all__ = [
     "TrackingCore",
     "Truth",
     "UnscentedKalmanFilter",
+    "Variation",
     "__version__",
     "clairvoyant_filter",
     "combine",
