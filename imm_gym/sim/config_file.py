@@ -26,10 +26,10 @@ from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.validation import ConfigError, load_yaml
 
 #: The fields that make the tracker (what a trained agent records as ``trained_on`` and the
-#: evaluation reports as ``evaluated_on``): the sensor, the bank and the filter.
-TRACKER_FIELDS = ("sensor", "bank", "filter")
-#: The fields that say where the targets come from.
-TARGET_FIELDS = ("scenario", "family")
+#: evaluation reports as ``evaluated_on``): the sensor, the bank, the filter and its TPM prior.
+TRACKER_FIELDS = ("sensor", "bank", "filter", "initial_stay", "sojourn")
+#: The fields that say where the targets and their conditions come from.
+TARGET_FIELDS = ("scenario", "family", "vary")
 
 
 def plain(value: Any) -> Any:

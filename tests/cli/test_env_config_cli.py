@@ -10,6 +10,7 @@ import pytest
 
 import imm_gym.cli.evaluate as cli
 from imm_gym.cli.evaluate import evaluate, main
+from imm_gym.sim.env_config import EnvConfig
 
 SENSOR_FILE = "scenario: paper\nsensor: {sigma_r: 10.0, sigma_theta_deg: 0.02}\n"
 
@@ -129,6 +130,7 @@ def test_the_benchmark_suite_runs_end_to_end(tmp_path, capsys) -> None:
     assert results["scenarios"]["atc"]["policies"]["pretrained"]["tracker_differs"] == [
         "sensor",
         "bank",
+        "initial_stay",
     ]
     assert results["scenarios"]["paper"]["policies"]["pretrained"]["tracker_differs"] == []
     # the suite's configuration, not the default tracker: the atc file's sensor and bank
@@ -142,3 +144,20 @@ def test_the_suite_refuses_per_scenario_flags(capsys, flag) -> None:
     with pytest.raises(SystemExit):
         main(["--suite", "benchmark", "--policy", "fixed", *flag])
     assert "does not apply to --suite" in capsys.readouterr().err
+
+
+def test_an_agent_trained_on_varied_conditions_runs_on_a_named_scenario() -> None:
+    """The training distribution (``vary``, ``sojourn``) stays with the training: the evaluated
+    configuration's tracker and conditions apply, and the difference is reported."""
+    from imm_gym.cli.evaluate import agent_overrides
+    from imm_gym.sim.presets import CONTINUOUS_BANK
+
+    recorded = {
+        "action_mode": "set",
+        "bank": CONTINUOUS_BANK,
+        "vary": {"T": (0.5, 5.0), "sigma_r": (10.0, 100.0)},
+        "sojourn": (60.0, 20.0, 20.0),
+    }
+    kept, notes = agent_overrides(object(), recorded, EnvConfig(scenario="paper"))
+    assert kept == {"action_mode": "set"}
+    assert set(notes["tracker_differs"]) == {"bank", "sojourn"}

@@ -107,6 +107,7 @@ def test_a_missing_file_is_named(tmp_path) -> None:
 
 def test_tracker_of_fills_defaults() -> None:
     tracker = tracker_of({"action_mode": "set", "sensor": {"sigma_r": 10.0}})
-    assert set(tracker) == {"sensor", "bank", "filter"}
+    assert set(tracker) == {"sensor", "bank", "filter", "initial_stay", "sojourn"}
     assert tracker["sensor"]["sigma_r"] == 10.0 and tracker["filter"] == "ukf"
+    assert tracker["initial_stay"] == 0.995 and tracker["sojourn"] is None
     assert tracker["bank"] == env_config_dict(EnvConfig())["bank"]
