@@ -1,10 +1,11 @@
-"""Tracking conditions drawn per episode: sampling period, sensor noise, outliers, detections.
+"""Tracking conditions drawn per episode: sampling period, sensor noise, outliers, detections,
+target speed and the bank's process-noise tuning.
 
 A policy that has to work on someone else's tracker must see more than one sensor and one
 sampling period. :class:`Variation` gives each condition a range in the configuration
 (``EnvConfig.vary``); every episode draws its own value from its scenario stream, before its
 target (so a run's conditions and target are fixed by its seed alone). Together with the
-randomized family's own ranges (speed, turn rate, range: :class:`~imm_gym.scenarios.segments.
+randomized family's own ranges (turn rate, range: :class:`~imm_gym.scenarios.segments.
 RandomFamily`) this is the broadened family of the "Bring your own tracker" issue.
 
 Scale parameters (the sampling period and the noise standard deviations) are drawn
@@ -40,6 +41,8 @@ DRAWS: dict[str, str] = {
     "sigma_pos": "log",
     "outlier_prob": "uniform",
     "detection_prob": "uniform",
+    "speed": "log",
+    "q_scale": "log",
 }
 #: Each condition's allowed range (the sensor's own checks apply to a drawn sensor too).
 LIMITS: dict[str, tuple[float, float]] = {
@@ -49,7 +52,11 @@ LIMITS: dict[str, tuple[float, float]] = {
     "sigma_pos": (0.0, math.inf),
     "outlier_prob": (0.0, 1.0),
     "detection_prob": (0.0, 1.0),
+    "speed": (0.0, math.inf),
+    "q_scale": (0.0, math.inf),
 }
+#: The conditions that are not the sensor's fields.
+NOT_SENSOR = ("T", "speed", "q_scale")
 
 
 @dataclass(frozen=True)
@@ -65,6 +72,11 @@ class Variation:
         sigma_pos: the position sensor's noise (m), log-uniform.
         outlier_prob, detection_prob: the sensor's outlier and detection (> 0) probabilities,
             uniform.
+        speed: the target's speed (m/s), log-uniform; replaces the randomized family's
+            ``speed`` range (needs ``scenario="random"``).
+        q_scale: factor on every model's process noise (its ``q`` or ``intensity``,
+            :meth:`~imm_gym.tracking.models.MotionModel.scaled`), log-uniform: trackers tuned
+            tighter or looser than the configured bank.
     """
 
     T: tuple[float, float] | None = None
@@ -73,6 +85,8 @@ class Variation:
     sigma_pos: tuple[float, float] | None = None
     outlier_prob: tuple[float, float] | None = None
     detection_prob: tuple[float, float] | None = None
+    speed: tuple[float, float] | None = None
+    q_scale: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         for name, (lo_limit, hi_limit) in LIMITS.items():
@@ -99,7 +113,7 @@ class Variation:
         """Raise :class:`ConfigError` if a varied sensor field is not one of ``sensor``'s."""
         fields = {f.name for f in dataclasses.fields(sensor)}  # type: ignore[arg-type]
         for name in self.varied:
-            if name != "T" and name not in fields:
+            if name not in NOT_SENSOR and name not in fields:
                 raise ConfigError(
                     f"vary.{name}: the sensor {type(sensor).__name__} has no field {name!r} "
                     f"(its fields: {sorted(fields)})"
@@ -120,15 +134,19 @@ class Variation:
 
 @dataclass(frozen=True)
 class Conditions:
-    """Each run's sampling period and sensor.
+    """Each run's sampling period, sensor, target speed and process-noise factor.
 
     Attributes:
         T: ``(R,)`` sampling periods (s).
         sensors: the R runs' sensors (the configured one with the varied fields replaced).
+        speed: ``(R,)`` target speeds (m/s), or None where the source's own range applies.
+        q_scale: ``(R,)`` factors on the bank's process noise (1 where not varied).
     """
 
     T: Array
     sensors: tuple[Any, ...]
+    speed: Array | None
+    q_scale: Array
 
     @property
     def R(self) -> Array:
@@ -139,24 +157,34 @@ class Conditions:
 def draw_conditions(
     variation: Variation, T: float, sensor: object, rngs: Sequence[np.random.Generator]
 ) -> Conditions:
-    """The conditions of one run per generator: ``T`` and ``sensor`` with the varied values
-    drawn from each (:meth:`Variation.draw`)."""
-    periods = np.full(len(rngs), float(T))
+    """The conditions of one run per generator: ``T``, ``sensor`` and the rest with the varied
+    values drawn from each (:meth:`Variation.draw`)."""
+    R = len(rngs)
+    periods, speeds, q_scale = np.full(R, float(T)), np.full(R, np.nan), np.ones(R)
     sensors = []
     for r, rng in enumerate(rngs):
         values = variation.draw(rng)
         periods[r] = values.pop("T", T)
+        speeds[r] = values.pop("speed", np.nan)
+        q_scale[r] = values.pop("q_scale", 1.0)
         sensors.append(dataclasses.replace(sensor, **values) if values else sensor)  # type: ignore[type-var]
-    return Conditions(periods, tuple(sensors))
+    speed = None if variation.speed is None else speeds
+    return Conditions(periods, tuple(sensors), speed, q_scale)
 
 
-def bank_constants(models: Sequence[MotionModel], T: Array) -> tuple[Array, Array]:
+def bank_constants(
+    models: Sequence[MotionModel], T: Array, q_scale: Array
+) -> tuple[Array, Array]:
     """Per-run transition matrices and process noise of a linear bank, ``F (R, M, n, n)`` and
-    ``Q (R, M, n, n)``: ``F_j(T_r)``, ``Q_j(T_r)`` (:meth:`MotionModel.transition_matrix`,
-    :meth:`MotionModel.noise_covariance`)."""
+    ``Q (R, M, n, n)``: ``F_j(T_r)`` and the noise ``Q_j(T_r)`` of model ``j`` scaled by
+    ``q_scale[r]`` (:meth:`MotionModel.transition_matrix`, :meth:`MotionModel.noise_covariance`,
+    :meth:`MotionModel.scaled`)."""
     n = bank_dim(models)
     F = np.stack([np.stack([m.transition_matrix(t, n) for m in models]) for t in T])
-    Q = np.stack([np.stack([m.noise_covariance(n, t) for m in models]) for t in T])
+    Q = np.stack([
+        np.stack([(m if s == 1.0 else m.scaled(s)).noise_covariance(n, t) for m in models])
+        for t, s in zip(T, q_scale, strict=True)
+    ])
     return F, Q
 
 
@@ -169,6 +197,8 @@ def check_variation(variation: Variation, scenario: object, bank: object, sensor
     variation.check(sensor)
     if not isinstance(bank, tuple):
         raise ConfigError("vary needs a linear bank (the heterogeneous bank has one T and R)")
+    if variation.speed is not None and scenario != "random":
+        raise ConfigError(f"vary.speed needs scenario 'random', got {scenario!r}")
     if variation.T is not None:
         if scenario != "random":
             raise ConfigError(

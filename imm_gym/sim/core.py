@@ -188,9 +188,9 @@ class TrackingCore:
         self._start(indices, x0, batch.P0)
 
     def _set_conditions(self, indices: NDArray[np.int64], conditions: Conditions) -> None:
-        """The slots ``indices`` at their episodes' sampling periods and sensors: their
-        ``F (M, n, n)``, ``Q`` for their ``T`` and their ``R``."""
-        F, Q = bank_constants(self.models, conditions.T)
+        """The slots ``indices`` at their episodes' conditions: their ``F (M, n, n)``, ``Q`` for
+        their ``T`` and process-noise factor, their ``R``."""
+        F, Q = bank_constants(self.models, conditions.T, conditions.q_scale)
         self.kernel_args[0][indices] = F
         self.kernel_args[1][indices] = Q
         self.kernel_args[2][indices] = conditions.R

@@ -90,8 +90,12 @@ def _draw_varied(
     conditions = draw_conditions(variation, source.T, sensor, scenario_rngs)
     runs = []
     for r, (scen_rng, noise_rng) in enumerate(zip(scenario_rngs, noise_rngs, strict=True)):
-        T = float(conditions.T[r])
-        run_source = source if T == source.T else dataclasses.replace(source, T=T)  # type: ignore[type-var]
+        changes: dict[str, object] = {}
+        if conditions.T[r] != source.T:
+            changes["T"] = float(conditions.T[r])
+        if conditions.speed is not None:
+            changes["speed"] = (float(conditions.speed[r]),) * 2
+        run_source = dataclasses.replace(source, **changes) if changes else source  # type: ignore[type-var]
         runs.append(draw_episodes(run_source, conditions.sensors[r], [scen_rng], [noise_rng],
                                   velocity_std))
     truth = Truth(

@@ -28,6 +28,8 @@ BROAD = {
     "sigma_theta_deg": (0.02, 0.5),
     "outlier_prob": (0.0, 0.05),
     "detection_prob": (0.8, 1.0),
+    "speed": (5.0, 300.0),
+    "q_scale": (0.3, 30.0),
 }
 
 
@@ -49,6 +51,8 @@ def broad_config(**changes: object) -> EnvConfig:
         ({"vary": {"sigma_r": "10-50"}}, "vary.sigma_r (low, high)"),
         ({"vary": {"sigmar": (1.0, 2.0)}}, "unknown key(s) ['sigmar']"),
         ({"vary": {"sigma_r": (10.0, 50.0)}, "engine": "numpy"}, "vary needs engine"),
+        ({"vary": {"speed": (5.0, 50.0)}, "scenario": "atc"}, "vary.speed needs scenario"),
+        ({"vary": {"q_scale": (0.0, 5.0)}}, "vary.q_scale[0] must be in (0.0"),
         ({"vary": {"sigma_r": (10.0, 50.0)}, "bank": "hetero"}, "bank"),
     ],
 )
@@ -100,6 +104,9 @@ def test_each_run_moves_at_its_own_sampling_period() -> None:
     batch = draw_batch(config.source, config.sensor, 8, 5, variation=config.vary)
     truth = batch.truth
     assert truth.T.shape == (8,) and np.ptp(truth.T) > 0.5
+    np.testing.assert_allclose(
+        np.linalg.norm(truth.states[:, 0, 2:], axis=-1), batch.conditions.speed, rtol=1e-12
+    )
     straight = truth.turn_rate == 0.0
     step = np.linalg.norm(np.diff(truth.states[:, :, :2], axis=1), axis=-1)
     speed = np.linalg.norm(truth.states[:, :-1, 2:], axis=-1)
@@ -122,12 +129,19 @@ def test_each_slot_tracks_as_an_imm_built_for_its_own_conditions() -> None:
         estimates.append(result.info["estimate"])
     estimates = np.stack(estimates, axis=1)
     R = core.kernel_args[2]
+    # the slots' draws, again: their scenario streams' first draws (Variation.draw)
+    conditions = draw_conditions(
+        config.vary, 1.0, config.sensor, [streams(s)[0] for s in range(100, 100 + N)]
+    )
+    assert np.ptp(conditions.q_scale) > 1.0
     for i in range(N):
         T = float(core.sampling_period[i])
+        assert T == conditions.T[i]
         sensor = Sonar(
             sigma_r=math.sqrt(R[i, 0, 0]), sigma_theta_deg=math.degrees(math.sqrt(R[i, 1, 1]))
         )
-        reference = IMM(CONTINUOUS_BANK, sensor, T=T, engine="numpy")
+        bank = [m.scaled(conditions.q_scale[i]) for m in CONTINUOUS_BANK]
+        reference = IMM(bank, sensor, T=T, engine="numpy")
         run = reference.run(
             core.z[i, 1 : K + 1], stay_tpm(3, config.initial_stay), x0[i], P0[i],
             detected=core.detected[i, 1 : K + 1],
