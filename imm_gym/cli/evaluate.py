@@ -23,6 +23,11 @@ an output that cannot be written is a usage error (exit 2).
 The best fixed TPM is searched on training runs whose seeds (``seed + 1_000_000 + r``) never
 overlap the evaluation seeds.
 
+``--ray [ADDR]`` runs the tracking of every roll-out (the best-fixed search's too) in chunks of
+runs on a Ray cluster (:mod:`imm_gym.evaluation.distributed`; ``ADDR``: ``auto`` or
+``HOST:PORT``, default Ray's: ``RAY_ADDRESS``, a running local cluster, else a new local
+instance); every number is the single-process one. Ray is imported only then.
+
 ``--env-config FILE`` (YAML or JSON, :mod:`imm_gym.sim.config_file`) sets the EnvConfig of every
 policy — baselines, the best-fixed search and trained agents —; ``--scenario``, when given,
 replaces the file's scenario and ``--bank`` its bank and filter. A trained agent runs on the
@@ -41,7 +46,7 @@ import os
 import platform
 import sys
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +76,7 @@ from imm_gym.sim.config_file import (
     read_env_config,
     tracker_of,
 )
+from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.sim.features import bounds
@@ -106,19 +112,25 @@ def load_source(name: str) -> str | Scenario:
 
 
 def make_policy(
-    name: str, base: EnvConfig, seed: int, train_runs: int = TRAIN_RUNS
+    name: str,
+    base: EnvConfig,
+    seed: int,
+    train_runs: int = TRAIN_RUNS,
+    make_core: Callable[[EnvConfig, int], Any] = TrackingCore,
 ) -> tuple[Any, dict[str, Any], dict[str, Any]]:
     """``(policy, env_overrides, notes)`` for a policy name or a saved SB3 model path.
 
     A registered baseline is built by its registry entry; a tuned one sees ``train_runs``
-    training runs seeded ``seed + TRAIN_SEED_OFFSET + r``, scored by their position ARMSE.
+    training runs seeded ``seed + TRAIN_SEED_OFFSET + r``, scored by their position ARMSE
+    (roll-outs on the cores ``make_core`` builds, as :func:`evaluate`'s).
     """
     if name in REGISTRY:
         train_seed = seed + TRAIN_SEED_OFFSET
 
         def train_armse(policy: Baseline) -> float:
             cfg = evaluation_config(base, policy.env_overrides)
-            return score(rollout(policy, cfg, train_runs, train_seed))["armse_pos"]
+            run = rollout(policy, cfg, train_runs, train_seed, make_core=make_core)
+            return score(run)["armse_pos"]
 
         context = BuildContext(base, train_seed, train_runs, train_armse)
         policy, notes = REGISTRY[name].build(context)
@@ -158,6 +170,7 @@ def evaluate(
     extra: dict[str, tuple[Any, dict[str, Any]]] | None = None,
     bank: str = "paper",
     env_config: Mapping[str, Any] | None = None,
+    make_core: Callable[[EnvConfig, int], Any] = TrackingCore,
 ) -> tuple[dict[str, Any], dict[str, Rollout]]:
     """Score ``policies`` on R common-random-number runs; see the module docstring.
 
@@ -169,7 +182,9 @@ def evaluate(
     :func:`~imm_gym.sim.config_file.read_env_config`) every policy runs on, ``scenario``
     replacing theirs. Trained agents (``extra`` and paths) are checked against it before any
     work (:func:`agent_overrides`). The clairvoyant row is labelled a bound or a reference, or
-    skipped with the reason (:func:`clairvoyant_bound`).
+    skipped with the reason (:func:`clairvoyant_bound`). ``make_core``: builds the core of each
+    roll-out (:func:`~imm_gym.evaluation.rollout.rollout`; ``--ray``: a
+    :class:`~imm_gym.evaluation.distributed.ShardPool`'s, the same numbers).
     """
     if bank not in BANKS:
         raise ConfigError(f"--bank must be one of {list(BANKS)}, got {bank!r}")
@@ -178,13 +193,15 @@ def evaluate(
         raise ConfigError(f"--policy given twice: {list(policies)}")
     agents = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
     loaded = (name for name in policies if name not in REGISTRY)
-    agents.update({name: make_policy(name, base, seed) for name in loaded})
+    agents.update({name: make_policy(name, base, seed, make_core=make_core) for name in loaded})
     for name, (policy, overrides, notes) in agents.items():
         kept, tracker = agent_overrides(policy, overrides, base)
         agents[name] = (policy, kept, {**notes, **tracker})
     made = {name: agents[name] for name in extra or {}}
     for name in policies:
-        made[name] = agents[name] if name in agents else make_policy(name, base, seed)
+        if name not in agents:
+            agents[name] = make_policy(name, base, seed, make_core=make_core)
+        made[name] = agents[name]
     rollouts: dict[str, Rollout] = {}
     results: dict[str, Any] = {"policies": {}}
     bar = _progress_bar(len(made) * base.source.horizon, progress)
@@ -196,7 +213,7 @@ def evaluate(
             bar.update(k - done[0])
             done[0] = k
 
-        rollouts[name] = rollout(policy, cfg, runs, seed, progress=tick)
+        rollouts[name] = rollout(policy, cfg, runs, seed, progress=tick, make_core=make_core)
         results["policies"][name] = {**score(rollouts[name]), **notes}
     bar.close()
     ref = reference or ("fixed" if "fixed" in rollouts else next(iter(rollouts)))
@@ -290,6 +307,7 @@ def evaluate_suite(
     reference: str | None = None,
     clairvoyant: bool = True,
     progress: bool = False,
+    make_core: Callable[[EnvConfig, int], Any] = TrackingCore,
 ) -> dict[str, Any]:
     """:func:`evaluate` on every scenario of ``suite`` with its own configuration file
     (:func:`suite_configs`; baselines, best-fixed search and trained agents on it), the same
@@ -318,6 +336,7 @@ def evaluate_suite(
             clairvoyant=clairvoyant,
             progress=progress,
             env_config=env_config,
+            make_core=make_core,
         )
         results["meta"]["env_config"] = str(EXAMPLES / f"{name}.yaml")
         out["scenarios"][name] = results
@@ -481,6 +500,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="write an animation of run 0 (seed --seed), every policy side by side on the same "
         "target and noise: FILE.gif (Pillow) or FILE.mp4 (needs ffmpeg)",
     )
+    parser.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        metavar="ADDR",
+        help="run the tracking in chunks of runs on a Ray cluster (pip install -e '.[ray]'): "
+        "ADDR auto or HOST:PORT, default Ray's (RAY_ADDRESS, a running local cluster, else a "
+        "new local instance); the same numbers as without",
+    )
     return parser
 
 
@@ -524,8 +552,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if problem:
             parser.error(f"{flag} {str(path)!r}: {problem}")
     _check_animate(parser, args)
+    if args.ray is not None and args.scenario in SYSTEMS:
+        parser.error(f"--ray does not apply to --scenario {args.scenario}")
+    make_core = _cores(parser, args.ray)
     if args.suite is not None:
-        return _main_suite(parser, args)
+        return _main_suite(parser, args, make_core)
     if args.scenario in SYSTEMS:
         return _main_system(parser, args)
     try:
@@ -539,6 +570,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             clairvoyant=not args.no_clairvoyant,
             progress=not args.quiet and sys.stderr.isatty(),
             env_config=overrides,
+            make_core=make_core,
         )
     except ConfigError as err:
         parser.error(str(err))
@@ -558,6 +590,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.animate:
         _write_animation(args, rollouts)
     return 0
+
+
+def _cores(parser: argparse.ArgumentParser, address: str | None) -> Callable[[EnvConfig, int], Any]:
+    """The roll-outs' core: in this process, or with ``--ray`` a pool of shards on the cluster
+    at ``address`` ("" for Ray's default) (:mod:`imm_gym.evaluation.distributed`)."""
+    if address is None:
+        return TrackingCore
+    try:
+        from imm_gym.evaluation.distributed import ShardPool, connect
+
+        connect(address or None)
+    except ImportError:
+        parser.error("--ray needs Ray: pip install -e '.[ray]' (make install-ray)")
+    return ShardPool().core
 
 
 def _run_config(args: argparse.Namespace) -> dict[str, Any]:
@@ -604,7 +650,11 @@ def _write_animation(args: argparse.Namespace, rollouts: dict[str, Rollout]) -> 
     print(f"wrote {args.animate} ({frames} frames of seed {args.seed}: {', '.join(rollouts)})")
 
 
-def _main_suite(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+def _main_suite(
+    parser: argparse.ArgumentParser,
+    args: argparse.Namespace,
+    make_core: Callable[[EnvConfig, int], Any],
+) -> int:
     """``--suite NAME``: every scenario of the suite with its configuration file, one table."""
     from imm_gym.cli.tables import render_suite_table
 
@@ -627,6 +677,7 @@ def _main_suite(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
             reference=args.reference,
             clairvoyant=not args.no_clairvoyant,
             progress=not args.quiet and sys.stderr.isatty(),
+            make_core=make_core,
         )
     except ConfigError as err:
         parser.error(str(err))

@@ -76,6 +76,7 @@ def rollout(
     runs: int,
     seed: int,
     progress: Callable[[int], None] | None = None,
+    make_core: Callable[[EnvConfig, int], Any] = TrackingCore,
 ) -> Rollout:
     """Run ``policy`` on ``runs`` episodes seeded ``seed + r``; see the module docstring.
 
@@ -85,8 +86,11 @@ def rollout(
         runs: R, the number of Monte-Carlo runs.
         seed: run ``r`` uses seed ``seed + r``.
         progress: called with the number of steps done after each step.
+        make_core: builds the core of ``runs`` slots: a :class:`TrackingCore`, or a
+            :class:`~imm_gym.evaluation.distributed.ShardedCore` spread over a Ray cluster (the
+            same numbers).
     """
-    core = TrackingCore(config, n_envs=runs)
+    core = make_core(config, runs)
     core.reset(np.arange(runs), [seed + r for r in range(runs)])
     R, K, M = runs, core.horizon, core.M
     est = np.empty((R, K, 4))

@@ -1,0 +1,184 @@
+"""Monte-Carlo runs across a Ray cluster, bit for bit (``python -m imm_gym.evaluate --ray``).
+
+The R runs of a roll-out (seeds ``seed .. seed + R - 1``) are split into C contiguous chunks,
+chunk ``c`` holding runs ``start_c .. start_c + n_c - 1`` in a
+:class:`~imm_gym.sim.core.TrackingCore` of ``n_c`` slots inside a Ray actor (a *shard*, spread
+over the cluster's nodes). :class:`ShardedCore` stands in for the core of R slots in
+:func:`~imm_gym.evaluation.rollout.rollout`: each step it sends every shard its rows of the
+actions and concatenates the shards' observations, rewards, ends and infos in run order. The
+policy acts where ``rollout`` runs, on the whole ``(R, ·)`` batch as in one process, so a policy
+whose output depends on the batch (a network's matrix products do) still acts identically; a
+slot's arithmetic does not depend on the other slots, so every number equals the
+single-process roll-out's. What runs in parallel is the tracking (the IMM banks, the scenario
+and noise draws), which dominates a roll-out; each step costs one round trip to the shards.
+
+Ray is imported only by :func:`connect` and :class:`ShardPool`: the package imports and works
+without it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.sim.core import StepResult, TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+
+
+def connect(address: str | None) -> None:
+    """Join the Ray cluster at ``address`` (``auto``, ``HOST:PORT``), or with None Ray's default
+    (``RAY_ADDRESS``, a running local cluster, else a new local instance); nothing if this
+    process is connected already."""
+    import ray
+
+    if not ray.is_initialized():
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+
+
+def chunk_sizes(runs: int, chunks: int) -> list[int]:
+    """``runs`` split into at most ``chunks`` contiguous chunks differing by at most one run:
+    the first ``runs mod C`` have ``floor(runs / C) + 1`` runs, the others ``floor(runs / C)``,
+    ``C = min(chunks, runs)``."""
+    if runs < 1 or chunks < 1:
+        raise ValueError(f"runs and chunks must be >= 1, got {runs} and {chunks}")
+    C = min(chunks, runs)
+    return [runs // C + (1 if c < runs % C else 0) for c in range(C)]
+
+
+class Shard:
+    """The body of a shard actor: a :class:`TrackingCore` of the chunk's slots."""
+
+    def __init__(self) -> None:
+        self.core: TrackingCore | None = None
+
+    def build(self, config: EnvConfig, n_envs: int) -> tuple[int, int]:
+        """A fresh core of ``n_envs`` slots; returns its horizon and number of models."""
+        self.core = TrackingCore(config, n_envs=n_envs)
+        return self.core.horizon, self.core.M
+
+    def reset(
+        self, indices: NDArray[np.int64], seeds: list[int | None]
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float32]]:
+        """:meth:`TrackingCore.reset`; returns the truth, the true models and the observation."""
+        assert self.core is not None
+        self.core.reset(indices, seeds)
+        return self.core.truth, self.core.true_model, self.core.observe()
+
+    def step(self, actions: NDArray[Any], active: NDArray[np.bool_] | None) -> StepResult:
+        """:meth:`TrackingCore.step` of the chunk's slots."""
+        assert self.core is not None
+        return self.core.step(actions, active=active)
+
+    def node(self) -> str:
+        """The id of the Ray node this shard runs on."""
+        import ray
+
+        return ray.get_runtime_context().get_node_id()
+
+
+class ShardPool:
+    """Shard actors on the connected Ray cluster, reused by every roll-out of an evaluation.
+
+    Args:
+        shards: the number of actors (one CPU each, so at most the cluster's CPUs), default the
+            cluster's CPUs; they are spread over the nodes.
+    """
+
+    def __init__(self, shards: int | None = None) -> None:
+        import ray
+
+        cpus = int(ray.cluster_resources().get("CPU", 0))
+        n = cpus if shards is None else shards
+        if not 1 <= n <= cpus:
+            raise ValueError(f"shards must be in [1, {cpus}] (the cluster's CPUs), got {n}")
+        actor = ray.remote(num_cpus=1)(Shard).options(scheduling_strategy="SPREAD")
+        self.actors = [actor.remote() for _ in range(n)]
+
+    def core(self, config: EnvConfig, n_envs: int) -> ShardedCore:
+        """A :class:`ShardedCore` of ``n_envs`` slots over the pool (the ``make_core`` of
+        :func:`~imm_gym.evaluation.rollout.rollout`)."""
+        return ShardedCore(self.actors, config, n_envs)
+
+    def nodes(self) -> list[str]:
+        """The node id of each actor."""
+        import ray
+
+        return ray.get([a.node.remote() for a in self.actors])
+
+
+class ShardedCore:
+    """A :class:`TrackingCore` of ``n_envs`` slots as contiguous chunks held by shard actors
+    (module docstring): the attributes and methods :func:`~imm_gym.evaluation.rollout.rollout`
+    uses (``horizon``, ``M``, ``truth``, ``true_model``, ``reset``, ``observe``, ``step``), with
+    the same values in the same order.
+
+    Args:
+        actors: shard actors (:class:`ShardPool`); the first ``C`` hold a chunk each.
+        config: the environment configuration.
+        n_envs: R, the number of slots.
+    """
+
+    def __init__(self, actors: list[Any], config: EnvConfig, n_envs: int) -> None:
+        import ray
+
+        self._ray = ray
+        sizes = chunk_sizes(n_envs, len(actors))
+        self.actors = actors[: len(sizes)]
+        self.bounds = np.cumsum([0, *sizes])
+        built = ray.get(
+            [a.build.remote(config, n) for a, n in zip(self.actors, sizes, strict=True)]
+        )
+        self.horizon, self.M = built[0]
+        self.n_envs = n_envs
+        self.truth = np.zeros((n_envs, self.horizon + 1, 4))
+        self.true_model = np.full((n_envs, self.horizon), -1, dtype=np.int64)
+        self._obs: NDArray[np.float32] | None = None
+
+    def _parts(self, values: NDArray[Any]) -> list[NDArray[Any]]:
+        return [values[a:b] for a, b in zip(self.bounds[:-1], self.bounds[1:], strict=True)]
+
+    def reset(self, indices: NDArray[np.int64], seeds: list[int | None]) -> None:
+        """Start new episodes in the slots ``indices`` (global), each shard its own."""
+        indices = np.asarray(indices)
+        calls, shards = [], []
+        for c, (a, b) in enumerate(zip(self.bounds[:-1], self.bounds[1:], strict=True)):
+            mine = (indices >= a) & (indices < b)
+            if mine.any():
+                local = indices[mine] - a
+                calls.append(
+                    self.actors[c].reset.remote(local, [seeds[i] for i in np.flatnonzero(mine)])
+                )
+                shards.append(c)
+        for c, (truth, true_model, obs) in zip(shards, self._ray.get(calls), strict=True):
+            a = self.bounds[c]
+            self.truth[a : a + len(truth)] = truth
+            self.true_model[a : a + len(true_model)] = true_model
+            if self._obs is None:
+                self._obs = np.zeros((self.n_envs, obs.shape[1]), dtype=obs.dtype)
+            self._obs[a : a + len(obs)] = obs
+
+    def observe(self) -> NDArray[np.float32]:
+        """The observation of every slot (after :meth:`reset` or :meth:`step`)."""
+        if self._obs is None:
+            raise RuntimeError("observe() before reset()")
+        return self._obs.copy()
+
+    def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
+        """One step of every slot; the shards' results concatenated in run order."""
+        actions = self._parts(np.asarray(action))
+        actives = [None] * len(actions) if active is None else self._parts(np.asarray(active))
+        results = self._ray.get(
+            [s.step.remote(x, m) for s, x, m in zip(self.actors, actions, actives, strict=True)]
+        )
+        info = {key: np.concatenate([r.info[key] for r in results]) for key in results[0].info}
+        out = StepResult(
+            np.concatenate([r.obs for r in results]),
+            np.concatenate([r.reward for r in results]),
+            np.concatenate([r.terminated for r in results]),
+            np.concatenate([r.truncated for r in results]),
+            info,
+        )
+        self._obs = out.obs
+        return out
