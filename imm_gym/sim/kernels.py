@@ -11,7 +11,8 @@ the tests hold the two equal over whole episodes. Per slot ``t``:
    :math:`\pi_i = \operatorname{softmax}(\lambda a_i)` (``lambda = logit_scale``); then each row
    normalized and floored to ``[p_min, 1 - p_min]`` as :func:`imm_gym.tracking.tpm.apply_floor` (a
    row that already sums to 1 and satisfies the floor passes bit for bit);
-2. bank A's IMM cycle with that TPM (:func:`imm_gym.tracking.kernels.imm.imm_step`);
+2. bank A's IMM cycle with that TPM (:func:`imm_gym.tracking.kernels.imm.imm_step`: the slots
+   in blocks of ``TRACKER_BLOCK`` lanes, structure of arrays);
 3. with ``parallel``: bank B's cycle with the fixed TPM, the entropy fusion (TIP-IMM eq. 19)
    :math:`U = \frac{H(U_B)}{H(U_A) + H(U_B)} U_A + \frac{H(U_A)}{H(U_A) + H(U_B)} U_B`,
    :math:`H(u) = -\sum_j u_j \log_2 u_j` (equal weights when both entropies are 0), fed back as

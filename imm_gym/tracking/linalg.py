@@ -16,7 +16,7 @@ LOG_2PI = float(np.log(2.0 * np.pi))
 
 JACOBI_MAX_SWEEPS = 12
 #: Matrices that :func:`sym_eig` diagonalizes per call of :func:`jacobi_eig_lanes` (a multiple
-#: of the 4 doubles of an AVX2 register).
+#: of the 8 doubles of an AVX-512 register).
 EIG_LANES = 96
 
 
@@ -87,81 +87,104 @@ def _jacobi_eig(P: Array, max_sweeps: int) -> tuple[Array, Array]:  # pragma: no
 def jacobi_eig_lanes(
     a: Array, v: Array, lanes: int, max_sweeps: int
 ) -> None:  # pragma: no cover - jitted
-    """Diagonalize the symmetric matrices ``a[:, :, l]``, ``l < lanes``, in place by cyclic
-    Jacobi sweeps; ``v[:, :, l]`` gets their eigenvectors (``a``, ``v``: ``(n, n, L)``, the
-    matrices side by side along the last, contiguous axis: one SIMD lane per matrix).
+    """Diagonalize the symmetric matrices ``a[:, :, l]``, ``l < lanes``, in place by Jacobi
+    sweeps in the parallel (Brent-Luk round-robin) order; ``v[:, :, l]`` gets their eigenvectors
+    (``a``, ``v``: ``(n, n, L)``, the matrices side by side along the last, contiguous axis: one
+    SIMD lane per matrix).
 
     Only the upper triangle of ``a`` is read and updated. A rotation ``J(p, q, theta)`` zeroes
     ``a_pq`` with ``t = tan(theta)`` the smaller root of ``t^2 + 2 t cot(2 theta) - 1 = 0``,
     ``cot(2 theta) = (a_qq - a_pp) / (2 a_pq)``: ``a_pp -= t a_pq``, ``a_qq += t a_pq``,
     ``(a_kp, a_kq) <- (c a_kp - s a_kq, s a_kp + c a_kq)`` with ``c = 1 / sqrt(1 + t^2)``,
-    ``s = t c``, and the same on the columns of ``v``. A matrix stops sweeping once its
-    off-diagonal mass falls below ``1e-32`` of its diagonal mass (machine precision; quadratic
-    convergence). On return the eigenvalues are ``diag(a[:, :, l])`` and ``a_in = v diag(a) v^T``.
+    ``s = t c``, and the same on the columns of ``v``. A sweep is ``n - 1`` rounds (``n`` even;
+    one more, with a idle index, for ``n`` odd) of ``n / 2`` rotations on disjoint index pairs
+    (Golub & Van Loan §8.5.5): the rotations of a round commute, so their rotation parameters
+    are computed together from the round's start (one pass over the lanes) and applied one
+    after the other. A matrix stops sweeping once its off-diagonal mass falls below ``1e-32`` of
+    its diagonal mass (machine precision; quadratic convergence). On return the eigenvalues are
+    ``diag(a[:, :, l])`` and ``a_in = v diag(a) v^T``.
 
-    Each rotation ``(p, q)`` is one loop over the lanes that the compiler vectorizes (SIMD
-    square roots and divisions instead of one dependency chain per matrix). A converged lane, or
-    one whose ``a_pq`` is already 0, keeps its values by a select rather than by a rotation with
-    ``t = 0``: each matrix gets exactly the rotations and the rounding it would get alone, so its
-    result does not depend on the other lanes.
+    Each step is one loop over the lanes that the compiler vectorizes. A converged lane, or one
+    whose ``a_pq`` is already 0, gets the identity rotation (``c = 1``, ``s = t = 0``: every
+    update returns its input exactly) and keeps its ``a_pq``: each matrix gets exactly the
+    rotations and the rounding it would get alone, so its result does not depend on the other
+    lanes.
     """
     n = a.shape[0]
+    n_even = n + n % 2
+    half = n_even // 2
     converged = np.empty(lanes, dtype=np.bool_)
-    keep = np.empty(lanes, dtype=np.bool_)
-    c = np.empty(lanes)
-    s = np.empty(lanes)
+    off = np.empty(lanes)
+    diag = np.empty(lanes)
+    c = np.empty((half, lanes))
+    s = np.empty((half, lanes))
+    pairs = np.empty((half, 2), dtype=np.int64)
     for i in range(n):
         for j in range(n):
             for lane in range(lanes):
                 v[i, j, lane] = 1.0 if i == j else 0.0
     for _ in range(max_sweeps):
-        if _mark_converged(a, lanes, converged) == lanes:
+        if _mark_converged(a, lanes, converged, off, diag) == lanes:
             break
-        for p in range(n - 1):
-            for q in range(p + 1, n):
-                _rotation(a, p, q, lanes, converged, keep, c, s)
-                for k in range(n):
-                    if k != p and k != q:
-                        _rotate_lanes(
-                            a, min(k, p), max(k, p), min(k, q), max(k, q), lanes, keep, c, s
-                        )
-                for k in range(n):
-                    _rotate_lanes(v, k, p, k, q, lanes, keep, c, s)
+        for r in range(n_even - 1):
+            npairs = _round_pairs(n, r, pairs)
+            for k in range(npairs):
+                _rotation(a, pairs[k, 0], pairs[k, 1], lanes, converged, k, c, s)
+            for k in range(npairs):
+                p, q = pairs[k, 0], pairs[k, 1]
+                for i in range(n):
+                    if i != p and i != q:
+                        _rotate_lanes(a, min(i, p), max(i, p), min(i, q), max(i, q), lanes, k, c, s)
+                for i in range(n):
+                    _rotate_lanes(v, i, p, i, q, lanes, k, c, s)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _round_pairs(n: int, r: int, pairs: NDArray[np.int64]) -> int:  # pragma: no cover - jitted
+    """Index pairs ``(p < q)`` of round ``r`` of the round-robin tournament on ``n`` indices
+    (circle method: index 0 fixed, the others rotated by ``r``; for odd ``n`` the pair with the
+    idle index ``n`` is dropped), into ``pairs``; returns their number."""
+    n_even = n + n % 2
+    count = 0
+    for i in range(n_even // 2):
+        p = 0 if i == 0 else (i - 1 + r) % (n_even - 1) + 1
+        q = (n_even - 2 - i + r) % (n_even - 1) + 1
+        if p < n and q < n:
+            pairs[count, 0] = min(p, q)
+            pairs[count, 1] = max(p, q)
+            count += 1
+    return count
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _mark_converged(
-    a: Array, lanes: int, converged: NDArray[np.bool_]
+    a: Array, lanes: int, converged: NDArray[np.bool_], off: Array, diag: Array
 ) -> int:  # pragma: no cover - jitted
-    """``converged[l] = sum_{p<q} a_pq^2 <= 1e-32 sum_p a_pp^2`` (upper triangle of lane ``l``);
-    returns the number of converged lanes."""
+    """``converged[l] = sum_{p<q} a_pq^2 <= 1e-32 sum_p a_pp^2`` (upper triangle of lane ``l``;
+    ``off``, ``diag`` scratch); returns the number of converged lanes."""
     n = a.shape[0]
+    for lane in range(lanes):
+        off[lane] = 0.0
+        diag[lane] = 0.0
+    for p in range(n):
+        for lane in range(lanes):
+            diag[lane] += a[p, p, lane] * a[p, p, lane]
+        for q in range(p + 1, n):
+            for lane in range(lanes):
+                off[lane] += a[p, q, lane] * a[p, q, lane]
     count = 0
     for lane in range(lanes):
-        off = 0.0
-        diag = 0.0
-        for p in range(n):
-            diag += a[p, p, lane] * a[p, p, lane]
-            for q in range(p + 1, n):
-                off += a[p, q, lane] * a[p, q, lane]
-        converged[lane] = off <= 1e-32 * diag
+        converged[lane] = off[lane] <= 1e-32 * diag[lane]
         count += converged[lane]
     return count
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _rotation(
-    a: Array,
-    p: int,
-    q: int,
-    lanes: int,
-    converged: NDArray[np.bool_],
-    keep: NDArray[np.bool_],
-    c: Array,
-    s: Array,
+    a: Array, p: int, q: int, lanes: int, converged: NDArray[np.bool_], k: int, c: Array, s: Array
 ) -> None:  # pragma: no cover - jitted
-    """The Jacobi rotation ``(c, s)`` that zeroes ``a_pq`` of each lane, applied to ``a_pp``,
-    ``a_qq``, ``a_pq`` (see :func:`jacobi_eig_lanes`); ``keep`` marks the lanes left as they
+    """The Jacobi rotation ``(c[k], s[k])`` that zeroes ``a_pq`` of each lane, applied to ``a_pp``,
+    ``a_qq``, ``a_pq`` (see :func:`jacobi_eig_lanes`); the identity in the lanes left as they
     are (converged, or ``a_pq = 0``)."""
     for lane in range(lanes):
         apq = a[p, q, lane]
@@ -171,33 +194,26 @@ def _rotation(
         d = aqq - app
         root = np.sqrt(d * d + 4.0 * apq * apq)
         t = 2.0 * apq / (d + root if d >= 0.0 else d - root)
+        t = 0.0 if skip else t
         cos = 1.0 / np.sqrt(1.0 + t * t)
-        keep[lane] = skip
-        c[lane] = cos
-        s[lane] = t * cos
-        a[p, p, lane] = app if skip else app - t * apq
-        a[q, q, lane] = aqq if skip else aqq + t * apq
+        c[k, lane] = cos
+        s[k, lane] = t * cos
+        a[p, p, lane] = app - t * apq
+        a[q, q, lane] = aqq + t * apq
         a[p, q, lane] = apq if skip else 0.0
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _rotate_lanes(
-    x: Array,
-    i: int,
-    j: int,
-    k: int,
-    l: int,
-    lanes: int,
-    keep: NDArray[np.bool_],
-    c: Array,
-    s: Array,
+    x: Array, i: int, j: int, k: int, l: int, lanes: int, r: int, c: Array, s: Array
 ) -> None:  # pragma: no cover - jitted
-    """``(x_ij, x_kl) <- (c x_ij - s x_kl, s x_ij + c x_kl)`` in every lane not marked ``keep``."""
+    """``(x_ij, x_kl) <- (c x_ij - s x_kl, s x_ij + c x_kl)`` in every lane (rotation ``r``:
+    ``c[r]``, ``s[r]``)."""
     for lane in range(lanes):
         xij = x[i, j, lane]
         xkl = x[k, l, lane]
-        x[i, j, lane] = xij if keep[lane] else c[lane] * xij - s[lane] * xkl
-        x[k, l, lane] = xkl if keep[lane] else s[lane] * xij + c[lane] * xkl
+        x[i, j, lane] = c[r, lane] * xij - s[r, lane] * xkl
+        x[k, l, lane] = s[r, lane] * xij + c[r, lane] * xkl
 
 
 def inv_logdet(S: Array) -> tuple[Array, Array]:

@@ -6,10 +6,15 @@ r"""Compiled fast path of the IMM cycle for the built-in sensors (numba).
   :mod:`imm_gym.tracking.filters`; works with any sensor that implements
   :class:`imm_gym.tracking.filters.MeasurementModel`;
 * ``"compiled"`` — this module: the whole cycle (mix, predict, update, likelihood, probability
-  update, combination, NIS) fused into one compiled loop over the trackers, for
-  :class:`~imm_gym.Sonar` and :class:`~imm_gym.PositionSensor`. Small 4x4 blocks make numpy's
-  per-call overhead dominate; the fused loop is 10-30x faster at N = 1 and several times faster at
-  N = 1024.
+  update, combination, NIS) fused into one compiled call over the trackers, for
+  :class:`~imm_gym.Sonar` and :class:`~imm_gym.PositionSensor`. The trackers run in blocks of
+  ``TRACKER_BLOCK``, copied into structure-of-arrays scratch with the lane (model ``j`` of the
+  block's tracker ``b``) as the last, contiguous axis, so every step of the cycle is a loop over
+  the lanes that the compiler vectorizes: the Jacobi eigendecompositions of all the block's
+  predicted covariances together (:func:`imm_gym.tracking.linalg.jacobi_eig_lanes`), the sigma
+  points and a branch-free :func:`_atan2`, the closed-form inverse of a 2x2 innovation
+  covariance. No fast-math: IEEE arithmetic rounds the same in the vectorized loops and their
+  scalar remainders, so a tracker's numbers do not depend on its batch.
 
 The tests run both engines on the same inputs and require the same numbers (to rounding).
 
@@ -33,12 +38,18 @@ LINEAR = 1
 UKF = 0
 EKF = 1
 
+
 # fmt: off
 
 _TINY = 1e-300
 _TWO_PI = 2.0 * np.pi
-#: Trackers per block of :func:`imm_step`: the block's M predicted covariances per tracker are
-#: diagonalized together, one SIMD lane each (:func:`imm_gym.tracking.linalg.jacobi_eig_lanes`).
+_PI_2 = 0.5 * np.pi
+_PI_4 = 0.25 * np.pi
+#: the part of pi / 2 that its double misses (Cephes' MOREBITS)
+_PI_2_LO = 6.123233995736765886130e-17
+_TAN_3PI_8 = 2.41421356237309504880
+#: Trackers per block of :func:`imm_step`: the block's trackers and models are the SIMD lanes of
+#: every loop (structure of arrays, the lane index innermost).
 TRACKER_BLOCK = 32
 
 
@@ -70,224 +81,45 @@ def _wrap(a: float) -> float:  # pragma: no cover
     return w + _TWO_PI if w <= -np.pi else w
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _h(kind: int, params: Array, x: Array, j: int, out: Array) -> None:  # pragma: no cover
-    """Measurement function of the sensor ``kind`` at state ``x[j]``."""
-    if kind == RANGE_BEARING:
-        dx = x[j, 0] - params[0]
-        dy = x[j, 1] - params[1]
-        out[0] = np.sqrt(dx * dx + dy * dy)
-        out[1] = np.arctan2(dy, dx)
-    else:
-        for i in range(out.shape[0]):
-            out[i] = x[j, i]
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _jacobian(kind: int, params: Array, x: Array, j: int, H: Array) -> None:  # pragma: no cover
-    """``H = dh/dx`` at ``x[j]`` (``(m, n)``)."""
-    H[:, :] = 0.0
-    if kind == RANGE_BEARING:
-        dx = x[j, 0] - params[0]
-        dy = x[j, 1] - params[1]
-        r2 = max(dx * dx + dy * dy, 1e-12)
-        r = np.sqrt(r2)
-        H[0, 0] = dx / r
-        H[0, 1] = dy / r
-        H[1, 0] = -dy / r2
-        H[1, 1] = dx / r2
-    else:
-        for i in range(H.shape[0]):
-            H[i, i] = 1.0
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _wrap_near(a: float) -> float:  # pragma: no cover
+    """:func:`_wrap` of an angle in (-3 pi, 3 pi] (a difference of wrapped angles), branch-free
+    (selects: it vectorizes)."""
+    w = a - _TWO_PI if a > np.pi else a
+    return w + _TWO_PI if w <= -np.pi else w
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _inv_logdet(S: Array, S_inv: Array, L: Array) -> tuple[float, bool]:  # pragma: no cover
-    """Inverse and log-determinant of the SPD ``S`` by Cholesky; returns ``(logdet, ok)``."""
-    m = S.shape[0]
-    for i in range(m):
-        for j in range(i + 1):
-            acc = S[i, j]
-            for k in range(j):
-                acc -= L[i, k] * L[j, k]
-            if i == j:
-                if not acc > 0.0:
-                    return 0.0, False
-                L[i, i] = np.sqrt(acc)
-            else:
-                L[i, j] = acc / L[j, j]
-    logdet = 0.0
-    for i in range(m):
-        logdet += 2.0 * np.log(L[i, i])
-    # S^-1 = L^-T L^-1, column by column: solve L y = e_c, then L^T x = y.
-    for c in range(m):
-        for i in range(m):
-            acc = 1.0 if i == c else 0.0
-            for k in range(i):
-                acc -= L[i, k] * S_inv[k, c]
-            S_inv[i, c] = acc / L[i, i]
-        for i in range(m - 1, -1, -1):
-            acc = S_inv[i, c]
-            for k in range(i + 1, m):
-                acc -= L[k, i] * S_inv[k, c]
-            S_inv[i, c] = acc / L[i, i]
-    return logdet, True
+def _atan2(y: float, x: float) -> float:  # pragma: no cover
+    """``atan2(y, x)`` branch-free (selects and one division: it vectorizes), within an ulp or
+    two of ``numpy.arctan2``.
 
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _ukf_moments_lanes(
-    xp: Array,
-    s: Array,
-    U: Array,
-    lanes: int,
-    kind: int,
-    params: Array,
-    wm: Array,
-    wc: Array,
-    gamma: float,
-    zp: Array,
-    S: Array,
-    C: Array,
-    O: Array,
-    Z: Array,
-) -> None:  # pragma: no cover
-    """SVD-UKF predicted measurements ``zp[:, l]``, spreads of the predicted measurement
-    ``S[:, :, l]`` (the innovation covariance without ``R``, added per tracker by
-    :func:`_from_lanes`) and cross covariances ``C[:, :, l]`` of the lanes ``l < lanes`` (one
-    model of one tracker each).
-
-    Sigma offsets ``O_0 = 0``, ``O_{1+i} = -O_{1+n+i} = gamma sqrt|s_i| U_{:, i}`` from the
-    eigendecomposition ``Pp = U diag(s) U^T`` of the predicted covariance (lane ``l`` of
-    :func:`jacobi_eig_lanes`'s output; ``xp[l]`` the predicted state), ``Z_k = h(xp + O_k) -
-    h(xp)`` (bearing wrapped: averaged as residuals about the centre point),
-    ``zp = h(xp) + sum_k wm_k Z_k``, ``S = sum_k wc_k dZ_k dZ_k^T``,
-    ``C = sum_k wc_k O_k dZ_k^T`` with ``dZ_k = Z_k - sum_k wm_k Z_k``. Lane by lane the
-    operations and their order are those of a single model; each step is a loop over the lanes
-    (``O``, ``Z``: ``(2n+1, n, L)``, ``(2n+1, m, L)`` scratch), vectorized except ``atan2``.
+    ``r = min(|x|, |y|) / max(|x|, |y|)`` in [0, 1]; above 0.66 ``atan r = pi/4 +
+    atan((r - 1) / (r + 1))``; ``atan u = u + u z P(z) / Q(z)``, ``z = u^2``, the rational
+    approximation of Cephes' ``atan`` (Moshier 1989; relative error 2e-16 on
+    ``|u| <= 0.66``); then ``pi/2 - atan r`` when ``|y| > |x|``, ``pi - .`` when ``x < 0`` and
+    the sign of ``y``. ``atan2(0, 0) = 0``.
     """
-    n = xp.shape[1]
-    m = zp.shape[0]
-    L = 2 * n + 1
-    for c in range(n):
-        for lane in range(lanes):
-            O[0, c, lane] = 0.0
-    for i in range(n):
-        for lane in range(lanes):
-            scale = gamma * np.sqrt(abs(s[i, i, lane]))
-            for c in range(n):
-                O[1 + i, c, lane] = scale * U[c, i, lane]
-                O[1 + n + i, c, lane] = -scale * U[c, i, lane]
-    # Z holds h(sigma point) minus h(centre), bearing wrapped
-    for k in range(L):
-        if kind == RANGE_BEARING:
-            for lane in range(lanes):
-                dx = xp[lane, 0] + O[k, 0, lane] - params[0]
-                dy = xp[lane, 1] + O[k, 1, lane] - params[1]
-                Z[k, 0, lane] = np.sqrt(dx * dx + dy * dy)
-            for lane in range(lanes):
-                dx = xp[lane, 0] + O[k, 0, lane] - params[0]
-                dy = xp[lane, 1] + O[k, 1, lane] - params[1]
-                Z[k, 1, lane] = np.arctan2(dy, dx)
-        else:
-            for d in range(m):
-                for lane in range(lanes):
-                    Z[k, d, lane] = xp[lane, d] + O[k, d, lane]
-    for k in range(L - 1, -1, -1):
-        for d in range(m):
-            for lane in range(lanes):
-                Z[k, d, lane] -= Z[0, d, lane]
-        if kind == RANGE_BEARING:
-            for lane in range(lanes):
-                Z[k, 1, lane] = _wrap(Z[k, 1, lane])
-    for d in range(m):
-        for lane in range(lanes):
-            zp[d, lane] = 0.0
-        for k in range(L):
-            for lane in range(lanes):
-                zp[d, lane] += wm[k] * Z[k, d, lane]
-        for k in range(L):
-            for lane in range(lanes):
-                Z[k, d, lane] -= zp[d, lane]
-    # zp = h(centre) + mean residual
-    for lane in range(lanes):
-        if kind == RANGE_BEARING:
-            dx = xp[lane, 0] - params[0]
-            dy = xp[lane, 1] - params[1]
-            zp[0, lane] = np.sqrt(dx * dx + dy * dy) + zp[0, lane]
-            zp[1, lane] = _wrap(np.arctan2(dy, dx) + zp[1, lane])
-        else:
-            for d in range(m):
-                zp[d, lane] += xp[lane, d]
-    for r in range(m):
-        for c in range(r, m):
-            for lane in range(lanes):
-                S[r, c, lane] = 0.0
-            for k in range(L):
-                for lane in range(lanes):
-                    S[r, c, lane] += wc[k] * Z[k, r, lane] * Z[k, c, lane]
-    for r in range(n):
-        for c in range(m):
-            for lane in range(lanes):
-                C[r, c, lane] = 0.0
-            for k in range(1, L):
-                for lane in range(lanes):
-                    C[r, c, lane] += wc[k] * O[k, r, lane] * Z[k, c, lane]
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _from_lanes(
-    zp_l: Array, S_l: Array, C_l: Array, R: Array, lane: int, j: int, zp: Array, S: Array,
-    C: Array,
-) -> None:  # pragma: no cover
-    """Model ``j``'s ``zp[j]``, ``S[j] = S_l + (R + R^T) / 2``, ``C`` from lane ``lane`` of
-    :func:`_ukf_moments_lanes`'s outputs (``R``: the tracker's measurement noise)."""
-    n, m = C.shape
-    for r in range(m):
-        zp[j, r] = zp_l[r, lane]
-        for c in range(r, m):
-            S[j, r, c] = S_l[r, c, lane] + 0.5 * (R[r, c] + R[c, r])
-            S[j, c, r] = S[j, r, c]
-    for r in range(n):
-        for c in range(m):
-            C[r, c] = C_l[r, c, lane]
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _ekf_moments(
-    xp: Array,
-    Pp: Array,
-    b: int,
-    kind: int,
-    params: Array,
-    R: Array,
-    j: int,
-    zp: Array,
-    S: Array,
-    C: Array,
-    H: Array,
-    h: Array,
-) -> None:  # pragma: no cover
-    """EKF predicted measurement ``zp[j] = h(xp[b, j])``, ``S[j] = H Pp[b, j] H^T + R`` and
-    ``C = Pp[b, j] H^T`` of model ``j`` of the block's tracker ``b``."""
-    n = xp.shape[2]
-    m = zp.shape[1]
-    _h(kind, params, xp[b], j, h)
-    for d in range(m):
-        zp[j, d] = h[d]
-    _jacobian(kind, params, xp[b], j, H)
-    for r in range(n):
-        for c in range(m):
-            acc = 0.0
-            for k in range(n):
-                acc += Pp[b, j, r, k] * H[c, k]
-            C[r, c] = acc
-    for r in range(m):
-        for c in range(r, m):
-            acc = 0.0
-            for k in range(n):
-                acc += H[r, k] * C[k, c]
-            S[j, r, c] = acc + 0.5 * (R[r, c] + R[c, r])
-            S[j, c, r] = S[j, r, c]
+    ax = abs(x)
+    ay = abs(y)
+    swap = ay > ax
+    hi = ay if swap else ax
+    lo = ax if swap else ay
+    r = lo / hi if hi > 0.0 else 0.0
+    big = r > 0.66
+    u = (r - 1.0) / (r + 1.0) if big else r
+    z = u * u
+    p = (((-8.750608600031904122785e-1 * z - 1.615753718733365076637e1) * z
+          - 7.500855792314704667340e1) * z - 1.228866684490136173410e2) * z \
+        - 6.485021904942025371773e1
+    q = ((((z + 2.485846490142306297962e1) * z + 1.650270098316988542046e2) * z
+          + 4.328810604912902668951e2) * z + 4.853903996359136964868e2) * z \
+        + 1.945506571482613964425e2
+    a = u + u * (z * p / q)
+    a = (_PI_4 + (a + 0.5 * _PI_2_LO)) if big else a
+    a = ((_PI_2 - a) + _PI_2_LO) if swap else a
+    a = ((np.pi - a) + 2.0 * _PI_2_LO) if x < 0.0 else a
+    return -a if y < 0.0 else a
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -334,279 +166,711 @@ def imm_step(
     ``mixture_nis``; else ``nis_out`` is 0) the NIS of the moment-matched predicted measurement
     mixture.
 
-    The trackers run in blocks of ``TRACKER_BLOCK``: the block's mixing and predictions first,
-    then the UKF's eigendecompositions of all its ``TRACKER_BLOCK * M`` predicted covariances
-    in one vectorized Jacobi call (one SIMD lane per matrix), then tracker by tracker the rest.
-    Every tracker's numbers are those it would get alone (the Jacobi lanes do not interact).
+    Layout: the trackers run in blocks of ``TRACKER_BLOCK``, copied into structure-of-arrays
+    scratch whose last axis is the lane: ``j * nb + b`` for model ``j`` of the block's tracker
+    ``b`` (``nb`` trackers in the block; per-tracker arrays have lane ``b``). Every step is a
+    loop over the lanes (the compiler vectorizes it), the ``M * nb`` predicted covariances are
+    diagonalized together (:func:`imm_gym.tracking.linalg.jacobi_eig_lanes`), ``atan2`` is
+    :func:`_atan2`, a 2x2 innovation covariance is inverted in closed form. Lanes do not
+    interact and sums keep their order, so every tracker's numbers are those it would get alone
+    (whatever its block, position and N).
     """
     N, M, n = x.shape
     m = z.shape[1]
-    L = 2 * n + 1
-    x0 = np.empty((M, n))
-    P0 = np.empty((M, n, n))
-    w = np.empty(M)
-    spread = np.empty((M, n))
-    FP = np.empty((n, n))
-    B = min(N, TRACKER_BLOCK)  # rows of the block arrays (a small batch allocates less)
-    cbar = np.empty((B, M))
-    xp = np.empty((B, M, n))
-    Pp = np.empty((B, M, n, n))
-    eig = np.empty((n, n, B * M))
-    U = np.empty((n, n, B * M))
-    xp_lanes = xp.reshape(B * M, n)  # lane l = b M + j: model j of row b
-    zp_l = np.empty((m, B * M))
-    S_l = np.empty((m, m, B * M))
-    C_l = np.empty((n, m, B * M))
-    O_l = np.empty((L, n, B * M))
-    Z_l = np.empty((L, m, B * M))
-    zp = np.empty((M, m))
-    S = np.empty((M, m, m))
-    C = np.empty((n, m))
-    K = np.empty((n, m))
-    S_inv = np.empty((m, m))
-    Lc = np.zeros((m, m))
-    nu = np.empty(m)
-    Sinu = np.empty(m)
-    Sj = np.empty((m, m))
-    hz = np.empty(m)
-    H = np.empty((m, n))
-    IKH = np.empty((n, n))
-    T1 = np.empty((n, n))
-    logpost = np.empty(M)
+    W = min(N, TRACKER_BLOCK)
+    L = M * W
+    K = 2 * n + 1 if filter_kind == UKF else 1
     per_tracker = F.shape[0] > 1  # else one bank for all trackers
+    # structure-of-arrays scratch, the lane axis last
+    Fl, Ql = np.empty((n, n, L)), np.empty((n, n, L))
+    Xm, Pm = np.empty((n, L)), np.empty((n, n, L))
+    Rl, mul, tpml = np.empty((m, m, W)), np.empty((M, W)), np.empty((M, M, W))
+    cbar, wgt, spread = np.empty((M, W)), np.empty((M, W)), np.empty((M, n, W))
+    X0, P0, FP = np.empty((n, L)), np.empty((n, n, L)), np.empty((n, n, L))
+    Xp, Pp = np.empty((n, L)), np.empty((n, n, L))
+    eig, U = np.empty((n, n, L)), np.empty((n, n, L))
+    O, Z = np.empty((K, n, L)), np.empty((K, m, L))
+    H = np.empty((m, n, L))
+    zp, S, C, Kg = np.empty((m, L)), np.empty((m, m, L)), np.empty((n, m, L)), np.empty((n, m, L))
+    Si, Lc, logdet, ok = np.empty((m, m, L)), np.empty((m, m, L)), np.empty(L), np.empty(L)
+    nu, Sinu, innov = np.empty((m, L)), np.empty((m, L)), np.empty((m, L))
+    nis, loglik, Xu, Pu = np.empty(L), np.empty(L), np.empty((n, L)), np.empty((n, n, L))
+    mu_new, xhat, Phat = np.empty((M, W)), np.empty((n, W)), np.empty((n, n, W))
+    hz, Sm = np.empty((m, W)), np.empty((m, m, W))
+    Smi, Smc = np.empty((m, m, W)), np.empty((m, m, W))
+    num, okm, nism = np.empty((m, W)), np.empty(W), np.empty(W)
+    det = np.empty(W)
+    bank_lanes = -1  # the lane count the bank's F, Q, R were spread for (one bank)
     failures = 0
-    for t in range(N):
-        b = t % TRACKER_BLOCK  # row of tracker t in its block
-        if b == 0:  # 1. mixing and prediction of the block, 2a. its eigendecompositions
-            nb = min(TRACKER_BLOCK, N - t)
-            for i in range(nb):
-                g = t + i if per_tracker else 0
-                _mix_predict(t + i, i, x, P, mu, tpm, F[g], Q[g], cbar, xp, Pp, x0, P0, w, spread,
-                             FP)
-            if filter_kind == UKF:
-                _to_lanes(Pp, nb, eig)
-                jacobi_eig_lanes(eig, U, nb * M, JACOBI_MAX_SWEEPS)
-                _ukf_moments_lanes(xp_lanes, eig, U, nb * M, sensor_kind, sensor_params, wm, wc,
-                                   gamma, zp_l, S_l, C_l, O_l, Z_l)
-        Rt = R[t if per_tracker else 0]
-        failed_out[t] = False
-        for j in range(M):
-            if filter_kind == UKF:
-                _from_lanes(zp_l, S_l, C_l, Rt, b * M + j, j, zp, S, C)
-            else:
-                _ekf_moments(xp, Pp, b, sensor_kind, sensor_params, Rt, j, zp, S, C, H, hz)
-            for r in range(m):
-                for c in range(m):
-                    Sj[r, c] = S[j, r, c]
-            logdet, ok = _inv_logdet(Sj, S_inv, Lc)
-            if not ok:
-                failed_out[t] = True
-                break
-            if not detected[t]:
-                for r in range(n):
-                    x_out[t, j, r] = xp[b, j, r]
-                    for c in range(n):
-                        P_out[t, j, r, c] = Pp[b, j, r, c]
-                loglik_out[t, j] = 0.0
-                model_nis_out[t, j] = 0.0
-                for d in range(m):
-                    innov_out[t, j, d] = 0.0
-                continue
-            for d in range(m):
-                nu[d] = z[t, d] - zp[j, d]
-            if sensor_kind == RANGE_BEARING:
-                nu[1] = _wrap(nu[1])
-            for r in range(m):
-                acc = 0.0
-                for c in range(m):
-                    acc += S_inv[r, c] * nu[c]
-                Sinu[r] = acc
-            nis = 0.0
-            for r in range(m):
-                nis += nu[r] * Sinu[r]
-            # whitened innovation L^-1 nu (S = L L^T): signed, |.|^2 = NIS
-            for r in range(m):
-                acc = nu[r]
-                for k in range(r):
-                    acc -= Lc[r, k] * innov_out[t, j, k]
-                innov_out[t, j, r] = acc / Lc[r, r]
+    for t0 in range(0, N, W):
+        nb = min(W, N - t0)
+        lanes = M * nb
+        if per_tracker or bank_lanes != nb:
+            _spread_bank(F, Q, R, t0, nb, per_tracker, Fl, Ql, Rl)
+            bank_lanes = nb
+        _load(x, P, mu, tpm, detected, t0, nb, Xm, Pm, mul, tpml, det)
+        _mix(Xm, Pm, mul, tpml, nb, cbar, wgt, spread, X0, P0)
+        _predict(Fl, Ql, X0, P0, lanes, Xp, Pp, FP)
+        if filter_kind == UKF:
             for r in range(n):
-                for c in range(m):
-                    acc = 0.0
-                    for k in range(m):
-                        acc += C[r, k] * S_inv[k, c]
-                    K[r, c] = acc
-                acc = 0.0
-                for k in range(m):
-                    acc += C[r, k] * Sinu[k]
-                x_out[t, j, r] = xp[b, j, r] + acc
-            if filter_kind == UKF:
-                # P = Pp - K C^T
-                for r in range(n):
-                    for c in range(n):
-                        acc = 0.0
-                        for k in range(m):
-                            acc += K[r, k] * C[c, k]
-                        T1[r, c] = Pp[b, j, r, c] - acc
-            else:
-                # Joseph form: (I - K H) Pp (I - K H)^T + K R K^T
-                for r in range(n):
-                    for c in range(n):
-                        acc = 1.0 if r == c else 0.0
-                        for k in range(m):
-                            acc -= K[r, k] * H[k, c]
-                        IKH[r, c] = acc
-                for r in range(n):
-                    for c in range(n):
-                        acc = 0.0
-                        for k in range(n):
-                            acc += IKH[r, k] * Pp[b, j, k, c]
-                        FP[r, c] = acc
-                for r in range(n):
-                    for c in range(n):
-                        acc = 0.0
-                        for k in range(n):
-                            acc += FP[r, k] * IKH[c, k]
-                        for k in range(m):
-                            for l in range(m):
-                                acc += K[r, k] * Rt[k, l] * K[c, l]
-                        T1[r, c] = acc
-            for r in range(n):
-                for c in range(n):
-                    P_out[t, j, r, c] = 0.5 * (T1[r, c] + T1[c, r])
-            loglik_out[t, j] = -0.5 * (nis + logdet + m * LOG_2PI)
-            model_nis_out[t, j] = nis
-        if failed_out[t]:
-            failures += 1
-            _fill_nan(t, x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out,
-                      nis_out, xhat_out, Phat_out)
-            continue
-        # 3. model probabilities, mu_j ∝ Lambda_j cbar_j (log-sum-exp)
-        top = -np.inf
-        for j in range(M):
-            logpost[j] = loglik_out[t, j] + (np.log(cbar[b, j]) if cbar[b, j] > 0.0 else -np.inf)
-            top = max(top, logpost[j])
-        total = 0.0
-        for j in range(M):
-            logpost[j] = np.exp(logpost[j] - top)
-            total += logpost[j]
-        for j in range(M):
-            mu_out[t, j] = logpost[j] / total
-            cbar_out[t, j] = cbar[b, j]
-        # 4. combination
-        combine_into(t, mu_out, x_out, P_out, xhat_out, Phat_out)
-        # 5. NIS of the predicted measurement mixture (weights cbar)
-        if not (detected[t] and mixture_nis):
-            nis_out[t] = 0.0
-            continue
-        for d in range(m):
-            acc = 0.0
-            for j in range(M):
-                diff = zp[j, d] - zp[0, d]
-                if sensor_kind == RANGE_BEARING and d == 1:
-                    diff = _wrap(diff)
-                acc += cbar[b, j] * diff
-            hz[d] = zp[0, d] + acc  # mixture mean
-        for r in range(m):
-            for c in range(m):
-                Sj[r, c] = 0.0
-        for j in range(M):
-            for d in range(m):
-                nu[d] = zp[j, d] - hz[d]
-            if sensor_kind == RANGE_BEARING:
-                nu[1] = _wrap(nu[1])
-            for r in range(m):
-                for c in range(m):
-                    Sj[r, c] += cbar[b, j] * (S[j, r, c] + nu[r] * nu[c])
-        logdet, ok = _inv_logdet(Sj, S_inv, Lc)
-        if not ok:
-            failed_out[t] = True
-            failures += 1
-            _fill_nan(t, x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out,
-                      nis_out, xhat_out, Phat_out)
-            continue
-        for d in range(m):
-            nu[d] = z[t, d] - hz[d]
-        if sensor_kind == RANGE_BEARING:
-            nu[1] = _wrap(nu[1])
-        acc = 0.0
-        for r in range(m):
-            for c in range(m):
-                acc += nu[r] * S_inv[r, c] * nu[c]
-        nis_out[t] = acc
+                for c in range(r, n):
+                    for i in range(lanes):
+                        eig[r, c, i] = Pp[r, c, i]
+            jacobi_eig_lanes(eig, U, lanes, JACOBI_MAX_SWEEPS)
+            _ukf_moments(Xp, eig, U, lanes, sensor_kind, sensor_params, wm, wc, gamma, zp, S, C,
+                         O, Z)
+        else:
+            _ekf_moments(Xp, Pp, lanes, sensor_kind, sensor_params, zp, S, C, H)
+        _add_noise(S, Rl, M, nb)
+        _inverse(S, lanes, Si, Lc, logdet, ok)
+        _innovation(z, t0, nb, M, sensor_kind, zp, nu)
+        _update(Xp, Pp, zp, C, H, Rl, Si, Lc, logdet, ok, nu, M, nb, filter_kind, Sinu, Kg, FP,
+                nis, loglik, innov, Xu, Pu)
+        _keep_prediction(Xp, Pp, M, nb, det, Xu, Pu)
+        _probabilities(loglik, cbar, M, nb, det, mu_new, nism)
+        _combine_lanes(mu_new, Xu, Pu, M, nb, xhat, Phat)
+        if mixture_nis:
+            _mixture_nis(z, t0, zp, S, cbar, M, nb, sensor_kind, hz, Sm, Smi, Smc, num, okm, nism)
+        else:
+            for b in range(nb):
+                okm[b] = 1.0
+        failures += _store(t0, nb, M, det, mixture_nis, ok, okm, nism, Xu, Pu, mu_new,
+                           cbar, loglik, nis, innov, xhat, Phat, x_out, P_out, mu_out, cbar_out,
+                           loglik_out, model_nis_out, innov_out, nis_out, xhat_out, Phat_out,
+                           failed_out)
     return failures
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _mix_predict(
-    t: int, b: int, x: Array, P: Array, mu: Array, tpm: Array, F: Array, Q: Array, cbar: Array,
-    xp: Array, Pp: Array, x0: Array, P0: Array, w: Array, spread: Array, FP: Array,
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _spread_bank(
+    F: Array, Q: Array, R: Array, t0: int, nb: int, per_tracker: bool, Fl: Array, Ql: Array,
+    Rl: Array,
 ) -> None:  # pragma: no cover
-    """Mixing (SPEC §1 step 1) and prediction of tracker ``t`` into row ``b`` of the block.
+    """The block's ``F_j``, ``(Q_j + Q_j^T) / 2`` into lanes ``j nb + b`` of ``Fl``, ``Ql``, and
+    ``(R + R^T) / 2`` into lanes ``b`` of ``Rl`` (tracker ``t0 + b``'s bank, or bank 0)."""
+    M, n = F.shape[1], F.shape[2]
+    m = R.shape[1]
+    for b in range(nb):
+        g = t0 + b if per_tracker else 0
+        for j in range(M):
+            for r in range(n):
+                for c in range(n):
+                    Fl[r, c, j * nb + b] = F[g, j, r, c]
+                    Ql[r, c, j * nb + b] = 0.5 * (Q[g, j, r, c] + Q[g, j, c, r])
+        for r in range(m):
+            for c in range(m):
+                Rl[r, c, b] = 0.5 * (R[g, r, c] + R[g, c, r])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _load(
+    x: Array, P: Array, mu: Array, tpm: Array, detected: NDArray[np.bool_], t0: int, nb: int,
+    Xm: Array, Pm: Array, mul: Array, tpml: Array, det: Array,
+) -> None:  # pragma: no cover
+    """Trackers ``t0 .. t0 + nb - 1`` into the block's lanes (transposed: lane last)."""
+    M, n = x.shape[1], x.shape[2]
+    for b in range(nb):
+        t = t0 + b
+        det[b] = 1.0 if detected[t] else 0.0
+        for i in range(M):
+            mul[i, b] = mu[t, i]
+            for j in range(M):
+                tpml[i, j, b] = tpm[t, i, j]
+            for r in range(n):
+                Xm[r, i * nb + b] = x[t, i, r]
+                for c in range(n):
+                    Pm[r, c, i * nb + b] = P[t, i, r, c]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _mix(
+    Xm: Array, Pm: Array, mul: Array, tpml: Array, nb: int, cbar: Array, wgt: Array,
+    spread: Array, X0: Array, P0: Array,
+) -> None:  # pragma: no cover
+    """Mixing (SPEC §1 step 1), lane by lane.
 
     ``cbar_j = sum_i pi_ij mu_i``; ``x0_j = sum_i mu_i|j x_i``, ``P0_j = sum_i mu_i|j [P_i +
     (x_i - x0_j)(x_i - x0_j)^T]`` with ``mu_i|j = pi_ij mu_i / cbar_j`` (``mu`` itself when
-    ``cbar_j`` underflows); ``xp_j = F_j x0_j``, ``Pp_j = F_j P0_j F_j^T + Q_j``. ``x0``,
-    ``P0``, ``w``, ``spread``, ``FP`` are scratch.
+    ``cbar_j`` underflows).
     """
-    M, n = x.shape[1], x.shape[2]
+    M = mul.shape[0]
+    n = Xm.shape[0]
     for j in range(M):
-        acc = 0.0
+        for b in range(nb):
+            cbar[j, b] = 0.0
         for i in range(M):
-            acc += tpm[t, i, j] * mu[t, i]
-        cbar[b, j] = acc
+            for b in range(nb):
+                cbar[j, b] += tpml[i, j, b] * mul[i, b]
     for j in range(M):
-        if cbar[b, j] > _TINY:
-            inv_cbar = 1.0 / cbar[b, j]
-            for i in range(M):
-                w[i] = tpm[t, i, j] * mu[t, i] * inv_cbar
-        else:
-            for i in range(M):
-                w[i] = mu[t, i]
+        for i in range(M):
+            for b in range(nb):
+                cb = cbar[j, b]
+                wgt[i, b] = tpml[i, j, b] * mul[i, b] * (1.0 / cb) if cb > _TINY else mul[i, b]
+        o = j * nb
         for d in range(n):
-            acc = 0.0
+            for b in range(nb):
+                X0[d, o + b] = 0.0
             for i in range(M):
-                acc += w[i] * x[t, i, d]
-            x0[j, d] = acc
+                for b in range(nb):
+                    X0[d, o + b] += wgt[i, b] * Xm[d, i * nb + b]
             for i in range(M):
-                spread[i, d] = x[t, i, d] - acc  # x_i - x0_j
+                for b in range(nb):
+                    spread[i, d, b] = Xm[d, i * nb + b] - X0[d, o + b]
         for r in range(n):
             for c in range(r, n):
-                acc = 0.0
+                for b in range(nb):
+                    P0[r, c, o + b] = 0.0
                 for i in range(M):
-                    acc += w[i] * (P[t, i, r, c] + spread[i, r] * spread[i, c])
-                P0[j, r, c] = acc
-                P0[j, c, r] = acc
-    for j in range(M):
-        for r in range(n):
-            acc = 0.0
+                    for b in range(nb):
+                        P0[r, c, o + b] += wgt[i, b] * (
+                            Pm[r, c, i * nb + b] + spread[i, r, b] * spread[i, c, b])
+                for b in range(nb):
+                    P0[c, r, o + b] = P0[r, c, o + b]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _predict(
+    Fl: Array, Ql: Array, X0: Array, P0: Array, lanes: int, Xp: Array, Pp: Array, FP: Array,
+) -> None:  # pragma: no cover
+    """``xp = F x0``, ``Pp = F P0 F^T + (Q + Q^T) / 2`` (symmetric by construction), lane by
+    lane (``FP`` scratch)."""
+    n = X0.shape[0]
+    for r in range(n):
+        for i in range(lanes):
+            Xp[r, i] = 0.0
+        for k in range(n):
+            for i in range(lanes):
+                Xp[r, i] += Fl[r, k, i] * X0[k, i]
+        for c in range(n):
+            for i in range(lanes):
+                FP[r, c, i] = 0.0
             for k in range(n):
-                acc += F[j, r, k] * x0[j, k]
-            xp[b, j, r] = acc
-            for c in range(n):
-                acc = 0.0
-                for k in range(n):
-                    acc += F[j, r, k] * P0[j, k, c]
-                FP[r, c] = acc
+                for i in range(lanes):
+                    FP[r, c, i] += Fl[r, k, i] * P0[k, c, i]
+    for r in range(n):
+        for c in range(r, n):
+            for i in range(lanes):
+                Pp[r, c, i] = 0.0
+            for k in range(n):
+                for i in range(lanes):
+                    Pp[r, c, i] += FP[r, k, i] * Fl[c, k, i]
+            for i in range(lanes):
+                Pp[r, c, i] += Ql[r, c, i]
+                Pp[c, r, i] = Pp[r, c, i]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _ukf_moments(
+    xp: Array, s: Array, U: Array, lanes: int, kind: int, params: Array, wm: Array, wc: Array,
+    gamma: float, zp: Array, S: Array, C: Array, O: Array, Z: Array,
+) -> None:  # pragma: no cover
+    """SVD-UKF predicted measurements ``zp[:, l]``, spreads of the predicted measurement
+    ``S[:, :, l]`` (the innovation covariance without ``R``, added by :func:`_add_noise`) and
+    cross covariances ``C[:, :, l]`` of the lanes ``l < lanes``.
+
+    Sigma offsets ``O_0 = 0``, ``O_{1+i} = -O_{1+n+i} = gamma sqrt|s_i| U_{:, i}`` from the
+    eigendecomposition ``Pp = U diag(s) U^T`` of the predicted covariance (``s`` on the diagonal
+    of :func:`jacobi_eig_lanes`'s output; ``xp`` the predicted state), ``Z_k = h(xp + O_k) -
+    h(xp)`` (bearing wrapped: averaged as residuals about the centre point),
+    ``zp = h(xp) + sum_k wm_k Z_k``, ``S = sum_k wc_k dZ_k dZ_k^T``,
+    ``C = sum_k wc_k O_k dZ_k^T`` with ``dZ_k = Z_k - sum_k wm_k Z_k`` (``O``, ``Z``:
+    ``(2n+1, n, L)``, ``(2n+1, m, L)`` scratch).
+    """
+    n = xp.shape[0]
+    m = zp.shape[0]
+    L = 2 * n + 1
+    for c in range(n):
+        for i in range(lanes):
+            O[0, c, i] = 0.0
+    for k in range(n):
+        for c in range(n):
+            for i in range(lanes):
+                o = gamma * np.sqrt(abs(s[k, k, i])) * U[c, k, i]
+                O[1 + k, c, i] = o
+                O[1 + n + k, c, i] = -o
+    # Z holds h(sigma point) minus h(centre), bearing wrapped
+    for k in range(L):
+        if kind == RANGE_BEARING:
+            for i in range(lanes):
+                dx = xp[0, i] + O[k, 0, i] - params[0]
+                dy = xp[1, i] + O[k, 1, i] - params[1]
+                Z[k, 0, i] = np.sqrt(dx * dx + dy * dy)
+                Z[k, 1, i] = _atan2(dy, dx)
+        else:
+            for d in range(m):
+                for i in range(lanes):
+                    Z[k, d, i] = xp[d, i] + O[k, d, i]
+    for k in range(L - 1, -1, -1):
+        for d in range(m):
+            for i in range(lanes):
+                Z[k, d, i] -= Z[0, d, i]
+        if kind == RANGE_BEARING:
+            for i in range(lanes):
+                Z[k, 1, i] = _wrap_near(Z[k, 1, i])
+    for d in range(m):
+        for i in range(lanes):
+            zp[d, i] = 0.0
+        for k in range(L):
+            for i in range(lanes):
+                zp[d, i] += wm[k] * Z[k, d, i]
+        for k in range(L):
+            for i in range(lanes):
+                Z[k, d, i] -= zp[d, i]
+    # zp = h(centre) + mean residual
+    if kind == RANGE_BEARING:
+        for i in range(lanes):
+            dx = xp[0, i] - params[0]
+            dy = xp[1, i] - params[1]
+            zp[0, i] = np.sqrt(dx * dx + dy * dy) + zp[0, i]
+            zp[1, i] = _wrap_near(_atan2(dy, dx) + zp[1, i])
+    else:
+        for d in range(m):
+            for i in range(lanes):
+                zp[d, i] += xp[d, i]
+    for r in range(m):
+        for c in range(r, m):
+            for i in range(lanes):
+                S[r, c, i] = 0.0
+            for k in range(L):
+                for i in range(lanes):
+                    S[r, c, i] += wc[k] * Z[k, r, i] * Z[k, c, i]
+    for r in range(n):
+        for c in range(m):
+            for i in range(lanes):
+                C[r, c, i] = 0.0
+            for k in range(1, L):
+                for i in range(lanes):
+                    C[r, c, i] += wc[k] * O[k, r, i] * Z[k, c, i]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _ekf_moments(
+    xp: Array, Pp: Array, lanes: int, kind: int, params: Array, zp: Array, S: Array, C: Array,
+    H: Array,
+) -> None:  # pragma: no cover
+    """EKF predicted measurement ``zp = h(xp)``, ``C = Pp H^T`` and ``S = H C`` (without ``R``)
+    with ``H = dh/dx`` at ``xp`` (range-bearing: ``[[dx, dy], [-dy / r, dx / r]] / r`` in the
+    position columns; linear: ``[I 0]``), lane by lane."""
+    n = xp.shape[0]
+    m = zp.shape[0]
+    for r in range(m):
+        for c in range(n):
+            for i in range(lanes):
+                H[r, c, i] = 0.0
+    if kind == RANGE_BEARING:
+        for i in range(lanes):
+            dx = xp[0, i] - params[0]
+            dy = xp[1, i] - params[1]
+            zp[0, i] = np.sqrt(dx * dx + dy * dy)
+            zp[1, i] = _atan2(dy, dx)
+            r2 = max(dx * dx + dy * dy, 1e-12)
+            rr = np.sqrt(r2)
+            H[0, 0, i] = dx / rr
+            H[0, 1, i] = dy / rr
+            H[1, 0, i] = -dy / r2
+            H[1, 1, i] = dx / r2
+    else:
+        for d in range(m):
+            for i in range(lanes):
+                zp[d, i] = xp[d, i]
+                H[d, d, i] = 1.0
+    for r in range(n):
+        for c in range(m):
+            for i in range(lanes):
+                C[r, c, i] = 0.0
+            for k in range(n):
+                for i in range(lanes):
+                    C[r, c, i] += Pp[r, k, i] * H[c, k, i]
+    for r in range(m):
+        for c in range(r, m):
+            for i in range(lanes):
+                S[r, c, i] = 0.0
+            for k in range(n):
+                for i in range(lanes):
+                    S[r, c, i] += H[r, k, i] * C[k, c, i]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _add_noise(S: Array, Rl: Array, M: int, nb: int) -> None:  # pragma: no cover
+    """``S += (R + R^T) / 2`` (the tracker's, in every model's lane), upper triangle mirrored."""
+    m = S.shape[0]
+    for r in range(m):
+        for c in range(r, m):
+            for j in range(M):
+                for b in range(nb):
+                    S[r, c, j * nb + b] += Rl[r, c, b]
+                    S[c, r, j * nb + b] = S[r, c, j * nb + b]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _inverse(
+    S: Array, lanes: int, Si: Array, Lc: Array, logdet: Array, ok: Array
+) -> None:  # pragma: no cover
+    """``S^-1``, ``log det S`` and the Cholesky factor ``S = L L^T`` of the SPD ``S`` lane by
+    lane; ``ok`` is 1 where ``S`` is positive definite, 0 elsewhere (its outputs are then
+    meaningless).
+
+    2x2: ``S^-1 = [[d, -b], [-b, a]] / (a d - b^2)``, ``log det = log(a d - b^2)``,
+    ``L = [[sqrt a, 0], [b / sqrt a, sqrt(d - b^2 / a)]]``; larger: Cholesky, then ``S^-1 =
+    L^-T L^-1`` column by column.
+    """
+    m = S.shape[0]
+    if m == 2:
+        for i in range(lanes):
+            a = S[0, 0, i]
+            b = S[0, 1, i]
+            d = S[1, 1, i]
+            dt = a * d - b * b
+            ok[i] = 1.0 if (a > 0.0) & (dt > 0.0) else 0.0
+            inv = 1.0 / dt
+            Si[0, 0, i] = d * inv
+            Si[1, 1, i] = a * inv
+            Si[0, 1, i] = -b * inv
+            Si[1, 0, i] = -b * inv
+            l0 = np.sqrt(a)
+            l1 = b / l0
+            Lc[0, 0, i] = l0
+            Lc[1, 0, i] = l1
+            Lc[1, 1, i] = np.sqrt(d - l1 * l1)
+        for i in range(lanes):
+            logdet[i] = np.log(S[0, 0, i] * S[1, 1, i] - S[0, 1, i] * S[0, 1, i]) if ok[i] else 0.0
+        return
+    for i in range(lanes):
+        ok[i] = 1.0
+    for r in range(m):
+        for c in range(r + 1):
+            for i in range(lanes):
+                acc = S[r, c, i]
+                for k in range(c):
+                    acc -= Lc[r, k, i] * Lc[c, k, i]
+                if r == c:
+                    ok[i] = ok[i] if acc > 0.0 else 0.0
+                    Lc[r, r, i] = np.sqrt(acc)
+                else:
+                    Lc[r, c, i] = acc / Lc[c, c, i]
+    for c in range(m):
+        for r in range(m):
+            for i in range(lanes):
+                acc = 1.0 if r == c else 0.0
+                for k in range(r):
+                    acc -= Lc[r, k, i] * Si[k, c, i]
+                Si[r, c, i] = acc / Lc[r, r, i]
+        for r in range(m - 1, -1, -1):
+            for i in range(lanes):
+                acc = Si[r, c, i]
+                for k in range(r + 1, m):
+                    acc -= Lc[k, r, i] * Si[k, c, i]
+                Si[r, c, i] = acc / Lc[r, r, i]
+    for i in range(lanes):
+        acc = 0.0
+        if ok[i]:
+            for r in range(m):
+                acc += 2.0 * np.log(Lc[r, r, i])
+        logdet[i] = acc
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _innovation(
+    z: Array, t0: int, nb: int, M: int, kind: int, zp: Array, nu: Array
+) -> None:  # pragma: no cover
+    """``nu = z - zp`` per model lane (the bearing wrapped)."""
+    m = zp.shape[0]
+    for d in range(m):
+        for j in range(M):
+            for b in range(nb):
+                nu[d, j * nb + b] = z[t0 + b, d] - zp[d, j * nb + b]
+    if kind == RANGE_BEARING:
+        for i in range(M * nb):
+            nu[1, i] = _wrap(nu[1, i])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _update(
+    Xp: Array, Pp: Array, zp: Array, C: Array, H: Array, Rl: Array, Si: Array, Lc: Array,
+    logdet: Array, ok: Array, nu: Array, M: int, nb: int, filter_kind: int, Sinu: Array,
+    Kg: Array, T: Array, nis: Array, loglik: Array, innov: Array, Xu: Array, Pu: Array,
+) -> None:  # pragma: no cover
+    """The measurement update of every model lane: ``K = C S^-1``, ``x = xp + K nu``, ``P =
+    Pp - K C^T`` (UKF) or ``(I - K H) Pp (I - K H)^T + K R K^T`` (Joseph form, EKF), symmetrized;
+    ``NIS = nu^T S^-1 nu``, ``log Lambda = -(NIS + log det S + m log 2 pi) / 2`` and the whitened
+    innovation ``L^-1 nu`` (``T`` scratch)."""
+    n = Xp.shape[0]
+    m = zp.shape[0]
+    lanes = M * nb
+    for r in range(m):
+        for i in range(lanes):
+            Sinu[r, i] = 0.0
+        for c in range(m):
+            for i in range(lanes):
+                Sinu[r, i] += Si[r, c, i] * nu[c, i]
+    for i in range(lanes):
+        nis[i] = 0.0
+    for r in range(m):
+        for i in range(lanes):
+            nis[i] += nu[r, i] * Sinu[r, i]
+    for i in range(lanes):
+        loglik[i] = -0.5 * (nis[i] + logdet[i] + m * LOG_2PI)
+    # whitened innovation L^-1 nu (S = L L^T): signed, |.|^2 = NIS
+    for r in range(m):
+        for i in range(lanes):
+            innov[r, i] = nu[r, i]
+        for k in range(r):
+            for i in range(lanes):
+                innov[r, i] -= Lc[r, k, i] * innov[k, i]
+        for i in range(lanes):
+            innov[r, i] = innov[r, i] / Lc[r, r, i]
+    for r in range(n):
+        for c in range(m):
+            for i in range(lanes):
+                Kg[r, c, i] = 0.0
+            for k in range(m):
+                for i in range(lanes):
+                    Kg[r, c, i] += C[r, k, i] * Si[k, c, i]
+        for i in range(lanes):
+            Xu[r, i] = 0.0
+        for k in range(m):
+            for i in range(lanes):
+                Xu[r, i] += C[r, k, i] * Sinu[k, i]
+        for i in range(lanes):
+            Xu[r, i] += Xp[r, i]
+    if filter_kind == UKF:
+        # P = Pp - K C^T
         for r in range(n):
-            for c in range(r, n):
-                acc = 0.0
-                for k in range(n):
-                    acc += FP[r, k] * F[j, c, k]
-                Pp[b, j, r, c] = acc + 0.5 * (Q[j, r, c] + Q[j, c, r])
-                Pp[b, j, c, r] = Pp[b, j, r, c]
+            for c in range(n):
+                for i in range(lanes):
+                    Pu[r, c, i] = 0.0
+                for k in range(m):
+                    for i in range(lanes):
+                        Pu[r, c, i] += Kg[r, k, i] * C[c, k, i]
+                for i in range(lanes):
+                    Pu[r, c, i] = Pp[r, c, i] - Pu[r, c, i]
+    else:
+        # Joseph form: T = (I - K H) Pp, P = T (I - K H)^T + K R K^T; I - K H into C
+        for r in range(n):
+            for c in range(n):
+                for i in range(lanes):
+                    T[r, c, i] = 1.0 if r == c else 0.0
+                for k in range(m):
+                    for i in range(lanes):
+                        T[r, c, i] -= Kg[r, k, i] * H[k, c, i]
+        _joseph(T, Pp, Kg, Rl, M, nb, Pu)
+    for r in range(n):
+        for c in range(r, n):
+            for i in range(lanes):
+                v = 0.5 * (Pu[r, c, i] + Pu[c, r, i])
+                Pu[r, c, i] = v
+                Pu[c, r, i] = v
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _to_lanes(Pp: Array, nb: int, eig: Array) -> None:  # pragma: no cover
-    """Upper triangles of the block's predicted covariances ``Pp[b, j]`` side by side as the
-    lanes ``l = b M + j`` of ``eig (n, n, L)`` (the layout of :func:`jacobi_eig_lanes`)."""
-    M, n = Pp.shape[1], Pp.shape[2]
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _joseph(
+    IKH: Array, Pp: Array, Kg: Array, Rl: Array, M: int, nb: int, Pu: Array
+) -> None:  # pragma: no cover
+    """``Pu = (I - K H) Pp (I - K H)^T + K R K^T`` lane by lane (``IKH = I - K H``)."""
+    n = Pp.shape[0]
+    m = Kg.shape[1]
+    lanes = M * nb
+    A = np.empty((n, n, lanes))
+    for r in range(n):
+        for c in range(n):
+            for i in range(lanes):
+                A[r, c, i] = 0.0
+            for k in range(n):
+                for i in range(lanes):
+                    A[r, c, i] += IKH[r, k, i] * Pp[k, c, i]
+    for r in range(n):
+        for c in range(n):
+            for i in range(lanes):
+                Pu[r, c, i] = 0.0
+            for k in range(n):
+                for i in range(lanes):
+                    Pu[r, c, i] += A[r, k, i] * IKH[c, k, i]
+            for k in range(m):
+                for q in range(m):
+                    for j in range(M):
+                        for b in range(nb):
+                            i = j * nb + b
+                            Pu[r, c, i] += Kg[r, k, i] * Rl[k, q, b] * Kg[c, q, i]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _keep_prediction(
+    Xp: Array, Pp: Array, M: int, nb: int, det: Array, Xu: Array, Pu: Array
+) -> None:  # pragma: no cover
+    """A missed detection's posterior is its prediction: ``Xu, Pu <- Xp, Pp`` in its lanes."""
+    n = Xp.shape[0]
+    for r in range(n):
+        for j in range(M):
+            for b in range(nb):
+                i = j * nb + b
+                Xu[r, i] = Xu[r, i] if det[b] > 0.0 else Xp[r, i]
+        for c in range(n):
+            for j in range(M):
+                for b in range(nb):
+                    i = j * nb + b
+                    Pu[r, c, i] = Pu[r, c, i] if det[b] > 0.0 else Pp[r, c, i]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _probabilities(
+    loglik: Array, cbar: Array, M: int, nb: int, det: Array, mu_new: Array, top: Array
+) -> None:  # pragma: no cover
+    """Model probabilities ``mu_j ∝ Lambda_j cbar_j`` as a log-sum-exp (``Lambda_j = 1`` on a
+    missed detection; ``top`` scratch)."""
+    for b in range(nb):
+        top[b] = -np.inf
+    for j in range(M):
+        for b in range(nb):
+            cb = cbar[j, b]
+            ll = loglik[j * nb + b] if det[b] else 0.0
+            lp = ll + (np.log(cb) if cb > 0.0 else -np.inf)
+            mu_new[j, b] = lp
+            top[b] = max(top[b], lp)
+    for j in range(M):
+        for b in range(nb):
+            mu_new[j, b] = np.exp(mu_new[j, b] - top[b])
+    for b in range(nb):
+        top[b] = 0.0
+    for j in range(M):
+        for b in range(nb):
+            top[b] += mu_new[j, b]
+    for j in range(M):
+        for b in range(nb):
+            mu_new[j, b] = mu_new[j, b] / top[b]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _combine_lanes(
+    mu_new: Array, Xu: Array, Pu: Array, M: int, nb: int, xhat: Array, Phat: Array
+) -> None:  # pragma: no cover
+    """Output combination with the spread-of-means term (SPEC §1 step 4), lane by lane:
+    ``x_hat = sum_j mu_j x_j``, ``P_hat = sum_j mu_j [P_j + (x_j - x_hat)(x_j - x_hat)^T]``."""
+    n = Xu.shape[0]
+    for d in range(n):
+        for b in range(nb):
+            xhat[d, b] = 0.0
+        for j in range(M):
+            for b in range(nb):
+                xhat[d, b] += mu_new[j, b] * Xu[d, j * nb + b]
     for r in range(n):
         for c in range(r, n):
             for b in range(nb):
-                for j in range(M):
-                    eig[r, c, b * M + j] = Pp[b, j, r, c]
+                Phat[r, c, b] = 0.0
+            for j in range(M):
+                for b in range(nb):
+                    i = j * nb + b
+                    Phat[r, c, b] += mu_new[j, b] * (
+                        Pu[r, c, i] + (Xu[r, i] - xhat[r, b]) * (Xu[c, i] - xhat[c, b]))
+            for b in range(nb):
+                Phat[c, r, b] = Phat[r, c, b]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _mixture_nis(
+    z: Array, t0: int, zp: Array, S: Array, cbar: Array, M: int, nb: int, kind: int, hz: Array,
+    Sm: Array, Smi: Array, Smc: Array, nu: Array, okm: Array, nism: Array,
+) -> None:  # pragma: no cover
+    """NIS of ``z`` under the predicted measurement mixture (weights ``cbar``), moment-matched
+    (:func:`imm_gym.tracking.imm.measurement_mixture`): ``z_mix = z_0 + sum_j cbar_j (z_j -
+    z_0)``, ``S_mix = sum_j cbar_j [S_j + (z_j - z_mix)(z_j - z_mix)^T]`` (bearing differences
+    wrapped), ``NIS = nu^T S_mix^-1 nu`` with ``nu = z - z_mix``; ``okm`` is 0 where ``S_mix``
+    is not positive definite."""
+    m = zp.shape[0]
+    for d in range(m):
+        for b in range(nb):
+            hz[d, b] = 0.0
+        for j in range(M):
+            for b in range(nb):
+                diff = zp[d, j * nb + b] - zp[d, b]
+                if kind == RANGE_BEARING and d == 1:
+                    diff = _wrap_near(diff)
+                hz[d, b] += cbar[j, b] * diff
+        for b in range(nb):
+            hz[d, b] = zp[d, b] + hz[d, b]
+    for r in range(m):
+        for c in range(m):
+            for b in range(nb):
+                Sm[r, c, b] = 0.0
+    for j in range(M):
+        for d in range(m):
+            for b in range(nb):
+                nu[d, b] = zp[d, j * nb + b] - hz[d, b]
+        if kind == RANGE_BEARING:
+            for b in range(nb):
+                nu[1, b] = _wrap_near(nu[1, b])
+        for r in range(m):
+            for c in range(m):
+                for b in range(nb):
+                    Sm[r, c, b] += cbar[j, b] * (S[r, c, j * nb + b] + nu[r, b] * nu[c, b])
+    _inverse(Sm, nb, Smi, Smc, nism, okm)
+    for d in range(m):
+        for b in range(nb):
+            nu[d, b] = z[t0 + b, d] - hz[d, b]
+    if kind == RANGE_BEARING:
+        for b in range(nb):
+            nu[1, b] = _wrap(nu[1, b])
+    for b in range(nb):
+        nism[b] = 0.0
+    for r in range(m):
+        for c in range(m):
+            for b in range(nb):
+                nism[b] += nu[r, b] * Smi[r, c, b] * nu[c, b]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _store(
+    t0: int, nb: int, M: int, det: Array, mixture_nis: bool, ok: Array, okm: Array, nism: Array,
+    Xu: Array, Pu: Array, mu_new: Array, cbar: Array, loglik: Array, nis: Array, innov: Array,
+    xhat: Array, Phat: Array, x_out: Array, P_out: Array,
+    mu_out: Array, cbar_out: Array, loglik_out: Array, model_nis_out: Array, innov_out: Array,
+    nis_out: Array, xhat_out: Array, Phat_out: Array, failed_out: NDArray[np.bool_],
+) -> int:  # pragma: no cover
+    """The block's outputs into the trackers' rows (a missed detection keeps the prediction, its
+    likelihood terms 0; a tracker whose innovation covariance, or its mixture's, is not positive
+    definite is flagged and filled with NaN); returns the number of such trackers."""
+    n = Xu.shape[0]
+    m = innov.shape[0]
+    failures = 0
+    for b in range(nb):
+        t = t0 + b
+        seen = det[b] > 0.0
+        failed = False
+        for j in range(M):
+            failed = failed or not ok[j * nb + b] > 0.0
+        if seen and mixture_nis:
+            failed = failed or not okm[b] > 0.0
+        failed_out[t] = failed
+        if failed:
+            failures += 1
+            innov_out[t] = np.nan
+            x_out[t] = np.nan
+            P_out[t] = np.nan
+            mu_out[t] = np.nan
+            cbar_out[t] = np.nan
+            loglik_out[t] = np.nan
+            model_nis_out[t] = np.nan
+            nis_out[t] = np.nan
+            xhat_out[t] = np.nan
+            Phat_out[t] = np.nan
+            continue
+        for j in range(M):
+            i = j * nb + b
+            mu_out[t, j] = mu_new[j, b]
+            cbar_out[t, j] = cbar[j, b]
+            loglik_out[t, j] = loglik[i] if seen else 0.0
+            model_nis_out[t, j] = nis[i] if seen else 0.0
+            for d in range(m):
+                innov_out[t, j, d] = innov[d, i] if seen else 0.0
+            for r in range(n):
+                x_out[t, j, r] = Xu[r, i]
+                for c in range(n):
+                    P_out[t, j, r, c] = Pu[r, c, i]
+        nis_out[t] = nism[b] if seen and mixture_nis else 0.0
+        for r in range(n):
+            xhat_out[t, r] = xhat[r, b]
+            for c in range(n):
+                Phat_out[t, r, c] = Phat[r, c, b]
+    return failures
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -633,21 +897,3 @@ def combine_into(
                 )
             P_hat[t, r, c] = acc
             P_hat[t, c, r] = acc
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fill_nan(
-    t: int, x_out: Array, P_out: Array, mu_out: Array, cbar_out: Array, loglik_out: Array,
-    model_nis_out: Array, innov_out: Array, nis_out: Array, xhat_out: Array, Phat_out: Array,
-) -> None:  # pragma: no cover
-    """Mark tracker ``t``'s outputs as invalid."""
-    innov_out[t] = np.nan
-    x_out[t] = np.nan
-    P_out[t] = np.nan
-    mu_out[t] = np.nan
-    cbar_out[t] = np.nan
-    loglik_out[t] = np.nan
-    model_nis_out[t] = np.nan
-    nis_out[t] = np.nan
-    xhat_out[t] = np.nan
-    Phat_out[t] = np.nan

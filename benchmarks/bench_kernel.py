@@ -1,0 +1,230 @@
+"""The compiled IMM kernel against an earlier revision of it, in one run, on one core.
+
+What is measured: ``imm_gym.tracking.kernels.imm.imm_step`` (one IMM cycle of N trackers: M = 3
+models CV, CT(+4°/s), CT(-4°/s), range-bearing sonar, SVD-UKF and EKF) called directly on the
+same inputs by this tree's kernel and by the kernel of ``--baseline`` (default ``07f550f``, the
+last commit before the structure-of-arrays kernel: its ``imm_gym/tracking/kernels/imm.py`` and
+``imm_gym/tracking/linalg.py`` are read with ``git show`` into a cache directory and imported
+from there), at N = 1, 64, 1024 and 4096; and ``IMM.step`` at N = 1 (the Python entry: input
+checks, output arrays, result objects). The inputs are the paper scenario's measurements after
+20 steps of the tracker (realistic covariances); every call gets the same inputs.
+
+Reported per configuration: the median over ``--repeats`` repeats of the µs per batch step (a
+repeat is as many calls as last about ``MIN_REPEAT_S``), M tracker-steps/s (N / µs), the ratio
+baseline / this tree, and how far apart the two kernels' outputs are (largest relative
+difference of the combined estimates and covariances: the Jacobi sweep order changed, so they
+agree to rounding, not bit for bit).
+
+Run from the repository root (the baseline compiles on the first run, ~1 min)::
+
+    python benchmarks/bench_kernel.py
+    python benchmarks/bench_kernel.py --quick --json kernel.json
+"""
+
+from __future__ import annotations
+
+import os
+
+import harness
+
+os.environ.update(harness.ONE_THREAD)  # single core: before numpy (and numba) are imported
+
+import argparse
+import importlib
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+
+from imm_gym import IMM, Sonar, draw_batch, paper_bank, paper_scenario, stay_tpm
+from imm_gym.tracking.kernels import imm as kernel
+
+N_TRACKERS = (1, 64, 1024, 4096)
+FILTERS = ("ukf", "ekf")
+WARM_STEPS = 20
+MIN_REPEAT_S = 0.2
+CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "imm_gym_bench"
+
+
+def baseline_kernel(rev: str) -> ModuleType:
+    """The kernel module of revision ``rev`` (imported from a cache directory; its numba cache
+    lives there too)."""
+    sha = subprocess.run(
+        ["git", "rev-parse", "--short=12", rev],
+        cwd=harness.REPO_ROOT,
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    where = CACHE / f"kernel_{sha}"
+    where.mkdir(parents=True, exist_ok=True)
+    for path, name in (
+        ("imm_gym/tracking/linalg.py", f"base_linalg_{sha}"),
+        ("imm_gym/tracking/kernels/imm.py", f"base_kernel_{sha}"),
+    ):
+        source = subprocess.run(
+            ["git", "show", f"{sha}:{path}"],
+            cwd=harness.REPO_ROOT,
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout.replace("from imm_gym.tracking.linalg import", f"from base_linalg_{sha} import")
+        target = where / f"{name}.py"
+        if not target.exists() or target.read_text() != source:
+            target.write_text(source)
+    sys.path.insert(0, str(where))
+    return importlib.import_module(f"base_kernel_{sha}")
+
+
+def kernel_inputs(filt: str, n: int, seed: int) -> tuple[IMM, tuple, Any]:
+    """An IMM, the ``imm_step`` arguments of step ``WARM_STEPS + 1`` of ``n`` paper-scenario
+    trackers (outputs included), and the state they start from."""
+    imm = IMM(paper_bank(), Sonar(), filter=filt)
+    batch = draw_batch(paper_scenario(), Sonar(), n, seed)
+    tpm = np.ascontiguousarray(np.broadcast_to(stay_tpm(3, 0.995), (n, 3, 3)))
+    state = imm.init(batch.x0, batch.P0)
+    for k in range(1, WARM_STEPS + 1):
+        state, _ = imm.step(state, tpm, batch.measurements.z[:, k])
+    M, dim = 3, imm.n
+    outputs = (
+        np.empty((n, M, dim)),
+        np.empty((n, M, dim, dim)),
+        *(np.empty((n, M)) for _ in range(4)),
+        np.empty((n, M, 2)),
+        np.empty(n),
+        np.empty((n, dim)),
+        np.empty((n, dim, dim)),
+        np.empty(n, dtype=bool),
+    )
+    z = np.ascontiguousarray(batch.measurements.z[:, WARM_STEPS + 1])
+    args = (
+        state.x,
+        state.P,
+        state.mu,
+        tpm,
+        z,
+        np.ones(n, dtype=bool),
+        *imm.kernel_args,
+        True,
+        *outputs,
+    )
+    return imm, args, (state, tpm, z)
+
+
+def time_calls(call: Any, repeats: int, min_repeat_s: float) -> list[float]:
+    """µs per call of ``call()`` in each of ``repeats`` repeats (after two warm-up calls)."""
+    call()
+    call()
+    t0 = time.perf_counter()
+    call()
+    once = max(time.perf_counter() - t0, 1e-7)
+    calls = max(1, int(min_repeat_s / once))
+    out = []
+    for _ in range(repeats):
+        wall, _cpu = harness.timed(lambda: [call() for _ in range(calls)])
+        out.append(wall / calls * 1e6)
+    return out
+
+
+def run(args: argparse.Namespace, console: Console) -> int:
+    repeats = harness.count(args.repeats, args.quick, 7, 3, "--repeats")
+    min_repeat_s = 0.05 if args.quick else MIN_REPEAT_S
+    env = harness.environment()
+    console.print(f"[dim]loading the baseline kernel ({args.baseline}) ...[/dim]")
+    base = baseline_kernel(args.baseline)
+    table = harness.table(
+        f"imm_step, M = 3, sonar, 1 core: baseline {args.baseline} vs this tree",
+        "filter",
+        harness.right("N"),
+        harness.right("baseline µs"),
+        harness.right("M steps/s"),
+        harness.right("this tree µs"),
+        harness.right("M steps/s"),
+        harness.right("speed-up"),
+        harness.right("max rel. diff"),
+        caption=f"median of {repeats} repeats; µs per batch step (one step of all N trackers)",
+    )
+    rows = []
+    for filt in FILTERS:
+        for n in N_TRACKERS:
+            console.print(f"[dim]timing {filt} N={n} ...[/dim]")
+            _, call_args, _ = kernel_inputs(filt, n, args.seed)
+            ours_out = [a.copy() for a in call_args[-11:]]
+            base_args = (*call_args[:-11], *(a.copy() for a in call_args[-11:]))
+            kernel.imm_step(*call_args[:-11], *ours_out)
+            base.imm_step(*base_args)
+            diff = max(
+                float(np.max(np.abs(a - b) / np.maximum(np.abs(b), 1e-300 + np.abs(b).max())))
+                for a, b in ((ours_out[8], base_args[-3]), (ours_out[9], base_args[-2]))
+            )
+            t_base = float(
+                np.median(time_calls(lambda a=base_args: base.imm_step(*a), repeats, min_repeat_s))
+            )
+            t_ours = float(
+                np.median(
+                    time_calls(lambda a=call_args: kernel.imm_step(*a), repeats, min_repeat_s)
+                )
+            )
+            rows.append(
+                {"filter": filt, "n": n, "baseline_us": t_base, "us": t_ours, "max_rel_diff": diff}
+            )
+            table.add_row(
+                filt,
+                str(n),
+                f"{t_base:,.1f}",
+                f"{n / t_base:.3f}",
+                f"{t_ours:,.1f}",
+                f"{n / t_ours:.3f}",
+                f"{t_base / t_ours:.2f}×",
+                f"{diff:.1e}",
+            )
+        table.add_section()
+    console.print(table)
+    imm, _, (state, tpm, z) = kernel_inputs("ukf", 1, args.seed)
+    step_us = float(np.median(time_calls(lambda: imm.step(state, tpm, z), repeats, min_repeat_s)))
+    n1024 = next(r for r in rows if r["filter"] == "ukf" and r["n"] == 1024)
+    console.print(
+        f"IMM.step (SVD-UKF) at N = 1: {step_us:.1f} µs (aim ≤ 10 µs); kernel at N = 1024: "
+        f"{1024 / n1024['us']:.2f} M tracker-steps/s (aim ≥ 1.0)"
+    )
+    console.print(
+        f"[dim]{env['processor']}; {harness.thread_summary(env)}; load avg at start "
+        f"{env['loadavg_at_start'][0] if env['loadavg_at_start'] else float('nan'):.2f}[/dim]"
+    )
+    if args.json is not None:
+        harness.write_json(
+            args.json,
+            {
+                "benchmark": "bench_kernel",
+                "baseline": args.baseline,
+                "repeats": repeats,
+                "environment": env,
+                "results": rows,
+                "imm_step_n1_us": step_us,
+            },
+            console,
+        )
+    return 0
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    harness.add_repeats(p, "timed repeats per configuration (7; 3 quick)")
+    harness.add_quick(p, "3 short repeats")
+    harness.add_json(p)
+    harness.add_seed(p, "draw_batch seed (default 0)")
+    p.add_argument("--baseline", default="07f550f", help="git revision of the kernel to compare")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return harness.main(run, parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
