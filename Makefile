@@ -41,7 +41,7 @@ install-ray: $(VENV_RAY)/.installed
 # gymnasium that RLlib pins.
 test-ray: install-ray
 	$(PY_RAY) -m pytest -m ray tests/ray $(ARGS)
-	$(PY_RAY) -m pytest $(ARGS)
+	$(PY_RAY) -m pytest -m "not slow and not ray" $(ARGS)
 
 bench: install
 	$(PY) benchmarks/bench_imm.py

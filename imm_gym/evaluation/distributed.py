@@ -101,6 +101,14 @@ class ShardPool:
         :func:`~imm_gym.evaluation.rollout.rollout`)."""
         return ShardedCore(self.actors, config, n_envs)
 
+    def close(self) -> None:
+        """End the actors (their CPUs return to the cluster)."""
+        import ray
+
+        for actor in self.actors:
+            ray.kill(actor)
+        self.actors = []
+
     def nodes(self) -> list[str]:
         """The node id of each actor."""
         import ray

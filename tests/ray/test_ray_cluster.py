@@ -1,0 +1,212 @@
+"""Scaling out on a two-node Ray cluster simulated on this machine (``make test-ray``).
+
+Two nodes of one CPU each (``ray.cluster_utils.Cluster``): RLlib training with two env runners
+puts one on each node, and the evaluation's two shards likewise. Skipped without Ray (the main
+venv); the ``ray`` marker selects them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+# ray.rllib, not ray: with tests/ on the path this very directory imports as a namespace "ray"
+pytest.importorskip("ray.rllib")
+import ray  # noqa: E402
+
+pytestmark = pytest.mark.ray
+
+ENV_ID = "imm_gym/TPMAdapt-v0"
+#: a few small iterations: 2 runners x 8 sub-envs x 16 steps per iteration
+SMALL = {"n_envs": 8, "n_steps": 16, "batch_size": 64, "n_epochs": 1}
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """Two Ray nodes of one CPU each, this process connected to them."""
+    from ray.cluster_utils import Cluster
+
+    from agents.training import set_threads
+
+    set_threads(1)
+    c = Cluster(
+        initialize_head=True,
+        head_node_args={"num_cpus": 1, "include_dashboard": False},
+    )
+    c.add_node(num_cpus=1)
+    c.wait_for_nodes()
+    ray.init(address=c.address, include_dashboard=False, log_to_driver=False)
+    yield c
+    ray.shutdown()
+    c.shutdown()
+
+
+def test_evaluation_split_across_both_nodes_is_bit_identical(cluster):
+    from agents import PRETRAINED
+    from agents.policy import load_agent
+    from imm_gym.cli.evaluate import evaluate
+    from imm_gym.evaluation.distributed import ShardPool
+
+    pool = ShardPool()
+    assert len(set(pool.nodes())) == 2, "the two shards should sit on the two nodes"
+    agent = load_agent(PRETRAINED)
+    kwargs = {
+        "extra": {"learned": (agent, agent.env_overrides)},
+        "reference": "fixed",
+    }
+    # 13 runs: chunks of 7 and 6, and a batch whose network output depends on its size
+    single, single_runs = evaluate(["fixed", "tip-imm"], "random", 13, 5, **kwargs)
+    try:
+        split, split_runs = evaluate(
+            ["fixed", "tip-imm"], "random", 13, 5, make_core=pool.core, **kwargs
+        )
+    finally:
+        pool.close()  # the CPUs go back to the cluster for the next test
+    assert json.dumps(single, sort_keys=True) == json.dumps(split, sort_keys=True)
+    for name, run in single_runs.items():
+        for field in dataclasses.fields(run):
+            a, b = getattr(run, field.name), getattr(split_runs[name], field.name)
+            assert a.dtype == b.dtype and np.array_equal(a, b), (name, field.name)
+
+
+def test_rllib_training_runners_on_both_nodes_with_distinct_seeds(cluster, tmp_path: Path):
+    import train
+    from agents.policy import load_agent
+    from imm_gym.seeding import RLLIB_SEED_BASE, rllib_seed
+
+    config = tmp_path / "small.yml"
+    config.write_text("".join(f"{k}: {v}\n" for k, v in SMALL.items()))
+    out = tmp_path / "run"
+    code = train.main(
+        [
+            "--engine",
+            "rllib",
+            "--ray-address",
+            cluster.address,
+            "--env-runners",
+            "2",
+            "--config",
+            str(config),
+            "--timesteps",
+            "600",
+            "--validate-every",
+            "256",
+            "--validation-runs",
+            "4",
+            "--no-eval",
+            "--no-progress",
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    stats = json.loads((out / "seed_0" / "training.json").read_text())
+    assert stats["engine"] == "rllib" and stats["timesteps"] >= 600
+    seeds = stats["sub_env_seeds"]
+    runners = seeds["runners"]
+    assert sorted(r["runner"] for r in runners) == [1, 2]
+    assert len({r["node"] for r in runners}) == 2, "one env runner on each node"
+    assert seeds["count"] == 2 * SMALL["n_envs"] == seeds["distinct"]
+    for r in runners:
+        assert r["first"] == rllib_seed(0, r["runner"], 0, r["generation"]) >= RLLIB_SEED_BASE
+    assert len(stats["validation"]) >= 2
+    # the exported agent loads through the project's loader and acts
+    policy = load_agent(out / "seed_0" / "agent")
+    assert policy.frame_stack == 4 and policy.obs_mean is not None
+    obs = np.zeros((3, policy.obs_size))
+    actions, _ = policy.predict(obs)
+    assert actions.shape == (3, 9) and np.all(np.abs(actions) <= 1.0)
+
+
+def _stacks(frames: int, obs: np.ndarray) -> np.ndarray:
+    """The stacked inputs ``LearnedPolicy`` feeds its network over one episode (no normalizer)."""
+    from agents.policy import LearnedPolicy
+
+    seen = []
+
+    class Recorder:
+        observation_space = type("Space", (), {"shape": (frames * obs.shape[1],)})
+
+        def predict(self, x, deterministic=True):
+            seen.append(x[0].copy())
+            return np.zeros((1, 1)), None
+
+    policy = LearnedPolicy(Recorder(), {}, frame_stack=frames)
+    state = None
+    for t, o in enumerate(obs):
+        _, state = policy.predict(o[None], state, episode_start=np.array([t == 0]))
+    return np.array(seen)
+
+
+def test_frame_stack_connectors_stack_as_the_agent_loader():
+    import gymnasium
+    from ray.rllib.env.single_agent_episode import SingleAgentEpisode
+
+    from agents.rllib import _frame_stack_connector
+
+    frames, d = 4, 3
+    obs = np.arange(6 * d, dtype=np.float32).reshape(6, d) + 1.0
+    space = gymnasium.spaces.Box(-np.inf, np.inf, (d,), np.float32)
+    expected = _stacks(frames, obs)
+    for t in range(6):  # the env-to-module piece at each step of a running episode
+        episode = SingleAgentEpisode(
+            observations=list(obs[: t + 1]),
+            observation_space=space,
+            actions=[np.zeros(1)] * t,
+            rewards=[0.0] * t,
+            len_lookback_buffer=0,
+        )
+        batch = _frame_stack_connector(frames, False)(rl_module=None, batch={}, episodes=[episode])
+        (items,) = batch["obs"].values()
+        np.testing.assert_array_equal(items[0], expected[t])
+    episode = SingleAgentEpisode(
+        observations=list(obs),
+        observation_space=space,
+        actions=[np.zeros(1)] * 5,
+        rewards=[0.0] * 5,
+        len_lookback_buffer=0,
+    ).to_numpy()
+    batch = _frame_stack_connector(frames, True)(rl_module=None, batch={}, episodes=[episode])
+    (items,) = batch["obs"].values()
+    np.testing.assert_array_equal(np.concatenate(items), expected[:5])
+
+
+def test_exported_agent_acts_as_the_rllib_module(cluster, tmp_path: Path):
+    import torch
+    from ray.rllib.connectors.env_to_module.mean_std_filter import MeanStdFilter
+
+    from agents import rllib
+    from agents.policy import load_agent
+    from agents.training import load_hyperparams
+
+    params, _ = load_hyperparams(ENV_ID)
+    params = {**params, **SMALL}
+    _, ledger = rllib.start_ledger(7)
+    algo = rllib.ppo_config(params, ENV_ID, 7, 0, ledger).build_algo()
+    try:
+        rllib.set_log_std(algo, -1.0)
+        algo.train()
+        rllib.export_agent(algo, tmp_path, params, ENV_ID, {"seed": 7})
+        policy = load_agent(tmp_path)
+        runner = algo.env_runner_group.local_env_runner
+        (filt,) = [p for p in runner._env_to_module.connectors if isinstance(p, MeanStdFilter)]
+        assert filt._filters[None].running_stats.n > 0
+        rng = np.random.default_rng(0)
+        raw = rng.normal(size=(5, policy.obs_size)) * 3.0
+        np.testing.assert_allclose(
+            policy.normalize(raw), filt._filters[None](raw, update=False), rtol=0, atol=1e-5
+        )
+        x = rng.normal(size=(5, 4 * policy.obs_size)).astype(np.float32)
+        with torch.no_grad():
+            out = algo.get_module().forward_inference({"obs": torch.from_numpy(x)})
+        mean = out["action_dist_inputs"][:, :9].numpy()
+        actions, _ = policy.model.predict(x, deterministic=True)
+        np.testing.assert_allclose(actions, np.clip(mean, -1.0, 1.0), rtol=0, atol=1e-6)
+        log_std = dict(policy.model.named_parameters())["log_std"].detach().numpy()
+        np.testing.assert_array_equal(log_std, algo.get_module().pi.log_std.detach().numpy())
+    finally:
+        algo.stop()
