@@ -16,7 +16,7 @@ import pytest
 
 # ray.rllib, not ray: with tests/ on the path this very directory imports as a namespace "ray"
 pytest.importorskip("ray.rllib")
-import ray  # noqa: E402
+import ray
 
 pytestmark = pytest.mark.ray
 
