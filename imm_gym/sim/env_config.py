@@ -46,6 +46,8 @@ OBS_FEATURES = tuple(FEATURES)
 #: The built-in observation features computed from the shadow IMM (they need ``shadow="fixed"``).
 SHADOW_FEATURES = shadow_features()
 TIP_READINGS = ("literal", "intent")
+#: The per-episode reward scales ``reward_scale`` may name instead of a number of metres.
+REWARD_SCALES = ("measurement",)
 
 Array = NDArray[np.float64]
 
@@ -105,7 +107,10 @@ class EnvConfig:
             estimate —, ``"squared_advantage"`` — ``(e_shadow² - e²) / reward_scale²``, the
             per-step terms of the mean squared error that the RMSE(t) of the ARMSE are made of —
             or ``"error"`` — ``-e / reward_scale``.
-        reward_scale: metres per unit of reward.
+        reward_scale: metres per unit of reward, or ``"measurement"``: each episode's own scale,
+            the RMS position accuracy of its first measurement ``sqrt(tr P0_pos / 2)`` (the
+            sensor's accuracy at the target's range), so that trackers of every accuracy weigh
+            alike in training across trackers.
         tpm_cost: weight of the TPM's divergence from the shadow's,
             :func:`imm_gym.tracking.tpm.row_divergence` (nats), subtracted from the reward each
             step: the policy leaves the shadow's TPM only where that pays (0: no cost; needs the
@@ -138,7 +143,7 @@ class EnvConfig:
     shadow: str = "fixed"
     shadow_stay: float | None = None
     reward: str = "advantage"
-    reward_scale: float = 10.0
+    reward_scale: float | str = 10.0
     tpm_cost: float = 0.0
     obs_features: tuple[str, ...] = ()
     loglik_clip: float = 20.0
@@ -187,11 +192,14 @@ class EnvConfig:
         check_choice("reward", self.reward, tuple(REWARD_TERMS))
         if REWARD_TERMS[self.reward].needs_shadow and self.shadow == "none":
             raise ConfigError(f"reward {self.reward!r} needs shadow 'fixed'")
-        store(
-            self,
-            "reward_scale",
-            check_range("reward_scale", self.reward_scale, 0.0, lo_open=True),
-        )
+        if isinstance(self.reward_scale, str):
+            check_choice("reward_scale", self.reward_scale, REWARD_SCALES)
+        else:
+            store(
+                self,
+                "reward_scale",
+                check_range("reward_scale", self.reward_scale, 0.0, lo_open=True),
+            )
         store(self, "tpm_cost", check_range("tpm_cost", self.tpm_cost, 0.0))
         if self.tpm_cost > 0.0 and self.shadow == "none":
             raise ConfigError("tpm_cost > 0 needs shadow 'fixed' (the TPM it is measured from)")

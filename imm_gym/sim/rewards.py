@@ -34,11 +34,11 @@ Array = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class RewardTerm:
-    """A reward term: ``value(step, reward_scale) -> (N,)``; ``needs_shadow`` if it uses the
-    shadow IMM's error."""
+    """A reward term: ``value(step, reward_scale) -> (N,)`` (the scale a number or ``(N,)``);
+    ``needs_shadow`` if it uses the shadow IMM's error."""
 
     name: str
-    value: Callable[[BankStep, float], Array]
+    value: Callable[[BankStep, float | Array], Array]
     needs_shadow: bool = False
 
 
@@ -73,13 +73,14 @@ class Reward:
     arithmetic).
 
     Args:
-        name: the rewarded term; scale: ``reward_scale``; shadow: the shadow IMM runs.
+        name: the rewarded term; scale: ``reward_scale``, a number or the slots' ``(N,)``
+            (read at each call); shadow: the shadow IMM runs.
         tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)`` or ``(N, M, M)``
             (the slots', read at each call).
     """
 
     def __init__(
-        self, name: str, scale: float, shadow: bool, tpm_cost: float, shadow_tpm: Array
+        self, name: str, scale: float | Array, shadow: bool, tpm_cost: float, shadow_tpm: Array
     ) -> None:
         self._terms = tuple(
             (f"reward_{t.name}", t.value)
