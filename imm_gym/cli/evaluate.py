@@ -477,6 +477,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--reference", help="policy the paired differences are taken against")
     parser.add_argument("--json", type=Path, help="write the results to this JSON file")
     parser.add_argument("--plots", type=Path, help="write PNG figures to this directory")
+    parser.add_argument(
+        "--tradeoff",
+        type=Path,
+        metavar="FILE",
+        help="write a PNG of position ARMSE against mode accuracy: every policy beside the "
+        "classical IMM at each stay of the best-fixed grid (1/3 ... 0.999), on the same runs "
+        "(their scores also go to the JSON, under \"tradeoff\")",
+    )
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument(
@@ -547,7 +555,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--runs must be >= 1, got {args.runs}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
-    for flag, path, kind in (("--json", args.json, "file"), ("--plots", args.plots, "directory")):
+    outputs = (("--json", args.json, "file"), ("--plots", args.plots, "directory"),
+               ("--tradeoff", args.tradeoff, "file"))
+    for flag, path, kind in outputs:
         problem = None if path is None else output_problem(path, kind)
         if problem:
             parser.error(f"{flag} {str(path)!r}: {problem}")
@@ -561,9 +571,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _main_system(parser, args)
     try:
         overrides = _run_config(args)
+        scenario = overrides.pop("scenario")
         results, rollouts = evaluate(
             args.policy,
-            overrides.pop("scenario"),
+            scenario,
             args.runs,
             args.seed,
             reference=args.reference,
@@ -581,6 +592,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif results["meta"]["scenario"] == "file":
         results["meta"]["scenario"] = str(args.env_config)
     render_tables(results)
+    if args.tradeoff:
+        results["tradeoff"] = _tradeoff(args, scenario, overrides, results, make_core)
     _record(results, args.json)
     if args.plots:
         from imm_gym.evaluation.plots import write_figures
@@ -590,6 +603,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.animate:
         _write_animation(args, rollouts)
     return 0
+
+
+def _tradeoff(
+    args: argparse.Namespace,
+    scenario: Any,
+    overrides: Mapping[str, Any],
+    results: dict[str, Any],
+    make_core: Callable[[EnvConfig, int], Any],
+) -> dict[str, Any]:
+    """``--tradeoff FILE``: the classical IMM at every stay of
+    :data:`baselines.best_fixed.STAY_GRID` on the evaluation's runs, the figure of ARMSE against
+    mode accuracy (:func:`~imm_gym.evaluation.plots.tradeoff_figure`) and the points."""
+    from baselines.best_fixed import STAY_GRID
+    from baselines.fixed import FixedTPM
+    from imm_gym.evaluation.plots import tradeoff_figure
+
+    base = EnvConfig.build({**overrides, "scenario": scenario})
+    keys = ("armse_pos", "mode_accuracy", "mode_prob_tv")
+    fixed_points = {}
+    for stay in STAY_GRID:
+        fixed = FixedTPM(len(base.bank), stay)
+        cfg = evaluation_config(base, fixed.env_overrides)
+        row = score(rollout(fixed, cfg, args.runs, args.seed, make_core=make_core))
+        fixed_points[stay] = {k: row[k] for k in keys}
+    points = {name: {k: row[k] for k in keys} for name, row in results["policies"].items()}
+    path = tradeoff_figure(points, fixed_points, args.tradeoff, results["meta"])
+    print(f"wrote {path}")
+    return {"policies": points, "fixed": {f"{s:.6g}": v for s, v in fixed_points.items()}}
 
 
 def _cores(parser: argparse.ArgumentParser, address: str | None) -> Callable[[EnvConfig, int], Any]:
@@ -663,6 +704,7 @@ def _main_suite(
         "--env-config": args.env_config,
         "--bank": args.bank,
         "--plots": args.plots,
+        "--tradeoff": args.tradeoff,
         "--animate": args.animate,
         "--tuned": args.tuned,
     }
@@ -696,6 +738,7 @@ def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
         "--env-config": args.env_config,
         "--reference": args.reference,
         "--plots": args.plots,
+        "--tradeoff": args.tradeoff,
     }
     for flag in (f for f, given in unused.items() if given):
         parser.error(f"{flag} does not apply to --scenario {args.scenario}")

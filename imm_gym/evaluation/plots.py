@@ -64,3 +64,47 @@ def _save(fig: Any, path: Path) -> Path:
 
     plt.close(fig)
     return path
+
+
+def tradeoff_figure(
+    policies: dict[str, dict[str, Any]],
+    fixed: dict[float, dict[str, Any]],
+    path: Path,
+    meta: dict[str, Any],
+) -> Path:
+    """Position ARMSE against mode accuracy: the fixed TPMs of a stay grid as one curve, every
+    other policy as a labelled point (its mode-probability total variation per step beside its
+    name), all on the same runs.
+
+    Args:
+        policies: each policy's :func:`~imm_gym.evaluation.rollout.score`.
+        fixed: the score of the classical IMM at each stay probability.
+        path: the PNG written; meta: the evaluation's ``meta`` (scenario, runs, seeds).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    stays = sorted(fixed)
+    acc = [100.0 * fixed[s]["mode_accuracy"] for s in stays]
+    err = [fixed[s]["armse_pos"] for s in stays]
+    ax.plot(acc, err, "o-", color="0.55", lw=1, ms=4, label="fixed TPM (stay on the diagonal)")
+    for s, a, e in zip(stays, acc, err, strict=True):
+        ax.annotate(f"{s:.3g}", (a, e), textcoords="offset points", xytext=(4, -10), fontsize=7,
+                    color="0.4")
+    for name, row in policies.items():
+        a, e = 100.0 * row["mode_accuracy"], row["armse_pos"]
+        ax.plot(a, e, "D", ms=6)
+        ax.annotate(f"{name} (TV {row['mode_prob_tv']:.2f})", (a, e), textcoords="offset points",
+                    xytext=(5, 4), fontsize=8)
+    ax.set(
+        xlabel="mode accuracy (%): argmax of the mode probabilities = the true model",
+        ylabel="position ARMSE (m)",
+        title=f"ARMSE vs mode integrity ({meta['scenario']}, {meta['runs']} runs, seeds "
+        f"{meta['seeds']})",
+    )
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3)
+    return _save(fig, path)

@@ -193,3 +193,25 @@ def test_the_hetero_bank_says_why_there_is_no_clairvoyant_row() -> None:
         "NCV/CT/CTRA",
     }
     assert results["policies"]["fixed"]["maneuver_response"] > 0.0
+
+
+def test_the_tradeoff_figure_sweeps_the_fixed_tpms_on_the_same_runs(tmp_path) -> None:
+    """``--tradeoff``: the classical IMM at every stay of the grid, on the evaluation's runs (the
+    configured stay's point is the ``fixed`` policy's row), and each policy's point."""
+    from baselines.best_fixed import STAY_GRID
+
+    out, figure = tmp_path / "r.json", tmp_path / "t.png"
+    argv = ["--policy", "fixed", "--policy", "tip-imm", "--scenario", "paper", "--runs", "4",
+            "--quiet", "--no-clairvoyant", "--json", str(out), "--tradeoff", str(figure)]
+    assert main(argv) == 0
+    assert figure.stat().st_size > 10_000
+    results = json.loads(out.read_text())
+    fixed = results["tradeoff"]["fixed"]
+    assert [float(s) for s in fixed] == pytest.approx(list(STAY_GRID), rel=1e-6)
+    assert len({row["armse_pos"] for row in fixed.values()}) == len(STAY_GRID)
+    classical = results["policies"]["fixed"]
+    assert fixed["0.995"]["armse_pos"] == classical["armse_pos"]
+    assert fixed["0.995"]["mode_accuracy"] == classical["mode_accuracy"]
+    assert set(results["tradeoff"]["policies"]) == {"fixed", "tip-imm"}
+    with pytest.raises(SystemExit):
+        main(["--policy", "fixed", "--suite", "benchmark", "--tradeoff", str(figure)])
