@@ -104,6 +104,7 @@ class TrackingCore:
             config.shadow == "fixed",
             config.tpm_cost,
             self.shadow_tpms,
+            config.mode_reward,
         )
         self.horizon = config.source.horizon
         self.action_dim = M * M
@@ -306,7 +307,7 @@ class TrackingCore:
             "tpm": out.tpm.copy(),
             "step": step,
         }
-        reward, terms = self._reward(out)
+        reward, terms = self._reward(out, true_model)
         info.update(terms)
         if cfg.shadow == "fixed":
             info["shadow_position_error"] = out.shadow_position_error

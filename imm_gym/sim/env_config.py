@@ -115,6 +115,10 @@ class EnvConfig:
             :func:`imm_gym.tracking.tpm.row_divergence` (nats), subtracted from the reward each
             step: the policy leaves the shadow's TPM only where that pays (0: no cost; needs the
             shadow).
+        mode_reward: weight of the mode-identification term added to the reward, the log score
+            of bank A's mode probabilities beyond the shadow's on the true model
+            (:func:`imm_gym.sim.rewards.mode_score`; training only: it reads the truth; needs the
+            shadow).
         obs_features: extra observation blocks, from :data:`OBS_FEATURES` (declared in
             :mod:`imm_gym.sim.features`).
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
@@ -145,6 +149,7 @@ class EnvConfig:
     reward: str = "advantage"
     reward_scale: float | str = 10.0
     tpm_cost: float = 0.0
+    mode_reward: float = 0.0
     obs_features: tuple[str, ...] = ()
     loglik_clip: float = 20.0
     velocity_std: float = 5.0
@@ -203,6 +208,10 @@ class EnvConfig:
         store(self, "tpm_cost", check_range("tpm_cost", self.tpm_cost, 0.0))
         if self.tpm_cost > 0.0 and self.shadow == "none":
             raise ConfigError("tpm_cost > 0 needs shadow 'fixed' (the TPM it is measured from)")
+        store(self, "mode_reward", check_range("mode_reward", self.mode_reward, 0.0))
+        if self.mode_reward > 0.0 and self.shadow == "none":
+            raise ConfigError("mode_reward > 0 needs shadow 'fixed' (the probabilities it is "
+                              "measured against)")
         features = check_sequence("obs_features", self.obs_features)
         for i, f in enumerate(features):
             check_choice(f"obs_features[{i}]", f, tuple(FEATURES))

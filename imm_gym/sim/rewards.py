@@ -14,7 +14,12 @@ term                   value                           meaning
 
 Every term the configuration allows is in ``info`` as ``reward_<term>``; the reward is the term
 ``EnvConfig.reward`` names, minus ``tpm_cost`` times ``info["tpm_divergence"]``, the mean KL
-divergence of the TPM's rows from the shadow's (:func:`imm_gym.tracking.tpm.row_divergence`).
+divergence of the TPM's rows from the shadow's (:func:`imm_gym.tracking.tpm.row_divergence`),
+plus ``mode_reward`` times ``info["mode_score"]``, the log score of the mode probabilities beyond
+the shadow's on the model that matches the true motion,
+:math:`\ln(\mu_{j^*} + \epsilon) - \ln(\mu^s_{j^*} + \epsilon)` (:func:`mode_score`; 0 where no
+model matches): the policy is paid for mode probabilities that identify the maneuver, the IMM's
+maneuver detection, not only for position.
 Adding a term is one :func:`register` call here; :class:`Reward` evaluates them.
 """
 
@@ -68,6 +73,21 @@ register(RewardTerm(
 ))
 
 
+#: Floor of the probabilities in :func:`mode_score` (a log score of at most ``-ln 1e-3 = 6.9``).
+MODE_SCORE_FLOOR = 1e-3
+
+
+def mode_score(mode_probs: Array, shadow_probs: Array, true_model: NDArray[np.int64]) -> Array:
+    r"""``(N,)`` :math:`\ln(\mu_{j^*} + \epsilon) - \ln(\mu^s_{j^*} + \epsilon)` with ``j*`` the
+    true model of the step and ``epsilon = MODE_SCORE_FLOOR``; 0 where ``j* = -1``."""
+    rows = np.arange(mode_probs.shape[0])
+    j = np.maximum(true_model, 0)
+    score = np.log(mode_probs[rows, j] + MODE_SCORE_FLOOR) - np.log(
+        shadow_probs[rows, j] + MODE_SCORE_FLOOR
+    )
+    return np.where(true_model >= 0, score, 0.0)
+
+
 class Reward:
     """The reward of one configuration, its terms resolved once (a step costs only the terms'
     arithmetic).
@@ -77,10 +97,17 @@ class Reward:
             (read at each call); shadow: the shadow IMM runs.
         tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)`` or ``(N, M, M)``
             (the slots', read at each call).
+        mode_reward: weight of :func:`mode_score`.
     """
 
     def __init__(
-        self, name: str, scale: float | Array, shadow: bool, tpm_cost: float, shadow_tpm: Array
+        self,
+        name: str,
+        scale: float | Array,
+        shadow: bool,
+        tpm_cost: float,
+        shadow_tpm: Array,
+        mode_reward: float = 0.0,
     ) -> None:
         self._terms = tuple(
             (f"reward_{t.name}", t.value)
@@ -91,12 +118,19 @@ class Reward:
         self._scale = scale
         self._tpm_cost = tpm_cost
         self._shadow_tpm = shadow_tpm
+        self._mode_reward = mode_reward
 
-    def __call__(self, step: BankStep) -> tuple[Array, dict[str, Array]]:
-        """The reward of every slot ``(N,)`` and the ``info`` entries of its terms."""
+    def __call__(
+        self, step: BankStep, true_model: NDArray[np.int64]
+    ) -> tuple[Array, dict[str, Array]]:
+        """The reward of every slot ``(N,)`` and the ``info`` entries of its terms
+        (``true_model``: the step's true model per slot, -1 for none)."""
         terms = {key: value(step, self._scale) for key, value in self._terms}
         reward = terms[self._rewarded].copy()
         if self._tpm_cost > 0.0:
             terms["tpm_divergence"] = row_divergence(step.tpm, self._shadow_tpm)
             reward -= self._tpm_cost * terms["tpm_divergence"]
+        if self._mode_reward > 0.0:
+            terms["mode_score"] = mode_score(step.mode_probs, step.mu_s, true_model)
+            reward += self._mode_reward * terms["mode_score"]
         return reward, terms

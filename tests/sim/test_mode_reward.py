@@ -1,0 +1,45 @@
+"""The mode-identification reward term: the log score of the mode probabilities beyond the
+shadow's on the true model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.rewards import MODE_SCORE_FLOOR, mode_score
+from imm_gym.validation import ConfigError
+
+
+def test_mode_score_by_hand() -> None:
+    mu = np.array([[0.7, 0.2, 0.1], [0.1, 0.1, 0.8], [0.3, 0.3, 0.4]])
+    mu_s = np.array([[0.5, 0.25, 0.25], [0.2, 0.4, 0.4], [0.3, 0.3, 0.4]])
+    true = np.array([0, 2, -1])
+    eps = MODE_SCORE_FLOOR
+    expected = [np.log(0.7 + eps) - np.log(0.5 + eps), np.log(0.8 + eps) - np.log(0.4 + eps), 0.0]
+    np.testing.assert_allclose(mode_score(mu, mu_s, true), expected, rtol=1e-15)
+
+
+def test_the_reward_adds_the_weighted_mode_score() -> None:
+    """Same episodes and actions with and without the term: the rewards differ by exactly
+    ``mode_reward * info["mode_score"]``, computed from the step's probabilities."""
+    plain = TrackingCore(EnvConfig(), 6)
+    paid = TrackingCore(EnvConfig(mode_reward=0.5), 6)
+    for core in (plain, paid):
+        core.reset(np.arange(6), list(range(6)))
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        action = rng.uniform(-1, 1, (6, 9))
+        a, b = plain.step(action), paid.step(action)
+        score = mode_score(b.info["mode_probs"], paid.mu_s, b.info["true_model"])
+        np.testing.assert_array_equal(b.info["mode_score"], score)
+        np.testing.assert_allclose(b.reward, a.reward + 0.5 * score, rtol=1e-12, atol=1e-12)
+    assert "mode_score" not in a.info
+
+
+def test_mode_reward_is_checked() -> None:
+    with pytest.raises(ConfigError, match="mode_reward"):
+        EnvConfig(mode_reward=-1.0)
+    with pytest.raises(ConfigError, match="mode_reward > 0 needs shadow"):
+        EnvConfig(mode_reward=1.0, shadow="none", reward="error")
