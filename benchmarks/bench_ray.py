@@ -47,8 +47,8 @@ def bench_rllib(params: dict[str, Any], runners: int, infos: bool, iterations: i
     """env-steps/s of ``iterations`` RLlib PPO iterations and the sampling / update shares."""
     from ray.tune.registry import register_env
 
-    _, ledger = rllib.start_ledger(0)
-    config = rllib.ppo_config(params, DEFAULT_ENTRY, 0, runners, ledger)
+    _ledger, name = rllib.start_ledger(0)  # the handle keeps the ledger alive
+    config = rllib.ppo_config(params, DEFAULT_ENTRY, 0, runners, name)
     if infos:
         register_env(rllib.ENV_NAME, make_with_infos)
     algo = config.build_algo()

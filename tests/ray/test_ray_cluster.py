@@ -182,11 +182,12 @@ def test_exported_agent_acts_as_the_rllib_module(cluster, tmp_path: Path):
     from agents import rllib
     from agents.policy import load_agent
     from agents.training import load_hyperparams
+    from imm_gym.seeding import rllib_seed
 
     params, _ = load_hyperparams(ENV_ID)
     params = {**params, **SMALL}
-    _, ledger = rllib.start_ledger(7)
-    algo = rllib.ppo_config(params, ENV_ID, 7, 0, ledger).build_algo()
+    ledger, name = rllib.start_ledger(7)
+    algo = rllib.ppo_config(params, ENV_ID, 7, 0, name).build_algo()
     try:
         rllib.set_log_std(algo, -1.0)
         algo.train()
@@ -208,5 +209,24 @@ def test_exported_agent_acts_as_the_rllib_module(cluster, tmp_path: Path):
         np.testing.assert_allclose(actions, np.clip(mean, -1.0, 1.0), rtol=0, atol=1e-6)
         log_std = dict(policy.model.named_parameters())["log_std"].detach().numpy()
         np.testing.assert_array_equal(log_std, algo.get_module().pi.log_std.detach().numpy())
+        # a runner that builds its env again (as after a restart) gets new seeds
+        first = list(runner.env.unwrapped.seeds)
+        runner.make_env()
+        assert runner.env.unwrapped.seeds == [rllib_seed(7, 0, i, 1) for i in range(len(first))]
+        assert not set(first) & set(runner.env.unwrapped.seeds)
+        records = ray.get(ledger.records.remote())
+        assert [(r["runner"], r["generation"]) for r in records] == [(0, 0), (0, 1)]
     finally:
         algo.stop()
+
+
+def test_evaluate_command_with_ray_writes_the_same_json(cluster, tmp_path: Path):
+    """Last in the file: the command's shard actors live until this process lets them go."""
+    from imm_gym.cli.evaluate import main
+
+    args = ["--policy", "fixed", "--policy", "tip-imm", "--runs", "6", "--seed", "3", "--quiet"]
+    main([*args, "--json", str(tmp_path / "one.json")])
+    main([*args, "--json", str(tmp_path / "ray.json"), "--ray", cluster.address])
+    one, split = (json.loads((tmp_path / f).read_text()) for f in ("one.json", "ray.json"))
+    del one["meta"]["command"], split["meta"]["command"]
+    assert one == split

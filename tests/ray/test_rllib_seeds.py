@@ -1,0 +1,66 @@
+"""The project's seeds for RLlib's sub-envs (no Ray needed: these run in ``make test`` too)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agents.rllib import RLlibVectorEnv, SeedLedger
+from imm_gym.envs.vector import TPMAdaptVectorEnv
+from imm_gym.seeding import RLLIB_SEED_BASE, RLLIB_SEED_FIELD, rllib_seed
+
+ENV_ID = "imm_gym/TPMAdapt-v0"
+
+
+def test_rllib_seeds_are_distinct_and_above_every_other_range():
+    tuples = [
+        (s, w, i, g) for s in (0, 1, 7) for w in (0, 1, 2) for i in (0, 1, 63) for g in (0, 1)
+    ]
+    seeds = [rllib_seed(s, w, i, g) for s, w, i, g in tuples]
+    assert len(set(seeds)) == len(tuples)
+    assert min(seeds) >= RLLIB_SEED_BASE > 100_000_000 + 10_000 * 10**9
+    # RLlib's own scheme (seed + w, then + i) repeats a seed across runners; this one does not
+    assert rllib_seed(0, 1, 1) != rllib_seed(0, 2, 0)
+    assert rllib_seed(0, 0, 1) - rllib_seed(0, 0, 0) == 1
+    assert rllib_seed(0, 1, 0) - rllib_seed(0, 0, 0) == RLLIB_SEED_FIELD
+
+
+@pytest.mark.parametrize(
+    "args",
+    [(-1, 0, 0, 0), (0, RLLIB_SEED_FIELD, 0, 0), (0, 0, RLLIB_SEED_FIELD, 0), (0, 0, 0, 1.0)],
+)
+def test_rllib_seed_refuses_out_of_range_fields(args):
+    with pytest.raises(ValueError):
+        rllib_seed(*args)
+
+
+def test_ledger_gives_a_rebuilt_runner_new_seeds():
+    ledger = SeedLedger(3)
+    first = ledger.assign(1, 4, "node-a")
+    other = ledger.assign(2, 4, "node-b")
+    again = ledger.assign(1, 4, "node-a")  # runner 1 restarted: its second env
+    assert first == [rllib_seed(3, 1, i, 0) for i in range(4)]
+    assert again == [rllib_seed(3, 1, i, 1) for i in range(4)]
+    assert len(set(first + other + again)) == 12
+    assert [(r["runner"], r["generation"]) for r in ledger.records()] == [(1, 0), (2, 0), (1, 1)]
+
+
+def test_runner_env_seeds_its_sub_envs_once_and_returns_no_infos():
+    env = RLlibVectorEnv(3, ENV_ID)
+    with pytest.raises(RuntimeError):
+        env.reset(seed=0)
+    seeds = [rllib_seed(0, 1, i) for i in range(3)]
+    env.assign_seeds(seeds)
+    obs, info = env.reset(seed=123)  # RLlib's seed is ignored
+    assert info == {}
+    reference = TPMAdaptVectorEnv(3, config=env.config)
+    ref_obs, _ = reference.reset(seed=seeds)
+    np.testing.assert_array_equal(obs, ref_obs)
+    np.testing.assert_array_equal(env.core.truth, reference.core.truth)
+    actions = np.zeros((3, env.core.action_dim), dtype=np.float32)
+    out, ref = env.step(actions), reference.step(actions)
+    assert out[4] == {} and ref[4]
+    np.testing.assert_array_equal(out[0], ref[0])
+    env.reset()  # a later reset continues each sub-env's streams
+    reference.reset()
+    np.testing.assert_array_equal(env.core.truth, reference.core.truth)
