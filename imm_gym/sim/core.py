@@ -105,6 +105,7 @@ class TrackingCore:
             config.tpm_cost,
             self.shadow_tpms,
             config.mode_reward,
+            config.tpm_change_cost,
         )
         self.horizon = config.source.horizon
         self.action_dim = M * M
@@ -307,7 +308,7 @@ class TrackingCore:
             "tpm": out.tpm.copy(),
             "step": step,
         }
-        reward, terms = self._reward(out, true_model)
+        reward, terms = self._reward(out, true_model, self.tpm)
         info.update(terms)
         if cfg.shadow == "fixed":
             info["shadow_position_error"] = out.shadow_position_error

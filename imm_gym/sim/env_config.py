@@ -115,6 +115,9 @@ class EnvConfig:
             :func:`imm_gym.tracking.tpm.row_divergence` (nats), subtracted from the reward each
             step: the policy leaves the shadow's TPM only where that pays (0: no cost; needs the
             shadow).
+        tpm_change_cost: weight of the TPM's divergence from the previous step's TPM
+            (:func:`imm_gym.tracking.tpm.row_divergence`, nats), subtracted from the reward each
+            step: a TPM that changes only where that pays.
         mode_reward: weight of the mode-identification term added to the reward, the log score
             of bank A's mode probabilities beyond the shadow's on the true model
             (:func:`imm_gym.sim.rewards.mode_score`; training only: it reads the truth; needs the
@@ -149,6 +152,7 @@ class EnvConfig:
     reward: str = "advantage"
     reward_scale: float | str = 10.0
     tpm_cost: float = 0.0
+    tpm_change_cost: float = 0.0
     mode_reward: float = 0.0
     obs_features: tuple[str, ...] = ()
     loglik_clip: float = 20.0
@@ -208,6 +212,7 @@ class EnvConfig:
         store(self, "tpm_cost", check_range("tpm_cost", self.tpm_cost, 0.0))
         if self.tpm_cost > 0.0 and self.shadow == "none":
             raise ConfigError("tpm_cost > 0 needs shadow 'fixed' (the TPM it is measured from)")
+        store(self, "tpm_change_cost", check_range("tpm_change_cost", self.tpm_change_cost, 0.0))
         store(self, "mode_reward", check_range("mode_reward", self.mode_reward, 0.0))
         if self.mode_reward > 0.0 and self.shadow == "none":
             raise ConfigError("mode_reward > 0 needs shadow 'fixed' (the probabilities it is "

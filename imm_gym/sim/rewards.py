@@ -15,7 +15,9 @@ term                   value                           meaning
 Every term the configuration allows is in ``info`` as ``reward_<term>``; the reward is the term
 ``EnvConfig.reward`` names, minus ``tpm_cost`` times ``info["tpm_divergence"]``, the mean KL
 divergence of the TPM's rows from the shadow's (:func:`imm_gym.tracking.tpm.row_divergence`),
-plus ``mode_reward`` times ``info["mode_score"]``, the log score of the mode probabilities beyond
+minus ``tpm_change_cost`` times ``info["tpm_change"]``, the same divergence from the previous
+step's TPM (the TPM stays a switching prior rather than a per-step mixing knob), plus
+``mode_reward`` times ``info["mode_score"]``, the log score of the mode probabilities beyond
 the shadow's on the model that matches the true motion,
 :math:`\ln(\mu_{j^*} + \epsilon) - \ln(\mu^s_{j^*} + \epsilon)` (:func:`mode_score`; 0 where no
 model matches): the policy is paid for mode probabilities that identify the maneuver, the IMM's
@@ -98,6 +100,7 @@ class Reward:
         tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)`` or ``(N, M, M)``
             (the slots', read at each call).
         mode_reward: weight of :func:`mode_score`.
+        tpm_change_cost: weight of the TPM's divergence from the previous step's.
     """
 
     def __init__(
@@ -108,6 +111,7 @@ class Reward:
         tpm_cost: float,
         shadow_tpm: Array,
         mode_reward: float = 0.0,
+        tpm_change_cost: float = 0.0,
     ) -> None:
         self._terms = tuple(
             (f"reward_{t.name}", t.value)
@@ -119,17 +123,22 @@ class Reward:
         self._tpm_cost = tpm_cost
         self._shadow_tpm = shadow_tpm
         self._mode_reward = mode_reward
+        self._tpm_change_cost = tpm_change_cost
 
     def __call__(
-        self, step: BankStep, true_model: NDArray[np.int64]
+        self, step: BankStep, true_model: NDArray[np.int64], previous_tpm: Array
     ) -> tuple[Array, dict[str, Array]]:
         """The reward of every slot ``(N,)`` and the ``info`` entries of its terms
-        (``true_model``: the step's true model per slot, -1 for none)."""
+        (``true_model``: the step's true model per slot, -1 for none; ``previous_tpm``: the
+        ``(N, M, M)`` TPMs of the step before)."""
         terms = {key: value(step, self._scale) for key, value in self._terms}
         reward = terms[self._rewarded].copy()
         if self._tpm_cost > 0.0:
             terms["tpm_divergence"] = row_divergence(step.tpm, self._shadow_tpm)
             reward -= self._tpm_cost * terms["tpm_divergence"]
+        if self._tpm_change_cost > 0.0:
+            terms["tpm_change"] = row_divergence(step.tpm, previous_tpm)
+            reward -= self._tpm_change_cost * terms["tpm_change"]
         if self._mode_reward > 0.0:
             terms["mode_score"] = mode_score(step.mode_probs, step.mu_s, true_model)
             reward += self._mode_reward * terms["mode_score"]

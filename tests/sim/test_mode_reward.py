@@ -43,3 +43,23 @@ def test_mode_reward_is_checked() -> None:
         EnvConfig(mode_reward=-1.0)
     with pytest.raises(ConfigError, match="mode_reward > 0 needs shadow"):
         EnvConfig(mode_reward=1.0, shadow="none", reward="error")
+
+
+def test_the_tpm_change_cost_is_the_divergence_from_the_previous_tpm() -> None:
+    from imm_gym.tracking.tpm import row_divergence
+
+    plain = TrackingCore(EnvConfig(action_mode="set"), 4)
+    paid = TrackingCore(EnvConfig(action_mode="set", tpm_change_cost=0.3), 4)
+    for core in (plain, paid):
+        core.reset(np.arange(4), [9, 8, 7, 6])
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        previous = paid.tpm
+        action = rng.uniform(-1, 1, (4, 9))
+        a, b = plain.step(action), paid.step(action)
+        change = row_divergence(b.info["tpm"], previous)
+        np.testing.assert_array_equal(b.info["tpm_change"], change)
+        np.testing.assert_allclose(b.reward, a.reward - 0.3 * change, rtol=1e-12, atol=1e-12)
+    assert np.all(change > 0.0)
+    with pytest.raises(ConfigError, match="tpm_change_cost"):
+        EnvConfig(tpm_change_cost=-0.1)
