@@ -553,6 +553,7 @@ def train_one_rllib(
     from imm_gym.evaluation.rollout import evaluation_config, rollout, score
     from imm_gym.sim.env_config import EnvConfig
 
+    rllib.check_params(params)
     for key, instead in rllib.not_ported(params).items():
         print(f"--engine rllib: {key} not ported: {instead}", flush=True)
     if not ray.is_initialized():

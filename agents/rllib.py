@@ -209,29 +209,13 @@ def _frame_stack_connector(frames: int, learner: bool) -> Any:
     return FrameStack()
 
 
-def ppo_config(
-    params: dict[str, Any], env_id: str, seed: int, env_runners: int, ledger: str
-) -> Any:
-    """RLlib's ``PPOConfig`` from a checked hyperparameter entry (module docstring).
-
-    Args:
-        params: the entry (:func:`agents.training.load_hyperparams`, with ``--config`` and
-            ``--timesteps`` applied).
-        env_id: the registered id whose preset the env starts from.
-        seed: the training seed (the torch initialisation and the ledger's seeds).
-        env_runners: remote env runners (0: the driver samples).
-        ledger: the name of the run's :class:`SeedLedger`.
+def check_params(params: dict[str, Any]) -> None:
+    """Refuse the hyperparameters RLlib's PPO has no equivalent for, before any work.
 
     Raises:
-        ConfigError: a setting RLlib's PPO has no equivalent for (a ``lin_`` clip range,
-            ``clip_range_vf``, ``target_kl``, gSDE, no advantage normalization, different actor
-            and critic sizes, an activation RLlib lacks).
+        ConfigError: a ``lin_`` clip range, ``clip_range_vf``, ``target_kl``, gSDE, no advantage
+            normalization, different actor and critic sizes, an activation RLlib lacks.
     """
-    from ray.rllib.algorithms.ppo import PPOConfig
-    from ray.rllib.connectors.env_to_module.mean_std_filter import MeanStdFilter
-    from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
-    from ray.tune.registry import register_env
-
     refused = {
         "clip_range": isinstance(params.get("clip_range"), str),
         "clip_range_vf": params.get("clip_range_vf") is not None,
@@ -246,11 +230,38 @@ def ppo_config(
     refused["activation_fn"] = kwargs.get("activation_fn", "tanh") not in ACTIVATIONS
     bad = [k for k, v in refused.items() if v]
     if bad:
+        values = {k: params.get(k, kwargs.get(k)) for k in bad}
         raise ConfigError(
-            f"--engine rllib: RLlib's PPO has no equivalent for {bad} as set "
-            f"({ {k: params.get(k, kwargs.get(k)) for k in bad} }); change them with --config "
-            "or train with --engine sb3"
+            f"--engine rllib: RLlib's PPO has no equivalent for {values}; change them with "
+            "--config or train with --engine sb3"
         )
+
+
+def ppo_config(
+    params: dict[str, Any], env_id: str, seed: int, env_runners: int, ledger: str
+) -> Any:
+    """RLlib's ``PPOConfig`` from a checked hyperparameter entry (module docstring).
+
+    Args:
+        params: the entry (:func:`agents.training.load_hyperparams`, with ``--config`` and
+            ``--timesteps`` applied).
+        env_id: the registered id whose preset the env starts from.
+        seed: the training seed (the torch initialisation and the ledger's seeds).
+        env_runners: remote env runners (0: the driver samples).
+        ledger: the name of the run's :class:`SeedLedger`.
+
+    Raises:
+        ConfigError: a setting RLlib's PPO has no equivalent for (:func:`check_params`).
+    """
+    check_params(params)
+    from ray.rllib.algorithms.ppo import PPOConfig
+    from ray.rllib.connectors.env_to_module.mean_std_filter import MeanStdFilter
+    from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
+    from ray.tune.registry import register_env
+
+    kwargs = params.get("policy_kwargs", {})
+    arch = kwargs.get("net_arch", {"pi": [64, 64], "vf": [64, 64]})
+    pi = arch["pi"] if isinstance(arch, dict) else arch
     register_env(ENV_NAME, make_env)
     frames = int(params.get("frame_stack", 1))
     n_envs, n_steps = int(params["n_envs"]), int(params.get("n_steps", 2048))
@@ -298,7 +309,6 @@ def ppo_config(
             grad_clip=float(params.get("max_grad_norm", 0.5)),
             grad_clip_by="global_norm",
             use_kl_loss=False,
-            learner_connector=learner,
         )
         .rl_module(
             model_config=DefaultModelConfig(
@@ -310,7 +320,7 @@ def ppo_config(
             )
         )
         .callbacks(on_environment_created=assign_seeds)
-        .learners(num_learners=0)
+        .learners(num_learners=0, learner_connector=learner)
         .debugging(seed=seed, log_level="ERROR")
     )
 

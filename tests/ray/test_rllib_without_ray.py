@@ -1,4 +1,5 @@
-"""The project's seeds for RLlib's sub-envs (no Ray needed: these run in ``make test`` too)."""
+"""RLlib training pieces that need no Ray (run by ``make test`` too): seeds, the runner's env,
+refused settings."""
 
 from __future__ import annotations
 
@@ -64,3 +65,23 @@ def test_runner_env_seeds_its_sub_envs_once_and_returns_no_infos():
     env.reset()  # a later reset continues each sub-env's streams
     reference.reset()
     np.testing.assert_array_equal(env.core.truth, reference.core.truth)
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        ({"clip_range": "lin_0.2"}, "clip_range"),
+        ({"target_kl": 0.02}, "target_kl"),
+        ({"policy_kwargs": {"net_arch": {"pi": [64], "vf": [128]}}}, "net_arch"),
+        ({"policy_kwargs": {"activation_fn": "gelu"}}, "activation_fn"),
+    ],
+)
+def test_rllib_refuses_what_it_has_no_equivalent_for(change, named):
+    from agents.rllib import check_params
+    from agents.training import load_hyperparams
+    from imm_gym.validation import ConfigError
+
+    params, _ = load_hyperparams(ENV_ID)
+    check_params(params)  # the default entry trains (with what is not ported said)
+    with pytest.raises(ConfigError, match=named):
+        check_params({**params, **change})
