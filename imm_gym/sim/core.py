@@ -113,6 +113,8 @@ class TrackingCore:
         self.obs_dim = self.obs_low.size
         #: ``(N,)`` each slot's sampling period (s)
         self.sampling_period = np.full(n_envs, float(config.source.T))
+        #: ``(N,)`` RMS position accuracy of each slot's first measurement, ``sqrt(tr P0_pos / 2)``
+        self.position_accuracy = np.ones(n_envs)
         N, K, m = n_envs, self.horizon, config.sensor.dim_z
         self._rngs: list[tuple[np.random.Generator, np.random.Generator] | None] = [None] * N
         self.truth = np.zeros((N, K + 1, 4))
@@ -228,8 +230,11 @@ class TrackingCore:
         quantities and memories at their start (copy-on-write: arrays handed out earlier, in
         infos, do not change under the caller)."""
         init = self.imm.init(x0, P0)
+        accuracy = np.sqrt(0.5 * (P0[:, 0, 0] + P0[:, 1, 1]))
+        self.position_accuracy = self.position_accuracy.copy()
+        self.position_accuracy[indices] = accuracy
         if isinstance(self.reward_scale, np.ndarray):  # in place: the Reward reads this array
-            self.reward_scale[indices] = np.sqrt(0.5 * (P0[:, 0, 0] + P0[:, 1, 1]))
+            self.reward_scale[indices] = accuracy
         for bank in ("state_a", "state_b", "state_s"):
             state = getattr(self, bank)
             parts = [a.copy() for a in (state.x, state.P, state.mu)]

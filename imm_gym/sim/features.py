@@ -58,6 +58,7 @@ class StepView(Protocol):
     velocity_s: Array  # (N, 2) the shadow's estimate at t
     velocity_s_prev: Array  # (N, 2) at t-1
     sampling_period: Array  # (N,) each slot's T (s)
+    position_accuracy: Array  # (N,) RMS position accuracy of the slot's first measurement (m)
     memories: dict[str, Array]  # each memory feature's state
 
 
@@ -177,6 +178,40 @@ def shadow_turn_rate(view: StepView) -> Array:
     return rate / TURN_RATE_SCALE
 
 
+def bank_turn_rate(bank: Any) -> float:
+    """The largest ``|omega|`` (rad/s) of a linear bank's CT models: the unit of the ``*_bank``
+    turn-rate features (:data:`TURN_RATE_SCALE` for a bank without CT models or a heterogeneous
+    bank, whose CT model estimates its turn rate)."""
+    rates = [abs(m.omega) for m in bank if getattr(m, "kind", None) == "ct"] if isinstance(
+        bank, tuple
+    ) else []
+    return max(rates) if rates else TURN_RATE_SCALE
+
+
+def turn_rate_bank(view: StepView) -> Array:
+    """``(N,)`` heading rate of the combined estimate in units of the bank's turn rate."""
+    rate = heading_rate(view.velocity_prev, view.velocity, view.sampling_period)
+    return rate / bank_turn_rate(view.config.bank)
+
+
+def shadow_turn_rate_bank(view: StepView) -> Array:
+    """``(N,)`` the same for the shadow IMM's estimate."""
+    rate = heading_rate(view.velocity_s_prev, view.velocity_s, view.sampling_period)
+    return rate / bank_turn_rate(view.config.bank)
+
+
+def maneuver_snr(view: StepView) -> Array:
+    r"""``(N,)`` how far a turn at the bank's rate moves the target off a straight line in one
+    step, in units of the measurement accuracy, on a log scale:
+    :math:`\log_{10}(|v|\,\omega_{bank} T^2 / (2 \sigma_p)) / 3` clipped to [-1, 1]
+    (``sigma_p``: the slot's first-measurement accuracy). Near -1 the models are
+    indistinguishable step by step, near 1 a single step tells them apart."""
+    speed = np.hypot(view.velocity[:, 0], view.velocity[:, 1])
+    T = view.sampling_period
+    offset = speed * bank_turn_rate(view.config.bank) * T * T / (2.0 * view.position_accuracy)
+    return np.clip(np.log10(np.maximum(offset, 1e-3)) / 3.0, -1.0, 1.0)
+
+
 def _ema(factors: tuple[float, ...], signal: Callable[[StepView], Array]) -> Memory:
     """Moving averages of a scalar signal ``(N,)``, one per factor, starting at 0."""
     lam = np.asarray(factors)
@@ -276,4 +311,25 @@ register(Feature(
     "speed", "speed of the combined estimate over 30 m/s, clipped", lambda M, m: 1, 0.0, 1.0,
     lambda v: np.hypot(v.velocity[:, 0], v.velocity[:, 1])[:, None] / SPEED_SCALE,
     size_label="1",
+))
+register(Feature(
+    "turn_rate_bank", "heading rate of the combined estimate over the last step in units of the"
+    " bank's largest CT turn rate, clipped to ±2 and halved", lambda M, m: 1, -1.0, 1.0,
+    lambda v: (np.clip(turn_rate_bank(v), -2.0, 2.0) / 2.0)[:, None], size_label="1",
+))
+register(Feature(
+    "shadow_turn_rate_bank", "the same for the shadow IMM's estimate", lambda M, m: 1, -1.0, 1.0,
+    lambda v: (np.clip(shadow_turn_rate_bank(v), -2.0, 2.0) / 2.0)[:, None], size_label="1",
+    needs_shadow=True,
+))
+register(Feature(
+    "turn_magnitude_bank_ema", "moving averages of the shadow's turn-rate magnitude in units of"
+    " the bank's, clipped to 1, λ = 0.9, 0.97", lambda M, m: len(MAGNITUDE_EMA_FACTORS), 0.0, 1.0,
+    _memory_of("turn_magnitude_bank_ema"), size_label="2", needs_shadow=True,
+    memory=_ema(MAGNITUDE_EMA_FACTORS, lambda v: np.minimum(np.abs(shadow_turn_rate_bank(v)), 1.0)),
+))
+register(Feature(
+    "maneuver_snr", "log10 of a bank turn's one-step offset |v| ω T² / 2 over the measurement"
+    " accuracy, / 3, clipped: how distinguishable the models are", lambda M, m: 1, -1.0, 1.0,
+    lambda v: maneuver_snr(v)[:, None], size_label="1",
 ))
