@@ -186,9 +186,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         return self._renderer.frame()
 
     def close(self) -> None:
-        """Release the render figure, if any."""
-        if self._renderer is not None:
-            self._renderer.close()
+        """Release the render figure, if any (none if the constructor failed before it)."""
+        renderer = getattr(self, "_renderer", None)
+        if renderer is not None:
+            renderer.close()
 
 
 # The observation table of the datasheet comes from the feature registry (one declaration each).

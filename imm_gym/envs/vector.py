@@ -150,6 +150,7 @@ class TPMAdaptVectorEnv(VectorEnv):
         return tuple(self._renderer.frame(i) for i in self.render_envs)
 
     def close_extras(self, **kwargs: Any) -> None:
-        """Release the render figure, if any."""
-        if self._renderer is not None:
-            self._renderer.close()
+        """Release the render figure, if any (none if the constructor failed before it)."""
+        renderer = getattr(self, "_renderer", None)
+        if renderer is not None:
+            renderer.close()

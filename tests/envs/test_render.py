@@ -232,3 +232,16 @@ def test_record_video_writes_a_file_when_moviepy_is_installed(tmp_path) -> None:
         done = terminated or truncated
     env.close()
     assert list(tmp_path.glob("*.mp4"))
+
+
+@pytest.mark.parametrize("make", ["scalar", "vector"])
+def test_an_env_whose_constructor_failed_closes_quietly(make) -> None:
+    """Gymnasium closes an env whose constructor raised: no AttributeError from the renderer."""
+    from imm_gym.envs.tpm_adapt import TPMAdaptEnv
+    from imm_gym.envs.vector import TPMAdaptVectorEnv
+
+    cls = TPMAdaptEnv if make == "scalar" else TPMAdaptVectorEnv
+    env = cls.__new__(cls)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env.close()
