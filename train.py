@@ -512,10 +512,7 @@ def train_one(
         if args.validate_every:
             selected["armse_pos"] = validation_score()
     elif args.validate_every:
-        if agent_dir.exists():
-            shutil.rmtree(agent_dir)
-        shutil.copytree(best_dir, agent_dir)
-        selected = {k: v for k, v in best.items() if k != "history"}
+        selected = adopt_best(best_dir, agent_dir, best)
     else:
         save(agent_dir)
         selected = {"timesteps": int(model.num_timesteps)}
@@ -615,10 +612,7 @@ def train_one_rllib(
     if args.validate_every:
         if not history or history[-1]["timesteps"] != steps:
             validate()
-        if agent_dir.exists():
-            shutil.rmtree(agent_dir)
-        shutil.copytree(best_dir, agent_dir)
-        selected = {k: v for k, v in best.items() if k != "history"}
+        selected = adopt_best(best_dir, agent_dir, best)
     else:
         export(agent_dir)
         selected = {"timesteps": steps}
@@ -646,6 +640,15 @@ def train_one_rllib(
     }
     (run_dir / "training.json").write_text(json.dumps(stats, indent=2))
     return agent_dir, stats
+
+
+def adopt_best(best_dir: Path, agent_dir: Path, best: dict[str, Any]) -> dict[str, Any]:
+    """The validated best checkpoint becomes the agent (``best_dir`` copied over ``agent_dir``);
+    returns what was selected (its validation record without the history)."""
+    if agent_dir.exists():
+        shutil.rmtree(agent_dir)
+    shutil.copytree(best_dir, agent_dir)
+    return {k: v for k, v in best.items() if k != "history"}
 
 
 def progress_line(step: int, start: int, total: int, seconds: float, armse: float | None) -> str:
