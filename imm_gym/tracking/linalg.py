@@ -119,6 +119,7 @@ def jacobi_eig_lanes(
     c = np.empty((half, lanes))
     s = np.empty((half, lanes))
     pairs = np.empty((half, 2), dtype=np.int64)
+    old = np.empty((2, lanes))
     for i in range(n):
         for j in range(n):
             for lane in range(lanes):
@@ -134,9 +135,11 @@ def jacobi_eig_lanes(
                 p, q = pairs[k, 0], pairs[k, 1]
                 for i in range(n):
                     if i != p and i != q:
-                        _rotate_lanes(a, min(i, p), max(i, p), min(i, q), max(i, q), lanes, k, c, s)
+                        _rotate_lanes(
+                            a, min(i, p), max(i, p), min(i, q), max(i, q), lanes, k, c, s, old
+                        )
                 for i in range(n):
-                    _rotate_lanes(v, i, p, i, q, lanes, k, c, s)
+                    _rotate_lanes(v, i, p, i, q, lanes, k, c, s, old)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -205,15 +208,22 @@ def _rotation(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _rotate_lanes(
-    x: Array, i: int, j: int, k: int, l: int, lanes: int, r: int, c: Array, s: Array
+    x: Array, i: int, j: int, k: int, l: int, lanes: int, r: int, c: Array, s: Array, old: Array
 ) -> None:  # pragma: no cover - jitted
     """``(x_ij, x_kl) <- (c x_ij - s x_kl, s x_ij + c x_kl)`` in every lane (rotation ``r``:
-    ``c[r]``, ``s[r]``)."""
+    ``c[r]``, ``s[r]``).
+
+    Through a copy of the two rows in ``old`` (``(2, L)`` scratch): each loop then writes one row
+    of ``x`` and reads other rows, which the compiler vectorizes; reading and writing both rows of
+    ``x`` in one loop, at a distance it cannot see, ran scalar (perf: 21 % of the UKF kernel).
+    """
     for lane in range(lanes):
-        xij = x[i, j, lane]
-        xkl = x[k, l, lane]
-        x[i, j, lane] = c[r, lane] * xij - s[r, lane] * xkl
-        x[k, l, lane] = s[r, lane] * xij + c[r, lane] * xkl
+        old[0, lane] = x[i, j, lane]
+        old[1, lane] = x[k, l, lane]
+    for lane in range(lanes):
+        x[i, j, lane] = c[r, lane] * old[0, lane] - s[r, lane] * old[1, lane]
+    for lane in range(lanes):
+        x[k, l, lane] = s[r, lane] * old[0, lane] + c[r, lane] * old[1, lane]
 
 
 def inv_logdet(S: Array) -> tuple[Array, Array]:
