@@ -64,6 +64,40 @@ def sensor_spec(sensor: object) -> tuple[int, Array] | None:
     return None
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def clearly_stochastic(tpm: Array, row_sum_tol: float) -> bool:  # pragma: no cover
+    """Whether every entry of the C-contiguous ``tpm`` ``(..., M, M)`` is finite and ``>= 0`` and
+    every row sum ``s`` has ``|s - 1| <= row_sum_tol`` (the sum taken left to right).
+
+    The fast half of :func:`imm_gym.tracking.tpm.validate_tpm`: :meth:`IMM.step` calls the
+    validator only where this says no (with half its tolerance, so a row whose sum lies near the
+    tolerance gets the validator's own verdict and message).
+    """
+    M = tpm.shape[-1]
+    rows = tpm.reshape((tpm.size // M, M))
+    for r in range(rows.shape[0]):
+        total = 0.0
+        for j in range(M):
+            v = rows[r, j]
+            if not (v >= 0.0 and v - v == 0.0):  # NaN, inf or negative
+                return False
+            total += v
+        if not abs(total - 1.0) <= row_sum_tol:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def all_finite(z: Array) -> bool:  # pragma: no cover
+    """Whether every entry of the 2-D ``z`` is finite (``z - z == 0``)."""
+    for t in range(z.shape[0]):
+        for d in range(z.shape[1]):
+            v = z[t, d]
+            if not v - v == 0.0:
+                return False
+    return True
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _wrap(a: float) -> float:  # pragma: no cover
     """Angle wrapped to (-pi, pi], as :func:`imm_gym.tracking.linalg.wrap_angle`.

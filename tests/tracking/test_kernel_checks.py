@@ -1,0 +1,78 @@
+"""The compiled input checks of ``IMM.step`` (``clearly_stochastic`` and ``all_finite`` of
+:mod:`imm_gym.tracking.kernels.imm`): they accept what ``validate_tpm`` and ``used_measurements``
+accept and hand everything else to them, so the errors and the repair of a missed detection's
+measurement stay those of the reference validators."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym import IMM, ConfigError, Sonar, paper_bank, stay_tpm
+from imm_gym.tracking.kernels import imm as kernel
+from imm_gym.tracking.tpm import ROW_SUM_TOL
+
+
+def _bank() -> tuple[IMM, object, np.ndarray]:
+    imm = IMM(paper_bank(), Sonar())
+    state = imm.init(np.array([[1000.0, 2000.0, 5.0, -3.0]] * 2), np.diag([100.0, 100.0, 4.0, 4.0]))
+    z = np.array([[2236.0, 1.107], [2237.0, 1.106]])
+    return imm, state, z
+
+
+def test_clearly_stochastic_flags_every_defect() -> None:
+    tpm = stay_tpm(3, 0.95)
+    assert kernel.clearly_stochastic(tpm, 0.5 * ROW_SUM_TOL)
+    assert kernel.clearly_stochastic(np.stack([tpm, tpm]), 0.5 * ROW_SUM_TOL)
+    for row, col, value in ((0, 1, np.nan), (1, 2, np.inf), (2, 0, -1e-3)):
+        bad = tpm.copy()
+        bad[row, col] = value
+        assert not kernel.clearly_stochastic(bad, 0.5 * ROW_SUM_TOL)
+    off = tpm.copy()
+    off[1, 1] += 0.75 * ROW_SUM_TOL  # within the validator's tolerance, not within half of it
+    assert not kernel.clearly_stochastic(off, 0.5 * ROW_SUM_TOL)
+    assert kernel.all_finite(np.ones((3, 2)))
+    assert not kernel.all_finite(np.array([[1.0, np.nan]]))
+    assert not kernel.all_finite(np.array([[1.0], [-np.inf]]))
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [(np.nan, "finite"), (-0.01, ">= 0"), (0.2, "sum to 1")],
+)
+def test_step_raises_the_validators_errors(value: float, message: str) -> None:
+    imm, state, z = _bank()
+    tpm = stay_tpm(3, 0.95)
+    tpm[0, 1] = value
+    with pytest.raises(ConfigError, match=message):
+        imm.step(state, tpm, z)
+
+
+def test_borderline_and_non_contiguous_tpms_get_the_validators_verdict() -> None:
+    imm, state, z = _bank()
+    tpm = stay_tpm(3, 0.95)
+    _, ref = imm.step(state, tpm, z)
+    near = tpm.copy()
+    near[1, 1] += 0.75 * ROW_SUM_TOL  # the validator accepts it
+    _, out = imm.step(state, near, z)
+    assert np.all(np.isfinite(out.x))
+    beyond = tpm.copy()
+    beyond[1, 1] += 2.0 * ROW_SUM_TOL
+    with pytest.raises(ConfigError, match="sum to 1"):
+        imm.step(state, beyond, z)
+    _, fortran = imm.step(state, np.asfortranarray(tpm.T).T, z)  # a transposed view: F order
+    np.testing.assert_array_equal(fortran.x, ref.x)
+    _, listed = imm.step(state, tpm.tolist(), z)
+    np.testing.assert_array_equal(listed.x, ref.x)
+
+
+def test_non_finite_measurements_checked_and_repaired_as_before() -> None:
+    imm, state, z = _bank()
+    detected = np.array([True, False])
+    _, ref = imm.step(state, stay_tpm(3, 0.95), np.where(detected[:, None], z, 0.0), detected)
+    _, out = imm.step(state, stay_tpm(3, 0.95), np.where(detected[:, None], z, np.nan), detected)
+    np.testing.assert_array_equal(out.x, ref.x)
+    with pytest.raises(ConfigError, match="finite where detected"):
+        imm.step(state, stay_tpm(3, 0.95), np.where(detected[:, None], np.nan, z), detected)
+    with pytest.raises(ConfigError, match="finite where detected"):
+        imm.step(state, stay_tpm(3, 0.95), np.full_like(z, np.inf))
