@@ -97,7 +97,8 @@ def tradeoff_figure(
     for name, row in policies.items():
         a, e = 100.0 * row["mode_accuracy"], row["armse_pos"]
         ax.plot(a, e, "D", ms=6)
-        ax.annotate(f"{name} (TV {row['mode_prob_tv']:.2f})", (a, e), textcoords="offset points",
+        label = name if len(name) <= 28 else "…" + name[-27:]  # an agent's directory
+        ax.annotate(f"{label} (TV {row['mode_prob_tv']:.2f})", (a, e), textcoords="offset points",
                     xytext=(5, 4), fontsize=8)
     ax.set(
         xlabel="mode accuracy (%): argmax of the mode probabilities = the true model",
