@@ -9,11 +9,12 @@ from there), at N = 1, 64, 1024 and 4096; and ``IMM.step`` at N = 1 (the Python 
 checks, output arrays, result objects). The inputs are the paper scenario's measurements after
 20 steps of the tracker (realistic covariances); every call gets the same inputs.
 
-Reported per configuration: the median over ``--repeats`` repeats of the µs per batch step (a
-repeat is as many calls as last about ``MIN_REPEAT_S``), M tracker-steps/s (N / µs), the ratio
-baseline / this tree, and how far apart the two kernels' outputs are (largest relative
-difference of the combined estimates and covariances: the Jacobi sweep order changed, so they
-agree to rounding, not bit for bit).
+Reported per configuration: the median over ``--repeats`` repeats (the two kernels take turns
+within each repeat; a repeat is as many calls as last about ``MIN_REPEAT_S``) of the µs per batch
+step, wall and process-CPU time, M tracker-steps/s (N / µs), the ratio baseline / this tree,
+and how far apart the two kernels' outputs are (largest relative difference of the combined
+estimates and covariances: the Jacobi sweep order changed, so they agree to rounding, not bit for
+bit).
 
 Run from the repository root (the baseline compiles on the first run, ~1 min)::
 
@@ -116,18 +117,24 @@ def kernel_inputs(filt: str, n: int, seed: int) -> tuple[IMM, tuple, Any]:
     return imm, args, (state, tpm, z)
 
 
-def time_calls(call: Any, repeats: int, min_repeat_s: float) -> list[float]:
-    """µs per call of ``call()`` in each of ``repeats`` repeats (after two warm-up calls)."""
-    call()
-    call()
-    t0 = time.perf_counter()
-    call()
-    once = max(time.perf_counter() - t0, 1e-7)
-    calls = max(1, int(min_repeat_s / once))
-    out = []
+def time_calls(calls: dict[str, Any], repeats: int, min_repeat_s: float) -> dict[str, Any]:
+    """Wall and process-CPU µs per call of each ``calls[name]()`` in each of ``repeats`` repeats
+    (after two warm-up calls), the callables taking turns within every repeat so that a change in
+    the machine's load hits them alike: ``{name: (wall list, cpu list)}``."""
+    counts = {}
+    for name, call in calls.items():
+        call()
+        call()
+        t0 = time.perf_counter()
+        call()
+        counts[name] = max(1, int(min_repeat_s / max(time.perf_counter() - t0, 1e-7)))
+    out: dict[str, Any] = {name: ([], []) for name in calls}
     for _ in range(repeats):
-        wall, _cpu = harness.timed(lambda: [call() for _ in range(calls)])
-        out.append(wall / calls * 1e6)
+        for name, call in calls.items():
+            n = counts[name]
+            wall, cpu = harness.timed(lambda c=call, n=n: [c() for _ in range(n)])
+            out[name][0].append(wall / n * 1e6)
+            out[name][1].append(cpu / n * 1e6)
     return out
 
 
@@ -146,8 +153,15 @@ def run(args: argparse.Namespace, console: Console) -> int:
         harness.right("this tree µs"),
         harness.right("M steps/s"),
         harness.right("speed-up"),
+        harness.right("CPU µs base"),
+        harness.right("CPU µs"),
+        harness.right("M steps/CPU s"),
+        harness.right("CPU speed-up"),
         harness.right("max rel. diff"),
-        caption=f"median of {repeats} repeats; µs per batch step (one step of all N trackers)",
+        caption=(
+            f"median of {repeats} interleaved repeats; µs per batch step (one step of all N "
+            "trackers): wall time, then process CPU time (leaves out waiting for a core)"
+        ),
     )
     rows = []
     for filt in FILTERS:
@@ -162,16 +176,26 @@ def run(args: argparse.Namespace, console: Console) -> int:
                 float(np.max(np.abs(a - b) / np.maximum(np.abs(b), 1e-300 + np.abs(b).max())))
                 for a, b in ((ours_out[8], base_args[-3]), (ours_out[9], base_args[-2]))
             )
-            t_base = float(
-                np.median(time_calls(lambda a=base_args: base.imm_step(*a), repeats, min_repeat_s))
+            times = time_calls(
+                {
+                    "base": lambda a=base_args: base.imm_step(*a),
+                    "ours": lambda a=call_args: kernel.imm_step(*a),
+                },
+                repeats,
+                min_repeat_s,
             )
-            t_ours = float(
-                np.median(
-                    time_calls(lambda a=call_args: kernel.imm_step(*a), repeats, min_repeat_s)
-                )
-            )
+            t_base, t_ours = (float(np.median(times[k][0])) for k in ("base", "ours"))
+            c_base, c_ours = (float(np.median(times[k][1])) for k in ("base", "ours"))
             rows.append(
-                {"filter": filt, "n": n, "baseline_us": t_base, "us": t_ours, "max_rel_diff": diff}
+                {
+                    "filter": filt,
+                    "n": n,
+                    "baseline_us": t_base,
+                    "us": t_ours,
+                    "baseline_cpu_us": c_base,
+                    "cpu_us": c_ours,
+                    "max_rel_diff": diff,
+                }
             )
             table.add_row(
                 filt,
@@ -181,16 +205,22 @@ def run(args: argparse.Namespace, console: Console) -> int:
                 f"{t_ours:,.1f}",
                 f"{n / t_ours:.3f}",
                 f"{t_base / t_ours:.2f}×",
+                f"{c_base:,.1f}",
+                f"{c_ours:,.1f}",
+                f"{n / c_ours:.3f}",
+                f"{c_base / c_ours:.2f}×",
                 f"{diff:.1e}",
             )
         table.add_section()
     console.print(table)
     imm, _, (state, tpm, z) = kernel_inputs("ukf", 1, args.seed)
-    step_us = float(np.median(time_calls(lambda: imm.step(state, tpm, z), repeats, min_repeat_s)))
+    step = time_calls({"step": lambda: imm.step(state, tpm, z)}, repeats, min_repeat_s)["step"]
+    step_us, step_cpu_us = float(np.median(step[0])), float(np.median(step[1]))
     n1024 = next(r for r in rows if r["filter"] == "ukf" and r["n"] == 1024)
     console.print(
-        f"IMM.step (SVD-UKF) at N = 1: {step_us:.1f} µs (aim ≤ 10 µs); kernel at N = 1024: "
-        f"{1024 / n1024['us']:.2f} M tracker-steps/s (aim ≥ 1.0)"
+        f"IMM.step (SVD-UKF) at N = 1: {step_us:.1f} µs wall, {step_cpu_us:.1f} µs CPU (aim ≤ 10 "
+        f"µs); kernel at N = 1024: {1024 / n1024['us']:.2f} M tracker-steps/s wall, "
+        f"{1024 / n1024['cpu_us']:.2f} per CPU s (aim ≥ 1.0)"
     )
     console.print(
         f"[dim]{env['processor']}; {harness.thread_summary(env)}; load avg at start "
@@ -206,6 +236,7 @@ def run(args: argparse.Namespace, console: Console) -> int:
                 "environment": env,
                 "results": rows,
                 "imm_step_n1_us": step_us,
+                "imm_step_n1_cpu_us": step_cpu_us,
             },
             console,
         )
