@@ -77,6 +77,10 @@ class Variation:
         q_scale: factor on every model's process noise (its ``q`` or ``intensity``,
             :meth:`~imm_gym.tracking.models.MotionModel.scaled`), log-uniform: trackers tuned
             tighter or looser than the configured bank.
+        share: the share of episodes that draw their conditions (each decides by one uniform
+            draw first); the others keep the configured tracker and target ranges, so that a
+            training mixture keeps the configured tracker beside the varied ones (1: every
+            episode varies).
     """
 
     T: tuple[float, float] | None = None
@@ -87,8 +91,10 @@ class Variation:
     detection_prob: tuple[float, float] | None = None
     speed: tuple[float, float] | None = None
     q_scale: tuple[float, float] | None = None
+    share: float = 1.0
 
     def __post_init__(self) -> None:
+        store(self, "share", check_range("vary.share", self.share, 0.0, 1.0, lo_open=True))
         for name, (lo_limit, hi_limit) in LIMITS.items():
             value = getattr(self, name)
             if value is None:
@@ -120,9 +126,12 @@ class Variation:
                 )
 
     def draw(self, rng: np.random.Generator) -> dict[str, float]:
-        """One episode's conditions from its generator: one draw per varied condition, in the
-        order of :data:`DRAWS`."""
-        values = {}
+        """One episode's conditions from its generator: with ``share < 1`` first a uniform draw
+        that keeps the configured conditions (nothing returned) above ``share``, then one draw
+        per varied condition, in the order of :data:`DRAWS`."""
+        values: dict[str, float] = {}
+        if self.share < 1.0 and rng.uniform() >= self.share:
+            return values
         for name in self.varied:
             lo, hi = getattr(self, name)
             if DRAWS[name] == "log":
@@ -139,7 +148,8 @@ class Conditions:
     Attributes:
         T: ``(R,)`` sampling periods (s).
         sensors: the R runs' sensors (the configured one with the varied fields replaced).
-        speed: ``(R,)`` target speeds (m/s), or None where the source's own range applies.
+        speed: ``(R,)`` target speeds (m/s; NaN for a run that keeps the source's range), or
+            None where no run varies it.
         q_scale: ``(R,)`` factors on the bank's process noise (1 where not varied).
     """
 

@@ -93,7 +93,7 @@ def _draw_varied(
         changes: dict[str, object] = {}
         if conditions.T[r] != source.T:
             changes["T"] = float(conditions.T[r])
-        if conditions.speed is not None:
+        if conditions.speed is not None and not np.isnan(conditions.speed[r]):
             changes["speed"] = (float(conditions.speed[r]),) * 2
         run_source = dataclasses.replace(source, **changes) if changes else source  # type: ignore[type-var]
         runs.append(draw_episodes(run_source, conditions.sensors[r], [scen_rng], [noise_rng],

@@ -216,3 +216,23 @@ def test_the_measurement_reward_scale_is_each_episode_accuracy() -> None:
     np.testing.assert_allclose(result.reward, advantage / scale, rtol=1e-12)
     with pytest.raises(ConfigError, match="reward_scale"):
         EnvConfig(reward_scale="sensor")
+
+
+def test_a_share_of_the_episodes_keeps_the_configured_tracker() -> None:
+    """``vary.share``: the runs that do not vary are the configured ones — their sampling period,
+    sensor and bank, their speed from the family — and about ``share`` of them vary."""
+    variation = Variation(**BROAD, share=0.3)
+    rngs = [streams(s)[0] for s in range(1000)]
+    c = draw_conditions(variation, 1.0, Sonar(), rngs)
+    varied = c.T != 1.0
+    assert abs(varied.mean() - 0.3) < 0.05
+    assert all(c.sensors[i] == Sonar() for i in np.flatnonzero(~varied))
+    assert np.all(np.isnan(c.speed[~varied])) and np.all(c.q_scale[~varied] == 1.0)
+    assert np.all(~np.isnan(c.speed[varied]))
+    config = EnvConfig(bank=CONTINUOUS_BANK, vary={**BROAD, "share": 0.3})
+    batch = draw_batch(config.source, config.sensor, 40, 0, variation=config.vary)
+    kept = batch.truth.T == 1.0
+    speeds = np.linalg.norm(batch.truth.states[kept, 0, 2:], axis=-1)
+    assert kept.any() and np.all((speeds >= 5.0) & (speeds <= 25.0))  # the family's own range
+    with pytest.raises(ConfigError, match=r"vary.share"):
+        Variation(share=0.0)
