@@ -173,3 +173,39 @@ def trajectory_metrics(estimate: Array, truth: Array, heading: Array) -> dict[st
         "vel_rmse": float(np.sqrt(np.mean(np.sum(ev**2, axis=-1)))),
         "yaw_rmse_deg": float(np.degrees(np.sqrt(np.mean(yaw**2)))),
     }
+
+
+def interquartile_mean(scores: Array) -> float:
+    """Mean of the middle half of ``scores`` (all axes pooled): ``scipy.stats.trim_mean`` with 25 %
+    cut from each end, the aggregate of Agarwal et al. (2021) for a few training seeds."""
+    return float(stats.trim_mean(np.ravel(scores), 0.25))
+
+
+def stratified_bootstrap_iqm(
+    scores: Array, n_boot: int = 10_000, seed: int = 0, level: float = 0.95
+) -> dict[str, float]:
+    """Interquartile mean of ``scores (tasks, seeds)`` with a stratified bootstrap CI.
+
+    Each resample draws, for every task (scenario) separately, its seeds with replacement, and
+    takes the IQM of all resampled scores; the interval is the percentile interval of the
+    resampled IQMs (Agarwal et al., "Deep RL at the edge of the statistical precipice", 2021).
+
+    Args:
+        scores: ``(tasks, seeds)`` one score per training seed and task (a 1-d array: one task).
+        n_boot: number of resamples; seed: the resampling generator's seed; level: the CI's.
+
+    Returns:
+        ``iqm``, ``low``, ``high``.
+    """
+    x = np.atleast_2d(np.asarray(scores, dtype=np.float64))
+    tasks, seeds = x.shape
+    rng = np.random.default_rng(seed)
+    picks = rng.integers(0, seeds, size=(n_boot, tasks, seeds))
+    resampled = np.take_along_axis(np.broadcast_to(x, (n_boot, tasks, seeds)), picks, axis=2)
+    boot = stats.trim_mean(resampled.reshape(n_boot, -1), 0.25, axis=1)
+    alpha = (1.0 - level) / 2.0
+    return {
+        "iqm": interquartile_mean(x),
+        "low": float(np.quantile(boot, alpha)),
+        "high": float(np.quantile(boot, 1.0 - alpha)),
+    }

@@ -1,0 +1,25 @@
+"""The interquartile mean over training seeds and its stratified bootstrap CI."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from imm_gym.evaluation.metrics import interquartile_mean, stratified_bootstrap_iqm
+
+
+def test_the_iqm_by_hand() -> None:
+    assert interquartile_mean(np.array([1.0, 2.0, 3.0, 4.0, 100.0])) == 3.0  # 2, 3, 4
+    assert interquartile_mean(np.array([[1.0, 2.0, 3.0, 4.0], [5.0, 6.0, 7.0, 8.0]])) == 4.5
+
+
+def test_the_stratified_bootstrap() -> None:
+    scores = np.array([[17.8, 17.9, 18.0, 18.1, 25.0], [16.6, 16.7, 16.7, 16.8, 16.9]])
+    a = stratified_bootstrap_iqm(scores, n_boot=2000, seed=3)
+    assert a == stratified_bootstrap_iqm(scores, n_boot=2000, seed=3)
+    assert a["low"] <= a["iqm"] <= a["high"] and a["high"] - a["low"] < 2.0  # the outlier trimmed
+    # a single task: seeds resampled within it; identical seeds give a zero-width interval
+    same = stratified_bootstrap_iqm(np.full(5, 2.5), n_boot=500)
+    assert same == {"iqm": 2.5, "low": 2.5, "high": 2.5}
+    # resampling never mixes tasks: each resample keeps every task's own share of scores
+    wide = stratified_bootstrap_iqm(np.array([[0.0] * 4, [10.0] * 4]), n_boot=500)
+    assert wide["low"] == wide["high"] == 5.0
