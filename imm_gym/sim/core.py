@@ -93,14 +93,8 @@ class TrackingCore:
         #: ``config.vary`` one bank per slot, ``F``, ``Q``, ``R`` set at each reset for the
         #: episode's sampling period and sensor (:mod:`imm_gym.sim.conditions`)
         self.kernel_args = self._bank_per_slot() if config.vary.active else self.imm.kernel_args
-        #: metres per unit of reward: a number, or ``(N,)`` each episode's measurement accuracy
-        #: (``reward_scale="measurement"``, set at each start)
-        self.reward_scale: float | Array = (
-            np.ones(n_envs) if isinstance(config.reward_scale, str) else config.reward_scale
-        )
         self._reward = Reward(
             config.reward,
-            self.reward_scale,
             config.shadow == "fixed",
             config.tpm_cost,
             self.shadow_tpms,
@@ -230,11 +224,8 @@ class TrackingCore:
         quantities and memories at their start (copy-on-write: arrays handed out earlier, in
         infos, do not change under the caller)."""
         init = self.imm.init(x0, P0)
-        accuracy = np.sqrt(0.5 * (P0[:, 0, 0] + P0[:, 1, 1]))
         self.position_accuracy = self.position_accuracy.copy()
-        self.position_accuracy[indices] = accuracy
-        if isinstance(self.reward_scale, np.ndarray):  # in place: the Reward reads this array
-            self.reward_scale[indices] = accuracy
+        self.position_accuracy[indices] = np.sqrt(0.5 * (P0[:, 0, 0] + P0[:, 1, 1]))
         for bank in ("state_a", "state_b", "state_s"):
             state = getattr(self, bank)
             parts = [a.copy() for a in (state.x, state.P, state.mu)]
@@ -313,7 +304,8 @@ class TrackingCore:
             "tpm": out.tpm.copy(),
             "step": step,
         }
-        reward, terms = self._reward(out, true_model, self.tpm)
+        scale = self.position_accuracy if cfg.reward_scale == "measurement" else cfg.reward_scale
+        reward, terms = self._reward(out, scale, true_model, self.tpm)
         info.update(terms)
         if cfg.shadow == "fixed":
             info["shadow_position_error"] = out.shadow_position_error

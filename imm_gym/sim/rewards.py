@@ -95,8 +95,7 @@ class Reward:
     arithmetic).
 
     Args:
-        name: the rewarded term; scale: ``reward_scale``, a number or the slots' ``(N,)``
-            (read at each call); shadow: the shadow IMM runs.
+        name: the rewarded term; shadow: the shadow IMM runs.
         tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)`` or ``(N, M, M)``
             (the slots', read at each call).
         mode_reward: weight of :func:`mode_score`.
@@ -106,7 +105,6 @@ class Reward:
     def __init__(
         self,
         name: str,
-        scale: float | Array,
         shadow: bool,
         tpm_cost: float,
         shadow_tpm: Array,
@@ -119,19 +117,23 @@ class Reward:
             if shadow or not t.needs_shadow
         )
         self._rewarded = f"reward_{name}"
-        self._scale = scale
         self._tpm_cost = tpm_cost
         self._shadow_tpm = shadow_tpm
         self._mode_reward = mode_reward
         self._tpm_change_cost = tpm_change_cost
 
     def __call__(
-        self, step: BankStep, true_model: NDArray[np.int64], previous_tpm: Array
+        self,
+        step: BankStep,
+        scale: float | Array,
+        true_model: NDArray[np.int64],
+        previous_tpm: Array,
     ) -> tuple[Array, dict[str, Array]]:
         """The reward of every slot ``(N,)`` and the ``info`` entries of its terms
-        (``true_model``: the step's true model per slot, -1 for none; ``previous_tpm``: the
-        ``(N, M, M)`` TPMs of the step before)."""
-        terms = {key: value(step, self._scale) for key, value in self._terms}
+        (``scale``: ``reward_scale`` in metres, a number or the slots' ``(N,)``; ``true_model``:
+        the step's true model per slot, -1 for none; ``previous_tpm``: the ``(N, M, M)`` TPMs of
+        the step before)."""
+        terms = {key: value(step, scale) for key, value in self._terms}
         reward = terms[self._rewarded].copy()
         if self._tpm_cost > 0.0:
             terms["tpm_divergence"] = row_divergence(step.tpm, self._shadow_tpm)
