@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
+
+import numpy as np
+
+from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError
 
 from .fixed import FixedTPM
 from .registry import BuildContext, register
@@ -13,22 +18,27 @@ STAY_GRID = (1 / 3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999
 
 
 def best_fixed_stay(
-    score: Callable[[float], float], grid: Sequence[float] = STAY_GRID
+    scores: Sequence[float], grid: Sequence[float] = STAY_GRID
 ) -> tuple[float, dict[float, float]]:
-    """The stay probability with the lowest score (``score(stay) -> ARMSE`` on training runs)."""
-    results = {float(p): float(score(p)) for p in grid}
+    """The stay probability of ``grid`` with the lowest score (``scores[i]``: the training
+    ARMSE of ``grid[i]``), and every stay's score."""
+    results = {float(p): float(v) for p, v in zip(grid, scores, strict=True)}
     best = min(results, key=results.__getitem__)
     return best, results
 
 
 @register("best-fixed", help="the fixed TPM with the lowest ARMSE on training runs")
 def build_best_fixed(context: BuildContext) -> tuple[FixedTPM, dict[str, Any]]:
-    """:class:`FixedTPM` with the stay of :data:`STAY_GRID` scoring best on the training runs.
+    """:class:`FixedTPM` with the stay of :data:`STAY_GRID` scoring best on the training runs
+    (every stay's classical IMM on the same runs, in one roll-out).
 
     Notes: the stay found, the training ARMSE of every stay searched, the training runs and seeds.
     """
+    if context.train_armse_from is None:
+        raise ConfigError("best-fixed needs a build context that offers train_armse_from")
     M = context.n_models
-    stay, grid = best_fixed_stay(lambda p: context.train_armse(FixedTPM(M, p)))
+    tpms = np.stack([stay_tpm(M, p) for p in STAY_GRID])
+    stay, grid = best_fixed_stay(context.train_armse_from(FixedTPM(M), tpms))
     notes = {
         "stay": stay,
         "search": {f"{p:.4f}": v for p, v in grid.items()},

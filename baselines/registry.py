@@ -23,6 +23,9 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+import numpy as np
+from numpy.typing import NDArray
+
 from imm_gym.sim.env_config import EnvConfig
 
 from .base import Baseline
@@ -42,12 +45,17 @@ class BuildContext:
         train_runs: number of training runs.
         train_armse: ``train_armse(policy)``, the policy's position ARMSE over the ``train_runs``
             training runs, its ``env_overrides`` applied to ``base``.
+        train_armse_from: ``train_armse_from(policy, tpms)``, the ``(G,)`` ARMSEs of the policy
+            started from each TPM of ``tpms (G, M, M)`` on the same training runs, in one
+            roll-out of ``G * train_runs`` episodes (the fixed TPMs' search); None where the
+            caller does not offer it.
     """
 
     base: EnvConfig
     train_seed: int
     train_runs: int
     train_armse: Callable[[Baseline], float]
+    train_armse_from: Callable[[Baseline, NDArray[np.float64]], NDArray[np.float64]] | None = None
 
     @property
     def n_models(self) -> int:

@@ -81,6 +81,7 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.sim.features import bounds
 from imm_gym.sim.presets import BANK_PRESETS
+from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError, from_dict
 
 #: ``--bank``: environment overrides of each bank.
@@ -132,7 +133,15 @@ def make_policy(
             run = rollout(policy, cfg, train_runs, train_seed, make_core=make_core)
             return score(run)["armse_pos"]
 
-        context = BuildContext(base, train_seed, train_runs, train_armse)
+        def train_armse_from(policy: Baseline, tpms: NDArray[np.float64]) -> NDArray[np.float64]:
+            cfg = evaluation_config(base, policy.env_overrides)
+            run = rollout(
+                policy, cfg, train_runs, train_seed, make_core=make_core, initial_tpms=tpms
+            )
+            parts = run.groups(len(tpms))
+            return np.array([tracking_errors(p.estimate, p.truth)["armse_pos"] for p in parts])
+
+        context = BuildContext(base, train_seed, train_runs, train_armse, train_armse_from)
         policy, notes = REGISTRY[name].build(context)
         return policy, policy.env_overrides, notes
     if name == "pretrained":
@@ -621,11 +630,14 @@ def _tradeoff(
 
     base = EnvConfig.build({**overrides, "scenario": scenario})
     keys = ("armse_pos", "mode_accuracy", "mode_prob_tv")
+    M = len(base.bank)
+    fixed = FixedTPM(M)
+    tpms = np.stack([stay_tpm(M, stay) for stay in STAY_GRID])
+    cfg = evaluation_config(base, fixed.env_overrides)
+    run = rollout(fixed, cfg, args.runs, args.seed, make_core=make_core, initial_tpms=tpms)
     fixed_points = {}
-    for stay in STAY_GRID:
-        fixed = FixedTPM(len(base.bank), stay)
-        cfg = evaluation_config(base, fixed.env_overrides)
-        row = score(rollout(fixed, cfg, args.runs, args.seed, make_core=make_core))
+    for stay, part in zip(STAY_GRID, run.groups(len(STAY_GRID)), strict=True):
+        row = score(part)
         fixed_points[stay] = {k: row[k] for k in keys}
     points = {name: {k: row[k] for k in keys} for name, row in results["policies"].items()}
     path = tradeoff_figure(points, fixed_points, args.tradeoff, results["meta"])

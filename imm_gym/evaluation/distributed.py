@@ -59,11 +59,14 @@ class Shard:
         return self.core.horizon, self.core.M
 
     def reset(
-        self, indices: NDArray[np.int64], seeds: list[int | None]
+        self,
+        indices: NDArray[np.int64],
+        seeds: list[int | None],
+        initial_tpms: NDArray[np.float64] | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float32]]:
         """:meth:`TrackingCore.reset`; returns the truth, the true models and the observation."""
         assert self.core is not None
-        self.core.reset(indices, seeds)
+        self.core.reset(indices, seeds, initial_tpms)
         return self.core.truth, self.core.true_model, self.core.observe()
 
     def step(self, actions: NDArray[Any], active: NDArray[np.bool_] | None) -> StepResult:
@@ -147,16 +150,25 @@ class ShardedCore:
     def _parts(self, values: NDArray[Any]) -> list[NDArray[Any]]:
         return [values[a:b] for a, b in zip(self.bounds[:-1], self.bounds[1:], strict=True)]
 
-    def reset(self, indices: NDArray[np.int64], seeds: list[int | None]) -> None:
-        """Start new episodes in the slots ``indices`` (global), each shard its own."""
+    def reset(
+        self,
+        indices: NDArray[np.int64],
+        seeds: list[int | None],
+        initial_tpms: NDArray[np.float64] | None = None,
+    ) -> None:
+        """Start new episodes in the slots ``indices`` (global), each shard its own
+        (:meth:`TrackingCore.reset`)."""
         indices = np.asarray(indices)
         calls, shards = [], []
         for c, (a, b) in enumerate(zip(self.bounds[:-1], self.bounds[1:], strict=True)):
             mine = (indices >= a) & (indices < b)
             if mine.any():
                 local = indices[mine] - a
+                tpms = None if initial_tpms is None else initial_tpms[mine]
                 calls.append(
-                    self.actors[c].reset.remote(local, [seeds[i] for i in np.flatnonzero(mine)])
+                    self.actors[c].reset.remote(
+                        local, [seeds[i] for i in np.flatnonzero(mine)], tpms
+                    )
                 )
                 shards.append(c)
         for c, (truth, true_model, obs) in zip(shards, self._ray.get(calls), strict=True):

@@ -10,7 +10,7 @@ environment settings they need. A run whose tracker diverges keeps an error of
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -53,6 +53,13 @@ class Rollout:
     true_model: NDArray[np.int64]
     diverged: NDArray[np.bool_]
 
+    def groups(self, G: int) -> list[Rollout]:
+        """The records of a roll-out from ``G`` starting TPMs (:func:`rollout`'s
+        ``initial_tpms``), one :class:`Rollout` of its runs per TPM."""
+        R = len(self.diverged) // G
+        parts = [getattr(self, f.name) for f in fields(self)]
+        return [Rollout(*(a[g * R : (g + 1) * R] for a in parts)) for g in range(G)]
+
     @property
     def squared_position_error(self) -> Array:
         """``(R, K)`` squared position errors, the unit of the paired bootstrap."""
@@ -77,6 +84,7 @@ def rollout(
     seed: int,
     progress: Callable[[int], None] | None = None,
     make_core: Callable[[EnvConfig, int], Any] = TrackingCore,
+    initial_tpms: Array | None = None,
 ) -> Rollout:
     """Run ``policy`` on ``runs`` episodes seeded ``seed + r``; see the module docstring.
 
@@ -89,10 +97,22 @@ def rollout(
         make_core: builds the core of ``runs`` slots: a :class:`TrackingCore`, or a
             :class:`~imm_gym.evaluation.distributed.ShardedCore` spread over a Ray cluster (the
             same numbers).
+        initial_tpms: ``(G, M, M)``: every run from each of these starting TPMs instead of the
+            configuration's, in one batch of ``G * runs`` slots (slot ``g * runs + r`` is run
+            ``r`` from ``initial_tpms[g]``; the records in that order). The floor ``p_min`` is
+            lowered to their smallest entry where it is above it, so each starts as given.
     """
-    core = make_core(config, runs)
-    core.reset(np.arange(runs), [seed + r for r in range(runs)])
-    R, K, M = runs, core.horizon, core.M
+    G = 1
+    if initial_tpms is not None:
+        G = len(initial_tpms)
+        config = config.replace(p_min=min(config.p_min, float(np.min(initial_tpms))))
+    core = make_core(config, G * runs)
+    core.reset(
+        np.arange(G * runs),
+        [seed + r for _ in range(G) for r in range(runs)],
+        None if initial_tpms is None else np.repeat(initial_tpms, runs, axis=0),
+    )
+    R, K, M = G * runs, core.horizon, core.M
     est = np.empty((R, K, 4))
     cov = np.empty((R, K, 4, 4))
     probs = np.empty((R, K, M))

@@ -32,6 +32,7 @@ from imm_gym.sim.kernels import step_inputs
 from imm_gym.sim.rewards import Reward
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
+from imm_gym.tracking.tpm import validate_tpm
 from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
@@ -160,11 +161,19 @@ class TrackingCore:
         )
 
     # ------------------------------------------------------------------ reset
-    def reset(self, indices: NDArray[np.int64], seeds: list[int | None]) -> None:
+    def reset(
+        self,
+        indices: NDArray[np.int64],
+        seeds: list[int | None],
+        initial_tpms: Array | None = None,
+    ) -> None:
         """Start new episodes in the slots ``indices`` (one seed or None per slot).
 
         A slot given a seed gets fresh streams from it; a slot given None continues its streams
         (the next episode of the same sequence), or gets streams from OS entropy if it has none.
+        ``initial_tpms`` (``(len(indices), M, M)``, valid TPMs) start these episodes from other
+        TPMs than the configuration's (bank B keeps them): the same targets and noise from
+        several starting TPMs in one batch (the best fixed TPM's search).
         """
         indices = np.asarray(indices, dtype=np.int64)
         if indices.size == 0:
@@ -183,6 +192,8 @@ class TrackingCore:
         truth, meas, x0 = batch.truth, batch.measurements, batch.x0
         if batch.conditions is not None:
             self._set_conditions(indices, batch.conditions)
+        if initial_tpms is not None:
+            self.fixed_tpms[indices] = validate_tpm(initial_tpms, self.M, "initial_tpms")
         self.truth[indices] = truth.states
         self.z[indices] = meas.z
         self.detected[indices] = meas.detected

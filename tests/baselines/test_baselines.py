@@ -99,11 +99,15 @@ def test_register_builds_classes_from_m_and_functions_from_the_context() -> None
 def test_best_fixed_picks_the_lowest_training_armse_on_the_grid() -> None:
     scored: list[float] = []
 
-    def train_armse(policy: FixedTPM) -> float:
-        scored.append(policy.stay)
-        return abs(policy.stay - 0.72)
+    def train_armse_from(policy: FixedTPM, tpms: np.ndarray) -> np.ndarray:
+        assert policy.stay is None  # the zero action from every starting TPM
+        scored.extend(tpms[:, 0, 0])
+        return np.abs(tpms[:, 0, 0] - 0.72)
 
-    context = BuildContext(PAPER, 1_000_000, 40, train_armse)
+    def no_single_runs(policy: FixedTPM) -> float:
+        raise AssertionError("the search scores the grid in one roll-out")
+
+    context = BuildContext(PAPER, 1_000_000, 40, no_single_runs, train_armse_from)
     policy, notes = REGISTRY["best-fixed"].build(context)
     assert scored == list(STAY_GRID)
     assert isinstance(policy, FixedTPM) and policy.stay == 0.7

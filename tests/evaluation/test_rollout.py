@@ -1,0 +1,43 @@
+"""Tests of imm_gym.evaluation.rollout.rollout from several starting TPMs at once: the same
+records, bit for bit, as one roll-out per TPM (the best fixed TPM's search relies on it)."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import numpy as np
+import pytest
+
+from baselines import FixedTPM
+from imm_gym.evaluation.rollout import evaluation_config, rollout
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError
+
+
+@pytest.mark.parametrize("scenario", ["paper", "random"])
+def test_rollout_from_several_tpms_equals_one_rollout_per_tpm(scenario: str) -> None:
+    base = EnvConfig(scenario=scenario)
+    stays = (1 / 3, 0.9, 0.999)  # 0.999's off-diagonal 5e-4 is below the default floor 1e-3
+    tpms = np.stack([stay_tpm(3, p) for p in stays])
+    policy = FixedTPM(3)
+    batched = rollout(
+        policy, evaluation_config(base, policy.env_overrides), 4, 21, initial_tpms=tpms
+    )
+    parts = batched.groups(len(stays))
+    assert len(parts) == 3 and all(len(p.diverged) == 4 for p in parts)
+    for stay, part in zip(stays, parts, strict=True):
+        alone = FixedTPM(3, stay)
+        ref = rollout(alone, evaluation_config(base, alone.env_overrides), 4, 21)
+        for f in fields(ref):
+            np.testing.assert_array_equal(getattr(part, f.name), getattr(ref, f.name), f.name)
+        np.testing.assert_array_equal(part.tpm, np.broadcast_to(stay_tpm(3, stay), part.tpm.shape))
+
+
+def test_reset_checks_the_initial_tpms() -> None:
+    core = TrackingCore(EnvConfig(), n_envs=2)
+    with pytest.raises(ConfigError, match="initial_tpms rows must sum to 1"):
+        core.reset(np.arange(2), [0, 1], np.full((2, 3, 3), 0.5))
+    with pytest.raises(ConfigError, match=r"initial_tpms must have shape \(\.\.\., 3, 3\)"):
+        core.reset(np.arange(2), [0, 1], np.eye(2)[None].repeat(2, axis=0))
