@@ -201,11 +201,30 @@ class RandomFamily:
 
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`TruthSource`): a scenario drawn from each
-        (:meth:`sample`), then its truth noise, if any, from the same generator."""
-        return generate_truth([self.sample(rng) for rng in rngs], rngs)
+        (:meth:`sample`), then its truth noise, if any, from the same generator.
+
+        Without truth noise the draws go straight into the batch's arrays (the same numbers as
+        :func:`generate_truth` of the sampled scenarios, without building them)."""
+        draws = [self._draw(rng) for rng in rngs]
+        if self.truth_q is not None or not draws:
+            return generate_truth([self._scenario(*d) for d in draws], rngs)
+        p0 = np.array([d[0] for d in draws])
+        v0 = np.array([d[1] for d in draws])
+        rates = np.concatenate([d[3] for d in draws]) * (math.pi / 180.0)  # as math.radians
+        durations = np.concatenate([d[2] for d in draws])
+        omega = np.repeat(rates, durations).reshape(len(draws), self.horizon)
+        states = _constant_speed_truth(p0, v0, omega, self.T)
+        return Truth(states=states, turn_rate=omega, accel=np.zeros_like(omega), T=self.T)
 
     def sample(self, rng: np.random.Generator) -> Scenario:
         """Draw one scenario; the sequence of draws is fixed, so a seeded ``rng`` reproduces it."""
+        return self._scenario(*self._draw(rng))
+
+    def _draw(
+        self, rng: np.random.Generator
+    ) -> tuple[tuple[float, float], tuple[float, float], NDArray[np.int64], Array]:
+        """One scenario's draws: start position, velocity, segment durations and turn rates
+        (°/s; 0 on the straight segments)."""
         rng_range = rng.uniform(*self.range_m)
         bearing = rng.uniform(-math.pi, math.pi)
         speed = rng.uniform(*self.speed)
@@ -213,16 +232,21 @@ class RandomFamily:
         n = int(rng.integers(self.n_segments[0], self.n_segments[1] + 1))
         durations = _composition(rng, self.horizon, n, self.min_duration)
         rates = rng.uniform(*self.turn_rate_deg, size=n) * rng.choice([-1.0, 1.0], size=n)
-        segments = tuple(
-            Segment(int(d), float(rates[i]) if i % 2 == 1 else 0.0) for i, d in enumerate(durations)
-        )
-        return Scenario(
-            segments=segments,
-            position=(rng_range * math.cos(bearing), rng_range * math.sin(bearing)),
-            velocity=(speed * math.cos(heading), speed * math.sin(heading)),
-            T=self.T,
-            truth_q=self.truth_q,
-        )
+        rates[0::2] = 0.0  # straight first, then alternating straight / turn
+        position = (rng_range * math.cos(bearing), rng_range * math.sin(bearing))
+        velocity = (speed * math.cos(heading), speed * math.sin(heading))
+        return position, velocity, durations, rates
+
+    def _scenario(
+        self,
+        position: tuple[float, float],
+        velocity: tuple[float, float],
+        durations: NDArray[np.int64],
+        rates: Array,
+    ) -> Scenario:
+        """The :class:`Scenario` of :meth:`_draw`'s draws."""
+        segments = tuple(Segment(int(d), float(w)) for d, w in zip(durations, rates, strict=True))
+        return Scenario(segments, position, velocity, T=self.T, truth_q=self.truth_q)
 
 
 def _composition(
@@ -263,9 +287,7 @@ class Truth:
         return self.turn_rate.shape[1]
 
 
-def true_model_index(
-    truth: Truth, models: Sequence[MotionModel] | HeteroBank
-) -> NDArray[np.int64]:
+def true_model_index(truth: Truth, models: Sequence[MotionModel] | HeteroBank) -> NDArray[np.int64]:
     """The bank model that matches the true motion of each step, ``(R, K)``; -1 if none.
 
     Straight -> the first CV model; turn -> the CT model turning the same way whose rate is

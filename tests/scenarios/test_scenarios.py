@@ -163,6 +163,18 @@ def test_generate_truth_batched_equals_single() -> None:
         np.testing.assert_array_equal(batched.accel[n], alone.accel[0])
 
 
+@pytest.mark.parametrize(
+    "fam", [RandomFamily(), RandomFamily(horizon=60, n_segments=(1, 4), T=2.5, speed=(50, 300))]
+)
+def test_family_truth_equals_the_truth_of_its_samples(fam: RandomFamily) -> None:
+    # the batch's arrays are built from the draws directly: the same numbers, bit for bit
+    truth = fam.truth([np.random.default_rng(s) for s in range(9)])
+    ref = generate_truth([fam.sample(np.random.default_rng(s)) for s in range(9)])
+    for name in ("states", "turn_rate", "accel"):
+        np.testing.assert_array_equal(getattr(truth, name), getattr(ref, name), name)
+    assert truth.T == ref.T == fam.T
+
+
 def test_generate_truth_follows_ct_transition() -> None:
     fam = RandomFamily()
     sc = fam.sample(np.random.default_rng(8))
