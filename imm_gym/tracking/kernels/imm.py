@@ -758,8 +758,14 @@ def _joseph(
 def _keep_prediction(
     Xp: Array, Pp: Array, M: int, nb: int, det: Array, Xu: Array, Pu: Array
 ) -> None:  # pragma: no cover
-    """A missed detection's posterior is its prediction: ``Xu, Pu <- Xp, Pp`` in its lanes."""
+    """A missed detection's posterior is its prediction: ``Xu, Pu <- Xp, Pp`` in its lanes
+    (nothing to do, and no pass over ``Pu``, when the block has none)."""
     n = Xp.shape[0]
+    missed = 0
+    for b in range(nb):
+        missed += det[b] == 0.0
+    if missed == 0:  # nothing to replace (the common case)
+        return
     for r in range(n):
         for j in range(M):
             for b in range(nb):
