@@ -111,15 +111,42 @@ def jacobi_eig_lanes(
     lanes.
     """
     n = a.shape[0]
+    half = (n + n % 2) // 2
+    jacobi_sweeps(
+        a,
+        v,
+        lanes,
+        max_sweeps,
+        np.empty(lanes, dtype=np.bool_),
+        np.empty(lanes),
+        np.empty(lanes),
+        np.empty((half, lanes)),
+        np.empty((half, lanes)),
+        np.empty((half, 2), dtype=np.int64),
+        np.empty((2, lanes)),
+    )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def jacobi_sweeps(
+    a: Array,
+    v: Array,
+    lanes: int,
+    max_sweeps: int,
+    converged: NDArray[np.bool_],
+    off: Array,
+    diag: Array,
+    c: Array,
+    s: Array,
+    pairs: NDArray[np.int64],
+    old: Array,
+) -> None:  # pragma: no cover - jitted
+    """:func:`jacobi_eig_lanes` with its scratch passed in (for a caller that diagonalizes
+    block after block: no allocations per block): ``converged``, ``off``, ``diag`` of at least
+    ``lanes`` entries, ``c``, ``s`` ``(half, >= lanes)``, ``pairs`` ``(half, 2)`` int64, ``old``
+    ``(2, >= lanes)``, ``half = ceil(n / 2)``."""
+    n = a.shape[0]
     n_even = n + n % 2
-    half = n_even // 2
-    converged = np.empty(lanes, dtype=np.bool_)
-    off = np.empty(lanes)
-    diag = np.empty(lanes)
-    c = np.empty((half, lanes))
-    s = np.empty((half, lanes))
-    pairs = np.empty((half, 2), dtype=np.int64)
-    old = np.empty((2, lanes))
     for i in range(n):
         for j in range(n):
             for lane in range(lanes):

@@ -29,7 +29,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.tracking.linalg import JACOBI_MAX_SWEEPS, LOG_2PI, jacobi_eig_lanes
+from imm_gym.tracking.linalg import JACOBI_MAX_SWEEPS, LOG_2PI, jacobi_sweeps
 
 Array = NDArray[np.float64]
 
@@ -234,6 +234,11 @@ def imm_step(
     Smi, Smc = np.empty((m, m, W)), np.empty((m, m, W))
     num, okm, nism = np.empty((m, W)), np.empty(W), np.empty(W)
     det = np.empty(W)
+    # the Jacobi sweeps' scratch (jacobi_eig_lanes allocates it per call: per block)
+    half = (n + n % 2) // 2
+    jconv, joff, jdiag = np.empty(L, dtype=np.bool_), np.empty(L), np.empty(L)
+    jc, js, jpairs, jold = (np.empty((half, L)), np.empty((half, L)),
+                            np.empty((half, 2), dtype=np.int64), np.empty((2, L)))
     bank_lanes = -1  # the lane count the bank's F, Q, R were spread for (one bank)
     failures = 0
     for t0 in range(0, N, W):
@@ -250,7 +255,8 @@ def imm_step(
                 for c in range(r, n):
                     for i in range(lanes):
                         eig[r, c, i] = Pp[r, c, i]
-            jacobi_eig_lanes(eig, U, lanes, JACOBI_MAX_SWEEPS)
+            jacobi_sweeps(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag, jc, js, jpairs,
+                          jold)
             _ukf_moments(Xp, eig, U, lanes, sensor_kind, sensor_params, wm, wc, gamma, zp, S, C,
                          O, Z)
         else:
