@@ -34,7 +34,7 @@ from imm_gym.validation import (
     store,
 )
 
-ACTION_MODES = ("scale", "set", "stay")
+ACTION_MODES = ("scale", "set", "stay", "stay_step")
 SHADOWS = ("fixed", "none")
 #: The built-in reward terms (the registry, :data:`imm_gym.sim.rewards.REWARD_TERMS`, is what
 #: ``reward`` is checked against).
@@ -96,7 +96,8 @@ class EnvConfig:
         action_mode: ``"scale"`` (per-entry factors ``max_factor ** a`` on the current TPM),
             ``"set"`` (row logits ``logit_scale * a``, softmax per row) or ``"stay"`` (``M``
             entries: each row's stay probability ``logit_scale * a`` logits from the initial
-            TPM's, the row's switching structure kept; :mod:`imm_gym.sim.actions`).
+            TPM's, the row's switching structure kept) or ``"stay_step"`` (the same, each step
+            from the current TPM's stays; :mod:`imm_gym.sim.actions`).
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode, or change of the stay's logit in ``stay`` mode, for
             an action of 1 (> 0).

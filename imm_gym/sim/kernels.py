@@ -88,8 +88,8 @@ def _floor_row(
 
 
 #: action modes of :func:`tpm_from_action` (``EnvConfig.action_mode``)
-SCALE, SET, STAY = 0, 1, 2
-ACTION_MODE_CODES = {"scale": SCALE, "set": SET, "stay": STAY}
+SCALE, SET, STAY, STAY_STEP = 0, 1, 2, 3
+ACTION_MODE_CODES = {"scale": SCALE, "set": SET, "stay": STAY, "stay_step": STAY_STEP}
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -99,10 +99,10 @@ def tpm_from_action(
     """The TPMs ``(N, M, M)`` that the actions produce (step 1 of the module doc;
     :mod:`imm_gym.sim.actions` gives the equations of each mode).
 
-    ``mode`` is :data:`SCALE`, :data:`SET` or :data:`STAY`; ``gain`` is ``max_factor``
-    (``scale``) or ``logit_scale`` (``set``, ``stay``); ``base (N, M, M)`` are the trackers' own
-    TPMs (``stay``); actions (``(N, M*M)``, or ``(N, M)`` in ``stay`` mode) are clipped to
-    [-1, 1] here.
+    ``mode`` is :data:`SCALE`, :data:`SET`, :data:`STAY` or :data:`STAY_STEP`; ``gain`` is
+    ``max_factor`` (``scale``) or ``logit_scale``; ``base (N, M, M)`` are the trackers' own TPMs
+    (the stay modes' structure, and ``stay``'s starting stays); actions (``(N, M*M)``, or
+    ``(N, M)`` in the stay modes) are clipped to [-1, 1] here.
     """
     N, M, _ = tpm.shape
     out = np.empty((N, M, M))
@@ -119,15 +119,16 @@ def tpm_from_action(
                     top = max(top, logit)
                 for j in range(M):
                     out[t, i, j] = np.exp(out[t, i, j] - top)
-            elif mode == STAY:
+            elif mode == STAY or mode == STAY_STEP:
                 a = min(max(action[t, i], -1.0), 1.0)
-                stay0 = base[t, i, i]
+                source = base if mode == STAY else tpm
+                stay0 = source[t, i, i]
                 logit = np.log(stay0) - np.log1p(-stay0) + gain * a
                 leave = min(max(1.0 / (1.0 + np.exp(logit)), least_leave), 1.0 - 1.0 / M)
-                leave0 = 1.0 - stay0
+                leave0 = 1.0 - base[t, i, i]
                 for j in range(M):
                     if a == 0.0:
-                        out[t, i, j] = base[t, i, j]
+                        out[t, i, j] = source[t, i, j]
                     elif j == i:
                         out[t, i, j] = 1.0 - leave
                     elif leave0 > 0.0:

@@ -29,7 +29,7 @@ def _assert_close(a: object, b: object, key: str) -> None:
         np.testing.assert_array_equal(a, b, err_msg=key)
 
 
-@pytest.mark.parametrize("mode", ["scale", "set", "stay"])
+@pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
 @pytest.mark.parametrize("parallel", [False, True])
 @pytest.mark.parametrize("shadow", ["fixed", "none"])
 def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, shadow: str) -> None:
@@ -77,7 +77,7 @@ def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, sh
     assert ends >= N and diverged >= 1  # whole episodes, divergences, then new episodes
 
 
-@pytest.mark.parametrize("mode", ["scale", "set", "stay"])
+@pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
 @pytest.mark.parametrize("p_min", [0.0, 1e-3, 0.2, 0.3])
 def test_compiled_tpm_from_action_equals_the_numpy_one(mode: str, p_min: float) -> None:
     core = TrackingCore(EnvConfig(action_mode=mode, p_min=p_min, max_factor=50.0), 64)
