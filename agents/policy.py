@@ -248,6 +248,7 @@ def _check_env(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     """``env.json``'s overrides (validated on the preset of ``env_id``), the size of one
     observation and of an action in that environment."""
     from imm_gym.envs import PRESETS
+    from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
     from imm_gym.sim.features import bounds
 
@@ -262,7 +263,7 @@ def _check_env(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
         raise ConfigError(f"{file}: {err}") from None
     M = len(config.bank)
     obs_size = bounds(config.obs_features, M, config.sensor.dim_z)[0].size
-    return overrides, int(obs_size), M * M
+    return overrides, int(obs_size), action_size(config.action_mode, M)
 
 
 def _check_normalizer(

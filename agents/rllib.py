@@ -407,6 +407,7 @@ def export_agent(
         env_id: the registered id; extra: more ``agent.json`` entries (seed, num_timesteps).
     """
     from agents.network import build_policy, policy_spec, save_weights
+    from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
     from imm_gym.sim.features import bounds
 
@@ -421,7 +422,7 @@ def export_agent(
     spec = {
         "class": "MlpPolicy",
         "observation_size": frames * obs_size,
-        "action_size": M * M,
+        "action_size": action_size(config.action_mode, M),
         "net_arch": {"pi": hidden, "vf": hidden},
         "activation_fn": kwargs.get("activation_fn", "tanh"),
         "log_std_init": float(kwargs.get("log_std_init", 0.0)),

@@ -68,6 +68,7 @@ from imm_gym.papers.systems import SYSTEMS
 from imm_gym.scenarios.catalog import SCENARIOS, SUITES
 from imm_gym.scenarios.segments import Scenario, true_model_index
 from imm_gym.seeding import TRAIN_SEED_OFFSET
+from imm_gym.sim.actions import action_size
 from imm_gym.sim.config_file import (
     TARGET_FIELDS,
     TRACKER_FIELDS,
@@ -264,8 +265,9 @@ def agent_overrides(
     that differ).
 
     Raises:
-        ConfigError: the observation (one frame, ``policy.obs_size``) or the action (M² entries)
-            that ``base`` gives is not the size the agent's network reads or writes.
+        ConfigError: the observation (one frame, ``policy.obs_size``) or the action (M² entries,
+            M in ``stay`` mode) that ``base`` gives is not the size the agent's network reads or
+            writes.
     """
     kept = {k: v for k, v in overrides.items() if k not in (*TRACKER_FIELDS, *TARGET_FIELDS)}
     cfg = evaluation_config(base, kept)
@@ -279,10 +281,12 @@ def agent_overrides(
             f"{list(cfg.obs_features)}): it cannot be evaluated on this configuration"
         )
     space = getattr(getattr(policy, "model", None), "action_space", None)
-    if space is not None and int(np.prod(space.shape)) != M * M:
+    size = action_size(cfg.action_mode, M)
+    if space is not None and int(np.prod(space.shape)) != size:
         raise ConfigError(
             f"{source} writes actions of {int(np.prod(space.shape))} entries, but a bank of {M} "
-            f"models takes {M * M}: it cannot be evaluated on this configuration"
+            f"models takes {size} in {cfg.action_mode!r} mode: it cannot be evaluated on this "
+            "configuration"
         )
     trained_on = tracker_of(overrides)
     evaluated_on = {name: plain(getattr(base, name)) for name in TRACKER_FIELDS}

@@ -7,6 +7,18 @@ The action ``a`` is ``(N, M*M)``, row-major over ``(i, j)``, clipped to [-1, 1]:
   (``f = max_factor``; TIP-IMM's α/β steps are ``a = log α / log f``, ``log β / log f``);
 * ``set`` mode: :math:`\pi_i = \operatorname{softmax}(\lambda a_i)` row by row
   (``lambda = logit_scale``);
+* ``stay`` mode, ``a`` is ``(N, M)``: each row's stay probability moved from the tracker's own
+  TPM :math:`\pi^0` (its initial TPM, the one bank B keeps) on the logit scale,
+  :math:`s_i = \sigma(\operatorname{logit} \pi^0_{ii} + \lambda a_i)` clipped to
+  :math:`[1/M, 1 - (M-1) p_{min}]`, the rest of the row in :math:`\pi^0`'s proportions,
+  :math:`\pi_{ij} = (1 - s_i)\, \pi^0_{ij} / (1 - \pi^0_{ii})` (uniform where
+  :math:`\pi^0_{ii} = 1`): the TPM stays a switching prior of the tracker's structure, the
+  zero action keeps the tracker's TPM exactly (the classical IMM), and an action means the
+  same change of mean sojourn (in logits) on every tracker;
+* ``stay_step`` mode, ``a`` is ``(N, M)``: the same rows, each stay moved from the *current*
+  TPM's, :math:`s_i = \sigma(\operatorname{logit} \pi_{ii} + \lambda a_i)`: the policy steers
+  the stays by steps of at most ``logit_scale`` logits (a smooth TPM, and exploration that
+  drifts instead of averaging out); the zero action keeps the current TPM;
 
 then every row is normalized and floored to ``[p_min, 1 - p_min]``
 (:func:`imm_gym.tracking.tpm.apply_floor`).
@@ -30,7 +42,8 @@ class ActionError(ValueError):
 
 
 def validate_action(action: NDArray[Any], n_envs: int, action_dim: int) -> Array:
-    """``action`` as float64 after checking shape ``(N, M*M)`` and finiteness (not clipped)."""
+    """``action`` as float64 after checking shape ``(N, action_dim)`` and finiteness (not
+    clipped)."""
     a = np.asarray(action, dtype=np.float64)
     if a.shape != (n_envs, action_dim):
         raise ActionError(
@@ -42,11 +55,26 @@ def validate_action(action: NDArray[Any], n_envs: int, action_dim: int) -> Array
     return a
 
 
-def tpm_from_action(action: Array, tpm: Array, config: EnvConfig) -> Array:
-    """The ``(N, M, M)`` TPMs an action ``(N, M*M)`` (finite) produces from the current ``tpm``
-    (``scale``) or from scratch (``set``), rows normalized and floored."""
+#: the modes whose action is one entry per model (a stay probability per row)
+STAY_MODES = ("stay", "stay_step")
+
+
+def action_size(action_mode: str, n_models: int) -> int:
+    """Entries of one action: ``M`` in the stay modes, ``M*M`` otherwise."""
+    return n_models if action_mode in STAY_MODES else n_models * n_models
+
+
+def tpm_from_action(action: Array, tpm: Array, config: EnvConfig, base: Array) -> Array:
+    """The ``(N, M, M)`` TPMs an action (finite, ``(N, action_size)``) produces from the current
+    ``tpm`` (``scale``, ``stay_step``), from scratch (``set``) or from the tracker's own TPMs
+    ``base`` (``stay``; the stay modes keep ``base``'s switching structure), rows normalized and
+    floored."""
     a = np.clip(action, -1.0, 1.0)
     N, M = a.shape[0], tpm.shape[-1]
+    if config.action_mode in STAY_MODES:
+        source = base if config.action_mode == "stay" else tpm
+        rows = stay_rows(a, source, base, config.logit_scale, config.p_min)
+        return apply_floor(rows, config.p_min)
     a = a.reshape(N, M, M)
     if config.action_mode == "scale":
         raw = tpm * np.power(config.max_factor, a)
@@ -54,3 +82,26 @@ def tpm_from_action(action: Array, tpm: Array, config: EnvConfig) -> Array:
         logits = config.logit_scale * a
         raw = np.exp(logits - logits.max(axis=-1, keepdims=True))
     return apply_floor(raw, config.p_min)
+
+
+def stay_rows(a: Array, source: Array, structure: Array, gain: float, p_min: float) -> Array:
+    """The stay modes (module docstring): each row's stay probability moved ``gain * a``
+    ``(N, M)`` logits from the row of ``source (N, M, M)``, the rest of the row in the
+    proportions of ``structure``'s; a zero entry keeps its ``source`` row exactly.
+
+    Computed through the leaving probability ``1 - s_i = 1 / (1 + exp(logit))``, the accurate
+    side for stays near 1, clipped to ``[(M-1) p_min, 1 - 1/M]``."""
+    M = source.shape[-1]
+    eye = np.eye(M, dtype=bool)
+    stay0 = np.diagonal(source, axis1=-2, axis2=-1)
+    with np.errstate(divide="ignore", over="ignore"):  # a stay of 0 or 1: logit -inf or inf
+        logit = np.log(stay0) - np.log1p(-stay0) + gain * a
+        leave = np.clip(1.0 / (1.0 + np.exp(logit)), (M - 1) * p_min, 1.0 - 1.0 / M)
+    leave0 = 1.0 - np.diagonal(structure, axis1=-2, axis2=-1)
+    share = np.where(
+        leave0[..., None] > 0.0,
+        structure / np.where(leave0 > 0.0, leave0, 1.0)[..., None],
+        1.0 / max(M - 1, 1),
+    )
+    rows = np.where(eye, (1.0 - leave)[..., None], leave[..., None] * share)
+    return np.where((a == 0.0)[..., None], source, rows)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import true_model_index
 from imm_gym.seeding import streams
-from imm_gym.sim.actions import tpm_from_action, validate_action
+from imm_gym.sim.actions import action_size, tpm_from_action, validate_action
 from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.conditions import Conditions, bank_constants
 from imm_gym.sim.engines import choose_engine, compiled_step
@@ -103,7 +103,8 @@ class TrackingCore:
             config.tpm_change_cost,
         )
         self.horizon = config.source.horizon
-        self.action_dim = M * M
+        #: entries of one slot's action: ``M * M``, or ``M`` in ``stay`` mode
+        self.action_dim = action_size(config.action_mode, M)
         self.obs_low, self.obs_high = bounds(config.obs_features, M, config.sensor.dim_z)
         self.obs_dim = self.obs_low.size
         #: ``(N,)`` each slot's sampling period (s)
@@ -270,13 +271,13 @@ class TrackingCore:
 
     # ------------------------------------------------------------------ actions
     def tpm_from_action(self, action: NDArray[Any], tpm: Array | None = None) -> Array:
-        """The TPMs an action ``(N, M*M)`` produces from ``tpm`` (default: the current TPMs),
-        :func:`imm_gym.sim.actions.tpm_from_action`."""
+        """The TPMs an action ``(N, action_dim)`` produces from ``tpm`` (default: the current
+        TPMs) and the slots' own TPMs, :func:`imm_gym.sim.actions.tpm_from_action`."""
         return tpm_from_action(self.validate_action(action), self.tpm if tpm is None else tpm,
-                               self.config)
+                               self.config, self.fixed_tpms)
 
     def check_action(self, action: NDArray[Any]) -> Array:
-        """Validate shape ``(N, M*M)`` and finiteness, then clip to [-1, 1] (float64)."""
+        """Validate shape ``(N, action_dim)`` and finiteness, then clip to [-1, 1] (float64)."""
         return np.clip(self.validate_action(action), -1.0, 1.0)
 
     def validate_action(self, action: NDArray[Any]) -> Array:

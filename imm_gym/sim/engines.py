@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from imm_gym.sim.actions import tpm_from_action
 from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.kernels import env_step
+from imm_gym.sim.kernels import ACTION_MODE_CODES, env_step
 from imm_gym.tracking.fusion import fuse
 from imm_gym.tracking.imm import IMMState, Tracker
 from imm_gym.validation import ConfigError
@@ -58,10 +58,10 @@ def compiled_step(
             ``(N, 4)`` the slots' true states (for the errors).
     """
     cfg = banks.config
-    set_mode = cfg.action_mode == "set"
+    gain = cfg.max_factor if cfg.action_mode == "scale" else cfg.logit_scale
     a, b, s = banks.state_a, banks.state_b, banks.state_s
     return env_step(
-        action, banks.tpm, set_mode, cfg.logit_scale if set_mode else cfg.max_factor, cfg.p_min,
+        action, banks.tpm, ACTION_MODE_CODES[cfg.action_mode], gain, cfg.p_min,
         a.x, a.P, a.mu, b.x, b.P, b.mu, s.x, s.P, s.mu, banks.fixed_tpms, banks.shadow_tpms,
         z, detected, truth, banks.kernel_args, cfg.parallel, cfg.shadow == "fixed",
         cfg.divergence_error, cfg.divergence_cov,
@@ -80,7 +80,7 @@ def numpy_step(
 ) -> BankStep:
     """All banks' step composed of the tracker's own operations (any tracker)."""
     cfg, imm = banks.config, banks.imm
-    tpm = tpm_from_action(action, banks.tpm, cfg)
+    tpm = tpm_from_action(action, banks.tpm, cfg, banks.fixed_tpms)
     state_a, out_a = imm.step(banks.state_a, tpm, z, detected, check=False, allow_failure=True)
     failed = out_a.failed
     state_b, mu_b = banks.state_b, banks.mu_b

@@ -8,7 +8,9 @@ the tests hold the two equal over whole episodes. Per slot ``t``:
 
 1. TPM from the action ``a`` (clipped to [-1, 1]): ``scale`` mode
    :math:`\pi_{ij} \leftarrow \pi_{ij}\, f^{a_{ij}}` (``f = max_factor``), ``set`` mode
-   :math:`\pi_i = \operatorname{softmax}(\lambda a_i)` (``lambda = logit_scale``); then each row
+   :math:`\pi_i = \operatorname{softmax}(\lambda a_i)` (``lambda = logit_scale``), ``stay`` mode
+   each row's stay moved from the fixed TPM's on the logit scale (:mod:`imm_gym.sim.actions`);
+   then each row
    normalized and floored to ``[p_min, 1 - p_min]`` as :func:`imm_gym.tracking.tpm.apply_floor` (a
    row that already sums to 1 and satisfies the floor passes bit for bit);
 2. bank A's IMM cycle with that TPM (:func:`imm_gym.tracking.kernels.imm.imm_step`: the slots
@@ -85,22 +87,31 @@ def _floor_row(
             tpm[t, i, j] = p_min if fixed[j] else tpm[t, i, j] * ratio
 
 
+#: action modes of :func:`tpm_from_action` (``EnvConfig.action_mode``)
+SCALE, SET, STAY, STAY_STEP = 0, 1, 2, 3
+ACTION_MODE_CODES = {"scale": SCALE, "set": SET, "stay": STAY, "stay_step": STAY_STEP}
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def tpm_from_action(
-    action: Array, tpm: Array, set_mode: bool, gain: float, p_min: float
+    action: Array, tpm: Array, mode: int, gain: float, p_min: float, base: Array
 ) -> Array:  # pragma: no cover
-    """The TPMs ``(N, M, M)`` that the actions ``(N, M*M)`` produce (step 1 of the module doc).
+    """The TPMs ``(N, M, M)`` that the actions produce (step 1 of the module doc;
+    :mod:`imm_gym.sim.actions` gives the equations of each mode).
 
-    ``gain`` is ``max_factor`` (``scale``) or ``logit_scale`` (``set``); actions are clipped to
-    [-1, 1] here.
+    ``mode`` is :data:`SCALE`, :data:`SET`, :data:`STAY` or :data:`STAY_STEP`; ``gain`` is
+    ``max_factor`` (``scale``) or ``logit_scale``; ``base (N, M, M)`` are the trackers' own TPMs
+    (the stay modes' structure, and ``stay``'s starting stays); actions (``(N, M*M)``, or
+    ``(N, M)`` in the stay modes) are clipped to [-1, 1] here.
     """
     N, M, _ = tpm.shape
     out = np.empty((N, M, M))
     fixed = np.empty(M, dtype=np.bool_)
     log_gain = np.log(gain)  # f^a = exp(a log f): exp is cheaper than pow, and f^0 = 1 exactly
+    least_leave = (M - 1) * p_min
     for t in range(N):
         for i in range(M):
-            if set_mode:
+            if mode == SET:
                 top = -np.inf
                 for j in range(M):
                     logit = gain * min(max(action[t, i * M + j], -1.0), 1.0)
@@ -108,6 +119,22 @@ def tpm_from_action(
                     top = max(top, logit)
                 for j in range(M):
                     out[t, i, j] = np.exp(out[t, i, j] - top)
+            elif mode == STAY or mode == STAY_STEP:
+                a = min(max(action[t, i], -1.0), 1.0)
+                source = base if mode == STAY else tpm
+                stay0 = source[t, i, i]
+                logit = np.log(stay0) - np.log1p(-stay0) + gain * a
+                leave = min(max(1.0 / (1.0 + np.exp(logit)), least_leave), 1.0 - 1.0 / M)
+                leave0 = 1.0 - base[t, i, i]
+                for j in range(M):
+                    if a == 0.0:
+                        out[t, i, j] = source[t, i, j]
+                    elif j == i:
+                        out[t, i, j] = 1.0 - leave
+                    elif leave0 > 0.0:
+                        out[t, i, j] = leave * (base[t, i, j] / leave0)
+                    else:
+                        out[t, i, j] = leave * (1.0 / max(M - 1, 1))
             else:
                 for j in range(M):
                     a = min(max(action[t, i * M + j], -1.0), 1.0)
@@ -215,7 +242,7 @@ def _capped_error(
 def env_step(
     action: Array,
     tpm: Array,
-    set_mode: bool,
+    mode: int,
     gain: float,
     p_min: float,
     x_a: Array,
@@ -242,8 +269,8 @@ def env_step(
 
     Args:
         action: ``(N, M*M)`` finite actions (clipped here); tpm: ``(N, M, M)`` current TPMs.
-        set_mode, gain, p_min: the action mode (``set`` or ``scale``), its ``logit_scale`` or
-            ``max_factor``, and the floor.
+        mode, gain, p_min: the action mode (:data:`SCALE`, :data:`SET`, :data:`STAY`), its
+            ``max_factor`` or ``logit_scale``, and the floor.
         x_a, P_a, mu_a: bank A's posterior ``(N, M, n)``, ``(N, M, n, n)``, ``(N, M)``; x_b, P_b,
             mu_b: bank B's; x_s, P_s, mu_s: the shadow IMM's.
         fixed_tpm, shadow_tpm: ``(N, M, M)`` fixed TPMs of bank B and of the shadow.
@@ -255,7 +282,7 @@ def env_step(
         the :class:`~imm_gym.sim.bank_step.BankStep` of the slots, fresh arrays.
     """
     N, M, _ = x_a.shape
-    new_tpm = tpm_from_action(action, tpm, set_mode, gain, p_min)
+    new_tpm = tpm_from_action(action, tpm, mode, gain, p_min, fixed_tpm)
     xa, Pa, U, loglik, model_nis, innovation, nis, x_hat, P_hat, failed = _bank_step(
         x_a, P_a, mu_a, new_tpm, z, detected, bank, True)
     xb, Pb, Ub = x_b, P_b, mu_b

@@ -1,4 +1,4 @@
-"""Actions -> TPM: ``set`` and ``scale`` modes, the floor, clipping and bad-action errors."""
+"""Actions -> TPM: the ``set``, ``scale`` and stay modes, the floor, clipping, bad actions."""
 
 from __future__ import annotations
 
@@ -65,6 +65,71 @@ def test_scale_mode_multiplies_entries_by_powers_of_max_factor() -> None:
     )
 
 
+def test_stay_mode_moves_each_rows_stay_on_the_logit_scale() -> None:
+    # the tracker's own TPM, with an uneven switching structure on each row
+    base = np.array([[0.9, 0.06, 0.04], [0.1, 0.8, 0.1], [0.02, 0.03, 0.95]])
+    core = core_for("stay", 1e-3, n=1, logit_scale=2.0, sojourn=None)
+    assert core.action_dim == 3
+    core.fixed_tpms[:] = base
+    a = np.array([[0.5, -1.0, 0.0]])
+    tpm = core.tpm_from_action(a)[0]
+    logit = np.log(np.diag(base) / (1 - np.diag(base))) + 2.0 * a[0]
+    stay = 1 / (1 + np.exp(-logit))
+    np.testing.assert_allclose(np.diag(tpm), stay, rtol=1e-14)
+    for i in range(3):  # the rest of the row in the base row's proportions
+        off = [j for j in range(3) if j != i]
+        np.testing.assert_allclose(
+            tpm[i, off], (1 - stay[i]) * base[i, off] / base[i, off].sum(), rtol=1e-13
+        )
+    # the zero action is the tracker's own TPM: a classical IMM
+    np.testing.assert_allclose(core.tpm_from_action(np.zeros((1, 3)))[0], base, rtol=1e-14)
+    # the current TPM does not matter
+    np.testing.assert_array_equal(core.tpm_from_action(a, np.array([stay_tpm(3, 0.4)]))[0], tpm)
+
+
+def test_stay_step_mode_moves_the_current_stays_in_the_trackers_structure() -> None:
+    base = np.array([[0.9, 0.06, 0.04], [0.1, 0.8, 0.1], [0.02, 0.03, 0.95]])
+    core = core_for("stay_step", 1e-3, n=1, logit_scale=0.5)
+    assert core.action_dim == 3
+    core.fixed_tpms[:] = base
+    a = np.array([[1.0, -0.5, 0.0]])
+    current = core.tpm_from_action(np.array([[-1.0, 0.4, 1.0]]), base[None])
+    tpm = core.tpm_from_action(a, current)[0]
+    stay0 = np.diag(current[0])
+    stay = 1 / (1 + np.exp(-(np.log(stay0 / (1 - stay0)) + 0.5 * a[0])))
+    np.testing.assert_allclose(np.diag(tpm)[:2], stay[:2], rtol=1e-13)
+    np.testing.assert_array_equal(tpm[2], current[0, 2])  # a zero entry keeps its row
+    for i in range(2):  # the tracker's switching structure, whatever the current rows
+        off = [j for j in range(3) if j != i]
+        np.testing.assert_allclose(
+            tpm[i, off], (1 - stay[i]) * base[i, off] / base[i, off].sum(), rtol=1e-13
+        )
+    # steps add up on the logit scale
+    twice = core.tpm_from_action(a, core.tpm_from_action(a, current))[0]
+    once = core_for("stay_step", 1e-3, n=1, logit_scale=1.0)
+    once.fixed_tpms[:] = base
+    np.testing.assert_allclose(np.diag(twice), np.diag(once.tpm_from_action(a, current)[0]),
+                               rtol=1e-12)
+
+
+def test_stay_mode_keeps_the_stay_between_uniform_and_the_floor() -> None:
+    core = core_for("stay", 0.01, n=2, logit_scale=50.0)
+    core.fixed_tpms[:] = stay_tpm(3, 0.9)
+    tpm = core.tpm_from_action(np.array([[1.0, 1.0, 1.0], [-1.0, -1.0, -1.0]]))
+    np.testing.assert_allclose(np.diagonal(tpm[0]), 1 - 2 * 0.01, rtol=1e-14)
+    np.testing.assert_allclose(tpm[1], np.full((3, 3), 1 / 3), rtol=1e-14)
+
+
+def test_stay_mode_env_has_an_action_per_model() -> None:
+    env = TPMAdaptEnv(scenario="paper", action_mode="stay")
+    assert env.action_space.shape == (3,)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(3, dtype=np.float32))
+    np.testing.assert_allclose(info["tpm"], stay_tpm(3, 0.995), rtol=1e-14)
+    with pytest.raises(ActionError, match=r"shape \(3,\)"):
+        env.step(np.zeros(9, dtype=np.float32))
+
+
 def _check_bounds(tpm: np.ndarray, p_min: float) -> None:
     assert np.all(np.isfinite(tpm))
     np.testing.assert_allclose(tpm.sum(axis=-1), 1.0, rtol=0, atol=1e-12)
@@ -74,7 +139,7 @@ def _check_bounds(tpm: np.ndarray, p_min: float) -> None:
 
 @settings(max_examples=150, deadline=None)
 @given(
-    mode=st.sampled_from(["scale", "set"]),
+    mode=st.sampled_from(["scale", "set", "stay", "stay_step"]),
     p_min=st.floats(0.0, 0.3, exclude_max=True),
     actions=arrays(np.float64, (5, 4, 9), elements=st.floats(-3.0, 3.0)),
     start_stay=st.floats(0.0, 1.0),
@@ -82,8 +147,9 @@ def _check_bounds(tpm: np.ndarray, p_min: float) -> None:
 def test_every_tpm_is_stochastic_and_inside_the_floor(mode, p_min, actions, start_stay) -> None:
     core = TrackingCore(EnvConfig(scenario="paper", action_mode=mode, p_min=p_min), 4)
     current = apply_floor(np.repeat(stay_tpm(3, start_stay)[None], 4, axis=0), p_min)
+    core.fixed_tpms[:] = current  # stay mode's base: any valid TPM
     for a in actions:  # several steps: scale mode multiplies the current matrix
-        current = core.tpm_from_action(a, current)
+        current = core.tpm_from_action(a[:, : core.action_dim], current)
         _check_bounds(current, p_min)
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.sim.kernels import tpm_from_action
+from imm_gym.sim.kernels import ACTION_MODE_CODES, tpm_from_action
 from imm_gym.tracking.tpm import apply_floor
 
 FEATURES = ("tpm", "loglik", "nis", "innovation", "time", "turn_rate")
@@ -29,7 +29,7 @@ def _assert_close(a: object, b: object, key: str) -> None:
         np.testing.assert_array_equal(a, b, err_msg=key)
 
 
-@pytest.mark.parametrize("mode", ["scale", "set"])
+@pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
 @pytest.mark.parametrize("parallel", [False, True])
 @pytest.mark.parametrize("shadow", ["fixed", "none"])
 def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, shadow: str) -> None:
@@ -55,7 +55,7 @@ def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, sh
         core.reset(np.arange(N), [10, 11, 12])
     ends = diverged = 0
     for _ in range(200):
-        action = rng.uniform(-1.5, 1.5, (N, 9))
+        action = rng.uniform(-1.5, 1.5, (N, fused.action_dim))
         a, b = fused.step(action), general.step(action)
         np.testing.assert_allclose(a.obs, b.obs, rtol=0, atol=1e-6)
         np.testing.assert_array_equal(a.terminated, b.terminated)
@@ -77,16 +77,20 @@ def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, sh
     assert ends >= N and diverged >= 1  # whole episodes, divergences, then new episodes
 
 
-@pytest.mark.parametrize("mode", ["scale", "set"])
+@pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
 @pytest.mark.parametrize("p_min", [0.0, 1e-3, 0.2, 0.3])
 def test_compiled_tpm_from_action_equals_the_numpy_one(mode: str, p_min: float) -> None:
     core = TrackingCore(EnvConfig(action_mode=mode, p_min=p_min, max_factor=50.0), 64)
     rng = np.random.default_rng(1)
     tpm = apply_floor(rng.random((64, 3, 3)) ** 3, p_min)
-    action = rng.uniform(-2, 2, (64, 9))
-    gain = core.config.logit_scale if mode == "set" else core.config.max_factor
-    got = tpm_from_action(action, tpm, mode == "set", gain, p_min)
-    np.testing.assert_allclose(got, core.tpm_from_action(action, tpm), rtol=1e-14, atol=1e-16)
+    core.fixed_tpms[:] = apply_floor(rng.random((64, 3, 3)) ** 2, p_min)  # stay mode's base
+    core.fixed_tpms[0] = np.eye(3)  # a row that never leaves: the rest shared evenly
+    action = rng.uniform(-2, 2, (64, core.action_dim))
+    gain = core.config.max_factor if mode == "scale" else core.config.logit_scale
+    code = ACTION_MODE_CODES[mode]
+    got = tpm_from_action(action, tpm, code, gain, p_min, core.fixed_tpms)
+    np.testing.assert_allclose(got, core.tpm_from_action(action, tpm), rtol=1e-13, atol=1e-16)
     # the zero scale action keeps a valid TPM bit for bit
     if mode == "scale":
-        assert np.array_equal(tpm_from_action(np.zeros((64, 9)), tpm, False, gain, p_min), tpm)
+        zero = np.zeros((64, 9))
+        assert np.array_equal(tpm_from_action(zero, tpm, code, gain, p_min, tpm), tpm)
