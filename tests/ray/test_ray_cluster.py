@@ -58,12 +58,12 @@ def test_evaluation_split_across_both_nodes_is_bit_identical(cluster):
         "extra": {"learned": (agent, agent.env_overrides)},
         "reference": "fixed",
     }
-    # 13 runs: chunks of 7 and 6, and a batch whose network output depends on its size
-    single, single_runs = evaluate(["fixed", "tip-imm"], "random", 13, 5, **kwargs)
+    # 13 runs: chunks of 7 and 6, and a batch whose network output depends on its size; the
+    # best fixed TPM's search: every stay's runs in one sharded batch, each from its own TPM
+    policies = ["fixed", "tip-imm", "best-fixed"]
+    single, single_runs = evaluate(policies, "random", 13, 5, **kwargs)
     try:
-        split, split_runs = evaluate(
-            ["fixed", "tip-imm"], "random", 13, 5, make_core=pool.core, **kwargs
-        )
+        split, split_runs = evaluate(policies, "random", 13, 5, make_core=pool.core, **kwargs)
     finally:
         pool.close()  # the CPUs go back to the cluster for the next test
     assert json.dumps(single, sort_keys=True) == json.dumps(split, sort_keys=True)
