@@ -65,7 +65,7 @@ from imm_gym.evaluation.rollout import (
     score,
 )
 from imm_gym.papers.systems import SYSTEMS
-from imm_gym.scenarios.catalog import SCENARIOS, SUITES
+from imm_gym.scenarios.catalog import SCENARIOS, SUITE_CONFIGS, SUITES
 from imm_gym.scenarios.segments import Scenario, true_model_index
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.sim.actions import action_size
@@ -88,8 +88,6 @@ from imm_gym.validation import ConfigError, from_dict
 #: ``--bank``: environment overrides of each bank.
 BANKS = BANK_PRESETS
 TRAIN_RUNS = 100
-#: The shipped configuration files, one per suite scenario (``NAME.yaml``).
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def load_source(name: str) -> str | Scenario:
@@ -296,7 +294,8 @@ def agent_overrides(
 
 
 def suite_configs(suite: str) -> dict[str, dict[str, Any]]:
-    """The EnvConfig overrides of every scenario of ``suite``: ``examples/NAME.yaml`` each.
+    """The EnvConfig overrides of every scenario of ``suite``: ``SUITE_CONFIGS/NAME.yaml`` each
+    (:data:`imm_gym.scenarios.catalog.SUITE_CONFIGS`, shipped in the package).
 
     Raises:
         ConfigError: an unknown suite, or a configuration file missing or invalid.
@@ -305,9 +304,9 @@ def suite_configs(suite: str) -> dict[str, dict[str, Any]]:
         raise ConfigError(f"--suite must be one of {list(SUITES)}, got {suite!r}")
     configs = {}
     for name in SUITES[suite]:
-        overrides = read_env_config(EXAMPLES / f"{name}.yaml")
+        overrides = read_env_config(SUITE_CONFIGS / f"{name}.yaml")
         if overrides.get("scenario", "random") != name:
-            raise ConfigError(f"{EXAMPLES / f'{name}.yaml'}: scenario must be {name!r}")
+            raise ConfigError(f"{SUITE_CONFIGS / f'{name}.yaml'}: scenario must be {name!r}")
         configs[name] = overrides
     return configs
 
@@ -351,7 +350,7 @@ def evaluate_suite(
             env_config=env_config,
             make_core=make_core,
         )
-        results["meta"]["env_config"] = str(EXAMPLES / f"{name}.yaml")
+        results["meta"]["env_config"] = str(SUITE_CONFIGS / f"{name}.yaml")
         out["scenarios"][name] = results
     out["meta"] = {
         "suite": suite,
@@ -476,7 +475,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=list(SUITES),
         help="evaluate on every scenario of the suite ("
         + "; ".join(f"{k}: {', '.join(v)}" for k, v in SUITES.items())
-        + "), each with its configuration file examples/NAME.yaml, and print one table",
+        + "), each with its configuration file (imm_gym/scenarios/suite/NAME.yaml), and print "
+        + "one table",
     )
     parser.add_argument(
         "--env-config",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from imm_gym.scenarios.segments import Scenario, Segment, TruthSource, paper_scenario
 
@@ -105,7 +106,9 @@ register("vsmm-s2", vsmm_s2)
 register("vsmm-s3", vsmm_s3)
 
 #: Named suites of scenarios (``python -m imm_gym.evaluate --suite NAME``); ``"random"`` is the
-#: randomized family. Each scenario runs with its configuration file ``examples/NAME.yaml``.
+#: randomized family. Each scenario runs with its configuration file ``SUITE_CONFIGS/NAME.yaml``.
+#: The suites' configuration files (the tracker each scenario is run with), shipped in the package.
+SUITE_CONFIGS = Path(__file__).resolve().parent / "suite"
 SUITES: dict[str, tuple[str, ...]] = {
     "benchmark": ("paper", "random", "atc", "vsmm-s1", "vsmm-s2", "vsmm-s3"),
 }

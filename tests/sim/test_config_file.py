@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from imm_gym.scenarios.catalog import SUITE_CONFIGS, SUITES
 from imm_gym.scenarios.segments import paper_scenario
 from imm_gym.sim.config_file import (
     env_config_dict,
@@ -48,9 +49,19 @@ def test_round_trip_file_config_file(tmp_path, name, suffix) -> None:
     assert env_config_dict(again) == env_config_dict(config)
 
 
-@pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.yaml")), ids=lambda p: p.name)
+@pytest.mark.parametrize(
+    "path",
+    sorted(EXAMPLES.glob("*.yaml")) + sorted(SUITE_CONFIGS.glob("*.yaml")),
+    ids=lambda p: p.name,
+)
 def test_shipped_examples_are_valid(path) -> None:
     EnvConfig.build(read_env_config(path))
+
+
+def test_every_suite_scenario_has_its_configuration_file() -> None:
+    for names in SUITES.values():
+        for name in names:
+            assert read_env_config(SUITE_CONFIGS / f"{name}.yaml").get("scenario", "random") == name
 
 
 def test_a_bank_preset_name_stands_for_its_overrides(tmp_path) -> None:
