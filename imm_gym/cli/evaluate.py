@@ -264,7 +264,7 @@ def agent_overrides(
 
     Raises:
         ConfigError: the observation (one frame, ``policy.obs_size``) or the action (M² entries,
-            M in ``stay`` mode) that ``base`` gives is not the size the agent's network reads or
+            M in the stay modes) that ``base`` gives is not the size the agent's network reads or
             writes.
     """
     kept = {k: v for k, v in overrides.items() if k not in (*TRACKER_FIELDS, *TARGET_FIELDS)}

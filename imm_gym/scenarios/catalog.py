@@ -105,10 +105,11 @@ register("vsmm-s1", vsmm_s1)
 register("vsmm-s2", vsmm_s2)
 register("vsmm-s3", vsmm_s3)
 
-#: Named suites of scenarios (``python -m imm_gym.evaluate --suite NAME``); ``"random"`` is the
-#: randomized family. Each scenario runs with its configuration file ``SUITE_CONFIGS/NAME.yaml``.
 #: The suites' configuration files (the tracker each scenario is run with), shipped in the package.
 SUITE_CONFIGS = Path(__file__).resolve().parent / "suite"
+
+#: Named suites of scenarios (``python -m imm_gym.evaluate --suite NAME``); ``"random"`` is the
+#: randomized family. Each scenario runs with its configuration file ``SUITE_CONFIGS/NAME.yaml``.
 SUITES: dict[str, tuple[str, ...]] = {
     "benchmark": ("paper", "random", "atc", "vsmm-s1", "vsmm-s2", "vsmm-s3"),
 }

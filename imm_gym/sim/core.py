@@ -103,7 +103,7 @@ class TrackingCore:
             config.tpm_change_cost,
         )
         self.horizon = config.source.horizon
-        #: entries of one slot's action: ``M * M``, or ``M`` in ``stay`` mode
+        #: entries of one slot's action: ``M * M``, or ``M`` in the stay modes
         self.action_dim = action_size(config.action_mode, M)
         self.obs_low, self.obs_high = bounds(config.obs_features, M, config.sensor.dim_z)
         self.obs_dim = self.obs_low.size
@@ -177,6 +177,13 @@ class TrackingCore:
         several starting TPMs in one batch (the best fixed TPM's search).
         """
         indices = np.asarray(indices, dtype=np.int64)
+        if initial_tpms is not None:
+            initial_tpms = validate_tpm(initial_tpms, self.M, "initial_tpms")
+            if initial_tpms.shape != (indices.size, self.M, self.M):
+                raise ConfigError(
+                    f"initial_tpms must have shape ({indices.size}, {self.M}, {self.M}) (a TPM "
+                    f"per slot reset), got {initial_tpms.shape}"
+                )
         if indices.size == 0:
             return
         for i, seed in zip(indices, seeds, strict=True):
@@ -194,7 +201,7 @@ class TrackingCore:
         if batch.conditions is not None:
             self._set_conditions(indices, batch.conditions)
         if initial_tpms is not None:
-            self.fixed_tpms[indices] = validate_tpm(initial_tpms, self.M, "initial_tpms")
+            self.fixed_tpms[indices] = initial_tpms
         self.truth[indices] = truth.states
         self.z[indices] = meas.z
         self.detected[indices] = meas.detected

@@ -94,13 +94,13 @@ class EnvConfig:
             zero ``scale`` action keeps it (classical IMM); TIP-IMM's floor 0.05 (SPEC §6) lies
             above the paper TPM's 0.0025, so there the first action already floors it.
         action_mode: ``"scale"`` (per-entry factors ``max_factor ** a`` on the current TPM),
-            ``"set"`` (row logits ``logit_scale * a``, softmax per row) or ``"stay"`` (``M``
+            ``"set"`` (row logits ``logit_scale * a``, softmax per row), ``"stay"`` (``M``
             entries: each row's stay probability ``logit_scale * a`` logits from the initial
             TPM's, the row's switching structure kept) or ``"stay_step"`` (the same, each step
             from the current TPM's stays; :mod:`imm_gym.sim.actions`).
         max_factor: largest per-step factor of ``scale`` mode (> 1).
-        logit_scale: logit of ``set`` mode, or change of the stay's logit in ``stay`` mode, for
-            an action of 1 (> 0).
+        logit_scale: logit of ``set`` mode, or change of the stay's logit in the stay modes,
+            for an action of 1 (> 0).
         parallel: run bank B with the fixed TPM and fuse by entropy (TIP-IMM §3.3).
         shadow: ``"fixed"`` runs a classical IMM with a fixed TPM in lock-step on the same
             measurements (for the ``advantage`` reward and diagnostics) or ``"none"``.

@@ -8,9 +8,8 @@ the tests hold the two equal over whole episodes. Per slot ``t``:
 
 1. TPM from the action ``a`` (clipped to [-1, 1]): ``scale`` mode
    :math:`\pi_{ij} \leftarrow \pi_{ij}\, f^{a_{ij}}` (``f = max_factor``), ``set`` mode
-   :math:`\pi_i = \operatorname{softmax}(\lambda a_i)` (``lambda = logit_scale``), ``stay`` mode
-   each row's stay moved from the fixed TPM's on the logit scale (:mod:`imm_gym.sim.actions`);
-   then each row
+   :math:`\pi_i = \operatorname{softmax}(\lambda a_i)` (``lambda = logit_scale``), the stay
+   modes each row's stay moved on the logit scale (:mod:`imm_gym.sim.actions`); then each row
    normalized and floored to ``[p_min, 1 - p_min]`` as :func:`imm_gym.tracking.tpm.apply_floor` (a
    row that already sums to 1 and satisfies the floor passes bit for bit);
 2. bank A's IMM cycle with that TPM (:func:`imm_gym.tracking.kernels.imm.imm_step`: the slots
@@ -268,9 +267,10 @@ def env_step(
     """One step of all banks of N slots (the module docstring's steps 1-5).
 
     Args:
-        action: ``(N, M*M)`` finite actions (clipped here); tpm: ``(N, M, M)`` current TPMs.
-        mode, gain, p_min: the action mode (:data:`SCALE`, :data:`SET`, :data:`STAY`), its
-            ``max_factor`` or ``logit_scale``, and the floor.
+        action: ``(N, M*M)`` (the stay modes: ``(N, M)``) finite actions (clipped here); tpm:
+            ``(N, M, M)`` current TPMs.
+        mode, gain, p_min: the action mode (:data:`SCALE`, :data:`SET`, :data:`STAY`,
+            :data:`STAY_STEP`), its ``max_factor`` or ``logit_scale``, and the floor.
         x_a, P_a, mu_a: bank A's posterior ``(N, M, n)``, ``(N, M, n, n)``, ``(N, M)``; x_b, P_b,
             mu_b: bank B's; x_s, P_s, mu_s: the shadow IMM's.
         fixed_tpm, shadow_tpm: ``(N, M, M)`` fixed TPMs of bank B and of the shadow.

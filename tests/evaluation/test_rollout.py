@@ -41,3 +41,5 @@ def test_reset_checks_the_initial_tpms() -> None:
         core.reset(np.arange(2), [0, 1], np.full((2, 3, 3), 0.5))
     with pytest.raises(ConfigError, match=r"initial_tpms must have shape \(\.\.\., 3, 3\)"):
         core.reset(np.arange(2), [0, 1], np.eye(2)[None].repeat(2, axis=0))
+    with pytest.raises(ConfigError, match=r"initial_tpms must have shape \(2, 3, 3\)"):
+        core.reset(np.arange(2), [0, 1], stay_tpm(3, 0.9)[None])
