@@ -151,10 +151,18 @@ def time_calls(calls: dict[str, Any], repeats: int, min_repeat_s: float) -> dict
     for _ in range(repeats):
         for name, call in calls.items():
             n = counts[name]
-            wall, cpu = harness.timed(lambda c=call, n=n: [c() for _ in range(n)])
+            wall, cpu = harness.timed(lambda c=call, n=n: _repeat(c, n))
             out[name][0].append(wall / n * 1e6)
             out[name][1].append(cpu / n * 1e6)
     return out
+
+
+def _repeat(call: Any, n: int) -> None:
+    """``call()`` ``n`` times, each result dropped as a caller's loop would (kept in a list,
+    ``IMM.step``'s thirteen fresh arrays a call, the garbage collector off, cost fresh memory:
+    17 µs a step against 11 µs dropped, same day)."""
+    for _ in range(n):
+        call()
 
 
 def run(args: argparse.Namespace, console: Console) -> int:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numba.extending import overload
 from numpy.typing import NDArray
 
 from imm_gym.tracking.linalg import JACOBI_MAX_SWEEPS, LOG_2PI, jacobi_sweeps
@@ -220,8 +221,11 @@ def imm_step(
     outs = (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out,
             xhat_out, Phat_out, failed_out)
     if N == 1 and M == ONE_SHAPE[0] and n == ONE_SHAPE[1] and m == ONE_SHAPE[2]:
-        return _step_one(x, P, mu, tpm, z, detected, F, Q, R, sensor_kind, sensor_params,
-                         filter_kind, wm, wc, gamma, mixture_nis, outs)
+        return _step_one(
+            _owned(x), _owned(P), _owned(mu), _owned(tpm), _owned(z), _owned(detected),
+            _owned(F), _owned(Q), _owned(R), sensor_kind, _owned(sensor_params), filter_kind,
+            _owned(wm), _owned(wc), gamma, mixture_nis, outs,
+        )
     return _cycle(x, P, mu, tpm, z, detected, F, Q, R, sensor_kind, sensor_params, filter_kind,
                   wm, wc, gamma, mixture_nis, outs, N, min(N, TRACKER_BLOCK), M, n, m)
 
@@ -240,6 +244,21 @@ def _step_one(
     M, n, m = ONE_SHAPE
     return _cycle(x, P, mu, tpm, z, detected, F, Q, R, sensor_kind, sensor_params, filter_kind,
                   wm, wc, gamma, mixture_nis, outs, 1, 1, M, n, m)
+
+
+def _owned(a: Array) -> Array:
+    """``a`` where it is a writable C-contiguous array, else a copy that is: the arrays
+    :func:`imm_step` hands :func:`_step_one` are of one type whatever its callers pass (a
+    broadcast TPM, a read-only or strided view), so that copy is compiled once (~80 s)."""
+    return a if a.flags.c_contiguous and a.flags.writeable else a.copy()
+
+
+@overload(_owned, inline="always")
+def _owned_compiled(a):  # type: ignore[no-untyped-def]
+    """:func:`_owned` in compiled code, decided from ``a``'s type: no copy for the usual one."""
+    if a.layout == "C" and a.mutable:
+        return lambda a: a
+    return lambda a: a.copy()
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
