@@ -21,9 +21,10 @@ from numpy.typing import NDArray
 from imm_gym.sim.actions import tpm_from_action
 from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.kernels import ACTION_MODE_CODES, env_step
+from imm_gym.sim.kernels import ACTION_MODE_CODES, env_step, env_step_one
 from imm_gym.tracking.fusion import fuse
 from imm_gym.tracking.imm import IMMState, Tracker
+from imm_gym.tracking.kernels.imm import fits_one
 from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
@@ -60,7 +61,9 @@ def compiled_step(
     cfg = banks.config
     gain = cfg.max_factor if cfg.action_mode == "scale" else cfg.logit_scale
     a, b, s = banks.state_a, banks.state_b, banks.state_s
-    return env_step(
+    N, M, n = a.x.shape
+    step = env_step_one if fits_one(N, M, n, z.shape[1]) else env_step
+    return step(
         action, banks.tpm, ACTION_MODE_CODES[cfg.action_mode], gain, cfg.p_min,
         a.x, a.P, a.mu, b.x, b.P, b.mu, s.x, s.P, s.mu, banks.fixed_tpms, banks.shadow_tpms,
         z, detected, truth, banks.kernel_args, cfg.parallel, cfg.shadow == "fixed",

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.bank_step import BankStep
-from imm_gym.tracking.kernels.imm import combine_into, imm_step
+from imm_gym.tracking.kernels.imm import combine_into, imm_step, imm_step_one
 
 Array = NDArray[np.float64]
 
@@ -199,16 +199,17 @@ def _fuse_into(t: int, u_a: Array, u_b: Array, U: Array) -> None:  # pragma: no 
         U[t, j] = U[t, j] / acc
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _bank_step(
     x: Array, P: Array, mu: Array, tpm: Array, z: Array, detected: NDArray[np.bool_], bank: tuple,
-    mixture_nis: bool,
+    mixture_nis: bool, one: bool,
 ) -> tuple[
     Array, Array, Array, Array, Array, Array, Array, Array, Array, NDArray[np.bool_]
 ]:  # pragma: no cover
     """One IMM cycle of a bank into fresh arrays: ``(x, P, mu, loglik, model_nis, innovation,
     nis, x_hat, P_hat, failed)`` (shapes as :meth:`imm_gym.tracking.imm.IMM.step`; ``bank`` is
-    :attr:`imm_gym.tracking.imm.IMM.kernel_args`; ``nis`` is 0 without ``mixture_nis``)."""
+    :attr:`imm_gym.tracking.imm.IMM.kernel_args`; ``nis`` is 0 without ``mixture_nis``), through
+    :func:`~imm_gym.tracking.kernels.imm.imm_step_one` where ``one`` (a constant)."""
     N, M, n = x.shape
     x_out = np.empty((N, M, n))
     P_out = np.empty((N, M, n, n))
@@ -221,8 +222,12 @@ def _bank_step(
     x_hat = np.empty((N, n))
     P_hat = np.empty((N, n, n))
     failed = np.empty(N, dtype=np.bool_)
-    imm_step(x, P, mu, tpm, z, detected, *bank, mixture_nis, x_out, P_out, mu_out, cbar, loglik,
-             model_nis, innovation, nis, x_hat, P_hat, failed)
+    if one:
+        imm_step_one(x, P, mu, tpm, z, detected, *bank, mixture_nis, x_out, P_out, mu_out, cbar,
+                     loglik, model_nis, innovation, nis, x_hat, P_hat, failed)
+    else:
+        imm_step(x, P, mu, tpm, z, detected, *bank, mixture_nis, x_out, P_out, mu_out, cbar,
+                 loglik, model_nis, innovation, nis, x_hat, P_hat, failed)
     return x_out, P_out, mu_out, loglik, model_nis, innovation, nis, x_hat, P_hat, failed
 
 
@@ -239,30 +244,10 @@ def _capped_error(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def env_step(
-    action: Array,
-    tpm: Array,
-    mode: int,
-    gain: float,
-    p_min: float,
-    x_a: Array,
-    P_a: Array,
-    mu_a: Array,
-    x_b: Array,
-    P_b: Array,
-    mu_b: Array,
-    x_s: Array,
-    P_s: Array,
-    mu_s: Array,
-    fixed_tpm: Array,
-    shadow_tpm: Array,
-    z: Array,
-    detected: NDArray[np.bool_],
-    truth: Array,
-    bank: tuple,
-    parallel: bool,
-    shadow: bool,
-    divergence_error: float,
-    divergence_cov: float,
+    action: Array, tpm: Array, mode: int, gain: float, p_min: float, x_a: Array, P_a: Array,
+    mu_a: Array, x_b: Array, P_b: Array, mu_b: Array, x_s: Array, P_s: Array, mu_s: Array,
+    fixed_tpm: Array, shadow_tpm: Array, z: Array, detected: NDArray[np.bool_], truth: Array,
+    bank: tuple, parallel: bool, shadow: bool, divergence_error: float, divergence_cov: float,
 ) -> BankStep:  # pragma: no cover
     """One step of all banks of N slots (the module docstring's steps 1-5).
 
@@ -281,14 +266,43 @@ def env_step(
     Returns:
         the :class:`~imm_gym.sim.bank_step.BankStep` of the slots, fresh arrays.
     """
+    return _env_step(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s, P_s,
+                     mu_s, fixed_tpm, shadow_tpm, z, detected, truth, bank, parallel, shadow,
+                     divergence_error, divergence_cov, False)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def env_step_one(
+    action: Array, tpm: Array, mode: int, gain: float, p_min: float, x_a: Array, P_a: Array,
+    mu_a: Array, x_b: Array, P_b: Array, mu_b: Array, x_s: Array, P_s: Array, mu_s: Array,
+    fixed_tpm: Array, shadow_tpm: Array, z: Array, detected: NDArray[np.bool_], truth: Array,
+    bank: tuple, parallel: bool, shadow: bool, divergence_error: float, divergence_cov: float,
+) -> BankStep:  # pragma: no cover
+    """:func:`env_step` for one slot whose tracker fits
+    :func:`~imm_gym.tracking.kernels.imm.imm_step_one` (the scalar env's: its banks' cycles
+    ~40 % faster, the same numbers bit for bit; compiled on first use)."""
+    return _env_step(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s, P_s,
+                     mu_s, fixed_tpm, shadow_tpm, z, detected, truth, bank, parallel, shadow,
+                     divergence_error, divergence_cov, True)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _env_step(
+    action: Array, tpm: Array, mode: int, gain: float, p_min: float, x_a: Array, P_a: Array,
+    mu_a: Array, x_b: Array, P_b: Array, mu_b: Array, x_s: Array, P_s: Array, mu_s: Array,
+    fixed_tpm: Array, shadow_tpm: Array, z: Array, detected: NDArray[np.bool_], truth: Array,
+    bank: tuple, parallel: bool, shadow: bool, divergence_error: float, divergence_cov: float,
+    one: bool,
+) -> BankStep:  # pragma: no cover
+    """The body of :func:`env_step` and :func:`env_step_one` (``one``: a constant)."""
     N, M, _ = x_a.shape
     new_tpm = tpm_from_action(action, tpm, mode, gain, p_min, fixed_tpm)
     xa, Pa, U, loglik, model_nis, innovation, nis, x_hat, P_hat, failed = _bank_step(
-        x_a, P_a, mu_a, new_tpm, z, detected, bank, True)
+        x_a, P_a, mu_a, new_tpm, z, detected, bank, True, one)
     xb, Pb, Ub = x_b, P_b, mu_b
     if parallel:
         xb, Pb, Ub, _, _, _, _, _, _, failed_b = _bank_step(
-            x_b, P_b, mu_b, fixed_tpm, z, detected, bank, False)
+            x_b, P_b, mu_b, fixed_tpm, z, detected, bank, False, one)
         u_a = U
         U = np.empty((N, M))
         for t in range(N):
@@ -300,7 +314,7 @@ def env_step(
     shadow_error = np.zeros(N)
     if shadow:
         xs, Ps, mus, _, _, _, _, xs_hat, _, _ = _bank_step(
-            x_s, P_s, mu_s, shadow_tpm, z, detected, bank, False)
+            x_s, P_s, mu_s, shadow_tpm, z, detected, bank, False, one)
     velocity = np.empty((N, 2))
     error = np.empty(N)
     diverged = np.empty(N, dtype=np.bool_)

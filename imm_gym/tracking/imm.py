@@ -543,7 +543,8 @@ class IMM:
     def _step_compiled(
         self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None, allow_failure: bool
     ) -> tuple[IMMState, IMMStep]:
-        """The same cycle through the fused kernel (:mod:`imm_gym.tracking.kernels.imm`)."""
+        """The same cycle through the fused kernel (:mod:`imm_gym.tracking.kernels.imm`; one
+        tracker of the usual shape through its faster ``imm_step_one``)."""
         N, M, n = state.x.shape
         if detected is None:
             det = np.empty(N, dtype=bool)
@@ -556,7 +557,9 @@ class IMM:
         nis, x_hat, P_hat = np.empty(N), np.empty((N, n)), np.empty((N, n, n))
         innovation = np.empty((N, M, self.sensor.dim_z))
         failed = np.empty(N, dtype=bool)
-        failures = kernels.imm_step(
+        one = kernels.fits_one(N, M, n, self.sensor.dim_z)
+        cycle = kernels.imm_step_one if one else kernels.imm_step
+        failures = cycle(
             np.ascontiguousarray(state.x),
             np.ascontiguousarray(state.P),
             np.ascontiguousarray(state.mu),

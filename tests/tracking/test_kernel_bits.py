@@ -12,9 +12,11 @@ from __future__ import annotations
 from dataclasses import fields
 
 import numpy as np
+import pytest
 
 from imm_gym import IMM, PositionSensor, Sonar, draw_batch, paper_bank, paper_scenario, stay_tpm
 from imm_gym.tracking.imm import IMMState, IMMStep, _new_state, _new_step
+from imm_gym.tracking.kernels import imm as kernel
 
 
 def test_results_built_without_init_are_the_dataclasses() -> None:
@@ -64,10 +66,11 @@ def test_failed_tracker_leaves_the_block_unchanged() -> None:
 
 
 def test_one_tracker_alone_equals_its_lane_in_a_block() -> None:
-    """The single-tracker path (``kernels.imm._step_one``: the cycle compiled for one tracker of
-    three models, four states, a 2-D measurement) gives each tracker the numbers its lane gets in
-    a block of the general path, bit for bit: every output, each step, with missed detections,
-    for both filters and both sensors, and a diverged tracker alone."""
+    """The single-tracker path (``kernels.imm.imm_step_one``, which ``IMM.step`` takes at N = 1:
+    the cycle compiled for one tracker of three models, four states, a 2-D measurement) gives
+    each tracker the numbers its lane gets in a block of the general path, bit for bit: every
+    output, each step, with missed detections, for both filters and both sensors, and a
+    diverged tracker alone."""
     n = 7
     for filt in ("ukf", "ekf"):
         for sensor in (Sonar(), PositionSensor(sigma_pos=30.0)):
@@ -96,3 +99,19 @@ def test_one_tracker_alone_equals_its_lane_in_a_block() -> None:
 def _arrays(state: IMMState, out: IMMStep) -> list[np.ndarray]:
     return [state.x, state.P, state.mu, out.x, out.P, out.mode_probs, out.cbar, out.loglik,
             out.model_nis, out.innovation, out.nis, out.failed]
+
+
+def test_one_tracker_entry_refuses_other_shapes() -> None:
+    """``imm_step_one`` has its sizes compiled in: two trackers are refused, not misread."""
+    imm = IMM(paper_bank(), Sonar())
+    batch = draw_batch(paper_scenario(), Sonar(), 2, 0)
+    state = imm.init(batch.x0, batch.P0)
+    N, M, n = state.x.shape
+    assert kernel.fits_one(1, M, n, 2) and not kernel.fits_one(N, M, n, 2)
+    outs = (np.empty((N, M, n)), np.empty((N, M, n, n)), *(np.empty((N, M)) for _ in range(4)),
+            np.empty((N, M, 2)), np.empty(N), np.empty((N, n)), np.empty((N, n, n)),
+            np.empty(N, dtype=bool))
+    tpm = np.broadcast_to(stay_tpm(M, 0.9), (N, M, M)).copy()
+    with pytest.raises(ValueError, match="one tracker"):
+        kernel.imm_step_one(state.x, state.P, state.mu, tpm, batch.measurements.z[:, 1],
+                            np.ones(N, dtype=bool), *imm.kernel_args, True, *outs)

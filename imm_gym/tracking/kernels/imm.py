@@ -52,8 +52,8 @@ _TAN_3PI_8 = 2.41421356237309504880
 #: Trackers per block of :func:`imm_step`: the block's trackers and models are the SIMD lanes of
 #: every loop (structure of arrays, the lane index innermost).
 TRACKER_BLOCK = 32
-#: ``(M, n, m)`` of the trackers :func:`imm_step` runs one at a time with these sizes compiled in
-#: (:func:`_step_one`): three models of four states (the CV / CT banks), a 2-D measurement
+#: ``(M, n, m)`` of the trackers :func:`imm_step_one` runs with these sizes compiled in: three
+#: models of four states (the CV / CT banks), a 2-D measurement
 ONE_SHAPE = (3, 4, 2)
 
 
@@ -211,23 +211,44 @@ def imm_step(
     diagonalized together (:func:`imm_gym.tracking.linalg.jacobi_eig_lanes`), ``atan2`` is
     :func:`_atan2`, a 2x2 innovation covariance is inverted in closed form. Lanes do not
     interact and sums keep their order, so every tracker's numbers are those it would get alone
-    (whatever its block, position and N). One tracker of the shape :data:`ONE_SHAPE` runs the
-    same cycle compiled with its sizes as constants (:func:`_step_one`: ~40 % less time at
-    N = 1, the same bits); the price is the compile of a second copy (~80 s on first use,
-    cached after).
+    (whatever its block, position and N). :func:`imm_step_one` is the same cycle for one
+    tracker, faster.
     """
     N, M, n = x.shape
-    m = z.shape[1]
     outs = (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out,
             xhat_out, Phat_out, failed_out)
-    if N == 1 and M == ONE_SHAPE[0] and n == ONE_SHAPE[1] and m == ONE_SHAPE[2]:
-        return _step_one(
-            _owned(x), _owned(P), _owned(mu), _owned(tpm), _owned(z), _owned(detected),
-            _owned(F), _owned(Q), _owned(R), sensor_kind, _owned(sensor_params), filter_kind,
-            _owned(wm), _owned(wc), gamma, mixture_nis, outs,
-        )
     return _cycle(x, P, mu, tpm, z, detected, F, Q, R, sensor_kind, sensor_params, filter_kind,
-                  wm, wc, gamma, mixture_nis, outs, N, min(N, TRACKER_BLOCK), M, n, m)
+                  wm, wc, gamma, mixture_nis, outs, N, min(N, TRACKER_BLOCK), M, n, z.shape[1])
+
+
+def fits_one(N: int, M: int, n: int, m: int) -> bool:
+    """Whether N trackers of M models, n states and m measurement components can run
+    through :func:`imm_step_one`."""
+    return N == 1 and (M, n, m) == ONE_SHAPE
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def imm_step_one(
+    x: Array, P: Array, mu: Array, tpm: Array, z: Array, detected: NDArray[np.bool_], F: Array,
+    Q: Array, R: Array, sensor_kind: int, sensor_params: Array, filter_kind: int, wm: Array,
+    wc: Array, gamma: float, mixture_nis: bool, x_out: Array, P_out: Array, mu_out: Array,
+    cbar_out: Array, loglik_out: Array, model_nis_out: Array, innov_out: Array, nis_out: Array,
+    xhat_out: Array, Phat_out: Array, failed_out: NDArray[np.bool_],
+) -> int:  # pragma: no cover
+    """:func:`imm_step` (same arguments, same outputs bit for bit) for one tracker of the shape
+    :data:`ONE_SHAPE` (:func:`fits_one`; ``ValueError`` otherwise): the cycle compiled with its
+    sizes as constants (:func:`_step_one`), ~40 % less time. Compiled on first use (~80 s,
+    cached after), so that callers with many trackers never pay for it."""
+    M, n, m = ONE_SHAPE
+    if x.shape != (1, M, n) or z.shape != (1, m):
+        raise ValueError("imm_step_one takes one tracker of three 4-state models, 2-D z")
+    outs = (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out,
+            xhat_out, Phat_out, failed_out)
+    return _step_one(
+        _owned(x), _owned(P), _owned(mu), _owned(tpm), _owned(z), _owned(detected), _owned(F),
+        _owned(Q), _owned(R), sensor_kind, _owned(sensor_params), filter_kind, _owned(wm),
+        _owned(wc), gamma, mixture_nis, outs,
+    )
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -236,11 +257,11 @@ def _step_one(
     Q: Array, R: Array, sensor_kind: int, sensor_params: Array, filter_kind: int, wm: Array,
     wc: Array, gamma: float, mixture_nis: bool, outs: tuple,
 ) -> int:  # pragma: no cover
-    """:func:`imm_step` for one tracker of the shape :data:`ONE_SHAPE` (three models, four
-    states, a 2-D measurement): :func:`_cycle` compiled with these sizes as constants, so its
-    loops have known lengths (unrolled, without the vector loops' checks and remainders that
-    cost more than the arithmetic at 3 lanes). The same operations in the same order: the same
-    numbers bit for bit."""
+    """The cycle of one tracker of the shape :data:`ONE_SHAPE` (three models, four states, a 2-D
+    measurement; arrays writable and C-contiguous): :func:`_cycle` compiled with these sizes as
+    constants, so its loops have known lengths (unrolled, without the vector loops' checks and
+    remainders that cost more than the arithmetic at 3 lanes). The same operations in the same
+    order: the same numbers bit for bit."""
     M, n, m = ONE_SHAPE
     return _cycle(x, P, mu, tpm, z, detected, F, Q, R, sensor_kind, sensor_params, filter_kind,
                   wm, wc, gamma, mixture_nis, outs, 1, 1, M, n, m)
@@ -248,7 +269,7 @@ def _step_one(
 
 def _owned(a: Array) -> Array:
     """``a`` where it is a writable C-contiguous array, else a copy that is: the arrays
-    :func:`imm_step` hands :func:`_step_one` are of one type whatever its callers pass (a
+    :func:`imm_step_one` hands :func:`_step_one` are of one type whatever its callers pass (a
     broadcast TPM, a read-only or strided view), so that copy is compiled once (~80 s)."""
     return a if a.flags.c_contiguous and a.flags.writeable else a.copy()
 
