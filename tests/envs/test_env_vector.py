@@ -248,6 +248,7 @@ def test_sb3_horizon_end_and_divergence_flags() -> None:
         assert not np.array_equal(info["terminal_observation"], last[0])
     np.testing.assert_allclose(obs[:, :6], 1 / 3, rtol=1e-6)  # reset observations
     diverging = TPMAdaptSB3VecEnv(num_envs=2, config={**SHORT, "divergence_error": 1.0})
+    diverging.seed(4)  # unseeded, a first estimate within 1 m of the truth ended no episode
     diverging.reset()
     obs, rewards, dones, infos = diverging.step(np.zeros((2, 9), np.float32))
     assert dones.all() and np.all(np.isfinite(obs)) and np.all(np.isfinite(rewards))
