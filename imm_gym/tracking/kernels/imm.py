@@ -237,7 +237,7 @@ def imm_step_one(
 ) -> int:  # pragma: no cover
     """:func:`imm_step` (same arguments, same outputs bit for bit) for one tracker of the shape
     :data:`ONE_SHAPE` (:func:`fits_one`; ``ValueError`` otherwise): the cycle compiled with its
-    sizes as constants (:func:`_step_one`), ~40 % less time. Compiled on first use (~80 s,
+    sizes as constants (:func:`_step_one`), ~40 % less time. Compiled on first use (~1 min,
     cached after), so that callers with many trackers never pay for it."""
     M, n, m = ONE_SHAPE
     if x.shape != (1, M, n) or z.shape != (1, m):
@@ -270,7 +270,7 @@ def _step_one(
 def _owned(a: Array) -> Array:
     """``a`` where it is a writable C-contiguous array, else a copy that is: the arrays
     :func:`imm_step_one` hands :func:`_step_one` are of one type whatever its callers pass (a
-    broadcast TPM, a read-only or strided view), so that copy is compiled once (~80 s)."""
+    broadcast TPM, a read-only or strided view), so that copy is compiled once (~1 min)."""
     return a if a.flags.c_contiguous and a.flags.writeable else a.copy()
 
 
