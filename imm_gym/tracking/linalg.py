@@ -127,8 +127,7 @@ def jacobi_eig_lanes(
     )
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def jacobi_sweeps(
+def _jacobi_sweeps(
     a: Array,
     v: Array,
     lanes: int,
@@ -167,6 +166,16 @@ def jacobi_sweeps(
                         )
                 for i in range(n):
                     _rotate_lanes(v, i, p, i, q, lanes, k, c, s, old)
+
+
+#: :func:`_jacobi_sweeps` compiled as a function of its own (its lane loops vectorize best
+#: apart from a large caller)
+jacobi_sweeps = numba.njit(cache=True, nogil=True, error_model="numpy")(_jacobi_sweeps)
+#: the same sweeps inlined into a compiled caller, which compiles them with its own constants
+#: (one tracker: lane count and size known, every loop unrolled)
+jacobi_sweeps_inlined = numba.njit(nogil=True, error_model="numpy", inline="always")(
+    _jacobi_sweeps
+)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")

@@ -30,9 +30,16 @@ import numpy as np
 from numba.extending import overload
 from numpy.typing import NDArray
 
-from imm_gym.tracking.linalg import JACOBI_MAX_SWEEPS, LOG_2PI, jacobi_sweeps
+from imm_gym.tracking.kernels.scratch import scratch
+from imm_gym.tracking.linalg import (
+    JACOBI_MAX_SWEEPS,
+    LOG_2PI,
+    jacobi_sweeps,
+    jacobi_sweeps_inlined,
+)
 
 Array = NDArray[np.float64]
+F8 = np.float64
 
 RANGE_BEARING = 0
 LINEAR = 1
@@ -218,7 +225,8 @@ def imm_step(
     outs = (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out,
             xhat_out, Phat_out, failed_out)
     return _cycle(x, P, mu, tpm, z, detected, F, Q, R, sensor_kind, sensor_params, filter_kind,
-                  wm, wc, gamma, mixture_nis, outs, N, min(N, TRACKER_BLOCK), M, n, z.shape[1])
+                  wm, wc, gamma, mixture_nis, outs, N, min(N, TRACKER_BLOCK), M, n, z.shape[1],
+                  False)
 
 
 def fits_one(N: int, M: int, n: int, m: int) -> bool:
@@ -264,7 +272,7 @@ def _step_one(
     order: the same numbers bit for bit."""
     M, n, m = ONE_SHAPE
     return _cycle(x, P, mu, tpm, z, detected, F, Q, R, sensor_kind, sensor_params, filter_kind,
-                  wm, wc, gamma, mixture_nis, outs, 1, 1, M, n, m)
+                  wm, wc, gamma, mixture_nis, outs, 1, 1, M, n, m, True)
 
 
 def _owned(a: Array) -> Array:
@@ -287,40 +295,46 @@ def _cycle(
     x: Array, P: Array, mu: Array, tpm: Array, z: Array, detected: NDArray[np.bool_], F: Array,
     Q: Array, R: Array, sensor_kind: int, sensor_params: Array, filter_kind: int, wm: Array,
     wc: Array, gamma: float, mixture_nis: bool, outs: tuple, N: int, W: int, M: int, n: int,
-    m: int,
+    m: int, one: bool,
 ) -> int:  # pragma: no cover
     """The body of :func:`imm_step` (its layout and equations), for ``N`` trackers in blocks of
     ``W``, ``M`` models, ``n`` states, ``m`` measurement components (constants where the caller
-    knows them); ``outs`` are its eleven output arrays, in order."""
+    knows them); ``outs`` are its eleven output arrays, in order. ``one`` (a constant): one
+    tracker of :data:`ONE_SHAPE`, its scratch in the caller's stack frame
+    (:func:`~imm_gym.tracking.kernels.scratch.scratch`: no allocation, and arrays the compiler
+    knows apart) and the Jacobi sweeps inlined."""
     (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out, xhat_out,
      Phat_out, failed_out) = outs
     L = M * W
     K = 2 * n + 1 if filter_kind == UKF else 1
     per_tracker = F.shape[0] > 1  # else one bank for all trackers
-    # structure-of-arrays scratch, the lane axis last
-    Fl, Ql = np.empty((n, n, L)), np.empty((n, n, L))
-    Xm, Pm = np.empty((n, L)), np.empty((n, n, L))
-    Rl, mul, tpml = np.empty((m, m, W)), np.empty((M, W)), np.empty((M, M, W))
-    cbar, wgt, spread = np.empty((M, W)), np.empty((M, W)), np.empty((M, n, W))
-    X0, P0, FP = np.empty((n, L)), np.empty((n, n, L)), np.empty((n, n, L))
-    Xp, Pp = np.empty((n, L)), np.empty((n, n, L))
-    eig, U = np.empty((n, n, L)), np.empty((n, n, L))
-    O, Z = np.empty((K, n, L)), np.empty((K, m, L))
-    H = np.empty((m, n, L))
-    zp, S, C, Kg = np.empty((m, L)), np.empty((m, m, L)), np.empty((n, m, L)), np.empty((n, m, L))
-    Si, Lc, logdet, ok = np.empty((m, m, L)), np.empty((m, m, L)), np.empty(L), np.empty(L)
-    nu, Sinu, innov = np.empty((m, L)), np.empty((m, L)), np.empty((m, L))
-    nis, loglik, Xu, Pu = np.empty(L), np.empty(L), np.empty((n, L)), np.empty((n, n, L))
-    mu_new, xhat, Phat = np.empty((M, W)), np.empty((n, W)), np.empty((n, n, W))
-    hz, Sm = np.empty((m, W)), np.empty((m, m, W))
-    Smi, Smc = np.empty((m, m, W)), np.empty((m, m, W))
-    num, okm, nism = np.empty((m, W)), np.empty(W), np.empty(W)
-    det = np.empty(W)
+    # structure-of-arrays scratch, the lane axis last (in this frame for one tracker)
+    s = one
+    Fl, Ql = scratch((n, n, L), F8, s), scratch((n, n, L), F8, s)
+    Xm, Pm = scratch((n, L), F8, s), scratch((n, n, L), F8, s)
+    Rl, mul, tpml = scratch((m, m, W), F8, s), scratch((M, W), F8, s), scratch((M, M, W), F8, s)
+    cbar, wgt, spread = scratch((M, W), F8, s), scratch((M, W), F8, s), scratch((M, n, W), F8, s)
+    X0, P0, FP = scratch((n, L), F8, s), scratch((n, n, L), F8, s), scratch((n, n, L), F8, s)
+    Xp, Pp = scratch((n, L), F8, s), scratch((n, n, L), F8, s)
+    eig, U = scratch((n, n, L), F8, s), scratch((n, n, L), F8, s)
+    O, Z = scratch((K, n, L), F8, s), scratch((K, m, L), F8, s)
+    H = scratch((m, n, L), F8, s)
+    zp, S, C = scratch((m, L), F8, s), scratch((m, m, L), F8, s), scratch((n, m, L), F8, s)
+    Kg, Si, Lc = scratch((n, m, L), F8, s), scratch((m, m, L), F8, s), scratch((m, m, L), F8, s)
+    logdet, ok = scratch((L,), F8, s), scratch((L,), F8, s)
+    nu, Sinu, innov = scratch((m, L), F8, s), scratch((m, L), F8, s), scratch((m, L), F8, s)
+    nis, loglik = scratch((L,), F8, s), scratch((L,), F8, s)
+    Xu, Pu = scratch((n, L), F8, s), scratch((n, n, L), F8, s)
+    mu_new, xhat, Phat = scratch((M, W), F8, s), scratch((n, W), F8, s), scratch((n, n, W), F8, s)
+    hz, Sm = scratch((m, W), F8, s), scratch((m, m, W), F8, s)
+    Smi, Smc = scratch((m, m, W), F8, s), scratch((m, m, W), F8, s)
+    num, okm, nism = scratch((m, W), F8, s), scratch((W,), F8, s), scratch((W,), F8, s)
+    det = scratch((W,), F8, s)
     # the Jacobi sweeps' scratch (jacobi_eig_lanes allocates it per call: per block)
     half = (n + n % 2) // 2
-    jconv, joff, jdiag = np.empty(L, dtype=np.bool_), np.empty(L), np.empty(L)
-    jc, js, jpairs, jold = (np.empty((half, L)), np.empty((half, L)),
-                            np.empty((half, 2), dtype=np.int64), np.empty((2, L)))
+    jconv, joff, jdiag = scratch((L,), np.bool_, s), scratch((L,), F8, s), scratch((L,), F8, s)
+    jc, js = scratch((half, L), F8, s), scratch((half, L), F8, s)
+    jpairs, jold = scratch((half, 2), np.int64, s), scratch((2, L), F8, s)
     bank_lanes = -1  # the lane count the bank's F, Q, R were spread for (one bank)
     failures = 0
     for t0 in range(0, N, W):
@@ -337,8 +351,12 @@ def _cycle(
                 for c in range(r, n):
                     for i in range(lanes):
                         eig[r, c, i] = Pp[r, c, i]
-            jacobi_sweeps(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag, jc, js, jpairs,
-                          jold)
+            if one:  # inlined: unrolled with this tracker's sizes
+                jacobi_sweeps_inlined(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag, jc,
+                                      js, jpairs, jold)
+            else:
+                jacobi_sweeps(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag, jc, js, jpairs,
+                              jold)
             _ukf_moments(Xp, eig, U, lanes, sensor_kind, sensor_params, wm, wc, gamma, zp, S, C,
                          O, Z)
         else:
