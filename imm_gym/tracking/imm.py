@@ -36,6 +36,10 @@ from imm_gym.tracking.models import MotionModel, bank_dim
 from imm_gym.tracking.tpm import ROW_SUM_TOL, validate_tpm
 from imm_gym.validation import ConfigError, check_range
 
+#: the compiled TPM check's tolerance: half the validator's, so that a row sum near the
+#: tolerance gets the validator's own verdict and message
+_FAST_ROW_SUM_TOL = 0.5 * ROW_SUM_TOL
+
 Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
@@ -178,6 +182,14 @@ def used_measurements(z: Array, detected: BoolArray | None) -> Array:
             "z must be finite where detected (mark missed detections with detected=False)"
         )
     return np.where(finite[..., None], z, 0.0)
+
+
+def _per_tracker(tpm: Array, N: int) -> Array:
+    """``tpm`` ``(M, M)`` or ``(N, M, M)`` as ``(N, M, M)`` (one tracker: a view; else a copy
+    per tracker, as the kernel reads them)."""
+    if tpm.ndim == 3:
+        return tpm
+    return tpm[None] if N == 1 else np.ascontiguousarray(np.broadcast_to(tpm, (N, *tpm.shape)))
 
 
 def moment_match(w: Array, x: Array, P: Array) -> tuple[Array, Array]:
@@ -372,6 +384,10 @@ class IMM:
             self.kernel_args = (
                 self.F[None], self.Q[None], R[None], kind, params, fkind, wm, wc, gamma
             )
+        #: whether one tracker runs through the kernel's single-tracker cycle
+        self._fits_one = self.engine == "compiled" and kernels.fits_one(
+            1, len(self.models), self.n, sensor.dim_z
+        )
 
     def _choose_engine(self, engine: str) -> str:
         if engine not in ENGINES:
@@ -517,26 +533,28 @@ class IMM:
         """``tpm`` and ``z`` checked as :func:`imm_gym.tracking.tpm.validate_tpm` and
         :func:`used_measurements` do (same errors, same repair of a missed detection's ``z``).
 
-        A C-contiguous float64 ``tpm`` is first checked by the compiled
-        :func:`~imm_gym.tracking.kernels.imm.clearly_stochastic` and a ``z`` by
-        :func:`~imm_gym.tracking.kernels.imm.all_finite` (a few hundred ns instead of several
-        µs of numpy reductions); the reference validators run where these say no.
+        A C-contiguous float64 ``tpm`` and ``z`` are first checked together by the compiled
+        :func:`~imm_gym.tracking.kernels.imm.unclear_inputs` (a few hundred ns instead of
+        several µs of numpy reductions); the reference validators run where it says no.
         """
-        fast = (
+        z = np.asarray(z, dtype=np.float64)
+        if z.shape != (N, self.sensor.dim_z):
+            raise ConfigError(f"z must have shape ({N}, {self.sensor.dim_z}), got {z.shape}")
+        if (
             isinstance(tpm, np.ndarray)
             and tpm.dtype == np.float64
             and tpm.ndim in (2, 3)
             and tpm.shape[-2:] == (M, M)
             and tpm.flags.c_contiguous
-        )
-        if not (fast and kernels.clearly_stochastic(tpm, 0.5 * ROW_SUM_TOL)):
+        ):
+            unclear = kernels.unclear_inputs(tpm, z, _FAST_ROW_SUM_TOL)
+        else:
+            unclear = kernels.TPM_UNCLEAR | (0 if kernels.all_finite(z) else kernels.Z_UNCLEAR)
+        if unclear & kernels.TPM_UNCLEAR:
             tpm = validate_tpm(tpm, M)
         if tpm.ndim == 3 and tpm.shape[0] != N:
             raise ConfigError(f"tpm has {tpm.shape[0]} matrices for {N} trackers")
-        z = np.asarray(z, dtype=np.float64)
-        if z.shape != (N, self.sensor.dim_z):
-            raise ConfigError(f"z must have shape ({N}, {self.sensor.dim_z}), got {z.shape}")
-        if not kernels.all_finite(z):
+        if unclear & kernels.Z_UNCLEAR:
             z = used_measurements(z, detected)
         return tpm, z
 
@@ -557,31 +575,24 @@ class IMM:
         nis, x_hat, P_hat = np.empty(N), np.empty((N, n)), np.empty((N, n, n))
         innovation = np.empty((N, M, self.sensor.dim_z))
         failed = np.empty(N, dtype=bool)
-        one = kernels.fits_one(N, M, n, self.sensor.dim_z)
-        cycle = kernels.imm_step_one if one else kernels.imm_step
-        failures = cycle(
-            np.ascontiguousarray(state.x),
-            np.ascontiguousarray(state.P),
-            np.ascontiguousarray(state.mu),
-            tpm
-            if tpm.shape == (N, M, M)
-            else np.ascontiguousarray(np.broadcast_to(tpm, (N, M, M))),
-            np.ascontiguousarray(z, dtype=np.float64),
-            np.ascontiguousarray(det),
-            *self.kernel_args,
-            True,  # the mixture NIS
-            x,
-            P,
-            mu,
-            cbar,
-            loglik,
-            model_nis,
-            innovation,
-            nis,
-            x_hat,
-            P_hat,
-            failed,
-        )
+        outs = (x, P, mu, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed)
+        tpm, z = _per_tracker(tpm, N), np.ascontiguousarray(z, dtype=np.float64)
+        if N == 1 and self._fits_one:  # it copies any input that is not C-contiguous itself
+            failures = kernels.imm_step_one(
+                state.x, state.P, state.mu, tpm, z, det, *self.kernel_args, True, *outs
+            )
+        else:
+            failures = kernels.imm_step(
+                np.ascontiguousarray(state.x),
+                np.ascontiguousarray(state.P),
+                np.ascontiguousarray(state.mu),
+                tpm,
+                z,
+                np.ascontiguousarray(det),
+                *self.kernel_args,
+                True,  # the mixture NIS
+                *outs,
+            )
         if failures and not allow_failure:
             raise np.linalg.LinAlgError(
                 f"innovation covariance is not positive definite for {failures} tracker(s)"

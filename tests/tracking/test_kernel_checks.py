@@ -1,7 +1,7 @@
-"""The compiled input checks of ``IMM.step`` (``clearly_stochastic`` and ``all_finite`` of
-:mod:`imm_gym.tracking.kernels.imm`): they accept what ``validate_tpm`` and ``used_measurements``
-accept and hand everything else to them, so the errors and the repair of a missed detection's
-measurement stay those of the reference validators."""
+"""The compiled input checks of ``IMM.step`` (``unclear_inputs``: ``clearly_stochastic`` and
+``all_finite`` of :mod:`imm_gym.tracking.kernels.imm`): they accept what ``validate_tpm`` and
+``used_measurements`` accept and hand everything else to them, so the errors and the repair of a
+missed detection's measurement stay those of the reference validators."""
 
 from __future__ import annotations
 
@@ -34,6 +34,29 @@ def test_clearly_stochastic_flags_every_defect() -> None:
     assert kernel.all_finite(np.ones((3, 2)))
     assert not kernel.all_finite(np.array([[1.0, np.nan]]))
     assert not kernel.all_finite(np.array([[1.0], [-np.inf]]))
+
+
+def test_unclear_inputs_flags_each_input_apart() -> None:
+    tpm, tol = stay_tpm(3, 0.95), 0.5 * ROW_SUM_TOL
+    bad_tpm, bad_z = tpm.copy(), np.ones((1, 2))
+    bad_tpm[2, 0] = np.nan
+    bad_z[0, 1] = np.inf
+    assert kernel.unclear_inputs(tpm, np.ones((1, 2)), tol) == 0
+    assert kernel.unclear_inputs(bad_tpm, np.ones((1, 2)), tol) == kernel.TPM_UNCLEAR
+    assert kernel.unclear_inputs(tpm[None], bad_z, tol) == kernel.Z_UNCLEAR
+    both = kernel.TPM_UNCLEAR | kernel.Z_UNCLEAR
+    assert kernel.unclear_inputs(bad_tpm, bad_z, tol) == both
+
+
+def test_one_tpm_for_one_tracker_steps_as_its_own_matrix() -> None:
+    imm, state, z = _bank()
+    one = type(state)(state.x[:1], state.P[:1], state.mu[:1])
+    tpm = stay_tpm(3, 0.9)
+    shared_state, shared = imm.step(one, tpm, z[:1])
+    own_state, own = imm.step(one, tpm[None].copy(), z[:1])
+    np.testing.assert_array_equal(shared.x, own.x)
+    np.testing.assert_array_equal(shared_state.P, own_state.P)
+    np.testing.assert_array_equal(tpm, stay_tpm(3, 0.9))  # the caller's TPM untouched
 
 
 @pytest.mark.parametrize(

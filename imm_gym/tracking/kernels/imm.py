@@ -109,6 +109,20 @@ def all_finite(z: Array) -> bool:  # pragma: no cover
     return True
 
 
+#: :func:`unclear_inputs` flags: the TPM, the measurements need the reference checks
+TPM_UNCLEAR = 1
+Z_UNCLEAR = 2
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def unclear_inputs(tpm: Array, z: Array, row_sum_tol: float) -> int:  # pragma: no cover
+    """Which inputs of a step need the reference checks, in one call: ``TPM_UNCLEAR`` where
+    ``tpm`` is not :func:`clearly_stochastic`, plus ``Z_UNCLEAR`` where ``z`` is not
+    :func:`all_finite` (0: both clear)."""
+    tpm_flag = 0 if clearly_stochastic(tpm, row_sum_tol) else TPM_UNCLEAR
+    return tpm_flag | (0 if all_finite(z) else Z_UNCLEAR)
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _wrap(a: float) -> float:  # pragma: no cover
     """Angle wrapped to (-pi, pi], as :func:`imm_gym.tracking.linalg.wrap_angle`.
