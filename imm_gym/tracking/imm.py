@@ -184,14 +184,6 @@ def used_measurements(z: Array, detected: BoolArray | None) -> Array:
     return np.where(finite[..., None], z, 0.0)
 
 
-def _per_tracker(tpm: Array, N: int) -> Array:
-    """``tpm`` ``(M, M)`` or ``(N, M, M)`` as ``(N, M, M)`` (one tracker: a view; else a copy
-    per tracker, as the kernel reads them)."""
-    if tpm.ndim == 3:
-        return tpm
-    return tpm[None] if N == 1 else np.ascontiguousarray(np.broadcast_to(tpm, (N, *tpm.shape)))
-
-
 def moment_match(w: Array, x: Array, P: Array) -> tuple[Array, Array]:
     """Gaussian mixture moments ``x_j = sum_i w_ji x_i``, ``P_j = sum_i w_ji [P_i + dx dx^T]``.
 
@@ -384,6 +376,7 @@ class IMM:
             self.kernel_args = (
                 self.F[None], self.Q[None], R[None], kind, params, fkind, wm, wc, gamma
             )
+        self._dim_z = sensor.dim_z
         #: whether one tracker runs through the kernel's single-tracker cycle
         self._fits_one = self.engine == "compiled" and kernels.fits_one(
             1, len(self.models), self.n, sensor.dim_z
@@ -565,21 +558,21 @@ class IMM:
         tracker of the usual shape through its faster ``imm_step_one``)."""
         N, M, n = state.x.shape
         if detected is None:
-            det = np.empty(N, dtype=bool)
-            det.fill(True)
-        else:
-            det = detected
+            detected = np.empty(N, dtype=bool)
+            detected.fill(True)
         x, P = np.empty((N, M, n)), np.empty((N, M, n, n))
         NM = (N, M)
         mu, cbar, loglik, model_nis = np.empty(NM), np.empty(NM), np.empty(NM), np.empty(NM)
         nis, x_hat, P_hat = np.empty(N), np.empty((N, n)), np.empty((N, n, n))
-        innovation = np.empty((N, M, self.sensor.dim_z))
+        innovation = np.empty((N, M, self._dim_z))
         failed = np.empty(N, dtype=bool)
         outs = (x, P, mu, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed)
-        tpm, z = _per_tracker(tpm, N), np.ascontiguousarray(z, dtype=np.float64)
+        if tpm.ndim == 2:  # one TPM for all trackers: the kernel reads one per tracker
+            tpm = tpm[None] if N == 1 else np.ascontiguousarray(np.broadcast_to(tpm, (N, M, M)))
+        z = np.ascontiguousarray(z, dtype=np.float64)
         if N == 1 and self._fits_one:  # it copies any input that is not C-contiguous itself
             failures = kernels.imm_step_one(
-                state.x, state.P, state.mu, tpm, z, det, *self.kernel_args, True, *outs
+                state.x, state.P, state.mu, tpm, z, detected, *self.kernel_args, True, *outs
             )
         else:
             failures = kernels.imm_step(
@@ -588,7 +581,7 @@ class IMM:
                 np.ascontiguousarray(state.mu),
                 tpm,
                 z,
-                np.ascontiguousarray(det),
+                np.ascontiguousarray(detected),
                 *self.kernel_args,
                 True,  # the mixture NIS
                 *outs,
@@ -598,7 +591,7 @@ class IMM:
                 f"innovation covariance is not positive definite for {failures} tracker(s)"
             )
         return _new_state(x, P, mu), _new_step(
-            x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, failed
+            x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, detected, failed
         )
 
     def _mixture_nis(self, cbar: Array, upd: Update, z: Array) -> Array:
