@@ -279,8 +279,8 @@ def env_step_one(
     bank: tuple, parallel: bool, shadow: bool, divergence_error: float, divergence_cov: float,
 ) -> BankStep:  # pragma: no cover
     """:func:`env_step` for one slot whose tracker fits
-    :func:`~imm_gym.tracking.kernels.imm.imm_step_one` (the scalar env's: its banks' cycles
-    ~40 % faster, the same numbers bit for bit; compiled on first use)."""
+    :func:`~imm_gym.tracking.kernels.imm.imm_step_one` (the scalar env's: its banks' cycles in
+    less than half the time, the same numbers bit for bit; compiled on first use)."""
     return _env_step(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s, P_s,
                      mu_s, fixed_tpm, shadow_tpm, z, detected, truth, bank, parallel, shadow,
                      divergence_error, divergence_cov, True)

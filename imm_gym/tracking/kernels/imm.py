@@ -259,8 +259,9 @@ def imm_step_one(
 ) -> int:  # pragma: no cover
     """:func:`imm_step` (same arguments, same outputs bit for bit) for one tracker of the shape
     :data:`ONE_SHAPE` (:func:`fits_one`; ``ValueError`` otherwise): the cycle compiled with its
-    sizes as constants (:func:`_step_one`), ~40 % less time. Compiled on first use (~1 min,
-    cached after), so that callers with many trackers never pay for it."""
+    sizes as constants and its scratch in its own stack frame (:func:`_step_one`): 4.0 against
+    10.8 µs for :func:`imm_step` at N = 1 (SVD-UKF; EKF 2.7 against 8.7). Compiled on first
+    use (~1 min, cached after), so that callers with many trackers never pay for it."""
     M, n, m = ONE_SHAPE
     if x.shape != (1, M, n) or z.shape != (1, m):
         raise ValueError("imm_step_one takes one tracker of three 4-state models, 2-D z")
