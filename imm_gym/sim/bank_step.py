@@ -32,9 +32,12 @@ class BankStep(NamedTuple):
     mu_s: Array  # (N, M)
     estimate: Array  # (N, n) combined estimate
     covariance: Array  # (N, n, n)
+    cbar: Array  # (N, M) bank A's predicted model probabilities
     loglik: Array  # (N, M) bank A's per-model log-likelihoods
     model_nis: Array  # (N, M)
     innovation: Array  # (N, M, m) whitened innovations
+    cbar_s: Array  # (N, M) the shadow's predicted model probabilities (zeros without it)
+    loglik_s: Array  # (N, M) the shadow's per-model log-likelihoods (zeros without it)
     nis: Array  # (N,) NIS of bank A's predicted measurement mixture
     velocity: Array  # (N, 2) velocity of the combined estimate
     velocity_s: Array  # (N, 2) velocity of the shadow's estimate

@@ -128,7 +128,10 @@ class TrackingCore:
         self.mu_prev = self.mu.copy()
         self.mu_b = self.mu.copy()
         self.mu_s = self.mu.copy()
+        self.cbar = self.mu.copy()
         self.loglik = np.zeros((N, M))
+        self.cbar_s = self.mu.copy()
+        self.loglik_s = np.zeros((N, M))
         self.model_nis = np.zeros((N, M))
         self.innovation = np.zeros((N, M, m))
         self.velocity = np.zeros((N, 2))  # combined estimates' velocities at t and t-1
@@ -257,7 +260,10 @@ class TrackingCore:
             "mu_prev": init.mu,
             "mu_b": init.mu,
             "mu_s": init.mu,
+            "cbar": init.mu,
             "loglik": 0.0,
+            "cbar_s": init.mu,
+            "loglik_s": 0.0,
             "model_nis": 0.0,
             "innovation": 0.0,
             "velocity": x0[:, 2:4],
@@ -350,11 +356,13 @@ class TrackingCore:
         if cfg.shadow == "fixed":
             self.state_s = IMMState(out.x_s, out.P_s, out.mu_s)
             self.mu_s = out.mu_s
+            self.cbar_s, self.loglik_s = out.cbar_s, out.loglik_s
             self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s
         self.k = k
         self.tpm = out.tpm
         self.mu_prev = self.mu
         self.mu = out.mode_probs
+        self.cbar = out.cbar
         self.loglik = out.loglik
         self.model_nis = out.model_nis
         self.innovation = out.innovation
@@ -369,7 +377,10 @@ class TrackingCore:
         "mu_prev",
         "mu_b",
         "mu_s",
+        "cbar",
         "loglik",
+        "cbar_s",
+        "loglik_s",
         "model_nis",
         "innovation",
         "velocity",

@@ -100,12 +100,14 @@ def numpy_step(
     error, capped = _capped_error(x_hat, truth, cfg.divergence_error)
     N = action.shape[0]
     state_s, velocity_s, shadow_error = banks.state_s, np.zeros((N, 2)), np.zeros(N)
+    cbar_s, loglik_s = np.zeros_like(out_a.cbar), np.zeros_like(out_a.loglik)
     if cfg.shadow == "fixed":
         state_s, out_s = imm.step(
             banks.state_s, banks.shadow_tpms, z, detected, check=False, allow_failure=True
         )
         shadow_error = _capped_error(out_s.x, truth, cfg.divergence_error)[1]
         velocity_s = out_s.x[:, 2:4].copy()
+        cbar_s, loglik_s = out_s.cbar, out_s.loglik
     diverged = (
         failed
         | ~(error <= cfg.divergence_error)
@@ -114,8 +116,9 @@ def numpy_step(
     return BankStep(
         tpm=tpm, x_a=state_a.x, P_a=state_a.P, mode_probs=U,
         x_b=state_b.x, P_b=state_b.P, mu_b=mu_b, x_s=state_s.x, P_s=state_s.P, mu_s=state_s.mu,
-        estimate=x_hat, covariance=P_hat, loglik=out_a.loglik, model_nis=out_a.model_nis,
-        innovation=out_a.innovation, nis=out_a.nis, velocity=x_hat[:, 2:4].copy(),
+        estimate=x_hat, covariance=P_hat, cbar=out_a.cbar, loglik=out_a.loglik,
+        model_nis=out_a.model_nis, innovation=out_a.innovation, cbar_s=cbar_s, loglik_s=loglik_s,
+        nis=out_a.nis, velocity=x_hat[:, 2:4].copy(),
         velocity_s=velocity_s, position_error=capped, shadow_position_error=shadow_error,
         diverged=diverged,
     )

@@ -21,6 +21,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.tracking.imm import measurement_loglik
+
 Array = NDArray[np.float64]
 
 #: Whitened innovations are clipped to ``[-INNOVATION_CLIP, INNOVATION_CLIP]`` and divided by it.
@@ -35,6 +37,12 @@ EMA_FACTORS = (0.7, 0.9)
 MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
 #: Speed (m/s) that the ``speed`` feature maps to 1.
 SPEED_SCALE = 30.0
+#: Factors of the ``shadow_evidence`` memory (about 10 and 33 steps).
+EVIDENCE_FACTORS = (0.9, 0.97)
+#: Per-step clip (nats) of the evidence for the shadow's TPM: one outlier moves it at most this.
+EVIDENCE_STEP_CLIP = 3.0
+#: Evidence (nats) that the ``shadow_evidence`` feature maps to tanh(1) ≈ 0.76.
+EVIDENCE_SCALE = 4.0
 
 
 class StepView(Protocol):
@@ -49,6 +57,9 @@ class StepView(Protocol):
     mu_prev: Array  # (N, M) mu(t-1)
     mu_b: Array  # (N, M) bank B's probabilities before fusion
     mu_s: Array  # (N, M) the shadow IMM's
+    cbar: Array  # (N, M) bank A's predicted model probabilities of the last step
+    cbar_s: Array  # (N, M) the shadow IMM's
+    loglik_s: Array  # (N, M) the shadow IMM's per-model log-likelihoods
     tpm: Array  # (N, M, M) the TPM of the last step
     loglik: Array  # (N, M) bank A's per-model log-likelihoods
     model_nis: Array  # (N, M)
@@ -212,6 +223,19 @@ def maneuver_snr(view: StepView) -> Array:
     return np.clip(np.log10(np.maximum(offset, 1e-3)) / 3.0, -1.0, 1.0)
 
 
+def shadow_evidence_step(view: StepView) -> Array:
+    r"""``(N,)`` the last measurement's evidence for the shadow's TPM against bank A's, in nats:
+    :math:`\log p_S(z_t \mid Z^{t-1}) - \log p_A(z_t \mid Z^{t-1})` (each the IMM's
+    :func:`~imm_gym.tracking.imm.measurement_loglik`, :math:`\log \sum_j \bar c_j \Lambda_j`),
+    clipped to ``±EVIDENCE_STEP_CLIP``; 0 on a missed detection. Summed over steps it is the log
+    Bayes factor of the two trackers: which switching prior predicts this target's measurements
+    better, in the tracker's own units whatever the sensor, speed or sampling period."""
+    gain = measurement_loglik(view.loglik_s, view.cbar_s) - measurement_loglik(
+        view.loglik, view.cbar
+    )
+    return np.clip(gain, -EVIDENCE_STEP_CLIP, EVIDENCE_STEP_CLIP)
+
+
 def _ema(factors: tuple[float, ...], signal: Callable[[StepView], Array]) -> Memory:
     """Moving averages of a scalar signal ``(N,)``, one per factor, starting at 0."""
     lam = np.asarray(factors)
@@ -242,6 +266,7 @@ def _clipped_shadow_rate(view: StepView) -> Array:
 
 
 _LAM = np.asarray(EMA_FACTORS)
+_EVIDENCE_LAM = np.asarray(EVIDENCE_FACTORS)
 
 # ---------------------------------------------------------------------------- the registry
 register(Feature(
@@ -332,4 +357,16 @@ register(Feature(
     "maneuver_snr", "log10 of a bank turn's one-step offset |v| ω T² / 2 over the measurement"
     " accuracy, / 3, clipped: how distinguishable the models are", lambda M, m: 1, -1.0, 1.0,
     lambda v: maneuver_snr(v)[:, None], size_label="1",
+))
+register(Feature(
+    "shadow_evidence", "discounted sums of the measurements' log-likelihood under the shadow"
+    " IMM minus under bank A, λ = 0.9, 0.97, each step's clipped to ±3 nats, tanh(sum / 4): which"
+    " TPM this target's measurements support", lambda M, m: len(EVIDENCE_FACTORS), -1.0, 1.0,
+    lambda v: np.tanh(v.memories["shadow_evidence"] / EVIDENCE_SCALE), size_label="2",
+    needs_shadow=True,
+    memory=Memory(
+        shape=lambda M: (len(EVIDENCE_FACTORS),),
+        initial=lambda mu0: 0.0,
+        advance=lambda m, v: _EVIDENCE_LAM * m + shadow_evidence_step(v)[:, None],
+    ),
 ))

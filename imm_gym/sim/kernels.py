@@ -204,11 +204,12 @@ def _bank_step(
     x: Array, P: Array, mu: Array, tpm: Array, z: Array, detected: NDArray[np.bool_], bank: tuple,
     mixture_nis: bool, one: bool,
 ) -> tuple[
-    Array, Array, Array, Array, Array, Array, Array, Array, Array, NDArray[np.bool_]
+    Array, Array, Array, Array, Array, Array, Array, Array, Array, Array, NDArray[np.bool_]
 ]:  # pragma: no cover
-    """One IMM cycle of a bank into fresh arrays: ``(x, P, mu, loglik, model_nis, innovation,
-    nis, x_hat, P_hat, failed)`` (shapes as :meth:`imm_gym.tracking.imm.IMM.step`; ``bank`` is
-    :attr:`imm_gym.tracking.imm.IMM.kernel_args`; ``nis`` is 0 without ``mixture_nis``), through
+    """One IMM cycle of a bank into fresh arrays: ``(x, P, mu, cbar, loglik, model_nis,
+    innovation, nis, x_hat, P_hat, failed)`` (shapes as :meth:`imm_gym.tracking.imm.IMM.step`;
+    ``bank`` is :attr:`imm_gym.tracking.imm.IMM.kernel_args`; ``nis`` is 0 without
+    ``mixture_nis``), through
     :func:`~imm_gym.tracking.kernels.imm.imm_step_one` where ``one`` (a constant)."""
     N, M, n = x.shape
     x_out = np.empty((N, M, n))
@@ -228,7 +229,7 @@ def _bank_step(
     else:
         imm_step(x, P, mu, tpm, z, detected, *bank, mixture_nis, x_out, P_out, mu_out, cbar,
                  loglik, model_nis, innovation, nis, x_hat, P_hat, failed)
-    return x_out, P_out, mu_out, loglik, model_nis, innovation, nis, x_hat, P_hat, failed
+    return x_out, P_out, mu_out, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -297,11 +298,11 @@ def _env_step(
     """The body of :func:`env_step` and :func:`env_step_one` (``one``: a constant)."""
     N, M, _ = x_a.shape
     new_tpm = tpm_from_action(action, tpm, mode, gain, p_min, fixed_tpm)
-    xa, Pa, U, loglik, model_nis, innovation, nis, x_hat, P_hat, failed = _bank_step(
+    xa, Pa, U, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed = _bank_step(
         x_a, P_a, mu_a, new_tpm, z, detected, bank, True, one)
     xb, Pb, Ub = x_b, P_b, mu_b
     if parallel:
-        xb, Pb, Ub, _, _, _, _, _, _, failed_b = _bank_step(
+        xb, Pb, Ub, _, _, _, _, _, _, _, failed_b = _bank_step(
             x_b, P_b, mu_b, fixed_tpm, z, detected, bank, False, one)
         u_a = U
         U = np.empty((N, M))
@@ -310,10 +311,11 @@ def _env_step(
             _fuse_into(t, u_a, Ub, U)
             combine_into(t, U, xa, Pa, x_hat, P_hat)
     xs, Ps, mus, xs_hat = x_s, P_s, mu_s, x_hat
+    cbar_s, loglik_s = np.zeros((N, M)), np.zeros((N, M))
     velocity_s = np.zeros((N, 2))
     shadow_error = np.zeros(N)
     if shadow:
-        xs, Ps, mus, _, _, _, _, xs_hat, _, _ = _bank_step(
+        xs, Ps, mus, cbar_s, loglik_s, _, _, _, xs_hat, _, _ = _bank_step(
             x_s, P_s, mu_s, shadow_tpm, z, detected, bank, False, one)
     velocity = np.empty((N, 2))
     error = np.empty(N)
@@ -333,7 +335,8 @@ def _env_step(
             velocity_s[t, 1] = xs_hat[t, 3]
     return BankStep(
         tpm=new_tpm, x_a=xa, P_a=Pa, mode_probs=U, x_b=xb, P_b=Pb, mu_b=Ub, x_s=xs, P_s=Ps,
-        mu_s=mus, estimate=x_hat, covariance=P_hat, loglik=loglik, model_nis=model_nis,
-        innovation=innovation, nis=nis, velocity=velocity, velocity_s=velocity_s,
-        position_error=error, shadow_position_error=shadow_error, diverged=diverged,
+        mu_s=mus, estimate=x_hat, covariance=P_hat, cbar=cbar, loglik=loglik,
+        model_nis=model_nis, innovation=innovation, cbar_s=cbar_s, loglik_s=loglik_s, nis=nis,
+        velocity=velocity, velocity_s=velocity_s, position_error=error,
+        shadow_position_error=shadow_error, diverged=diverged,
     )

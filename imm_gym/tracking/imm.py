@@ -241,6 +241,22 @@ def update_mode_probs(loglik: Array, cbar: Array) -> Array:
     return e / e.sum(axis=-1, keepdims=True)
 
 
+def measurement_loglik(loglik: Array, cbar: Array) -> Array:
+    """The IMM's measurement log-likelihood ``log p(z_t | Z^{t-1}) = log sum_j cbar_j Lambda_j``
+    (the normalizer of :func:`update_mode_probs`; 0 on a missed detection, where every
+    ``Lambda_j = 1``), computed as a log-sum-exp.
+
+    Args:
+        loglik: ``(N, M)`` log-likelihoods ``log Lambda_j``; cbar: ``(N, M)`` predicted model
+            probabilities.
+
+    Returns:
+        ``(N,)``.
+    """
+    top = loglik.max(axis=-1)
+    return top + np.log(np.einsum("nj,nj->n", cbar, np.exp(loglik - top[:, None])))
+
+
 def combine(mu: Array, x: Array, P: Array) -> tuple[Array, Array]:
     """Output combination with the spread-of-means term.
 

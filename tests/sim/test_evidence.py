@@ -1,0 +1,85 @@
+"""The measurement log-likelihood of an IMM and the ``shadow_evidence`` feature built from it:
+the evidence of each measurement for the shadow's TPM against bank A's."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from imm_gym import EnvConfig, TrackingCore
+from imm_gym.scenarios.catalog import SUITE_CONFIGS
+from imm_gym.sim.config_file import read_env_config
+from imm_gym.sim.features import EVIDENCE_FACTORS, EVIDENCE_SCALE, EVIDENCE_STEP_CLIP
+from imm_gym.tracking.imm import measurement_loglik, update_mode_probs
+
+M = 3
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    loglik=arrays(np.float64, (4, M), elements=st.floats(-40.0, 10.0)),
+    weights=arrays(np.float64, (4, M), elements=st.floats(1e-3, 1.0)),
+)
+def test_the_measurement_loglik_is_the_mode_update_normalizer(loglik, weights) -> None:
+    cbar = weights / weights.sum(axis=-1, keepdims=True)
+    value = measurement_loglik(loglik, cbar)
+    np.testing.assert_allclose(value, np.log(np.sum(cbar * np.exp(loglik), axis=-1)),
+                               rtol=1e-12, atol=1e-12)
+    # mu_j = cbar_j Lambda_j / p(z): the posterior of update_mode_probs
+    np.testing.assert_allclose(
+        np.exp(loglik + np.log(cbar) - value[:, None]), update_mode_probs(loglik, cbar), atol=1e-12
+    )
+
+
+def test_a_missed_detection_carries_no_evidence() -> None:
+    cbar = np.array([[0.2, 0.3, 0.5]])
+    assert measurement_loglik(np.zeros((1, M)), cbar)[0] == 0.0
+    # far-out log-likelihoods do not overflow: the log-sum-exp is shifted by the largest
+    assert np.isclose(measurement_loglik(np.array([[-1e4, -1e4 + 1.0, -2e4]]), cbar)[0],
+                      -1e4 + np.log(0.2 + 0.3 * np.e))
+
+
+def _evidence_core(config: EnvConfig, n: int, seed: int = 0) -> TrackingCore:
+    config = config.replace(shadow="fixed", obs_features=("shadow_evidence",))
+    core = TrackingCore(config, n)
+    core.reset(np.arange(n), list(range(seed, seed + n)))
+    return core
+
+
+def test_the_feature_by_hand_under_random_actions() -> None:
+    core = _evidence_core(EnvConfig(action_mode="set", sensor={"detection_prob": 0.8}), 4)
+    rng = np.random.default_rng(1)
+    lam, total = np.asarray(EVIDENCE_FACTORS), np.zeros((4, len(EVIDENCE_FACTORS)))
+    for _ in range(40):
+        obs = core.step(rng.uniform(-1, 1, (4, core.action_dim))).obs
+        step = measurement_loglik(core.loglik_s, core.cbar_s) - measurement_loglik(
+            core.loglik, core.cbar
+        )
+        total = lam * total + np.clip(step, -EVIDENCE_STEP_CLIP, EVIDENCE_STEP_CLIP)[:, None]
+        np.testing.assert_allclose(obs[:, 2 * M :], np.tanh(total / EVIDENCE_SCALE), atol=1e-6)
+    assert np.abs(total).max() > 0.1  # the two trackers did disagree
+
+
+def test_a_shadow_with_bank_a_s_tpm_has_no_evidence_either_way() -> None:
+    # bank A at its fixed TPM (the zero action of the scale mode) and the shadow at the same TPM:
+    # the same tracker twice, so every measurement is as likely under both
+    config = EnvConfig(action_mode="scale", shadow_stay=None, sensor={"outlier_prob": 0.05})
+    core = _evidence_core(config, 3)
+    for _ in range(50):
+        obs = core.step(np.zeros((3, core.action_dim))).obs
+        assert np.all(obs[:, 2 * M :] == 0.0)
+
+
+def test_the_evidence_points_to_the_tpm_that_tracks_better() -> None:
+    """A uniform shadow against the classical IMM: on the paper scenario the uniform TPM tracks
+    better (16.2 m against 18.1 m ARMSE over 100 runs) and the measurements say so; on the VSMM
+    guide's S1 (300 m/s) it tracks worse (67.0 against 51.0 m) and they say that."""
+    for name, sign in (("paper", 1.0), ("vsmm-s1", -1.0)):
+        config = EnvConfig(**read_env_config(SUITE_CONFIGS / f"{name}.yaml"))
+        core = _evidence_core(config.replace(shadow_stay=1.0 / 3.0, action_mode="scale"), 16)
+        while not core.done.any():
+            core.step(np.zeros((16, core.action_dim)))
+        slow = core.memories["shadow_evidence"][:, 1]
+        assert np.mean(sign * slow > 0) >= 0.9, (name, slow)
