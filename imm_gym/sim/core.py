@@ -128,6 +128,7 @@ class TrackingCore:
         self.mu_prev = self.mu.copy()
         self.mu_b = self.mu.copy()
         self.mu_s = self.mu.copy()
+        self.mu_s_prev = self.mu.copy()
         self.cbar = self.mu.copy()
         self.loglik = np.zeros((N, M))
         self.cbar_s = self.mu.copy()
@@ -260,6 +261,7 @@ class TrackingCore:
             "mu_prev": init.mu,
             "mu_b": init.mu,
             "mu_s": init.mu,
+            "mu_s_prev": init.mu,
             "cbar": init.mu,
             "loglik": 0.0,
             "cbar_s": init.mu,
@@ -355,7 +357,7 @@ class TrackingCore:
             self.mu_b = out.mu_b
         if cfg.shadow == "fixed":
             self.state_s = IMMState(out.x_s, out.P_s, out.mu_s)
-            self.mu_s = out.mu_s
+            self.mu_s_prev, self.mu_s = self.mu_s, out.mu_s
             self.cbar_s, self.loglik_s = out.cbar_s, out.loglik_s
             self.velocity_s_prev, self.velocity_s = self.velocity_s, out.velocity_s
         self.k = k
@@ -377,6 +379,7 @@ class TrackingCore:
         "mu_prev",
         "mu_b",
         "mu_s",
+        "mu_s_prev",
         "cbar",
         "loglik",
         "cbar_s",

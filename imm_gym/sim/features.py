@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.tracking.imm import measurement_loglik
+from imm_gym.tracking.tpm import stay_tpm
 
 Array = NDArray[np.float64]
 
@@ -41,8 +42,13 @@ SPEED_SCALE = 30.0
 EVIDENCE_FACTORS = (0.9, 0.97)
 #: Per-step clip (nats) of the evidence for the shadow's TPM: one outlier moves it at most this.
 EVIDENCE_STEP_CLIP = 3.0
-#: Evidence (nats) that the ``shadow_evidence`` feature maps to tanh(1) ≈ 0.76.
+#: Evidence (nats) that the ``shadow_evidence`` and ``stay_evidence`` features map to
+#: tanh(1) ≈ 0.76.
 EVIDENCE_SCALE = 4.0
+#: Stays of the ``stay_evidence`` TPMs after the uniform one (``1/M``).
+EVIDENCE_STAYS = (0.6, 0.8, 0.9, 0.95, 0.98, 0.995)
+#: Factor of the ``stay_evidence`` memory (about 33 steps).
+STAY_EVIDENCE_FACTOR = 0.97
 
 
 class StepView(Protocol):
@@ -57,6 +63,7 @@ class StepView(Protocol):
     mu_prev: Array  # (N, M) mu(t-1)
     mu_b: Array  # (N, M) bank B's probabilities before fusion
     mu_s: Array  # (N, M) the shadow IMM's
+    mu_s_prev: Array  # (N, M) the shadow IMM's at t-1
     cbar: Array  # (N, M) bank A's predicted model probabilities of the last step
     cbar_s: Array  # (N, M) the shadow IMM's
     loglik_s: Array  # (N, M) the shadow IMM's per-model log-likelihoods
@@ -236,6 +243,34 @@ def shadow_evidence_step(view: StepView) -> Array:
     return np.clip(gain, -EVIDENCE_STEP_CLIP, EVIDENCE_STEP_CLIP)
 
 
+def stay_tpms(n_models: int) -> Array:
+    """``(S, M, M)`` the TPMs the ``stay_evidence`` feature weighs: stay ``1/M`` (uniform),
+    then each of :data:`EVIDENCE_STAYS`, the rest of each row spread evenly."""
+    stays = (1.0 / n_models, *EVIDENCE_STAYS)
+    return np.stack([stay_tpm(n_models, s) for s in stays])
+
+
+def stay_evidence_step(view: StepView) -> Array:
+    r"""``(N, S)`` the last measurement's evidence for each TPM of :func:`stay_tpms` against the
+    best of them, in nats: with the shadow IMM's per-model likelihoods :math:`\Lambda_j` and its
+    probabilities :math:`\mu(t-1)`, :math:`e_s = \log \sum_j [\mu(t-1)^T \Pi_s]_j \Lambda_j`
+    (the switching prior ``Pi_s``'s one-step prediction of the mode, the mixing of the states
+    left as the shadow's) minus the largest over ``s``, clipped to ``-EVIDENCE_STEP_CLIP``.
+    The models' likelihoods tell the stays apart only where the shadow's own TPM is sticky (at
+    the uniform TPM every model starts each step from the same mixed state): give it the
+    tracker's TPM (``shadow_stay=None``)."""
+    M = view.mu_s_prev.shape[1]
+    cbar = np.einsum("ni,sij->nsj", view.mu_s_prev, stay_tpms(M))
+    loglik = np.broadcast_to(view.loglik_s[:, None, :], cbar.shape)
+    e = measurement_loglik(loglik.reshape(-1, M), cbar.reshape(-1, M)).reshape(cbar.shape[:2])
+    return np.maximum(e - e.max(axis=1, keepdims=True), -EVIDENCE_STEP_CLIP)
+
+
+def _relative_evidence(view: StepView) -> Array:
+    total = view.memories["stay_evidence"]
+    return np.tanh((total - total.max(axis=1, keepdims=True)) / EVIDENCE_SCALE)
+
+
 def _ema(factors: tuple[float, ...], signal: Callable[[StepView], Array]) -> Memory:
     """Moving averages of a scalar signal ``(N,)``, one per factor, starting at 0."""
     lam = np.asarray(factors)
@@ -368,5 +403,17 @@ register(Feature(
         shape=lambda M: (len(EVIDENCE_FACTORS),),
         initial=lambda mu0: 0.0,
         advance=lambda m, v: _EVIDENCE_LAM * m + shadow_evidence_step(v)[:, None],
+    ),
+))
+register(Feature(
+    "stay_evidence", "discounted sums (λ = 0.97) of the measurements' log-likelihood under the"
+    " stays 1/M, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995 (the shadow's probabilities and likelihoods),"
+    " minus the best, tanh(· / 4): which switching prior this target's measurements support",
+    lambda M, m: 1 + len(EVIDENCE_STAYS), -1.0, 0.0, _relative_evidence, size_label="7",
+    needs_shadow=True,
+    memory=Memory(
+        shape=lambda M: (1 + len(EVIDENCE_STAYS),),
+        initial=lambda mu0: 0.0,
+        advance=lambda m, v: STAY_EVIDENCE_FACTOR * m + stay_evidence_step(v),
     ),
 ))

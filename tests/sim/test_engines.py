@@ -12,7 +12,7 @@ from imm_gym.sim.kernels import ACTION_MODE_CODES, tpm_from_action
 from imm_gym.tracking.tpm import apply_floor
 
 FEATURES = ("tpm", "loglik", "nis", "innovation", "time", "turn_rate")
-SHADOW_FEATURES = ("shadow_probs", "shadow_turn_rate", "shadow_evidence")
+SHADOW_FEATURES = ("shadow_probs", "shadow_turn_rate", "shadow_evidence", "stay_evidence")
 N = 3
 
 
@@ -64,7 +64,7 @@ def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, sh
         assert a.info.keys() == b.info.keys()
         for key in a.info:
             _assert_close(a.info[key], b.info[key], key)
-        for name in ("cbar", "loglik", "cbar_s", "loglik_s"):
+        for name in ("cbar", "loglik", "cbar_s", "loglik_s", "mu_s_prev"):
             _assert_close(getattr(fused, name), getattr(general, name), name)
         for bank in ("state_a", "state_b", "state_s"):
             for part in ("x", "P", "mu"):

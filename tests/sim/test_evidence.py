@@ -11,7 +11,14 @@ from hypothesis.extra.numpy import arrays
 from imm_gym import EnvConfig, TrackingCore
 from imm_gym.scenarios.catalog import SUITE_CONFIGS
 from imm_gym.sim.config_file import read_env_config
-from imm_gym.sim.features import EVIDENCE_FACTORS, EVIDENCE_SCALE, EVIDENCE_STEP_CLIP
+from imm_gym.sim.features import (
+    EVIDENCE_FACTORS,
+    EVIDENCE_SCALE,
+    EVIDENCE_STAYS,
+    EVIDENCE_STEP_CLIP,
+    STAY_EVIDENCE_FACTOR,
+    stay_tpms,
+)
 from imm_gym.tracking.imm import measurement_loglik, update_mode_probs
 
 M = 3
@@ -83,3 +90,43 @@ def test_the_evidence_points_to_the_tpm_that_tracks_better() -> None:
             core.step(np.zeros((16, core.action_dim)))
         slow = core.memories["shadow_evidence"][:, 1]
         assert np.mean(sign * slow > 0) >= 0.9, (name, slow)
+
+
+def test_the_stay_evidence_by_hand() -> None:
+    config = EnvConfig(action_mode="set", shadow_stay=None, sensor={"detection_prob": 0.8})
+    core = TrackingCore(config.replace(shadow="fixed", obs_features=("stay_evidence",)), 4)
+    core.reset(np.arange(4), [5, 6, 7, 8])
+    tpms = stay_tpms(M)
+    assert tpms.shape == (1 + len(EVIDENCE_STAYS), M, M)
+    np.testing.assert_allclose(tpms[0], 1.0 / M)
+    np.testing.assert_allclose(np.diagonal(tpms[1:], axis1=1, axis2=2)[:, 0], EVIDENCE_STAYS)
+    rng = np.random.default_rng(2)
+    total = np.zeros((4, len(tpms)))
+    for _ in range(40):
+        mu_s = core.mu_s.copy()
+        obs = core.step(rng.uniform(-1, 1, (4, core.action_dim))).obs
+        e = np.stack([np.log(np.sum((mu_s @ tpm) * np.exp(core.loglik_s), axis=1))
+                      for tpm in tpms], axis=1)
+        total = STAY_EVIDENCE_FACTOR * total + np.maximum(
+            e - e.max(axis=1, keepdims=True), -EVIDENCE_STEP_CLIP
+        )
+        expected = np.tanh((total - total.max(axis=1, keepdims=True)) / EVIDENCE_SCALE)
+        np.testing.assert_allclose(obs[:, 2 * M :], expected, atol=1e-6)
+    assert expected.min() < -0.1  # the stays were told apart
+
+
+def test_the_stay_evidence_points_to_the_stay_that_tracks_better() -> None:
+    """The classical IMM as the shadow: the paper scenario's measurements support a low stay
+    (the best fixed TPM there is the uniform one), the 300 m/s target of the VSMM guide's S1 a
+    high one (its best fixed stay is above 0.9)."""
+    stays = np.array([1.0 / M, *EVIDENCE_STAYS])
+    for name, low in (("paper", True), ("vsmm-s1", False)):
+        config = EnvConfig(**read_env_config(SUITE_CONFIGS / f"{name}.yaml"))
+        config = config.replace(shadow="fixed", shadow_stay=None, action_mode="scale",
+                                obs_features=("stay_evidence",))
+        core = TrackingCore(config, 16)
+        core.reset(np.arange(16), list(range(16)))
+        while not core.done.any():
+            core.step(np.zeros((16, core.action_dim)))
+        best = stays[core.memories["stay_evidence"].argmax(axis=1)]
+        assert np.mean(best <= 0.8 if low else best >= 0.9) >= 0.8, (name, best)
