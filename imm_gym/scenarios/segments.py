@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -205,58 +205,115 @@ class RandomFamily:
 
         Without truth noise the draws go straight into the batch's arrays (the same numbers as
         :func:`generate_truth` of the sampled scenarios, without building them)."""
-        draws = [self._draw(rng) for rng in rngs]
-        if self.truth_q is not None or not draws:
-            return generate_truth([self._scenario(*d) for d in draws], rngs)
-        p0 = np.array([d[0] for d in draws])
-        v0 = np.array([d[1] for d in draws])
-        rates = np.concatenate([d[3] for d in draws]) * (math.pi / 180.0)  # as math.radians
-        durations = np.concatenate([d[2] for d in draws])
-        omega = np.repeat(rates, durations).reshape(len(draws), self.horizon)
-        states = _constant_speed_truth(p0, v0, omega, self.T)
+        if not rngs:
+            return generate_truth([], rngs)
+        draws = self._draws(rngs)
+        if self.truth_q is not None:
+            return generate_truth(self._scenarios(draws), rngs)
+        rates = draws.rates * (math.pi / 180.0)  # as math.radians
+        omega = np.repeat(rates, draws.durations).reshape(len(rngs), self.horizon)
+        states = _constant_speed_truth(draws.position, draws.velocity, omega, self.T)
         return Truth(states=states, turn_rate=omega, accel=np.zeros_like(omega), T=self.T)
 
     def sample(self, rng: np.random.Generator) -> Scenario:
         """Draw one scenario; the sequence of draws is fixed, so a seeded ``rng`` reproduces it."""
-        return self._scenario(*self._draw(rng))
+        return self._scenarios(self._draws([rng]))[0]
 
-    def _draw(
-        self, rng: np.random.Generator
-    ) -> tuple[tuple[float, float], tuple[float, float], NDArray[np.int64], Array]:
-        """One scenario's draws: start position, velocity, segment durations and turn rates
-        (°/s; 0 on the straight segments)."""
-        rng_range = rng.uniform(*self.range_m)
-        bearing = rng.uniform(-math.pi, math.pi)
-        speed = rng.uniform(*self.speed)
-        heading = rng.uniform(-math.pi, math.pi)
-        n = int(rng.integers(self.n_segments[0], self.n_segments[1] + 1))
-        durations = _composition(rng, self.horizon, n, self.min_duration)
-        rates = rng.uniform(*self.turn_rate_deg, size=n) * rng.choice([-1.0, 1.0], size=n)
-        rates[0::2] = 0.0  # straight first, then alternating straight / turn
-        position = (rng_range * math.cos(bearing), rng_range * math.sin(bearing))
-        velocity = (speed * math.cos(heading), speed * math.sin(heading))
-        return position, velocity, durations, rates
+    def _draws(self, rngs: Sequence[np.random.Generator]) -> FamilyDraws:
+        """The scenarios' draws, one run per generator (at least one).
 
-    def _scenario(
-        self,
-        position: tuple[float, float],
-        velocity: tuple[float, float],
-        durations: NDArray[np.int64],
-        rates: Array,
-    ) -> Scenario:
-        """The :class:`Scenario` of :meth:`_draw`'s draws."""
-        segments = tuple(Segment(int(d), float(w)) for d, w in zip(durations, rates, strict=True))
-        return Scenario(segments, position, velocity, T=self.T, truth_q=self.truth_q)
+        Run ``r`` draws from ``rngs[r]``, in this order: range, bearing, speed and heading
+        (uniform), the number of segments ``n``, the composition's ``n - 1`` bars (a choice
+        without replacement), ``n`` turn-rate magnitudes (uniform) and ``n`` signs (the index
+        draw of ``choice([-1, 1], size=n)``, :data:`_SIGNS`). Only these calls are made per run;
+        what follows from them (the signed rates, the durations) is computed for all runs at once.
+        """
+        lo, hi = self.n_segments
+        K, minimum = self.horizon, self.min_duration
+        starts, counts, bars, magnitudes, signs = [], [], [], [], []
+        for rng in rngs:
+            rng_range = rng.uniform(*self.range_m)
+            bearing = rng.uniform(-math.pi, math.pi)
+            speed = rng.uniform(*self.speed)
+            heading = rng.uniform(-math.pi, math.pi)
+            n = int(rng.integers(lo, hi + 1))
+            bars.append(rng.choice(K - n * minimum + n - 1, size=n - 1, replace=False))
+            magnitudes.append(rng.uniform(*self.turn_rate_deg, size=n))
+            signs.append(rng.integers(0, 2, size=n))
+            counts.append(n)
+            starts.append((rng_range * math.cos(bearing), rng_range * math.sin(bearing),
+                           speed * math.cos(heading), speed * math.sin(heading)))
+        n_segments = np.array(counts, dtype=np.int64)
+        rates = np.concatenate(magnitudes) * _SIGNS[np.concatenate(signs)]
+        # straight first, then alternating straight / turn: the run's segments 0, 2, 4, ...
+        first = np.repeat(np.cumsum(n_segments) - n_segments, n_segments)
+        rates[(np.arange(rates.size) - first) % 2 == 0] = 0.0
+        start = np.array(starts)
+        return FamilyDraws(
+            start[:, :2], start[:, 2:], n_segments, _compositions(bars, n_segments, K, minimum),
+            rates,
+        )
+
+    def _scenarios(self, draws: FamilyDraws) -> list[Scenario]:
+        """The :class:`Scenario` of each run of :meth:`_draws`."""
+        ends = np.cumsum(draws.n_segments).tolist()
+        durations, rates = draws.durations.tolist(), draws.rates.tolist()
+        scenarios = []
+        for r, (n, end) in enumerate(zip(draws.n_segments.tolist(), ends, strict=True)):
+            segments = tuple(
+                Segment(d, w) for d, w in zip(durations[end - n:end], rates[end - n:end],
+                                              strict=True)
+            )
+            scenarios.append(Scenario(segments, tuple(draws.position[r].tolist()),
+                                      tuple(draws.velocity[r].tolist()), T=self.T,
+                                      truth_q=self.truth_q))
+        return scenarios
 
 
-def _composition(
-    rng: np.random.Generator, total: int, parts: int, minimum: int
+#: The population of the turn signs: ``rng.choice(_SIGNS, size=n)`` is
+#: ``_SIGNS[rng.integers(0, 2, size=n)]`` (``Generator.choice`` without ``p``, with replacement,
+#: draws its indices with ``integers(0, len(a), size, dtype=int64)`` and takes them from ``a``).
+_SIGNS = np.array([-1.0, 1.0])
+
+
+class FamilyDraws(NamedTuple):
+    """The draws of R runs of a :class:`RandomFamily`, their segments concatenated run after run.
+
+    Attributes:
+        position, velocity: ``(R, 2)`` start position (m) and velocity (m/s).
+        n_segments: ``(R,)`` segments of each run.
+        durations: ``(S,)`` segment durations (steps), ``S = n_segments.sum()``.
+        rates: ``(S,)`` turn rates (°/s; 0 on the straight segments).
+    """
+
+    position: Array
+    velocity: Array
+    n_segments: NDArray[np.int64]
+    durations: NDArray[np.int64]
+    rates: Array
+
+
+def _compositions(
+    bars: Sequence[NDArray[np.int64]], parts: NDArray[np.int64], total: int, minimum: int
 ) -> NDArray[np.int64]:
-    """A uniformly drawn composition of ``total`` into ``parts`` integers, each >= ``minimum``."""
-    extra = total - parts * minimum
-    bars = np.sort(rng.choice(extra + parts - 1, size=parts - 1, replace=False))
-    edges = np.concatenate([[-1], bars, [extra + parts - 1]])
-    return np.diff(edges) - 1 + minimum
+    """Uniformly drawn compositions of ``total`` into ``parts[r]`` integers, each >= ``minimum``,
+    concatenated run after run, from each run's ``parts[r] - 1`` distinct bars drawn from
+    ``range(extra + parts[r] - 1)``, ``extra = total - parts[r] * minimum`` (stars and bars).
+
+    Run by run: ``diff([-1, *sort(bars), extra + parts - 1]) - 1 + minimum``; here the runs'
+    edges are the rows of one array, padded with ``total`` (above every edge), sorted at once.
+    """
+    R, width = parts.size, int(parts.max())
+    n_bars = parts - 1
+    edges = np.full((R, width + 1), total, dtype=np.int64)
+    edges[:, 0] = -1
+    flat = np.concatenate(bars)
+    rows = np.repeat(np.arange(R), n_bars)
+    edges[rows, 1 + np.arange(flat.size) - np.repeat(np.cumsum(n_bars) - n_bars, n_bars)] = flat
+    edges[np.arange(R), parts] = total - parts * minimum + parts - 1
+    edges.sort(axis=1)
+    durations = np.diff(edges, axis=1) - 1 + minimum
+    return durations[np.arange(width) < parts[:, None]]
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,92 @@
+"""The randomized family's batched draws hold the per-run reference bit for bit.
+
+``RandomFamily`` draws each run's random numbers from its own generator and computes the rest
+(signed rates, segment durations) for all runs at once. The reference below is the per-run code
+it replaced, with ``Generator.choice`` called as before: the same generators must give the same
+scenarios, truth and generator states, for any family and any number of runs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from imm_gym import RandomFamily, Scenario, Segment, generate_truth
+
+
+def _reference_composition(
+    rng: np.random.Generator, total: int, parts: int, minimum: int
+) -> np.ndarray:
+    extra = total - parts * minimum
+    bars = np.sort(rng.choice(extra + parts - 1, size=parts - 1, replace=False))
+    edges = np.concatenate([[-1], bars, [extra + parts - 1]])
+    return np.diff(edges) - 1 + minimum
+
+
+def _reference_sample(fam: RandomFamily, rng: np.random.Generator) -> Scenario:
+    """One run's scenario, drawn run by run with ``Generator.choice`` (the former code)."""
+    rng_range = rng.uniform(*fam.range_m)
+    bearing = rng.uniform(-math.pi, math.pi)
+    speed = rng.uniform(*fam.speed)
+    heading = rng.uniform(-math.pi, math.pi)
+    n = int(rng.integers(fam.n_segments[0], fam.n_segments[1] + 1))
+    durations = _reference_composition(rng, fam.horizon, n, fam.min_duration)
+    rates = rng.uniform(*fam.turn_rate_deg, size=n) * rng.choice([-1.0, 1.0], size=n)
+    rates[0::2] = 0.0
+    position = (rng_range * math.cos(bearing), rng_range * math.sin(bearing))
+    velocity = (speed * math.cos(heading), speed * math.sin(heading))
+    segments = tuple(Segment(int(d), float(w)) for d, w in zip(durations, rates, strict=True))
+    return Scenario(segments, position, velocity, T=fam.T, truth_q=fam.truth_q)
+
+
+@st.composite
+def families(draw: st.DrawFn) -> RandomFamily:
+    n_lo = draw(st.integers(1, 8))
+    n_hi = draw(st.integers(n_lo, 12))
+    minimum = draw(st.integers(1, 15))
+    horizon = draw(st.integers(n_hi * minimum, n_hi * minimum + 200))
+    turn_lo = draw(st.sampled_from([0.0, 0.5, 1.0]))
+    truth_q = draw(st.sampled_from([None, (1.0, 1.0, 0.1, 0.1)]))
+    return RandomFamily(
+        horizon=horizon,
+        n_segments=(n_lo, n_hi),
+        min_duration=minimum,
+        turn_rate_deg=(turn_lo, turn_lo + 3.0),
+        truth_q=truth_q,
+    )
+
+
+def _states(rngs: list[np.random.Generator]) -> list[dict]:
+    return [rng.bit_generator.state for rng in rngs]
+
+
+@settings(max_examples=60, deadline=None)
+@given(fam=families(), runs=st.integers(1, 40), seed=st.integers(0, 2**32))
+def test_batched_draws_equal_per_run_reference(fam: RandomFamily, runs: int, seed: int) -> None:
+    new = [np.random.default_rng([seed, r]) for r in range(runs)]
+    ref = [np.random.default_rng([seed, r]) for r in range(runs)]
+    truth = fam.truth(new)
+    scenarios = [_reference_sample(fam, rng) for rng in ref]
+    expected = generate_truth(scenarios, ref)
+    assert _states(new) == _states(ref)  # the same draws consumed, and no more
+    for name in ("states", "turn_rate", "accel"):
+        a, b = getattr(truth, name), getattr(expected, name)
+        assert a.dtype == b.dtype and a.shape == b.shape
+        assert a.tobytes() == b.tobytes(), name
+    again = [np.random.default_rng([seed, r]) for r in range(runs)]
+    assert [fam.sample(rng) for rng in again] == scenarios  # sample: the same scenarios
+
+
+def test_default_family_many_seeds() -> None:
+    """The default family over 2,000 runs (every segment count), the environment's case."""
+    fam = RandomFamily()
+    new = [np.random.default_rng(s) for s in range(2000)]
+    ref = [np.random.default_rng(s) for s in range(2000)]
+    truth = fam.truth(new)
+    expected = generate_truth([_reference_sample(fam, rng) for rng in ref])
+    assert truth.states.tobytes() == expected.states.tobytes()
+    assert truth.turn_rate.tobytes() == expected.turn_rate.tobytes()
+    assert _states(new) == _states(ref)
