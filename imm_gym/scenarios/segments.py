@@ -386,22 +386,40 @@ def _constant_speed_truth(p0: Array, v0: Array, omega: Array, T: float) -> Array
     The heading advances by ``omega_k T`` per step and the speed is constant, so the velocity
     before step k is ``R(sum_{l<k} omega_l T) v0``; step k moves the position by
     ``sin(omega T)/omega v + (1 - cos(omega T))/omega J v`` (``J`` the 90° rotation; ``T v`` when
-    ``omega = 0``), the first row of ``F_CT``.
+    ``omega = 0``), the first row of ``F_CT``. The position is ``p0`` plus the cumulative sum of
+    the moves (``p0 + 0`` at ``t = 0``).
     """
     N, K = omega.shape
-    wt = omega * T
-    heading = np.concatenate([np.zeros((N, 1)), np.cumsum(wt, axis=1)], axis=1)  # (N, K+1)
-    c, s = np.cos(heading), np.sin(heading)
-    v = np.stack([c * v0[:, :1] - s * v0[:, 1:], s * v0[:, :1] + c * v0[:, 1:]], axis=-1)
-    sin_ratio, cos_ratio = ct_ratios(omega, T)  # F_CT[:2, 2:] = [[sr, -cr], [cr, sr]]
-    vx, vy = v[:, :-1, 0], v[:, :-1, 1]  # velocity before step k
-    dp = np.stack([sin_ratio * vx - cos_ratio * vy, cos_ratio * vx + sin_ratio * vy], axis=-1)
     states = np.empty((N, K + 1, 4))
-    states[:, :, :2] = p0[:, None, :] + np.concatenate(
-        [np.zeros((N, 1, 2)), np.cumsum(dp, axis=1)], axis=1
-    )
-    states[:, :, 2:] = v
+    heading = np.empty((N, K + 1))
+    heading[:, 0] = 0.0
+    np.cumsum(omega * T, axis=1, out=heading[:, 1:])
+    c, s = np.cos(heading), np.sin(heading)
+    vx0, vy0 = v0[:, :1], v0[:, 1:]
+    np.subtract(c * vx0, s * vy0, out=states[:, :, 2])
+    np.add(s * vx0, c * vy0, out=states[:, :, 3])
+    sin_ratio, cos_ratio = _ct_ratios_by_runs(omega, T)  # F_CT[:2, 2:] = [[sr, -cr], [cr, sr]]
+    vx, vy = states[:, :-1, 2], states[:, :-1, 3]  # velocity before step k
+    states[:, 0, :2] = p0 + 0.0
+    for axis, dp in enumerate((sin_ratio * vx - cos_ratio * vy, cos_ratio * vx + sin_ratio * vy)):
+        np.add(p0[:, axis, None], np.cumsum(dp, axis=1, out=dp), out=states[:, 1:, axis])
     return states
+
+
+def _ct_ratios_by_runs(omega: Array, T: float) -> tuple[Array, Array]:
+    """:func:`~imm_gym.tracking.models.ct_ratios` of ``omega (N, K)``, computed once per run of
+    equal entries (equal bit patterns, so ``-0.0`` and ``0.0`` are told apart) and repeated: a
+    segment table's turn rate holds for many steps."""
+    flat = np.ascontiguousarray(omega, dtype=np.float64).reshape(-1)
+    bits = flat.view(np.int64)
+    first = np.empty(flat.size, dtype=bool)
+    first[:1] = True
+    np.not_equal(bits[1:], bits[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    lengths = np.diff(starts, append=flat.size)
+    return tuple(  # type: ignore[return-value]
+        np.repeat(ratio, lengths).reshape(omega.shape) for ratio in ct_ratios(flat[starts], T)
+    )
 
 
 def generate_truth(

@@ -1,9 +1,12 @@
-"""The randomized family's batched draws hold the per-run reference bit for bit.
+"""The randomized family's batched draws and the closed-form truth hold their references bit
+for bit.
 
 ``RandomFamily`` draws each run's random numbers from its own generator and computes the rest
 (signed rates, segment durations) for all runs at once. The reference below is the per-run code
 it replaced, with ``Generator.choice`` called as before: the same generators must give the same
-scenarios, truth and generator states, for any family and any number of runs.
+scenarios, truth and generator states, for any family and any number of runs. The truth's closed
+form (``_constant_speed_truth``) is held against the whole-array code it replaced, which computed
+the turn ratios at every step and stacked its temporaries.
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from imm_gym import RandomFamily, Scenario, Segment, generate_truth
+from imm_gym.scenarios.segments import _constant_speed_truth
+from imm_gym.tracking.models import ct_ratios
 
 
 def _reference_composition(
@@ -40,6 +45,26 @@ def _reference_sample(fam: RandomFamily, rng: np.random.Generator) -> Scenario:
     velocity = (speed * math.cos(heading), speed * math.sin(heading))
     segments = tuple(Segment(int(d), float(w)) for d, w in zip(durations, rates, strict=True))
     return Scenario(segments, position, velocity, T=fam.T, truth_q=fam.truth_q)
+
+
+def _reference_constant_speed_truth(
+    p0: np.ndarray, v0: np.ndarray, omega: np.ndarray, T: float
+) -> np.ndarray:
+    """The closed-form truth as first written (ratios at every step, stacked temporaries)."""
+    N, K = omega.shape
+    wt = omega * T
+    heading = np.concatenate([np.zeros((N, 1)), np.cumsum(wt, axis=1)], axis=1)
+    c, s = np.cos(heading), np.sin(heading)
+    v = np.stack([c * v0[:, :1] - s * v0[:, 1:], s * v0[:, :1] + c * v0[:, 1:]], axis=-1)
+    sin_ratio, cos_ratio = ct_ratios(omega, T)
+    vx, vy = v[:, :-1, 0], v[:, :-1, 1]
+    dp = np.stack([sin_ratio * vx - cos_ratio * vy, cos_ratio * vx + sin_ratio * vy], axis=-1)
+    states = np.empty((N, K + 1, 4))
+    states[:, :, :2] = p0[:, None, :] + np.concatenate(
+        [np.zeros((N, 1, 2)), np.cumsum(dp, axis=1)], axis=1
+    )
+    states[:, :, 2:] = v
+    return states
 
 
 @st.composite
@@ -71,6 +96,12 @@ def test_batched_draws_equal_per_run_reference(fam: RandomFamily, runs: int, see
     truth = fam.truth(new)
     scenarios = [_reference_sample(fam, rng) for rng in ref]
     expected = generate_truth(scenarios, ref)
+    if fam.truth_q is None:
+        profiles = [sc.profile()[0] for sc in scenarios]
+        p0 = np.array([sc.position for sc in scenarios])
+        v0 = np.array([sc.velocity for sc in scenarios])
+        reference = _reference_constant_speed_truth(p0, v0, np.stack(profiles), fam.T)
+        assert truth.states.tobytes() == reference.tobytes()
     assert _states(new) == _states(ref)  # the same draws consumed, and no more
     for name in ("states", "turn_rate", "accel"):
         a, b = getattr(truth, name), getattr(expected, name)
@@ -86,7 +117,32 @@ def test_default_family_many_seeds() -> None:
     new = [np.random.default_rng(s) for s in range(2000)]
     ref = [np.random.default_rng(s) for s in range(2000)]
     truth = fam.truth(new)
-    expected = generate_truth([_reference_sample(fam, rng) for rng in ref])
+    scenarios = [_reference_sample(fam, rng) for rng in ref]
+    p0 = np.array([sc.position for sc in scenarios])
+    v0 = np.array([sc.velocity for sc in scenarios])
+    omega = np.stack([sc.profile()[0] for sc in scenarios])
+    expected = generate_truth(scenarios)
     assert truth.states.tobytes() == expected.states.tobytes()
+    reference = _reference_constant_speed_truth(p0, v0, omega, fam.T)
+    assert truth.states.tobytes() == reference.tobytes()
     assert truth.turn_rate.tobytes() == expected.turn_rate.tobytes()
     assert _states(new) == _states(ref)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    runs=st.integers(1, 12),
+    steps=st.integers(1, 60),
+    seed=st.integers(0, 2**32),
+    T=st.sampled_from([0.1, 1.0, 2.5]),
+)
+def test_constant_speed_truth_equals_reference(runs: int, steps: int, seed: int, T: float) -> None:
+    """Runs of equal rates, rates that differ only in the sign of zero, rates under the series
+    threshold, negative zero starts: the same bits as the reference."""
+    rng = np.random.default_rng(seed)
+    pool = np.array([0.0, -0.0, 1e-9, -1e-9, 1e-7, 0.02, -0.03, 0.05])
+    omega = np.repeat(rng.choice(pool, size=(runs, steps)), rng.integers(1, 4, size=steps), axis=1)
+    p0 = rng.choice([0.0, -0.0, 3000.0, -4500.5], size=(runs, 2))
+    v0 = rng.normal(0.0, 10.0, size=(runs, 2))
+    got = _constant_speed_truth(p0, v0, omega, T)
+    assert got.tobytes() == _reference_constant_speed_truth(p0, v0, omega, T).tobytes()
