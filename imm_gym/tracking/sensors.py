@@ -71,14 +71,12 @@ class _Clutter:
             raise ConfigError(f"measure needs one generator per run: {N} runs, {len(rngs)} rngs")
         m = self.dim_z  # type: ignore[attr-defined]
         noise = np.empty((N, K1, m))
-        u_out = np.empty((N, K1))
-        u_det = np.empty((N, K1))
+        uniforms = np.empty((N, 2, K1))  # the outlier uniforms, then the detection uniforms
         for n, rng in enumerate(rngs):
-            noise[n] = rng.standard_normal((K1, m))
-            u_out[n] = rng.random(K1)
-            u_det[n] = rng.random(K1)
-        outlier = u_out < self.outlier_prob
-        detected = u_det < self.detection_prob
+            rng.standard_normal(out=noise[n])
+            rng.random(out=uniforms[n])  # the same doubles as random(K1) twice
+        outlier = uniforms[:, 0] < self.outlier_prob
+        detected = uniforms[:, 1] < self.detection_prob
         detected[:, 0] = True
         scale = np.where(outlier, self.outlier_scale, 1.0)[..., None]
         z = self.h(states) + scale * noise * self.sigma  # type: ignore[attr-defined]

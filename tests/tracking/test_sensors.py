@@ -117,6 +117,28 @@ def test_measurements_reproducible() -> None:
     assert not np.array_equal(a.z[2], c.z[2])
 
 
+@pytest.mark.parametrize("sensor", [Sonar(outlier_prob=0.2, detection_prob=0.7),
+                                    PositionSensor(outlier_prob=0.1, sigma_vel=0.5)])
+def test_measurement_draws_in_documented_order(sensor: object) -> None:
+    """Run by run: ``standard_normal((K+1, m))``, ``random(K+1)`` (outliers), ``random(K+1)``
+    (detections), and nothing else: the same bits and the same generator states after."""
+    states = _static_states(5, 31, (3000.0, -4000.0))
+    states[..., :2] += np.random.default_rng(0).normal(0.0, 500.0, (5, 31, 2))
+    gens, ref = _gens(range(5)), _gens(range(5))
+    got = sensor.measure(states, gens)  # type: ignore[attr-defined]
+    for n, g in enumerate(ref):
+        noise = g.standard_normal((31, sensor.dim_z))  # type: ignore[attr-defined]
+        outlier = g.random(31) < sensor.outlier_prob  # type: ignore[attr-defined]
+        detected = g.random(31) < sensor.detection_prob  # type: ignore[attr-defined]
+        detected[0] = True
+        scale = np.where(outlier, sensor.outlier_scale, 1.0)[:, None]  # type: ignore[attr-defined]
+        z = sensor.wrap(sensor.h(states[n]) + scale * noise * sensor.sigma)  # type: ignore[attr-defined]
+        assert got.z[n].tobytes() == z.tobytes()
+        assert np.array_equal(got.outlier[n], outlier)
+        assert np.array_equal(got.detected[n], detected)
+    assert [g.bit_generator.state for g in gens] == [g.bit_generator.state for g in ref]
+
+
 def test_measurement_shapes() -> None:
     m = Sonar().measure(_static_states(4, 11, (1000.0, 0.0)), _gens(range(4)))
     assert m.z.shape == (4, 11, 2)
