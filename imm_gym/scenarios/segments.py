@@ -352,8 +352,17 @@ def true_model_index(truth: Truth, models: Sequence[MotionModel] | HeteroBank) -
     (:class:`~imm_gym.tracking.hetero.HeteroBank`): straight -> NCV, turn -> CT (turn rate
     estimated), acceleration -> CTRA.
     """
-    idx = np.full(truth.turn_rate.shape, -1, dtype=np.int64)
     omega, accel = truth.turn_rate, truth.accel
+    starts, lengths = _runs(omega, accel)  # a segment's motion holds for many steps
+    idx = _model_index(omega.reshape(-1)[starts], accel.reshape(-1)[starts], models)
+    return np.repeat(idx, lengths).reshape(omega.shape)
+
+
+def _model_index(
+    omega: Array, accel: Array, models: Sequence[MotionModel] | HeteroBank
+) -> NDArray[np.int64]:
+    """:func:`true_model_index` of each entry of ``omega``, ``accel`` (one shape)."""
+    idx = np.full(omega.shape, -1, dtype=np.int64)
     if isinstance(models, HeteroBank):  # kinds ncv / ct / ctra
         kinds = list(models.models)
         for kind, where in (
@@ -408,18 +417,26 @@ def _constant_speed_truth(p0: Array, v0: Array, omega: Array, T: float) -> Array
 
 def _ct_ratios_by_runs(omega: Array, T: float) -> tuple[Array, Array]:
     """:func:`~imm_gym.tracking.models.ct_ratios` of ``omega (N, K)``, computed once per run of
-    equal entries (equal bit patterns, so ``-0.0`` and ``0.0`` are told apart) and repeated: a
-    segment table's turn rate holds for many steps."""
-    flat = np.ascontiguousarray(omega, dtype=np.float64).reshape(-1)
-    bits = flat.view(np.int64)
-    first = np.empty(flat.size, dtype=bool)
-    first[:1] = True
-    np.not_equal(bits[1:], bits[:-1], out=first[1:])
-    starts = np.flatnonzero(first)
-    lengths = np.diff(starts, append=flat.size)
+    equal entries (:func:`_runs`) and repeated: a segment's turn rate holds for many steps."""
+    starts, lengths = _runs(omega)
     return tuple(  # type: ignore[return-value]
-        np.repeat(ratio, lengths).reshape(omega.shape) for ratio in ct_ratios(flat[starts], T)
+        np.repeat(ratio, lengths).reshape(omega.shape)
+        for ratio in ct_ratios(omega.reshape(-1)[starts], T)
     )
+
+
+def _runs(*arrays: Array) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Starts and lengths of the runs of the flattened ``arrays`` (float64, one shape) along
+    which every array holds one value: the same bit pattern, so ``-0.0`` and ``0.0`` differ and
+    an elementwise function computed once per run is the function of every entry."""
+    size = arrays[0].size
+    first = np.zeros(size, dtype=bool)
+    first[:1] = True
+    for a in arrays:
+        bits = np.ascontiguousarray(a, dtype=np.float64).reshape(-1).view(np.int64)
+        first[1:] |= bits[1:] != bits[:-1]
+    starts = np.flatnonzero(first)
+    return starts, np.diff(starts, append=size)
 
 
 def generate_truth(

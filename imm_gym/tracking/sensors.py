@@ -79,8 +79,10 @@ class _Clutter:
         detected = uniforms[:, 1] < self.detection_prob
         detected[:, 0] = True
         scale = np.where(outlier, self.outlier_scale, 1.0)[..., None]
-        z = self.h(states) + scale * noise * self.sigma  # type: ignore[attr-defined]
-        return Measurements(z=self.wrap(z), detected=detected, outlier=outlier)
+        noise *= scale  # z = h(x) + scale * noise * sigma, without temporaries
+        noise *= self.sigma  # type: ignore[attr-defined]
+        noise += self.h(states)  # type: ignore[attr-defined]
+        return Measurements(z=self.wrap(noise), detected=detected, outlier=outlier)
 
 
 @dataclass(frozen=True)

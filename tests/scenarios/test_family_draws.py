@@ -6,7 +6,8 @@ for bit.
 it replaced, with ``Generator.choice`` called as before: the same generators must give the same
 scenarios, truth and generator states, for any family and any number of runs. The truth's closed
 form (``_constant_speed_truth``) is held against the whole-array code it replaced, which computed
-the turn ratios at every step and stacked its temporaries.
+the turn ratios at every step and stacked its temporaries, and ``true_model_index`` (computed once
+per run of equal motion) against its per-step computation.
 """
 
 from __future__ import annotations
@@ -17,8 +18,14 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imm_gym import RandomFamily, Scenario, Segment, generate_truth
-from imm_gym.scenarios.segments import _constant_speed_truth
+from imm_gym import MotionModel, RandomFamily, Scenario, Segment, generate_truth, paper_bank
+from imm_gym.scenarios.segments import (
+    Truth,
+    _constant_speed_truth,
+    _model_index,
+    true_model_index,
+)
+from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import ct_ratios
 
 
@@ -146,3 +153,26 @@ def test_constant_speed_truth_equals_reference(runs: int, steps: int, seed: int,
     v0 = rng.normal(0.0, 10.0, size=(runs, 2))
     got = _constant_speed_truth(p0, v0, omega, T)
     assert got.tobytes() == _reference_constant_speed_truth(p0, v0, omega, T).tobytes()
+
+
+BANKS = (
+    paper_bank(),
+    (MotionModel("ct", 1.0), MotionModel("cv"), MotionModel("ct", 5.0), MotionModel("ct", -2.0),
+     MotionModel("ca", q=(0.1,) * 6)),
+    (MotionModel("ct", 3.0),),
+    HeteroBank(),
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(runs=st.integers(1, 8), steps=st.integers(1, 40), seed=st.integers(0, 2**32))
+def test_true_model_index_equals_per_step(runs: int, steps: int, seed: int) -> None:
+    """Computed once per run of equal (turn rate, acceleration): the per-step answer everywhere,
+    runs that change only the acceleration or the sign of a zero rate included."""
+    rng = np.random.default_rng(seed)
+    rates = np.radians([0.0, -0.0, 0.5, 1.5, 4.0, -1.0, -3.0])
+    omega = np.repeat(rng.choice(rates, size=(runs, steps)), rng.integers(1, 4, size=steps), axis=1)
+    accel = np.where(rng.random(omega.shape) < 0.2, rng.choice([0.5, -1.0], omega.shape), 0.0)
+    truth = Truth(np.zeros((*omega.shape[:1], omega.shape[1] + 1, 4)), omega, accel)
+    for bank in BANKS:
+        assert np.array_equal(true_model_index(truth, bank), _model_index(omega, accel, bank))
