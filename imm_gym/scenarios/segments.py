@@ -207,20 +207,49 @@ class RandomFamily:
         :func:`generate_truth` of the sampled scenarios, without building them)."""
         if not rngs:
             return generate_truth([], rngs)
-        draws = self._draws(rngs)
         if self.truth_q is not None:
-            return generate_truth(self._scenarios(draws), rngs)
+            return generate_truth(self._scenarios(self._draws(rngs)), rngs)
+        return self.varied_truth(rngs)
+
+    def varied_truth(
+        self,
+        rngs: Sequence[np.random.Generator],
+        T: Array | None = None,
+        speed: Array | None = None,
+    ) -> Truth:
+        """The noise-free truth of one run per generator, run ``r`` as the family with
+        ``T = T[r]`` and ``speed = (speed[r], speed[r])`` draws it (None, or a NaN speed: the
+        family's own): the runs of :class:`~imm_gym.sim.conditions.Variation`, all at once.
+
+        Args:
+            rngs: one generator per run (at least one).
+            T: ``(R,)`` sampling periods (s), or None.
+            speed: ``(R,)`` target speeds (m/s; NaN keeps the family's range), or None.
+
+        Returns:
+            The :class:`Truth`; its ``T`` is ``T`` where given.
+
+        Raises:
+            ConfigError: the family has truth noise (its runs need one family per ``T``).
+        """
+        if self.truth_q is not None:
+            raise ConfigError("varied_truth draws noise-free runs; this family has truth_q")
+        draws = self._draws(rngs, speed)
         rates = draws.rates * (math.pi / 180.0)  # as math.radians
         omega = np.repeat(rates, draws.durations).reshape(len(rngs), self.horizon)
-        states = _constant_speed_truth(draws.position, draws.velocity, omega, self.T)
-        return Truth(states=states, turn_rate=omega, accel=np.zeros_like(omega), T=self.T)
+        period = self.T if T is None else np.asarray(T, dtype=np.float64)
+        states = _constant_speed_truth(draws.position, draws.velocity, omega, period)
+        return Truth(states=states, turn_rate=omega, accel=np.zeros_like(omega), T=period)  # type: ignore[arg-type]
 
     def sample(self, rng: np.random.Generator) -> Scenario:
         """Draw one scenario; the sequence of draws is fixed, so a seeded ``rng`` reproduces it."""
         return self._scenarios(self._draws([rng]))[0]
 
-    def _draws(self, rngs: Sequence[np.random.Generator]) -> FamilyDraws:
-        """The scenarios' draws, one run per generator (at least one).
+    def _draws(
+        self, rngs: Sequence[np.random.Generator], speed: Array | None = None
+    ) -> FamilyDraws:
+        """The scenarios' draws, one run per generator (at least one); run ``r`` draws its speed
+        from ``(speed[r], speed[r])`` where given and not NaN (:meth:`varied_truth`).
 
         Run ``r`` draws from ``rngs[r]``, in this order: range, bearing, speed and heading
         (uniform), the number of segments ``n``, the composition's ``n - 1`` bars (a choice
@@ -230,11 +259,15 @@ class RandomFamily:
         """
         lo, hi = self.n_segments
         K, minimum = self.horizon, self.min_duration
+        speeds = [self.speed] * len(rngs)
+        if speed is not None:
+            speeds = [s if math.isnan(v) else (v, v) for s, v in zip(speeds, speed.tolist(),
+                                                                     strict=True)]
         starts, counts, bars, magnitudes, signs = [], [], [], [], []
-        for rng in rngs:
+        for rng, speed_range in zip(rngs, speeds, strict=True):
             rng_range = rng.uniform(*self.range_m)
             bearing = rng.uniform(-math.pi, math.pi)
-            speed = rng.uniform(*self.speed)
+            v = rng.uniform(*speed_range)
             heading = rng.uniform(-math.pi, math.pi)
             n = int(rng.integers(lo, hi + 1))
             bars.append(rng.choice(K - n * minimum + n - 1, size=n - 1, replace=False))
@@ -242,7 +275,7 @@ class RandomFamily:
             signs.append(rng.integers(0, 2, size=n))
             counts.append(n)
             starts.append((rng_range * math.cos(bearing), rng_range * math.sin(bearing),
-                           speed * math.cos(heading), speed * math.sin(heading)))
+                           v * math.cos(heading), v * math.sin(heading)))
         n_segments = np.array(counts, dtype=np.int64)
         rates = np.concatenate(magnitudes) * _SIGNS[np.concatenate(signs)]
         # straight first, then alternating straight / turn: the run's segments 0, 2, 4, ...
@@ -389,16 +422,18 @@ def _model_index(
     return idx
 
 
-def _constant_speed_truth(p0: Array, v0: Array, omega: Array, T: float) -> Array:
+def _constant_speed_truth(p0: Array, v0: Array, omega: Array, T: float | Array) -> Array:
     """Noise-free straight/turn motion in closed form, vectorized over runs and steps.
 
     The heading advances by ``omega_k T`` per step and the speed is constant, so the velocity
     before step k is ``R(sum_{l<k} omega_l T) v0``; step k moves the position by
     ``sin(omega T)/omega v + (1 - cos(omega T))/omega J v`` (``J`` the 90° rotation; ``T v`` when
     ``omega = 0``), the first row of ``F_CT``. The position is ``p0`` plus the cumulative sum of
-    the moves (``p0 + 0`` at ``t = 0``).
+    the moves (``p0 + 0`` at ``t = 0``). ``T``: one sampling period, or one per run ``(N,)``.
     """
     N, K = omega.shape
+    if np.ndim(T):
+        T = np.asarray(T, dtype=np.float64)[:, None]
     states = np.empty((N, K + 1, 4))
     heading = np.empty((N, K + 1))
     heading[:, 0] = 0.0
@@ -415,13 +450,19 @@ def _constant_speed_truth(p0: Array, v0: Array, omega: Array, T: float) -> Array
     return states
 
 
-def _ct_ratios_by_runs(omega: Array, T: float) -> tuple[Array, Array]:
-    """:func:`~imm_gym.tracking.models.ct_ratios` of ``omega (N, K)``, computed once per run of
-    equal entries (:func:`_runs`) and repeated: a segment's turn rate holds for many steps."""
-    starts, lengths = _runs(omega)
+def _ct_ratios_by_runs(omega: Array, T: float | Array) -> tuple[Array, Array]:
+    """:func:`~imm_gym.tracking.models.ct_ratios` of ``omega (N, K)`` at ``T`` (a float or an
+    array broadcast to ``omega``), computed once per run of equal entries (:func:`_runs`) and
+    repeated: a segment's turn rate holds for many steps."""
+    if np.ndim(T):
+        period = np.broadcast_to(T, omega.shape)
+        starts, lengths = _runs(omega, period)
+        T = period.reshape(-1)[starts]
+    else:
+        starts, lengths = _runs(omega)
     return tuple(  # type: ignore[return-value]
         np.repeat(ratio, lengths).reshape(omega.shape)
-        for ratio in ct_ratios(omega.reshape(-1)[starts], T)
+        for ratio in ct_ratios(omega.reshape(-1)[starts], T)  # type: ignore[arg-type]
     )
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.scenarios.segments import Truth, TruthSource
+from imm_gym.scenarios.segments import RandomFamily, Truth, TruthSource
 from imm_gym.seeding import streams
 from imm_gym.sim.conditions import Conditions, Variation, draw_conditions
 from imm_gym.tracking.initiation import initiate
@@ -86,32 +86,45 @@ def _draw_varied(
     """Run ``r``: its conditions from ``scenario_rngs[r]``
     (:func:`~imm_gym.sim.conditions.draw_conditions`), then the truth of ``source`` at its ``T``
     from the same generator, its measurements and start from its sensor; the runs stacked
-    (``truth.T`` holds the R sampling periods)."""
+    (``truth.T`` holds the R sampling periods). The randomized family without truth noise draws
+    every run's target at once (:meth:`~imm_gym.scenarios.segments.RandomFamily.varied_truth`,
+    the same numbers as a family per run); another source, run by run."""
     conditions = draw_conditions(variation, source.T, sensor, scenario_rngs)
+    if isinstance(source, RandomFamily) and source.truth_q is None:
+        truth = source.varied_truth(scenario_rngs, conditions.T, conditions.speed)
+        states, turn_rate, accel = truth.states, truth.turn_rate, truth.accel
+    else:
+        truths = [
+            _run_source(source, conditions, r).truth([rng]) for r, rng in enumerate(scenario_rngs)
+        ]
+        states, turn_rate, accel = (
+            np.concatenate([getattr(t, name) for t in truths])
+            for name in ("states", "turn_rate", "accel")
+        )
     runs = []
-    for r, (scen_rng, noise_rng) in enumerate(zip(scenario_rngs, noise_rngs, strict=True)):
-        changes: dict[str, object] = {}
-        if conditions.T[r] != source.T:
-            changes["T"] = float(conditions.T[r])
-        if conditions.speed is not None and not np.isnan(conditions.speed[r]):
-            changes["speed"] = (float(conditions.speed[r]),) * 2
-        run_source = dataclasses.replace(source, **changes) if changes else source  # type: ignore[type-var]
-        runs.append(draw_episodes(run_source, conditions.sensors[r], [scen_rng], [noise_rng],
-                                  velocity_std))
-    truth = Truth(
-        states=np.concatenate([b.truth.states for b in runs]),
-        turn_rate=np.concatenate([b.truth.turn_rate for b in runs]),
-        accel=np.concatenate([b.truth.accel for b in runs]),
-        T=conditions.T,
-    )
+    for r, noise_rng in enumerate(noise_rngs):
+        run_sensor = conditions.sensors[r]
+        meas = run_sensor.measure(states[r:r + 1], [noise_rng])
+        x0, P0 = initiate(run_sensor, meas.z[:, 0], states[r:r + 1, 0, 2:4], velocity_std)
+        runs.append((meas, x0, P0))
     meas = Measurements(
-        z=np.concatenate([b.measurements.z for b in runs]),
-        detected=np.concatenate([b.measurements.detected for b in runs]),
-        outlier=np.concatenate([b.measurements.outlier for b in runs]),
+        z=np.concatenate([m.z for m, _, _ in runs]),
+        detected=np.concatenate([m.detected for m, _, _ in runs]),
+        outlier=np.concatenate([m.outlier for m, _, _ in runs]),
     )
-    x0 = np.concatenate([b.x0 for b in runs])
-    P0 = np.concatenate([b.P0 for b in runs])
-    return Batch(truth, meas, x0, P0, conditions)
+    x0 = np.concatenate([x0 for _, x0, _ in runs])
+    P0 = np.concatenate([P0 for _, _, P0 in runs])
+    return Batch(Truth(states, turn_rate, accel, conditions.T), meas, x0, P0, conditions)
+
+
+def _run_source(source: TruthSource, conditions: Conditions, r: int) -> TruthSource:
+    """``source`` at run ``r``'s sampling period and target speed, where they vary."""
+    changes: dict[str, object] = {}
+    if conditions.T[r] != source.T:
+        changes["T"] = float(conditions.T[r])
+    if conditions.speed is not None and not np.isnan(conditions.speed[r]):
+        changes["speed"] = (float(conditions.speed[r]),) * 2
+    return dataclasses.replace(source, **changes) if changes else source  # type: ignore[type-var]
 
 
 def draw_batch(
