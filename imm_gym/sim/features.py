@@ -409,7 +409,8 @@ register(Feature(
     "stay_evidence", "discounted sums (λ = 0.97) of the measurements' log-likelihood under the"
     " stays 1/M, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995 (the shadow's probabilities and likelihoods),"
     " minus the best, tanh(· / 4): which switching prior this target's measurements support",
-    lambda M, m: 1 + len(EVIDENCE_STAYS), -1.0, 0.0, _relative_evidence, size_label="7",
+    lambda M, m: 1 + len(EVIDENCE_STAYS), -1.0, 0.0, _relative_evidence,
+    size_label=str(1 + len(EVIDENCE_STAYS)),
     needs_shadow=True,
     memory=Memory(
         shape=lambda M: (1 + len(EVIDENCE_STAYS),),
