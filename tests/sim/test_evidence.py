@@ -1,5 +1,6 @@
-"""The measurement log-likelihood of an IMM and the ``shadow_evidence`` feature built from it:
-the evidence of each measurement for the shadow's TPM against bank A's."""
+"""The measurement log-likelihood of an IMM and the features built from it: ``shadow_evidence``
+(each measurement's evidence for the shadow's TPM against bank A's) and ``stay_evidence`` (for
+a grid of stays, on the shadow's probabilities and likelihoods)."""
 
 from __future__ import annotations
 
@@ -48,10 +49,10 @@ def test_a_missed_detection_carries_no_evidence() -> None:
                       -1e4 + np.log(0.2 + 0.3 * np.e))
 
 
-def _evidence_core(config: EnvConfig, n: int, seed: int = 0) -> TrackingCore:
-    config = config.replace(shadow="fixed", obs_features=("shadow_evidence",))
-    core = TrackingCore(config, n)
-    core.reset(np.arange(n), list(range(seed, seed + n)))
+def _evidence_core(config: EnvConfig, n: int, feature: str = "shadow_evidence") -> TrackingCore:
+    """A core of ``n`` slots observing only ``feature``, reset with seeds ``0..n-1``."""
+    core = TrackingCore(config.replace(shadow="fixed", obs_features=(feature,)), n)
+    core.reset(np.arange(n), list(range(n)))
     return core
 
 
@@ -94,8 +95,7 @@ def test_the_evidence_points_to_the_tpm_that_tracks_better() -> None:
 
 def test_the_stay_evidence_by_hand() -> None:
     config = EnvConfig(action_mode="set", shadow_stay=None, sensor={"detection_prob": 0.8})
-    core = TrackingCore(config.replace(shadow="fixed", obs_features=("stay_evidence",)), 4)
-    core.reset(np.arange(4), [5, 6, 7, 8])
+    core = _evidence_core(config, 4, "stay_evidence")
     tpms = stay_tpms(M)
     assert tpms.shape == (1 + len(EVIDENCE_STAYS), M, M)
     np.testing.assert_allclose(tpms[0], 1.0 / M)
@@ -122,10 +122,9 @@ def test_the_stay_evidence_points_to_the_stay_that_tracks_better() -> None:
     stays = np.array([1.0 / M, *EVIDENCE_STAYS])
     for name, low in (("paper", True), ("vsmm-s1", False)):
         config = EnvConfig(**read_env_config(SUITE_CONFIGS / f"{name}.yaml"))
-        config = config.replace(shadow="fixed", shadow_stay=None, action_mode="scale",
-                                obs_features=("stay_evidence",))
-        core = TrackingCore(config, 16)
-        core.reset(np.arange(16), list(range(16)))
+        core = _evidence_core(
+            config.replace(shadow_stay=None, action_mode="scale"), 16, "stay_evidence"
+        )
         while not core.done.any():
             core.step(np.zeros((16, core.action_dim)))
         best = stays[core.memories["stay_evidence"].argmax(axis=1)]
