@@ -70,9 +70,17 @@ def draw_episodes(
     if variation is not None and variation.active:
         return _draw_varied(source, sensor, scenario_rngs, noise_rngs, velocity_std, variation)
     truth = source.truth(scenario_rngs)
-    meas = sensor.measure(truth.states, noise_rngs)  # type: ignore[attr-defined]
-    x0, P0 = initiate(sensor, meas.z[:, 0], truth.states[:, 0, 2:4], velocity_std)
-    return Batch(truth, meas, x0, P0)
+    return Batch(truth, *_observe(sensor, truth.states, noise_rngs, velocity_std))
+
+
+def _observe(
+    sensor: object, states: Array, noise_rngs: Sequence[np.random.Generator], velocity_std: float
+) -> tuple[Measurements, Array, Array]:
+    """The measurements of ``sensor`` of the true ``states`` and the filter start from the first
+    one and the true initial velocity (SPEC §6)."""
+    meas = sensor.measure(states, noise_rngs)  # type: ignore[attr-defined]
+    x0, P0 = initiate(sensor, meas.z[:, 0], states[:, 0, 2:4], velocity_std)
+    return meas, x0, P0
 
 
 def _draw_varied(
@@ -103,10 +111,7 @@ def _draw_varied(
         )
     runs = []
     for r, noise_rng in enumerate(noise_rngs):
-        run_sensor = conditions.sensors[r]
-        meas = run_sensor.measure(states[r:r + 1], [noise_rng])
-        x0, P0 = initiate(run_sensor, meas.z[:, 0], states[r:r + 1, 0, 2:4], velocity_std)
-        runs.append((meas, x0, P0))
+        runs.append(_observe(conditions.sensors[r], states[r:r + 1], [noise_rng], velocity_std))
     meas = Measurements(
         z=np.concatenate([m.z for m, _, _ in runs]),
         detected=np.concatenate([m.detected for m, _, _ in runs]),
