@@ -63,7 +63,7 @@ def test_bank_per_tracker_equals_each_trackers_own_bank(filter_name: str) -> Non
     batch = draw_batch(RandomFamily(), Sonar(), N, 9)
     state = imms[0].init(batch.x0, batch.P0)
     tpm = _random_tpm(rng, 3, N)
-    z = batch.measurements.z[:, 1]
+    z = np.ascontiguousarray(batch.measurements.z[:, 1])  # as IMM.step passes it
     det = rng.random(N) < 0.8
     args = [imm.kernel_args for imm in imms]
     F = np.where(which[:, None, None, None], args[1][0], args[0][0])
