@@ -26,6 +26,7 @@ train: install
 test: install
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports --no-cache --no-logo
+	$(PY) -m imm_gym.precompile
 	$(PY) -m pytest $(ARGS)
 
 $(VENV_RAY)/.installed: pyproject.toml

@@ -1,0 +1,7 @@
+"""``python -m imm_gym.precompile``: every compiled kernel into numba's cache, in parallel
+(:mod:`imm_gym.cli.precompile`)."""
+
+from imm_gym.cli.precompile import main
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,62 @@
+"""``python -m imm_gym.precompile``: each entry point compiles the kernels it names, the command
+runs them in parallel processes, and a bad ``--jobs`` is refused naming it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from imm_gym.cli.precompile import JOBS, main
+
+#: The dispatchers each entry point must leave compiled (or loaded from the cache).
+KERNELS = {
+    "batch": ("imm_gym.sim.kernels", ("imm_step", "env_step")),
+    "single": ("imm_gym.sim.kernels", ("imm_step_one", "env_step_one")),
+}
+
+_PROBE = """
+import importlib, sys
+from imm_gym.cli.precompile import JOBS
+module = importlib.import_module(sys.argv[2])
+names = sys.argv[3:]
+before = [len(getattr(module, n).signatures) for n in names]
+JOBS[sys.argv[1]]()
+after = [len(getattr(module, n).signatures) for n in names]
+print(before, after)
+"""
+
+
+@pytest.mark.parametrize("job", list(JOBS))
+def test_each_entry_point_compiles_the_kernels_it_names(job: str) -> None:
+    # a fresh interpreter, so the dispatchers start with nothing compiled
+    module, names = KERNELS[job]
+    out = subprocess.run(
+        [sys.executable, "-c", _PROBE, job, module, *names],
+        capture_output=True, text=True, check=True, timeout=900,
+    ).stdout.strip()
+    before, after = out.split("] [")
+    assert before == "[" + ", ".join("0" for _ in names)
+    assert all(int(k) >= 1 for k in after.rstrip("]").split(", ")), out
+
+
+def test_the_command_runs_every_entry_point_in_parallel_processes(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["--jobs", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert sorted(line.split(":")[0] for line in lines[:-1]) == sorted(JOBS)
+    assert lines[-1].startswith("compiled batch, single in ")
+
+
+def test_only_runs_the_named_entry_point_here(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--jobs", "1", "--only", "single"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split(":")[0] for line in lines[:-1]] == ["single"]
+
+
+def test_jobs_below_one_is_refused_naming_the_flag(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["--jobs", "0"])
+    assert "--jobs must be at least 1, got 0" in capsys.readouterr().err
