@@ -1,0 +1,53 @@
+"""``examples/stay_selection.py``: its classical IMMs are the evaluation's, run for run, and its
+per-episode choices follow the evidence."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+from baselines.best_fixed import STAY_GRID
+from baselines.fixed import FixedTPM
+from imm_gym import EnvConfig
+from imm_gym.evaluation.rollout import evaluation_config, rollout
+
+
+def _example() -> ModuleType:
+    path = Path(__file__).parents[2] / "examples" / "stay_selection.py"
+    spec = importlib.util.spec_from_file_location("stay_selection", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_each_stays_errors_are_the_evaluations_classical_imm_at_that_stay() -> None:
+    example = _example()
+    err2, _, _, evidence = example.stay_runs({"scenario": "paper"}, 3, 5)
+    assert evidence.shape == err2.shape and np.isfinite(evidence).all()
+    for i in (0, STAY_GRID.index(0.95), len(STAY_GRID) - 1):
+        policy = FixedTPM(3, STAY_GRID[i])
+        config = evaluation_config(EnvConfig.build({"scenario": "paper"}), policy.env_overrides)
+        run = rollout(policy, config, 3, 5)
+        np.testing.assert_allclose(err2[i], run.squared_position_error, rtol=1e-12, atol=1e-9)
+
+
+def test_select_follows_the_evidence_and_average_weighs_by_it() -> None:
+    example = _example()
+    rng = np.random.default_rng(0)
+    S, R, K = 4, 5, 6
+    pos = rng.normal(size=(S, R, K, 2))
+    truth = rng.normal(size=(R, K, 2))
+    evidence = np.full((S, R, K), -1.0)
+    evidence[2] = 0.0  # stay 2 predicts every measurement best
+    select, average = example.choose(pos, truth, evidence, 1.0)
+    np.testing.assert_array_equal(select, np.sum((pos[2] - truth) ** 2, axis=-1))
+    w = np.exp(np.where(np.arange(S) == 2, 0.0, -1.0)[:, None] * np.arange(1, K + 1))
+    mean = np.einsum("sk,srkd->rkd", w / w.sum(axis=0), pos)
+    np.testing.assert_allclose(average, np.sum((mean - truth) ** 2, axis=-1), rtol=1e-12)
+    # equal evidence: the average is the plain mean of the estimates
+    _, flat = example.choose(pos, truth, np.zeros((S, R, K)), 1.0)
+    np.testing.assert_allclose(flat, np.sum((pos.mean(axis=0) - truth) ** 2, axis=-1))
