@@ -21,6 +21,7 @@ episode is worth, and so how much a policy must gain inside an episode to beat t
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +36,9 @@ from imm_gym.tracking.imm import measurement_loglik
 STEP_FLOOR = -10.0
 
 
-def stay_runs(overrides: dict, runs: int, seed: int) -> tuple[np.ndarray, ...]:
+def stay_runs(
+    overrides: dict[str, Any], runs: int, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(err2, pos, truth, evidence)`` of the classical IMM at every stay of ``STAY_GRID`` on
     runs ``seed .. seed + runs - 1``: squared position errors ``(S, R, K)``, position estimates
     ``(S, R, K, 2)``, true positions ``(R, K, 2)``, per-step measurement log-likelihoods
@@ -61,7 +64,9 @@ def stay_runs(overrides: dict, runs: int, seed: int) -> tuple[np.ndarray, ...]:
     return err2, pos, truth, evidence
 
 
-def choose(pos: np.ndarray, truth: np.ndarray, evidence: np.ndarray, lam: float) -> tuple:
+def choose(
+    pos: np.ndarray, truth: np.ndarray, evidence: np.ndarray, lam: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Squared position errors ``(R, K)`` of ``select`` and ``average`` (module docstring)."""
     S, R, K = evidence.shape
     total = np.zeros((S, R))

@@ -1,4 +1,4 @@
-"""``python -m imm_gym.precompile``: every compiled kernel into numba's cache, in parallel
+"""``python -m imm_gym.precompile``: the compiled kernels into numba's cache, in parallel
 (:mod:`imm_gym.cli.precompile`)."""
 
 from imm_gym.cli.precompile import main

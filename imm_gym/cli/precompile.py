@@ -1,4 +1,5 @@
-"""Compile every compiled kernel into numba's cache, in parallel (``python -m imm_gym.precompile``).
+"""The compiled kernels' entry points into numba's cache, in parallel
+(``python -m imm_gym.precompile``).
 
 The kernels compile on first use and are cached next to their source (``__pycache__``): the first
 ``IMM.step`` or env of one tracker and the first of N trackers each wait about two minutes on a

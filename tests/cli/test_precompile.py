@@ -3,6 +3,7 @@ runs them in parallel processes, and a bad ``--jobs`` is refused naming it."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -17,14 +18,14 @@ KERNELS = {
 }
 
 _PROBE = """
-import importlib, sys
+import importlib, json, sys
 from imm_gym.cli.precompile import JOBS
 module = importlib.import_module(sys.argv[2])
 names = sys.argv[3:]
 before = [len(getattr(module, n).signatures) for n in names]
 JOBS[sys.argv[1]]()
 after = [len(getattr(module, n).signatures) for n in names]
-print(before, after)
+print(json.dumps([before, after]))
 """
 
 
@@ -35,10 +36,10 @@ def test_each_entry_point_compiles_the_kernels_it_names(job: str) -> None:
     out = subprocess.run(
         [sys.executable, "-c", _PROBE, job, module, *names],
         capture_output=True, text=True, check=True, timeout=900,
-    ).stdout.strip()
-    before, after = out.split("] [")
-    assert before == "[" + ", ".join("0" for _ in names)
-    assert all(int(k) >= 1 for k in after.rstrip("]").split(", ")), out
+    ).stdout
+    before, after = json.loads(out)
+    assert before == [0] * len(names)
+    assert all(k >= 1 for k in after), out
 
 
 def test_the_command_runs_every_entry_point_in_parallel_processes(
