@@ -30,6 +30,7 @@ from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds
 from imm_gym.sim.kernels import step_inputs
 from imm_gym.sim.rewards import Reward
+from imm_gym.sim.stay_bank import StayBank, stay_tpm_rows
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
 from imm_gym.tracking.tpm import validate_tpm
@@ -60,7 +61,9 @@ class StepResult:
 
 class TrackingCore:
     """N TPM-adaptation episodes: truth, sonar, IMM bank A (adapted TPM), optional bank B (fixed
-    TPM, entropy fusion with feedback), optional shadow IMM (fixed TPM) for the reward.
+    TPM, entropy fusion with feedback), optional shadow IMM (fixed TPM) for the reward, optional
+    stay bank (one classical IMM per stay, :mod:`imm_gym.sim.stay_bank`) for the evidence of
+    each switching prior.
 
     A step: the slots' inputs (:func:`imm_gym.sim.kernels.step_inputs`), all banks advanced by
     the configured engine (:mod:`imm_gym.sim.engines`, a
@@ -102,6 +105,13 @@ class TrackingCore:
             config.mode_reward,
             config.tpm_change_cost,
         )
+        needs_bank = config.stay_base == "evidence" or any(
+            FEATURES[f].needs_stay_bank for f in config.obs_features
+        )
+        #: the stay bank, where the configuration uses its evidence (else None)
+        self.stay_bank = StayBank(
+            self.imm, n_envs, self.kernel_args if self._advance is compiled_step else None
+        ) if needs_bank else None
         self.horizon = config.source.horizon
         #: entries of one slot's action: ``M * M``, or ``M`` in the stay modes
         self.action_dim = action_size(config.action_mode, M)
@@ -283,13 +293,30 @@ class TrackingCore:
             state = self.memories[name].copy()
             state[indices] = memory.initial(init.mu)
             self.memories[name] = state
+        if self.stay_bank is not None:
+            self.stay_bank.start(indices, init, self.kernel_args)
+
+    @property
+    def stay_base_tpms(self) -> Array:
+        """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's), or
+        with ``stay_base="evidence"`` the stay bank's centre
+        (:meth:`imm_gym.sim.stay_bank.StayBank.centre`) on the diagonal, the rest of each row
+        spread evenly."""
+        if self.config.stay_base == "tracker":
+            return self.fixed_tpms
+        return stay_tpm_rows(self.stay_bank.centre(), self.M)  # type: ignore[union-attr]
+
+    @property
+    def stay_bank_evidence(self) -> Array:
+        """``(N, S)`` the stay bank's evidence for each stay minus the best's (nats)."""
+        return self.stay_bank.relative()  # type: ignore[union-attr]
 
     # ------------------------------------------------------------------ actions
     def tpm_from_action(self, action: NDArray[Any], tpm: Array | None = None) -> Array:
         """The TPMs an action ``(N, action_dim)`` produces from ``tpm`` (default: the current
         TPMs) and the slots' own TPMs, :func:`imm_gym.sim.actions.tpm_from_action`."""
         return tpm_from_action(self.validate_action(action), self.tpm if tpm is None else tpm,
-                               self.config, self.fixed_tpms)
+                               self.config, self.stay_base_tpms)
 
     def check_action(self, action: NDArray[Any]) -> Array:
         """Validate shape ``(N, action_dim)`` and finiteness, then clip to [-1, 1] (float64)."""
@@ -317,6 +344,8 @@ class TrackingCore:
             self.k, self.horizon, self.z, self.detected, self.truth, self.true_model
         )
         out = self._advance(self, self.validate_action(action), z, det, truth)
+        if self.stay_bank is not None:
+            self.stay_bank.step(z, det, IMMState(out.x_a, out.P_a, out.mode_probs))
         info: dict[str, Any] = {
             "true_state": truth,
             "true_model": true_model,
@@ -397,6 +426,8 @@ class TrackingCore:
         for bank in ("state_a", "state_b", "state_s"):
             snap[bank] = getattr(self, bank)
         snap["memories"] = dict(self.memories)
+        if self.stay_bank is not None:
+            snap["stay_bank"] = self.stay_bank.snapshot()
         return snap
 
     def _restore(self, snap: dict[str, Any], rows: NDArray[np.bool_]) -> None:
@@ -422,6 +453,8 @@ class TrackingCore:
                 new = new.copy()
                 new[rows] = old[rows]
                 self.memories[name] = new
+        if self.stay_bank is not None:
+            self.stay_bank.restore(snap["stay_bank"], rows)
 
     def _update_memories(self) -> None:
         """Advance the observed features' memories by one step."""

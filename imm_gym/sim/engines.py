@@ -44,6 +44,7 @@ class Banks(Protocol):
     kernel_args: tuple | None  # the compiled bank constants (F, Q, R per slot or shared)
     fixed_tpms: Array  # (N, M, M) bank B's TPM
     shadow_tpms: Array  # (N, M, M) the shadow's TPM
+    stay_base_tpms: Array  # (N, M, M) the TPMs the stay mode moves from
 
 
 Engine = Callable[[Banks, Array, Array, NDArray[np.bool_], Array], BankStep]
@@ -66,8 +67,8 @@ def compiled_step(
     return step(
         action, banks.tpm, ACTION_MODE_CODES[cfg.action_mode], gain, cfg.p_min,
         a.x, a.P, a.mu, b.x, b.P, b.mu, s.x, s.P, s.mu, banks.fixed_tpms, banks.shadow_tpms,
-        z, detected, truth, banks.kernel_args, cfg.parallel, cfg.shadow == "fixed",
-        cfg.divergence_error, cfg.divergence_cov,
+        banks.stay_base_tpms, z, detected, truth, banks.kernel_args, cfg.parallel,
+        cfg.shadow == "fixed", cfg.divergence_error, cfg.divergence_cov,
     )
 
 
@@ -83,7 +84,7 @@ def numpy_step(
 ) -> BankStep:
     """All banks' step composed of the tracker's own operations (any tracker)."""
     cfg, imm = banks.config, banks.imm
-    tpm = tpm_from_action(action, banks.tpm, cfg, banks.fixed_tpms)
+    tpm = tpm_from_action(action, banks.tpm, cfg, banks.stay_base_tpms)
     state_a, out_a = imm.step(banks.state_a, tpm, z, detected, check=False, allow_failure=True)
     failed = out_a.failed
     state_b, mu_b = banks.state_b, banks.mu_b

@@ -36,6 +36,7 @@ from imm_gym.validation import (
 
 ACTION_MODES = ("scale", "set", "stay", "stay_step")
 SHADOWS = ("fixed", "none")
+STAY_BASES = ("tracker", "evidence")
 #: The built-in reward terms (the registry, :data:`imm_gym.sim.rewards.REWARD_TERMS`, is what
 #: ``reward`` is checked against).
 REWARDS = tuple(REWARD_TERMS)
@@ -98,6 +99,11 @@ class EnvConfig:
             entries: each row's stay probability ``logit_scale * a`` logits from the initial
             TPM's, the row's switching structure kept) or ``"stay_step"`` (the same, each step
             from the current TPM's stays; :mod:`imm_gym.sim.actions`).
+        stay_base: the TPM the ``stay`` mode moves from: ``"tracker"`` (the tracker's own,
+            bank B's) or ``"evidence"`` (each step, the stay the measurements support so far:
+            the evidence-weighted stay of the stay bank, one classical IMM per stay,
+            :mod:`imm_gym.sim.stay_bank`; the zero action then selects the switching prior by
+            its evidence). ``"evidence"`` needs ``action_mode="stay"``.
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode, or change of the stay's logit in the stay modes,
             for an action of 1 (> 0).
@@ -148,6 +154,7 @@ class EnvConfig:
     sojourn: tuple[float, ...] | None = None
     p_min: float = 1e-3
     action_mode: str = "scale"
+    stay_base: str = "tracker"
     max_factor: float = 2.0
     logit_scale: float = 4.0
     parallel: bool = False
@@ -195,6 +202,11 @@ class EnvConfig:
             ))
         store(self, "p_min", check_range("p_min", self.p_min, 0.0, 1.0 / M, hi_open=True))
         check_choice("action_mode", self.action_mode, ACTION_MODES)
+        check_choice("stay_base", self.stay_base, STAY_BASES)
+        if self.stay_base == "evidence" and self.action_mode != "stay":
+            raise ConfigError(
+                f"stay_base 'evidence' needs action_mode 'stay', got {self.action_mode!r}"
+            )
         store(self, "max_factor", check_range("max_factor", self.max_factor, 1.0, lo_open=True))
         store(self, "logit_scale", check_range("logit_scale", self.logit_scale, 0.0, lo_open=True))
         if not isinstance(self.parallel, bool):

@@ -75,6 +75,7 @@ class StepView(Protocol):
     velocity_prev: Array  # (N, 2) at t-1
     velocity_s: Array  # (N, 2) the shadow's estimate at t
     velocity_s_prev: Array  # (N, 2) at t-1
+    stay_bank_evidence: Array  # (N, S) the stay bank's evidence minus the best (nats)
     sampling_period: Array  # (N,) each slot's T (s)
     position_accuracy: Array  # (N,) RMS position accuracy of the slot's first measurement (m)
     memories: dict[str, Array]  # each memory feature's state
@@ -108,6 +109,8 @@ class Feature:
         observe: the ``(N, size)`` block from the view (before clipping).
         needs_shadow: computed from the shadow IMM (needs ``shadow="fixed"``).
         needs_parallel: computed from bank B (needs ``parallel=True``).
+        needs_stay_bank: computed from the stay bank (:mod:`imm_gym.sim.stay_bank`; the core
+            runs it when an observed feature needs it).
         memory: the state it keeps across steps, if any.
     """
 
@@ -120,6 +123,7 @@ class Feature:
     size_label: str = ""
     needs_shadow: bool = False
     needs_parallel: bool = False
+    needs_stay_bank: bool = False
     memory: Memory | None = None
 
 
@@ -168,7 +172,12 @@ def datasheet_table() -> str:
         "| then, in the order of ``obs_features``: | | | |",
     ]
     for f in FEATURES.values():
-        needs = " [shadow]" if f.needs_shadow else " [parallel]" if f.needs_parallel else ""
+        needs = (
+            " [shadow]" if f.needs_shadow
+            else " [parallel]" if f.needs_parallel
+            else " [stay bank]" if f.needs_stay_bank
+            else ""
+        )
         rows.append(
             f"| ``{f.name}`` | {f.meaning} ({f.size_label}){needs} | {f.low:g} | {f.high:g} |"
         )
@@ -417,4 +426,12 @@ register(Feature(
         initial=lambda mu0: 0.0,
         advance=lambda m, v: STAY_EVIDENCE_FACTOR * m + stay_evidence_step(v),
     ),
+))
+register(Feature(
+    "stay_bank_evidence", "the exact evidence of one classical IMM per stay 1/M, 0.6, 0.8, 0.9,"
+    " 0.95, 0.98, 0.995 (the stay bank): discounted sums (λ = 0.99) of each IMM's measurement"
+    " log-likelihood minus the best's, each step's floored at −10 nats, tanh(· / 4)",
+    lambda M, m: 1 + len(EVIDENCE_STAYS), -1.0, 0.0,
+    lambda v: np.tanh(v.stay_bank_evidence / EVIDENCE_SCALE),
+    size_label=str(1 + len(EVIDENCE_STAYS)), needs_stay_bank=True,
 ))

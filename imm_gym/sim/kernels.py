@@ -247,7 +247,8 @@ def _capped_error(
 def env_step(
     action: Array, tpm: Array, mode: int, gain: float, p_min: float, x_a: Array, P_a: Array,
     mu_a: Array, x_b: Array, P_b: Array, mu_b: Array, x_s: Array, P_s: Array, mu_s: Array,
-    fixed_tpm: Array, shadow_tpm: Array, z: Array, detected: NDArray[np.bool_], truth: Array,
+    fixed_tpm: Array, shadow_tpm: Array, stay_base: Array, z: Array,
+    detected: NDArray[np.bool_], truth: Array,
     bank: tuple, parallel: bool, shadow: bool, divergence_error: float, divergence_cov: float,
 ) -> BankStep:  # pragma: no cover
     """One step of all banks of N slots (the module docstring's steps 1-5).
@@ -260,6 +261,8 @@ def env_step(
         x_a, P_a, mu_a: bank A's posterior ``(N, M, n)``, ``(N, M, n, n)``, ``(N, M)``; x_b, P_b,
             mu_b: bank B's; x_s, P_s, mu_s: the shadow IMM's.
         fixed_tpm, shadow_tpm: ``(N, M, M)`` fixed TPMs of bank B and of the shadow.
+        stay_base: ``(N, M, M)`` the TPMs the ``stay`` mode moves from (bank B's, or the stay
+            bank's centre: :attr:`imm_gym.sim.core.TrackingCore.stay_base_tpms`).
         z: ``(N, m)`` measurements; detected: ``(N,)``; truth: ``(N, 4+)`` true states.
         bank: the bank's kernel constants (:attr:`imm_gym.tracking.imm.IMM.kernel_args`).
         parallel, shadow: run bank B (and fuse), the shadow IMM.
@@ -268,7 +271,8 @@ def env_step(
         the :class:`~imm_gym.sim.bank_step.BankStep` of the slots, fresh arrays.
     """
     return _env_step(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s, P_s,
-                     mu_s, fixed_tpm, shadow_tpm, z, detected, truth, bank, parallel, shadow,
+                     mu_s, fixed_tpm, shadow_tpm, stay_base, z, detected, truth, bank, parallel,
+                     shadow,
                      divergence_error, divergence_cov, False)
 
 
@@ -276,14 +280,16 @@ def env_step(
 def env_step_one(
     action: Array, tpm: Array, mode: int, gain: float, p_min: float, x_a: Array, P_a: Array,
     mu_a: Array, x_b: Array, P_b: Array, mu_b: Array, x_s: Array, P_s: Array, mu_s: Array,
-    fixed_tpm: Array, shadow_tpm: Array, z: Array, detected: NDArray[np.bool_], truth: Array,
+    fixed_tpm: Array, shadow_tpm: Array, stay_base: Array, z: Array,
+    detected: NDArray[np.bool_], truth: Array,
     bank: tuple, parallel: bool, shadow: bool, divergence_error: float, divergence_cov: float,
 ) -> BankStep:  # pragma: no cover
     """:func:`env_step` for one slot whose tracker fits
     :func:`~imm_gym.tracking.kernels.imm.imm_step_one` (the scalar env's: its banks' cycles in
     less than half the time, the same numbers bit for bit; compiled on first use)."""
     return _env_step(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s, P_s,
-                     mu_s, fixed_tpm, shadow_tpm, z, detected, truth, bank, parallel, shadow,
+                     mu_s, fixed_tpm, shadow_tpm, stay_base, z, detected, truth, bank, parallel,
+                     shadow,
                      divergence_error, divergence_cov, True)
 
 
@@ -291,13 +297,14 @@ def env_step_one(
 def _env_step(
     action: Array, tpm: Array, mode: int, gain: float, p_min: float, x_a: Array, P_a: Array,
     mu_a: Array, x_b: Array, P_b: Array, mu_b: Array, x_s: Array, P_s: Array, mu_s: Array,
-    fixed_tpm: Array, shadow_tpm: Array, z: Array, detected: NDArray[np.bool_], truth: Array,
+    fixed_tpm: Array, shadow_tpm: Array, stay_base: Array, z: Array,
+    detected: NDArray[np.bool_], truth: Array,
     bank: tuple, parallel: bool, shadow: bool, divergence_error: float, divergence_cov: float,
     one: bool,
 ) -> BankStep:  # pragma: no cover
     """The body of :func:`env_step` and :func:`env_step_one` (``one``: a constant)."""
     N, M, _ = x_a.shape
-    new_tpm = tpm_from_action(action, tpm, mode, gain, p_min, fixed_tpm)
+    new_tpm = tpm_from_action(action, tpm, mode, gain, p_min, stay_base)
     xa, Pa, U, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed = _bank_step(
         x_a, P_a, mu_a, new_tpm, z, detected, bank, True, one)
     xb, Pb, Ub = x_b, P_b, mu_b

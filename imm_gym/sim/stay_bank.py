@@ -1,0 +1,205 @@
+r"""The stay bank: one classical IMM per switching prior of a grid, run on each slot's
+measurements, and the exact evidence of the measurements for each.
+
+For the stays :math:`s \in \{1/M, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995\}` (:func:`stay_tpms`) each
+slot runs the classical IMM with the TPM :math:`\Pi_s` (the stay on the diagonal, the rest of
+the row spread evenly) beside its banks. The IMM's predictive density of a measurement is the
+normalizer of its mode update, :math:`p_s(z_t \mid Z^{t-1}) = \sum_j \bar c_{s,j} \Lambda_{s,j}`
+(:func:`imm_gym.tracking.imm.measurement_loglik`), so
+
+.. math::
+    E_s(t) = \lambda E_s(t-1) + \max\big(e_s(t) - \max_r e_r(t),\ -\varepsilon\big),
+    \qquad e_s(t) = \log p_s(z_t \mid Z^{t-1}),
+
+is the discounted log evidence of the measurements for each switching prior against the best
+(:data:`STAY_BANK_FACTOR` :math:`\lambda`, per-step floor :data:`STAY_BANK_FLOOR`
+:math:`\varepsilon`: one outlier moves it by at most that). Unlike the ``stay_evidence``
+feature's one-step approximation (one IMM's likelihoods reweighted by each prior), every
+:math:`\Pi_s` here also mixes its own states, so the evidence is the IMM's exact one.
+
+The evidence serves two ends: the ``stay_bank_evidence`` observation block and, with
+``EnvConfig.stay_base = "evidence"``, the centre of the ``stay`` action, the stay
+:math:`\sigma(\sum_s w_s \operatorname{logit} s)` at the posterior weights
+:math:`w = \operatorname{softmax}(E)` (:meth:`StayBank.centre`).
+
+A missed detection is evidence for none (every :math:`e_s = 0`). An IMM of the bank whose
+innovation covariance fails (a diverged filter) gets the floor and restarts from bank A's
+posterior.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.sim.features import stay_tpms
+from imm_gym.tracking.imm import IMMState, Tracker, measurement_loglik
+from imm_gym.tracking.kernels.imm import imm_step
+
+Array = NDArray[np.float64]
+
+#: Discount factor ``lambda`` of the stay bank's evidence (about 100 steps).
+STAY_BANK_FACTOR = 0.99
+#: Per-step floor (nats) of each stay's evidence against the best.
+STAY_BANK_FLOOR = 10.0
+
+
+def stay_tpm_rows(stays: Array, n_models: int) -> Array:
+    """``(N, M, M)`` TPMs with ``stays (N,)`` on the diagonal and the rest of each row spread
+    evenly (:func:`imm_gym.tracking.tpm.stay_tpm` for many stays at once)."""
+    M = n_models
+    off = (1.0 - stays) / max(M - 1, 1)
+    tpm = np.repeat(np.repeat(off[:, None, None], M, axis=1), M, axis=2)
+    idx = np.arange(M)
+    tpm[:, idx, idx] = stays[:, None]
+    return tpm
+
+
+class StayBank:
+    """One classical IMM per stay of :func:`stay_tpms` for each of N slots (module docstring).
+
+    The ``N * S`` IMMs are rows ``i * S + s`` of one batch: one call of the tracker's compiled
+    cycle (or of its numpy ``step``) advances them all.
+
+    Args:
+        imm: the slots' tracker.
+        n_envs: the number of slots N.
+        kernel_args: the core's compiled bank constants (``F``, ``Q``, ``R`` with a leading axis
+            of 1, or N: one bank per slot), None for the numpy engine.
+    """
+
+    def __init__(self, imm: Tracker, n_envs: int, kernel_args: tuple | None) -> None:
+        M, n = imm.n_models, imm.n
+        self.imm = imm
+        self.n_envs = N = n_envs
+        #: ``(S, M, M)`` the bank's TPMs, ``(S,)`` their stays and the stays' logits
+        self.tpms = stay_tpms(M)
+        self.S = S = len(self.tpms)
+        self.stays = np.diagonal(self.tpms, axis1=1, axis2=2)[:, 0].copy()
+        self.logits = np.log(self.stays) - np.log1p(-self.stays)
+        self._tpm_rows = np.ascontiguousarray(
+            np.broadcast_to(self.tpms[None], (N, S, M, M)).reshape(N * S, M, M)
+        )
+        self._args = None if kernel_args is None else self._own_args(kernel_args)
+        #: the IMMs' posteriors, ``(N * S, M, n)``, ``(N * S, M, n, n)``, ``(N * S, M)``
+        self.state = IMMState(
+            np.zeros((N * S, M, n)),
+            np.repeat(np.eye(n)[None, None], N * S * M, 0).reshape(N * S, M, n, n),
+            np.full((N * S, M), 1.0 / M),
+        )
+        #: ``(N, S)`` the discounted evidence :math:`E_s` (relative: its largest entry is the
+        #: best stay's)
+        self.evidence = np.zeros((N, S))
+
+    def _own_args(self, kernel_args: tuple) -> tuple:
+        """The compiled constants for the ``N * S`` rows: shared ones as they are, one bank per
+        slot repeated for each of its stays (rows set at :meth:`start`)."""
+        F, Q, R, *rest = kernel_args
+        if F.shape[0] == 1:
+            return kernel_args
+        return (*(np.repeat(a, self.S, axis=0) for a in (F, Q, R)), *rest)
+
+    def rows(self, indices: NDArray[np.int64]) -> NDArray[np.int64]:
+        """The batch rows of the slots ``indices`` (each slot's S IMMs)."""
+        return (np.asarray(indices)[:, None] * self.S + np.arange(self.S)).ravel()
+
+    def start(
+        self, indices: NDArray[np.int64], init: IMMState, kernel_args: tuple | None
+    ) -> None:
+        """Start the slots ``indices`` from bank A's initial posterior ``init`` (one row per
+        slot), with zero evidence; under varied conditions, at the slots' constants
+        ``kernel_args`` (the core's, rows ``indices`` already set)."""
+        rows = self.rows(indices)
+        parts = []
+        for a, value in zip(_arrays(self.state), _arrays(init), strict=True):
+            a = a.copy()
+            a[rows] = np.repeat(value, self.S, axis=0)
+            parts.append(a)
+        self.state = IMMState(*parts)
+        self.evidence = self.evidence.copy()
+        self.evidence[indices] = 0.0
+        if self._args is not None and self._args[0].shape[0] > 1 and kernel_args is not None:
+            for own, slot in zip(self._args[:3], kernel_args[:3], strict=True):
+                own[rows] = np.repeat(slot[indices], self.S, axis=0)
+
+    def centre(self) -> Array:
+        r"""``(N,)`` the evidence's stay :math:`\sigma(\sum_s w_s \operatorname{logit} s)`,
+        :math:`w = \operatorname{softmax}(E)`: the switching prior the measurements so far
+        support, averaged on the logit scale (the mean of the logit stays, ``1/M`` .. 0.995, at
+        the start of an episode)."""
+        w = np.exp(self.evidence - self.evidence.max(axis=1, keepdims=True))
+        logit = (w @ self.logits) / w.sum(axis=1)
+        return 1.0 / (1.0 + np.exp(-logit))
+
+    def relative(self) -> Array:
+        """``(N, S)`` each stay's evidence minus the best's (nats, ``<= 0``)."""
+        return self.evidence - self.evidence.max(axis=1, keepdims=True)
+
+    def step(self, z: Array, detected: NDArray[np.bool_], fallback: IMMState) -> None:
+        """Advance every IMM on its slot's measurement ``z (N, m)`` (``detected (N,)``) and add
+        the step's evidence; an IMM that fails restarts from ``fallback``, bank A's posterior
+        after the step."""
+        N, S = self.n_envs, self.S
+        z_rows = np.ascontiguousarray(np.repeat(z, S, axis=0))
+        det_rows = np.ascontiguousarray(np.repeat(detected, S))
+        state, cbar, loglik, failed = self._advance(z_rows, det_rows)
+        ok = ~failed
+        M = cbar.shape[1]
+        e = measurement_loglik(  # failed rows: finite stand-ins, replaced by the floor below
+            np.where(ok[:, None], loglik, 0.0), np.where(ok[:, None], cbar, 1.0 / M)
+        )
+        e = np.where(det_rows & ok, e, 0.0).reshape(N, S)  # a missed detection: no evidence
+        ok = ok.reshape(N, S)
+        best = np.max(np.where(ok, e, -np.inf), axis=1, keepdims=True)
+        best = np.where(np.isfinite(best), best, 0.0)
+        gain = np.where(ok, np.maximum(e - best, -STAY_BANK_FLOOR), -STAY_BANK_FLOOR)
+        self.evidence = STAY_BANK_FACTOR * self.evidence + gain
+        if np.count_nonzero(failed):
+            slot = np.repeat(np.arange(N), S)[failed]
+            for a, value in zip(_arrays(state), _arrays(fallback), strict=True):
+                a[failed] = value[slot]
+        self.state = state
+
+    def _advance(
+        self, z: Array, detected: NDArray[np.bool_]
+    ) -> tuple[IMMState, Array, Array, NDArray[np.bool_]]:
+        """One cycle of all ``N * S`` IMMs: posteriors, ``cbar``, per-model log-likelihoods
+        and the failed rows."""
+        if self._args is None:
+            state, out = self.imm.step(
+                self.state, self._tpm_rows, z, detected, check=False, allow_failure=True
+            )
+            return state, out.cbar, out.loglik, out.failed
+        NS, M, n = self.state.x.shape
+        x, P, mu = np.empty((NS, M, n)), np.empty((NS, M, n, n)), np.empty((NS, M))
+        cbar, loglik = np.empty((NS, M)), np.empty((NS, M))
+        failed = np.empty(NS, dtype=bool)
+        outs = (
+            x, P, mu, cbar, loglik, np.empty((NS, M)), np.empty((NS, M, z.shape[1])),
+            np.empty(NS), np.empty((NS, n)), np.empty((NS, n, n)), failed,
+        )
+        imm_step(
+            self.state.x, self.state.P, self.state.mu, self._tpm_rows, z, detected,
+            *self._args, False, *outs,
+        )
+        return IMMState(x, P, mu), cbar, loglik, failed
+
+    def snapshot(self) -> tuple[IMMState, Array]:
+        """The bank's state (arrays are replaced, never written, by a step)."""
+        return self.state, self.evidence
+
+    def restore(self, snap: tuple[IMMState, Array], slots: NDArray[np.bool_]) -> None:
+        """Put back the values of ``snap`` for the slots where ``slots (N,)`` is True."""
+        state, evidence = snap
+        rows = np.repeat(slots, self.S)
+        parts = []
+        for new, old in zip(_arrays(self.state), _arrays(state), strict=True):
+            new = new.copy()
+            new[rows] = old[rows]
+            parts.append(new)
+        self.state = IMMState(*parts)
+        self.evidence = np.where(slots[:, None], evidence, self.evidence)
+
+
+def _arrays(state: IMMState) -> tuple[Array, Array, Array]:
+    return state.x, state.P, state.mu

@@ -1,0 +1,191 @@
+"""The stay bank (one classical IMM per stay of a grid, :mod:`imm_gym.sim.stay_bank`): its
+evidence against separate IMMs on the numpy engine, the centre of the ``stay`` action it gives,
+both engines, varied conditions, inactive slots and failed filters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from imm_gym import EnvConfig, TrackingCore
+from imm_gym.sim.features import EVIDENCE_SCALE, EVIDENCE_STAYS
+from imm_gym.sim.presets import CONTINUOUS_BANK
+from imm_gym.sim.stay_bank import STAY_BANK_FACTOR, STAY_BANK_FLOOR, StayBank, stay_tpm_rows
+from imm_gym.tracking.hetero import make_tracker
+from imm_gym.tracking.imm import IMMState
+from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError
+
+M = 3
+STAYS = (1.0 / M, *EVIDENCE_STAYS)
+
+
+def _core(n: int, engine: str = "auto", **changes: object) -> TrackingCore:
+    config = EnvConfig(
+        action_mode="stay",
+        obs_features=("stay_bank_evidence",),
+        sensor={"detection_prob": 0.8},
+        family={"horizon": 80},
+        engine=engine,
+    ).replace(**changes)
+    core = TrackingCore(config, n)
+    core.reset(np.arange(n), list(range(20, 20 + n)))
+    return core
+
+
+def test_the_evidence_is_that_of_one_classical_imm_per_stay() -> None:
+    # the reference: each stay's IMM alone on the numpy engine, the predictive density of each
+    # measurement summed directly, the relative evidence floored and discounted step by step
+    core = _core(2)
+    reference = make_tracker(core.config.bank, core.config.sensor, "ukf", 1.0, engine="numpy")
+    states = [core.state_a for _ in STAYS]
+    total = np.zeros((2, len(STAYS)))
+    rng = np.random.default_rng(0)
+    missed = 0
+    for _ in range(80):
+        k1 = core.k + 1
+        z, det = core.z[np.arange(2), k1], core.detected[np.arange(2), k1]
+        missed += int((~det).sum())
+        e = np.zeros((2, len(STAYS)))
+        for s, stay in enumerate(STAYS):
+            states[s], out = reference.step(states[s], stay_tpm(M, stay), z, det)
+            e[:, s] = np.where(det, np.log(np.sum(out.cbar * np.exp(out.loglik), axis=1)), 0.0)
+        total = STAY_BANK_FACTOR * total + np.maximum(
+            e - e.max(axis=1, keepdims=True), -STAY_BANK_FLOOR
+        )
+        obs = core.step(rng.uniform(-1, 1, (2, M))).obs
+        np.testing.assert_allclose(core.stay_bank.evidence, total, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(
+            obs[:, 2 * M :], np.tanh((total - total.max(axis=1, keepdims=True)) / EVIDENCE_SCALE),
+            atol=1e-6,
+        )
+    for s in range(len(STAYS)):
+        np.testing.assert_allclose(
+            core.stay_bank.state.x[s :: len(STAYS)], states[s].x, rtol=1e-9, atol=1e-6
+        )
+    assert missed > 0 and np.ptp(total[:, 1:]) > 1.0  # missed detections; the stays disagree
+
+
+def test_the_zero_action_of_the_evidence_base_is_the_evidence_s_stay() -> None:
+    core = _core(3, stay_base="evidence")
+    stays = []
+    for _ in range(60):
+        centre = core.stay_bank.centre()
+        tpm = core.step(np.zeros((3, M))).info["tpm"]
+        np.testing.assert_allclose(tpm, stay_tpm_rows(centre, M), rtol=0, atol=1e-15)
+        stays.append(centre)
+    # the first step: the logit stays' mean; then each target's own
+    first = 1.0 / (1.0 + np.exp(-np.mean(np.log(STAYS) - np.log1p(-np.asarray(STAYS)))))
+    np.testing.assert_allclose(stays[0], first, rtol=1e-12)
+    assert np.ptp(stays[-1]) > 0.01
+    # bank B and the shadow keep the tracker's TPM
+    np.testing.assert_array_equal(core.fixed_tpms, stay_tpm_rows(np.full(3, 0.995), M))
+
+
+def test_an_action_moves_the_stay_from_the_evidence_s() -> None:
+    core = _core(2, stay_base="evidence")
+    for _ in range(10):
+        core.step(np.zeros((2, M)))
+    centre = core.stay_bank.centre()
+    tpm = core.step(np.full((2, M), 0.5)).info["tpm"]
+    logit = np.log(centre) - np.log1p(-centre) + 0.5 * core.config.logit_scale
+    expected = 1.0 / (1.0 + np.exp(-logit))
+    np.testing.assert_allclose(
+        np.diagonal(tpm, axis1=1, axis2=2), np.repeat(expected[:, None], M, axis=1), rtol=1e-12
+    )
+
+
+@pytest.mark.parametrize("stay_base", ["tracker", "evidence"])
+def test_both_engines_run_the_same_stay_bank(stay_base: str) -> None:
+    fused, general = _core(3, stay_base=stay_base), _core(3, "numpy", stay_base=stay_base)
+    rng = np.random.default_rng(2)
+    for _ in range(80):
+        action = rng.uniform(-1, 1, (3, M))
+        a, b = fused.step(action), general.step(action)
+        np.testing.assert_allclose(a.obs, b.obs, atol=1e-6)
+        np.testing.assert_allclose(a.info["tpm"], b.info["tpm"], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(
+            fused.stay_bank.evidence, general.stay_bank.evidence, rtol=1e-9, atol=1e-9
+        )
+
+
+def test_a_slot_of_a_varied_batch_is_the_scalar_core_s_episode() -> None:
+    vary = {"T": (0.5, 5.0), "sigma_r": (10.0, 100.0), "speed": (5.0, 300.0)}
+    batch = _core(3, vary=vary, stay_base="evidence", bank=CONTINUOUS_BANK)
+    T = batch.sampling_period.copy()
+    assert np.ptp(T) > 0.1  # the slots run at different sampling periods
+    alone = [_core(1, vary=vary, stay_base="evidence", bank=CONTINUOUS_BANK) for _ in range(3)]
+    for i, core in enumerate(alone):
+        core.reset(np.array([0]), [20 + i])
+    rng = np.random.default_rng(4)
+    for _ in range(40):
+        action = rng.uniform(-1, 1, (3, M))
+        batch.step(action)
+        for i, core in enumerate(alone):
+            core.step(action[i : i + 1])
+            np.testing.assert_allclose(
+                batch.stay_bank.evidence[i], core.stay_bank.evidence[0], rtol=1e-12, atol=1e-12
+            )
+
+
+def test_inactive_slots_keep_their_stay_bank() -> None:
+    core = _core(3, stay_base="evidence")
+    for _ in range(5):
+        core.step(np.zeros((3, M)))
+    bank = core.stay_bank
+    x, evidence = bank.state.x.copy(), bank.evidence.copy()
+    core.step(np.zeros((3, M)), active=np.array([True, False, True]))
+    S = bank.S
+    np.testing.assert_array_equal(bank.state.x[S : 2 * S], x[S : 2 * S])
+    np.testing.assert_array_equal(bank.evidence[1], evidence[1])
+    assert not np.array_equal(bank.evidence[0], evidence[0])
+
+
+def test_a_failed_filter_gets_the_floor_and_restarts_from_bank_a() -> None:
+    core = _core(2)
+    bank = core.stay_bank
+    S, n = bank.S, core.n
+    before = bank.evidence.copy()
+    real = bank._advance
+
+    def failing(z, det):  # the second slot's stay-0.9 IMM fails this step
+        state, cbar, loglik, failed = real(z, det)
+        row = S + 3
+        state.x[row], failed[row] = np.nan, True
+        return state, cbar, loglik, failed
+
+    bank._advance = failing  # type: ignore[method-assign]
+    fallback = IMMState(np.full((2, M, n), 7.0), np.repeat(np.eye(n)[None, None], 2 * M, 0)
+                        .reshape(2, M, n, n), np.full((2, M), 1.0 / M))
+    k1 = core.k + 1
+    det = np.array([True, True])
+    bank.step(core.z[np.arange(2), k1], det, fallback)
+    assert bank.evidence[1, 3] == STAY_BANK_FACTOR * before[1, 3] - STAY_BANK_FLOOR
+    assert np.all(bank.state.x[S + 3] == 7.0) and np.all(np.isfinite(bank.state.x))
+    assert bank.evidence[0].max() == 0.0 and bank.evidence[1].max() == 0.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(arrays(np.float64, (4, 1 + len(EVIDENCE_STAYS)), elements=st.floats(-500.0, 0.0)))
+def test_the_centre_is_a_stay_between_the_grid_s_ends(evidence) -> None:
+    bank = StayBank(make_tracker(EnvConfig().bank, EnvConfig().sensor, "ukf", 1.0), 4, None)
+    bank.evidence = evidence
+    centre = bank.centre()
+    assert np.all(centre >= 1.0 / M - 1e-12) and np.all(centre <= EVIDENCE_STAYS[-1] + 1e-12)
+    tpm = stay_tpm_rows(centre, M)
+    np.testing.assert_allclose(tpm.sum(axis=-1), 1.0, rtol=0, atol=1e-15)
+    # one stay far ahead of the others: the centre is that stay
+    winner = np.argmax(evidence, axis=1)
+    clear = np.sort(evidence, axis=1)[:, -2] < evidence.max(axis=1) - 60.0
+    np.testing.assert_allclose(centre[clear], np.asarray(STAYS)[winner[clear]], rtol=1e-12)
+
+
+def test_the_evidence_base_needs_the_stay_mode() -> None:
+    with pytest.raises(ConfigError, match="stay_base 'evidence' needs action_mode 'stay'"):
+        EnvConfig(action_mode="scale", stay_base="evidence")
+    with pytest.raises(ConfigError, match="stay_base"):
+        EnvConfig(action_mode="stay", stay_base="posterior")
+    assert TrackingCore(EnvConfig(action_mode="stay")).stay_bank is None
