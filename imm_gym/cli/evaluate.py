@@ -20,6 +20,10 @@ Example::
 ``high`` are null (undefined). ``--json`` and ``--plots`` are checked before anything is evaluated:
 an output that cannot be written is a usage error (exit 2).
 
+``--agent-seeds DIR DIR ...`` evaluates the training seeds of one agent, each as a policy, and
+adds their interquartile means with stratified bootstrap CIs (:mod:`imm_gym.cli.seeds`; JSON
+``"across_seeds"``).
+
 The best fixed TPM is searched on training runs whose seeds (``seed + 1_000_000 + r``) never
 overlap the evaluation seeds.
 
@@ -458,8 +462,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--policy",
         action="append",
-        required=True,
-        help="policy to evaluate (repeatable): "
+        default=[],
+        help="policy to evaluate (repeatable; at least one, or --agent-seeds): "
         + "; ".join(f"{name}: {entry.help}" for name, entry in REGISTRY.items()).replace("%", "%%")
         + "; pretrained: the shipped PPO agent; or a trained agent's directory",
     )
@@ -488,6 +492,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="run r uses seed + r (default 0)")
     parser.add_argument("--reference", help="policy the paired differences are taken against")
+    parser.add_argument(
+        "--agent-seeds",
+        nargs="+",
+        default=[],
+        metavar="DIR",
+        help="training seeds of one agent (two or more directories): each is evaluated as a "
+        "policy, and their interquartile means with stratified bootstrap CIs are added (position "
+        "ARMSE, mode accuracy, relative difference against --reference; with --suite also over "
+        "all scenarios; JSON: \"across_seeds\")",
+    )
     parser.add_argument("--json", type=Path, help="write the results to this JSON file")
     parser.add_argument("--plots", type=Path, help="write PNG figures to this directory")
     parser.add_argument(
@@ -575,6 +589,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         if problem:
             parser.error(f"{flag} {str(path)!r}: {problem}")
     _check_animate(parser, args)
+    if len(args.agent_seeds) == 1:
+        parser.error("--agent-seeds needs two or more directories (one is a --policy)")
+    if len(set(args.agent_seeds)) != len(args.agent_seeds):
+        parser.error(f"--agent-seeds given a directory twice: {args.agent_seeds}")
+    args.policy += [d for d in args.agent_seeds if d not in args.policy]
+    if not args.policy:
+        parser.error("give at least one --policy (or --agent-seeds)")
     if args.ray is not None and args.scenario in SYSTEMS:
         parser.error(f"--ray does not apply to --scenario {args.scenario}")
     make_core = _cores(parser, args.ray)
@@ -605,6 +626,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif results["meta"]["scenario"] == "file":
         results["meta"]["scenario"] = str(args.env_config)
     render_tables(results)
+    if args.agent_seeds:
+        from imm_gym.cli.seeds import across_seeds, render_seeds
+
+        results["across_seeds"] = across_seeds(results, args.agent_seeds)
+        render_seeds(results["across_seeds"])
     if args.tradeoff:
         results["tradeoff"] = _tradeoff(args, scenario, overrides, results, make_core)
     _record(results, args.json)
@@ -740,6 +766,11 @@ def _main_suite(
     except ConfigError as err:
         parser.error(str(err))
     render_suite_table(results)
+    if args.agent_seeds:
+        from imm_gym.cli.seeds import render_seeds, suite_across_seeds
+
+        results["across_seeds"] = suite_across_seeds(results, args.agent_seeds)
+        render_seeds(results["across_seeds"])
     _record(results, args.json)
     return 0
 
@@ -755,6 +786,7 @@ def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
         "--reference": args.reference,
         "--plots": args.plots,
         "--tradeoff": args.tradeoff,
+        "--agent-seeds": args.agent_seeds,
     }
     for flag in (f for f, given in unused.items() if given):
         parser.error(f"{flag} does not apply to --scenario {args.scenario}")

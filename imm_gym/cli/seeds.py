@@ -1,0 +1,93 @@
+"""Training seeds of one agent, aggregated (``python -m imm_gym.evaluate --agent-seeds DIR ...``).
+
+Each seed is evaluated as a policy of its own (its row in the tables, the same runs as every
+other policy); this adds, per scenario, the interquartile mean over the seeds of the position
+ARMSE, the mode accuracy and the relative paired difference of the position ARMSE against the
+reference policy, each with a stratified bootstrap 95 % CI
+(:func:`imm_gym.evaluation.metrics.stratified_bootstrap_iqm`, Agarwal et al. 2021) and, over the
+scenarios of a suite, the IQM of the relative differences (every scenario a task: seeds are
+resampled within each). With few seeds the IQM is a trimmed mean of the middle ones and its CI
+says how much the training seed moves the agent, not the Monte-Carlo noise (the paired CIs of
+each seed's row say that).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from imm_gym.evaluation.metrics import stratified_bootstrap_iqm
+
+#: Per-scenario quantities aggregated over the seeds (keys of the JSON): a seed's position ARMSE
+#: and mode accuracy (its row), its relative paired difference against the reference.
+QUANTITIES = ("armse_pos", "mode_accuracy", "relative_vs_reference")
+
+
+def _per_seed(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, list[float]]:
+    """Each quantity of :data:`QUANTITIES` for every seed of one scenario's result."""
+    rows = result["policies"]
+    paired = result["paired"]
+    values: dict[str, list[float]] = {q: [] for q in QUANTITIES}
+    for name in seeds:
+        values["armse_pos"].append(float(rows[name]["armse_pos"]))
+        values["mode_accuracy"].append(float(rows[name]["mode_accuracy"]))
+        d = paired["differences"].get(name)
+        values["relative_vs_reference"].append(0.0 if d is None else float(d["relative"]))
+    return values
+
+
+def across_seeds(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, Any]:
+    """One scenario: per quantity the seeds' values and their IQM with its stratified bootstrap
+    CI (``{"per_seed": [...], "iqm": ..., "low": ..., "high": ...}``), the reference's name and
+    the seeds."""
+    out: dict[str, Any] = {"seeds": list(seeds), "reference": result["paired"]["reference"]}
+    for key, values in _per_seed(result, seeds).items():
+        out[key] = {"per_seed": values, **stratified_bootstrap_iqm(np.asarray(values))}
+    return out
+
+
+def suite_across_seeds(results: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, Any]:
+    """A suite: :func:`across_seeds` of every scenario and the IQM over all scenarios and seeds
+    of the relative difference against the reference, stratified by scenario."""
+    per_scenario = {name: across_seeds(r, seeds) for name, r in results["scenarios"].items()}
+    relative = np.array([s["relative_vs_reference"]["per_seed"] for s in per_scenario.values()])
+    return {
+        "seeds": list(seeds),
+        "scenarios": per_scenario,
+        "relative_vs_reference": stratified_bootstrap_iqm(relative),
+    }
+
+
+def render_seeds(summary: Mapping[str, Any]) -> None:
+    """Print the aggregate of :func:`across_seeds` (one scenario, ``{"scenarios": ...}`` absent)
+    or :func:`suite_across_seeds` as a table with rich."""
+    from rich.console import Console
+    from rich.table import Table
+
+    scenarios = summary.get("scenarios") or {"": summary}
+    n = len(summary["seeds"])
+    console = Console(width=None if sys.stdout.isatty() else 150)
+    table = Table(
+        title=f"Over {n} training seeds: interquartile mean [stratified bootstrap 95% CI]"
+    )
+    for col in ("scenario", "pos ARMSE (m)", "mode acc.", "Δ vs reference"):
+        table.add_column(col, justify="left" if col == "scenario" else "right")
+    for name, s in scenarios.items():
+        a, m, r = s["armse_pos"], s["mode_accuracy"], s["relative_vs_reference"]
+        table.add_row(
+            name or "—",
+            f"{a['iqm']:.2f} [{a['low']:.2f}, {a['high']:.2f}]",
+            f"{100 * m['iqm']:.1f}% [{100 * m['low']:.1f}, {100 * m['high']:.1f}]",
+            f"{100 * r['iqm']:+.2f}% [{100 * r['low']:+.2f}, {100 * r['high']:+.2f}] "
+            f"({s['reference']})",
+        )
+    pooled = summary.get("relative_vs_reference") if "scenarios" in summary else None
+    if pooled is not None:
+        table.caption = (
+            f"all scenarios, relative Δ vs reference: {100 * pooled['iqm']:+.2f}% "
+            f"[{100 * pooled['low']:+.2f}, {100 * pooled['high']:+.2f}]"
+        )
+    console.print(table)

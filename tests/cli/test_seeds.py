@@ -1,0 +1,96 @@
+"""Training seeds of one agent aggregated by ``python -m imm_gym.evaluate --agent-seeds``:
+interquartile means with stratified bootstrap CIs, per scenario and over a suite."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imm_gym.cli.evaluate import main
+from imm_gym.cli.seeds import across_seeds, suite_across_seeds
+from imm_gym.evaluation.metrics import stratified_bootstrap_iqm
+
+PRETRAINED = Path(__file__).resolve().parents[2] / "agents" / "pretrained"
+
+
+def _result(armse: dict[str, float], accuracy: float = 0.6, ref: str = "best-fixed") -> dict:
+    """One scenario's result: rows and paired differences against ``ref``."""
+    return {
+        "policies": {n: {"armse_pos": a, "mode_accuracy": accuracy} for n, a in armse.items()},
+        "paired": {
+            "reference": ref,
+            "differences": {
+                name: {"diff": a - armse[ref], "relative": (a - armse[ref]) / armse[ref]}
+                for name, a in armse.items()
+                if name != ref
+            },
+        },
+    }
+
+
+def test_per_scenario_the_seeds_values_and_their_iqm() -> None:
+    armse = {"best-fixed": 20.0, "s0": 18.0, "s1": 19.0, "s2": 30.0, "s3": 19.5, "s4": 18.5}
+    seeds = ["s0", "s1", "s2", "s3", "s4"]
+    out = across_seeds(_result(armse), seeds)
+    assert out["armse_pos"]["per_seed"] == [18.0, 19.0, 30.0, 19.5, 18.5]
+    # the middle half of 18, 18.5, 19, 19.5, 30 (scipy's trim_mean cuts one from each end)
+    assert out["armse_pos"]["iqm"] == pytest.approx(19.0)
+    assert out["armse_pos"]["low"] <= 19.0 <= out["armse_pos"]["high"] < 30.0
+    np.testing.assert_allclose(
+        out["relative_vs_reference"]["per_seed"], [-0.1, -0.05, 0.5, -0.025, -0.075]
+    )
+    assert out["relative_vs_reference"]["iqm"] == pytest.approx(-0.05)
+    assert out["reference"] == "best-fixed" and out["seeds"] == seeds
+
+
+def test_over_a_suite_scenarios_are_the_strata() -> None:
+    seeds = ["a", "b", "c"]
+    results = {
+        "scenarios": {
+            "easy": _result({"best-fixed": 10.0, "a": 9.0, "b": 9.5, "c": 10.5}),
+            "hard": _result({"best-fixed": 50.0, "a": 55.0, "b": 60.0, "c": 50.0}),
+        }
+    }
+    out = suite_across_seeds(results, seeds)
+    relative = np.array([[-0.1, -0.05, 0.05], [0.1, 0.2, 0.0]])
+    expected = stratified_bootstrap_iqm(relative)
+    assert out["relative_vs_reference"] == pytest.approx(expected)
+    assert set(out["scenarios"]) == {"easy", "hard"}
+
+
+def test_the_command_adds_the_seeds_rows_and_their_aggregate(tmp_path, capsys) -> None:
+    dirs = [str(shutil.copytree(PRETRAINED, tmp_path / f"seed_{s}")) for s in range(2)]
+    out = tmp_path / "res.json"
+    argv = ["--policy", "fixed", "--agent-seeds", *dirs, "--reference", "fixed",
+            "--scenario", "paper", "--runs", "3", "--no-clairvoyant", "--quiet"]
+    assert main([*argv, "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert list(data["policies"]) == ["fixed", *dirs]
+    summary = data["across_seeds"]
+    rows = [data["policies"][d]["armse_pos"] for d in dirs]
+    assert summary["armse_pos"]["per_seed"] == rows
+    assert summary["relative_vs_reference"]["per_seed"] == [
+        data["paired"]["differences"][d]["relative"] for d in dirs
+    ]
+    assert summary["reference"] == "fixed"
+    assert "Over 2 training seeds" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--agent-seeds", "a"], "two or more directories"),
+        (["--agent-seeds", "a", "a"], "a directory twice"),
+        (["--runs", "2"], "at least one --policy"),
+        (["--agent-seeds", "a", "b", "--scenario", "seed002"], "--agent-seeds does not apply"),
+    ],
+)
+def test_bad_seed_lists_are_refused(argv, message, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--quiet"])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
