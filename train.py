@@ -23,7 +23,12 @@ uses seeds from 100,000,000 on), with common random numbers and paired bootstrap
 on that configuration: its fields are applied over the entry's ``env_kwargs`` and recorded with
 them in the checkpoint and in the agent's ``env.json`` (what ``python -m imm_gym.evaluate``
 reports as the agent's ``trained_on``); the evaluation after training runs the paper scenario
-and the held-out randomized family (the file's ``family``) on the file's tracker.
+and the held-out randomized family (the file's ``family``) on the file's tracker. Several files
+train across trackers: each file's configuration takes its share of the training slots
+(``--env-shares``, equal by default; :class:`imm_gym.sim.mixture.MixtureCore`), recorded as
+``env_mixture`` in the hyperparameters (a resumed run continues with it); the files must agree on
+what the policy reads and writes (:data:`imm_gym.sim.mixture.POLICY_FIELDS`), and the first
+file's configuration is the agent's ``env.json``, its validation and its evaluation.
 
 ``--engine rllib`` trains with Ray RLlib's PPO instead (:mod:`agents.rllib`: ``--env-runners K``
 runners each stepping the native vector env, on a local Ray instance or the cluster at
@@ -95,8 +100,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--env-config",
         type=Path,
+        nargs="+",
+        metavar="FILE",
         help="YAML or JSON file of EnvConfig fields (scenario, family, sensor, bank, filter, ...) "
-        "applied over the entry's env_kwargs and recorded in the agent",
+        "applied over the entry's env_kwargs and recorded in the agent; several files: training "
+        "across trackers, each file's configuration on its share of the slots (--env-shares; "
+        "the first file's is recorded, validated and evaluated)",
+    )
+    p.add_argument(
+        "--env-shares",
+        type=float,
+        nargs="+",
+        metavar="W",
+        help="with several --env-config files: each file's weight in the slots (default: equal)",
     )
     p.add_argument("--out", type=Path, default=Path("runs/default"), help="output directory")
     p.add_argument(
@@ -210,14 +226,31 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
             parser.error("--engine rllib needs Ray: pip install -e '.[ray]' (make install-ray)")
     elif args.ray_address is not None or args.env_runners != 1:
         parser.error("--ray-address and --env-runners apply to --engine rllib")
-    args.env_overrides = {}
-    if args.env_config is not None:
+    args.env_overrides, args.env_mixture = {}, []
+    files = args.env_config or []
+    if args.env_shares is not None:
+        if len(files) < 2 or len(args.env_shares) != len(files):
+            parser.error(
+                f"--env-shares gives one weight per --env-config file (two or more files); got "
+                f"{len(args.env_shares)} weights for {len(files)} file(s)"
+            )
+        if not all(0.0 < w < float("inf") for w in args.env_shares):
+            parser.error(f"--env-shares must be positive numbers, got {args.env_shares}")
+    if len(files) > 1 and args.engine == "rllib":
+        parser.error("several --env-config files (a mixture) train with --engine sb3")
+    if files:
         from imm_gym.sim.config_file import read_env_config
 
         try:
-            args.env_overrides = read_env_config(args.env_config)
+            overrides = [read_env_config(f) for f in files]
         except ConfigError as err:
             parser.error(f"--env-config {err}")
+        weights = args.env_shares or [1.0] * len(files)
+        shares = [w / sum(weights) for w in weights]
+        args.env_overrides = overrides[0]
+        args.env_mixture = [
+            {"env_kwargs": o, "share": w} for o, w in zip(overrides[1:], shares[1:], strict=True)
+        ]
     return resume
 
 
@@ -232,6 +265,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     from agents.training import check_hyperparams, load_hyperparams, read_yaml
     from imm_gym.envs import PRESETS
     from imm_gym.sim.env_config import EnvConfig
+    from imm_gym.sim.mixture import check_parts
     from imm_gym.validation import ConfigError
 
     if resume is not None:
@@ -261,20 +295,38 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
         params = updated
     if args.timesteps is not None:
         params["n_timesteps"] = args.timesteps
-    if args.env_overrides:
+    if args.env_config:
         from agents.training import jsonable
 
+        entry_kwargs = {} if resume is not None else params.get("env_kwargs", {})
         env_kwargs = jsonable({**params.get("env_kwargs", {}), **args.env_overrides})
-        if resume is not None and env_kwargs != jsonable(params.get("env_kwargs", {})):
+        mixture = [
+            {"env_kwargs": jsonable({**entry_kwargs, **part["env_kwargs"]}), "share": part["share"]}
+            for part in args.env_mixture
+        ]
+        changed = env_kwargs != jsonable(params.get("env_kwargs", {})) or (
+            mixture and mixture != params.get("env_mixture")
+        )
+        if resume is not None and changed:
+            files = " ".join(map(str, args.env_config))
             raise ConfigError(
-                f"--env-config {args.env_config} changes the environment of the resumed run; "
+                f"--env-config {files} changes the environment of the resumed run; "
                 "--resume continues with the checkpoint's (leave --env-config out)"
             )
         params = {**params, "env_kwargs": env_kwargs}
-    try:
-        EnvConfig.build({**PRESETS[args.env], **params.get("env_kwargs", {})})
-    except ConfigError as err:
-        raise ConfigError(f"env_kwargs of the hyperparameters: {err}") from None
+        if mixture:
+            params["env_mixture"] = mixture
+    parts = [("env_kwargs", params.get("env_kwargs", {}))] + [
+        (f"env_mixture[{i}].env_kwargs", part["env_kwargs"])
+        for i, part in enumerate(params.get("env_mixture", []))
+    ]
+    configs = []
+    for where, kwargs in parts:
+        try:
+            configs.append(EnvConfig.build({**PRESETS[args.env], **kwargs}))
+        except ConfigError as err:
+            raise ConfigError(f"{where} of the hyperparameters: {err}") from None
+    check_parts(configs)
     return params
 
 
@@ -360,6 +412,7 @@ def train_one(
         frame_stack,
         gamma,
         critic_state,
+        params.get("env_mixture", ()),
     )
     algo_cls = _algo_class(args.algo)
     ckpt_dir = run_dir / "checkpoints"

@@ -2,6 +2,7 @@
 
 Hyperparameters live in ``agents/hyperparams/ppo.yml`` in rl-zoo3's format, keyed by environment
 id (``n_envs``, ``n_timesteps``, ``policy``, ``normalize``, ``frame_stack``, ``env_kwargs``,
+``env_mixture`` (further configurations and their shares of the slots: training across trackers),
 ``policy_kwargs`` and the algorithm's own arguments). They are data: every key is checked
 against an allow-list (:data:`STACK_KEYS`, :data:`ALGO_KEYS`), ``policy_kwargs`` is structured
 YAML (``net_arch`` as lists, ``activation_fn`` by name) and nothing is evaluated as Python. The
@@ -24,7 +25,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,7 @@ import numpy as np
 import yaml
 
 from agents.schema import check_flag, check_number, check_policy_kwargs, check_size
+from imm_gym.sim.mixture import check_mixture
 from imm_gym.validation import ConfigError
 
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
@@ -167,6 +169,7 @@ STACK_KEYS: dict[str, Callable[[str, Any], Any]] = {
     "normalize": check_flag,
     "frame_stack": check_size,
     "env_kwargs": _mapping,
+    "env_mixture": lambda where, value: (check_mixture(where, value), value)[1],
     "critic_state": check_flag,
     "swa_start": _swa_start,
 }
@@ -234,15 +237,18 @@ def make_training_env(
     frame_stack: int,
     gamma: float,
     critic_state: bool = False,
+    mixture: Sequence[Mapping[str, Any]] = (),
 ) -> Any:
     """The vectorized training environment (see the module docstring); ``critic_state`` appends
-    ground truth for an asymmetric critic (:mod:`agents.asymmetric`)."""
+    ground truth for an asymmetric critic (:mod:`agents.asymmetric`); ``mixture`` (the entry's
+    ``env_mixture``) gives further configurations their share of the slots
+    (:class:`~imm_gym.envs.sb3.TPMAdaptSB3VecEnv`)."""
     from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
 
     from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 
     venv = TPMAdaptSB3VecEnv(
-        num_envs=n_envs, env_id=env_id, critic_state=critic_state, **env_kwargs
+        num_envs=n_envs, env_id=env_id, critic_state=critic_state, mixture=mixture, **env_kwargs
     )
     venv.seed(TRAIN_SEED_BASE + 10_000 * seed)
     env: Any = VecMonitor(venv)

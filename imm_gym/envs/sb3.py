@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import CRITIC_CLIP, TrackingCore, critic_state_size
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.mixture import MixtureCore, check_mixture
 
 #: Per-step diagnostics copied into each sub-env's info dict (the rest stays in the core).
 SB3_INFO_KEYS = (
@@ -45,6 +46,10 @@ class TPMAdaptSB3VecEnv(VecEnv):
         critic_state: append :meth:`~imm_gym.sim.core.TrackingCore.critic_state` (ground truth) to
             every observation, for an asymmetric actor-critic whose actor does not read it
             (:class:`agents.asymmetric.AsymmetricActorCriticPolicy`).
+        mixture: training across trackers: further configurations, each ``{"env_kwargs":
+            EnvConfig fields over the preset of env_id, "share": weight}``, that take their
+            share of the slots (:class:`~imm_gym.sim.mixture.MixtureCore`); ``config`` keeps
+            ``1 - sum(shares)`` of them (the shares must leave it some).
     """
 
     def __init__(
@@ -53,14 +58,22 @@ class TPMAdaptSB3VecEnv(VecEnv):
         config: EnvConfig | Mapping[str, Any] | None = None,
         env_id: str | None = None,
         critic_state: bool = False,
+        mixture: Sequence[Mapping[str, Any]] = (),
         **kwargs: Any,
     ) -> None:
+        preset: dict[str, Any] = {}
         if env_id is not None:
             preset = dict(gym.spec(env_id).kwargs.get("config") or {})
             if config is None or isinstance(config, Mapping):
                 config = {**preset, **(config or {})}
         self.config = EnvConfig.build(config, **kwargs)
-        self.core = TrackingCore(self.config, n_envs=num_envs)
+        self.core: TrackingCore | MixtureCore
+        if mixture:
+            parts, shares = check_mixture("mixture", mixture)
+            others = [EnvConfig.build({**preset, **part}) for part in parts]
+            self.core = MixtureCore([self.config, *others], [1.0 - sum(shares), *shares], num_envs)
+        else:
+            self.core = TrackingCore(self.config, n_envs=num_envs)
         self.critic_state = critic_state
         low, high = self.core.obs_low, self.core.obs_high
         if critic_state:

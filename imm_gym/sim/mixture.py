@@ -1,0 +1,190 @@
+"""Training across trackers: the slots of one batch split among several configurations.
+
+A :class:`MixtureCore` runs a :class:`~imm_gym.sim.core.TrackingCore` per configuration, each on
+its share of the N slots (slots ``starts[p] .. starts[p+1]-1`` are part ``p``'s), and presents
+them as one core: one observation and action space, one step. The parts may differ in their
+tracker (sensor, bank, filter, TPM), their targets and conditions (scenario, family, ``vary``),
+their initiation and their reward; what the policy reads and writes must be the same
+(:data:`POLICY_FIELDS`), so that one network serves every part and the agent's recorded settings
+(the first part's) are those it was trained with. ``vary`` draws conditions per episode within
+one bank; a mixture also spans banks (the paper's per-step noise beside a physically scaled one,
+say).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.sim.core import StepResult, TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.validation import ConfigError
+
+#: The fields every part of a mixture must share: the observation (its blocks and the models
+#: they are per), the action's meaning and the banks a feature reads.
+POLICY_FIELDS = (
+    "obs_features",
+    "action_mode",
+    "stay_base",
+    "max_factor",
+    "logit_scale",
+    "p_min",
+    "parallel",
+    "shadow",
+    "shadow_stay",
+    "loglik_clip",
+)
+
+
+def check_mixture(
+    where: str, parts: Any
+) -> tuple[list[dict[str, Any]], list[float]]:
+    """The further parts of a mixture, ``[{"env_kwargs": {...}, "share": w}, ...]``, checked: each
+    part's EnvConfig fields and its share of the slots (the main configuration keeps
+    ``1 - sum(w)``, so the shares are in (0, 1) and sum below 1).
+
+    Raises:
+        ConfigError: naming ``where``, the part and the key.
+    """
+    if not isinstance(parts, (list, tuple)) or not parts:
+        raise ConfigError(
+            f"{where} must be a non-empty list of {{env_kwargs, share}}, got {parts!r}"
+        )
+    kwargs, shares = [], []
+    for i, part in enumerate(parts):
+        if not isinstance(part, Mapping) or set(part) != {"env_kwargs", "share"}:
+            raise ConfigError(
+                f"{where}[{i}] must be a mapping with the keys env_kwargs and share, got {part!r}"
+            )
+        if not isinstance(part["env_kwargs"], Mapping):
+            raise ConfigError(f"{where}[{i}].env_kwargs must be a mapping of EnvConfig fields")
+        share = part["share"]
+        if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 < share < 1:
+            raise ConfigError(f"{where}[{i}].share must be a number in (0, 1), got {share!r}")
+        kwargs.append(dict(part["env_kwargs"]))
+        shares.append(float(share))
+    if not sum(shares) < 1.0:
+        raise ConfigError(
+            f"{where}: the shares {shares} sum to {sum(shares):g}; they must leave the main "
+            "configuration a share (sum < 1)"
+        )
+    return kwargs, shares
+
+
+def check_parts(configs: Sequence[EnvConfig]) -> None:
+    """Raise :class:`ConfigError` where a part differs from the first in a field of
+    :data:`POLICY_FIELDS` or in its number of models (the policy's spaces)."""
+    first = configs[0]
+    for p, config in enumerate(configs[1:], start=1):
+        differ = [f for f in POLICY_FIELDS if getattr(config, f) != getattr(first, f)]
+        if len(config.bank) != len(first.bank):
+            differ.append(f"bank size ({len(config.bank)} models, not {len(first.bank)})")
+        if differ:
+            raise ConfigError(
+                f"mixture part {p} differs from part 0 in {differ}: the parts of a mixture "
+                f"share what the policy reads and writes ({', '.join(POLICY_FIELDS)})"
+            )
+
+
+def slot_counts(shares: Sequence[float], n_envs: int) -> list[int]:
+    """The slots of each part: ``n_envs`` split in proportion to ``shares`` (positive weights)
+    by largest remainders, ties to the earlier part.
+
+    Raises:
+        ConfigError: a share that is not positive and finite, or one that gets no slot.
+    """
+    w = np.asarray(shares, dtype=np.float64)
+    if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w) & (w > 0.0)):
+        raise ConfigError(f"mixture shares must be positive numbers, got {list(shares)}")
+    exact = w / w.sum() * n_envs
+    counts = np.floor(exact).astype(int)
+    order = np.argsort(-(exact - counts), kind="stable")
+    counts[order[: n_envs - counts.sum()]] += 1
+    if np.any(counts == 0):
+        raise ConfigError(
+            f"mixture shares {list(shares)} of {n_envs} slots leave part "
+            f"{int(np.flatnonzero(counts == 0)[0])} without a slot; give more slots (n_envs) "
+            "or a larger share"
+        )
+    return counts.tolist()
+
+
+class MixtureCore:
+    """N slots split among the cores of several configurations (module docstring).
+
+    Args:
+        configs: the parts' configurations; the first is the mixture's :attr:`config` (what an
+            agent trained on it records).
+        shares: each part's weight (positive; normalized).
+        n_envs: the number of slots N.
+
+    Raises:
+        ConfigError: the parts differ in a field of :data:`POLICY_FIELDS` or in the number of
+            models, or a share gets no slot.
+    """
+
+    def __init__(self, configs: Sequence[EnvConfig], shares: Sequence[float], n_envs: int) -> None:
+        if len(configs) != len(shares):
+            raise ConfigError(f"{len(configs)} mixture configurations for {len(shares)} shares")
+        check_parts(configs)
+        first = configs[0]
+        counts = slot_counts(shares, n_envs)
+        self.cores = [TrackingCore(c, n) for c, n in zip(configs, counts, strict=True)]
+        #: first slot of each part, and N at the end
+        self.starts = np.concatenate([[0], np.cumsum(counts)])
+        self.config = first
+        self.n_envs = n_envs
+        core = self.cores[0]
+        self.M, self.action_dim = core.M, core.action_dim
+        self.obs_low, self.obs_high, self.obs_dim = core.obs_low, core.obs_high, core.obs_dim
+
+    def _parts(self, indices: NDArray[np.int64]) -> list[tuple[TrackingCore, NDArray[np.bool_]]]:
+        """Each core with the mask of ``indices`` that are its slots."""
+        return [
+            (core, (indices >= lo) & (indices < hi))
+            for core, lo, hi in zip(self.cores, self.starts[:-1], self.starts[1:], strict=True)
+        ]
+
+    def reset(self, indices: NDArray[np.int64], seeds: list[int | None]) -> None:
+        """:meth:`TrackingCore.reset` of the slots ``indices``, each by its part."""
+        indices = np.asarray(indices, dtype=np.int64)
+        for p, (core, mine) in enumerate(self._parts(indices)):
+            if np.count_nonzero(mine):
+                chosen = [s for s, m in zip(seeds, mine, strict=True) if m]
+                core.reset(indices[mine] - self.starts[p], chosen)
+
+    def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
+        """Every part's step on its slots' actions; the results concatenated in slot order (the
+        info keys every part gives)."""
+        results = []
+        for p, core in enumerate(self.cores):
+            part = slice(self.starts[p], self.starts[p + 1])
+            results.append(core.step(action[part], None if active is None else active[part]))
+        keys = [k for k in results[0].info if all(k in r.info for r in results[1:])]
+        return StepResult(
+            np.concatenate([r.obs for r in results]),
+            np.concatenate([r.reward for r in results]),
+            np.concatenate([r.terminated for r in results]),
+            np.concatenate([r.truncated for r in results]),
+            {k: np.concatenate([np.asarray(r.info[k]) for r in results]) for k in keys},
+        )
+
+    def observe(self) -> NDArray[np.float32]:
+        return np.concatenate([core.observe() for core in self.cores])
+
+    def critic_state(self) -> NDArray[np.float32]:
+        return np.concatenate([core.critic_state() for core in self.cores])
+
+    def streams(self) -> list[tuple[np.random.Generator, np.random.Generator] | None]:
+        return [pair for core in self.cores for pair in core.streams()]
+
+    def set_streams(
+        self, generators: list[tuple[np.random.Generator, np.random.Generator]]
+    ) -> None:
+        if len(generators) != self.n_envs:
+            raise ValueError(f"{len(generators)} stream pairs for {self.n_envs} slots")
+        for p, core in enumerate(self.cores):
+            core.set_streams(list(generators[self.starts[p] : self.starts[p + 1]]))

@@ -1,0 +1,72 @@
+"""Training across trackers end to end: the SB3 adapter over a
+:class:`~imm_gym.sim.mixture.MixtureCore`, and ``train.py --env-config A B --env-shares``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import train
+from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
+from imm_gym.sim.mixture import MixtureCore
+
+POLICY = {"action_mode": "stay", "obs_features": ("loglik", "shadow_probs", "stay_bank_evidence"),
+          "stay_base": "evidence", "shadow_stay": None}
+
+
+def test_the_sb3_adapter_trains_on_a_mixture_and_keeps_its_streams() -> None:
+    scaled = {"bank": [dict(kind="cv", noise="continuous", intensity=0.12),
+                       dict(kind="ct", turn_rate_deg=4.0, noise="continuous", intensity=0.06),
+                       dict(kind="ct", turn_rate_deg=-4.0, noise="continuous", intensity=0.06)],
+              "vary": {"T": [0.5, 5.0]}}
+    env = TPMAdaptSB3VecEnv(
+        4, env_id="imm_gym/TPMAdapt-v0", critic_state=True,
+        mixture=[{"env_kwargs": {**POLICY, **scaled}, "share": 0.5}], **POLICY,
+    )
+    assert isinstance(env.core, MixtureCore) and env.core.cores[1].config.vary.active
+    env.seed(3)
+    obs = env.reset()
+    assert obs.shape == (4, env.observation_space.shape[0])
+    for _ in range(5):
+        env.step_async(np.zeros((4, 3), dtype=np.float32))
+        obs, _, _, infos = env.step_wait()
+    assert np.all(np.isfinite(obs)) and len(infos) == 4
+    streams = env.core.streams()[::-1]  # each slot's pair handed to another slot
+    env.core.set_streams(streams)
+    assert all(a is b for a, b in zip(env.core.streams(), streams, strict=True))
+
+
+def test_train_py_records_the_mixture_and_trains_on_it(tmp_path) -> None:
+    first, second = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    policy = json.dumps({**POLICY, "obs_features": list(POLICY["obs_features"])})
+    first.write_text(policy)
+    second.write_text(json.dumps({**json.loads(policy), "bank": "cv-ct-continuous",
+                                  "sojourn": [60.0, 20.0, 20.0], "vary": {"T": [0.5, 5.0]}}))
+    cfg = tmp_path / "small.yml"
+    cfg.write_text("n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n")
+    argv = ["--config", str(cfg), "--out", str(tmp_path / "run"), "--no-progress", "--no-eval",
+            "--timesteps", "256", "--env-config", str(first), str(second), "--env-shares", "3", "1"]
+    assert train.main(argv) == 0
+    run = json.loads((tmp_path / "run" / "seed_0" / "config.json").read_text())
+    (part,) = run["hyperparams"]["env_mixture"]
+    assert part["share"] == 0.25 and part["env_kwargs"]["sojourn"] == [60.0, 20.0, 20.0]
+    assert part["env_kwargs"]["stay_base"] == "evidence"
+    env = json.loads((tmp_path / "run" / "seed_0" / "agent" / "env.json").read_text())
+    assert "sojourn" not in env and env["stay_base"] == "evidence"  # the first file's
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--env-shares", "1", "1"], "one weight per --env-config file"),
+        (["--env-config", "X", "Y", "--env-shares", "1", "0"], "positive numbers"),
+        (["--env-config", "X", "Y", "--env-shares", "1"], "2 file(s)"),
+    ],
+)
+def test_bad_mixtures_on_the_command_line(extra, message, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--no-eval", *extra])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err

@@ -1,0 +1,99 @@
+"""Training across trackers (:mod:`imm_gym.sim.mixture`): the slots split among several
+configurations, each part's slots exactly its own core's, the parts held to one policy
+interface."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym import EnvConfig, TrackingCore
+from imm_gym.sim.mixture import MixtureCore, check_mixture, slot_counts
+from imm_gym.sim.presets import CONTINUOUS_BANK
+from imm_gym.validation import ConfigError
+
+POLICY = {"action_mode": "stay", "obs_features": ("loglik", "shadow_probs", "stay_bank_evidence"),
+          "stay_base": "evidence", "shadow_stay": None}
+#: two trackers: the paper's at T = 1 s, and a physically scaled bank at drawn sampling periods
+PAPER = EnvConfig(**POLICY, family={"horizon": 30, "n_segments": (2, 3)})
+SCALED = EnvConfig(
+    **POLICY, bank=CONTINUOUS_BANK, sojourn=(60.0, 20.0, 20.0),
+    family={"horizon": 40, "n_segments": (2, 4)},
+    vary={"T": (0.5, 5.0), "sigma_r": (10.0, 100.0)},
+)
+
+
+@pytest.mark.parametrize(
+    ("shares", "n", "counts"),
+    [([0.5, 0.5], 64, [32, 32]), ([1, 2], 9, [3, 6]), ([0.3, 0.3, 0.4], 10, [3, 3, 4]),
+     ([1, 1, 1], 8, [3, 3, 2]), ([0.25, 0.75], 2, [1, 1])],
+)
+def test_slots_are_split_by_largest_remainders(shares, n, counts) -> None:
+    assert slot_counts(shares, n) == counts
+
+
+@pytest.mark.parametrize(
+    ("shares", "n", "message"),
+    [([0.1, 0.9], 4, "without a slot"), ([0.5, 0.0], 4, "positive"), ([1, np.nan], 4, "positive")],
+)
+def test_bad_shares_are_refused(shares, n, message) -> None:
+    with pytest.raises(ConfigError, match=message):
+        slot_counts(shares, n)
+
+
+def test_each_part_s_slots_are_its_own_core_s_episodes() -> None:
+    mixture = MixtureCore([PAPER, SCALED], [0.4, 0.6], 5)
+    alone = [TrackingCore(PAPER, 2), TrackingCore(SCALED, 3)]
+    seeds = [11, 12, 13, 14, 15]
+    mixture.reset(np.arange(5), seeds)
+    alone[0].reset(np.arange(2), seeds[:2])
+    alone[1].reset(np.arange(3), seeds[2:])
+    np.testing.assert_array_equal(mixture.observe(), np.concatenate([c.observe() for c in alone]))
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(90):
+        action = rng.uniform(-1, 1, (5, 3))
+        got = mixture.step(action)
+        parts = [alone[0].step(action[:2]), alone[1].step(action[2:])]
+        for field in ("obs", "reward", "terminated", "truncated"):
+            np.testing.assert_array_equal(
+                getattr(got, field), np.concatenate([getattr(p, field) for p in parts])
+            )
+        np.testing.assert_array_equal(
+            got.info["tpm"], np.concatenate([p.info["tpm"] for p in parts])
+        )
+        done = np.flatnonzero(got.terminated | got.truncated)
+        ends += done.size
+        mixture.reset(done, [None] * done.size)  # each slot continues its own streams
+        for core, lo in zip(alone, (0, 2), strict=True):
+            mine = done[(done >= lo) & (done < lo + core.n_envs)] - lo
+            core.reset(mine, [None] * mine.size)
+    assert ends >= 5  # both parts ran whole episodes and started new ones
+    np.testing.assert_array_equal(
+        mixture.critic_state(), np.concatenate([c.critic_state() for c in alone])
+    )
+
+
+def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
+    with pytest.raises(ConfigError, match=r"part 1 differs from part 0 in \['obs_features'"):
+        MixtureCore([PAPER, SCALED.replace(obs_features=("loglik",))], [0.5, 0.5], 4)
+    with pytest.raises(ConfigError, match="action_mode"):
+        MixtureCore([PAPER, SCALED.replace(action_mode="set", stay_base="tracker")], [1, 1], 4)
+    two = EnvConfig(**POLICY, bank=CONTINUOUS_BANK[:2])
+    with pytest.raises(ConfigError, match="bank size"):
+        MixtureCore([PAPER, two], [0.5, 0.5], 4)
+
+
+@pytest.mark.parametrize(
+    ("parts", "message"),
+    [
+        ([], "non-empty list"),
+        ([{"env_kwargs": {}}], "keys env_kwargs and share"),
+        ([{"env_kwargs": [], "share": 0.5}], "must be a mapping"),
+        ([{"env_kwargs": {}, "share": 1.0}], r"share must be a number in \(0, 1\)"),
+        ([{"env_kwargs": {}, "share": 0.6}, {"env_kwargs": {}, "share": 0.4}], "sum to 1"),
+    ],
+)
+def test_bad_mixture_entries_name_the_part(parts, message) -> None:
+    with pytest.raises(ConfigError, match=message):
+        check_mixture("env_mixture", parts)
