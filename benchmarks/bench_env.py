@@ -14,11 +14,12 @@ unless stated:
    picture's histories recorded at every step) and once calling ``render()`` after every
    ``reset`` and ``step`` (one frame each); without a render mode nothing is recorded or drawn.
 2. Native vector env, ``gymnasium.make_vec(id, num_envs=N, vectorization_mode=
-   "vector_entry_point")`` for N = 1, 64, 1024 in four configurations: parallel bank B off / on
+   "vector_entry_point")`` for N = 1, 64, 1024 in five configurations: parallel bank B off / on
    (``parallel=True``) x shadow tracker on (default: ``shadow="fixed"``, ``reward="advantage"``) /
-   off (``shadow="none", reward="error"``). The timed call is ``venv.step(actions)``; a repeat
-   runs whole cycles of 151 batch steps (150 steps of an episode + the ``NEXT_STEP`` autoreset
-   step, so each repeat holds its share of resets).
+   off (``shadow="none", reward="error"``), and the stay bank (one classical IMM per stay of
+   the evidence grid beside the banks, the ``stay`` action centred on its evidence). The timed
+   call is ``venv.step(actions)``; a repeat runs whole cycles of 151 batch steps (150 steps of
+   an episode + the ``NEXT_STEP`` autoreset step, so each repeat holds its share of resets).
 3. stable-baselines3 adapter ``imm_gym.envs.sb3.TPMAdaptSB3VecEnv(num_envs=N)`` for N = 64, 1024,
    timed call ``venv.step(actions)`` (same-step resets), whole cycles of 150 batch steps.
 4. FilterPy ``IMMEstimator`` over three UKFs, one tracker, ``predict(); update(z)`` on the
@@ -86,6 +87,11 @@ VECTOR_CONFIGS: tuple[tuple[str, dict[str, Any]], ...] = (
     ("parallel off, shadow off", {"shadow": "none", "reward": "error"}),
     ("parallel on,  shadow on", {"parallel": True}),
     ("parallel on,  shadow off", {"parallel": True, "shadow": "none", "reward": "error"}),
+    # the stay bank: seven more classical IMMs per slot (imm_gym/sim/stay_bank.py)
+    (
+        "stay bank, shadow on",
+        {"action_mode": "stay", "stay_base": "evidence", "obs_features": ("stay_bank_evidence",)},
+    ),
 )
 HEADLINE_VECTOR = ("parallel on,  shadow on", 1024)
 QUICK_MAX_N = 64  # --quick: larger N only for the headline configuration
