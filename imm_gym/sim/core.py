@@ -343,9 +343,7 @@ class TrackingCore:
         k1, step, z, det, truth, true_model = step_inputs(
             self.k, self.horizon, self.z, self.detected, self.truth, self.true_model
         )
-        out = self._advance(self, self.validate_action(action), z, det, truth)
-        if self.stay_bank is not None:
-            self.stay_bank.step(z, det, IMMState(out.x_a, out.P_a, out.mode_probs))
+        out = self._advance_banks(self.validate_action(action), z, det, truth)
         info: dict[str, Any] = {
             "true_state": truth,
             "true_model": true_model,
@@ -374,6 +372,15 @@ class TrackingCore:
         if np.count_nonzero(diverged):  # only a diverged slot can carry NaN/inf
             info = {key: _finite(value) for key, value in info.items()}
         return StepResult(self.observe(), reward, diverged, truncated, info)
+
+    def _advance_banks(
+        self, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array
+    ) -> BankStep:
+        """The banks' step by the engine, then the stay bank's on the same measurements."""
+        out = self._advance(self, action, z, detected, truth)
+        if self.stay_bank is not None:
+            self.stay_bank.step(z, detected, IMMState(out.x_a, out.P_a, out.mode_probs))
+        return out
 
     def _record(self, out: BankStep, k: NDArray[np.int64]) -> None:
         """Take the banks' step ``out`` as every slot's state at step ``k``: the banks'

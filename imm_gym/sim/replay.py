@@ -90,7 +90,7 @@ class ReplayCore(TrackingCore):
         records it. Returns the engine's :class:`~imm_gym.sim.bank_step.BankStep` (its error and
         divergence fields are meaningless: no truth)."""
         no_truth = np.full((self.n_envs, self.n), np.nan)
-        out = self._advance(self, self.validate_action(action), z, detected, no_truth)
+        out = self._advance_banks(self.validate_action(action), z, detected, no_truth)
         self._record(out, self.k + 1)
         return out
 

@@ -154,3 +154,35 @@ def test_bad_inputs_are_config_errors() -> None:
         run_policy(z, policy, x0=np.zeros(4))
     with pytest.raises(ConfigError, match="P0 needs x0"):
         run_policy(z, policy, P0=np.eye(4))
+
+
+class _EvidencePolicy:
+    """Moves the stays by the stay bank's evidence for the sticky stays: its actions and the
+    centre of its TPM come from the stay bank, which the replay has to run too."""
+
+    env_overrides = {
+        "action_mode": "stay",
+        "stay_base": "evidence",
+        "obs_features": ("stay_bank_evidence",),
+    }
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return np.repeat(obs[:, -1:] - obs[:, -4:-3], 3, axis=1), state
+
+
+def test_the_stay_bank_is_replayed() -> None:
+    config = EnvConfig(sensor=Sonar(detection_prob=0.8))
+    policy = _EvidencePolicy()
+    for seed in SEEDS:
+        env = TPMAdaptEnv(config.replace(**policy.env_overrides))
+        obs, _ = env.reset(seed=seed)
+        tpms, done = [], False
+        while not done:
+            obs, _, _, done, info = env.step(policy.predict(obs[None])[0][0])
+            tpms.append(info["tpm"])
+        core = env.core
+        out = imm_gym.run_policy(
+            core.z[0], policy, config, core.detected[0], velocity=core.truth[0, 0, 2:4]
+        )
+        np.testing.assert_array_equal(out.tpm[0], np.stack(tpms))
+        assert np.ptp(np.stack(tpms)[:, 0, 0]) > 0.05  # the evidence moved the TPM
