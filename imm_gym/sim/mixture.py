@@ -130,12 +130,11 @@ class MixtureCore:
         if len(configs) != len(shares):
             raise ConfigError(f"{len(configs)} mixture configurations for {len(shares)} shares")
         check_parts(configs)
-        first = configs[0]
         counts = slot_counts(shares, n_envs)
         self.cores = [TrackingCore(c, n) for c, n in zip(configs, counts, strict=True)]
         #: first slot of each part, and N at the end
         self.starts = np.concatenate([[0], np.cumsum(counts)])
-        self.config = first
+        self.config = configs[0]
         self.n_envs = n_envs
         core = self.cores[0]
         self.M, self.action_dim = core.M, core.action_dim
