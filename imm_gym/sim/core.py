@@ -105,7 +105,7 @@ class TrackingCore:
             config.mode_reward,
             config.tpm_change_cost,
         )
-        needs_bank = config.stay_base == "evidence" or any(
+        needs_bank = config.stay_base != "tracker" or any(
             FEATURES[f].needs_stay_bank for f in config.obs_features
         )
         #: the stay bank, where the configuration uses its evidence (else None)
@@ -299,12 +299,15 @@ class TrackingCore:
     @property
     def stay_base_tpms(self) -> Array:
         """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's), or
-        with ``stay_base="evidence"`` the stay bank's centre
-        (:meth:`imm_gym.sim.stay_bank.StayBank.centre`) on the diagonal, the rest of each row
-        spread evenly."""
-        if self.config.stay_base == "tracker":
+        the stay bank's stay on the diagonal and the rest of each row spread evenly
+        (``stay_base="evidence"``: :meth:`imm_gym.sim.stay_bank.StayBank.centre`,
+        ``"evidence_best"``: :meth:`imm_gym.sim.stay_bank.StayBank.best`)."""
+        base = self.config.stay_base
+        if base == "tracker":
             return self.fixed_tpms
-        return stay_tpm_rows(self.stay_bank.centre(), self.M)  # type: ignore[union-attr]
+        bank = self.stay_bank
+        stays = bank.centre() if base == "evidence" else bank.best()  # type: ignore[union-attr]
+        return stay_tpm_rows(stays, self.M)
 
     @property
     def stay_bank_evidence(self) -> Array:

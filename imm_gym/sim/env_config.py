@@ -36,7 +36,7 @@ from imm_gym.validation import (
 
 ACTION_MODES = ("scale", "set", "stay", "stay_step")
 SHADOWS = ("fixed", "none")
-STAY_BASES = ("tracker", "evidence")
+STAY_BASES = ("tracker", "evidence", "evidence_best")
 #: The built-in reward terms (the registry, :data:`imm_gym.sim.rewards.REWARD_TERMS`, is what
 #: ``reward`` is checked against).
 REWARDS = tuple(REWARD_TERMS)
@@ -103,7 +103,8 @@ class EnvConfig:
             bank B's) or ``"evidence"`` (each step, the stay the measurements support so far:
             the evidence-weighted stay of the stay bank, one classical IMM per stay,
             :mod:`imm_gym.sim.stay_bank`; the zero action then selects the switching prior by
-            its evidence). ``"evidence"`` needs ``action_mode="stay"``.
+            its evidence), or ``"evidence_best"`` (the stay of the stay bank's IMM with the
+            largest evidence). Both need ``action_mode="stay"``.
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode, or change of the stay's logit in the stay modes,
             for an action of 1 (> 0).
@@ -203,9 +204,9 @@ class EnvConfig:
         store(self, "p_min", check_range("p_min", self.p_min, 0.0, 1.0 / M, hi_open=True))
         check_choice("action_mode", self.action_mode, ACTION_MODES)
         check_choice("stay_base", self.stay_base, STAY_BASES)
-        if self.stay_base == "evidence" and self.action_mode != "stay":
+        if self.stay_base != "tracker" and self.action_mode != "stay":
             raise ConfigError(
-                f"stay_base 'evidence' needs action_mode 'stay', got {self.action_mode!r}"
+                f"stay_base {self.stay_base!r} needs action_mode 'stay', got {self.action_mode!r}"
             )
         store(self, "max_factor", check_range("max_factor", self.max_factor, 1.0, lo_open=True))
         store(self, "logit_scale", check_range("logit_scale", self.logit_scale, 0.0, lo_open=True))

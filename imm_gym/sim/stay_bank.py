@@ -17,10 +17,11 @@ is the discounted log evidence of the measurements for each switching prior agai
 feature's one-step approximation (one IMM's likelihoods reweighted by each prior), every
 :math:`\Pi_s` here also mixes its own states, so the evidence is the IMM's exact one.
 
-The evidence serves two ends: the ``stay_bank_evidence`` observation block and, with
-``EnvConfig.stay_base = "evidence"``, the centre of the ``stay`` action, the stay
+The evidence serves two ends: the ``stay_bank_evidence`` observation block and the base of the
+``stay`` action: with ``EnvConfig.stay_base = "evidence"`` the stay
 :math:`\sigma(\sum_s w_s \operatorname{logit} s)` at the posterior weights
-:math:`w = \operatorname{softmax}(E)` (:meth:`StayBank.centre`).
+:math:`w = \operatorname{softmax}(E)` (:meth:`StayBank.centre`), with ``"evidence_best"`` the
+stay :math:`\arg\max_s E_s` (:meth:`StayBank.best`).
 
 A missed detection is evidence for none (every :math:`e_s = 0`). An IMM of the bank whose
 innovation covariance fails (a diverged filter) gets the floor and restarts from bank A's
@@ -130,6 +131,11 @@ class StayBank:
         w = np.exp(self.evidence - self.evidence.max(axis=1, keepdims=True))
         logit = (w @ self.logits) / w.sum(axis=1)
         return 1.0 / (1.0 + np.exp(-logit))
+
+    def best(self) -> Array:
+        """``(N,)`` the stay whose IMM has the largest evidence so far (the grid's first, 1/M, at
+        the start of an episode)."""
+        return self.stays[np.argmax(self.evidence, axis=1)]
 
     def relative(self) -> Array:
         """``(N, S)`` each stay's evidence minus the best's (nats, ``<= 0``)."""

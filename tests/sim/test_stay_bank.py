@@ -85,6 +85,22 @@ def test_the_zero_action_of_the_evidence_base_is_the_evidence_s_stay() -> None:
     np.testing.assert_array_equal(core.fixed_tpms, stay_tpm_rows(np.full(3, 0.995), M))
 
 
+def test_the_best_base_is_the_stay_with_the_largest_evidence() -> None:
+    core = _core(3, stay_base="evidence_best")
+    bank = core.stay_bank
+    assert np.all(bank.best() == 1.0 / M)  # no evidence yet: the grid's first stay
+    chosen = []
+    for _ in range(60):
+        best = bank.stays[np.argmax(bank.evidence, axis=1)]
+        np.testing.assert_array_equal(bank.best(), best)
+        tpm = core.step(np.zeros((3, M))).info["tpm"]
+        np.testing.assert_allclose(tpm, stay_tpm_rows(best, M), rtol=0, atol=1e-15)
+        chosen.append(best)
+    assert len(np.unique(chosen)) > 1  # the evidence moved the base
+    with pytest.raises(ConfigError, match="stay_base 'evidence_best' needs action_mode 'stay'"):
+        EnvConfig(action_mode="set", stay_base="evidence_best")
+
+
 def test_an_action_moves_the_stay_from_the_evidence_s() -> None:
     core = _core(2, stay_base="evidence")
     for _ in range(10):
