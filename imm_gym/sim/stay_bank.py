@@ -78,9 +78,9 @@ class StayBank:
         self.S = S = len(self.tpms)
         self.stays = np.diagonal(self.tpms, axis1=1, axis2=2)[:, 0].copy()
         self.logits = np.log(self.stays) - np.log1p(-self.stays)
-        self._tpm_rows = np.ascontiguousarray(
-            np.broadcast_to(self.tpms[None], (N, S, M, M)).reshape(N * S, M, M)
-        )
+        # a fresh, writable array for every N (a read-only view at N = 1 would compile another
+        # specialization of the kernel)
+        self._tpm_rows = np.tile(self.tpms, (N, 1, 1))
         self._args = None if kernel_args is None else self._own_args(kernel_args)
         #: the IMMs' posteriors, ``(N * S, M, n)``, ``(N * S, M, n, n)``, ``(N * S, M)``
         self.state = IMMState(
