@@ -19,16 +19,18 @@ seeds 0..99) and (b) held-out randomized scenarios (``--random-runs``, seeds 0..
 uses seeds from 100,000,000 on), with common random numbers and paired bootstrap CIs.
 ``OUT/summary.json`` and ``OUT/report.md`` gather the seeds.
 
-``--env-config FILE`` (YAML or JSON of EnvConfig fields, :mod:`imm_gym.sim.config_file`) trains
-on that configuration: its fields are applied over the entry's ``env_kwargs`` and recorded with
-them in the checkpoint and in the agent's ``env.json`` (what ``python -m imm_gym.evaluate``
-reports as the agent's ``trained_on``); the evaluation after training runs the paper scenario
-and the held-out randomized family (the file's ``family``) on the file's tracker. Several files
-train across trackers: each file's configuration takes its share of the training slots
-(``--env-shares``, equal by default; :class:`imm_gym.sim.mixture.MixtureCore`), recorded as
-``env_mixture`` in the hyperparameters (a resumed run continues with it); the files must agree on
-what the policy reads and writes (:data:`imm_gym.sim.mixture.POLICY_FIELDS`), and the first
-file's configuration is the agent's ``env.json``, its validation and its evaluation.
+``--env-config FILE`` (YAML or JSON of EnvConfig fields, :mod:`imm_gym.sim.config_file`) trains on
+that configuration instead of the entry's trackers: its fields are applied over what the entry's
+``env_kwargs`` say the agent is (:data:`imm_gym.sim.mixture.AGENT_FIELDS`: its observation, action
+and reward; the entry's trackers, targets and ``env_mixture`` are left out) and recorded with them
+in the checkpoint and in the agent's ``env.json`` (what ``python -m imm_gym.evaluate`` reports as
+the agent's ``trained_on``); the evaluation after training runs the paper scenario and the held-out
+randomized family (the file's ``family``) on the file's tracker. Several files train across
+trackers: each file's configuration takes its share of the training slots (``--env-shares``, equal
+by default; :class:`imm_gym.sim.mixture.MixtureCore`), recorded as ``env_mixture`` in the
+hyperparameters (a resumed run continues with it); the files must agree on what the policy reads
+and writes (:data:`imm_gym.sim.mixture.POLICY_FIELDS`), and the first file's configuration is the
+agent's ``env.json``, its validation and its evaluation.
 
 ``--engine rllib`` trains with Ray RLlib's PPO instead (:mod:`agents.rllib`: ``--env-runners K``
 runners each stepping the native vector env, on a local Ray instance or the cluster at
@@ -265,7 +267,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     from agents.training import check_hyperparams, load_hyperparams, read_yaml
     from imm_gym.envs import PRESETS
     from imm_gym.sim.env_config import EnvConfig
-    from imm_gym.sim.mixture import check_parts
+    from imm_gym.sim.mixture import AGENT_FIELDS, check_parts
     from imm_gym.validation import ConfigError
 
     if resume is not None:
@@ -295,6 +297,12 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
         params = updated
     if args.timesteps is not None:
         params["n_timesteps"] = args.timesteps
+    if args.env_config and resume is None:
+        # the files replace the entry's trackers and targets (and its mixture): only what the
+        # agent is trained as stays from the entry
+        kept = {k: v for k, v in params.get("env_kwargs", {}).items() if k in AGENT_FIELDS}
+        params = {k: v for k, v in params.items() if k != "env_mixture"}
+        params["env_kwargs"] = kept
     if args.env_config:
         from agents.training import jsonable
 
@@ -418,6 +426,12 @@ def train_one(
     ckpt_dir = run_dir / "checkpoints"
     critic_dims = critic_state_size(env.unwrapped.core.M) if critic_state else 0
     extra = {"env_id": args.env, "seed": seed, "critic_dims": critic_dims}
+    if params.get("env_mixture"):
+        from imm_gym.sim.config_file import tracker_of
+
+        extra["trained_across"] = [
+            jsonable(tracker_of(part["env_kwargs"])) for part in params["env_mixture"]
+        ]
     run = {"algo": args.algo, "env_id": args.env, "seed": seed, "hyperparams": jsonable(params)}
     kwargs = algo_kwargs(params)
     policy = params["policy"]

@@ -23,12 +23,14 @@ SB3's ``VecFrameStack(VecNormalize(env))``), so a model runs through
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.sim.config_file import tracker_of
 from imm_gym.validation import ConfigError
 
 ALGOS = ("ppo", "recurrent-ppo")
@@ -44,6 +46,7 @@ AGENT_KEYS = (
     "seed",
     "num_timesteps",
     "swa",
+    "trained_across",
 )
 #: The keys of ``vecnormalize.json``.
 NORMALIZER_KEYS = ("mean", "var", "count", "clip_obs", "epsilon")
@@ -62,6 +65,9 @@ class LearnedPolicy:
         critic_dims: entries of each frame that only its critic reads (ground truth in
             training, :mod:`agents.asymmetric`); they are zeros here, which the actor ignores.
         source: where the agent comes from, for the message on an observation of the wrong size.
+        trained_across: the trackers (:data:`~imm_gym.sim.config_file.TRACKER_FIELDS`) of the
+            further parts of the mixture it was trained on (``env_mixture``), besides the one of
+            ``env_overrides``.
     """
 
     name = "learned"
@@ -78,6 +84,7 @@ class LearnedPolicy:
         recurrent: bool = False,
         critic_dims: int = 0,
         source: str = "the agent",
+        trained_across: Sequence[dict[str, Any]] = (),
     ) -> None:
         self.model = model
         self.env_overrides = env_overrides
@@ -87,6 +94,7 @@ class LearnedPolicy:
         self.recurrent = recurrent
         self.critic_dims = critic_dims
         self.source = source
+        self.trained_across = tuple(trained_across)
         #: entries of one environment observation, the critic's excluded
         self.obs_size = int(model.observation_space.shape[0]) // frame_stack - critic_dims
 
@@ -195,6 +203,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
         recurrent=recurrent,
         critic_dims=critic_dims,
         source=f"agent {str(directory)!r}",
+        trained_across=meta.get("trained_across", ()),
     )
 
 
@@ -226,8 +235,9 @@ def read_json(file: Path) -> dict[str, Any]:
 
 
 def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
-    """``agent.json`` checked: known keys; ``algo``, ``frame_stack``, ``critic_dims`` valid (the
-    ``policy`` entry is checked by :func:`agents.schema.check_spec`)."""
+    """``agent.json`` checked: known keys; ``algo``, ``frame_stack``, ``critic_dims`` valid, each
+    tracker of ``trained_across`` a valid one (the ``policy`` entry is checked by
+    :func:`agents.schema.check_spec`)."""
     unknown = sorted(set(meta) - set(AGENT_KEYS))
     if unknown:
         raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(AGENT_KEYS)}")
@@ -241,6 +251,13 @@ def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ConfigError(f"{file}: {key} must be an integer >= {low}, got {value!r}")
         out[key] = value
+    across = meta.get("trained_across", [])
+    if not isinstance(across, list) or not all(isinstance(t, dict) for t in across):
+        raise ConfigError(f"{file}: trained_across must be a list of trackers, got {across!r}")
+    try:
+        out["trained_across"] = [tracker_of(t) for t in across]
+    except ConfigError as err:
+        raise ConfigError(f"{file}: trained_across: {err}") from None
     return out
 
 

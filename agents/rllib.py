@@ -24,8 +24,9 @@ for actor and critic), the activation and ``log_std_init``; ``normalize`` is RLl
 (the env-to-module and the learner pipelines; oldest frame first, zeros before an episode's
 first frame, as SB3's ``VecFrameStack``). Not ported (:data:`NOT_PORTED`, said when training and
 recorded in ``training.json``): the asymmetric critic (``critic_state``), the weight average
-(``swa_start``) and the reward normalization of ``VecNormalize``; refused: settings RLlib's
-PPO has no equivalent for (:func:`ppo_config`).
+(``swa_start``), the reward normalization of ``VecNormalize`` and the further parts of a mixture
+of trackers (``env_mixture``: the env runners train on ``env_kwargs``' configuration); refused:
+settings RLlib's PPO has no equivalent for (:func:`ppo_config`).
 
 :func:`export_agent` writes the trained policy in the project's agent format (``agent.json``,
 ``policy.safetensors``, ``env.json``, ``vecnormalize.json``: data, no pickles) as the SB3
@@ -57,6 +58,8 @@ NOT_PORTED = {
     "critic_state": "the critic sees the actor's observation (no asymmetric critic)",
     "swa_start": "no weight average: the agent is the validated best (or the last) policy",
     "normalize": "observations only: rewards are not normalized (VecNormalize's norm_reward)",
+    "env_mixture": "every env runner trains on env_kwargs' configuration alone (the mixture's "
+    "further parts train with --engine sb3)",
 }
 #: SB3 activation names (:data:`agents.schema.ACTIVATIONS`) RLlib's default module has too.
 ACTIVATIONS = {"tanh": "tanh", "relu": "relu", "elu": "elu", "silu": "silu"}
@@ -345,6 +348,7 @@ def not_ported(params: dict[str, Any]) -> dict[str, str]:
         "critic_state": bool(params.get("critic_state")),
         "swa_start": params.get("swa_start") is not None,
         "normalize": bool(params.get("normalize")),
+        "env_mixture": bool(params.get("env_mixture")),
     }
     return {k: v for k, v in NOT_PORTED.items() if set_[k]}
 

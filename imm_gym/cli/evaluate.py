@@ -264,7 +264,8 @@ def agent_overrides(
     and targets: its recorded :data:`~imm_gym.sim.config_file.TRACKER_FIELDS` and
     :data:`~imm_gym.sim.config_file.TARGET_FIELDS` are dropped. The notes give ``trained_on``
     (the recorded tracker), ``evaluated_on`` (``base``'s) and ``tracker_differs`` (the fields
-    that differ).
+    that differ); for an agent trained across trackers (``policy.trained_across``), ``trained_on``
+    is the trained tracker with the fewest fields differing and ``trained_across`` lists them all.
 
     Raises:
         ConfigError: the observation (one frame, ``policy.obs_size``) or the action (M² entries,
@@ -290,10 +291,17 @@ def agent_overrides(
             f"models takes {size} in {cfg.action_mode!r} mode: it cannot be evaluated on this "
             "configuration"
         )
-    trained_on = tracker_of(overrides)
     evaluated_on = {name: plain(getattr(base, name)) for name in TRACKER_FIELDS}
-    differs = [f for f in TRACKER_FIELDS if trained_on[f] != evaluated_on[f]]
-    notes = {"trained_on": trained_on, "evaluated_on": evaluated_on, "tracker_differs": differs}
+    trackers = [tracker_of(overrides), *getattr(policy, "trained_across", ())]
+    differs = [[f for f in TRACKER_FIELDS if t[f] != evaluated_on[f]] for t in trackers]
+    closest = min(range(len(trackers)), key=lambda i: len(differs[i]))
+    notes = {
+        "trained_on": trackers[closest],
+        "evaluated_on": evaluated_on,
+        "tracker_differs": differs[closest],
+    }
+    if len(trackers) > 1:
+        notes["trained_across"] = trackers
     return kept, notes
 
 

@@ -37,6 +37,12 @@ POLICY_FIELDS = (
     "shadow_stay",
     "loglik_clip",
 )
+#: What an agent is trained as: :data:`POLICY_FIELDS` and what it is rewarded for. A
+#: hyperparameter entry's ``env_kwargs`` keep only these under ``train.py --env-config`` (the
+#: files give the trackers and targets).
+AGENT_FIELDS = (
+    *POLICY_FIELDS, "reward", "reward_scale", "tpm_cost", "tpm_change_cost", "mode_reward"
+)
 
 
 def check_mixture(

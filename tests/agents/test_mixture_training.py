@@ -10,7 +10,7 @@ import pytest
 
 import train
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
-from imm_gym.sim.mixture import MixtureCore
+from imm_gym.sim.mixture import AGENT_FIELDS, MixtureCore
 
 POLICY = {"action_mode": "stay", "obs_features": ("loglik", "shadow_probs", "stay_bank_evidence"),
           "stay_base": "evidence", "shadow_stay": None}
@@ -70,3 +70,25 @@ def test_bad_mixtures_on_the_command_line(extra, message, capsys) -> None:
         train.main(["--no-eval", *extra])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def _params(*argv: str) -> dict:
+    parser = train.build_parser()
+    args = parser.parse_args(list(argv))
+    return train.hyperparams(args, train.check_args(parser, args))
+
+
+def test_an_env_config_replaces_the_entrys_trackers_and_keeps_what_the_agent_is(tmp_path) -> None:
+    """The default entry trains across trackers (its env_kwargs set a tracker, its env_mixture a
+    second one); a user's file takes their place: only the entry's AGENT_FIELDS stay."""
+    default = _params()
+    assert default["env_mixture"] and default["env_kwargs"]["vary"]["T"] == [0.5, 5.0]
+    file = tmp_path / "mine.yaml"
+    file.write_text("scenario: paper\nsensor: {sigma_r: 30.0}\n")
+    params = _params("--env-config", str(file))
+    kwargs = params["env_kwargs"]
+    assert "env_mixture" not in params
+    assert not {"vary", "bank", "sojourn", "family", "velocity_std"} & set(kwargs)
+    assert kwargs["scenario"] == "paper" and kwargs["sensor"] == {"sigma_r": 30.0}
+    kept = {k: v for k, v in default["env_kwargs"].items() if k in AGENT_FIELDS}
+    assert {k: kwargs[k] for k in kept} == kept and kwargs["action_mode"] == "stay"
