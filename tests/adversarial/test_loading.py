@@ -273,16 +273,21 @@ def _obs_features(directory: Path) -> None:
         (lambda d: (d / "agent.json").write_text("[]"), "agent.json: must hold a JSON object"),
         (_json("agent.json", frame_stak=4), r"agent\.json: unknown keys \['frame_stak'\]"),
         (_json("agent.json", algo="dqn"), "agent.json: algo must be one of"),
+        (_json("agent.json", trained_across={"bank": "cv"}), "trained_across must be a list"),
+        (
+            _json("agent.json", trained_across=[{"filter": "pf"}]),
+            "agent.json: trained_across: .*filter",
+        ),
         (_json("agent.json", frame_stack=2), "critic_dims/frame_stack differ from the agent's"),
         (_json("agent.json", critic_dims=0), "needs 'MlpPolicy'"),
         (_json("env.json", sigma_r=50.0), r"env\.json: EnvConfig: unknown key\(s\) \['sigma_r'\]"),
         (_json("env.json", p_min="0.01"), "env.json: p_min must be a real number"),
         (
             _obs_features,
-            "reads 168 entries and writes 9, but the environment of .*env.json gives 4 frames of",
+            "reads 220 entries and writes 3, but the environment of .*env.json gives 4 frames of",
         ),
-        (_json("vecnormalize.json", mean=[0.0] * 41), "vecnormalize.json: mean must be 42"),
-        (_json("vecnormalize.json", var=[-1.0] * 42), "vecnormalize.json: var must be >= 0"),
+        (_json("vecnormalize.json", mean=[0.0] * 54), "vecnormalize.json: mean must be 55"),
+        (_json("vecnormalize.json", var=[-1.0] * 55), "vecnormalize.json: var must be >= 0"),
         (_json("vecnormalize.json", epsilon=None), "vecnormalize.json: keys must be"),
         (_policy(activation_fn="os.system"), r"policy.activation_fn must be one of \['tanh'"),
         (_policy(**{"class": "builtins.eval"}), "policy.class must be one of"),
@@ -303,5 +308,5 @@ def test_a_corrupt_or_mismatched_agent_is_one_line_naming_the_file(
 
 def test_an_observation_of_the_wrong_size_is_named(agent) -> None:
     policy = load_agent(agent)
-    with pytest.raises(ConfigError, match=f"agent '{agent}' reads observations of 31 entries"):
+    with pytest.raises(ConfigError, match=f"agent '{agent}' reads observations of 44 entries"):
         policy.predict(np.zeros((2, 30)))

@@ -110,7 +110,7 @@ def test_an_agent_that_cannot_read_the_observation_is_refused_before_any_work(
     with pytest.raises(SystemExit):
         main(["--env-config", str(file), "--policy", "fixed", "--policy", "pretrained"])
     err = capsys.readouterr().err
-    assert "reads observations of 31 entries" in err and "4 models" in err
+    assert "reads observations of 44 entries" in err and "4 models" in err
 
 
 def test_the_benchmark_suite_runs_end_to_end(tmp_path, capsys) -> None:

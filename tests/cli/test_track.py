@@ -18,6 +18,7 @@ from agents import PRETRAINED
 from agents.policy import load_agent
 from baselines import make_baseline
 from imm_gym import EnvConfig, Sonar, TrackingCore
+from imm_gym.cli.evaluate import agent_overrides
 from imm_gym.cli.track import main
 
 SEEDS = [5, 6]
@@ -98,8 +99,10 @@ def test_npz_through_python_m_with_the_agent_and_a_config_file(tmp_path: Path) -
         cwd=ROOT, capture_output=True, text=True, check=False,
     )
     assert done.returncode == 0, done.stderr
-    expected = imm_gym.run_policy(core.z, load_agent(PRETRAINED), config,
-                             velocity=core.truth[:, 0, 2:4])
+    agent = load_agent(PRETRAINED)
+    kept, _ = agent_overrides(agent, agent.env_overrides, config)  # the agent's own settings
+    expected = imm_gym.run_policy(core.z, agent, config, velocity=core.truth[:, 0, 2:4],
+                                  overrides=kept)
     default = imm_gym.run_policy(core.z, load_agent(PRETRAINED), velocity=core.truth[:, 0, 2:4])
     with np.load(tmp_path / "out.npz") as out:
         for key in ("estimate", "covariance", "mode_probs", "tpm", "x0", "P0", "diverged"):
@@ -168,7 +171,9 @@ def test_an_agent_tracks_with_the_configured_tracker(
     configuration's sensor (said on stderr); a bank whose size its network cannot take is
     refused before any work."""
     agent = load_agent(PRETRAINED)
-    recorded = {**agent.env_overrides, "sensor": {"sigma_r": 20.0}}
+    paper = agent.trained_across[0]  # the part of its training on the paper's tracker
+    agent.trained_across = ()
+    recorded = {**agent.env_overrides, **paper, "sensor": {"sigma_r": 20.0}}
     monkeypatch.setattr(
         "imm_gym.cli.track.make_policy", lambda name, base, seed: (agent, recorded, {})
     )
@@ -179,7 +184,8 @@ def test_an_agent_tracks_with_the_configured_tracker(
            "--out", str(tmp_path / "out.npz")]
     assert main(out) == 0
     assert "trained on another tracker (its sensor differs)" in capsys.readouterr().err
-    expected = imm_gym.run_policy(core.z[0], load_agent(PRETRAINED))
+    kept, _ = agent_overrides(agent, agent.env_overrides, EnvConfig())
+    expected = imm_gym.run_policy(core.z[0], agent, overrides=kept)
     with np.load(tmp_path / "out.npz") as result:
         np.testing.assert_array_equal(result["estimate"], expected.estimate)
     (tmp_path / "two.yaml").write_text("bank: [{kind: cv}, {kind: ct, turn_rate_deg: 3.0}]\n")

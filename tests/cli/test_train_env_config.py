@@ -37,7 +37,8 @@ def test_the_agent_records_the_configuration(trained) -> None:
     recorded = json.loads((agent / "env.json").read_text())
     for key, value in read_env_config(file).items():
         assert recorded[key] == value, key
-    assert recorded["action_mode"] == "set"  # the entry's env_kwargs are kept
+    # what the entry says the agent is stays, not its trackers (the default's vary)
+    assert recorded["action_mode"] == "stay" and "vary" not in recorded
 
 
 def test_trained_on_and_evaluated_on(trained) -> None:
