@@ -119,7 +119,8 @@ def test_rllib_training_runners_on_both_nodes_with_distinct_seeds(cluster, tmp_p
     assert policy.frame_stack == 4 and policy.obs_mean is not None
     obs = np.zeros((3, policy.obs_size))
     actions, _ = policy.predict(obs)
-    assert actions.shape == (3, 9) and np.all(np.abs(actions) <= 1.0)
+    size = int(policy.model.action_space.shape[0])  # the default entry's action
+    assert actions.shape == (3, size) and np.all(np.abs(actions) <= 1.0)
 
 
 def _stacks(frames: int, obs: np.ndarray) -> np.ndarray:
@@ -204,7 +205,8 @@ def test_exported_agent_acts_as_the_rllib_module(cluster, tmp_path: Path):
         x = rng.normal(size=(5, 4 * policy.obs_size)).astype(np.float32)
         with torch.no_grad():
             out = algo.get_module().forward_inference({"obs": torch.from_numpy(x)})
-        mean = out["action_dist_inputs"][:, :9].numpy()
+        size = int(policy.model.action_space.shape[0])  # then the log standard deviations
+        mean = out["action_dist_inputs"][:, :size].numpy()
         actions, _ = policy.model.predict(x, deterministic=True)
         np.testing.assert_allclose(actions, np.clip(mean, -1.0, 1.0), rtol=0, atol=1e-6)
         log_std = dict(policy.model.named_parameters())["log_std"].detach().numpy()
