@@ -205,3 +205,13 @@ def test_the_evidence_base_needs_the_stay_mode() -> None:
     with pytest.raises(ConfigError, match="stay_base"):
         EnvConfig(action_mode="stay", stay_base="posterior")
     assert TrackingCore(EnvConfig(action_mode="stay")).stay_bank is None
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_the_kernel_gets_the_same_array_types_at_every_n(n: int) -> None:
+    """The TPM rows are a fresh C-contiguous, writable array for one slot too: a read-only view
+    at N = 1 made numba compile a second specialization of imm_step (two minutes, cold)."""
+    bank = StayBank(make_tracker(EnvConfig().bank, EnvConfig().sensor, "ukf", 1.0), n, None)
+    rows = bank._tpm_rows
+    assert rows.flags.c_contiguous and rows.flags.writeable
+    np.testing.assert_array_equal(rows, np.concatenate([bank.tpms] * n))
