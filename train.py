@@ -238,8 +238,6 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
             )
         if not all(0.0 < w < float("inf") for w in args.env_shares):
             parser.error(f"--env-shares must be positive numbers, got {args.env_shares}")
-    if len(files) > 1 and args.engine == "rllib":
-        parser.error("several --env-config files (a mixture) train with --engine sb3")
     if files:
         from imm_gym.sim.config_file import read_env_config
 
@@ -425,13 +423,7 @@ def train_one(
     algo_cls = _algo_class(args.algo)
     ckpt_dir = run_dir / "checkpoints"
     critic_dims = critic_state_size(env.unwrapped.core.M) if critic_state else 0
-    extra = {"env_id": args.env, "seed": seed, "critic_dims": critic_dims}
-    if params.get("env_mixture"):
-        from imm_gym.sim.config_file import tracker_of
-
-        extra["trained_across"] = [
-            jsonable(tracker_of(part["env_kwargs"])) for part in params["env_mixture"]
-        ]
+    extra = {"env_id": args.env, "seed": seed, "critic_dims": critic_dims, **trained_across(params)}
     run = {"algo": args.algo, "env_id": args.env, "seed": seed, "hyperparams": jsonable(params)}
     kwargs = algo_kwargs(params)
     policy = params["policy"]
@@ -595,6 +587,18 @@ def train_one(
     return agent_dir, stats
 
 
+def trained_across(params: dict[str, Any]) -> dict[str, Any]:
+    """``agent.json``'s ``trained_across``: the tracker of each further part of the mixture
+    (``env_mixture``), none without one."""
+    from agents.training import jsonable
+    from imm_gym.sim.config_file import tracker_of
+
+    parts = params.get("env_mixture", [])
+    if not parts:
+        return {}
+    return {"trained_across": [jsonable(tracker_of(part["env_kwargs"])) for part in parts]}
+
+
 def train_one_rllib(
     args: argparse.Namespace,
     params: dict[str, Any],
@@ -635,7 +639,11 @@ def train_one_rllib(
 
     def export(directory: Path) -> None:
         rllib.export_agent(
-            algo, directory, params, args.env, {"seed": seed, "num_timesteps": steps}
+            algo,
+            directory,
+            params,
+            args.env,
+            {"seed": seed, **trained_across(params), "num_timesteps": steps},
         )
 
     def validate() -> float:

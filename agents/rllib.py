@@ -24,9 +24,9 @@ for actor and critic), the activation and ``log_std_init``; ``normalize`` is RLl
 (the env-to-module and the learner pipelines; oldest frame first, zeros before an episode's
 first frame, as SB3's ``VecFrameStack``). Not ported (:data:`NOT_PORTED`, said when training and
 recorded in ``training.json``): the asymmetric critic (``critic_state``), the weight average
-(``swa_start``), the reward normalization of ``VecNormalize`` and the further parts of a mixture
-of trackers (``env_mixture``: the env runners train on ``env_kwargs``' configuration); refused:
-settings RLlib's PPO has no equivalent for (:func:`ppo_config`).
+(``swa_start``) and the reward normalization of ``VecNormalize``; refused: settings RLlib's
+PPO has no equivalent for (:func:`ppo_config`). A mixture of trackers (``env_mixture``) trains as
+with SB3: every runner's sub-envs are split among the parts by their shares.
 
 :func:`export_agent` writes the trained policy in the project's agent format (``agent.json``,
 ``policy.safetensors``, ``env.json``, ``vecnormalize.json``: data, no pickles) as the SB3
@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import json
 import uuid
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +50,8 @@ from agents.training import jsonable
 from imm_gym.envs import PRESETS
 from imm_gym.envs.vector import TPMAdaptVectorEnv
 from imm_gym.seeding import rllib_seed
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.mixture import MixtureCore, check_mixture
 from imm_gym.validation import ConfigError
 
 #: The name the env creator is registered under (:func:`ray.tune.registry.register_env`).
@@ -58,8 +61,6 @@ NOT_PORTED = {
     "critic_state": "the critic sees the actor's observation (no asymmetric critic)",
     "swa_start": "no weight average: the agent is the validated best (or the last) policy",
     "normalize": "observations only: rewards are not normalized (VecNormalize's norm_reward)",
-    "env_mixture": "every env runner trains on env_kwargs' configuration alone (the mixture's "
-    "further parts train with --engine sb3)",
 }
 #: SB3 activation names (:data:`agents.schema.ACTIVATIONS`) RLlib's default module has too.
 ACTIVATIONS = {"tanh": "tanh", "relu": "relu", "elu": "elu", "silu": "silu"}
@@ -74,6 +75,9 @@ class RLlibVectorEnv(TPMAdaptVectorEnv):
         num_envs: sub-envs (RLlib's ``num_envs_per_env_runner``).
         env_id: the registered id whose preset is the base configuration.
         env_kwargs: EnvConfig fields over the preset (the hyperparameters' ``env_kwargs``).
+        mixture: the hyperparameters' ``env_mixture``: further configurations (each over the
+            preset), each on its share of the sub-envs
+            (:class:`~imm_gym.sim.mixture.MixtureCore`, as the SB3 adapter does).
 
     The first :meth:`reset` seeds sub-env ``i`` with ``seeds[i]`` given by
     :meth:`assign_seeds` (RLlib's own seed is ignored); later resets continue each sub-env's
@@ -81,9 +85,17 @@ class RLlibVectorEnv(TPMAdaptVectorEnv):
     """
 
     def __init__(
-        self, num_envs: int, env_id: str, env_kwargs: dict[str, Any] | None = None
+        self,
+        num_envs: int,
+        env_id: str,
+        env_kwargs: dict[str, Any] | None = None,
+        mixture: Sequence[Mapping[str, Any]] = (),
     ) -> None:
         super().__init__(num_envs, config={**PRESETS[env_id], **(env_kwargs or {})})
+        if mixture:
+            parts, shares = check_mixture("env_mixture", mixture)
+            others = [EnvConfig.build({**PRESETS[env_id], **part}) for part in parts]
+            self.core = MixtureCore([self.config, *others], [1.0 - sum(shares), *shares], num_envs)
         self.seeds: list[int] | None = None
         self._seeded = False
 
@@ -114,8 +126,13 @@ class RLlibVectorEnv(TPMAdaptVectorEnv):
 
 def make_env(config: dict[str, Any]) -> RLlibVectorEnv:
     """The env creator registered as :data:`ENV_NAME`: RLlib calls it with the algorithm's
-    ``env_config`` (``env_id``, ``env_kwargs``) and ``num_envs``."""
-    return RLlibVectorEnv(int(config["num_envs"]), config["env_id"], config.get("env_kwargs"))
+    ``env_config`` (``env_id``, ``env_kwargs``, ``env_mixture``) and ``num_envs``."""
+    return RLlibVectorEnv(
+        int(config["num_envs"]),
+        config["env_id"],
+        config.get("env_kwargs"),
+        config.get("env_mixture", ()),
+    )
 
 
 class SeedLedger:
@@ -286,6 +303,7 @@ def ppo_config(
             env_config={
                 "env_id": env_id,
                 "env_kwargs": jsonable(params.get("env_kwargs", {})),
+                "env_mixture": jsonable(params.get("env_mixture", [])),
                 "seed_ledger": ledger,
             },
         )
@@ -348,7 +366,6 @@ def not_ported(params: dict[str, Any]) -> dict[str, str]:
         "critic_state": bool(params.get("critic_state")),
         "swa_start": params.get("swa_start") is not None,
         "normalize": bool(params.get("normalize")),
-        "env_mixture": bool(params.get("env_mixture")),
     }
     return {k: v for k, v in NOT_PORTED.items() if set_[k]}
 

@@ -161,6 +161,14 @@ class MixtureCore:
                 chosen = [s for s, m in zip(seeds, mine, strict=True) if m]
                 core.reset(indices[mine] - self.starts[p], chosen)
 
+    def validate_action(self, action: NDArray[Any]) -> NDArray[Any]:
+        """Each part's :meth:`TrackingCore.validate_action` on its slots' actions."""
+        parts = [
+            core.validate_action(action[self.starts[p] : self.starts[p + 1]])
+            for p, core in enumerate(self.cores)
+        ]
+        return np.concatenate(parts)
+
     def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
         """Every part's step on its slots' actions; the results concatenated in slot order (the
         info keys every part gives)."""

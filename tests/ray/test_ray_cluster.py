@@ -117,6 +117,8 @@ def test_rllib_training_runners_on_both_nodes_with_distinct_seeds(cluster, tmp_p
     # the exported agent loads through the project's loader and acts
     policy = load_agent(out / "seed_0" / "agent")
     assert policy.frame_stack == 4 and policy.obs_mean is not None
+    # the default entry's mixture is trained, not left out: its second tracker is recorded
+    assert len(policy.trained_across) == 1 and "env_mixture" not in stats["not_ported"]
     obs = np.zeros((3, policy.obs_size))
     actions, _ = policy.predict(obs)
     size = int(policy.model.action_space.shape[0])  # the default entry's action

@@ -6,9 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agents.rllib import RLlibVectorEnv, SeedLedger
+from agents.rllib import RLlibVectorEnv, SeedLedger, make_env
+from imm_gym.envs import PRESETS
 from imm_gym.envs.vector import TPMAdaptVectorEnv
 from imm_gym.seeding import RLLIB_SEED_BASE, RLLIB_SEED_FIELD, rllib_seed
+from imm_gym.sim.actions import ActionError
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.mixture import MixtureCore
 
 ENV_ID = "imm_gym/TPMAdapt-v0"
 
@@ -85,3 +89,32 @@ def test_rllib_refuses_what_it_has_no_equivalent_for(change, named):
     check_params(params)  # the default entry trains (with what is not ported said)
     with pytest.raises(ConfigError, match=named):
         check_params({**params, **change})
+
+
+def test_runner_env_trains_a_mixture_each_part_on_its_share():
+    """The default entry's env_mixture on an RLlib runner's sub-envs: slot for slot each part's
+    own vector env (reset and steps, autoresets included), as the SB3 adapter's mixture."""
+    from agents.training import load_hyperparams
+
+    params, _ = load_hyperparams(ENV_ID)
+    config = {"num_envs": 4, "env_id": ENV_ID, "env_kwargs": params["env_kwargs"]}
+    env = make_env({**config, "env_mixture": params["env_mixture"]})  # RLlib's env creator
+    assert isinstance(env.core, MixtureCore) and not hasattr(make_env(config).core, "cores")
+    seeds = [rllib_seed(0, 1, i) for i in range(4)]
+    env.assign_seeds(seeds)
+    obs, _ = env.reset()
+    parts = [env.config, EnvConfig.build({**PRESETS[ENV_ID],
+                                          **params["env_mixture"][0]["env_kwargs"]})]
+    references = [TPMAdaptVectorEnv(2, config=c) for c in parts]
+    ref_obs = [r.reset(seed=seeds[2 * i : 2 * i + 2])[0] for i, r in enumerate(references)]
+    np.testing.assert_array_equal(obs, np.concatenate(ref_obs))
+    assert references[0].config.vary.active and references[1].config.bank[0].noise != "continuous"
+    rng = np.random.default_rng(1)
+    for _ in range(160):  # through the 150-step episodes' ends
+        actions = rng.uniform(-1, 1, (4, env.core.action_dim)).astype(np.float32)
+        out = env.step(actions)
+        ref = [r.step(actions[2 * i : 2 * i + 2]) for i, r in enumerate(references)]
+        for k in range(4):
+            np.testing.assert_array_equal(out[k], np.concatenate([r[k] for r in ref]))
+    with pytest.raises(ActionError):
+        env.step(np.full((4, env.core.action_dim), np.nan, dtype=np.float32))
