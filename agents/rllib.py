@@ -50,8 +50,7 @@ from agents.training import jsonable
 from imm_gym.envs import PRESETS
 from imm_gym.envs.vector import TPMAdaptVectorEnv
 from imm_gym.seeding import rllib_seed
-from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.mixture import MixtureCore, check_mixture
+from imm_gym.sim.mixture import MixtureCore
 from imm_gym.validation import ConfigError
 
 #: The name the env creator is registered under (:func:`ray.tune.registry.register_env`).
@@ -93,9 +92,7 @@ class RLlibVectorEnv(TPMAdaptVectorEnv):
     ) -> None:
         super().__init__(num_envs, config={**PRESETS[env_id], **(env_kwargs or {})})
         if mixture:
-            parts, shares = check_mixture("env_mixture", mixture)
-            others = [EnvConfig.build({**PRESETS[env_id], **part}) for part in parts]
-            self.core = MixtureCore([self.config, *others], [1.0 - sum(shares), *shares], num_envs)
+            self.core = MixtureCore.of(self.config, mixture, PRESETS[env_id], num_envs)
         self.seeds: list[int] | None = None
         self._seeded = False
 

@@ -22,7 +22,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import CRITIC_CLIP, TrackingCore, critic_state_size
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.mixture import MixtureCore, check_mixture
+from imm_gym.sim.mixture import MixtureCore
 
 #: Per-step diagnostics copied into each sub-env's info dict (the rest stays in the core).
 SB3_INFO_KEYS = (
@@ -69,9 +69,7 @@ class TPMAdaptSB3VecEnv(VecEnv):
         self.config = EnvConfig.build(config, **kwargs)
         self.core: TrackingCore | MixtureCore
         if mixture:
-            parts, shares = check_mixture("mixture", mixture)
-            others = [EnvConfig.build({**preset, **part}) for part in parts]
-            self.core = MixtureCore([self.config, *others], [1.0 - sum(shares), *shares], num_envs)
+            self.core = MixtureCore.of(self.config, mixture, preset, num_envs, "mixture")
         else:
             self.core = TrackingCore(self.config, n_envs=num_envs)
         self.critic_state = critic_state

@@ -146,6 +146,22 @@ class MixtureCore:
         self.M, self.action_dim = core.M, core.action_dim
         self.obs_low, self.obs_high, self.obs_dim = core.obs_low, core.obs_high, core.obs_dim
 
+    @classmethod
+    def of(
+        cls,
+        config: EnvConfig,
+        mixture: Sequence[Mapping[str, Any]],
+        preset: Mapping[str, Any],
+        n_envs: int,
+        where: str = "env_mixture",
+    ) -> MixtureCore:
+        """The mixture of ``config`` and the further parts ``mixture`` (a hyperparameter entry's
+        ``env_mixture``, checked by :func:`check_mixture` and named ``where`` in its errors; each
+        part's fields over ``preset``); ``config`` keeps ``1 - sum(shares)`` of the slots."""
+        parts, shares = check_mixture(where, mixture)
+        others = [EnvConfig.build({**preset, **part}) for part in parts]
+        return cls([config, *others], [1.0 - sum(shares), *shares], n_envs)
+
     def _parts(self, indices: NDArray[np.int64]) -> list[tuple[TrackingCore, NDArray[np.bool_]]]:
         """Each core with the mask of ``indices`` that are its slots."""
         return [
