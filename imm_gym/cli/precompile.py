@@ -27,6 +27,7 @@ from imm_gym.scenarios.segments import RandomFamily
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
+from imm_gym.sim.solo import SoloStep
 from imm_gym.tracking.imm import IMM
 from imm_gym.tracking.models import paper_bank
 from imm_gym.tracking.sensors import Sonar
@@ -48,6 +49,14 @@ def _env_step(n_envs: int) -> None:
     core.step(np.zeros((n_envs, core.action_dim)))
 
 
+def _solo_step() -> None:
+    core = TrackingCore(EnvConfig(), 1)
+    core.reset(np.array([0]), [0])
+    solo = SoloStep(core)
+    solo.load(core)
+    solo.step(np.zeros(core.action_dim))
+
+
 def batch() -> None:
     """N trackers: ``IMM.step``'s :func:`~imm_gym.tracking.kernels.imm.imm_step`, then the
     vector env's :func:`~imm_gym.sim.kernels.env_step` around it."""
@@ -57,9 +66,11 @@ def batch() -> None:
 
 def single() -> None:
     """One tracker: ``IMM.step``'s :func:`~imm_gym.tracking.kernels.imm.imm_step_one`, then the
-    scalar env's :func:`~imm_gym.sim.kernels.env_step_one` around it."""
+    core's :func:`~imm_gym.sim.kernels.env_step_one` and the scalar env's
+    :func:`~imm_gym.sim.solo.solo_step` around it."""
     _tracker_step(1)
     _env_step(1)
+    _solo_step()
 
 
 #: The entry points, by name: each compiles (or loads) its kernels and what they call. The two

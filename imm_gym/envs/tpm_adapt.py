@@ -16,6 +16,7 @@ from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import datasheet_table
 from imm_gym.sim.render import RENDER_FPS
+from imm_gym.sim.solo import SoloStep
 
 
 class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -90,6 +91,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ``true_state``, ``true_model`` (bank index of the true motion, −1 if none), ``estimate``,
     ``covariance``, ``position_error``, ``shadow_position_error``, ``mode_probs``, ``loglik``,
     ``model_nis``, ``nis``, ``detected``, ``tpm``, ``step``, ``diverged``, ``reward_*``.
+    Numbers are Python ``float``, ``int`` and ``bool``; arrays are new at every step.
 
     ## Rendering
     ``render_mode="rgb_array"``: ``render()`` returns the picture of the current step, an
@@ -113,7 +115,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     :class:`~imm_gym.envs.vector.TPMAdaptVectorEnv` runs N episodes in one batched core
     (``gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``); sub-env
     ``i`` reproduces this env reset with ``seed + i``. :class:`~imm_gym.envs.sb3.TPMAdaptSB3VecEnv`
-    is the stable-baselines3 ``VecEnv`` over the same core.
+    is the stable-baselines3 ``VecEnv`` over the same core. Where the whole step is compiled (no
+    observation feature, no stay bank, no render mode, the compiled engine:
+    :meth:`imm_gym.sim.solo.SoloStep.fits`) this env runs it as one compiled call on state kept
+    between steps (:mod:`imm_gym.sim.solo`), the core's numbers bit for bit.
 
     ## Version History
     * v0: initial release.
@@ -133,43 +138,67 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 f"got {render_mode!r}"
             )
         self.config = EnvConfig.build(config, **kwargs)
-        self.core = TrackingCore(self.config, n_envs=1)
-        self.observation_space = spaces.Box(self.core.obs_low, self.core.obs_high, dtype=np.float32)
-        self.action_space = spaces.Box(-1.0, 1.0, (self.core.action_dim,), dtype=np.float32)
+        core = self._core = TrackingCore(self.config, n_envs=1)
+        self.observation_space = spaces.Box(core.obs_low, core.obs_high, dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (core.action_dim,), dtype=np.float32)
         self.render_mode = render_mode
         self._renderer = (
             None
             if render_mode is None
             else CoreRenderer(
-                self.core, window=render_mode == "human", title=scenario_title(self.config.scenario)
+                core, window=render_mode == "human", title=scenario_title(self.config.scenario)
             )
         )
+        #: the compiled single-slot step where the whole step is compiled and nothing is drawn
+        self._solo = SoloStep(core) if render_mode is None and SoloStep.fits(core) else None
+        self._solo_ahead = False  # the solo step holds state the core has not been given
+
+    @property
+    def core(self) -> TrackingCore:
+        """The simulation behind the env (:class:`~imm_gym.sim.core.TrackingCore`, N = 1), its
+        state that of the last step."""
+        if self._solo_ahead:
+            self._solo.store(self._core)  # type: ignore[union-attr]
+            self._solo_ahead = False
+        return self._core
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         super().reset(seed=seed)
-        self.core.reset(np.array([0]), [seed])
-        info = {"true_state": self.core.truth[0, 0].copy(), "tpm": self.core.tpm[0].copy()}
+        core = self._core
+        core.reset(np.array([0]), [seed])
+        self._solo_ahead = False
+        if self._solo is not None:
+            self._solo.load(core)
+        info = {"true_state": core.truth[0, 0].copy(), "tpm": core.tpm[0].copy()}
         if self._renderer is not None:
             self._renderer.start(np.array([0]))
             if self.render_mode == "human":
                 self._renderer.show()
-        return self.core.observe()[0], info
+        return core.observe()[0], info
 
     def step(
         self, action: NDArray[Any]
     ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        if self._solo is not None:
+            step = self._solo.step(action)
+            self._solo_ahead = True
+            return step
         a = np.asarray(action)
-        if a.shape != (self.core.action_dim,):
-            raise ActionError(f"action must have shape ({self.core.action_dim},), got {a.shape}")
-        result = self.core.step(a[None])
+        if a.shape != (self._core.action_dim,):
+            raise ActionError(f"action must have shape ({self._core.action_dim},), got {a.shape}")
+        result = self._core.step(a[None])
         if self._renderer is not None:
             self._renderer.record(result.info)
             if self.render_mode == "human":
                 self._renderer.show()
-        # row 0 of arrays created fresh by this step: a new object every call
-        info = {key: value[0] for key, value in result.info.items()}
+        # row 0 of arrays created fresh by this step (a new object every call), numbers as
+        # Python scalars (as the solo step gives them)
+        info = {
+            key: value[0] if value.ndim > 1 else value[0].item()
+            for key, value in result.info.items()
+        }
         return (
             result.obs[0],
             float(result.reward[0]),

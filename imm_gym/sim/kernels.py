@@ -270,10 +270,9 @@ def env_step(
     Returns:
         the :class:`~imm_gym.sim.bank_step.BankStep` of the slots, fresh arrays.
     """
-    return _env_step(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s, P_s,
-                     mu_s, fixed_tpm, shadow_tpm, stay_base, z, detected, truth, bank, parallel,
-                     shadow,
-                     divergence_error, divergence_cov, False)
+    return env_step_body(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s,
+                         P_s, mu_s, fixed_tpm, shadow_tpm, stay_base, z, detected, truth, bank,
+                         parallel, shadow, divergence_error, divergence_cov, False)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -287,14 +286,13 @@ def env_step_one(
     """:func:`env_step` for one slot whose tracker fits
     :func:`~imm_gym.tracking.kernels.imm.imm_step_one` (the scalar env's: its banks' cycles in
     less than half the time, the same numbers bit for bit; compiled on first use)."""
-    return _env_step(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s, P_s,
-                     mu_s, fixed_tpm, shadow_tpm, stay_base, z, detected, truth, bank, parallel,
-                     shadow,
-                     divergence_error, divergence_cov, True)
+    return env_step_body(action, tpm, mode, gain, p_min, x_a, P_a, mu_a, x_b, P_b, mu_b, x_s,
+                         P_s, mu_s, fixed_tpm, shadow_tpm, stay_base, z, detected, truth, bank,
+                         parallel, shadow, divergence_error, divergence_cov, True)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _env_step(
+def env_step_body(
     action: Array, tpm: Array, mode: int, gain: float, p_min: float, x_a: Array, P_a: Array,
     mu_a: Array, x_b: Array, P_b: Array, mu_b: Array, x_s: Array, P_s: Array, mu_s: Array,
     fixed_tpm: Array, shadow_tpm: Array, stay_base: Array, z: Array,
@@ -302,7 +300,8 @@ def _env_step(
     bank: tuple, parallel: bool, shadow: bool, divergence_error: float, divergence_cov: float,
     one: bool,
 ) -> BankStep:  # pragma: no cover
-    """The body of :func:`env_step` and :func:`env_step_one` (``one``: a constant)."""
+    """The body of :func:`env_step`, :func:`env_step_one` and
+    :func:`imm_gym.sim.solo.solo_step` (``one``: a constant, :func:`env_step_one`'s cycle)."""
     N, M, _ = x_a.shape
     new_tpm = tpm_from_action(action, tpm, mode, gain, p_min, stay_base)
     xa, Pa, U, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed = _bank_step(

@@ -1,0 +1,201 @@
+"""The scalar env's compiled single-slot step (imm_gym.sim.solo) against the core's own step:
+the same observation, reward, ends and info entries bit for bit, and the same core state, over
+whole episodes, resets and divergences; which configurations it takes; its errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from imm_gym.envs import TPMAdaptEnv
+from imm_gym.sim.actions import ActionError
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.presets import CONTINUOUS_BANK
+from imm_gym.sim.solo import SoloStep
+from imm_gym.tracking.hetero import SONAR_HETERO_BANK
+
+SHORT = {"scenario": "random", "family": {"horizon": 20, "n_segments": (1, 2), "min_duration": 10}}
+
+CONFIGS = {
+    "default": {},
+    "parallel_floor": {**SHORT, "parallel": True, "p_min": 0.05},
+    "diverging": {**SHORT, "divergence_error": 40.0},
+    "set_outliers_missed": {
+        **SHORT,
+        "action_mode": "set",
+        "sensor": {"outlier_prob": 0.1, "outlier_scale": 20.0, "detection_prob": 0.7},
+    },
+    "paper_error_no_shadow": {"scenario": "paper", "reward": "error", "shadow": "none"},
+    "squared_advantage_odd_scale": {**SHORT, "reward": "squared_advantage", "reward_scale": 7.3},
+    "stay_measurement_scale": {**SHORT, "action_mode": "stay", "reward_scale": "measurement"},
+    "stay_step_parallel": {**SHORT, "action_mode": "stay_step", "parallel": True},
+    "varied_conditions": {
+        **SHORT,
+        "bank": CONTINUOUS_BANK,
+        "sojourn": (20.0, 8.0, 8.0),
+        "vary": {"T": (0.5, 5.0), "sigma_r": (10.0, 100.0), "speed": (5.0, 300.0)},
+    },
+}
+
+#: every attribute of the core a step writes
+CORE_ARRAYS = TrackingCore._SLOT_ARRAYS
+
+
+def assert_core_equal(core: TrackingCore, reference: TrackingCore) -> None:
+    for name in CORE_ARRAYS:
+        np.testing.assert_array_equal(getattr(core, name), getattr(reference, name), err_msg=name)
+    for bank in ("state_a", "state_b", "state_s"):
+        for part in ("x", "P", "mu"):
+            np.testing.assert_array_equal(
+                getattr(getattr(core, bank), part),
+                getattr(getattr(reference, bank), part),
+                err_msg=f"{bank}.{part}",
+            )
+
+
+def run_against_the_core(
+    config: dict, steps: int, seed: int, low: float = -1.5
+) -> tuple[int, int]:
+    """Step the scalar env (solo step) and a core with N = 1 with the same random actions,
+    compare everything after every step, reset both where an episode ends; the episodes seen and
+    how many of them ended by divergence."""
+    env = TPMAdaptEnv(config=config)
+    assert env._solo is not None
+    reference = TrackingCore(env.config, 1)
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    reference.reset(np.array([0]), [seed])
+    np.testing.assert_array_equal(obs, reference.observe()[0])
+    episodes = divergences = 0
+    for t in range(steps):
+        action = rng.uniform(low, -low, env.action_space.shape).astype(np.float32)
+        obs, reward, terminated, truncated, info = env.step(action)
+        result = reference.step(action[None])
+        assert list(info) == list(result.info)
+        for key, value in info.items():
+            expected = result.info[key][0]
+            assert np.array_equal(value, expected), (t, key, value, expected)
+            assert np.shape(value) == np.shape(expected), key
+        np.testing.assert_array_equal(obs, result.obs[0])
+        assert obs.dtype == np.float32
+        assert reward == result.reward[0], (t, reward - result.reward[0])
+        assert (terminated, truncated) == (result.terminated[0], result.truncated[0])
+        if t % 7 == 0:
+            assert_core_equal(env.core, reference)
+        if terminated or truncated:
+            assert_core_equal(env.core, reference)
+            episodes += 1
+            divergences += terminated
+            assert terminated == info["diverged"]
+            obs, _ = env.reset()
+            reference.reset(np.array([0]), [None])
+            np.testing.assert_array_equal(obs, reference.observe()[0])
+    return episodes, divergences
+
+
+@pytest.mark.parametrize("name", sorted(CONFIGS))
+def test_the_solo_step_is_the_cores_step(name: str) -> None:
+    config = CONFIGS[name]
+    long_episodes = config.get("scenario", "random") == "paper" or not config
+    episodes, divergences = run_against_the_core(
+        config, steps=320 if long_episodes else 160, seed=5
+    )
+    assert episodes >= 2
+    if name == "diverging":
+        assert divergences >= 3
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    mode=st.sampled_from(["scale", "set", "stay", "stay_step"]),
+    parallel=st.booleans(),
+    p_min=st.sampled_from([0.0, 1e-4, 0.2]),
+)
+def test_the_solo_step_is_the_cores_step_for_random_settings(seed, mode, parallel, p_min) -> None:
+    config = {**SHORT, "action_mode": mode, "parallel": parallel, "p_min": p_min}
+    run_against_the_core(config, steps=25, seed=seed, low=-3.0)
+
+
+@pytest.mark.parametrize(
+    ("changes", "render_mode"),
+    [
+        ({"obs_features": ("tpm",)}, None),
+        ({"action_mode": "stay", "stay_base": "evidence"}, None),
+        ({"engine": "numpy"}, None),
+        ({"tpm_cost": 0.1}, None),
+        ({"tpm_change_cost": 0.1}, None),
+        ({"mode_reward": 0.1}, None),
+        ({"bank": SONAR_HETERO_BANK, "filter": "ekf"}, None),
+        ({}, "rgb_array"),
+    ],
+)
+def test_other_configurations_step_through_the_core(changes: dict, render_mode) -> None:
+    env = TPMAdaptEnv(config=changes, render_mode=render_mode)
+    assert env._solo is None
+    assert not SoloStep.fits(TrackingCore(env.config, 1)) or render_mode is not None
+    env.reset(seed=0)
+    *_, info = env.step(np.zeros(env.action_space.shape))
+    assert isinstance(info["step"], int) and isinstance(info["diverged"], bool)
+    assert isinstance(info["position_error"], float) and info["estimate"].shape == (4,)
+    env.close()
+
+
+def test_a_core_with_more_slots_does_not_fit() -> None:
+    assert SoloStep.fits(TrackingCore(EnvConfig(), 1))
+    assert not SoloStep.fits(TrackingCore(EnvConfig(), 2))
+    with pytest.raises(ValueError, match="fits"):
+        SoloStep(TrackingCore(EnvConfig(), 2))
+
+
+def test_stepping_before_a_reset_or_after_the_end_is_refused() -> None:
+    env = TPMAdaptEnv(config=SHORT)
+    action = np.zeros(env.action_space.shape, dtype=np.float32)
+    with pytest.raises(RuntimeError, match="call reset before step"):
+        env.step(action)
+    env.reset(seed=0)
+    truncated = False
+    while not truncated:
+        _, _, _, truncated, _ = env.step(action)
+    with pytest.raises(RuntimeError, match="call reset before step"):
+        env.step(action)
+
+
+def test_a_bad_action_is_refused_and_changes_nothing() -> None:
+    env = TPMAdaptEnv(config=SHORT)
+    reference = TrackingCore(env.config, 1)
+    env.reset(seed=4)
+    reference.reset(np.array([0]), [4])
+    bad = np.zeros(9)
+    bad[4] = np.nan
+    with pytest.raises(ActionError, match="finite"):
+        env.step(bad)
+    with pytest.raises(ActionError, match=r"shape \(9,\)"):
+        env.step(np.zeros(3))
+    assert_core_equal(env.core, reference)
+    action = np.full(9, 0.3)
+    obs, reward, _, _, info = env.step(action)
+    result = reference.step(action[None])
+    np.testing.assert_array_equal(obs, result.obs[0])
+    assert reward == result.reward[0]
+    np.testing.assert_array_equal(info["tpm"], result.info["tpm"][0])
+
+
+def test_each_step_returns_fresh_objects() -> None:
+    env = TPMAdaptEnv()
+    env.reset(seed=1)
+    obs, _, _, _, info = env.step(np.zeros(9))
+    kept_obs, kept = obs.copy(), {key: np.copy(value) for key, value in info.items()}
+    for _ in range(3):
+        env.step(np.full(9, 0.5))
+    np.testing.assert_array_equal(obs, kept_obs)
+    for key, value in info.items():
+        np.testing.assert_array_equal(value, kept[key], err_msg=key)
+    info["mode_probs"][:] = 0.0  # the caller's arrays are theirs
+    *_, info2 = env.step(np.zeros(9))
+    assert np.isclose(info2["mode_probs"].sum(), 1.0)
+    assert isinstance(info2["step"], int) and isinstance(info2["diverged"], bool)
+    assert isinstance(info2["true_model"], int) and isinstance(info2["detected"], bool)
