@@ -39,6 +39,9 @@ from imm_gym.validation import ConfigError
 Array = NDArray[np.float64]
 
 
+#: What a diverged slot's infinite floats become in the API (NaN becomes 0).
+INFINITY_STAND_IN = float(np.finfo(np.float64).max / 4)
+
 #: Bound of every entry of :meth:`TrackingCore.critic_state`.
 CRITIC_CLIP = 10.0
 
@@ -512,10 +515,5 @@ class TrackingCore:
 def _finite(value: Any) -> Any:
     """Non-finite floats (a diverged slot) replaced by finite stand-ins for the API."""
     if isinstance(value, np.ndarray) and value.dtype.kind == "f":
-        return np.nan_to_num(
-            value,
-            nan=0.0,
-            posinf=np.finfo(np.float64).max / 4,
-            neginf=-np.finfo(np.float64).max / 4,
-        )
+        return np.nan_to_num(value, nan=0.0, posinf=INFINITY_STAND_IN, neginf=-INFINITY_STAND_IN)
     return value

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.actions import ActionError
-from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.core import INFINITY_STAND_IN, TrackingCore
 from imm_gym.sim.kernels import ACTION_MODE_CODES, env_step_body
 from imm_gym.sim.rewards import REWARD_TERMS
 from imm_gym.tracking.imm import IMMState
@@ -78,9 +78,6 @@ INFO_ENTRIES = (
  MODEL_NIS_INFO, NIS, DETECTED, TPM, STEP, REWARD_ERROR, REWARD_ADVANTAGE,
  REWARD_SQUARED_ADVANTAGE, SHADOW_POSITION_ERROR, DIVERGED) = range(len(INFO_ENTRIES))
 
-_FINITE_MAX = float(np.finfo(np.float64).max / 4)
-
-
 def info_offsets(d: int, n: int, M: int) -> NDArray[np.int64]:
     """Where each entry of :data:`INFO_ENTRIES` starts in the info buffer (the last: its
     length), for a ``d``-dimensional true state, ``n`` states and ``M`` models."""
@@ -91,8 +88,8 @@ def info_offsets(d: int, n: int, M: int) -> NDArray[np.int64]:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def solo_step(
-    action: Array, X: Array, P: Array, MU_: Array, V: Array, innovation: Array, tpm: Array,
-    counter: NDArray[np.int64], z: Array, detected: NDArray[np.bool_], truth: Array,
+    action: Array, x: Array, P: Array, per_model: Array, velocities: Array, innovation: Array,
+    tpm: Array, counter: NDArray[np.int64], z: Array, detected: NDArray[np.bool_], truth: Array,
     true_model: NDArray[np.int64], fixed_tpm: Array, shadow_tpm: Array, bank: tuple,
     settings: Array, at: NDArray[np.int64], obs_low: NDArray[np.float32],
     obs_high: NDArray[np.float32], obs: NDArray[np.float32], info: Array,
@@ -101,10 +98,10 @@ def solo_step(
 
     Args:
         action: ``(action_dim,)`` float64, clipped here.
-        X, P: ``(3, 1, M, n)``, ``(3, 1, M, n, n)`` the posteriors of bank A, bank B and the
-            shadow; MU_: ``(10, 1, M)`` the records :data:`MU_ROWS`; V: ``(4, 1, 2)`` the
-            velocities :data:`VELOCITY_ROWS`; innovation: ``(1, M, m)``; tpm: ``(1, M, M)``
-            bank A's TPM; counter: ``[k, done]``.
+        x, P: ``(3, 1, M, n)``, ``(3, 1, M, n, n)`` the posteriors of bank A, bank B and the
+            shadow; per_model: ``(10, 1, M)`` the records :data:`MU_ROWS`; velocities:
+            ``(4, 1, 2)`` the records :data:`VELOCITY_ROWS`; innovation: ``(1, M, m)``; tpm:
+            ``(1, M, M)`` bank A's TPM; counter: ``[k, done]``.
         z, detected, truth, true_model: the episode, ``(1, K+1, m)``, ``(1, K+1)``,
             ``(1, K+1, d)``, ``(1, K)``.
         fixed_tpm, shadow_tpm: ``(1, M, M)`` bank B's and the shadow's TPM.
@@ -133,9 +130,9 @@ def solo_step(
     shadow = settings[SHADOW_ON] != 0.0
     out = env_step_body(
         action.reshape((1, action.size)), tpm, int(settings[MODE]), settings[GAIN],
-        settings[P_MIN], X[BANK_A], P[BANK_A], MU_[MU], X[BANK_B], P[BANK_B],
-        MU_[MU] if parallel else MU_[MU_B], X[SHADOW], P[SHADOW], MU_[MU_S], fixed_tpm,
-        shadow_tpm, fixed_tpm, z_k, det, truth_k, bank, parallel, shadow,
+        settings[P_MIN], x[BANK_A], P[BANK_A], per_model[MU], x[BANK_B], P[BANK_B],
+        per_model[MU] if parallel else per_model[MU_B], x[SHADOW], P[SHADOW], per_model[MU_S],
+        fixed_tpm, shadow_tpm, fixed_tpm, z_k, det, truth_k, bank, parallel, shadow,
         settings[DIVERGENCE_ERROR], settings[DIVERGENCE_COV], True)
     # the reward (rewards.Reward)
     s = settings[SCALE]
@@ -174,40 +171,41 @@ def solo_step(
             if np.isnan(info[i]):
                 info[i] = 0.0
             elif np.isinf(info[i]):
-                info[i] = _FINITE_MAX if info[i] > 0.0 else -_FINITE_MAX
+                info[i] = INFINITY_STAND_IN if info[i] > 0.0 else -INFINITY_STAND_IN
     # the records (core._record)
-    X[BANK_A] = out.x_a
+    x[BANK_A] = out.x_a
     P[BANK_A] = out.P_a
     if parallel:
-        X[BANK_B] = out.x_b
+        x[BANK_B] = out.x_b
         P[BANK_B] = out.P_b
-        MU_[MU_B] = out.mu_b
+        per_model[MU_B] = out.mu_b
     if shadow:
-        X[SHADOW] = out.x_s
+        x[SHADOW] = out.x_s
         P[SHADOW] = out.P_s
-        MU_[MU_S_PREV] = MU_[MU_S]
-        MU_[MU_S] = out.mu_s
-        MU_[CBAR_S] = out.cbar_s
-        MU_[LOGLIK_S] = out.loglik_s
-        V[VELOCITY_S_PREV] = V[VELOCITY_S]
-        V[VELOCITY_S] = out.velocity_s
+        per_model[MU_S_PREV] = per_model[MU_S]
+        per_model[MU_S] = out.mu_s
+        per_model[CBAR_S] = out.cbar_s
+        per_model[LOGLIK_S] = out.loglik_s
+        velocities[VELOCITY_S_PREV] = velocities[VELOCITY_S]
+        velocities[VELOCITY_S] = out.velocity_s
     counter[0] = k1
     counter[1] = diverged or truncated
     tpm[...] = out.tpm
-    MU_[MU_PREV] = MU_[MU]
-    MU_[MU] = out.mode_probs
-    MU_[CBAR] = out.cbar
-    MU_[LOGLIK] = out.loglik
-    MU_[MODEL_NIS] = out.model_nis
+    per_model[MU_PREV] = per_model[MU]
+    per_model[MU] = out.mode_probs
+    per_model[CBAR] = out.cbar
+    per_model[LOGLIK] = out.loglik
+    per_model[MODEL_NIS] = out.model_nis
     innovation[...] = out.innovation
-    V[VELOCITY_PREV] = V[VELOCITY]
-    V[VELOCITY] = out.velocity
+    velocities[VELOCITY_PREV] = velocities[VELOCITY]
+    velocities[VELOCITY] = out.velocity
     # the observation (core.observe): [mu(t), mu(t-1)], non-finite entries replaced, the box
     finite = True
     for i in range(M):
-        finite = finite and np.isfinite(MU_[MU, 0, i]) and np.isfinite(MU_[MU_PREV, 0, i])
+        finite = finite and np.isfinite(per_model[MU, 0, i]) and np.isfinite(
+            per_model[MU_PREV, 0, i])
     for i in range(2 * M):
-        value = MU_[MU if i < M else MU_PREV, 0, i % M]
+        value = per_model[MU if i < M else MU_PREV, 0, i % M]
         if not finite:
             value = 0.0 if np.isnan(value) else (1.0 if value > 0.0 else -1.0) if np.isinf(
                 value) else value
