@@ -138,7 +138,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 f"got {render_mode!r}"
             )
         self.config = EnvConfig.build(config, **kwargs)
-        core = self._core = TrackingCore(self.config, n_envs=1)
+        core = self.core = TrackingCore(self.config, n_envs=1)
         self.observation_space = spaces.Box(core.obs_low, core.obs_high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (core.action_dim,), dtype=np.float32)
         self.render_mode = render_mode
@@ -150,25 +150,15 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             )
         )
         #: the compiled single-slot step where the whole step is compiled and nothing is drawn
+        #: (the core's state attributes are then views of its arrays, current after each step)
         self._solo = SoloStep(core) if render_mode is None and SoloStep.fits(core) else None
-        self._solo_ahead = False  # the solo step holds state the core has not been given
-
-    @property
-    def core(self) -> TrackingCore:
-        """The simulation behind the env (:class:`~imm_gym.sim.core.TrackingCore`, N = 1), its
-        state that of the last step."""
-        if self._solo_ahead:
-            self._solo.store(self._core)  # type: ignore[union-attr]
-            self._solo_ahead = False
-        return self._core
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         super().reset(seed=seed)
-        core = self._core
+        core = self.core
         core.reset(np.array([0]), [seed])
-        self._solo_ahead = False
         if self._solo is not None:
             self._solo.load(core)
         info = {"true_state": core.truth[0, 0].copy(), "tpm": core.tpm[0].copy()}
@@ -182,13 +172,11 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self, action: NDArray[Any]
     ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         if self._solo is not None:
-            step = self._solo.step(action)
-            self._solo_ahead = True
-            return step
+            return self._solo.step(action)
         a = np.asarray(action)
-        if a.shape != (self._core.action_dim,):
-            raise ActionError(f"action must have shape ({self._core.action_dim},), got {a.shape}")
-        result = self._core.step(a[None])
+        if a.shape != (self.core.action_dim,):
+            raise ActionError(f"action must have shape ({self.core.action_dim},), got {a.shape}")
+        result = self.core.step(a[None])
         if self._renderer is not None:
             self._renderer.record(result.info)
             if self.render_mode == "human":

@@ -5,7 +5,7 @@ banks' results (:func:`imm_gym.sim.kernels.env_step`) back to Python as fresh ar
 computes the reward, the episode ends, the records and the observation with numpy. At N = 1
 those small-array operations, not the arithmetic, are the step's cost. :class:`SoloStep` keeps
 one slot's state — the three banks, the TPM, the step counter and every quantity the core
-records — in nine arrays that :func:`solo_step` advances in place, and returns the observation
+records — in eight arrays that :func:`solo_step` advances in place, and returns the observation
 and the info from two buffers that the call fills:
 
 1. the slot's inputs at ``k_1 = min(k + 1, K)`` (:func:`imm_gym.sim.kernels.step_inputs`);
@@ -89,8 +89,9 @@ def info_offsets(d: int, n: int, M: int) -> NDArray[np.int64]:
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def solo_step(
     action: Array, x: Array, P: Array, per_model: Array, velocities: Array, innovation: Array,
-    tpm: Array, counter: NDArray[np.int64], z: Array, detected: NDArray[np.bool_], truth: Array,
-    true_model: NDArray[np.int64], fixed_tpm: Array, shadow_tpm: Array, bank: tuple,
+    tpm: Array, k: NDArray[np.int64], done: NDArray[np.bool_], z: Array,
+    detected: NDArray[np.bool_], truth: Array, true_model: NDArray[np.int64], fixed_tpm: Array,
+    shadow_tpm: Array, bank: tuple,
     settings: Array, at: NDArray[np.int64], obs_low: NDArray[np.float32],
     obs_high: NDArray[np.float32], obs: NDArray[np.float32], info: Array,
 ) -> tuple[float, bool, bool, bool]:  # pragma: no cover
@@ -101,7 +102,8 @@ def solo_step(
         x, P: ``(3, 1, M, n)``, ``(3, 1, M, n, n)`` the posteriors of bank A, bank B and the
             shadow; per_model: ``(10, 1, M)`` the records :data:`MU_ROWS`; velocities:
             ``(4, 1, 2)`` the records :data:`VELOCITY_ROWS`; innovation: ``(1, M, m)``; tpm:
-            ``(1, M, M)`` bank A's TPM; counter: ``[k, done]``.
+            ``(1, M, M)`` bank A's TPM; k, done: ``(1,)`` the step counter and the episode's
+            end.
         z, detected, truth, true_model: the episode, ``(1, K+1, m)``, ``(1, K+1)``,
             ``(1, K+1, d)``, ``(1, K)``.
         fixed_tpm, shadow_tpm: ``(1, M, M)`` bank B's and the shadow's TPM.
@@ -118,7 +120,7 @@ def solo_step(
             return 0.0, False, False, False
     M = tpm.shape[1]
     K = true_model.shape[1]
-    k1 = min(counter[0] + 1, K)
+    k1 = min(k[0] + 1, K)
     z_k = np.empty((1, z.shape[2]))
     z_k[0] = z[0, k1]
     det = np.empty(1, dtype=np.bool_)
@@ -188,8 +190,8 @@ def solo_step(
         per_model[LOGLIK_S] = out.loglik_s
         velocities[VELOCITY_S_PREV] = velocities[VELOCITY_S]
         velocities[VELOCITY_S] = out.velocity_s
-    counter[0] = k1
-    counter[1] = diverged or truncated
+    k[0] = k1
+    done[0] = diverged or truncated
     tpm[...] = out.tpm
     per_model[MU_PREV] = per_model[MU]
     per_model[MU] = out.mode_probs
@@ -219,8 +221,11 @@ def solo_step(
 
 class SoloStep:
     """The scalar env's step on a :class:`~imm_gym.sim.core.TrackingCore` with N = 1 (the module
-    docstring): :meth:`load` after each reset of the core, :meth:`step`, and :meth:`store` to
-    give the core its state back (the core is left as it was at the last :meth:`load` meanwhile).
+    docstring). :meth:`load` takes the core's state after a reset and makes the core's state
+    attributes views of the arrays :func:`solo_step` advances in place: the core stays current
+    (``core.mu``, ``core.state_a``, ``core.k`` ... are the last step's), at the price of those
+    arrays changing between steps. A core that was reset or stepped by itself since (its
+    ``k`` is no longer the view) is loaded again at the next :meth:`step`.
     """
 
     def __init__(self, core: TrackingCore) -> None:
@@ -229,13 +234,14 @@ class SoloStep:
         cfg = core.config
         M, n, d = core.M, core.n, core.truth.shape[2]
         self._core = core
-        self._X = np.zeros((3, 1, M, n))
+        self._x = np.zeros((3, 1, M, n))
         self._P = np.zeros((3, 1, M, n, n))
-        self._MU = np.zeros((len(MU_ROWS), 1, M))
-        self._V = np.zeros((len(VELOCITY_ROWS), 1, 2))
+        self._per_model = np.zeros((len(MU_ROWS), 1, M))
+        self._velocities = np.zeros((len(VELOCITY_ROWS), 1, 2))
         self._innovation = np.zeros_like(core.innovation)
         self._tpm = np.zeros((1, M, M))
-        self._counter = np.array([0, 1], dtype=np.int64)  # [k, done]: no episode yet
+        self._k = np.zeros(1, dtype=np.int64)
+        self._done = np.ones(1, dtype=bool)
         self._settings = np.zeros(SCALE2 + 1)
         self._settings[:SCALE] = [
             ACTION_MODE_CODES[cfg.action_mode],
@@ -287,54 +293,50 @@ class SoloStep:
         )
 
     def load(self, core: TrackingCore) -> None:
-        """Take the core's state (after its reset) as the state the steps advance."""
-        self._X[:] = [core.state_a.x, core.state_b.x, core.state_s.x]
+        """Take the core's state (after its reset) as the state the steps advance, and make the
+        core's state attributes views of it."""
+        self._x[:] = [core.state_a.x, core.state_b.x, core.state_s.x]
         self._P[:] = [core.state_a.P, core.state_b.P, core.state_s.P]
-        self._MU[:] = [getattr(core, name) for name in MU_ROWS]
-        self._V[:] = [getattr(core, name) for name in VELOCITY_ROWS]
+        self._per_model[:] = [getattr(core, name) for name in MU_ROWS]
+        self._velocities[:] = [getattr(core, name) for name in VELOCITY_ROWS]
         self._innovation[:] = core.innovation
         self._tpm[:] = core.tpm
-        self._counter[:] = [core.k[0], core.done[0]]
+        self._k[:] = core.k
+        self._done[:] = core.done
+        for row, name in enumerate(MU_ROWS):
+            setattr(core, name, self._per_model[row])
+        for row, name in enumerate(VELOCITY_ROWS):
+            setattr(core, name, self._velocities[row])
+        core.innovation, core.tpm, core.k, core.done = (
+            self._innovation, self._tpm, self._k, self._done
+        )
+        # bank B's probabilities are the fused ones when it runs, else its untouched start
+        b_row = MU if core.config.parallel else MU_B
+        core.state_a = IMMState(self._x[BANK_A], self._P[BANK_A], self._per_model[MU])
+        core.state_b = IMMState(self._x[BANK_B], self._P[BANK_B], self._per_model[b_row])
+        core.state_s = IMMState(self._x[SHADOW], self._P[SHADOW], self._per_model[MU_S])
         cfg = core.config
         scale = core.position_accuracy if cfg.reward_scale == "measurement" else cfg.reward_scale
         self._settings[SCALE] = np.asarray(scale).reshape(-1)[0]
         self._settings[SCALE2] = np.asarray(scale**2).reshape(-1)[0]  # as the core squares it
         self._args = (
-            self._X, self._P, self._MU, self._V, self._innovation, self._tpm, self._counter,
-            core.z, core.detected, core.truth, core.true_model, core.fixed_tpms,
-            core.shadow_tpms, core.kernel_args, self._settings, self._at, core.obs_low,
-            core.obs_high, self._obs, self._info,
+            self._x, self._P, self._per_model, self._velocities, self._innovation, self._tpm,
+            self._k, self._done, core.z, core.detected, core.truth, core.true_model,
+            core.fixed_tpms, core.shadow_tpms, core.kernel_args, self._settings, self._at,
+            core.obs_low, core.obs_high, self._obs, self._info,
         )
-
-    def store(self, core: TrackingCore) -> None:
-        """Give the core the state of the last step (fresh arrays, as its own step does)."""
-        core.k = self._counter[:1].copy()
-        core.done = self._counter[1:].astype(bool)
-        core.tpm = self._tpm.copy()
-        for row, name in enumerate(MU_ROWS):
-            setattr(core, name, self._MU[row].copy())
-        for row, name in enumerate(VELOCITY_ROWS):
-            setattr(core, name, self._V[row].copy())
-        core.innovation = self._innovation.copy()
-        mu_b_state = self._MU[MU] if core.config.parallel else self._MU[MU_B]
-        core.state_a = IMMState(self._X[BANK_A].copy(), self._P[BANK_A].copy(), core.mu.copy())
-        core.state_b = IMMState(self._X[BANK_B].copy(), self._P[BANK_B].copy(), mu_b_state.copy())
-        core.state_s = IMMState(self._X[SHADOW].copy(), self._P[SHADOW].copy(), core.mu_s.copy())
-
-    @property
-    def done(self) -> bool:
-        """Whether the episode has ended (a step needs a reset first)."""
-        return bool(self._counter[1])
 
     def step(
         self, action: NDArray[Any]
     ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         """One step: ``(obs, reward, terminated, truncated, info)``, fresh objects, the info's
         numbers as Python scalars and its arrays views of one fresh buffer."""
-        a = np.asarray(action, dtype=np.float64)
+        a = np.array(action, dtype=np.float64)  # a fresh C-contiguous copy: one compiled variant
         if a.shape != self._action_shape:
             raise ActionError(f"action must have shape {self._action_shape}, got {a.shape}")
-        if self._counter[1]:
+        if self._core.k is not self._k:  # the core was reset or stepped by itself
+            self.load(self._core)
+        if self._done[0]:
             raise RuntimeError("episodes in slots [0] have ended; call reset before step")
         reward, terminated, truncated, finite = solo_step(a, *self._args)
         if not finite:

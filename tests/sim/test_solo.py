@@ -199,3 +199,62 @@ def test_each_step_returns_fresh_objects() -> None:
     assert np.isclose(info2["mode_probs"].sum(), 1.0)
     assert isinstance(info2["step"], int) and isinstance(info2["diverged"], bool)
     assert isinstance(info2["true_model"], int) and isinstance(info2["detected"], bool)
+
+
+@pytest.mark.parametrize(
+    "shape_it",
+    [
+        lambda a: np.asfortranarray(np.stack([a, a], axis=1))[:, 0],  # a strided column
+        lambda a: np.broadcast_to(a[:1], a.shape),  # read-only, stride 0
+        lambda a: a[::-1].copy()[::-1],  # reversed twice: negative stride
+        lambda a: a.astype(np.float32),
+        lambda a: [float(v) for v in a],
+    ],
+)
+def test_any_action_array_layout_steps_as_the_core(shape_it) -> None:
+    env = TPMAdaptEnv(config=SHORT)
+    reference = TrackingCore(env.config, 1)
+    env.reset(seed=6)
+    reference.reset(np.array([0]), [6])
+    rng = np.random.default_rng(6)
+    for _ in range(5):
+        action = shape_it(rng.uniform(-1.0, 1.0, 9))
+        obs, reward, *_ = env.step(action)
+        result = reference.step(np.asarray(action, dtype=np.float64)[None])
+        np.testing.assert_array_equal(obs, result.obs[0])
+        assert reward == result.reward[0]
+    assert_core_equal(env.core, reference)
+
+
+def test_the_core_is_current_after_every_step() -> None:
+    env = TPMAdaptEnv(config=SHORT)
+    core = env.core  # held across steps
+    reference = TrackingCore(env.config, 1)
+    env.reset(seed=8)
+    reference.reset(np.array([0]), [8])
+    for t in range(6):
+        action = np.full(9, 0.1 * t)
+        env.step(action)
+        reference.step(action[None])
+        assert_core_equal(core, reference)
+        assert core.k[0] == t + 1
+
+
+@pytest.mark.parametrize("bypass", ["reset", "step"])
+def test_a_core_reset_or_stepped_by_itself_is_loaded_again(bypass: str) -> None:
+    env = TPMAdaptEnv(config=SHORT)
+    reference = TrackingCore(env.config, 1)
+    env.reset(seed=9)
+    reference.reset(np.array([0]), [9])
+    for core in (env.core, reference):
+        core.step(np.full((1, 9), 0.2))
+        if bypass == "reset":
+            core.reset(np.array([0]), [10])
+        else:
+            core.step(np.full((1, 9), -0.2))
+    obs, reward, _, _, info = env.step(np.full(9, 0.4))
+    result = reference.step(np.full((1, 9), 0.4))
+    np.testing.assert_array_equal(obs, result.obs[0])
+    assert reward == result.reward[0]
+    assert info["step"] == result.info["step"][0]
+    assert_core_equal(env.core, reference)
