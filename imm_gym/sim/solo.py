@@ -9,8 +9,9 @@ records — in eight arrays that :func:`solo_step` advances in place, and return
 and the info from two buffers that the call fills:
 
 1. the slot's inputs at ``k_1 = min(k + 1, K)`` (:func:`imm_gym.sim.kernels.step_inputs`);
-2. the banks' step (:func:`imm_gym.sim.kernels.env_step_one`'s body: the action's TPM, bank
-   A, bank B and the fusion, the shadow IMM, the capped errors and the divergence flag);
+2. the banks' step (:func:`imm_gym.sim.kernels.env_step_body`, the body of ``env_step`` and
+   ``env_step_one``: the action's TPM, bank A, bank B and the fusion, the shadow IMM, the capped
+   errors and the divergence flag);
 3. the reward terms of :mod:`imm_gym.sim.rewards` — ``error`` :math:`-e/s`, ``advantage``
    :math:`(e_s - e)/s`, ``squared_advantage`` :math:`(e_s^2 - e^2)/s^2` (``s`` the reward
    scale, ``e`` and ``e_s`` the capped errors of the combined estimate and the shadow's);
@@ -18,8 +19,10 @@ and the info from two buffers that the call fills:
    :meth:`~imm_gym.sim.core.TrackingCore._record` and the observation ``[μ(t), μ(t−1)]``
    clipped to its box.
 
-The numbers are the core's bit for bit (``tests/sim/test_solo.py`` holds every info entry, the
-observation, the reward and the core's state after each step equal to the core's own step).
+The core keeps the episode (its reset draws it) and stays current: its state attributes are views
+of :class:`SoloStep`'s arrays. The numbers are the core's bit for bit (``tests/sim/test_solo.py``
+holds every info entry, the observation, the reward and the core's state after each step equal
+to the core's own step).
 It covers the configurations whose whole step is compiled: the compiled engine on a tracker of
 :func:`~imm_gym.tracking.kernels.imm.imm_step_one`'s shape, no observation feature, no stay
 bank, the built-in reward terms only and none of the reward's TPM or mode terms
