@@ -300,6 +300,13 @@ class TrackingCore:
             self.stay_bank.start(indices, init, self.kernel_args)
 
     @property
+    def reward_scale(self) -> float | Array:
+        """Metres per unit of reward: ``EnvConfig.reward_scale``, or each slot's first-measurement
+        accuracy ``(N,)`` with ``reward_scale="measurement"``."""
+        scale = self.config.reward_scale
+        return self.position_accuracy if scale == "measurement" else scale  # type: ignore[return-value]
+
+    @property
     def stay_base_tpms(self) -> Array:
         """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's), or
         the stay bank's stay on the diagonal and the rest of each row spread evenly
@@ -364,8 +371,7 @@ class TrackingCore:
             "tpm": out.tpm.copy(),
             "step": step,
         }
-        scale = self.position_accuracy if cfg.reward_scale == "measurement" else cfg.reward_scale
-        reward, terms = self._reward(out, scale, true_model, self.tpm)
+        reward, terms = self._reward(out, self.reward_scale, true_model, self.tpm)
         info.update(terms)
         if cfg.shadow == "fixed":
             info["shadow_position_error"] = out.shadow_position_error

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import INFINITY_STAND_IN, TrackingCore
-from imm_gym.sim.kernels import ACTION_MODE_CODES, env_step_body
+from imm_gym.sim.kernels import ACTION_MODE_CODES, env_step_body, step_inputs
 from imm_gym.sim.rewards import REWARD_TERMS
 from imm_gym.tracking.imm import IMMState
 from imm_gym.tracking.kernels.imm import fits_one
@@ -123,14 +123,8 @@ def solo_step(
             return 0.0, False, False, False
     M = tpm.shape[1]
     K = true_model.shape[1]
-    k1 = min(k[0] + 1, K)
-    z_k = np.empty((1, z.shape[2]))
-    z_k[0] = z[0, k1]
-    det = np.empty(1, dtype=np.bool_)
-    det[0] = detected[0, k1]
-    truth_k = np.empty((1, truth.shape[2]))
-    truth_k[0] = truth[0, k1]
-    j_star = true_model[0, k1 - 1]
+    _, step, z_k, det, truth_k, model = step_inputs(k, K, z, detected, truth, true_model)
+    k1, j_star = step[0], model[0]
     parallel = settings[PARALLEL] != 0.0
     shadow = settings[SHADOW_ON] != 0.0
     out = env_step_body(
@@ -318,8 +312,7 @@ class SoloStep:
         core.state_a = IMMState(self._x[BANK_A], self._P[BANK_A], self._per_model[MU])
         core.state_b = IMMState(self._x[BANK_B], self._P[BANK_B], self._per_model[b_row])
         core.state_s = IMMState(self._x[SHADOW], self._P[SHADOW], self._per_model[MU_S])
-        cfg = core.config
-        scale = core.position_accuracy if cfg.reward_scale == "measurement" else cfg.reward_scale
+        scale = core.reward_scale
         self._settings[SCALE] = np.asarray(scale).reshape(-1)[0]
         self._settings[SCALE2] = np.asarray(scale**2).reshape(-1)[0]  # as the core squares it
         self._args = (
