@@ -5,8 +5,9 @@ banks' results (:func:`imm_gym.sim.kernels.env_step`) back to Python as fresh ar
 computes the reward, the episode ends, the records and the observation with numpy. At N = 1
 those small-array operations, not the arithmetic, are the step's cost. :class:`SoloStep` keeps
 one slot's state — the three banks, the TPM, the step counter and every quantity the core
-records — in eight arrays that :func:`solo_step` advances in place, and returns the observation
-and the info from two buffers that the call fills:
+records — in eight arrays that :func:`solo_step` advances in place; the call fills the
+observation's buffer and a row of the episode's info record, whose columns the info's arrays
+are views of (a fresh record per episode: a row is written once):
 
 1. the slot's inputs at ``k_1 = min(k + 1, K)`` (:func:`imm_gym.sim.kernels.step_inputs`);
 2. the banks' step (:func:`imm_gym.sim.kernels.env_step_body`, the body of ``env_step`` and
@@ -33,7 +34,6 @@ core, which rounds differently from the scalar ``log`` compiled code calls) —
 
 from __future__ import annotations
 
-import operator
 from typing import Any
 
 import numba
@@ -67,26 +67,22 @@ VELOCITY, VELOCITY_PREV, VELOCITY_S, VELOCITY_S_PREV = range(4)
 #: the rewarded term's code in ``settings[REWARD]``
 REWARD_CODES = {"error": 0, "advantage": 1, "squared_advantage": 2}
 
-#: The info entries, in the core's order: name and kind (``"vector"``, ``"matrix"``, ``"float"``,
-#: ``"int"``, ``"bool"``); their offsets in the info buffer are :func:`info_offsets`'.
-INFO_ENTRIES = (
-    ("true_state", "vector"), ("true_model", "int"), ("estimate", "vector"),
-    ("covariance", "matrix"), ("position_error", "float"), ("mode_probs", "vector"),
-    ("loglik", "vector"), ("model_nis", "vector"), ("nis", "float"), ("detected", "bool"),
-    ("tpm", "matrix"), ("step", "int"), ("reward_error", "float"),
-    ("reward_advantage", "float"), ("reward_squared_advantage", "float"),
-    ("shadow_position_error", "float"), ("diverged", "bool"),
-)
-(TRUE_STATE, TRUE_MODEL, ESTIMATE, COVARIANCE, POSITION_ERROR, MODE_PROBS, LOGLIK_INFO,
- MODEL_NIS_INFO, NIS, DETECTED, TPM, STEP, REWARD_ERROR, REWARD_ADVANTAGE,
- REWARD_SQUARED_ADVANTAGE, SHADOW_POSITION_ERROR, DIVERGED) = range(len(INFO_ENTRIES))
+#: The info's float entries: the first columns of a row of the episode's info record
+FLOAT_INFO = ("position_error", "nis", "reward_error", "reward_advantage",
+              "reward_squared_advantage", "shadow_position_error")
+(POSITION_ERROR, NIS, REWARD_ERROR, REWARD_ADVANTAGE, REWARD_SQUARED_ADVANTAGE,
+ SHADOW_POSITION_ERROR) = range(len(FLOAT_INFO))
+#: then its array entries, from the columns :func:`info_columns` gives
+ARRAY_INFO = ("true_state", "estimate", "covariance", "mode_probs", "loglik", "model_nis", "tpm")
+TRUE_STATE, ESTIMATE, COVARIANCE, MODE_PROBS, LOGLIK_INFO, MODEL_NIS_INFO, TPM = range(
+    len(ARRAY_INFO))
 
-def info_offsets(d: int, n: int, M: int) -> NDArray[np.int64]:
-    """Where each entry of :data:`INFO_ENTRIES` starts in the info buffer (the last: its
-    length), for a ``d``-dimensional true state, ``n`` states and ``M`` models."""
-    sizes = {"true_state": d, "estimate": n, "covariance": n * n, "mode_probs": M, "loglik": M,
-             "model_nis": M, "tpm": M * M}
-    return np.cumsum([0] + [sizes.get(name, 1) for name, _ in INFO_ENTRIES]).astype(np.int64)
+def info_columns(d: int, n: int, M: int) -> NDArray[np.int64]:
+    """Where each entry of :data:`ARRAY_INFO` starts in a row of the info record (the last: the
+    row's length), after the :data:`FLOAT_INFO` columns, for a ``d``-dimensional true state,
+    ``n`` states and ``M`` models."""
+    sizes = (d, n, n * n, M, M, M, M * M)
+    return np.cumsum((len(FLOAT_INFO), *sizes)).astype(np.int64)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -96,8 +92,8 @@ def solo_step(
     detected: NDArray[np.bool_], truth: Array, true_model: NDArray[np.int64], fixed_tpm: Array,
     shadow_tpm: Array, bank: tuple,
     settings: Array, at: NDArray[np.int64], obs_low: NDArray[np.float32],
-    obs_high: NDArray[np.float32], obs: NDArray[np.float32], info: Array,
-) -> tuple[float, bool, bool, bool]:  # pragma: no cover
+    obs_high: NDArray[np.float32], obs: NDArray[np.float32], record: Array,
+) -> tuple[float, bool, bool, bool, int, bool, int]:  # pragma: no cover
     """One step of one slot (the module docstring's steps 1-4), its state advanced in place.
 
     Args:
@@ -111,16 +107,18 @@ def solo_step(
             ``(1, K+1, d)``, ``(1, K)``.
         fixed_tpm, shadow_tpm: ``(1, M, M)`` bank B's and the shadow's TPM.
         bank: the tracker's kernel constants; settings: the configuration (:data:`MODE` ...).
-        at: :func:`info_offsets`; obs_low, obs_high: the observation's box.
-        obs, info: filled with the observation and the info entries.
+        at: :func:`info_columns`; obs_low, obs_high: the observation's box.
+        obs: filled with the observation; record: ``(K+1, at[-1])`` the episode's info record,
+            its row ``k + 1`` filled with this step's float and array info entries.
 
     Returns:
-        ``(reward, terminated, truncated, finite)``; ``finite`` False (a NaN or inf in the
-        action) leaves everything untouched.
+        ``(reward, terminated, truncated, finite, true_model, detected, step)`` (``terminated``
+        is the info's ``diverged``); ``finite`` False (a NaN or inf in the action) leaves
+        everything untouched.
     """
     for value in action:
         if not np.isfinite(value):
-            return 0.0, False, False, False
+            return 0.0, False, False, False, 0, False, 0
     M = tpm.shape[1]
     K = true_model.shape[1]
     _, step, z_k, det, truth_k, model = step_inputs(k, K, z, detected, truth, true_model)
@@ -141,36 +139,33 @@ def solo_step(
     reward = terms[int(settings[REWARD])]
     diverged = out.diverged[0]
     truncated = k1 >= K and not diverged
-    # the info
+    # the info's entries other than true_model, detected, step and diverged (returned)
+    row = record[k1]
+    row[POSITION_ERROR] = e
+    row[NIS] = out.nis[0]
+    row[REWARD_ERROR] = terms[0]
+    row[REWARD_ADVANTAGE] = terms[1]
+    row[REWARD_SQUARED_ADVANTAGE] = terms[2]
+    row[SHADOW_POSITION_ERROR] = e_s
     for i in range(truth_k.shape[1]):
-        info[at[TRUE_STATE] + i] = truth_k[0, i]
-    info[at[TRUE_MODEL]] = j_star
+        row[at[TRUE_STATE] + i] = truth_k[0, i]
     n = out.estimate.shape[1]
     for i in range(n):
-        info[at[ESTIMATE] + i] = out.estimate[0, i]
+        row[at[ESTIMATE] + i] = out.estimate[0, i]
         for c in range(n):
-            info[at[COVARIANCE] + i * n + c] = out.covariance[0, i, c]
-    info[at[POSITION_ERROR]] = e
+            row[at[COVARIANCE] + i * n + c] = out.covariance[0, i, c]
     for i in range(M):
-        info[at[MODE_PROBS] + i] = out.mode_probs[0, i]
-        info[at[LOGLIK_INFO] + i] = out.loglik[0, i]
-        info[at[MODEL_NIS_INFO] + i] = out.model_nis[0, i]
+        row[at[MODE_PROBS] + i] = out.mode_probs[0, i]
+        row[at[LOGLIK_INFO] + i] = out.loglik[0, i]
+        row[at[MODEL_NIS_INFO] + i] = out.model_nis[0, i]
         for c in range(M):
-            info[at[TPM] + i * M + c] = out.tpm[0, i, c]
-    info[at[NIS]] = out.nis[0]
-    info[at[DETECTED]] = det[0]
-    info[at[STEP]] = k1
-    info[at[REWARD_ERROR]] = terms[0]
-    info[at[REWARD_ADVANTAGE]] = terms[1]
-    info[at[REWARD_SQUARED_ADVANTAGE]] = terms[2]
-    info[at[SHADOW_POSITION_ERROR]] = e_s
-    info[at[DIVERGED]] = diverged
+            row[at[TPM] + i * M + c] = out.tpm[0, i, c]
     if diverged:  # core._finite: the API's stand-ins for non-finite floats
-        for i in range(info.size):
-            if np.isnan(info[i]):
-                info[i] = 0.0
-            elif np.isinf(info[i]):
-                info[i] = INFINITY_STAND_IN if info[i] > 0.0 else -INFINITY_STAND_IN
+        for i in range(row.size):
+            if np.isnan(row[i]):
+                row[i] = 0.0
+            elif np.isinf(row[i]):
+                row[i] = INFINITY_STAND_IN if row[i] > 0.0 else -INFINITY_STAND_IN
     # the records (core._record)
     x[BANK_A] = out.x_a
     P[BANK_A] = out.P_a
@@ -211,7 +206,7 @@ def solo_step(
         o = np.float32(value)
         o = max(o, obs_low[i])
         obs[i] = min(o, obs_high[i])
-    return reward, diverged, truncated, True
+    return reward, diverged, truncated, True, j_star, det[0], k1
 
 # fmt: on
 
@@ -246,30 +241,13 @@ class SoloStep:
             cfg.p_min, cfg.parallel, cfg.shadow == "fixed", cfg.divergence_error,
             cfg.divergence_cov, REWARD_CODES[cfg.reward],
         ]
-        self._at = info_offsets(d, n, M)
+        self._at = info_columns(d, n, M)
         self._obs = np.zeros(core.obs_dim, dtype=np.float32)
-        self._info = np.zeros(int(self._at[-1]))
         self._action_shape = (core.action_dim,)
-        keys = [name for name, _ in INFO_ENTRIES[:REWARD_ERROR]]
-        keys += [f"reward_{t}" for t in REWARD_CODES if cfg.shadow == "fixed" or t == "error"]
-        if cfg.shadow == "fixed":
-            keys.append("shadow_position_error")
-        keys.append("diverged")
-        index = {name: (i, kind) for i, (name, kind) in enumerate(INFO_ENTRIES)}
-        starts = [int(self._at[index[key][0]]) for key in keys]
-        #: the info's keys in the core's order, each read first as the float at its start
-        self._keys = tuple(keys)
-        self._pick = operator.itemgetter(*starts)
-        shapes = {"covariance": (n, n), "tpm": (M, M)}
-        #: then the array entries as views of the step's buffer, the integer and boolean ones
-        spans = {key: (start, int(self._at[index[key][0] + 1])) for key, start in zip(
-            keys, starts, strict=True)}
-        self._vectors = tuple((key, *spans[key]) for key in keys if index[key][1] == "vector")
-        self._matrices = tuple(
-            (key, *spans[key], shapes[key]) for key in keys if index[key][1] == "matrix"
-        )
-        self._ints = tuple(key for key in keys if index[key][1] == "int")
-        self._bools = tuple(key for key in keys if index[key][1] == "bool")
+        self._shadow = cfg.shadow == "fixed"
+        #: the episode's info record, its float columns and its array columns (:meth:`load`)
+        self._floats: Array = np.zeros((0, len(FLOAT_INFO)))
+        self._columns: tuple[Array, ...] = ()
         self._args: tuple = ()
 
     @staticmethod
@@ -312,6 +290,17 @@ class SoloStep:
         core.state_a = IMMState(self._x[BANK_A], self._P[BANK_A], self._per_model[MU])
         core.state_b = IMMState(self._x[BANK_B], self._P[BANK_B], self._per_model[b_row])
         core.state_s = IMMState(self._x[SHADOW], self._P[SHADOW], self._per_model[MU_S])
+        # the episode's info record (a fresh one per episode: the rows handed out stay as they
+        # were) and its columns, each a (K+1, ...) array whose row k is step k's entry
+        K, n, M = core.horizon, core.n, core.M
+        at = self._at
+        record = np.zeros((K + 1, int(at[-1])))
+        self._floats = record[:, : len(FLOAT_INFO)]
+        shapes = {COVARIANCE: (n, n), TPM: (M, M)}
+        self._columns = tuple(
+            record[:, at[j] : at[j + 1]].reshape((K + 1, *shapes.get(j, (-1,))))
+            for j in range(len(ARRAY_INFO))
+        )
         scale = core.reward_scale
         self._settings[SCALE] = np.asarray(scale).reshape(-1)[0]
         self._settings[SCALE2] = np.asarray(scale**2).reshape(-1)[0]  # as the core squares it
@@ -319,7 +308,7 @@ class SoloStep:
             self._x, self._P, self._per_model, self._velocities, self._innovation, self._tpm,
             self._k, self._done, core.z, core.detected, core.truth, core.true_model,
             core.fixed_tpms, core.shadow_tpms, core.kernel_args, self._settings, self._at,
-            core.obs_low, core.obs_high, self._obs, self._info,
+            core.obs_low, core.obs_high, self._obs, record,
         )
 
     def step(
@@ -334,17 +323,35 @@ class SoloStep:
             self.load(self._core)
         if self._done[0]:
             raise RuntimeError("episodes in slots [0] have ended; call reset before step")
-        reward, terminated, truncated, finite = solo_step(a, *self._args)
+        reward, terminated, truncated, finite, true_model, detected, k = solo_step(
+            a, *self._args
+        )
         if not finite:
             raise ActionError("action must be finite (got NaN or inf)")
-        values = self._info.copy()
-        info: dict[str, Any] = dict(zip(self._keys, self._pick(values.tolist()), strict=True))
-        for key, start, end in self._vectors:
-            info[key] = values[start:end]
-        for key, start, end, shape in self._matrices:
-            info[key] = values[start:end].reshape(shape)
-        for key in self._ints:
-            info[key] = int(info[key])
-        for key in self._bools:
-            info[key] = info[key] != 0.0
+        error, nis, reward_error, reward_advantage, reward_squared, shadow_error = self._floats[
+            k
+        ].tolist()
+        true_state, estimate, covariance, mode_probs, loglik, model_nis, tpm = self._columns
+        info: dict[str, Any] = {  # in the core's order
+            "true_state": true_state[k],
+            "true_model": true_model,
+            "estimate": estimate[k],
+            "covariance": covariance[k],
+            "position_error": error,
+            "mode_probs": mode_probs[k],
+            "loglik": loglik[k],
+            "model_nis": model_nis[k],
+            "nis": nis,
+            "detected": detected,
+            "tpm": tpm[k],
+            "step": k,
+            "reward_error": reward_error,
+            "reward_advantage": reward_advantage,
+            "reward_squared_advantage": reward_squared,
+            "shadow_position_error": shadow_error,
+            "diverged": terminated,
+        }
+        if not self._shadow:  # the terms and entries that need the shadow tracker
+            del info["reward_advantage"], info["reward_squared_advantage"]
+            del info["shadow_position_error"]
         return self._obs.copy(), reward, terminated, truncated, info

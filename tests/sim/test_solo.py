@@ -201,6 +201,27 @@ def test_each_step_returns_fresh_objects() -> None:
     assert isinstance(info2["true_model"], int) and isinstance(info2["detected"], bool)
 
 
+def test_infos_kept_over_episodes_stay_as_they_were() -> None:
+    env = TPMAdaptEnv(config=SHORT)
+    env.reset(seed=2)
+    kept, copies = [], []
+    for episode in range(2):
+        done = False
+        while not done:
+            *_, terminated, truncated, info = env.step(np.full(9, 0.3 * episode))
+            kept.append(info)
+            copies.append({key: np.copy(value) for key, value in info.items()})
+            done = terminated or truncated
+        env.reset()
+    env.step(np.zeros(9))
+    for info, copy in zip(kept, copies, strict=True):
+        for key, value in info.items():
+            np.testing.assert_array_equal(value, copy[key], err_msg=key)
+    arrays = [value for info in kept for value in info.values() if isinstance(value, np.ndarray)]
+    for i, value in enumerate(arrays):  # no two entries share memory
+        assert not any(np.shares_memory(value, other) for other in arrays[i + 1 :])
+
+
 @pytest.mark.parametrize(
     "shape_it",
     [
