@@ -250,6 +250,14 @@ class SoloStep:
         self._columns: tuple[Array, ...] = ()
         self._args: tuple = ()
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Only the core: the arrays whose views the core and the info's columns hold would be
+        pickled as separate copies; a copy loads the core's state again at its first step."""
+        return {"core": self._core}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["core"])  # type: ignore[misc]
+
     @staticmethod
     def fits(core: TrackingCore) -> bool:
         """Whether the core's whole step is :func:`solo_step`'s: one slot, the compiled engine

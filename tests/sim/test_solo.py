@@ -4,6 +4,9 @@ whole episodes, resets and divergences; which configurations it takes; its error
 
 from __future__ import annotations
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -214,9 +217,9 @@ def test_infos_kept_over_episodes_stay_as_they_were() -> None:
             done = terminated or truncated
         env.reset()
     env.step(np.zeros(9))
-    for info, copy in zip(kept, copies, strict=True):
+    for info, saved in zip(kept, copies, strict=True):
         for key, value in info.items():
-            np.testing.assert_array_equal(value, copy[key], err_msg=key)
+            np.testing.assert_array_equal(value, saved[key], err_msg=key)
     arrays = [value for info in kept for value in info.values() if isinstance(value, np.ndarray)]
     for i, value in enumerate(arrays):  # no two entries share memory
         assert not any(np.shares_memory(value, other) for other in arrays[i + 1 :])
@@ -279,3 +282,27 @@ def test_a_core_reset_or_stepped_by_itself_is_loaded_again(bypass: str) -> None:
     assert reward == result.reward[0]
     assert info["step"] == result.info["step"][0]
     assert_core_equal(env.core, reference)
+
+
+@pytest.mark.parametrize("how", ["pickle", "deepcopy"])
+@pytest.mark.parametrize("changes", [{}, {"obs_features": ["loglik"]}])
+def test_a_copy_taken_mid_episode_steps_as_the_original(how: str, changes: dict) -> None:
+    env = TPMAdaptEnv(config={**SHORT, **changes})
+    assert (env._solo is not None) == (not changes)
+    env.reset(seed=4)
+    for _ in range(5):
+        env.step(np.full(env.action_space.shape, -0.4))
+    twin = pickle.loads(pickle.dumps(env)) if how == "pickle" else copy.deepcopy(env)
+    rng = np.random.default_rng(0)
+    for t in range(60):  # over episode ends and resets without a seed
+        action = rng.uniform(-1, 1, env.action_space.shape)
+        obs, reward, terminated, truncated, info = env.step(action)
+        obs2, reward2, terminated2, truncated2, info2 = twin.step(action)
+        np.testing.assert_array_equal(obs, obs2)
+        assert (reward, terminated, truncated) == (reward2, terminated2, truncated2), t
+        assert list(info) == list(info2)
+        for key, value in info.items():
+            np.testing.assert_array_equal(value, info2[key], err_msg=f"{t} {key}")
+        if terminated or truncated:
+            np.testing.assert_array_equal(env.reset()[0], twin.reset()[0])
+    assert_core_equal(twin.core, env.core)
