@@ -84,7 +84,8 @@ class EnvConfig:
         bank: the motion models of the IMM bank, or a
             :class:`~imm_gym.tracking.hetero.HeteroBank` (or a mapping of its fields): seed 002's
             NCV/CT/CTRA models in their own state spaces (needs ``filter="ekf"``).
-        filter: ``"ukf"`` (SVD-UKF) or ``"ekf"``.
+        filter: ``"ukf"`` (SVD-UKF), ``"ukf-cholesky"`` (the UKF with Cholesky sigma points:
+            faster, not the paper's) or ``"ekf"``.
         initial_stay: diagonal of the initial (and fixed-bank) TPM, off-diagonal entries equal.
         sojourn: mean sojourn time of each model (s), or None: the initial (and fixed-bank) TPM
             is then ``exp(A T)`` of the continuous-time chain with these sojourns

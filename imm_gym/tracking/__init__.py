@@ -7,7 +7,7 @@ module              what it holds
 ``models``          linear motion models (CV, CT, CA) and the paper bank
 ``conversions``     state spaces of the heterogeneous bank and their conversions
 ``sensors``         the sonar (range, bearing) and the position(+velocity) sensor
-``filters``         UKF (SVD sigma points), EKF and KF: ``predict`` and ``update``
+``filters``         UKF (SVD or Cholesky sigma points), EKF and KF: ``predict`` and ``update``
 ``tpm``             TPM construction, validation, floor and divergence
 ``tip``             TIP-IMM's TPM rule (the factors of eqs. 13-17)
 ``fusion``          TIP-IMM's entropy fusion of two probability vectors (eq. 19)

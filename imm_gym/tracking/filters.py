@@ -1,4 +1,4 @@
-r"""Model-matched filters, batched over any leading axes: Kalman, extended Kalman, SVD-UKF.
+r"""Model-matched filters, batched over any leading axes: Kalman, extended Kalman, UKF.
 
 All models of the bank are linear in the state (:mod:`imm_gym.tracking.models`), so every filter
 predicts with the same closed form ``x = F x``, ``P = F P F^T + Q``; they differ in the measurement
@@ -9,6 +9,9 @@ update:
 * :class:`UnscentedKalmanFilter` — scaled unscented transform whose sigma points are the columns of
   ``U sqrt(S)`` from the SVD ``P = U S U^T`` (SPEC §2, the "SVD-UKF"), defined even when ``P`` has
   lost definiteness. The sigma points are drawn from the *predicted* covariance (``Q`` included).
+  ``"ukf-cholesky"`` is the same filter with the columns of the Cholesky factor ``P = L L^T``
+  instead (:func:`~imm_gym.tracking.linalg.cholesky_psd`): the same sigma-point moments for a
+  linear sensor, differences of a higher order for the sonar, and no eigendecomposition.
 
 Shapes: ``x (..., n)``, ``P (..., n, n)``, ``z (..., m)``; the leading axes broadcast.
 Residuals go through ``sensor.residual`` (bearing wrapped to (-pi, pi]); covariances are
@@ -24,12 +27,14 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.tracking.linalg import LOG_2PI, inv_logdet, sym_eig, symmetrize
+from imm_gym.tracking.linalg import LOG_2PI, cholesky_psd, inv_logdet, sym_eig, symmetrize
 from imm_gym.validation import ConfigError, check_range, store
 
 Array = NDArray[np.float64]
 
-FILTERS = ("ukf", "ekf", "kf")
+FILTERS = ("ukf", "ukf-cholesky", "ekf", "kf")
+#: the UKF's matrix square roots for its sigma points
+SQUARE_ROOTS = ("svd", "cholesky")
 
 
 class MeasurementModel(Protocol):
@@ -162,17 +167,28 @@ class UnscentedKalmanFilter:
 
     Attributes:
         alpha, beta, kappa: sigma-point scaling (SPEC §6 default ``(1, 2, 0)``).
+        square_root: ``"svd"`` (the paper's, default) or ``"cholesky"``: the ``a_i`` are the
+            columns of the Cholesky factor ``L`` of ``P = L L^T`` (filter ``"ukf-cholesky"``).
     """
 
     alpha: float = 1.0
     beta: float = 2.0
     kappa: float = 0.0
-    name = "ukf"
+    square_root: str = "svd"
 
     def __post_init__(self) -> None:
         store(self, "alpha", check_range("ukf.alpha", self.alpha, 0.0, 1.0, lo_open=True))
         store(self, "beta", check_range("ukf.beta", self.beta, 0.0))
         store(self, "kappa", check_range("ukf.kappa", self.kappa, 0.0))
+        if self.square_root not in SQUARE_ROOTS:
+            raise ConfigError(
+                f"ukf.square_root must be one of {list(SQUARE_ROOTS)}, got {self.square_root!r}"
+            )
+
+    @property
+    def name(self) -> str:
+        """``"ukf"`` (SVD sigma points) or ``"ukf-cholesky"``."""
+        return "ukf" if self.square_root == "svd" else "ukf-cholesky"
 
     def weights(self, n: int) -> tuple[Array, Array, float]:
         """Mean and covariance weights ``(2n+1,)`` and ``gamma = sqrt(n + lambda)``."""
@@ -186,11 +202,15 @@ class UnscentedKalmanFilter:
 
     def sigma_offsets(self, P: Array) -> Array:
         """``(..., 2n+1, n)`` offsets ``0, +gamma a_i, -gamma a_i`` with ``a_i`` the columns of
-        ``U sqrt(|S|)`` from the SVD of ``P``; the sigma points are ``x`` plus these."""
+        ``U sqrt(|S|)`` from the SVD of ``P`` (or of its Cholesky factor ``L``, of ``(P +
+        P^T) / 2``); the sigma points are ``x`` plus these."""
         n = P.shape[-1]
         _, _, gamma = self.weights(n)
-        s, U = sym_eig(P)
-        D = np.swapaxes(U * (gamma * np.sqrt(np.abs(s)))[..., None, :], -1, -2)  # rows = a_i
+        if self.square_root == "cholesky":
+            D = np.swapaxes(cholesky_psd(symmetrize(P)) * gamma, -1, -2)  # rows = a_i
+        else:
+            s, U = sym_eig(P)
+            D = np.swapaxes(U * (gamma * np.sqrt(np.abs(s)))[..., None, :], -1, -2)
         O = np.empty((*P.shape[:-2], 2 * n + 1, n))
         O[..., 0, :] = 0.0
         O[..., 1 : n + 1, :] = D
@@ -220,9 +240,10 @@ Filter = KalmanFilter | ExtendedKalmanFilter | UnscentedKalmanFilter
 
 
 def make_filter(name: str, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0) -> Filter:
-    """The filter called ``name`` (``"ukf"``, ``"ekf"`` or ``"kf"``)."""
-    if name == "ukf":
-        return UnscentedKalmanFilter(alpha, beta, kappa)
+    """The filter called ``name`` (:data:`FILTERS`: ``"ukf"``, ``"ukf-cholesky"``, ``"ekf"``,
+    ``"kf"``)."""
+    if name in ("ukf", "ukf-cholesky"):
+        return UnscentedKalmanFilter(alpha, beta, kappa, "svd" if name == "ukf" else "cholesky")
     if name == "ekf":
         return ExtendedKalmanFilter()
     if name == "kf":

@@ -339,7 +339,8 @@ class IMM:
     Args:
         models: the M motion models (:mod:`imm_gym.tracking.models`).
         sensor: the measurement model (:mod:`imm_gym.tracking.sensors`).
-        filter: ``"ukf"`` (SVD-UKF, default), ``"ekf"`` or ``"kf"`` (linear sensors only), or a
+        filter: ``"ukf"`` (SVD-UKF, default), ``"ukf-cholesky"`` (its sigma points from the
+            Cholesky factor), ``"ekf"`` or ``"kf"`` (linear sensors only), or a
             filter instance.
         T: sampling period (s).
         engine: ``"auto"`` (default), ``"compiled"`` (the fused numba cycle of
@@ -384,7 +385,7 @@ class IMM:
             kind, params = kernels.sensor_spec(sensor)  # type: ignore[misc]
             if isinstance(self.filter, UnscentedKalmanFilter):
                 wm, wc, gamma = self.filter.weights(self.n)
-                fkind = kernels.UKF
+                fkind = kernels.UKF if self.filter.square_root == "svd" else kernels.UKF_CHOLESKY
             else:
                 wm = wc = np.zeros(1)
                 gamma, fkind = 0.0, kernels.EKF

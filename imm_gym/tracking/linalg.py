@@ -59,6 +59,68 @@ def sym_eig(P: Array) -> tuple[Array, Array]:
     return s.reshape(*P.shape[:-1]), U.reshape(P.shape)
 
 
+def cholesky_psd(P: Array) -> Array:
+    """Lower-triangular ``L`` with ``P = L L^T`` of symmetric positive semi-definite matrices.
+
+    Column by column (Cholesky-Banachiewicz, Golub & Van Loan §4.2):
+    ``L_cc = sqrt(max(P_cc - sum_{k<c} L_ck^2, 0))``,
+    ``L_rc = (P_rc - sum_{k<c} L_rk L_ck) / L_cc`` for ``r > c``. A pivot that rounding has
+    made zero or negative (``P`` lost definiteness) gives a zero column instead of failing: the
+    Cholesky UKF then draws no sigma points along that direction (the SVD-UKF takes ``|s|``).
+    The lower triangle of ``P`` is read. :func:`cholesky_lanes` is the same in compiled code.
+
+    Args:
+        P: ``(..., n, n)``.
+
+    Returns:
+        ``L`` of the same shape, zero above the diagonal.
+    """
+    n = P.shape[-1]
+    L = np.zeros_like(P, dtype=np.float64)
+    for c in range(n):  # the sums term by term, in the compiled loops' order
+        d = P[..., c, c]
+        for k in range(c):
+            d = d - L[..., c, k] * L[..., c, k]
+        pivot = np.sqrt(np.maximum(d, 0.0))
+        L[..., c, c] = pivot
+        inverse = np.divide(1.0, pivot, out=np.zeros_like(pivot), where=pivot > 0.0)
+        for r in range(c + 1, n):
+            v = P[..., r, c]
+            for k in range(c):
+                v = v - L[..., r, k] * L[..., c, k]
+            L[..., r, c] = v * inverse
+    return L
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def cholesky_lanes(
+    P: Array, L: Array, lanes: int, pivot: Array, inverse: Array
+) -> None:  # pragma: no cover - jitted
+    """:func:`cholesky_psd` of the lanes ``i < lanes`` of ``P (n, n, lanes+)`` into ``L`` (the
+    lane index innermost: every loop runs across matrices; ``pivot``, ``inverse``: ``(lanes+,)``
+    scratch)."""
+    n = P.shape[0]
+    for c in range(n):
+        for i in range(lanes):
+            pivot[i] = P[c, c, i]
+        for k in range(c):
+            for i in range(lanes):
+                pivot[i] -= L[c, k, i] * L[c, k, i]
+        for i in range(lanes):
+            pivot[i] = np.sqrt(max(pivot[i], 0.0))
+            L[c, c, i] = pivot[i]
+            inverse[i] = 1.0 / pivot[i] if pivot[i] > 0.0 else 0.0
+        for r in range(c + 1, n):
+            for i in range(lanes):
+                L[r, c, i] = P[r, c, i]
+            for k in range(c):
+                for i in range(lanes):
+                    L[r, c, i] -= L[r, k, i] * L[c, k, i]
+            for i in range(lanes):
+                L[r, c, i] = L[r, c, i] * inverse[i]
+                L[c, r, i] = 0.0
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _jacobi_eig(P: Array, max_sweeps: int) -> tuple[Array, Array]:  # pragma: no cover - jitted
     """:func:`jacobi_eig_lanes` on the ``(n, n)`` blocks of ``P`` (shape ``(B, n, n)``),

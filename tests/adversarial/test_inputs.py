@@ -212,7 +212,8 @@ def test_a_non_finite_configuration_value_is_rejected(value: float) -> None:
 
 
 def test_an_unknown_choice_lists_the_choices() -> None:
-    with pytest.raises(ConfigError, match=r"filter must be one of \['ukf', 'ekf'\], got 'pf'"):
+    choices = r"\['ukf', 'ukf-cholesky', 'ekf'\]"
+    with pytest.raises(ConfigError, match=rf"filter must be one of {choices}, got 'pf'"):
         EnvConfig(filter="pf")
 
 

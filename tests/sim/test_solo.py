@@ -35,6 +35,7 @@ CONFIGS = {
     "squared_advantage_odd_scale": {**SHORT, "reward": "squared_advantage", "reward_scale": 7.3},
     "stay_measurement_scale": {**SHORT, "action_mode": "stay", "reward_scale": "measurement"},
     "stay_step_parallel": {**SHORT, "action_mode": "stay_step", "parallel": True},
+    "ukf_cholesky": {**SHORT, "filter": "ukf-cholesky"},
     "varied_conditions": {
         **SHORT,
         "bank": CONTINUOUS_BANK,

@@ -1,5 +1,5 @@
-"""Tests of imm_gym.tracking.filters: KF, EKF and SVD-UKF updates, the linear prediction, sigma
-points."""
+"""Tests of imm_gym.tracking.filters: KF, EKF and UKF (SVD and Cholesky sigma points) updates, the
+linear prediction, sigma points."""
 
 from __future__ import annotations
 
@@ -55,16 +55,17 @@ def _textbook_kf(x, P, z, H, R):
 # --------------------------------------------------------------------------- (1)-(3) linear
 
 
+@pytest.mark.parametrize("square_root", ["svd", "cholesky"])
 @pytest.mark.parametrize("sigma_vel", [None, 1.5], ids=["pos", "pos+vel"])
 @pytest.mark.parametrize("n", [4, 6])
-def test_ukf_equals_kf_on_linear_sensor(sigma_vel: float | None, n: int) -> None:
+def test_ukf_equals_kf_on_linear_sensor(sigma_vel: float | None, n: int, square_root: str) -> None:
     sensor = PositionSensor(sigma_pos=25.0, sigma_vel=sigma_vel)
     rng = np.random.default_rng(10 + n)
     for _ in range(10):
         x, P = _random_problem(rng, n)
         z = sensor.h(x) + rng.normal(0.0, 40.0, sensor.dim_z)
         kf = KalmanFilter().update(x, P, z, sensor)
-        ukf = UnscentedKalmanFilter().update(x, P, z, sensor)
+        ukf = UnscentedKalmanFilter(square_root=square_root).update(x, P, z, sensor)
         _assert_updates_close(ukf, kf, rtol=1e-9)
 
 
@@ -178,7 +179,7 @@ def test_ukf_update_with_sonar_second_order_range() -> None:
 # --------------------------------------------------------------------------- (5) wrapping
 
 
-@pytest.mark.parametrize("filter_name", ["ukf", "ekf"])
+@pytest.mark.parametrize("filter_name", ["ukf", "ukf-cholesky", "ekf"])
 @pytest.mark.parametrize("y", [1.0, 0.0, -1.0])
 def test_bearing_residual_wrapped(filter_name: str, y: float) -> None:
     """Target on the -x axis just above/below the cut; measured at -pi + 0.001."""
@@ -221,12 +222,15 @@ def test_predict_formula() -> None:
 # --------------------------------------------------------------------------- (7) sigma points
 
 
+@pytest.mark.parametrize("square_root", ["svd", "cholesky"])
 @pytest.mark.parametrize(
     ("alpha", "beta", "kappa"), [(1.0, 2.0, 0.0), (0.5, 2.0, 1.0), (0.1, 0.0, 3.0)]
 )
 @pytest.mark.parametrize("n", [4, 6])
-def test_sigma_points_moments(alpha: float, beta: float, kappa: float, n: int) -> None:
-    ukf = UnscentedKalmanFilter(alpha, beta, kappa)
+def test_sigma_points_moments(
+    alpha: float, beta: float, kappa: float, n: int, square_root: str
+) -> None:
+    ukf = UnscentedKalmanFilter(alpha, beta, kappa, square_root)
     rng = np.random.default_rng(n)
     x, P = _random_problem(rng, n)
     X = ukf.sigma_points(x, P)
@@ -292,10 +296,40 @@ def test_ukf_finite_when_p_loses_definiteness(sensor) -> None:
     assert np.linalg.eigvalsh(u.P).min() > -1e-6
 
 
+def test_cholesky_and_svd_sigma_points_differ_by_a_rotation() -> None:
+    # Both square roots A of P (A A^T = P) are related by an orthogonal Q (A_svd = A_chol Q): the
+    # same mean and covariance, the same update for a linear sensor, a higher-order difference
+    # for the sonar
+    rng = np.random.default_rng(21)
+    _, P = _random_problem(rng)
+    svd, chol = UnscentedKalmanFilter(), UnscentedKalmanFilter(square_root="cholesky")
+    D_svd, D_chol = (f.sigma_offsets(P)[1:5].T for f in (svd, chol))
+    Q = np.linalg.solve(D_chol, D_svd)
+    np.testing.assert_allclose(Q @ Q.T, np.eye(4), atol=1e-9)
+    assert not np.allclose(D_svd, D_chol)
+    x_far = np.array([8000.0, 3000.0, 10.0, -5.0])
+    z = Sonar().h(x_far) + np.array([5.0, 2e-4])
+    a, b = (f.update(x_far, P, z, Sonar()) for f in (svd, chol))
+    assert 0.0 < np.abs(a.x - b.x).max() < 1e-3 * np.sqrt(P[0, 0])
+
+
+@pytest.mark.parametrize("sensor", [Sonar(), PositionSensor()], ids=["sonar", "position"])
+def test_cholesky_ukf_finite_when_p_loses_definiteness(sensor) -> None:
+    rng = np.random.default_rng(13)
+    Qm, _ = np.linalg.qr(rng.standard_normal((4, 4)))
+    P = Qm @ np.diag([400.0, 100.0, 4.0, -1e-9]) @ Qm.T
+    P = 0.5 * (P + P.T)
+    x = np.array([3000.0, 4000.0, 20.0, 15.0])
+    z = sensor.h(x) + np.array([10.0, 1e-4])[: sensor.dim_z]
+    u = UnscentedKalmanFilter(square_root="cholesky").update(x, P, z, sensor)
+    for f in UPDATE_FIELDS:
+        assert np.all(np.isfinite(getattr(u, f))), f
+
+
 # --------------------------------------------------------------------------- batching, config
 
 
-@pytest.mark.parametrize("filter_name", ["ukf", "ekf"])
+@pytest.mark.parametrize("filter_name", ["ukf", "ukf-cholesky", "ekf"])
 def test_update_batched_matches_loop(filter_name: str) -> None:
     sonar = Sonar()
     flt = make_filter(filter_name)
@@ -319,6 +353,9 @@ def test_make_filter() -> None:
     assert isinstance(make_filter("ekf"), ExtendedKalmanFilter)
     assert isinstance(make_filter("kf"), KalmanFilter)
     assert make_filter("ukf", 0.5, 2.0, 1.0) == UnscentedKalmanFilter(0.5, 2.0, 1.0)
+    cholesky = make_filter("ukf-cholesky", 0.5)
+    assert cholesky == UnscentedKalmanFilter(0.5, square_root="cholesky")
+    assert (make_filter("ukf").name, cholesky.name) == ("ukf", "ukf-cholesky")
     with pytest.raises(ConfigError, match="filter"):
         make_filter("pf")
 
@@ -330,6 +367,7 @@ def test_make_filter() -> None:
         ({"alpha": 1.5}, r"ukf\.alpha"),
         ({"beta": -1.0}, r"ukf\.beta"),
         ({"kappa": -1.0}, r"ukf\.kappa"),
+        ({"square_root": "qr"}, r"ukf\.square_root must be one of \['svd', 'cholesky'\]"),
     ],
 )
 def test_ukf_invalid_config(kwargs: dict, field: str) -> None:

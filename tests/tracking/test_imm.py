@@ -51,7 +51,7 @@ def paper_batch():
 # --------------------------------------------------------------------------- (1)
 
 
-@pytest.mark.parametrize("filter_name", ["ukf", "ekf"])
+@pytest.mark.parametrize("filter_name", ["ukf", "ukf-cholesky", "ekf"])
 def test_identical_models_equal_single_filter(paper_batch, make_imm, filter_name: str) -> None:
     sonar = Sonar()
     cv = MotionModel("cv")
@@ -273,7 +273,7 @@ def test_imm_step_with_extreme_innovation_stays_finite(make_imm) -> None:
 # --------------------------------------------------------------------------- (5)
 
 
-@pytest.mark.parametrize("filter_name", ["ukf", "ekf"])
+@pytest.mark.parametrize("filter_name", ["ukf", "ukf-cholesky", "ekf"])
 def test_missed_detection(make_imm, filter_name: str) -> None:
     rng = np.random.default_rng(40)
     imm = make_imm(paper_bank(), Sonar(), filter_name)
@@ -409,7 +409,7 @@ def test_engines_agree(bank, sensor, filter_name: str) -> None:
         )
 
 
-@pytest.mark.parametrize("filter_name", ["ukf", "ekf"])
+@pytest.mark.parametrize("filter_name", ["ukf", "ukf-cholesky", "ekf"])
 def test_compiled_tracker_does_not_depend_on_its_batch(filter_name: str) -> None:
     # The kernel runs trackers in blocks (TRACKER_BLOCK) and diagonalizes a block's covariances
     # together: a tracker's numbers must not depend on its block, its position or N.

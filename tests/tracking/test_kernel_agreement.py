@@ -24,6 +24,7 @@ def _random_tpm(rng: np.random.Generator, M: int, N: int) -> np.ndarray:
     [
         (paper_bank(), Sonar(), "ukf"),
         (paper_bank(), Sonar(), "ekf"),
+        (paper_bank(), Sonar(), "ukf-cholesky"),
         (paper_bank(), Sonar(position=(500.0, -300.0)), "ukf"),
         (paper_bank(), PositionSensor(sigma_pos=30.0), "kf"),
         (paper_bank(), PositionSensor(sigma_pos=30.0, sigma_vel=2.0), "ukf"),
@@ -32,8 +33,16 @@ def _random_tpm(rng: np.random.Generator, M: int, N: int) -> np.ndarray:
             PositionSensor(sigma_pos=30.0),
             "ukf",
         ),
+        (
+            (MotionModel("cv"), MotionModel("ct", 3.0), MotionModel("ca", q=(0.1,) * 6)),
+            Sonar(),
+            "ukf-cholesky",
+        ),
     ],
-    ids=["sonar-ukf", "sonar-ekf", "sonar-offset", "pos-kf", "posvel-ukf", "ca-bank-ukf"],
+    ids=[
+        "sonar-ukf", "sonar-ekf", "sonar-ukf-cholesky", "sonar-offset", "pos-kf", "posvel-ukf",
+        "ca-bank-ukf", "ca-bank-sonar-ukf-cholesky",
+    ],
 )
 def test_compiled_equals_numpy_to_1e9(bank, sensor, filter_name: str) -> None:
     # 40 trackers (a full block and a partial one) over 40 steps with missed detections.
@@ -51,7 +60,7 @@ def test_compiled_equals_numpy_to_1e9(bank, sensor, filter_name: str) -> None:
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * np.abs(a).max(), err_msg=f)
 
 
-@pytest.mark.parametrize("filter_name", ["ukf", "ekf"])
+@pytest.mark.parametrize("filter_name", ["ukf", "ukf-cholesky", "ekf"])
 def test_bank_per_tracker_equals_each_trackers_own_bank(filter_name: str) -> None:
     # B = N: trackers at their own sampling period and sensor noise, each bit for bit what the
     # B = 1 kernel of its own bank gives it.

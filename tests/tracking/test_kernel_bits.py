@@ -31,7 +31,7 @@ def test_results_built_without_init_are_the_dataclasses() -> None:
 
 
 def test_failed_tracker_leaves_the_block_unchanged() -> None:
-    for filt in ("ukf", "ekf"):
+    for filt in ("ukf", "ukf-cholesky", "ekf"):
         imm = IMM(paper_bank(), Sonar(), filter=filt)
         n = 40  # two blocks
         batch = draw_batch(paper_scenario(), Sonar(), n, 3)
@@ -72,7 +72,7 @@ def test_one_tracker_alone_equals_its_lane_in_a_block() -> None:
     output, each step, with missed detections, for both filters and both sensors, and a
     diverged tracker alone."""
     n = 7
-    for filt in ("ukf", "ekf"):
+    for filt in ("ukf", "ukf-cholesky", "ekf"):
         for sensor in (Sonar(), PositionSensor(sigma_pos=30.0)):
             imm = IMM(paper_bank(), sensor, filter=filt)
             batch = draw_batch(paper_scenario(), sensor, n, 5)

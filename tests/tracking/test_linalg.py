@@ -1,14 +1,22 @@
-"""Tests of imm_gym.tracking.linalg: angle wrapping, the Jacobi eigendecomposition,
-inverse/log-det."""
+"""Tests of imm_gym.tracking.linalg: angle wrapping, the Jacobi eigendecomposition, the
+Cholesky factor, inverse/log-det."""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imm_gym.tracking.linalg import EIG_LANES, inv_logdet, sym_eig, wrap_angle
+from imm_gym.tracking.linalg import (
+    EIG_LANES,
+    cholesky_lanes,
+    cholesky_psd,
+    inv_logdet,
+    sym_eig,
+    wrap_angle,
+)
 
 PI = np.pi
 
@@ -225,6 +233,70 @@ def test_sym_eig_matches_eigh_on_random_covariances(seed: int, log_spread: float
     np.testing.assert_allclose(
         np.sort(s), np.linalg.eigh(P)[0], rtol=0, atol=1e-12 * eigenvalues.max()
     )
+
+
+# --------------------------------------------------------------------------- cholesky
+
+
+def _random_covariance(rng: np.random.Generator, n: int, log_spread: float) -> np.ndarray:
+    Qm, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    P = (Qm * 10.0 ** rng.uniform(-log_spread / 2, log_spread / 2, n)) @ Qm.T
+    return 0.5 * (P + P.T)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    log_spread=st.floats(0.0, 8.0),
+    n=st.sampled_from([2, 4, 5, 6]),
+)
+def test_cholesky_psd_factors_a_covariance(seed: int, log_spread: float, n: int) -> None:
+    P = _random_covariance(np.random.default_rng(seed), n, log_spread)
+    L = cholesky_psd(P)
+    np.testing.assert_array_equal(L, np.tril(L))
+    assert np.all(np.diag(L) > 0)
+    np.testing.assert_allclose(L @ L.T, P, rtol=0, atol=1e-12 * np.abs(P).max())
+    np.testing.assert_allclose(L, np.linalg.cholesky(P), rtol=1e-8, atol=1e-12 * np.abs(L).max())
+
+
+def test_cholesky_psd_batched_and_lower_triangle_only() -> None:
+    rng = np.random.default_rng(3)
+    P = np.stack([_random_covariance(rng, 4, 4.0) for _ in range(6)]).reshape(2, 3, 4, 4)
+    L = cholesky_psd(P)
+    assert L.shape == P.shape
+    np.testing.assert_array_equal(L[1, 2], cholesky_psd(P[1, 2]))
+    upper_changed = P + np.triu(np.full((4, 4), 7.0), 1)  # read: the diagonal and below
+    np.testing.assert_array_equal(cholesky_psd(upper_changed), L)
+
+
+def test_cholesky_psd_of_a_singular_or_indefinite_matrix_has_zero_columns() -> None:
+    P = np.diag([100.0, 0.0, 1.0, 1.0])
+    L = cholesky_psd(P)
+    np.testing.assert_array_equal(L, np.diag([10.0, 0.0, 1.0, 1.0]))
+    rng = np.random.default_rng(13)
+    Qm, _ = np.linalg.qr(rng.standard_normal((4, 4)))
+    indefinite = Qm @ np.diag([400.0, 100.0, 4.0, -1e-3]) @ Qm.T
+    indefinite = 0.5 * (indefinite + indefinite.T)
+    L = cholesky_psd(indefinite)
+    assert np.all(np.isfinite(L)) and L[3, 3] == 0.0
+
+
+@numba.njit
+def _lanes(P: np.ndarray, lanes: int) -> np.ndarray:
+    L = np.full_like(P, np.nan)
+    cholesky_lanes(P, L, lanes, np.empty(P.shape[2]), np.empty(P.shape[2]))
+    return L
+
+
+@pytest.mark.parametrize("n", [2, 4, 6])
+def test_cholesky_lanes_equals_cholesky_psd_bit_for_bit(n: int) -> None:
+    rng = np.random.default_rng(n)
+    P = np.stack([_random_covariance(rng, n, 6.0) for _ in range(11)])
+    P[4] = np.diag(np.arange(n, dtype=float))  # a zero pivot
+    lanes = np.ascontiguousarray(np.moveaxis(P, 0, -1))  # (n, n, lanes)
+    L = np.moveaxis(_lanes(lanes, 10), -1, 0)
+    np.testing.assert_array_equal(L[:10], cholesky_psd(P[:10]))
+    assert np.isnan(L[10]).all()  # lanes past ``lanes`` untouched
 
 
 # --------------------------------------------------------------------------- inv_logdet

@@ -19,8 +19,8 @@ r"""Compiled fast path of the IMM cycle for the built-in sensors (numba).
 The tests run both engines on the same inputs and require the same numbers (to rounding).
 
 Sensor codes: ``RANGE_BEARING`` (``h = [|p - s|, atan2]``, params = sensor position ``s``),
-``LINEAR`` (``h = x[:m]``). Filter codes: ``UKF``, ``EKF`` (the Kalman filter is the EKF of a
-linear sensor).
+``LINEAR`` (``h = x[:m]``). Filter codes: ``UKF`` (SVD sigma points), ``UKF_CHOLESKY`` (Cholesky
+sigma points), ``EKF`` (the Kalman filter is the EKF of a linear sensor).
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from imm_gym.tracking.kernels.scratch import scratch
 from imm_gym.tracking.linalg import (
     JACOBI_MAX_SWEEPS,
     LOG_2PI,
+    cholesky_lanes,
     jacobi_sweeps,
     jacobi_sweeps_inlined,
 )
@@ -45,6 +46,7 @@ RANGE_BEARING = 0
 LINEAR = 1
 UKF = 0
 EKF = 1
+UKF_CHOLESKY = 2
 
 
 # fmt: off
@@ -321,7 +323,7 @@ def _cycle(
     (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out, xhat_out,
      Phat_out, failed_out) = outs
     L = M * W
-    K = 2 * n + 1 if filter_kind == UKF else 1
+    K = 1 if filter_kind == EKF else 2 * n + 1
     per_tracker = F.shape[0] > 1  # else one bank for all trackers
     # structure-of-arrays scratch, the lane axis last (in this frame for one tracker)
     s = one
@@ -361,21 +363,27 @@ def _cycle(
         _load(x, P, mu, tpm, detected, t0, nb, Xm, Pm, mul, tpml, det)
         _mix(Xm, Pm, mul, tpml, nb, cbar, wgt, spread, X0, P0)
         _predict(Fl, Ql, X0, P0, lanes, Xp, Pp, FP)
-        if filter_kind == UKF:
-            for r in range(n):
-                for c in range(r, n):
+        if filter_kind == EKF:
+            _ekf_moments(Xp, Pp, lanes, sensor_kind, sensor_params, zp, S, C, H)
+        else:
+            if filter_kind == UKF:  # Pp = U diag(eig) U^T
+                for r in range(n):
+                    for c in range(r, n):
+                        for i in range(lanes):
+                            eig[r, c, i] = Pp[r, c, i]
+                if one:  # inlined: unrolled with this tracker's sizes
+                    jacobi_sweeps_inlined(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag,
+                                          jc, js, jpairs, jold)
+                else:
+                    jacobi_sweeps(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag, jc, js,
+                                  jpairs, jold)
+            else:  # Pp = L L^T: U = L and unit eig, so the offsets are gamma L's columns
+                cholesky_lanes(Pp, U, lanes, joff, jdiag)
+                for k in range(n):
                     for i in range(lanes):
-                        eig[r, c, i] = Pp[r, c, i]
-            if one:  # inlined: unrolled with this tracker's sizes
-                jacobi_sweeps_inlined(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag, jc,
-                                      js, jpairs, jold)
-            else:
-                jacobi_sweeps(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag, jc, js, jpairs,
-                              jold)
+                        eig[k, k, i] = 1.0
             _ukf_moments(Xp, eig, U, lanes, sensor_kind, sensor_params, wm, wc, gamma, zp, S, C,
                          O, Z)
-        else:
-            _ekf_moments(Xp, Pp, lanes, sensor_kind, sensor_params, zp, S, C, H)
         _add_noise(S, Rl, M, nb)
         _inverse(S, lanes, Si, Lc, logdet, ok)
         _innovation(z, t0, nb, M, sensor_kind, zp, nu)
@@ -815,7 +823,7 @@ def _update(
                 Xu[r, i] += C[r, k, i] * Sinu[k, i]
         for i in range(lanes):
             Xu[r, i] += Xp[r, i]
-    if filter_kind == UKF:
+    if filter_kind != EKF:
         # P = Pp - K C^T
         for r in range(n):
             for c in range(n):
