@@ -8,7 +8,9 @@ last commit before the structure-of-arrays kernel: its ``imm_gym/tracking/kernel
 ``imm_gym/tracking/linalg.py`` are read with ``git show`` into a cache directory and imported
 from there), at N = 1, 64, 1024 and 4096; and ``IMM.step`` at N = 1 (the Python entry: input
 checks, output arrays, result objects). The inputs are the paper scenario's measurements after
-20 steps of the tracker (realistic covariances); every call gets the same inputs.
+20 steps of the tracker (realistic covariances); every call gets the same inputs. Then this
+tree's UKF with Cholesky sigma points (``filter="ukf-cholesky"``) against its SVD-UKF on the same
+inputs: µs per batch step, the speed-up and how far one step's outputs move.
 
 Reported per configuration: the median over ``--repeats`` repeats (the two kernels take turns
 within each repeat; a repeat is as many calls as last about ``MIN_REPEAT_S``) of the µs per batch
@@ -117,6 +119,69 @@ def kernel_inputs(filt: str, n: int, seed: int) -> tuple[IMM, tuple, Any]:
         *outputs,
     )
     return imm, args, (state, tpm, z)
+
+
+def square_root_rows(
+    repeats: int, min_repeat_s: float, seed: int, console: Console
+) -> tuple[list[dict[str, Any]], Any]:
+    """This tree's kernel with Cholesky sigma points against its SVD-UKF, the same inputs (the
+    SVD-UKF's state after the warm-up): a row per N and the rich table."""
+    table = harness.table(
+        "imm_step, M = 3, sonar, 1 core: UKF with Cholesky sigma points vs SVD-UKF (this tree)",
+        harness.right("N"),
+        harness.right("SVD µs"),
+        harness.right("Cholesky µs"),
+        harness.right("M steps/s"),
+        harness.right("speed-up"),
+        harness.right("CPU speed-up"),
+        harness.right("max rel. diff"),
+        harness.right("max |Δ position| m"),
+        caption=(
+            f"median of {repeats} interleaved repeats; the outputs of one step from the same "
+            "state (the two filters' sigma points differ by a rotation: equal for a linear "
+            "sensor, apart at a higher order for the sonar)"
+        ),
+    )
+    rows = []
+    fkind = 11  # the filter code's place among imm_step's arguments
+    for n in N_TRACKERS:
+        console.print(f"[dim]timing ukf-cholesky N={n} ...[/dim]")
+        _, svd_args, _ = kernel_inputs("ukf", n, seed)
+        assert svd_args[fkind] == kernel.UKF
+        chol_args = (
+            *svd_args[:fkind], kernel.UKF_CHOLESKY, *svd_args[fkind + 1 : -11],
+            *(a.copy() for a in svd_args[-11:]),
+        )  # fmt: skip
+        step = _cycle(kernel, n)
+        step(*svd_args)
+        step(*chol_args)
+        diff = max_rel_diff(list(chol_args[-11:]), svd_args[-11:])
+        moved = float(np.abs(chol_args[-3][:, :2] - svd_args[-3][:, :2]).max())
+        times = time_calls(
+            {
+                "svd": lambda a=svd_args, f=step: f(*a),
+                "chol": lambda a=chol_args, f=step: f(*a),
+            },
+            repeats,
+            min_repeat_s,
+        )
+        t_svd, t_chol = (float(np.median(times[k][0])) for k in ("svd", "chol"))
+        c_svd, c_chol = (float(np.median(times[k][1])) for k in ("svd", "chol"))
+        rows.append(
+            {"n": n, "svd_us": t_svd, "cholesky_us": t_chol, "svd_cpu_us": c_svd,
+             "cholesky_cpu_us": c_chol, "max_rel_diff": diff, "max_position_diff_m": moved}
+        )  # fmt: skip
+        table.add_row(
+            str(n),
+            f"{t_svd:,.1f}",
+            f"{t_chol:,.1f}",
+            f"{n / t_chol:.3f}",
+            f"{t_svd / t_chol:.2f}×",
+            f"{c_svd / c_chol:.2f}×",
+            f"{diff:.1e}",
+            f"{moved:.1e}",
+        )
+    return rows, table
 
 
 def max_rel_diff(ours: list[np.ndarray], base: tuple[np.ndarray, ...]) -> float:
@@ -252,14 +317,26 @@ def run(args: argparse.Namespace, console: Console) -> int:
             )
         table.add_section()
     console.print(table)
+    square_root, square_root_table = square_root_rows(repeats, min_repeat_s, args.seed, console)
+    console.print(square_root_table)
     imm, _, (state, tpm, z) = kernel_inputs("ukf", 1, args.seed)
-    step = time_calls({"step": lambda: imm.step(state, tpm, z)}, repeats, min_repeat_s)["step"]
-    step_us, step_cpu_us = float(np.median(step[0])), float(np.median(step[1]))
+    chol = IMM(paper_bank(), Sonar(), filter="ukf-cholesky")
+    steps = time_calls(
+        {
+            "svd": lambda: imm.step(state, tpm, z),
+            "chol": lambda: chol.step(state, tpm, z),
+        },
+        repeats,
+        min_repeat_s,
+    )
+    step_us, step_cpu_us = (float(np.median(t)) for t in steps["svd"])
+    chol_us = float(np.median(steps["chol"][0]))
     n1024 = next(r for r in rows if r["filter"] == "ukf" and r["n"] == 1024)
     console.print(
         f"IMM.step (SVD-UKF) at N = 1: {step_us:.1f} µs wall, {step_cpu_us:.1f} µs CPU (aim ≤ 10 "
         f"µs); kernel at N = 1024: {1024 / n1024['us']:.2f} M tracker-steps/s wall, "
-        f"{1024 / n1024['cpu_us']:.2f} per CPU s (aim ≥ 1.0)"
+        f"{1024 / n1024['cpu_us']:.2f} per CPU s (aim ≥ 1.0); IMM.step with Cholesky sigma "
+        f"points at N = 1: {chol_us:.1f} µs wall"
     )
     console.print(
         f"[dim]{env['processor']}; {harness.thread_summary(env)}; load avg at start "
@@ -276,6 +353,8 @@ def run(args: argparse.Namespace, console: Console) -> int:
                 "results": rows,
                 "imm_step_n1_us": step_us,
                 "imm_step_n1_cpu_us": step_cpu_us,
+                "square_root": square_root,
+                "imm_step_n1_cholesky_us": chol_us,
             },
             console,
         )
