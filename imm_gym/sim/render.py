@@ -156,6 +156,8 @@ class TrackFigure:
         from matplotlib import colors
         from matplotlib.patches import Ellipse, Rectangle
 
+        #: what builds this figure again in a copy (:meth:`__getstate__`)
+        self._arguments = (list(labels), scale, window_steps, zoom, window)
         self.labels = list(labels)
         self.window_steps = window_steps
         self.zoom = zoom
@@ -243,6 +245,14 @@ class TrackFigure:
         fig.canvas.mpl_connect("draw_event", self._on_draw)
 
     # -------------------------------------------------------------------- drawing
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The constructor's arguments only: a copy (pickle, deepcopy) builds its own figure (a
+        live canvas and its blitting background do not survive pickling)."""
+        return {"arguments": self._arguments}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(*state["arguments"])  # type: ignore[misc]
     def update(self, view: TrackView) -> None:
         """Move the figure's artists to ``view``."""
         k = view.step

@@ -3,8 +3,10 @@ histories behind a picture, ``"human"`` without a display, and nothing done with
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
+import pickle
 import warnings
 
 import gymnasium as gym
@@ -50,6 +52,21 @@ def test_frames_are_rgb_uint8_change_every_step_and_repeat_with_the_seed() -> No
         np.testing.assert_array_equal(a, b)
     assert any(np.any(a != b) for a, b in zip(first, other, strict=True))
     assert env.render() is not first[-1]  # a fresh array every call
+
+
+@pytest.mark.parametrize("how", ["pickle", "deepcopy"])
+def test_a_copy_of_a_rendering_env_draws_the_same_frames(how: str) -> None:
+    env = gym.make(PAPER, render_mode="rgb_array")
+    env.reset(seed=3)
+    for _ in range(4):
+        env.step(np.zeros(9))
+        env.render()
+    twin = pickle.loads(pickle.dumps(env)) if how == "pickle" else copy.deepcopy(env)
+    np.testing.assert_array_equal(twin.render(), env.render())
+    for _ in range(3):
+        env.step(np.full(9, 0.3))
+        twin.step(np.full(9, 0.3))
+        np.testing.assert_array_equal(twin.render(), env.render())
 
 
 def test_a_new_episode_redraws_the_scene() -> None:
