@@ -5,6 +5,8 @@ filters, the batched IMM bank, metrics, the batched simulation. Importing the pa
 environment ids (``imm_gym/TPMAdapt-v0`` ...) with Gymnasium. See README.md.
 """
 
+# first: numba caches compiled from other sources than the package's are dropped at its import
+from imm_gym import kernel_cache  # noqa: F401
 from imm_gym.evaluation.clairvoyant import clairvoyant_filter
 from imm_gym.scenarios.segments import (
     RandomFamily,

@@ -1,0 +1,83 @@
+"""imm_gym.kernel_cache: numba's caches dropped when the sources compiled into them change, kept
+otherwise; on a package laid out in a temporary directory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from imm_gym import kernel_cache
+from imm_gym.kernel_cache import DIGEST_FILE, compiled_sources, refresh
+
+FILES = {
+    "__init__.py": "",
+    "kernels.py": (
+        "import numba\n\nfrom imm_gym.constants import LIMIT\nfrom imm_gym.sub import body\n"
+    ),
+    "constants.py": "LIMIT = 1.0\n",
+    "sub/__init__.py": "",
+    "sub/body.py": "from numba import njit\n",
+    "cli.py": "from imm_gym.kernels import run  # no numba here\n",
+    "docs.py": '"""Mentions numba in a docstring only."""\n',
+}
+
+
+@pytest.fixture
+def package(tmp_path: Path) -> Path:
+    root = tmp_path / "imm_gym"
+    for name, text in FILES.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(text)
+    return root
+
+
+def _caches(root: Path) -> list[Path]:
+    made = []
+    for directory in (root / "__pycache__", root / "sub" / "__pycache__"):
+        directory.mkdir(exist_ok=True)
+        for name in ("kernels.run-10.py311.nbi", "kernels.run-10.py311.nbc"):
+            (directory / name).write_text("machine code")
+            made.append(directory / name)
+    (root / "__pycache__" / "kernels.cpython-311.pyc").write_text("bytecode")
+    return made
+
+
+def test_the_sources_are_the_numba_modules_and_what_they_import(package: Path) -> None:
+    names = [p.relative_to(package).as_posix() for p in compiled_sources(package)]
+    assert names == ["constants.py", "kernels.py", "sub/__init__.py", "sub/body.py"]
+
+
+def test_caches_are_dropped_when_a_source_changes_and_kept_otherwise(package: Path) -> None:
+    caches = _caches(package)
+    assert refresh(package)  # no digest recorded yet: nothing known about these caches
+    assert not any(p.exists() for p in caches)
+    assert (package / "__pycache__" / "kernels.cpython-311.pyc").exists()
+    caches = _caches(package)
+    assert not refresh(package)
+    assert all(p.exists() for p in caches)
+    (package / "cli.py").write_text("# edited, compiles nothing\n")
+    (package / "docs.py").write_text('"""numba, numba."""\n')
+    assert not refresh(package)
+    assert all(p.exists() for p in caches)
+    (package / "constants.py").write_text("LIMIT = 2.0\n")  # a constant a kernel reads
+    assert refresh(package)
+    assert not any(p.exists() for p in caches)
+    recorded = (package / DIGEST_FILE).read_text()
+    assert recorded == kernel_cache.source_digest(package)
+
+
+def test_an_unwritable_package_is_left_alone(package: Path, monkeypatch) -> None:
+    caches = _caches(package)
+
+    def refuse(*args, **kwargs):
+        raise PermissionError("read-only")
+
+    monkeypatch.setattr(Path, "unlink", refuse)
+    assert not refresh(package)
+    assert all(p.exists() for p in caches)
+
+
+def test_the_installed_package_has_its_digest_recorded() -> None:
+    stamp = kernel_cache.PACKAGE / DIGEST_FILE
+    assert stamp.read_text() == kernel_cache.source_digest()
