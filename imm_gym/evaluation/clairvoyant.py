@@ -125,7 +125,7 @@ def clairvoyant_filter(
         z: ``(R, K, m)`` measurements at steps 1..K.
         sensor, models: the sensor and the bank whose noise levels the filter borrows.
         x0, P0: ``(R, 4)``, ``(R, 4, 4)`` initial estimate.
-        filter: ``"ukf"``, ``"ekf"`` or ``"kf"``.
+        filter: ``"ukf"``, ``"ukf-cholesky"``, ``"ekf"`` or ``"kf"``.
         detected: ``(R, K)`` detection flags (filter predicts only where False).
 
     Returns:

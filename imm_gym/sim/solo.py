@@ -323,7 +323,8 @@ class SoloStep:
         self, action: NDArray[Any]
     ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         """One step: ``(obs, reward, terminated, truncated, info)``, fresh objects, the info's
-        numbers as Python scalars and its arrays views of one fresh buffer."""
+        numbers as Python scalars and its arrays views of this step's row of the episode's info
+        record (written once: they never change)."""
         a = np.array(action, dtype=np.float64)  # a fresh C-contiguous copy: one compiled variant
         if a.shape != self._action_shape:
             raise ActionError(f"action must have shape {self._action_shape}, got {a.shape}")

@@ -201,9 +201,9 @@ class UnscentedKalmanFilter:
         return wm, wc, float(np.sqrt(c))
 
     def sigma_offsets(self, P: Array) -> Array:
-        """``(..., 2n+1, n)`` offsets ``0, +gamma a_i, -gamma a_i`` with ``a_i`` the columns of
-        ``U sqrt(|S|)`` from the SVD of ``P`` (or of its Cholesky factor ``L``, of ``(P +
-        P^T) / 2``); the sigma points are ``x`` plus these."""
+        """``(..., 2n+1, n)`` offsets ``0, +gamma a_i, -gamma a_i``; the sigma points are ``x``
+        plus these. ``a_i``: the columns of ``U sqrt(|S|)`` from the SVD ``P = U S U^T``
+        (``"svd"``), or of ``L`` with ``(P + P^T) / 2 = L L^T`` (``"cholesky"``)."""
         n = P.shape[-1]
         _, _, gamma = self.weights(n)
         if self.square_root == "cholesky":
