@@ -244,8 +244,6 @@ class TrackFigure:
         self._shown = False
         fig.canvas.mpl_connect("draw_event", self._on_draw)
 
-    # -------------------------------------------------------------------- drawing
-
     def __getstate__(self) -> dict[str, Any]:
         """The constructor's arguments only: a copy (pickle, deepcopy) builds its own figure (a
         live canvas and its blitting background do not survive pickling)."""
@@ -253,6 +251,8 @@ class TrackFigure:
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(*state["arguments"])  # type: ignore[misc]
+
+    # -------------------------------------------------------------------- drawing
     def update(self, view: TrackView) -> None:
         """Move the figure's artists to ``view``."""
         k = view.step
