@@ -157,16 +157,14 @@ def square_root_rows(
         step(*chol_args)
         diff = max_rel_diff(list(chol_args[-11:]), svd_args[-11:])
         moved = float(np.abs(chol_args[-3][:, :2] - svd_args[-3][:, :2]).max())
-        times = time_calls(
+        (t_svd, c_svd), (t_chol, c_chol) = median_times(
             {
                 "svd": lambda a=svd_args, f=step: f(*a),
                 "chol": lambda a=chol_args, f=step: f(*a),
             },
             repeats,
             min_repeat_s,
-        )
-        t_svd, t_chol = (float(np.median(times[k][0])) for k in ("svd", "chol"))
-        c_svd, c_chol = (float(np.median(times[k][1])) for k in ("svd", "chol"))
+        ).values()
         rows.append(
             {"n": n, "svd_us": t_svd, "cholesky_us": t_chol, "svd_cpu_us": c_svd,
              "cholesky_cpu_us": c_chol, "max_rel_diff": diff, "max_position_diff_m": moved}
@@ -230,6 +228,18 @@ def _cycle(module: ModuleType, n: int) -> Any:
     return one if n == 1 and one is not None else module.imm_step
 
 
+def median_times(
+    calls: dict[str, Any], repeats: int, min_repeat_s: float
+) -> dict[str, tuple[float, float]]:
+    """:func:`time_calls`' medians over the repeats: ``{name: (wall µs, CPU µs)}``, in the
+    order of ``calls``."""
+    times = time_calls(calls, repeats, min_repeat_s)
+    return {
+        name: (float(np.median(wall)), float(np.median(cpu)))
+        for name, (wall, cpu) in times.items()
+    }
+
+
 def _repeat(call: Any, n: int) -> None:
     """``call()`` ``n`` times, each result dropped as a caller's loop would (kept in a list,
     ``IMM.step``'s thirteen fresh arrays a call, the garbage collector off, cost fresh memory:
@@ -278,16 +288,14 @@ def run(args: argparse.Namespace, console: Console) -> int:
             same_bits = all(
                 a.tobytes() == b.tobytes() for a, b in zip(ours_out, base_args[-11:], strict=True)
             )
-            times = time_calls(
+            (t_base, c_base), (t_ours, c_ours) = median_times(
                 {
                     "base": lambda a=base_args, f=base_step: f(*a),
                     "ours": lambda a=call_args, f=ours_step: f(*a),
                 },
                 repeats,
                 min_repeat_s,
-            )
-            t_base, t_ours = (float(np.median(times[k][0])) for k in ("base", "ours"))
-            c_base, c_ours = (float(np.median(times[k][1])) for k in ("base", "ours"))
+            ).values()
             rows.append(
                 {
                     "filter": filt,
@@ -321,16 +329,14 @@ def run(args: argparse.Namespace, console: Console) -> int:
     console.print(square_root_table)
     imm, _, (state, tpm, z) = kernel_inputs("ukf", 1, args.seed)
     chol = IMM(paper_bank(), Sonar(), filter="ukf-cholesky")
-    steps = time_calls(
+    (step_us, step_cpu_us), (chol_us, _) = median_times(
         {
             "svd": lambda: imm.step(state, tpm, z),
             "chol": lambda: chol.step(state, tpm, z),
         },
         repeats,
         min_repeat_s,
-    )
-    step_us, step_cpu_us = (float(np.median(t)) for t in steps["svd"])
-    chol_us = float(np.median(steps["chol"][0]))
+    ).values()
     n1024 = next(r for r in rows if r["filter"] == "ukf" and r["n"] == 1024)
     console.print(
         f"IMM.step (SVD-UKF) at N = 1: {step_us:.1f} µs wall, {step_cpu_us:.1f} µs CPU (aim ≤ 10 "
