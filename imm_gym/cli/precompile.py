@@ -65,8 +65,8 @@ def batch() -> None:
 
 
 def single() -> None:
-    """One tracker: ``IMM.step``'s :func:`~imm_gym.tracking.kernels.imm.imm_step_one`, then the
-    core's :func:`~imm_gym.sim.kernels.env_step_one` and the scalar env's
+    """One tracker: ``IMM.step``'s :func:`~imm_gym.tracking.kernels.imm.checked_step_one`,
+    then the core's :func:`~imm_gym.sim.kernels.env_step_one` and the scalar env's
     :func:`~imm_gym.sim.solo.solo_step` around it."""
     _tracker_step(1)
     _env_step(1)

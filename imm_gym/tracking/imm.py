@@ -43,6 +43,15 @@ _FAST_ROW_SUM_TOL = 0.5 * ROW_SUM_TOL
 Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
+# The shapes of one tracker's arrays in the kernel's single-tracker cycle (IMM._step_one): made
+# once, as a fresh tuple costs a fifth of an allocation, and IMM.step allocates thirteen arrays.
+_M1, _N1, _Z1 = kernels.ONE_SHAPE
+_ONE_X, _ONE_P, _ONE_MU = (1, _M1, _N1), (1, _M1, _N1, _N1), (1, _M1)
+_ONE_INNOVATION, _ONE_XHAT, _ONE_PHAT = (1, _M1, _Z1), (1, _N1), (1, _N1, _N1)
+_ONE_Z, _ONE_TPM = (1, _Z1), (1, _M1, _M1)
+#: copied for a step without ``detected`` (a copy takes a seventh of ``np.ones(1, bool)``)
+_ONE_DETECTED = np.ones(1, dtype=bool)
+
 _TINY = 1e-300
 
 #: ``"auto"`` picks the compiled kernel for the built-in sensors and filters, numpy otherwise.
@@ -394,10 +403,13 @@ class IMM:
                 self.F[None], self.Q[None], R[None], kind, params, fkind, wm, wc, gamma
             )
         self._dim_z = sensor.dim_z
-        #: whether one tracker runs through the kernel's single-tracker cycle
-        self._fits_one = self.engine == "compiled" and kernels.fits_one(
+        #: the bank's constants packed for the kernel's single-tracker cycle
+        #: (:func:`~imm_gym.tracking.kernels.imm.pack_one`), where one tracker of this bank fits it
+        self._bank_one: Array | None = None
+        if self.kernel_args is not None and kernels.fits_one(
             1, len(self.models), self.n, sensor.dim_z
-        )
+        ):
+            self._bank_one = kernels.pack_one(*self.kernel_args)
 
     def _choose_engine(self, engine: str) -> str:
         if engine not in ENGINES:
@@ -511,6 +523,8 @@ class IMM:
             detected = np.asarray(detected, dtype=bool)
             if detected.shape != (N,):
                 raise ConfigError(f"detected must have shape ({N},), got {detected.shape}")
+        if N == 1 and self._bank_one is not None:
+            return self._step_one(state, tpm, z, detected, check, allow_failure)
         if check:
             tpm, z = self._checked(tpm, z, detected, N, M)
         if self.engine == "compiled":
@@ -568,11 +582,60 @@ class IMM:
             z = used_measurements(z, detected)
         return tpm, z
 
+    def _step_one(
+        self,
+        state: IMMState,
+        tpm: Array,
+        z: Array,
+        detected: BoolArray | None,
+        check: bool,
+        allow_failure: bool,
+    ) -> tuple[IMMState, IMMStep]:
+        """:meth:`step` for one tracker of the kernel's single-tracker shape, through
+        :func:`~imm_gym.tracking.kernels.imm.checked_step_one`: the inputs checked in the same
+        compiled call as the cycle. Where that call flags them (or ``tpm`` is not of a shape it
+        reads), the reference checks of :meth:`_checked` run (their errors, their repair of a
+        missed detection's ``z``) and the cycle runs on what they return."""
+        z = np.ascontiguousarray(z, dtype=np.float64)
+        if z.shape != _ONE_Z:
+            raise ConfigError(f"z must have shape {_ONE_Z}, got {z.shape}")
+        if type(tpm) is not np.ndarray or tpm.dtype != np.float64:
+            tpm = np.asarray(tpm, dtype=np.float64)
+        if tpm.shape == _ONE_TPM[1:]:
+            tpm = tpm[None]
+        if not tpm.flags.c_contiguous:
+            tpm = np.ascontiguousarray(tpm)
+        if tpm.shape != _ONE_TPM:
+            tpm, z = self._checked(tpm, z, detected, 1, _ONE_TPM[1])
+            return self._step_one(state, tpm, z, detected, False, allow_failure)
+        if detected is None:
+            detected = _ONE_DETECTED.copy()
+        empty = np.empty
+        x, P, mu, cbar = empty(_ONE_X), empty(_ONE_P), empty(_ONE_MU), empty(_ONE_MU)
+        loglik, model_nis, innovation = empty(_ONE_MU), empty(_ONE_MU), empty(_ONE_INNOVATION)
+        nis, x_hat, P_hat = empty(1), empty(_ONE_XHAT), empty(_ONE_PHAT)
+        failed = empty(1, dtype=bool)
+        failures = kernels.checked_step_one(
+            state.x, state.P, state.mu, tpm, z, detected, self._bank_one,
+            _FAST_ROW_SUM_TOL if check else -1.0,
+            x, P, mu, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed,
+        )  # fmt: skip
+        if failures < 0:
+            tpm, z = self._checked(tpm, z, detected, 1, _ONE_TPM[1])
+            return self._step_one(state, tpm, z, detected, False, allow_failure)
+        if failures and not allow_failure:
+            raise np.linalg.LinAlgError(
+                "innovation covariance is not positive definite for 1 tracker(s)"
+            )
+        return _new_state(x, P, mu), _new_step(
+            x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, detected, failed
+        )
+
     def _step_compiled(
         self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None, allow_failure: bool
     ) -> tuple[IMMState, IMMStep]:
-        """The same cycle through the fused kernel (:mod:`imm_gym.tracking.kernels.imm`; one
-        tracker of the usual shape through its faster ``imm_step_one``)."""
+        """The same cycle of N trackers through the fused kernel
+        (:func:`~imm_gym.tracking.kernels.imm.imm_step`)."""
         N, M, n = state.x.shape
         if detected is None:
             detected = np.empty(N, dtype=bool)
@@ -584,25 +647,20 @@ class IMM:
         innovation = np.empty((N, M, self._dim_z))
         failed = np.empty(N, dtype=bool)
         outs = (x, P, mu, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed)
+        tpm = np.asarray(tpm, dtype=np.float64)
         if tpm.ndim == 2:  # one TPM for all trackers: the kernel reads one per tracker
             tpm = tpm[None] if N == 1 else np.ascontiguousarray(np.broadcast_to(tpm, (N, M, M)))
-        z = np.ascontiguousarray(z, dtype=np.float64)
-        if N == 1 and self._fits_one:  # it copies any input that is not C-contiguous itself
-            failures = kernels.imm_step_one(
-                state.x, state.P, state.mu, tpm, z, detected, *self.kernel_args, True, *outs
-            )
-        else:
-            failures = kernels.imm_step(
-                np.ascontiguousarray(state.x),
-                np.ascontiguousarray(state.P),
-                np.ascontiguousarray(state.mu),
-                tpm,
-                z,
-                np.ascontiguousarray(detected),
-                *self.kernel_args,
-                True,  # the mixture NIS
-                *outs,
-            )
+        failures = kernels.imm_step(
+            np.ascontiguousarray(state.x),
+            np.ascontiguousarray(state.P),
+            np.ascontiguousarray(state.mu),
+            tpm,
+            np.ascontiguousarray(z, dtype=np.float64),
+            np.ascontiguousarray(detected),
+            *self.kernel_args,
+            True,  # the mixture NIS
+            *outs,
+        )
         if failures and not allow_failure:
             raise np.linalg.LinAlgError(
                 f"innovation covariance is not positive definite for {failures} tracker(s)"

@@ -16,7 +16,7 @@ from imm_gym.cli.precompile import JOBS, main
 KERNELS = {
     "batch": ("imm_gym.sim.kernels:imm_step", "imm_gym.sim.kernels:env_step"),
     "single": (
-        "imm_gym.sim.kernels:imm_step_one",
+        "imm_gym.tracking.kernels.imm:checked_step_one",
         "imm_gym.sim.kernels:env_step_one",
         "imm_gym.sim.solo:solo_step",
     ),

@@ -102,7 +102,8 @@ def _arrays(state: IMMState, out: IMMStep) -> list[np.ndarray]:
 
 
 def test_one_tracker_entry_refuses_other_shapes() -> None:
-    """``imm_step_one`` has its sizes compiled in: two trackers are refused, not misread."""
+    """``imm_step_one`` and ``checked_step_one`` have their sizes compiled in: two trackers are
+    refused, not misread."""
     imm = IMM(paper_bank(), Sonar())
     batch = draw_batch(paper_scenario(), Sonar(), 2, 0)
     state = imm.init(batch.x0, batch.P0)
@@ -115,3 +116,50 @@ def test_one_tracker_entry_refuses_other_shapes() -> None:
     with pytest.raises(ValueError, match="one tracker"):
         kernel.imm_step_one(state.x, state.P, state.mu, tpm, batch.measurements.z[:, 1],
                             np.ones(N, dtype=bool), *imm.kernel_args, True, *outs)
+    with pytest.raises(ValueError, match="one tracker"):
+        kernel.checked_step_one(state.x, state.P, state.mu, tpm, batch.measurements.z[:, 1],
+                                np.ones(N, dtype=bool), kernel.pack_one(*imm.kernel_args), -1.0,
+                                *outs)
+
+
+def test_packed_entry_equals_the_one_tracker_kernel() -> None:
+    """``checked_step_one`` (what ``IMM.step`` calls for one tracker: the bank's constants
+    packed by ``pack_one``, the inputs checked in the same call) gives ``imm_step_one``'s
+    outputs bit for bit, with and without the check, for every filter and both sensors."""
+    for filt in ("ukf", "ukf-cholesky", "ekf"):
+        for sensor in (Sonar(), PositionSensor(sigma_pos=30.0)):
+            imm = IMM(paper_bank(), sensor, filter=filt)
+            batch = draw_batch(paper_scenario(), sensor, 1, 3)
+            state = imm.init(batch.x0, batch.P0)
+            tpm = stay_tpm(3, 0.9)[None].copy()
+            for k in range(1, 6):
+                z = np.ascontiguousarray(batch.measurements.z[:, k])
+                detected = np.array([k != 3])
+                ref = _outs(1)
+                kernel.imm_step_one(state.x, state.P, state.mu, tpm, z, detected,
+                                    *imm.kernel_args, True, *ref)
+                for tol in (0.5e-8, -1.0):
+                    outs = _outs(1)
+                    code = kernel.checked_step_one(state.x, state.P, state.mu, tpm, z, detected,
+                                                   kernel.pack_one(*imm.kernel_args), tol, *outs)
+                    assert code == 0
+                    for a, b in zip(outs, ref, strict=True):
+                        assert a.tobytes() == b.tobytes()
+                state = IMMState(ref[0], ref[1], ref[2])
+
+
+def _outs(N: int, M: int = 3, n: int = 4) -> tuple[np.ndarray, ...]:
+    return (np.empty((N, M, n)), np.empty((N, M, n, n)), *(np.empty((N, M)) for _ in range(4)),
+            np.empty((N, M, 2)), np.empty(N), np.empty((N, n)), np.empty((N, n, n)),
+            np.empty(N, dtype=bool))
+
+
+def test_packing_refuses_other_banks() -> None:
+    """``pack_one`` packs banks of the single-tracker shape only; ``IMM`` packs none for others."""
+    imm = IMM(paper_bank(), Sonar())
+    F, Q, R, *rest = imm.kernel_args
+    with pytest.raises(ValueError, match="shape"):
+        kernel.pack_one(F[:, :2], Q[:, :2], R, *rest)
+    assert imm._bank_one is not None
+    assert IMM(paper_bank()[:2], Sonar())._bank_one is None
+    assert IMM(paper_bank(), Sonar(), engine="numpy")._bank_one is None

@@ -1,7 +1,8 @@
 """The compiled input checks of ``IMM.step`` (``unclear_inputs``: ``clearly_stochastic`` and
-``all_finite`` of :mod:`imm_gym.tracking.kernels.imm`): they accept what ``validate_tpm`` and
-``used_measurements`` accept and hand everything else to them, so the errors and the repair of a
-missed detection's measurement stay those of the reference validators."""
+``all_finite`` of :mod:`imm_gym.tracking.kernels.imm`; for one tracker inside
+``checked_step_one``'s call): they accept what ``validate_tpm`` and ``used_measurements`` accept
+and hand everything else to them, so the errors and the repair of a missed detection's
+measurement stay those of the reference validators, for one tracker and for several."""
 
 from __future__ import annotations
 
@@ -13,10 +14,10 @@ from imm_gym.tracking.kernels import imm as kernel
 from imm_gym.tracking.tpm import ROW_SUM_TOL
 
 
-def _bank() -> tuple[IMM, object, np.ndarray]:
+def _bank(n: int = 2) -> tuple[IMM, object, np.ndarray]:
     imm = IMM(paper_bank(), Sonar())
-    state = imm.init(np.array([[1000.0, 2000.0, 5.0, -3.0]] * 2), np.diag([100.0, 100.0, 4.0, 4.0]))
-    z = np.array([[2236.0, 1.107], [2237.0, 1.106]])
+    state = imm.init(np.array([[1000.0, 2000.0, 5.0, -3.0]] * n), np.diag([100.0, 100.0, 4.0, 4.0]))
+    z = np.array([[2236.0, 1.107], [2237.0, 1.106]])[:n]
     return imm, state, z
 
 
@@ -59,20 +60,22 @@ def test_one_tpm_for_one_tracker_steps_as_its_own_matrix() -> None:
     np.testing.assert_array_equal(tpm, stay_tpm(3, 0.9))  # the caller's TPM untouched
 
 
+@pytest.mark.parametrize("n", [1, 2])
 @pytest.mark.parametrize(
     ("value", "message"),
     [(np.nan, "finite"), (-0.01, ">= 0"), (0.2, "sum to 1")],
 )
-def test_step_raises_the_validators_errors(value: float, message: str) -> None:
-    imm, state, z = _bank()
+def test_step_raises_the_validators_errors(value: float, message: str, n: int) -> None:
+    imm, state, z = _bank(n)
     tpm = stay_tpm(3, 0.95)
     tpm[0, 1] = value
     with pytest.raises(ConfigError, match=message):
         imm.step(state, tpm, z)
 
 
-def test_borderline_and_non_contiguous_tpms_get_the_validators_verdict() -> None:
-    imm, state, z = _bank()
+@pytest.mark.parametrize("n", [1, 2])
+def test_borderline_and_non_contiguous_tpms_get_the_validators_verdict(n: int) -> None:
+    imm, state, z = _bank(n)
     tpm = stay_tpm(3, 0.95)
     _, ref = imm.step(state, tpm, z)
     near = tpm.copy()
@@ -87,15 +90,51 @@ def test_borderline_and_non_contiguous_tpms_get_the_validators_verdict() -> None
     np.testing.assert_array_equal(fortran.x, ref.x)
     _, listed = imm.step(state, tpm.tolist(), z)
     np.testing.assert_array_equal(listed.x, ref.x)
+    _, unchecked = imm.step(state, tpm.tolist(), z, check=False)
+    np.testing.assert_array_equal(unchecked.x, ref.x)
+    with pytest.raises(ConfigError, match=f"tpm has 3 matrices for {n} trackers"):
+        imm.step(state, np.stack([tpm] * 3), z)
+    with pytest.raises(ConfigError, match="shape"):
+        imm.step(state, np.eye(2), z)
 
 
-def test_non_finite_measurements_checked_and_repaired_as_before() -> None:
-    imm, state, z = _bank()
-    detected = np.array([True, False])
+@pytest.mark.parametrize("n", [1, 2])
+def test_non_finite_measurements_checked_and_repaired_as_before(n: int) -> None:
+    imm, state, z = _bank(n)
+    detected = np.array([True, False])[-n:]
     _, ref = imm.step(state, stay_tpm(3, 0.95), np.where(detected[:, None], z, 0.0), detected)
     _, out = imm.step(state, stay_tpm(3, 0.95), np.where(detected[:, None], z, np.nan), detected)
     np.testing.assert_array_equal(out.x, ref.x)
     with pytest.raises(ConfigError, match="finite where detected"):
-        imm.step(state, stay_tpm(3, 0.95), np.where(detected[:, None], np.nan, z), detected)
+        imm.step(state, stay_tpm(3, 0.95), np.where(detected[:, None], z, np.nan))
+    with pytest.raises(ConfigError, match="finite where detected"):
+        imm.step(state, stay_tpm(3, 0.95), np.full_like(z, np.nan), np.ones(n, dtype=bool))
     with pytest.raises(ConfigError, match="finite where detected"):
         imm.step(state, stay_tpm(3, 0.95), np.full_like(z, np.inf))
+
+
+def test_one_tracker_entry_checks_before_it_steps() -> None:
+    """``checked_step_one`` returns minus ``unclear_inputs``' flags and writes no output where
+    the inputs need the reference checks; with a negative tolerance it steps without them."""
+    imm, state, z = _bank(1)
+    assert imm._bank_one is not None
+    tpm = stay_tpm(3, 0.95)[None].copy()
+    bad_tpm, bad_z = tpm.copy(), z.copy()
+    bad_tpm[0, 1, 1] = np.nan
+    bad_z[0, 0] = np.inf
+    shapes = [(1, 3, 4), (1, 3, 4, 4), (1, 3), (1, 3), (1, 3), (1, 3), (1, 3, 2), (1,), (1, 4),
+              (1, 4, 4)]
+    tol = 0.5 * ROW_SUM_TOL
+    for t, m, flags in ((bad_tpm, z, kernel.TPM_UNCLEAR), (tpm, bad_z, kernel.Z_UNCLEAR),
+                        (bad_tpm, bad_z, kernel.TPM_UNCLEAR | kernel.Z_UNCLEAR)):
+        outs = [np.full(shape, 7.0) for shape in shapes] + [np.ones(1, dtype=bool)]
+        code = kernel.checked_step_one(state.x, state.P, state.mu, t, m, np.ones(1, dtype=bool),
+                                       imm._bank_one, tol, *outs)
+        assert code == -flags
+        assert all((a == 7.0).all() for a in outs[:-1]) and outs[-1].all()
+    outs = [np.full(shape, 7.0) for shape in shapes] + [np.ones(1, dtype=bool)]
+    code = kernel.checked_step_one(state.x, state.P, state.mu, tpm, z, np.ones(1, dtype=bool),
+                                   imm._bank_one, -1.0, *outs)
+    assert code == 0 and not outs[-1][0]
+    _, ref = imm.step(state, tpm, z)
+    np.testing.assert_array_equal(outs[8], ref.x)

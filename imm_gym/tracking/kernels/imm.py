@@ -292,6 +292,69 @@ def _step_one(
                   wm, wc, gamma, mixture_nis, outs, 1, 1, M, n, m, True)
 
 
+#: the header of :func:`pack_one`'s array: sensor code, filter code, ``gamma``, the lengths of
+#: the sensor's parameters and of the sigma-point weights
+_PACK_HEADER = 5
+
+
+def pack_one(
+    F: Array, Q: Array, R: Array, sensor_kind: int, sensor_params: Array, filter_kind: int,
+    wm: Array, wc: Array, gamma: float,
+) -> Array:
+    """A bank's kernel constants (:attr:`imm_gym.tracking.imm.IMM.kernel_args`, a bank of
+    :data:`ONE_SHAPE`) in one flat array for :func:`checked_step_one`: the header (sensor code,
+    filter code, ``gamma``, ``len(sensor_params)``, ``len(wm)``), then ``F``, ``Q``, ``R``,
+    ``sensor_params``, ``wm``, ``wc``. One argument instead of nine: a compiled call pays ~60 ns
+    for each argument it types and unboxes."""
+    M, n, m = ONE_SHAPE
+    if F.shape != (1, M, n, n) or Q.shape != (1, M, n, n) or R.shape != (1, m, m):
+        raise ValueError(f"pack_one takes a bank of the shape {ONE_SHAPE}, got F {F.shape}")
+    header = np.array([sensor_kind, filter_kind, gamma, sensor_params.size, wm.size], F8)
+    return np.concatenate([header, *(np.ravel(a) for a in (F, Q, R, sensor_params, wm, wc))])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def checked_step_one(
+    x: Array, P: Array, mu: Array, tpm: Array, z: Array, detected: NDArray[np.bool_],
+    bank: Array, row_sum_tol: float, x_out: Array, P_out: Array, mu_out: Array,
+    cbar_out: Array, loglik_out: Array, model_nis_out: Array, innov_out: Array, nis_out: Array,
+    xhat_out: Array, Phat_out: Array, failed_out: NDArray[np.bool_],
+) -> int:  # pragma: no cover
+    """:func:`imm_step_one` (same outputs bit for bit, the mixture NIS included) as
+    :meth:`imm_gym.tracking.imm.IMM.step` calls it for one tracker: the bank's constants as
+    :func:`pack_one`'s array, and the inputs first checked in the same call as
+    :func:`unclear_inputs` does where ``row_sum_tol >= 0``. Returns the number of failed trackers
+    (0 or 1), or minus :func:`unclear_inputs`' flags, without stepping, where the inputs need the
+    reference checks. Nineteen arguments and one call instead of twenty-seven and two: ~1 µs of a
+    ~9 µs ``IMM.step``."""
+    if row_sum_tol >= 0.0:
+        unclear = unclear_inputs(tpm, z, row_sum_tol)
+        if unclear:
+            return -unclear
+    M, n, m = ONE_SHAPE
+    if x.shape != (1, M, n) or z.shape != (1, m):
+        raise ValueError("checked_step_one takes one tracker of three 4-state models, 2-D z")
+    n_params = int(bank[3])
+    n_w = int(bank[4])
+    start = _PACK_HEADER
+    F = bank[start:start + M * n * n].reshape((1, M, n, n))
+    start += M * n * n
+    Q = bank[start:start + M * n * n].reshape((1, M, n, n))
+    start += M * n * n
+    R = bank[start:start + m * m].reshape((1, m, m))
+    start += m * m
+    sensor_params = bank[start:start + n_params]
+    start += n_params
+    wm = bank[start:start + n_w]
+    wc = bank[start + n_w:start + 2 * n_w]
+    outs = (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out,
+            xhat_out, Phat_out, failed_out)
+    return _step_one(
+        _owned(x), _owned(P), _owned(mu), _owned(tpm), _owned(z), _owned(detected), F, Q, R,
+        int(bank[0]), sensor_params, int(bank[1]), wm, wc, bank[2], True, outs,
+    )
+
+
 def _owned(a: Array) -> Array:
     """``a`` where it is a writable C-contiguous array, else a copy that is: the arrays
     :func:`imm_step_one` hands :func:`_step_one` are of one type whatever its callers pass (a
