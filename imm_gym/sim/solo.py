@@ -45,7 +45,7 @@ from imm_gym.sim.core import INFINITY_STAND_IN, TrackingCore
 from imm_gym.sim.kernels import ACTION_MODE_CODES, env_step_body, step_inputs
 from imm_gym.sim.rewards import REWARD_TERMS
 from imm_gym.tracking.imm import IMMState
-from imm_gym.tracking.kernels.imm import fits_one
+from imm_gym.tracking.kernels.imm import fits_one, pack_one, unpack_one
 
 Array = NDArray[np.float64]
 
@@ -90,7 +90,7 @@ def solo_step(
     action: Array, x: Array, P: Array, per_model: Array, velocities: Array, innovation: Array,
     tpm: Array, k: NDArray[np.int64], done: NDArray[np.bool_], z: Array,
     detected: NDArray[np.bool_], truth: Array, true_model: NDArray[np.int64], fixed_tpm: Array,
-    shadow_tpm: Array, bank: tuple,
+    shadow_tpm: Array, bank: Array,
     settings: Array, at: NDArray[np.int64], obs_low: NDArray[np.float32],
     obs_high: NDArray[np.float32], obs: NDArray[np.float32], record: Array,
 ) -> tuple[float, bool, bool, bool, int, bool, int]:  # pragma: no cover
@@ -106,7 +106,9 @@ def solo_step(
         z, detected, truth, true_model: the episode, ``(1, K+1, m)``, ``(1, K+1)``,
             ``(1, K+1, d)``, ``(1, K)``.
         fixed_tpm, shadow_tpm: ``(1, M, M)`` bank B's and the shadow's TPM.
-        bank: the tracker's kernel constants; settings: the configuration (:data:`MODE` ...).
+        bank: the tracker's kernel constants packed
+            (:func:`~imm_gym.tracking.kernels.imm.pack_one`); settings: the configuration
+            (:data:`MODE` ...).
         at: :func:`info_columns`; obs_low, obs_high: the observation's box.
         obs: filled with the observation; record: ``(K+1, at[-1])`` the episode's info record,
             its row ``k + 1`` filled with this step's float and array info entries.
@@ -129,7 +131,7 @@ def solo_step(
         action.reshape((1, action.size)), tpm, int(settings[MODE]), settings[GAIN],
         settings[P_MIN], x[BANK_A], P[BANK_A], per_model[MU], x[BANK_B], P[BANK_B],
         per_model[MU] if parallel else per_model[MU_B], x[SHADOW], P[SHADOW], per_model[MU_S],
-        fixed_tpm, shadow_tpm, fixed_tpm, z_k, det, truth_k, bank, parallel, shadow,
+        fixed_tpm, shadow_tpm, fixed_tpm, z_k, det, truth_k, unpack_one(bank), parallel, shadow,
         settings[DIVERGENCE_ERROR], settings[DIVERGENCE_COV], True)
     # the reward (rewards.Reward)
     s = settings[SCALE]
@@ -315,7 +317,8 @@ class SoloStep:
         self._args = (
             self._x, self._P, self._per_model, self._velocities, self._innovation, self._tpm,
             self._k, self._done, core.z, core.detected, core.truth, core.true_model,
-            core.fixed_tpms, core.shadow_tpms, core.kernel_args, self._settings, self._at,
+            core.fixed_tpms, core.shadow_tpms, pack_one(*core.kernel_args), self._settings,
+            self._at,
             core.obs_low, core.obs_high, self._obs, record,
         )
 

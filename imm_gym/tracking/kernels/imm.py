@@ -304,8 +304,8 @@ def pack_one(
     """A bank's kernel constants (:attr:`imm_gym.tracking.imm.IMM.kernel_args`, a bank of
     :data:`ONE_SHAPE`) in one flat array for :func:`checked_step_one`: the header (sensor code,
     filter code, ``gamma``, ``len(sensor_params)``, ``len(wm)``), then ``F``, ``Q``, ``R``,
-    ``sensor_params``, ``wm``, ``wc``. One argument instead of nine: a compiled call pays ~60 ns
-    for each argument it types and unboxes."""
+    ``sensor_params``, ``wm``, ``wc`` (:func:`unpack_one` reads them back). One argument instead
+    of nine: a compiled call pays ~60 ns for each argument it types and unboxes."""
     M, n, m = ONE_SHAPE
     if F.shape != (1, M, n, n) or Q.shape != (1, M, n, n) or R.shape != (1, m, m):
         raise ValueError(f"pack_one takes a bank of the shape {ONE_SHAPE}, got F {F.shape}")
@@ -334,6 +334,22 @@ def checked_step_one(
     M, n, m = ONE_SHAPE
     if x.shape != (1, M, n) or z.shape != (1, m):
         raise ValueError("checked_step_one takes one tracker of three 4-state models, 2-D z")
+    F, Q, R, sensor_kind, sensor_params, filter_kind, wm, wc, gamma = unpack_one(bank)
+    outs = (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out,
+            xhat_out, Phat_out, failed_out)
+    return _step_one(
+        _owned(x), _owned(P), _owned(mu), _owned(tpm), _owned(z), _owned(detected), F, Q, R,
+        sensor_kind, sensor_params, filter_kind, wm, wc, gamma, True, outs,
+    )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def unpack_one(
+    bank: Array,
+) -> tuple[Array, Array, Array, int, Array, int, Array, Array, float]:  # pragma: no cover
+    """:func:`pack_one`'s array back as the nine kernel constants ``(F, Q, R, sensor_kind,
+    sensor_params, filter_kind, wm, wc, gamma)``, the arrays views of ``bank``."""
+    M, n, m = ONE_SHAPE
     n_params = int(bank[3])
     n_w = int(bank[4])
     start = _PACK_HEADER
@@ -347,12 +363,7 @@ def checked_step_one(
     start += n_params
     wm = bank[start:start + n_w]
     wc = bank[start + n_w:start + 2 * n_w]
-    outs = (x_out, P_out, mu_out, cbar_out, loglik_out, model_nis_out, innov_out, nis_out,
-            xhat_out, Phat_out, failed_out)
-    return _step_one(
-        _owned(x), _owned(P), _owned(mu), _owned(tpm), _owned(z), _owned(detected), F, Q, R,
-        int(bank[0]), sensor_params, int(bank[1]), wm, wc, bank[2], True, outs,
-    )
+    return F, Q, R, int(bank[0]), sensor_params, int(bank[1]), wm, wc, bank[2]
 
 
 def _owned(a: Array) -> Array:
