@@ -452,6 +452,8 @@ def _cycle(
                     jacobi_sweeps(eig, U, lanes, JACOBI_MAX_SWEEPS, jconv, joff, jdiag, jc, js,
                                   jpairs, jold)
             else:  # Pp = L L^T: U = L and unit eig, so the offsets are gamma L's columns
+                # (the Jacobi sweeps' off-diagonal and diagonal sums, unused by this filter, are
+                # the factorization's pivot and inverse-pivot rows)
                 cholesky_lanes(Pp, U, lanes, joff, jdiag)
                 for k in range(n):
                     for i in range(lanes):
