@@ -51,3 +51,11 @@ def streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     scenario, noise = np.random.SeedSequence(int(seed)).spawn(2)
     return np.random.default_rng(scenario), np.random.default_rng(noise)
+
+
+def clone(generator: np.random.Generator) -> np.random.Generator:
+    """An independent generator in ``generator``'s state: the same numbers from here on, and
+    drawing from one does not move the other."""
+    bit_generator = type(generator.bit_generator)(0)
+    bit_generator.state = generator.bit_generator.state
+    return np.random.Generator(bit_generator)

@@ -163,6 +163,15 @@ class Conditions:
         """``(R, m, m)`` the runs' measurement noise covariances."""
         return np.stack([np.asarray(s.R, dtype=np.float64) for s in self.sensors])
 
+    def take(self, rows: NDArray[np.intp]) -> Conditions:
+        """The conditions of the runs ``rows`` (in that order, repeats allowed)."""
+        return Conditions(
+            self.T[rows],
+            tuple(self.sensors[r] for r in rows.tolist()),
+            None if self.speed is None else self.speed[rows],
+            self.q_scale[rows],
+        )
+
 
 def draw_conditions(
     variation: Variation, T: float, sensor: object, rngs: Sequence[np.random.Generator]

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import true_model_index
-from imm_gym.seeding import streams
+from imm_gym.seeding import clone, streams
 from imm_gym.sim.actions import action_size, tpm_from_action, validate_action
 from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.conditions import Conditions, bank_constants
@@ -203,28 +203,38 @@ class TrackingCore:
                 )
         if indices.size == 0:
             return
-        for i, seed in zip(indices, seeds, strict=True):
+        if len(seeds) != indices.size:
+            raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
+        # slots given the same seed draw the same episode: drawn once (row `rows[p]` of the
+        # batch is position p's), the twins' streams cloned after the draws
+        twin = _first_of_each_seed(seeds)
+        drawn = np.flatnonzero(twin == np.arange(indices.size))
+        rows = np.searchsorted(drawn, twin)
+        for i, seed in zip(indices[drawn].tolist(), [seeds[p] for p in drawn], strict=True):
             if seed is not None:
                 self._rngs[i] = streams(seed)
             elif self._rngs[i] is None:
                 self._rngs[i] = streams(int(np.random.SeedSequence().generate_state(1)[0]))
-        scen_rngs = [self._rngs[i][0] for i in indices]  # type: ignore[index]
-        noise_rngs = [self._rngs[i][1] for i in indices]  # type: ignore[index]
+        scen_rngs = [self._rngs[i][0] for i in indices[drawn]]  # type: ignore[index]
+        noise_rngs = [self._rngs[i][1] for i in indices[drawn]]  # type: ignore[index]
         cfg = self.config
         batch = draw_episodes(
             cfg.source, cfg.sensor, scen_rngs, noise_rngs, cfg.velocity_std, cfg.vary
         )
-        truth, meas, x0 = batch.truth, batch.measurements, batch.x0
+        for p in np.flatnonzero(twin != np.arange(indices.size)).tolist():
+            scenario, noise = self._rngs[indices[twin[p]]]  # type: ignore[misc]
+            self._rngs[indices[p]] = (clone(scenario), clone(noise))
+        truth, meas = batch.truth, batch.measurements
         if batch.conditions is not None:
-            self._set_conditions(indices, batch.conditions)
+            self._set_conditions(indices, batch.conditions.take(rows))
         if initial_tpms is not None:
             self.fixed_tpms[indices] = initial_tpms
-        self.truth[indices] = truth.states
-        self.z[indices] = meas.z
-        self.detected[indices] = meas.detected
-        self.outlier[indices] = meas.outlier
-        self.true_model[indices] = true_model_index(truth, self.models)
-        self._start(indices, x0, batch.P0)
+        self.truth[indices] = truth.states[rows]
+        self.z[indices] = meas.z[rows]
+        self.detected[indices] = meas.detected[rows]
+        self.outlier[indices] = meas.outlier[rows]
+        self.true_model[indices] = true_model_index(truth, self.models)[rows]
+        self._start(indices, batch.x0[rows], batch.P0[rows])
 
     def _set_conditions(self, indices: NDArray[np.int64], conditions: Conditions) -> None:
         """The slots ``indices`` at their episodes' conditions: their ``F (M, n, n)``, ``Q`` for
@@ -523,3 +533,15 @@ def _finite(value: Any) -> Any:
     if isinstance(value, np.ndarray) and value.dtype.kind == "f":
         return np.nan_to_num(value, nan=0.0, posinf=INFINITY_STAND_IN, neginf=-INFINITY_STAND_IN)
     return value
+
+
+def _first_of_each_seed(seeds: list[int | None]) -> NDArray[np.intp]:
+    """For each position of ``seeds``, the first position given the same integer seed (its own
+    for None — a slot that continues its own streams shares them with no other — and for
+    anything but an integer, which :func:`~imm_gym.seeding.streams` then refuses)."""
+    first: dict[int, int] = {}
+    twin = np.arange(len(seeds))
+    for p, seed in enumerate(seeds):
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            twin[p] = first.setdefault(int(seed), p)
+    return twin
