@@ -318,8 +318,7 @@ class SoloStep:
             self._x, self._P, self._per_model, self._velocities, self._innovation, self._tpm,
             self._k, self._done, core.z, core.detected, core.truth, core.true_model,
             core.fixed_tpms, core.shadow_tpms, pack_one(*core.kernel_args), self._settings,
-            self._at,
-            core.obs_low, core.obs_high, self._obs, record,
+            self._at, core.obs_low, core.obs_high, self._obs, record,
         )
 
     def step(
