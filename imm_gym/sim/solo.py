@@ -252,13 +252,12 @@ class SoloStep:
         self._columns: tuple[Array, ...] = ()
         self._args: tuple = ()
 
-    def __getstate__(self) -> dict[str, Any]:
-        """Only the core: the arrays whose views the core and the info's columns hold would be
-        pickled as separate copies; a copy loads the core's state again at its first step."""
-        return {"core": self._core}
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__init__(state["core"])  # type: ignore[misc]
+    def __reduce__(self) -> tuple[Any, tuple[TrackingCore]]:
+        """Pickled (and deep-copied) as its core only: the arrays whose views the core and the
+        info's columns hold would be pickled as separate copies. A copy loads the core's state
+        again at its first step; where the core no longer fits (:func:`restore`) it is None and
+        the env steps through the core."""
+        return restore, (self._core,)
 
     @staticmethod
     def fits(core: TrackingCore) -> bool:
@@ -366,3 +365,10 @@ class SoloStep:
             del info["reward_advantage"], info["reward_squared_advantage"]
             del info["shadow_position_error"]
         return self._obs.copy(), reward, terminated, truncated, info
+
+
+def restore(core: TrackingCore) -> SoloStep | None:
+    """A :class:`SoloStep` of ``core`` where it fits (:meth:`SoloStep.fits`), else None: what an
+    unpickled scalar env steps with (a process that registered another reward term steps it
+    through the core, with the same numbers)."""
+    return SoloStep(core) if SoloStep.fits(core) else None

@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from imm_gym.envs import TPMAdaptEnv
+from imm_gym.sim import rewards
 from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
@@ -307,3 +308,29 @@ def test_a_copy_taken_mid_episode_steps_as_the_original(how: str, changes: dict)
         if terminated or truncated:
             np.testing.assert_array_equal(env.reset()[0], twin.reset()[0])
     assert_core_equal(twin.core, env.core)
+
+
+def test_a_copy_where_the_step_no_longer_fits_steps_through_the_core() -> None:
+    """Unpickled in a process whose reward registry holds another term, a scalar env steps
+    through the core (its compiled step covers the built-in terms only), with the same numbers."""
+    env = TPMAdaptEnv(config=SHORT)
+    env.reset(seed=2)
+    for _ in range(4):
+        env.step(np.full(env.action_space.shape, 0.3))
+    blob = pickle.dumps(env)
+    rewards.register(rewards.RewardTerm("extra_for_the_test", rewards.error))
+    try:
+        twin = pickle.loads(blob)
+    finally:
+        del rewards.REWARD_TERMS["extra_for_the_test"]
+    assert env._solo is not None and twin._solo is None
+    for t in range(40):
+        action = np.full(env.action_space.shape, 0.5 if t % 3 else -0.7)
+        obs, reward, terminated, truncated, info = env.step(action)
+        obs2, reward2, terminated2, truncated2, info2 = twin.step(action)
+        np.testing.assert_array_equal(obs, obs2)
+        assert (reward, terminated, truncated) == (reward2, terminated2, truncated2), t
+        for key, value in info.items():
+            np.testing.assert_array_equal(value, info2[key], err_msg=f"{t} {key}")
+        if terminated or truncated:
+            np.testing.assert_array_equal(env.reset()[0], twin.reset()[0])
