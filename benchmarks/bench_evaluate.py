@@ -4,8 +4,9 @@ Times ``imm_gym.cli.evaluate.evaluate`` on the paper scenario (100 runs) for eac
 for all of them together (the best fixed TPM includes its search over 12 stay probabilities on
 100 training runs), plus the clairvoyant bound: the median over ``--repeats`` repeats (each
 timing in turn, so that a change in the machine's speed hits them alike) with the smallest and
-largest. Import and the numba kernel's first load are timed once, apart. The aim of issue #19:
-all five with the bound in at most 1 s. Run from the repository root::
+largest. Import and the numba kernel's first load are timed once, apart. The aim of issue #19
+(checked for the paper scenario at 100 runs): all five with the bound in at most 1 s. Run from
+the repository root::
 
     python benchmarks/bench_evaluate.py [--runs 100] [--scenario paper] [--repeats 5]
 """
@@ -63,10 +64,11 @@ def main(argv: list[str] | None = None) -> int:
         table.add_row(name, f"{np.median(values):.2f}", f"({min(values):.2f} – {max(values):.2f})")
     console = harness.make_console(width=100)
     console.print(table)
-    total = float(np.median(times[ALL]))
-    console.print(
-        f"{ALL}: {total:.2f} s (aim ≤ {AIM_S:.0f} s): {harness.verdict(total <= AIM_S)}"
-    )
+    if (args.scenario, args.runs) == ("paper", 100):  # what the aim is set for
+        total = float(np.median(times[ALL]))
+        console.print(
+            f"{ALL}: {total:.2f} s (aim ≤ {AIM_S:.0f} s): {harness.verdict(total <= AIM_S)}"
+        )
     return 0
 
 

@@ -2,7 +2,8 @@
 
 What is measured: ``imm_gym.tracking.kernels.imm.imm_step`` (one IMM cycle of N trackers: M = 3
 models CV, CT(+4°/s), CT(-4°/s), range-bearing sonar, SVD-UKF and EKF; at N = 1 its
-``imm_step_one`` where the revision has one, as ``IMM.step`` calls it) called directly on the
+``imm_step_one`` where the revision has one, the single-tracker cycle that ``IMM.step`` reaches
+through ``checked_step_one``) called directly on the
 same inputs by this tree's kernel and by the kernel of ``--baseline`` (default ``07f550f``, the
 last commit before the structure-of-arrays kernel: its ``imm_gym/tracking/kernels/imm.py`` and
 ``imm_gym/tracking/linalg.py`` are read with ``git show`` into a cache directory and imported

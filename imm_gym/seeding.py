@@ -55,7 +55,8 @@ def streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
 
 def clone(generator: np.random.Generator) -> np.random.Generator:
     """An independent generator in ``generator``'s state: the same numbers from here on, and
-    drawing from one does not move the other."""
+    drawing from one does not move the other (its ``bit_generator.seed_seq`` is not the
+    original's: ``spawn`` on the clone gives other children)."""
     bit_generator = type(generator.bit_generator)(0)
     bit_generator.state = generator.bit_generator.state
     return np.random.Generator(bit_generator)

@@ -206,8 +206,12 @@ class TrackingCore:
         if len(seeds) != indices.size:
             raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
         # slots given the same seed draw the same episode: drawn once (row `rows[p]` of the
-        # batch is position p's), the twins' streams cloned after the draws
-        twin = _first_of_each_seed(seeds)
+        # batch is position p's), the twins' streams cloned after the draws (not where a slot
+        # is listed twice: its streams are replaced in turn, as each listing's seed says)
+        if np.unique(indices).size == indices.size:
+            twin = _first_of_each_seed(seeds)
+        else:
+            twin = np.arange(indices.size)
         drawn = np.flatnonzero(twin == np.arange(indices.size))
         rows = np.searchsorted(drawn, twin)
         for i, seed in zip(indices[drawn].tolist(), [seeds[p] for p in drawn], strict=True):

@@ -74,3 +74,14 @@ def test_a_clone_draws_the_same_numbers_independently() -> None:
     assert np.array_equal(twin.random(4), scenario.random(4))
     ahead = scenario.random(2)  # the twin does not move with it
     assert np.array_equal(twin.random(2), ahead)
+
+
+def test_a_slot_listed_twice_takes_its_last_seed_and_shares_nothing() -> None:
+    """A slot listed twice in one reset gets its streams replaced in turn (the last listing's
+    seed then drawing its episode), and a slot given the same seed as the first listing keeps
+    that seed's episode: nothing is shared across the listings."""
+    together, alone = TrackingCore(EnvConfig(), 2), TrackingCore(EnvConfig(), 2)
+    together.reset(np.array([0, 1, 0]), [5, 5, 9])
+    alone.reset(np.array([1]), [5])
+    assert together.z[1].tobytes() == alone.z[1].tobytes()
+    assert not np.array_equal(together.z[0], together.z[1])

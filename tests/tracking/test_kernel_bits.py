@@ -66,7 +66,8 @@ def test_failed_tracker_leaves_the_block_unchanged() -> None:
 
 
 def test_one_tracker_alone_equals_its_lane_in_a_block() -> None:
-    """The single-tracker path (``kernels.imm.imm_step_one``, which ``IMM.step`` takes at N = 1:
+    """The single-tracker path (``kernels.imm.imm_step_one``, which ``IMM.step`` takes at N = 1
+    through ``checked_step_one``:
     the cycle compiled for one tracker of three models, four states, a 2-D measurement) gives
     each tracker the numbers its lane gets in a block of the general path, bit for bit: every
     output, each step, with missed detections, for both filters and both sensors, and a

@@ -138,3 +138,11 @@ def test_one_tracker_entry_checks_before_it_steps() -> None:
     assert code == 0 and not outs[-1][0]
     _, ref = imm.step(state, tpm, z)
     np.testing.assert_array_equal(outs[8], ref.x)
+
+
+@pytest.mark.parametrize("n", [1, 2])
+@pytest.mark.parametrize("check", [True, False])
+def test_a_tpm_of_more_than_three_axes_is_refused(n: int, check: bool) -> None:
+    imm, state, z = _bank(n)
+    with pytest.raises(ConfigError, match=r"tpm must have shape \(3, 3\) or \(N, 3, 3\)"):
+        imm.step(state, stay_tpm(3, 0.9)[None, None], z, check=check)
