@@ -171,6 +171,13 @@ def _new_step(
     return step
 
 
+def _refuse_extra_axes(tpm: Array, M: int) -> None:
+    """Raise :class:`ConfigError` unless ``tpm`` is one ``(M, M)`` TPM or one per tracker
+    (``validate_tpm`` accepts any leading axes)."""
+    if tpm.ndim > 3:
+        raise ConfigError(f"tpm must have shape ({M}, {M}) or (N, {M}, {M}), got {tpm.shape}")
+
+
 def used_measurements(z: Array, detected: BoolArray | None) -> Array:
     """``z`` ``(..., m)`` after checking that every measurement used is finite.
 
@@ -576,8 +583,7 @@ class IMM:
             unclear = kernels.TPM_UNCLEAR | (0 if kernels.all_finite(z) else kernels.Z_UNCLEAR)
         if unclear & kernels.TPM_UNCLEAR:
             tpm = validate_tpm(tpm, M)
-        if tpm.ndim > 3:
-            raise ConfigError(f"tpm must have shape ({M}, {M}) or (N, {M}, {M}), got {tpm.shape}")
+        _refuse_extra_axes(tpm, M)
         if tpm.ndim == 3 and tpm.shape[0] != N:
             raise ConfigError(f"tpm has {tpm.shape[0]} matrices for {N} trackers")
         if unclear & kernels.Z_UNCLEAR:
@@ -650,8 +656,7 @@ class IMM:
         failed = np.empty(N, dtype=bool)
         outs = (x, P, mu, cbar, loglik, model_nis, innovation, nis, x_hat, P_hat, failed)
         tpm = np.asarray(tpm, dtype=np.float64)
-        if tpm.ndim > 3:
-            raise ConfigError(f"tpm must have shape ({M}, {M}) or (N, {M}, {M}), got {tpm.shape}")
+        _refuse_extra_axes(tpm, M)
         if tpm.ndim == 2:  # one TPM for all trackers: the kernel reads one per tracker
             tpm = tpm[None] if N == 1 else np.ascontiguousarray(np.broadcast_to(tpm, (N, M, M)))
         failures = kernels.imm_step(
