@@ -70,10 +70,12 @@ class Rollout:
 def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
     """``base`` with a policy's overrides; the shadow tracker is turned off (it only shapes
     rewards) unless the policy observes a feature computed from it
-    (:attr:`imm_gym.sim.features.Feature.needs_shadow`)."""
+    (:attr:`imm_gym.sim.features.Feature.needs_shadow`) or its TPM follows it
+    (``detector_share``)."""
     features = overrides.get("obs_features", ())
     observed = any(FEATURES[f].needs_shadow for f in features if f in FEATURES)
-    defaults = {} if observed else {"shadow": "none", "reward": "error"}
+    detector = overrides.get("detector_share", base.detector_share) > 0.0
+    defaults = {} if observed or detector else {"shadow": "none", "reward": "error"}
     return base.replace(**{**defaults, **overrides})
 
 

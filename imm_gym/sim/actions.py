@@ -10,7 +10,8 @@ The action ``a`` is ``(N, M*M)``, row-major over ``(i, j)``, clipped to [-1, 1]:
 * ``stay`` mode, ``a`` is ``(N, M)``: each row's stay probability moved from the tracker's own
   TPM :math:`\pi^0` (its initial TPM, the one bank B keeps) on the logit scale,
   :math:`s_i = \sigma(\operatorname{logit} \pi^0_{ii} + \lambda a_i)` clipped to
-  :math:`[1/M, 1 - (M-1) p_{min}]`, the rest of the row in :math:`\pi^0`'s proportions,
+  :math:`[\min(1/M, \pi^0_{ii}), 1 - (M-1) p_{min}]` (below :math:`1/M` only where
+  :math:`\pi^0`'s own stay is), the rest of the row in :math:`\pi^0`'s proportions,
   :math:`\pi_{ij} = (1 - s_i)\, \pi^0_{ij} / (1 - \pi^0_{ii})` (uniform where
   :math:`\pi^0_{ii} = 1`): the TPM stays a switching prior of the tracker's structure, the
   zero action keeps the tracker's TPM exactly (the classical IMM), and an action means the
@@ -90,14 +91,17 @@ def stay_rows(a: Array, source: Array, structure: Array, gain: float, p_min: flo
     proportions of ``structure``'s; a zero entry keeps its ``source`` row exactly.
 
     Computed through the leaving probability ``1 - s_i = 1 / (1 + exp(logit))``, the accurate
-    side for stays near 1, clipped to ``[(M-1) p_min, 1 - 1/M]``."""
+    side for stays near 1, clipped to ``[(M-1) p_min, max(1 - 1/M, 1 - structure_ii)]``: no
+    stay below ``1/M`` unless ``structure``'s own is (a base that leans a row toward another
+    mode, ``detector_share``), so a small action moves a row a little."""
     M = source.shape[-1]
     eye = np.eye(M, dtype=bool)
     stay0 = np.diagonal(source, axis1=-2, axis2=-1)
+    leave0 = 1.0 - np.diagonal(structure, axis1=-2, axis2=-1)
     with np.errstate(divide="ignore", over="ignore"):  # a stay of 0 or 1: logit -inf or inf
         logit = np.log(stay0) - np.log1p(-stay0) + gain * a
-        leave = np.clip(1.0 / (1.0 + np.exp(logit)), (M - 1) * p_min, 1.0 - 1.0 / M)
-    leave0 = 1.0 - np.diagonal(structure, axis1=-2, axis2=-1)
+        most = np.maximum(1.0 - 1.0 / M, leave0)
+        leave = np.clip(1.0 / (1.0 + np.exp(logit)), (M - 1) * p_min, most)
     share = np.where(
         leave0[..., None] > 0.0,
         structure / np.where(leave0 > 0.0, leave0, 1.0)[..., None],

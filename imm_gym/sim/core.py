@@ -30,7 +30,7 @@ from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds
 from imm_gym.sim.kernels import step_inputs
 from imm_gym.sim.rewards import Reward
-from imm_gym.sim.stay_bank import StayBank, stay_tpm_rows
+from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows, stay_tpm_rows
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
 from imm_gym.tracking.tpm import validate_tpm
@@ -325,12 +325,16 @@ class TrackingCore:
         """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's), or
         the stay bank's stay on the diagonal and the rest of each row spread evenly
         (``stay_base="evidence"``: :meth:`imm_gym.sim.stay_bank.StayBank.centre`,
-        ``"evidence_best"``: :meth:`imm_gym.sim.stay_bank.StayBank.best`)."""
+        ``"evidence_best"``: :meth:`imm_gym.sim.stay_bank.StayBank.best`), the jumps placed by
+        the shadow's mode probabilities with ``detector_share``
+        (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`)."""
         base = self.config.stay_base
         if base == "tracker":
             return self.fixed_tpms
         bank = self.stay_bank
         stays = bank.centre() if base == "evidence" else bank.best()  # type: ignore[union-attr]
+        if self.config.detector_share > 0.0:
+            return detector_tpm_rows(stays, self.mu_s, self.config.detector_share)
         return stay_tpm_rows(stays, self.M)
 
     @property

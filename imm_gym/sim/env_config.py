@@ -106,6 +106,12 @@ class EnvConfig:
             :mod:`imm_gym.sim.stay_bank`; the zero action then selects the switching prior by
             its evidence), or ``"evidence_best"`` (the stay of the stay bank's IMM with the
             largest evidence). Both need ``action_mode="stay"``.
+        detector_share: with an evidence ``stay_base``, the share ``v`` of each row's jumps
+            placed by the shadow IMM's mode probabilities (a maneuver detector the action does
+            not steer) instead of evenly: each step's base TPM is ``s I + (1 - s) 1 q^T`` with
+            ``q = (1 - v) / M + v mu_S`` and ``s`` the evidence's stay rescaled so that ``v = 0``
+            gives the evidence's TPM exactly (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`).
+            0 (default) turns it off; in ``[0, 1]``; needs ``shadow="fixed"``.
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode, or change of the stay's logit in the stay modes,
             for an action of 1 (> 0).
@@ -157,6 +163,7 @@ class EnvConfig:
     p_min: float = 1e-3
     action_mode: str = "scale"
     stay_base: str = "tracker"
+    detector_share: float = 0.0
     max_factor: float = 2.0
     logit_scale: float = 4.0
     parallel: bool = False
@@ -209,11 +216,21 @@ class EnvConfig:
             raise ConfigError(
                 f"stay_base {self.stay_base!r} needs action_mode 'stay', got {self.action_mode!r}"
             )
+        share = check_range("detector_share", self.detector_share, 0.0, 1.0)
+        store(self, "detector_share", share)
+        if share > 0.0 and self.stay_base == "tracker":
+            raise ConfigError(
+                "detector_share > 0 needs stay_base 'evidence' or 'evidence_best' (the stays it "
+                "places the jumps of), got 'tracker'"
+            )
         store(self, "max_factor", check_range("max_factor", self.max_factor, 1.0, lo_open=True))
         store(self, "logit_scale", check_range("logit_scale", self.logit_scale, 0.0, lo_open=True))
         if not isinstance(self.parallel, bool):
             raise ConfigError(f"parallel must be a bool, got {self.parallel!r}")
         check_choice("shadow", self.shadow, SHADOWS)
+        if self.detector_share > 0.0 and self.shadow == "none":
+            raise ConfigError("detector_share > 0 needs shadow 'fixed' (the detector whose mode "
+                              "probabilities place the jumps)")
         if self.shadow_stay is not None:
             store(self, "shadow_stay", check_range("shadow_stay", self.shadow_stay, 0.0, 1.0))
         check_choice("reward", self.reward, tuple(REWARD_TERMS))

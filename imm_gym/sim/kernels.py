@@ -123,8 +123,9 @@ def tpm_from_action(
                 source = base if mode == STAY else tpm
                 stay0 = source[t, i, i]
                 logit = np.log(stay0) - np.log1p(-stay0) + gain * a
-                leave = min(max(1.0 / (1.0 + np.exp(logit)), least_leave), 1.0 - 1.0 / M)
                 leave0 = 1.0 - base[t, i, i]
+                most_leave = max(1.0 - 1.0 / M, leave0)
+                leave = min(max(1.0 / (1.0 + np.exp(logit)), least_leave), most_leave)
                 for j in range(M):
                     if a == 0.0:
                         out[t, i, j] = source[t, i, j]

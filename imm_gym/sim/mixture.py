@@ -29,6 +29,7 @@ POLICY_FIELDS = (
     "obs_features",
     "action_mode",
     "stay_base",
+    "detector_share",
     "max_factor",
     "logit_scale",
     "p_min",

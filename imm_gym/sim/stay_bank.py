@@ -56,6 +56,41 @@ def stay_tpm_rows(stays: Array, n_models: int) -> Array:
     return tpm
 
 
+def detector_tpm_rows(stays: Array, belief: Array, share: float | Array) -> Array:
+    r"""``(N, M, M)`` switching priors whose jumps follow a maneuver detector
+    (``EnvConfig.detector_share``).
+
+    Each row keeps its mode with probability :math:`r` and otherwise redraws it from
+    :math:`q`, an even spread moved the share :math:`v` toward the detector's mode
+    probabilities :math:`\mu_S` (the shadow IMM's, which the action does not steer):
+
+    .. math::
+        \Pi = r I + (1 - r)\, \mathbf 1 q^\top, \qquad
+        q = \frac{1 - v}{M} \mathbf 1 + v \mu_S, \qquad
+        r = \frac{s - 1/M}{1 - 1/M},
+
+    so the predicted mode probabilities are :math:`\bar c = r \mu + (1 - r) q`. With
+    :math:`v = 0` (or a uniform belief) this is :func:`stay_tpm_rows` of the stays ``s``
+    (to rounding); with :math:`v > 0` a nearly uniform prior still leans toward the mode the
+    detector has accumulated evidence for, so the mode probabilities keep identifying the
+    maneuver where one step's likelihoods cannot.
+
+    Args:
+        stays: ``(N,)`` the stays ``s`` in ``[1/M, 1]`` (the stay bank's).
+        belief: ``(N, M)`` the detector's mode probabilities.
+        share: ``v`` in ``[0, 1]``, one for all rows or ``(N,)``.
+    """
+    M = belief.shape[-1]
+    keep = (stays - 1.0 / M) / (1.0 - 1.0 / M)
+    v = np.asarray(share, dtype=np.float64)
+    v = v[:, None] if v.ndim else v
+    q = (1.0 - v) / M + v * belief
+    rows = (1.0 - keep)[:, None, None] * np.repeat(q[:, None, :], M, axis=1)
+    idx = np.arange(M)
+    rows[:, idx, idx] += keep[:, None]
+    return rows
+
+
 class StayBank:
     """One classical IMM per stay of :func:`stay_tpms` for each of N slots (module docstring).
 

@@ -1,0 +1,41 @@
+"""``examples/detector_prior.py``: without the detector's share its priors are the evaluation's
+classical IMMs, run for run; with it, a nearly uniform prior identifies the maneuvers."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+from baselines.fixed import FixedTPM
+from imm_gym import EnvConfig
+from imm_gym.evaluation.metrics import mode_accuracy
+from imm_gym.evaluation.rollout import armse_from_squared, evaluation_config, rollout
+
+
+def _example() -> ModuleType:
+    path = Path(__file__).parents[2] / "examples" / "detector_prior.py"
+    spec = importlib.util.spec_from_file_location("detector_prior", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_no_share_is_the_evaluations_classical_imm_and_a_share_identifies_the_modes() -> None:
+    example = _example()
+    scores = example.detector_runs({"scenario": "paper"}, (0.0, 0.5), 10, 5)
+    for stay in (example.STAYS[0], 0.95, example.STAYS[-1]):
+        policy = FixedTPM(3, stay)
+        config = evaluation_config(EnvConfig.build({"scenario": "paper"}), policy.env_overrides)
+        run = rollout(policy, config, 10, 5)
+        armse, accuracy, _ = scores[(stay, 0.0)]
+        np.testing.assert_allclose(armse, armse_from_squared(run.squared_position_error),
+                                   rtol=1e-9)
+        np.testing.assert_allclose(accuracy, mode_accuracy(run.mode_probs, run.true_model),
+                                   atol=0.005)
+    # the uniform prior's mode probabilities are one step's likelihoods: near chance; leaning
+    # half of its jumps toward the shadow's belief makes them follow the maneuvers
+    assert scores[(example.STAYS[0], 0.0)][1] < 0.4 < 0.6 < scores[(example.STAYS[0], 0.5)][1]
