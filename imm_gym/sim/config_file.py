@@ -28,8 +28,10 @@ from imm_gym.validation import ConfigError, load_yaml
 #: The fields that make the tracker (what a trained agent records as ``trained_on`` and the
 #: evaluation reports as ``evaluated_on``): the sensor, the bank, the filter and its TPM prior.
 TRACKER_FIELDS = ("sensor", "bank", "filter", "initial_stay", "sojourn")
-#: The fields that say where the targets and their conditions come from.
-TARGET_FIELDS = ("scenario", "family", "vary")
+#: The fields that say where the targets and their conditions come from, and how each track
+#: starts (``velocity_std``: the spread of the first velocity estimate's error, drawn from the
+#: episode's noise, and its prior): every policy evaluated on a configuration meets the same.
+TARGET_FIELDS = ("scenario", "family", "vary", "velocity_std")
 
 
 def plain(value: Any) -> Any:

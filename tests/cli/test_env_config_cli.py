@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 import imm_gym.cli.evaluate as cli
@@ -157,7 +158,25 @@ def test_an_agent_trained_on_varied_conditions_runs_on_a_named_scenario() -> Non
         "bank": CONTINUOUS_BANK,
         "vary": {"T": (0.5, 5.0), "sigma_r": (10.0, 100.0)},
         "sojourn": (60.0, 20.0, 20.0),
+        "velocity_std": 10.0,
     }
     kept, notes = agent_overrides(object(), recorded, EnvConfig(scenario="paper"))
     assert kept == {"action_mode": "set"}
     assert set(notes["tracker_differs"]) == {"bank", "sojourn"}
+
+
+def test_an_agent_starts_its_tracks_as_the_rules_do() -> None:
+    """A trained agent's recorded ``velocity_std`` (the first velocity estimate's error, drawn
+    from the episode's noise) does not follow it to the evaluation: every policy's tracks start
+    from the same estimates (it did, and the agents trained across trackers started from a
+    velocity twice as far off as the rules on the suite)."""
+    from imm_gym.cli.evaluate import evaluate
+
+    class Zero:
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return np.zeros((obs.shape[0], 9)), None
+
+    recorded = {"action_mode": "scale", "velocity_std": 10.0}
+    _, rollouts = evaluate(["fixed"], "paper", 3, 0, extra={"zero": (Zero(), recorded)},
+                           clairvoyant=False)
+    np.testing.assert_array_equal(rollouts["zero"].estimate, rollouts["fixed"].estimate)
