@@ -108,12 +108,15 @@ class TrackingCore:
             config.mode_reward,
             config.tpm_change_cost,
         )
-        needs_bank = config.stay_base != "tracker" or any(
+        needs_bank = config.stay_base in ("evidence", "evidence_best") or any(
             FEATURES[f].needs_stay_bank for f in config.obs_features
         )
         #: the stay bank, where the configuration uses its evidence (else None)
         self.stay_bank = StayBank(
-            self.imm, n_envs, self.kernel_args if self._advance is compiled_step else None
+            self.imm,
+            n_envs,
+            self.kernel_args if self._advance is compiled_step else None,
+            config.detector_share,
         ) if needs_bank else None
         self.horizon = config.source.horizon
         #: entries of one slot's action: ``M * M``, or ``M`` in the stay modes
@@ -325,14 +328,19 @@ class TrackingCore:
         """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's), or
         the stay bank's stay on the diagonal and the rest of each row spread evenly
         (``stay_base="evidence"``: :meth:`imm_gym.sim.stay_bank.StayBank.centre`,
-        ``"evidence_best"``: :meth:`imm_gym.sim.stay_bank.StayBank.best`), the jumps placed by
+        ``"evidence_best"``: :meth:`imm_gym.sim.stay_bank.StayBank.best`; ``"uniform"``: 1/M),
+        the jumps placed by
         the shadow's mode probabilities with ``detector_share``
         (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`)."""
         base = self.config.stay_base
         if base == "tracker":
             return self.fixed_tpms
-        bank = self.stay_bank
-        stays = bank.centre() if base == "evidence" else bank.best()  # type: ignore[union-attr]
+        if base == "uniform":
+            stays = np.full(self.n_envs, 1.0 / self.M)
+        elif base == "evidence":
+            stays = self.stay_bank.centre()  # type: ignore[union-attr]
+        else:
+            stays = self.stay_bank.best()  # type: ignore[union-attr]
         if self.config.detector_share > 0.0:
             return detector_tpm_rows(stays, self.mu_s, self.config.detector_share)
         return stay_tpm_rows(stays, self.M)
@@ -409,7 +417,9 @@ class TrackingCore:
         """The banks' step by the engine, then the stay bank's on the same measurements."""
         out = self._advance(self, action, z, detected, truth)
         if self.stay_bank is not None:
-            self.stay_bank.step(z, detected, IMMState(out.x_a, out.P_a, out.mode_probs))
+            self.stay_bank.step(
+                z, detected, IMMState(out.x_a, out.P_a, out.mode_probs), self.mu_s
+            )
         return out
 
     def _record(self, out: BankStep, k: NDArray[np.int64]) -> None:

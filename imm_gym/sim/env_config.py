@@ -36,7 +36,7 @@ from imm_gym.validation import (
 
 ACTION_MODES = ("scale", "set", "stay", "stay_step")
 SHADOWS = ("fixed", "none")
-STAY_BASES = ("tracker", "evidence", "evidence_best")
+STAY_BASES = ("tracker", "evidence", "evidence_best", "uniform")
 #: The built-in reward terms (the registry, :data:`imm_gym.sim.rewards.REWARD_TERMS`, is what
 #: ``reward`` is checked against).
 REWARDS = tuple(REWARD_TERMS)
@@ -105,13 +105,16 @@ class EnvConfig:
             the evidence-weighted stay of the stay bank, one classical IMM per stay,
             :mod:`imm_gym.sim.stay_bank`; the zero action then selects the switching prior by
             its evidence), or ``"evidence_best"`` (the stay of the stay bank's IMM with the
-            largest evidence). Both need ``action_mode="stay"``.
+            largest evidence), or ``"uniform"`` (the stay ``1/M``: with ``detector_share`` the
+            prior the detector alone leans, and the policy learns where to hold a mode). All
+            but ``"tracker"`` need ``action_mode="stay"``.
         detector_share: with an evidence ``stay_base``, the share ``v`` of each row's jumps
             placed by the shadow IMM's mode probabilities (a maneuver detector the action does
             not steer) instead of evenly: each step's base TPM is ``s I + (1 - s) 1 q^T`` with
             ``q = (1 - v) / M + v mu_S`` and ``s`` the evidence's stay rescaled so that ``v = 0``
-            gives the evidence's TPM exactly (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`).
-            0 (default) turns it off; in ``[0, 1]``; needs ``shadow="fixed"``.
+            gives the evidence's TPM (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`); the stay
+            bank's IMMs run these priors too, so its evidence weighs them. 0 (default) turns it
+            off; in ``[0, 1]``; needs ``shadow="fixed"``.
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode, or change of the stay's logit in the stay modes,
             for an action of 1 (> 0).
@@ -220,8 +223,8 @@ class EnvConfig:
         store(self, "detector_share", share)
         if share > 0.0 and self.stay_base == "tracker":
             raise ConfigError(
-                "detector_share > 0 needs stay_base 'evidence' or 'evidence_best' (the stays it "
-                "places the jumps of), got 'tracker'"
+                "detector_share > 0 needs stay_base 'evidence', 'evidence_best' or 'uniform' (the "
+                "stays it places the jumps of), got 'tracker'"
             )
         store(self, "max_factor", check_range("max_factor", self.max_factor, 1.0, lo_open=True))
         store(self, "logit_scale", check_range("logit_scale", self.logit_scale, 0.0, lo_open=True))

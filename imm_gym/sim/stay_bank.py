@@ -23,6 +23,10 @@ The evidence serves two ends: the ``stay_bank_evidence`` observation block and t
 :math:`w = \operatorname{softmax}(E)` (:meth:`StayBank.centre`), with ``"evidence_best"`` the
 stay :math:`\arg\max_s E_s` (:meth:`StayBank.best`).
 
+With ``EnvConfig.detector_share`` each IMM runs the prior of :func:`detector_tpm_rows` at its
+stay instead of :math:`\Pi_s`: its jumps placed partly by the slot's maneuver detector (the
+shadow IMM's mode probabilities), the priors the ``stay`` action then moves between.
+
 A missed detection is evidence for none (every :math:`e_s = 0`). An IMM of the bank whose
 innovation covariance fails (a diverged filter) gets the floor and restarts from bank A's
 posterior.
@@ -102,12 +106,19 @@ class StayBank:
         n_envs: the number of slots N.
         kernel_args: the core's compiled bank constants (``F``, ``Q``, ``R`` with a leading axis
             of 1, or N: one bank per slot), None for the numpy engine.
+        detector_share: ``v > 0``: each stay's IMM runs :func:`detector_tpm_rows` at its stay
+            (the jumps placed by the slot's detector, :meth:`step`'s ``belief``) instead of the
+            evenly spread stay TPM, so that the evidence compares the priors the ``stay``
+            action moves between.
     """
 
-    def __init__(self, imm: Tracker, n_envs: int, kernel_args: tuple | None) -> None:
+    def __init__(
+        self, imm: Tracker, n_envs: int, kernel_args: tuple | None, detector_share: float = 0.0
+    ) -> None:
         M, n = imm.n_models, imm.n
         self.imm = imm
         self.n_envs = N = n_envs
+        self.detector_share = detector_share
         #: ``(S, M, M)`` the bank's TPMs, ``(S,)`` their stays and the stays' logits
         self.tpms = stay_tpms(M)
         self.S = S = len(self.tpms)
@@ -176,11 +187,24 @@ class StayBank:
         """``(N, S)`` each stay's evidence minus the best's (nats, ``<= 0``)."""
         return self.evidence - self.evidence.max(axis=1, keepdims=True)
 
-    def step(self, z: Array, detected: NDArray[np.bool_], fallback: IMMState) -> None:
+    def step(
+        self,
+        z: Array,
+        detected: NDArray[np.bool_],
+        fallback: IMMState,
+        belief: Array | None = None,
+    ) -> None:
         """Advance every IMM on its slot's measurement ``z (N, m)`` (``detected (N,)``) and add
         the step's evidence; an IMM that fails restarts from ``fallback``, bank A's posterior
-        after the step."""
+        after the step. ``belief (N, M)``: the detector's mode probabilities before the step
+        (needed with ``detector_share``)."""
         N, S = self.n_envs, self.S
+        if self.detector_share > 0.0:
+            if belief is None:
+                raise ValueError("a stay bank with detector_share needs the detector's belief")
+            self._tpm_rows[:] = detector_tpm_rows(
+                np.tile(self.stays, N), np.repeat(belief, S, axis=0), self.detector_share
+            )
         z_rows = np.ascontiguousarray(np.repeat(z, S, axis=0))
         det_rows = np.ascontiguousarray(np.repeat(detected, S))
         state, cbar, loglik, failed = self._advance(z_rows, det_rows)

@@ -126,3 +126,42 @@ def test_the_evaluation_keeps_the_detector() -> None:
     overrides = {"action_mode": "stay", "stay_base": "evidence", "detector_share": 0.5}
     assert evaluation_config(base, overrides).shadow == "fixed"
     assert evaluation_config(base, {"action_mode": "stay"}).shadow == "none"
+
+
+def test_the_stay_bank_weighs_the_detector_priors() -> None:
+    # the reference: each stay's IMM alone on the numpy engine with the prior of its stay and
+    # the shadow's probabilities before each step, the evidence summed directly
+    from imm_gym.sim.stay_bank import STAY_BANK_FACTOR, STAY_BANK_FLOOR
+    from imm_gym.tracking.hetero import make_tracker
+
+    core = _core(2)
+    bank = core.stay_bank
+    reference = make_tracker(core.config.bank, core.config.sensor, "ukf", 1.0, engine="numpy")
+    states = [core.state_a for _ in bank.stays]
+    total = np.zeros((2, bank.S))
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        k1 = core.k + 1
+        z, det = core.z[np.arange(2), k1], core.detected[np.arange(2), k1]
+        e = np.zeros((2, bank.S))
+        for s, stay in enumerate(bank.stays):
+            prior = detector_tpm_rows(np.full(2, stay), core.mu_s, 0.5)
+            states[s], out = reference.step(states[s], prior, z, det)
+            e[:, s] = np.where(det, np.log(np.sum(out.cbar * np.exp(out.loglik), axis=1)), 0.0)
+        total = STAY_BANK_FACTOR * total + np.maximum(
+            e - e.max(axis=1, keepdims=True), -STAY_BANK_FLOOR
+        )
+        core.step(rng.uniform(-1, 1, (2, M)))
+        np.testing.assert_allclose(bank.evidence, total, rtol=1e-9, atol=1e-9)
+    assert np.ptp(total) > 1.0
+
+
+def test_the_uniform_base_is_the_detector_s_prior_alone() -> None:
+    core = _core(2, stay_base="uniform")
+    for _ in range(20):
+        expected = detector_tpm_rows(np.full(2, 1.0 / M), core.mu_s, 0.5)
+        tpm = core.step(np.zeros((2, M))).info["tpm"]
+        np.testing.assert_allclose(tpm, expected, rtol=0, atol=1e-15)
+    # every row is the same prediction q: the mode redrawn each step from the detector's lean
+    np.testing.assert_allclose(tpm[:, 0], tpm[:, 2], rtol=0, atol=1e-15)
+    assert TrackingCore(EnvConfig(action_mode="stay", stay_base="uniform")).stay_bank is None
