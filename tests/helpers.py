@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
 import numpy as np
+
+from imm_gym import EnvConfig, TrackingCore
 
 
 def random_pd(rng: np.random.Generator, std: np.ndarray) -> np.ndarray:
@@ -12,3 +18,28 @@ def random_pd(rng: np.random.Generator, std: np.ndarray) -> np.ndarray:
     C = A @ A.T + 0.5 * np.eye(n)
     d = 1.0 / np.sqrt(np.diag(C))
     return (std[:, None] * std[None, :]) * (d[:, None] * C * d[None, :])
+
+
+def load_example(name: str) -> ModuleType:
+    """The script ``examples/NAME.py`` as a module (the examples are not a package)."""
+    path = Path(__file__).parents[1] / "examples" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def stay_core(n: int, engine: str = "auto", **changes: object) -> TrackingCore:
+    """A core of ``n`` slots in ``stay`` mode with the stay bank's evidence observed, missed
+    detections and 80-step episodes, reset with seeds 20, 21, ...; ``changes`` on top."""
+    config = EnvConfig(
+        action_mode="stay",
+        obs_features=("stay_bank_evidence",),
+        sensor={"detection_prob": 0.8},
+        family={"horizon": 80},
+        engine=engine,
+    ).replace(**changes)
+    core = TrackingCore(config, n)
+    core.reset(np.arange(n), list(range(20, 20 + n)))
+    return core

@@ -3,11 +3,8 @@ classical IMMs, run for run; with it, a nearly uniform prior identifies the mane
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-from types import ModuleType
-
 import numpy as np
+from helpers import load_example
 
 from baselines.fixed import FixedTPM
 from imm_gym import EnvConfig
@@ -15,17 +12,8 @@ from imm_gym.evaluation.metrics import mode_accuracy
 from imm_gym.evaluation.rollout import armse_from_squared, evaluation_config, rollout
 
 
-def _example() -> ModuleType:
-    path = Path(__file__).parents[2] / "examples" / "detector_prior.py"
-    spec = importlib.util.spec_from_file_location("detector_prior", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_no_share_is_the_evaluations_classical_imm_and_a_share_identifies_the_modes() -> None:
-    example = _example()
+    example = load_example("detector_prior")
     scores = example.detector_runs({"scenario": "paper"}, (0.0, 0.5), 10, 5)
     for stay in (example.STAYS[0], 0.95, example.STAYS[-1]):
         policy = FixedTPM(3, stay)

@@ -3,11 +3,8 @@ per-episode choices follow the evidence."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-from types import ModuleType
-
 import numpy as np
+from helpers import load_example
 
 from baselines.best_fixed import STAY_GRID
 from baselines.fixed import FixedTPM
@@ -15,17 +12,8 @@ from imm_gym import EnvConfig
 from imm_gym.evaluation.rollout import evaluation_config, rollout
 
 
-def _example() -> ModuleType:
-    path = Path(__file__).parents[2] / "examples" / "stay_selection.py"
-    spec = importlib.util.spec_from_file_location("stay_selection", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_each_stays_errors_are_the_evaluations_classical_imm_at_that_stay() -> None:
-    example = _example()
+    example = load_example("stay_selection")
     err2, _, _, evidence = example.stay_runs({"scenario": "paper"}, 3, 5)
     assert evidence.shape == err2.shape and np.isfinite(evidence).all()
     for i in (0, STAY_GRID.index(0.95), len(STAY_GRID) - 1):
@@ -36,7 +24,7 @@ def test_each_stays_errors_are_the_evaluations_classical_imm_at_that_stay() -> N
 
 
 def test_select_follows_the_evidence_and_average_weighs_by_it() -> None:
-    example = _example()
+    example = load_example("stay_selection")
     rng = np.random.default_rng(0)
     S, R, K = 4, 5, 6
     pos = rng.normal(size=(S, R, K, 2))

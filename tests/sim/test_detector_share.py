@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import stay_core
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -57,18 +58,9 @@ def test_the_rows_are_a_switching_prior_leaning_toward_the_detector(stays, raw, 
 
 
 def _core(n: int, engine: str = "auto", **changes: object) -> TrackingCore:
-    config = EnvConfig(
-        action_mode="stay",
-        stay_base="evidence",
-        detector_share=0.5,
-        obs_features=("shadow_probs", "stay_bank_evidence"),
-        sensor={"detection_prob": 0.8},
-        family={"horizon": 60},
-        engine=engine,
-    ).replace(**changes)
-    core = TrackingCore(config, n)
-    core.reset(np.arange(n), list(range(40, 40 + n)))
-    return core
+    """:func:`tests.helpers.stay_core` with the evidence base and half of the jumps led by the
+    shadow IMM."""
+    return stay_core(n, engine, **{"stay_base": "evidence", "detector_share": 0.5, **changes})
 
 
 def test_the_zero_action_is_the_evidence_s_stay_with_the_shadow_s_jumps() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import stay_core
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -23,23 +24,10 @@ M = 3
 STAYS = (1.0 / M, *EVIDENCE_STAYS)
 
 
-def _core(n: int, engine: str = "auto", **changes: object) -> TrackingCore:
-    config = EnvConfig(
-        action_mode="stay",
-        obs_features=("stay_bank_evidence",),
-        sensor={"detection_prob": 0.8},
-        family={"horizon": 80},
-        engine=engine,
-    ).replace(**changes)
-    core = TrackingCore(config, n)
-    core.reset(np.arange(n), list(range(20, 20 + n)))
-    return core
-
-
 def test_the_evidence_is_that_of_one_classical_imm_per_stay() -> None:
     # the reference: each stay's IMM alone on the numpy engine, the predictive density of each
     # measurement summed directly, the relative evidence floored and discounted step by step
-    core = _core(2)
+    core = stay_core(2)
     reference = make_tracker(core.config.bank, core.config.sensor, "ukf", 1.0, engine="numpy")
     states = [core.state_a for _ in STAYS]
     total = np.zeros((2, len(STAYS)))
@@ -70,7 +58,7 @@ def test_the_evidence_is_that_of_one_classical_imm_per_stay() -> None:
 
 
 def test_the_zero_action_of_the_evidence_base_is_the_evidence_s_stay() -> None:
-    core = _core(3, stay_base="evidence")
+    core = stay_core(3, stay_base="evidence")
     stays = []
     for _ in range(60):
         centre = core.stay_bank.centre()
@@ -86,7 +74,7 @@ def test_the_zero_action_of_the_evidence_base_is_the_evidence_s_stay() -> None:
 
 
 def test_the_best_base_is_the_stay_with_the_largest_evidence() -> None:
-    core = _core(3, stay_base="evidence_best")
+    core = stay_core(3, stay_base="evidence_best")
     bank = core.stay_bank
     assert np.all(bank.best() == 1.0 / M)  # no evidence yet: the grid's first stay
     chosen = []
@@ -102,7 +90,7 @@ def test_the_best_base_is_the_stay_with_the_largest_evidence() -> None:
 
 
 def test_an_action_moves_the_stay_from_the_evidence_s() -> None:
-    core = _core(2, stay_base="evidence")
+    core = stay_core(2, stay_base="evidence")
     for _ in range(10):
         core.step(np.zeros((2, M)))
     centre = core.stay_bank.centre()
@@ -116,7 +104,7 @@ def test_an_action_moves_the_stay_from_the_evidence_s() -> None:
 
 @pytest.mark.parametrize("stay_base", ["tracker", "evidence"])
 def test_both_engines_run_the_same_stay_bank(stay_base: str) -> None:
-    fused, general = _core(3, stay_base=stay_base), _core(3, "numpy", stay_base=stay_base)
+    fused, general = stay_core(3, stay_base=stay_base), stay_core(3, "numpy", stay_base=stay_base)
     rng = np.random.default_rng(2)
     for _ in range(80):
         action = rng.uniform(-1, 1, (3, M))
@@ -130,10 +118,10 @@ def test_both_engines_run_the_same_stay_bank(stay_base: str) -> None:
 
 def test_a_slot_of_a_varied_batch_is_the_scalar_core_s_episode() -> None:
     vary = {"T": (0.5, 5.0), "sigma_r": (10.0, 100.0), "speed": (5.0, 300.0)}
-    batch = _core(3, vary=vary, stay_base="evidence", bank=CONTINUOUS_BANK)
+    batch = stay_core(3, vary=vary, stay_base="evidence", bank=CONTINUOUS_BANK)
     T = batch.sampling_period.copy()
     assert np.ptp(T) > 0.1  # the slots run at different sampling periods
-    alone = [_core(1, vary=vary, stay_base="evidence", bank=CONTINUOUS_BANK) for _ in range(3)]
+    alone = [stay_core(1, vary=vary, stay_base="evidence", bank=CONTINUOUS_BANK) for _ in range(3)]
     for i, core in enumerate(alone):
         core.reset(np.array([0]), [20 + i])
     rng = np.random.default_rng(4)
@@ -148,7 +136,7 @@ def test_a_slot_of_a_varied_batch_is_the_scalar_core_s_episode() -> None:
 
 
 def test_inactive_slots_keep_their_stay_bank() -> None:
-    core = _core(3, stay_base="evidence")
+    core = stay_core(3, stay_base="evidence")
     for _ in range(5):
         core.step(np.zeros((3, M)))
     bank = core.stay_bank
@@ -161,7 +149,7 @@ def test_inactive_slots_keep_their_stay_bank() -> None:
 
 
 def test_a_failed_filter_gets_the_floor_and_restarts_from_bank_a() -> None:
-    core = _core(2)
+    core = stay_core(2)
     bank = core.stay_bank
     S, n = bank.S, core.n
     before = bank.evidence.copy()
