@@ -326,11 +326,10 @@ class TrackingCore:
     @property
     def stay_base_tpms(self) -> Array:
         """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's), or
-        the stay bank's stay on the diagonal and the rest of each row spread evenly
-        (``stay_base="evidence"``: :meth:`imm_gym.sim.stay_bank.StayBank.centre`,
-        ``"evidence_best"``: :meth:`imm_gym.sim.stay_bank.StayBank.best`; ``"uniform"``: 1/M),
-        the jumps placed by
-        the shadow's mode probabilities with ``detector_share``
+        a stay on the diagonal and the rest of each row spread evenly (``stay_base="evidence"``:
+        the stay bank's :meth:`~imm_gym.sim.stay_bank.StayBank.centre`, ``"evidence_best"``:
+        its :meth:`~imm_gym.sim.stay_bank.StayBank.best`, ``"uniform"``: 1/M) — with
+        ``detector_share``, that share of the jumps placed by the shadow's mode probabilities
         (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`)."""
         base = self.config.stay_base
         if base == "tracker":

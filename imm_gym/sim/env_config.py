@@ -108,13 +108,14 @@ class EnvConfig:
             largest evidence), or ``"uniform"`` (the stay ``1/M``: with ``detector_share`` the
             prior the detector alone leans, and the policy learns where to hold a mode). All
             but ``"tracker"`` need ``action_mode="stay"``.
-        detector_share: with an evidence ``stay_base``, the share ``v`` of each row's jumps
-            placed by the shadow IMM's mode probabilities (a maneuver detector the action does
-            not steer) instead of evenly: each step's base TPM is ``s I + (1 - s) 1 q^T`` with
-            ``q = (1 - v) / M + v mu_S`` and ``s`` the evidence's stay rescaled so that ``v = 0``
-            gives the evidence's TPM (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`); the stay
-            bank's IMMs run these priors too, so its evidence weighs them. 0 (default) turns it
-            off; in ``[0, 1]``; needs ``shadow="fixed"``.
+        detector_share: with a ``stay_base`` other than the tracker's, the share ``v`` of each
+            row's jumps placed by the shadow IMM's mode probabilities (a maneuver detector the
+            action does not steer) instead of evenly: each step's base TPM is
+            ``r I + (1 - r) 1 q^T`` with ``q = (1 - v) / M + v mu_S`` and ``r`` the base's stay
+            rescaled so that ``v = 0`` gives the base's TPM
+            (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`); the stay bank's IMMs run these
+            priors too, so its evidence weighs them. 0 (default) turns it off; in ``[0, 1]``;
+            needs ``shadow="fixed"``.
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode, or change of the stay's logit in the stay modes,
             for an action of 1 (> 0).
