@@ -43,6 +43,7 @@ DRAWS: dict[str, str] = {
     "detection_prob": "uniform",
     "speed": "log",
     "q_scale": "log",
+    "velocity_std": "log",
 }
 #: Each condition's allowed range (the sensor's own checks apply to a drawn sensor too).
 LIMITS: dict[str, tuple[float, float]] = {
@@ -54,9 +55,10 @@ LIMITS: dict[str, tuple[float, float]] = {
     "detection_prob": (0.0, 1.0),
     "speed": (0.0, math.inf),
     "q_scale": (0.0, math.inf),
+    "velocity_std": (0.0, math.inf),
 }
 #: The conditions that are not the sensor's fields.
-NOT_SENSOR = ("T", "speed", "q_scale")
+NOT_SENSOR = ("T", "speed", "q_scale", "velocity_std")
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,11 @@ class Variation:
             draw first); the others keep the configured tracker and target ranges, so that a
             training mixture keeps the configured tracker beside the varied ones (1: every
             episode varies).
+        velocity_std: the prior standard deviation (m/s) of the track's first velocity
+            estimate (``EnvConfig.velocity_std``; the estimate is the true velocity, SPEC §6),
+            log-uniform: tracks started more or less sure of their velocity. Drawn after the other
+            conditions, which it leaves as they were (the target, drawn next from the same
+            stream, changes).
     """
 
     T: tuple[float, float] | None = None
@@ -91,6 +98,7 @@ class Variation:
     detection_prob: tuple[float, float] | None = None
     speed: tuple[float, float] | None = None
     q_scale: tuple[float, float] | None = None
+    velocity_std: tuple[float, float] | None = None
     share: float = 1.0
 
     def __post_init__(self) -> None:
@@ -143,7 +151,7 @@ class Variation:
 
 @dataclass(frozen=True)
 class Conditions:
-    """Each run's sampling period, sensor, target speed and process-noise factor.
+    """Each run's sampling period, sensor, target speed, process-noise factor and track start.
 
     Attributes:
         T: ``(R,)`` sampling periods (s).
@@ -151,12 +159,15 @@ class Conditions:
         speed: ``(R,)`` target speeds (m/s; NaN for a run that keeps the source's range), or
             None where no run varies it.
         q_scale: ``(R,)`` factors on the bank's process noise (1 where not varied).
+        velocity_std: ``(R,)`` prior standard deviations of the first velocity estimate
+            (m/s; the configured one where not varied).
     """
 
     T: Array
     sensors: tuple[Any, ...]
     speed: Array | None
     q_scale: Array
+    velocity_std: Array
 
     @property
     def R(self) -> Array:
@@ -170,25 +181,32 @@ class Conditions:
             tuple(self.sensors[r] for r in rows.tolist()),
             None if self.speed is None else self.speed[rows],
             self.q_scale[rows],
+            self.velocity_std[rows],
         )
 
 
 def draw_conditions(
-    variation: Variation, T: float, sensor: object, rngs: Sequence[np.random.Generator]
+    variation: Variation,
+    T: float,
+    sensor: object,
+    rngs: Sequence[np.random.Generator],
+    velocity_std: float = 5.0,
 ) -> Conditions:
-    """The conditions of one run per generator: ``T``, ``sensor`` and the rest with the varied
-    values drawn from each (:meth:`Variation.draw`)."""
+    """The conditions of one run per generator: ``T``, ``sensor``, ``velocity_std`` and the rest
+    with the varied values drawn from each (:meth:`Variation.draw`)."""
     R = len(rngs)
     periods, speeds, q_scale = np.full(R, float(T)), np.full(R, np.nan), np.ones(R)
+    spreads = np.full(R, float(velocity_std))
     sensors = []
     for r, rng in enumerate(rngs):
         values = variation.draw(rng)
         periods[r] = values.pop("T", T)
         speeds[r] = values.pop("speed", np.nan)
         q_scale[r] = values.pop("q_scale", 1.0)
+        spreads[r] = values.pop("velocity_std", velocity_std)
         sensors.append(dataclasses.replace(sensor, **values) if values else sensor)  # type: ignore[type-var]
     speed = None if variation.speed is None else speeds
-    return Conditions(periods, tuple(sensors), speed, q_scale)
+    return Conditions(periods, tuple(sensors), speed, q_scale, spreads)
 
 
 def bank_constants(

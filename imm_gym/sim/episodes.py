@@ -97,7 +97,7 @@ def _draw_varied(
     (``truth.T`` holds the R sampling periods). The randomized family without truth noise draws
     every run's target at once (:meth:`~imm_gym.scenarios.segments.RandomFamily.varied_truth`,
     the same numbers as a family per run); another source, run by run."""
-    conditions = draw_conditions(variation, source.T, sensor, scenario_rngs)
+    conditions = draw_conditions(variation, source.T, sensor, scenario_rngs, velocity_std)
     if isinstance(source, RandomFamily) and source.truth_q is None:
         truth = source.varied_truth(scenario_rngs, conditions.T, conditions.speed)
         states, turn_rate, accel = truth.states, truth.turn_rate, truth.accel
@@ -111,7 +111,9 @@ def _draw_varied(
         )
     runs = []
     for r, noise_rng in enumerate(noise_rngs):
-        runs.append(_observe(conditions.sensors[r], states[r:r + 1], [noise_rng], velocity_std))
+        runs.append(_observe(
+            conditions.sensors[r], states[r:r + 1], [noise_rng], float(conditions.velocity_std[r])
+        ))
     meas = Measurements(
         z=np.concatenate([m.z for m, _, _ in runs]),
         detected=np.concatenate([m.detected for m, _, _ in runs]),

@@ -236,3 +236,36 @@ def test_a_share_of_the_episodes_keeps_the_configured_tracker() -> None:
     assert kept.any() and np.all((speeds >= 5.0) & (speeds <= 25.0))  # the family's own range
     with pytest.raises(ConfigError, match=r"vary.share"):
         Variation(share=0.0)
+
+
+def test_a_varied_track_start_draws_last_and_spreads_the_first_velocity_estimate() -> None:
+    """``vary.velocity_std``: each run's track starts with its own drawn prior spread on the
+    velocity (P0's velocity variances; the estimate itself is the true velocity, SPEC §6); the
+    other conditions are those of the same variation without it, bit for bit (drawn before it);
+    runs that keep the configured conditions (``share``) start at the configured spread."""
+    base = {"sigma_r": (10.0, 100.0), "q_scale": (0.3, 30.0), "share": 0.7}
+    runs, seed = 400, 3
+    plain = draw_batch(RandomFamily(), Sonar(), runs, seed, 7.0, Variation(**base))
+    varied = draw_batch(
+        RandomFamily(), Sonar(), runs, seed, 7.0, Variation(**base, velocity_std=(2.0, 40.0))
+    )
+    np.testing.assert_array_equal(varied.conditions.q_scale, plain.conditions.q_scale)
+    np.testing.assert_array_equal(
+        [s.sigma_r for s in varied.conditions.sensors],
+        [s.sigma_r for s in plain.conditions.sensors],
+    )
+    np.testing.assert_array_equal(varied.x0[:, 2:], varied.truth.states[:, 0, 2:])
+    spread = varied.conditions.velocity_std
+    np.testing.assert_array_equal(plain.conditions.velocity_std, 7.0)
+    np.testing.assert_array_equal(varied.P0[:, 2, 2], spread**2)
+    np.testing.assert_array_equal(varied.P0[:, 3, 3], spread**2)
+    kept = spread == 7.0
+    assert 0.2 < kept.mean() < 0.4  # the 30 % of runs outside the share
+    drawn = spread[~kept]
+    assert np.all((drawn >= 2.0) & (drawn <= 40.0))
+    assert abs(np.mean(drawn < math.sqrt(2.0 * 40.0)) - 0.5) < 0.08  # log-uniform
+
+
+def test_a_varied_track_start_must_be_a_positive_range() -> None:
+    with pytest.raises(ConfigError, match=r"vary.velocity_std\[0\] must be in \(0.0"):
+        Variation(velocity_std=(0.0, 10.0))
