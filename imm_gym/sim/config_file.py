@@ -29,8 +29,8 @@ from imm_gym.validation import ConfigError, load_yaml
 #: evaluation reports as ``evaluated_on``): the sensor, the bank, the filter and its TPM prior.
 TRACKER_FIELDS = ("sensor", "bank", "filter", "initial_stay", "sojourn")
 #: The fields that say where the targets and their conditions come from, and how each track
-#: starts (``velocity_std``: the spread of the first velocity estimate's error, drawn from the
-#: episode's noise, and its prior): every policy evaluated on a configuration meets the same.
+#: starts (``velocity_std``: the prior standard deviation of the first velocity estimate, which
+#: is the true velocity, SPEC §6): every policy evaluated on a configuration meets the same.
 TARGET_FIELDS = ("scenario", "family", "vary", "velocity_std")
 
 

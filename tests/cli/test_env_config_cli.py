@@ -166,10 +166,10 @@ def test_an_agent_trained_on_varied_conditions_runs_on_a_named_scenario() -> Non
 
 
 def test_an_agent_starts_its_tracks_as_the_rules_do() -> None:
-    """A trained agent's recorded ``velocity_std`` (the first velocity estimate's error, drawn
-    from the episode's noise) does not follow it to the evaluation: every policy's tracks start
-    from the same estimates (it did, and the agents trained across trackers started from a
-    velocity twice as far off as the rules on the suite)."""
+    """A trained agent's recorded ``velocity_std`` (the prior standard deviation of the first
+    velocity estimate) does not follow it to the evaluation: every policy's tracks start from
+    the same prior and so give the same estimates (it did, and the agents trained across
+    trackers started with a velocity prior twice as wide as the rules' on the suite)."""
     from imm_gym.cli.evaluate import evaluate
 
     class Zero:
