@@ -1,0 +1,109 @@
+"""Where a TPM policy gains or loses against another: the position error split by the true
+motion, and the TPM's stays while each motion lasts.
+
+One ARMSE per scenario hides where it comes from. This scores policies with the evaluation's own
+code on the same runs of each scenario of the benchmark suite (common random numbers,
+:func:`imm_gym.cli.evaluate.evaluate`) and prints, per policy:
+
+* the RMS position error over the steps whose true motion is each model of the bank
+  (:math:`\\sqrt{\\operatorname{mean}_{r,k:\\, m^*_{rk} = j} \\lVert \\hat p_{rk} - p_{rk}
+  \\rVert^2}`; straight flight is the CV model, a turn the CT model of its sign), and
+* the median over those steps of each row's stay probability :math:`\\pi_{ii}` of the TPM the
+  step used: how sticky the policy keeps each model while the target flies straight or turns.
+
+``--zero DIR`` adds a trained agent's zero action (its settings, the action all zeros): the TPM
+its ``stay`` action moves from, so the table shows what the policy adds to its base::
+
+    python examples/error_by_mode.py --policy best-fixed --policy pretrained \\
+        --zero agents/pretrained --runs 100 --seed 0
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from imm_gym.cli.evaluate import evaluate, load_trained, suite_configs
+from imm_gym.evaluation.rollout import Rollout, armse_from_squared
+
+
+class ZeroAction:
+    """The all-zero action of an agent with ``size`` entries (its base TPM, in ``stay`` mode)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+
+    def predict(
+        self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        return np.zeros((obs.shape[0], self.size)), None
+
+
+def by_mode(run: Rollout) -> dict[str, Any]:
+    """``{"armse", "rms" (M,), "stays" (M, M)}``: the ARMSE, the RMS position error over the
+    steps of each true model (NaN where none), and the median stay of each row (columns) over
+    the steps of each true model (rows)."""
+    error = run.squared_position_error
+    stays = np.diagonal(run.tpm, axis1=-2, axis2=-1)
+    M = stays.shape[-1]
+    rms = np.full(M, np.nan)
+    median = np.full((M, M), np.nan)
+    for j in range(M):
+        steps = run.true_model == j
+        if steps.any():
+            rms[j] = float(np.sqrt(error[steps].mean()))
+            median[j] = np.median(stays[steps], axis=0)
+    return {"armse": armse_from_squared(error), "rms": rms, "stays": median}
+
+
+def score(
+    policies: Sequence[str], zero: Sequence[str], scenarios: Sequence[str], runs: int, seed: int
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """``{scenario: {policy: by_mode(...)}}`` on runs ``seed .. seed + runs - 1`` of each
+    scenario's suite configuration; ``zero``'s agents as ``"zero of DIR"``."""
+    configs = suite_configs("benchmark")
+    extra = {}
+    for path in zero:
+        agent, overrides, _ = load_trained(path)  # type: ignore[arg-type]
+        extra[f"zero of {path}"] = (ZeroAction(int(np.prod(agent.model.action_space.shape))),
+                                    overrides)
+    results: dict[str, dict[str, dict[str, Any]]] = {}
+    for name in scenarios:
+        config = configs[name]
+        _, rollouts = evaluate(list(policies), config.get("scenario", "random"), runs, seed,
+                               clairvoyant=False, extra=extra, env_config=config)
+        results[name] = {policy: by_mode(run) for policy, run in rollouts.items()}
+    return results
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--policy", action="append", default=[], help="as evaluate's (repeatable)")
+    p.add_argument("--zero", action="append", default=[], metavar="DIR",
+                   help="a trained agent whose zero action is scored too (repeatable)")
+    p.add_argument("--scenario", action="append", default=[],
+                   help="a scenario of the benchmark suite (repeatable; default: all)")
+    p.add_argument("--runs", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    scenarios = args.scenario or list(suite_configs("benchmark"))
+    results = score(args.policy or ["best-fixed"], args.zero, scenarios, args.runs, args.seed)
+    print("| scenario | policy | ARMSE (m) | RMS error on each true model (m) "
+          "| median stays (row 1..M) on each true model |")
+    print("|---|---|---|---|---|")
+    for name, policies in results.items():
+        for policy, r in policies.items():
+            rms = " / ".join("–" if np.isnan(e) else f"{e:.2f}" for e in r["rms"])
+            stays = "; ".join(
+                "–" if np.isnan(row).all() else " ".join(f"{s:.3f}" for s in row)
+                for row in r["stays"]
+            )
+            print(f"| {name} | {policy} | {r['armse']:.2f} | {rms} | {stays} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,41 @@
+"""``examples/error_by_mode.py``: the error split by true model adds up to the evaluation's mean
+squared error, a fixed TPM's stays are its stay, and an agent's zero action is its base TPM."""
+
+from __future__ import annotations
+
+import numpy as np
+from helpers import load_example
+
+from imm_gym.cli.evaluate import evaluate, suite_configs
+from imm_gym.evaluation.rollout import armse_from_squared
+
+
+def test_the_split_adds_up_and_the_stays_are_the_tpms() -> None:
+    example = load_example("error_by_mode")
+    config = suite_configs("benchmark")["paper"]
+    _, rollouts = evaluate(["fixed"], "paper", 6, 3, clairvoyant=False, env_config=config)
+    run = rollouts["fixed"]
+    split = example.by_mode(run)
+    assert split["armse"] == armse_from_squared(run.squared_position_error)
+    counts = np.bincount(run.true_model.ravel(), minlength=3)
+    assert np.all(counts > 0)
+    # sum over models of (steps x mean square) = the total squared error
+    np.testing.assert_allclose(
+        np.sum(counts * split["rms"] ** 2), run.squared_position_error.sum(), rtol=1e-12
+    )
+    np.testing.assert_allclose(split["stays"], 0.995, rtol=1e-12)  # the classical IMM's TPM
+
+
+def test_an_agents_zero_action_is_its_base_tpm() -> None:
+    example = load_example("error_by_mode")
+    results = example.score(["pretrained"], ["agents/pretrained"], ["vsmm-s1"], 4, 0)
+    zero = results["vsmm-s1"]["zero of agents/pretrained"]
+    agent = results["vsmm-s1"]["pretrained"]
+    # the stay base gives every row one stay (the stay bank's evidence-weighted centre)
+    seen = ~np.isnan(zero["stays"][:, 0])
+    assert seen.sum() == 2  # S1 turns one way only
+    rows = zero["stays"][seen]
+    np.testing.assert_allclose(rows, rows[:, :1] * np.ones((1, 3)), rtol=1e-12)
+    assert np.all((rows > 1 / 3) & (rows < 0.999))
+    assert not np.allclose(agent["stays"][seen], rows)
+    assert np.isnan(zero["rms"][2]) and np.all(np.isfinite(zero["rms"][:2]))
