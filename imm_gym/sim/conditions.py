@@ -233,7 +233,10 @@ def check_variation(variation: Variation, scenario: object, bank: object, sensor
         return
     variation.check(sensor)
     if not isinstance(bank, tuple):
-        raise ConfigError("vary needs a linear bank (the heterogeneous bank has one T and R)")
+        raise ConfigError(
+            f"vary ({', '.join(variation.varied)}) needs a linear bank: the heterogeneous bank's "
+            "engine runs every run at one T, one sensor and one track-start prior"
+        )
     if variation.speed is not None and scenario != "random":
         raise ConfigError(f"vary.speed needs scenario 'random', got {scenario!r}")
     if variation.T is not None:

@@ -53,7 +53,10 @@ def broad_config(**changes: object) -> EnvConfig:
         ({"vary": {"sigma_r": (10.0, 50.0)}, "engine": "numpy"}, "vary needs engine"),
         ({"vary": {"speed": (5.0, 50.0)}, "scenario": "atc"}, "vary.speed needs scenario"),
         ({"vary": {"q_scale": (0.0, 5.0)}}, "vary.q_scale[0] must be in (0.0"),
-        ({"vary": {"sigma_r": (10.0, 50.0)}, "bank": "hetero"}, "bank"),
+        ({"vary": {"sigma_r": (10.0, 50.0)}, "bank": "hetero"},
+         "vary (sigma_r) needs a linear bank"),
+        ({"vary": {"velocity_std": (5.0, 20.0)}, "bank": "hetero"},
+         "vary (velocity_std) needs a linear bank"),
     ],
 )
 def test_a_variation_that_cannot_apply_is_a_config_error(changes, message) -> None:
