@@ -31,6 +31,8 @@ SB3_INFO_KEYS = (
     "reward_error",
     "reward_advantage",
     "reward_squared_advantage",
+    "stay_bank_position_error",
+    "reward_bank_advantage",
     "diverged",
 )
 

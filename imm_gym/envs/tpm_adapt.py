@@ -62,8 +62,13 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     shadow's stay probability is ``shadow_stay``, by default ``initial_stay``).
     ``reward="squared_advantage"``: ``(e_shadow² − e²) / reward_scale²``, the per-step terms of
     the mean squared error that the ARMSE's RMSE(t) are made of.
-    ``reward="error"``: ``−e / reward_scale``. Errors are capped at ``divergence_error``. All
-    terms are in ``info`` (``reward_error``, ``reward_advantage``, ``reward_squared_advantage``).
+    ``reward="bank_advantage"``: ``(e_bank − e) / reward_scale`` with ``e_bank`` the position
+    errors of the stay bank's IMMs weighted by their evidence (``info["stay_bank_position_error"]``;
+    it follows the stays the measurements support, as the ``stay`` action's evidence base does,
+    so less of the targets' and the noise's randomness stays in the reward; it runs the stay
+    bank). ``reward="error"``: ``−e / reward_scale``. Errors are capped at ``divergence_error``.
+    All terms the configuration allows are in ``info`` (``reward_error``, ``reward_advantage``,
+    ``reward_squared_advantage``, ``reward_bank_advantage``).
     ``tpm_cost > 0`` subtracts ``tpm_cost`` times the mean KL divergence of the TPM's rows from
     the shadow's (:func:`imm_gym.tracking.tpm.row_divergence`, ``info["tpm_divergence"]``).
 

@@ -29,7 +29,7 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds
 from imm_gym.sim.kernels import step_inputs
-from imm_gym.sim.rewards import Reward
+from imm_gym.sim.rewards import REWARD_TERMS, Reward
 from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows, stay_tpm_rows
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
@@ -100,6 +100,11 @@ class TrackingCore:
         #: ``config.vary`` one bank per slot, ``F``, ``Q``, ``R`` set at each reset for the
         #: episode's sampling period and sensor (:mod:`imm_gym.sim.conditions`)
         self.kernel_args = self._bank_per_slot() if config.vary.active else self.imm.kernel_args
+        needs_bank = (
+            config.stay_base in ("evidence", "evidence_best")
+            or any(FEATURES[f].needs_stay_bank for f in config.obs_features)
+            or REWARD_TERMS[config.reward].needs_stay_bank
+        )
         self._reward = Reward(
             config.reward,
             config.shadow == "fixed",
@@ -107,9 +112,7 @@ class TrackingCore:
             self.shadow_tpms,
             config.mode_reward,
             config.tpm_change_cost,
-        )
-        needs_bank = config.stay_base in ("evidence", "evidence_best") or any(
-            FEATURES[f].needs_stay_bank for f in config.obs_features
+            stay_bank=needs_bank,
         )
         #: the stay bank, where the configuration uses its evidence (else None)
         self.stay_bank = StayBank(
@@ -396,7 +399,13 @@ class TrackingCore:
             "tpm": out.tpm.copy(),
             "step": step,
         }
-        reward, terms = self._reward(out, self.reward_scale, true_model, self.tpm)
+        bank_error = None
+        if self._reward.needs_stay_bank:
+            bank_error = self.stay_bank.position_error(  # type: ignore[union-attr]
+                truth[:, :2], cfg.divergence_error
+            )
+            info["stay_bank_position_error"] = bank_error
+        reward, terms = self._reward(out, self.reward_scale, true_model, self.tpm, bank_error)
         info.update(terms)
         if cfg.shadow == "fixed":
             info["shadow_position_error"] = out.shadow_position_error
@@ -522,8 +531,10 @@ class TrackingCore:
     def critic_state(self) -> NDArray[np.float32]:
         """Ground truth for a critic that is trained but never acts (asymmetric actor-critic):
         per slot, the combined estimate's error ``x̂ - x`` (position / 50 m, velocity / 5 m/s),
-        the same for the shadow's estimate (zeros without a shadow), and the true model of the
-        coming step, one-hot; clipped to ``[-CRITIC_CLIP, CRITIC_CLIP]``.
+        the same for the reward's baseline — the stay bank's IMMs' estimates weighted by their
+        evidence under the ``bank_advantage`` reward, else the shadow's estimate (zeros without
+        a shadow) —, and the true model of the coming step, one-hot; clipped to
+        ``[-CRITIC_CLIP, CRITIC_CLIP]``.
 
         The return of a step depends on how far each tracker is off the target now and on the
         maneuver to come, which no observation reveals; a value function that sees them
@@ -534,7 +545,11 @@ class TrackingCore:
         scale = np.array([50.0, 50.0, 5.0, 5.0])
         estimate = self.imm.combine(self.mu, self.state_a.x, self.state_a.P)[0]
         blocks = [(estimate - truth) / scale]
-        if self.config.shadow == "fixed":
+        if REWARD_TERMS[self.config.reward].needs_stay_bank:
+            bank = self.stay_bank  # type: ignore[union-attr]
+            estimate_b = np.einsum("rs,rsi->ri", bank.posterior_weights(), bank.estimates())
+            blocks.append((estimate_b[:, :4] - truth[:, :4]) / scale)
+        elif self.config.shadow == "fixed":
             estimate_s = self.imm.combine(self.mu_s, self.state_s.x, self.state_s.P)[0]
             blocks.append((estimate_s - truth) / scale)
         else:

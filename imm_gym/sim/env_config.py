@@ -127,8 +127,10 @@ class EnvConfig:
         reward: the rewarded term of :mod:`imm_gym.sim.rewards`: ``"advantage"`` —
             ``(e_shadow - e) / reward_scale`` with ``e`` the position error of the combined
             estimate —, ``"squared_advantage"`` — ``(e_shadow² - e²) / reward_scale²``, the
-            per-step terms of the mean squared error that the RMSE(t) of the ARMSE are made of —
-            or ``"error"`` — ``-e / reward_scale``.
+            per-step terms of the mean squared error that the RMSE(t) of the ARMSE are made of —,
+            ``"bank_advantage"`` — ``(e_bank - e) / reward_scale`` with ``e_bank`` the stay
+            bank's IMMs' errors weighted by their evidence (it runs the stay bank) — or
+            ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward, or ``"measurement"``: each episode's own scale,
             the RMS position accuracy of its first measurement ``sqrt(tr P0_pos / 2)`` (the
             sensor's accuracy at the target's range), so that trackers of every accuracy weigh

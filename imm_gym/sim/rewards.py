@@ -10,7 +10,16 @@ term                   value                           meaning
 ``advantage``          :math:`(e_s - e) / s`           accuracy beyond the shadow's fixed TPM
 ``squared_advantage``  :math:`(e_s^2 - e^2) / s^2`     the per-step terms of the mean squared
                                                        error the ARMSE's RMSE(t) are made of
+``bank_advantage``     :math:`(\bar e - e) / s`        accuracy beyond the stay bank's IMMs
+                                                       weighted by their evidence
 =====================  ==============================  ========================================
+
+:math:`\bar e` (:meth:`imm_gym.sim.stay_bank.StayBank.position_error`) follows the stays the
+measurements support, as the ``stay`` action's base does (``stay_base: evidence``), so it tracks
+the policy's own error more closely than the shadow's fixed TPM does and leaves less of the
+targets' and the noise's randomness in the reward; like the shadow's, no action moves it, so the
+best policy is the same under either baseline. A term flagged ``needs_stay_bank`` is called with
+:class:`StepErrors` in place of the bank step.
 
 Every term the configuration allows is in ``info`` as ``reward_<term>``; the reward is the term
 ``EnvConfig.reward`` names, minus ``tpm_cost`` times ``info["tpm_divergence"]``, the mean KL
@@ -29,6 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,8 +55,17 @@ class RewardTerm:
     ``needs_shadow`` if it uses the shadow IMM's error."""
 
     name: str
-    value: Callable[[BankStep, float | Array], Array]
+    value: Callable[[Any, float | Array], Array]
     needs_shadow: bool = False
+    needs_stay_bank: bool = False
+
+
+class StepErrors(NamedTuple):
+    """The errors a ``needs_stay_bank`` term reads: ``(N,)`` each, capped at
+    ``divergence_error``."""
+
+    position_error: Array  # e, the combined estimate's
+    bank_position_error: Array  # \bar e, the stay bank's (StayBank.position_error)
 
 
 #: Every term by name, in declaration order.
@@ -71,6 +90,11 @@ def advantage(step: BankStep, s: float | Array) -> Array:
     return (step.shadow_position_error - step.position_error) / s
 
 
+def bank_advantage(step: StepErrors, s: float | Array) -> Array:
+    r""":math:`(\bar e - e) / s`."""
+    return (step.bank_position_error - step.position_error) / s
+
+
 def squared_advantage(step: BankStep, s: float | Array) -> Array:
     """:math:`(e_s^2 - e^2) / s^2`."""
     return (step.shadow_position_error**2 - step.position_error**2) / s**2
@@ -80,6 +104,7 @@ def squared_advantage(step: BankStep, s: float | Array) -> Array:
 register(RewardTerm("error", error))
 register(RewardTerm("advantage", advantage, needs_shadow=True))
 register(RewardTerm("squared_advantage", squared_advantage, needs_shadow=True))
+register(RewardTerm("bank_advantage", bank_advantage, needs_stay_bank=True))
 
 
 #: Floor of the probabilities in :func:`mode_score` (a log score of at most ``-ln 1e-3 = 6.9``).
@@ -102,7 +127,8 @@ class Reward:
     arithmetic).
 
     Args:
-        name: the rewarded term; shadow: the shadow IMM runs.
+        name: the rewarded term; shadow: the shadow IMM runs; stay_bank: the stay bank runs
+            (its terms are computed only then).
         tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)`` or ``(N, M, M)``
             (the slots', read at each call).
         mode_reward: weight of :func:`mode_score`.
@@ -117,12 +143,17 @@ class Reward:
         shadow_tpm: Array,
         mode_reward: float = 0.0,
         tpm_change_cost: float = 0.0,
+        stay_bank: bool = False,
     ) -> None:
-        self._terms = tuple(
-            (f"reward_{t.name}", t.value)
+        usable = [
+            t
             for t in REWARD_TERMS.values()
-            if shadow or not t.needs_shadow
-        )
+            if (shadow or not t.needs_shadow) and (stay_bank or not t.needs_stay_bank)
+        ]
+        self._terms = tuple((f"reward_{t.name}", t.value) for t in usable if not t.needs_stay_bank)
+        self._bank_terms = tuple((f"reward_{t.name}", t.value) for t in usable if t.needs_stay_bank)
+        #: whether a call needs the stay bank's error
+        self.needs_stay_bank = bool(self._bank_terms)
         self._rewarded = f"reward_{name}"
         self._tpm_cost = tpm_cost
         self._shadow_tpm = shadow_tpm
@@ -135,12 +166,19 @@ class Reward:
         scale: float | Array,
         true_model: NDArray[np.int64],
         previous_tpm: Array,
+        bank_error: Array | None = None,
     ) -> tuple[Array, dict[str, Array]]:
         """The reward of every slot ``(N,)`` and the ``info`` entries of its terms
         (``scale``: ``reward_scale`` in metres, a number or the slots' ``(N,)``; ``true_model``:
         the step's true model per slot, -1 for none; ``previous_tpm``: the ``(N, M, M)`` TPMs of
-        the step before)."""
+        the step before; ``bank_error``: the stay bank's error, needed when
+        :attr:`needs_stay_bank`)."""
         terms = {key: value(step, scale) for key, value in self._terms}
+        if self._bank_terms:
+            if bank_error is None:
+                raise ValueError("this reward needs the stay bank's position error")
+            errors = StepErrors(step.position_error, bank_error)
+            terms.update((key, value(errors, scale)) for key, value in self._bank_terms)
         reward = terms[self._rewarded].copy()
         if self._tpm_cost > 0.0:
             terms["tpm_divergence"] = row_divergence(step.tpm, self._shadow_tpm)

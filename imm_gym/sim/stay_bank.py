@@ -27,6 +27,11 @@ With ``EnvConfig.detector_share`` each IMM runs the prior of :func:`detector_tpm
 stay instead of :math:`\Pi_s`: its jumps placed partly by the slot's maneuver detector (the
 shadow IMM's mode probabilities), the priors the ``stay`` action then moves between.
 
+The bank also gives an accuracy no action moves (:meth:`StayBank.position_error`): the position
+errors of its IMMs weighted by the evidence the step's ``stay`` base was computed from,
+:math:`\bar e(t) = \sum_s w_s(t-1) \lVert \hat p_s(t) - p(t) \rVert`, the baseline of the
+``bank_advantage`` reward (:mod:`imm_gym.sim.rewards`).
+
 A missed detection is evidence for none (every :math:`e_s = 0`). An IMM of the bank whose
 innovation covariance fails (a diverged filter) gets the floor and restarts from bank A's
 posterior.
@@ -137,6 +142,9 @@ class StayBank:
         #: ``(N, S)`` the discounted evidence :math:`E_s` (relative: its largest entry is the
         #: best stay's)
         self.evidence = np.zeros((N, S))
+        #: ``(N, S)`` the evidence's weights :math:`\operatorname{softmax}(E)` before the last
+        #: step (the step's base was computed from them)
+        self.weights = np.full((N, S), 1.0 / S)
 
     def _own_args(self, kernel_args: tuple) -> tuple:
         """The compiled constants for the ``N * S`` rows: shared ones as they are, one bank per
@@ -169,14 +177,36 @@ class StayBank:
             for own, slot in zip(self._args[:3], kernel_args[:3], strict=True):
                 own[rows] = np.repeat(slot[indices], self.S, axis=0)
 
+    def posterior_weights(self) -> Array:
+        r"""``(N, S)`` :math:`w = \operatorname{softmax}(E)`, the stays' weights the evidence
+        so far gives (uniform at the start of an episode)."""
+        w = np.exp(self.evidence - self.evidence.max(axis=1, keepdims=True))
+        return w / w.sum(axis=1, keepdims=True)
+
     def centre(self) -> Array:
         r"""``(N,)`` the evidence's stay :math:`\sigma(\sum_s w_s \operatorname{logit} s)`,
-        :math:`w = \operatorname{softmax}(E)`: the switching prior the measurements so far
+        :math:`w` = :meth:`posterior_weights`: the switching prior the measurements so far
         support, averaged on the logit scale (the mean of the logit stays, ``1/M`` .. 0.995, at
         the start of an episode)."""
         w = np.exp(self.evidence - self.evidence.max(axis=1, keepdims=True))
         logit = (w @ self.logits) / w.sum(axis=1)
         return 1.0 / (1.0 + np.exp(-logit))
+
+    def estimates(self) -> Array:
+        r"""``(N, S, n)`` each IMM's combined estimate :math:`\hat x_s = \sum_j \mu_{s,j}
+        x_{s,j}`."""
+        x, mu = self.state.x, self.state.mu
+        return np.einsum("rm,rmi->ri", mu, x).reshape(self.n_envs, self.S, -1)
+
+    def position_error(self, position: Array, cap: float) -> Array:
+        r"""``(N,)`` :math:`\sum_s w_s \min(\lVert \hat p_s - p \rVert, c)`: the position
+        errors of the bank's IMMs after the last :meth:`step` (each IMM's combined estimate
+        :math:`\hat p_s = \sum_j \mu_{s,j} x_{s,j}`), each capped at ``cap`` like the
+        banks', weighted by the evidence before that step (:attr:`weights`). ``position (N, 2)``:
+        the true positions. No action moves it: it depends on the measurements alone."""
+        error = np.linalg.norm(self.estimates()[:, :, :2] - position[:, None, :], axis=-1)
+        error = np.where(error <= cap, error, cap)  # NaN -> the cap
+        return np.sum(self.weights * error, axis=1)
 
     def best(self) -> Array:
         """``(N,)`` the stay whose IMM has the largest evidence so far (the grid's first, 1/M, at
@@ -218,6 +248,7 @@ class StayBank:
         best = np.max(np.where(ok, e, -np.inf), axis=1, keepdims=True)
         best = np.where(np.isfinite(best), best, 0.0)
         gain = np.where(ok, np.maximum(e - best, -STAY_BANK_FLOOR), -STAY_BANK_FLOOR)
+        self.weights = self.posterior_weights()
         self.evidence = STAY_BANK_FACTOR * self.evidence + gain
         if np.count_nonzero(failed):
             slot = np.repeat(np.arange(N), S)[failed]
