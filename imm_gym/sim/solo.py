@@ -263,7 +263,8 @@ class SoloStep:
     def fits(core: TrackingCore) -> bool:
         """Whether the core's whole step is :func:`solo_step`'s: one slot, the compiled engine
         on a tracker of ``imm_step_one``'s shape, no observation feature, no stay bank, and the
-        reward registry holding the built-in terms only."""
+        reward registry holding the built-in terms only (a stay bank's terms apart: without the
+        stay bank they are not computed)."""
         cfg = core.config
         return (
             core.n_envs == 1
@@ -272,7 +273,8 @@ class SoloStep:
             and fits_one(1, core.M, core.n, cfg.sensor.dim_z)
             and not cfg.obs_features
             and core.stay_bank is None
-            and tuple(REWARD_TERMS) == tuple(REWARD_CODES)
+            and tuple(k for k, t in REWARD_TERMS.items() if not t.needs_stay_bank)
+            == tuple(REWARD_CODES)
             and cfg.tpm_cost == cfg.tpm_change_cost == cfg.mode_reward == 0.0
         )
 
