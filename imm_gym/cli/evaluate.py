@@ -161,11 +161,12 @@ def make_policy(
 
 
 def load_trained(path: Path) -> tuple[Any, dict[str, Any], dict[str, Any]]:
-    """A trained agent (``agents.policy`` directory layout) and its environment overrides."""
-    from agents.policy import load_agent
+    """A trained agent (``agents.policy`` directory layout) or an ensemble of them
+    (``agents.ensemble``) and its environment overrides."""
+    from agents.ensemble import load_policy
 
     try:
-        policy = load_agent(path)
+        policy = load_policy(path)
     except FileNotFoundError as err:
         raise ConfigError(str(err)) from None
     return policy, policy.env_overrides, {"path": str(path)}

@@ -1,0 +1,187 @@
+"""An ensemble of trained agents as one policy: the mean of their actions.
+
+Agents trained from different seeds of one configuration differ most where the training signal
+is weakest (docs/experiments.md, "An ensemble of the seeds"); acting on the mean of their actions
+averages those differences out. An ensemble is a directory holding one data file,
+``ensemble.json``::
+
+    {"format": "imm_gym-ensemble", "combine": "mean_action",
+     "members": ["../seed_0/agent", "../seed_1/agent", ...]}
+
+Each member is a trained agent's directory (:mod:`agents.policy`), relative to the ensemble's
+directory or absolute; loading reads JSON and tensors only, never code. Every member must read
+and write the same things — the :data:`~imm_gym.sim.mixture.POLICY_FIELDS` of their
+``env.json`` equal (observation features, action mode, bank...) — so one observation serves
+them all; they may have been rewarded differently.
+
+Build one with ``python -m agents.ensemble OUT MEMBER [MEMBER ...]`` and evaluate it as any agent
+(``python -m imm_gym.evaluate --policy OUT``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agents.policy import AGENT_FILE, LearnedPolicy, load_agent, read_json
+from imm_gym.sim.mixture import POLICY_FIELDS
+from imm_gym.validation import ConfigError
+
+ENSEMBLE_FILE = "ensemble.json"
+FORMAT = "imm_gym-ensemble"
+#: How the members' actions are combined (the only rule so far).
+COMBINE = ("mean_action",)
+ENSEMBLE_KEYS = ("format", "combine", "members")
+
+
+class EnsemblePolicy:
+    """Several trained agents acting as one: :math:`a = \\frac{1}{K} \\sum_k \\pi_k(o)`, each
+    member's action already clipped to ``[-1, 1]`` (so is the mean).
+
+    Args:
+        members: the loaded agents (at least one), reading and writing alike.
+        source: where the ensemble comes from, for messages.
+    """
+
+    name = "ensemble"
+
+    def __init__(self, members: Sequence[LearnedPolicy], source: str = "the ensemble") -> None:
+        if not members:
+            raise ConfigError(f"{source}: an ensemble needs at least one member")
+        first = members[0]
+        for k, member in enumerate(members[1:], start=1):
+            differ = [
+                f
+                for f in sorted(POLICY_FIELDS)
+                if member.env_overrides.get(f) != first.env_overrides.get(f)
+            ]
+            if differ or member.obs_size != first.obs_size:
+                what = ", ".join(differ) if differ else "the observation size"
+                raise ConfigError(
+                    f"{source}: member {k} ({member.source}) reads or writes other things than "
+                    f"member 0 ({first.source}): {what} differ"
+                )
+        self.members = tuple(members)
+        self.source = source
+        self.env_overrides = first.env_overrides
+        self.obs_size = first.obs_size
+        # the trackers any member was trained on (the evaluation names the closest)
+        trackers: list[dict[str, Any]] = []
+        for member in members:
+            for tracker in member.trained_across:
+                if tracker not in trackers:
+                    trackers.append(tracker)
+        self.trained_across = tuple(trackers)
+
+    def predict(
+        self,
+        observation: NDArray[Any],
+        state: Any = None,
+        episode_start: NDArray[np.bool_] | None = None,
+        deterministic: bool = True,
+    ) -> tuple[NDArray[Any], Any]:
+        """The members' mean action; ``state`` is the tuple of the members' states."""
+        states = (None,) * len(self.members) if state is None else state
+        actions, new_states = [], []
+        for member, member_state in zip(self.members, states, strict=True):
+            action, member_state = member.predict(
+                observation, member_state, episode_start, deterministic
+            )
+            actions.append(action)
+            new_states.append(member_state)
+        return np.mean(actions, axis=0), tuple(new_states)
+
+
+def is_ensemble(path: str | Path) -> bool:
+    """Whether ``path`` is an ensemble's directory (or its ``ensemble.json``)."""
+    path = Path(path)
+    return path.name == ENSEMBLE_FILE or (path / ENSEMBLE_FILE).is_file()
+
+
+def load_ensemble(path: str | Path) -> EnsemblePolicy:
+    """Load an ensemble from its directory (or its ``ensemble.json``), every member checked.
+
+    Raises:
+        ConfigError: ``ensemble.json`` is malformed (unknown keys, another format or combine
+            rule, no members, a member listed twice) or a member does not load or reads and
+            writes other things than the first; the message names the file or the member.
+    """
+    path = Path(path)
+    directory = path.parent if path.name == ENSEMBLE_FILE else path
+    file = directory / ENSEMBLE_FILE
+    data = read_json(file)
+    unknown = sorted(set(data) - set(ENSEMBLE_KEYS))
+    if unknown:
+        raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(ENSEMBLE_KEYS)}")
+    if data.get("format") != FORMAT:
+        raise ConfigError(f"{file}: format must be {FORMAT!r}, got {data.get('format')!r}")
+    if data.get("combine", COMBINE[0]) not in COMBINE:
+        raise ConfigError(f"{file}: combine must be one of {list(COMBINE)}, got "
+                          f"{data.get('combine')!r}")
+    members = data.get("members")
+    if (
+        not isinstance(members, list)
+        or not members
+        or not all(isinstance(m, str) and m for m in members)
+    ):
+        raise ConfigError(f"{file}: members must be a non-empty list of agent directories")
+    paths = [(directory / m).resolve() for m in members]
+    if len(set(paths)) != len(paths):
+        raise ConfigError(f"{file}: a member is listed twice: {members}")
+    loaded = []
+    for name, member in zip(members, paths, strict=True):
+        try:
+            loaded.append(load_agent(member))
+        except FileNotFoundError:
+            raise ConfigError(f"{file}: member {name!r}: no trained agent there "
+                              f"({AGENT_FILE} missing)") from None
+        except ConfigError as err:
+            raise ConfigError(f"{file}: member {name!r}: {err}") from None
+    return EnsemblePolicy(loaded, source=f"ensemble {str(directory)!r}")
+
+
+def load_policy(path: str | Path) -> LearnedPolicy | EnsemblePolicy:
+    """A trained agent or an ensemble of them, whichever ``path`` holds."""
+    return load_ensemble(path) if is_ensemble(path) else load_agent(path)
+
+
+def write_ensemble(directory: str | Path, members: Sequence[str | Path]) -> Path:
+    """Write ``directory/ensemble.json`` naming ``members`` (paths relative to ``directory``),
+    after checking that they load as one ensemble. Returns the file."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    relative = [os.path.relpath(Path(m).resolve(), directory.resolve()) for m in members]
+    file = directory / ENSEMBLE_FILE
+    data = {"format": FORMAT, "combine": COMBINE[0], "members": relative}
+    EnsemblePolicy([load_agent(m) for m in members], source=str(directory))
+    file.write_text(json.dumps(data, indent=2) + "\n")
+    return file
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.ensemble",
+        description="Write an ensemble of trained agents (the mean of their actions) to OUT.",
+    )
+    parser.add_argument("out", type=Path, help="the ensemble's directory")
+    parser.add_argument("members", nargs="+", type=Path, help="trained agents' directories")
+    args = parser.parse_args(argv)
+    if len({m.resolve() for m in args.members}) != len(args.members):
+        parser.error(f"a member is given twice: {[str(m) for m in args.members]}")
+    try:
+        file = write_ensemble(args.out, args.members)
+    except (ConfigError, FileNotFoundError) as err:
+        parser.exit(2, f"error: {err}\n")
+    print(f"wrote {file} ({len(args.members)} members)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,114 @@
+"""An ensemble of trained agents acts on the mean of their actions; its file is data, checked."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from safetensors.torch import load_file, save_file
+
+from agents import PRETRAINED
+from agents.ensemble import ENSEMBLE_FILE, EnsemblePolicy, load_ensemble, load_policy
+from agents.ensemble import main as ensemble_main
+from agents.policy import LearnedPolicy, load_agent
+from imm_gym.cli.evaluate import main as evaluate_main
+from imm_gym.validation import ConfigError
+
+
+@pytest.fixture
+def members(tmp_path) -> tuple[Path, Path]:
+    """The shipped agent and a copy whose action head's bias is shifted (another policy)."""
+    other = Path(shutil.copytree(PRETRAINED, tmp_path / "other"))
+    tensors = load_file(str(other / "policy.safetensors"))
+    tensors["action_net.bias"] = tensors["action_net.bias"] + 0.3
+    save_file(tensors, str(other / "policy.safetensors"))
+    return PRETRAINED, other
+
+
+def observations(policy: LearnedPolicy, steps: int = 6, n: int = 5) -> list[np.ndarray]:
+    rng = np.random.default_rng(3)
+    return [rng.normal(size=(n, policy.obs_size)) for _ in range(steps)]
+
+
+def roll(policy, frames: list[np.ndarray]) -> np.ndarray:
+    """The actions over consecutive frames of one episode per row (the state carried)."""
+    state, start, out = None, np.ones(len(frames[0]), bool), []
+    for obs in frames:
+        action, state = policy.predict(obs, state, start)
+        start = np.zeros_like(start)
+        out.append(action)
+    return np.array(out)
+
+
+def write(directory: Path, data: dict) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / ENSEMBLE_FILE).write_text(json.dumps(data))
+    return directory
+
+
+def test_an_ensemble_of_one_is_its_member(tmp_path) -> None:
+    member = load_agent(PRETRAINED)
+    ensemble = load_policy(write(tmp_path / "e", {
+        "format": "imm_gym-ensemble", "members": [str(PRETRAINED)],
+    }))
+    assert isinstance(ensemble, EnsemblePolicy)
+    frames = observations(member)
+    np.testing.assert_array_equal(roll(ensemble, frames), roll(member, frames))
+
+
+def test_the_ensemble_acts_on_the_members_mean_action(members, tmp_path) -> None:
+    assert ensemble_main([str(tmp_path / "e"), *map(str, members)]) == 0
+    data = json.loads((tmp_path / "e" / ENSEMBLE_FILE).read_text())
+    assert not any(Path(m).is_absolute() for m in data["members"])  # relative to the ensemble
+    ensemble = load_ensemble(tmp_path / "e")
+    singles = [load_agent(m) for m in members]
+    frames = observations(singles[0])
+    each = [roll(p, frames) for p in singles]
+    assert not np.allclose(each[0], each[1])  # two policies
+    np.testing.assert_allclose(roll(ensemble, frames), (each[0] + each[1]) / 2, rtol=0, atol=1e-7)
+
+
+def test_the_evaluation_takes_an_ensemble_as_a_policy(members, tmp_path) -> None:
+    ensemble_main([str(tmp_path / "e"), *map(str, members)])
+    out = tmp_path / "r.json"
+    argv = ["--policy", str(tmp_path / "e"), "--policy", "fixed", "--scenario", "paper", "--runs",
+            "2", "--quiet", "--no-clairvoyant", "--json", str(out)]
+    assert evaluate_main(argv) == 0
+    row = json.loads(out.read_text())["policies"][str(tmp_path / "e")]
+    assert np.isfinite(row["armse_pos"]) and 0.0 <= row["mode_accuracy"] <= 1.0
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"format": "imm_gym-ensemble", "members": []}, "members must be a non-empty list"),
+        ({"format": "other", "members": ["a"]}, "format must be 'imm_gym-ensemble'"),
+        ({"format": "imm_gym-ensemble", "members": ["a"], "combine": "vote"},
+         "combine must be one of ['mean_action']"),
+        ({"format": "imm_gym-ensemble", "members": ["a"], "weights": [1]}, "unknown keys"),
+        ({"format": "imm_gym-ensemble", "members": ["nowhere"]},
+         "member 'nowhere': no trained agent there"),
+    ],
+)
+def test_a_malformed_ensemble_is_refused_naming_the_file(data, message, tmp_path) -> None:
+    directory = write(tmp_path / "e", data)
+    with pytest.raises(ConfigError) as err:
+        load_ensemble(directory)
+    assert message in str(err.value) and ENSEMBLE_FILE in str(err.value)
+
+
+def test_members_must_read_and_write_alike(members, tmp_path) -> None:
+    other = members[1]
+    env = json.loads((other / "env.json").read_text())
+    env["logit_scale"] = 3.0
+    (other / "env.json").write_text(json.dumps(env))
+    with pytest.raises(ConfigError, match="logit_scale differ"):
+        load_policy(write(tmp_path / "e", {
+            "format": "imm_gym-ensemble", "members": [str(PRETRAINED), str(other)],
+        }))
+    twice = {"format": "imm_gym-ensemble", "members": [str(PRETRAINED), str(PRETRAINED)]}
+    with pytest.raises(ConfigError, match="listed twice"):
+        load_ensemble(write(tmp_path / "t", twice))
