@@ -17,7 +17,9 @@ validation scenarios, never on the held-out ones). The evaluation compares the
 agent with classical IMM, TIP-IMM and the best fixed TPM on (a) the paper scenario (100 runs,
 seeds 0..99) and (b) held-out randomized scenarios (``--random-runs``, seeds 0..R-1; training
 uses seeds from 100,000,000 on), with common random numbers and paired bootstrap CIs.
-``OUT/summary.json`` and ``OUT/report.md`` gather the seeds.
+``OUT/summary.json`` and ``OUT/report.md`` gather the seeds; with several seeds,
+``OUT/ensemble/`` names their agents as one policy acting on the mean of their actions
+(:mod:`agents.ensemble`; ``python -m imm_gym.evaluate --policy OUT/ensemble``).
 
 ``--env-config FILE`` (YAML or JSON of EnvConfig fields, :mod:`imm_gym.sim.config_file`) trains on
 that configuration instead of the entry's trackers: its fields are applied over what the entry's
@@ -853,6 +855,7 @@ def main(argv: list[str] | None = None) -> int:
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
     versions = _versions(args.engine)
     summary: dict[str, Any] = {"command": command, "versions": versions, "seeds": {}}
+    agents_trained: list[Path] = []
     with StopRequest() as stop:
         for seed in args.seed:
             if stop.requested:
@@ -902,6 +905,16 @@ def main(argv: list[str] | None = None) -> int:
                     ],
                 )
             summary["seeds"][str(seed)] = entry
+            agents_trained.append(agent_dir)
+    if len(agents_trained) > 1:
+        from agents.ensemble import write_ensemble
+
+        file = write_ensemble(args.out / "ensemble", agents_trained)
+        summary["ensemble"] = str(file.parent)
+        print(
+            f"wrote {file.parent}: the {len(agents_trained)} seeds' agents acting on the mean of "
+            f"their actions (python -m imm_gym.evaluate --policy {file.parent})"
+        )
     if not args.no_eval:
         summary["across_seeds"] = _across_seeds(summary["seeds"])
         _write_summary_report(args.out / "report.md", summary)

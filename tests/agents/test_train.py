@@ -312,3 +312,16 @@ def test_pretrained_agent_keeps_the_mode_probabilities_meaning(scenario, runs, t
     rows = json.loads(result.read_text())["policies"]
     assert rows["pretrained"]["mode_accuracy"] > rows["tip-imm"]["mode_accuracy"]
     assert rows["pretrained"]["mode_prob_tv"] <= 0.15
+
+
+def test_several_seeds_make_an_ensemble_of_their_agents(tmp_path) -> None:
+    from agents.ensemble import load_ensemble
+
+    assert train_small(tmp_path, "--timesteps", "256", "--no-eval", "--seed", "0", "1") == 0
+    ensemble = load_ensemble(tmp_path / "ensemble")
+    members = [load_agent(tmp_path / f"seed_{s}" / "agent") for s in (0, 1)]
+    obs = np.random.default_rng(0).normal(size=(4, members[0].obs_size))
+    each = [m.predict(obs)[0] for m in members]
+    np.testing.assert_allclose(ensemble.predict(obs)[0], (each[0] + each[1]) / 2, atol=1e-7)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["ensemble"] == str(tmp_path / "ensemble")
