@@ -136,6 +136,22 @@ def test_a_pickle_planted_as_the_weights_file_is_not_unpickled(agent, tmp_path, 
     assert not marker.exists()
 
 
+def test_an_ensemble_of_a_planted_member_runs_no_code(agent, tmp_path, capsys) -> None:
+    # the ensemble's file names its members; each loads as an agent does, refusing pickles
+    marker = tmp_path / "ran"
+    old_format(agent)
+    planted_torch(agent / "policy.pt", marker)
+    ensemble = tmp_path / "ensemble"
+    ensemble.mkdir()
+    members = [str(PRETRAINED), str(agent)]
+    (ensemble / "ensemble.json").write_text(
+        json.dumps({"format": "imm_gym-ensemble", "members": members})
+    )
+    line = refused_by_evaluate(ensemble, capsys)
+    assert "ensemble.json" in line and "pickled format" in line
+    assert not marker.exists()
+
+
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory) -> Path:
     """checkpoints/latest of a 256-step run."""
