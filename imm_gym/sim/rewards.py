@@ -52,7 +52,8 @@ Array = NDArray[np.float64]
 @dataclass(frozen=True)
 class RewardTerm:
     """A reward term: ``value(step, reward_scale) -> (N,)`` (the scale a number or ``(N,)``);
-    ``needs_shadow`` if it uses the shadow IMM's error."""
+    ``needs_shadow`` if it uses the shadow IMM's error, ``needs_stay_bank`` if it uses the stay
+    bank's (it is then called with :class:`StepErrors` instead of the bank step)."""
 
     name: str
     value: Callable[[Any, float | Array], Array]
