@@ -177,10 +177,15 @@ class StayBank:
             for own, slot in zip(self._args[:3], kernel_args[:3], strict=True):
                 own[rows] = np.repeat(slot[indices], self.S, axis=0)
 
+    def _relative_likelihoods(self) -> Array:
+        r"""``(N, S)`` :math:`\exp(E_s - \max_r E_r)` (:meth:`relative`), the unnormalized
+        weights."""
+        return np.exp(self.relative())
+
     def posterior_weights(self) -> Array:
         r"""``(N, S)`` :math:`w = \operatorname{softmax}(E)`, the stays' weights the evidence
         so far gives (uniform at the start of an episode)."""
-        w = np.exp(self.evidence - self.evidence.max(axis=1, keepdims=True))
+        w = self._relative_likelihoods()
         return w / w.sum(axis=1, keepdims=True)
 
     def centre(self) -> Array:
@@ -188,7 +193,7 @@ class StayBank:
         :math:`w` = :meth:`posterior_weights`: the switching prior the measurements so far
         support, averaged on the logit scale (the mean of the logit stays, ``1/M`` .. 0.995, at
         the start of an episode)."""
-        w = np.exp(self.evidence - self.evidence.max(axis=1, keepdims=True))
+        w = self._relative_likelihoods()
         logit = (w @ self.logits) / w.sum(axis=1)
         return 1.0 / (1.0 + np.exp(-logit))
 
