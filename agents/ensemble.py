@@ -1,8 +1,9 @@
 """An ensemble of trained agents as one policy: the mean of their actions.
 
 Agents trained from different seeds of one configuration differ most where the training signal
-is weakest (docs/experiments.md, "An ensemble of the seeds"); acting on the mean of their actions
-averages those differences out. An ensemble is a directory holding one data file,
+is weakest (docs/experiments.md, "A baseline that follows the evidence, retraining on another
+processor, and an ensemble of the seeds"); acting on the mean of their actions averages those
+differences out. An ensemble is a directory holding one data file,
 ``ensemble.json``::
 
     {"format": "imm_gym-ensemble", "combine": "mean_action",
