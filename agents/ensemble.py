@@ -106,13 +106,13 @@ def is_ensemble(path: str | Path) -> bool:
     return path.name == ENSEMBLE_FILE or (path / ENSEMBLE_FILE).is_file()
 
 
-def load_ensemble(path: str | Path) -> EnsemblePolicy:
-    """Load an ensemble from its directory (or its ``ensemble.json``), every member checked.
+def member_paths(path: str | Path) -> list[Path]:
+    """The member directories ``ensemble.json`` (in the directory ``path``, or ``path``
+    itself) names, resolved, without loading them.
 
     Raises:
         ConfigError: ``ensemble.json`` is malformed (unknown keys, another format or combine
-            rule, no members, a member listed twice) or a member does not load or reads and
-            writes other things than the first; the message names the file or the member.
+            rule, no members, a member listed twice); the message names the file.
     """
     path = Path(path)
     directory = path.parent if path.name == ENSEMBLE_FILE else path
@@ -136,8 +136,23 @@ def load_ensemble(path: str | Path) -> EnsemblePolicy:
     paths = [(directory / m).resolve() for m in members]
     if len(set(paths)) != len(paths):
         raise ConfigError(f"{file}: a member is listed twice: {members}")
+    return paths
+
+
+def load_ensemble(path: str | Path) -> EnsemblePolicy:
+    """Load an ensemble from its directory (or its ``ensemble.json``), every member checked.
+
+    Raises:
+        ConfigError: ``ensemble.json`` is malformed (:func:`member_paths`) or a member does not
+            load or reads and writes other things than the first; the message names the file
+            or the member.
+    """
+    path = Path(path)
+    directory = path.parent if path.name == ENSEMBLE_FILE else path
+    file = directory / ENSEMBLE_FILE
     loaded = []
-    for name, member in zip(members, paths, strict=True):
+    for member in member_paths(directory):
+        name = os.path.relpath(member, directory.resolve())
         try:
             loaded.append(load_agent(member))
         except FileNotFoundError:

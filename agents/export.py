@@ -1,11 +1,17 @@
-"""Ship a trained agent as the package's ``pretrained`` policy (the acting files only).
+"""Ship a trained agent, or an ensemble of them, as the package's ``pretrained`` policy (the
+acting files only).
 
     python train.py                                   # trains and evaluates runs/default/seed_0
     python -m agents.export runs/default/seed_0/agent # copies it to agents/pretrained/
+    python train.py --seed 0 1 2 3 4 --no-eval --out runs/final
+    python -m agents.export runs/final/ensemble       # the five agents as one policy
 
-Checks the agent by loading it (:func:`agents.policy.load_agent`), then copies
+Checks the policy by loading it (:func:`agents.ensemble.load_policy`), then copies
 ``policy.safetensors`` (the network without optimizer state), ``agent.json``, ``env.json`` and
-``vecnormalize.json``: data only, everything the evaluation needs to act, well under 1 MB.
+``vecnormalize.json``: data only, everything the evaluation needs to act, about 340 KiB an agent.
+An ensemble's members are copied into ``seed_S/`` subdirectories (``member_K/`` when their seeds
+do not tell them apart) named by a new ``ensemble.json``. The target is replaced as a whole — it
+must be absent, empty or a policy exported before — so no file of the previous policy stays.
 
     python -m agents.export --from-pickle OLD_AGENT --to NEW_DIR
 
@@ -24,7 +30,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from agents import PRETRAINED
-from agents.policy import AGENT_FILE, ENV_FILE, NORMALIZER_FILE, load_agent
+from agents.ensemble import (
+    ENSEMBLE_FILE,
+    is_ensemble,
+    load_ensemble,
+    member_paths,
+    write_ensemble,
+)
+from agents.policy import AGENT_FILE, ENV_FILE, NORMALIZER_FILE, load_agent, read_json
 from imm_gym.validation import ConfigError
 
 #: The acting files (``vecnormalize.json`` only if the agent was trained with a normalizer).
@@ -32,20 +45,62 @@ FILES = ("policy.safetensors", AGENT_FILE, ENV_FILE, NORMALIZER_FILE)
 
 
 def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
-    """Copy the acting files of the agent directory ``source`` to ``target``, after checking
-    that they load.
+    """Replace ``target`` by the acting files of ``source`` — an agent directory or an
+    ensemble's (:mod:`agents.ensemble`) — after checking that they load. Returns the files
+    written.
 
     Raises:
-        FileNotFoundError: ``source`` is not an agent directory.
-        ConfigError: one of its files is malformed (the message names it).
+        FileNotFoundError: ``source`` is neither an agent nor an ensemble directory.
+        ConfigError: one of its files is malformed (the message names it), or ``target`` holds
+            something other than an exported policy.
     """
-    load_agent(source)
-    target.mkdir(parents=True, exist_ok=True)
-    return [
-        Path(shutil.copy2(source / name, target / name))
-        for name in FILES
-        if (source / name).is_file()
-    ]
+    _check_replaceable(target)
+    staging = target.with_name(target.name + ".export")
+    shutil.rmtree(staging, ignore_errors=True)
+    if is_ensemble(source):
+        load_ensemble(source)
+        members = member_paths(source)
+        names = _member_names(members)
+        for member, name in zip(members, names, strict=True):
+            _copy_agent(member, staging / name)
+        write_ensemble(staging, [staging / name for name in names])
+    else:
+        load_agent(source)
+        _copy_agent(source, staging)
+    shutil.rmtree(target, ignore_errors=True)
+    staging.rename(target)
+    return sorted(p for p in target.rglob("*") if p.is_file())
+
+
+def _copy_agent(source: Path, target: Path) -> None:
+    """Copy the acting files of the agent directory ``source`` into ``target``."""
+    target.mkdir(parents=True)
+    for name in FILES:
+        if (source / name).is_file():
+            shutil.copy2(source / name, target / name)
+
+
+def _member_names(members: Sequence[Path]) -> list[str]:
+    """``seed_S`` for each member when their ``agent.json`` seeds are distinct, else
+    ``member_K``."""
+    seeds = [read_json(m / AGENT_FILE).get("seed") for m in members]
+    if all(isinstance(s, int) for s in seeds) and len(set(seeds)) == len(seeds):
+        return [f"seed_{s}" for s in seeds]
+    return [f"member_{k}" for k in range(len(members))]
+
+
+def _check_replaceable(target: Path) -> None:
+    """Refuse to replace a directory that is not empty and holds no exported policy."""
+    if target.is_file() or (
+        target.is_dir()
+        and any(target.iterdir())
+        and not (target / AGENT_FILE).is_file()
+        and not (target / ENSEMBLE_FILE).is_file()
+    ):
+        raise ConfigError(
+            f"{target}: the export replaces its target, which must be absent, empty or a policy "
+            f"exported before ({AGENT_FILE} or {ENSEMBLE_FILE} in it)"
+        )
 
 
 def convert_pickled(source: Path, target: Path) -> list[Path]:
@@ -87,7 +142,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("source", type=Path, help="a trained agent's directory (OUT/seed_S/agent)")
+    parser.add_argument(
+        "source", type=Path,
+        help="a trained agent's directory (OUT/seed_S/agent) or an ensemble's (OUT/ensemble)",
+    )
     parser.add_argument("--to", type=Path, default=PRETRAINED, help="target directory")
     parser.add_argument(
         "--from-pickle",

@@ -252,6 +252,45 @@ def test_export_copies_the_acting_files(trained, tmp_path) -> None:
         export(tmp_path / "nothing", tmp_path / "other")
 
 
+def test_export_ships_an_ensemble_self_contained_and_replaces_its_target(trained, tmp_path):
+    import shutil
+
+    from agents.ensemble import EnsemblePolicy, load_policy, write_ensemble
+    from agents.export import FILES, export
+    from imm_gym.validation import ConfigError
+
+    out, _ = trained
+    first = out / "seed_0" / "agent"
+    second = Path(shutil.copytree(first, tmp_path / "work" / "other"))
+    meta = json.loads((second / "agent.json").read_text())
+    (second / "agent.json").write_text(json.dumps({**meta, "seed": 7}))
+    write_ensemble(tmp_path / "work" / "ens", [first, second])
+    source = load_policy(tmp_path / "work" / "ens")
+    core = TrackingCore(EnvConfig.build(source.env_overrides), 3)
+    obs = np.random.default_rng(0).normal(size=(3, core.obs_dim)).astype(np.float32)
+
+    target = tmp_path / "shipped"
+    copied = export(tmp_path / "work" / "ens", target)
+    shutil.rmtree(tmp_path / "work")  # the shipped ensemble holds its members
+    assert {p.relative_to(target).parts[0] for p in copied} == {"ensemble.json", "seed_0", "seed_7"}
+    shipped = load_policy(target)
+    assert isinstance(shipped, EnsemblePolicy) and len(shipped.members) == 2
+    np.testing.assert_array_equal(shipped.predict(obs)[0], source.predict(obs)[0])
+
+    export(first, target)  # an agent over the ensemble: nothing of the ensemble stays
+    assert sorted(p.name for p in target.iterdir()) == sorted(
+        p.name for p in first.iterdir() if p.name in FILES
+    )
+    assert not isinstance(load_policy(target), EnsemblePolicy)
+
+    unrelated = tmp_path / "notes"
+    unrelated.mkdir()
+    (unrelated / "todo.txt").write_text("keep me")
+    with pytest.raises(ConfigError, match=r"notes.*must be absent, empty or a policy"):
+        export(first, unrelated)
+    assert (unrelated / "todo.txt").read_text() == "keep me"
+
+
 
 def test_pretrained_policy_ships_small_and_scores(tmp_path) -> None:
     from agents import PRETRAINED
