@@ -43,3 +43,12 @@ def stay_core(n: int, engine: str = "auto", **changes: object) -> TrackingCore:
     core = TrackingCore(config, n)
     core.reset(np.arange(n), list(range(20, 20 + n)))
     return core
+
+
+def shipped_agent() -> Path:
+    """One trained agent of the shipped ``pretrained`` policy: the directory itself, or its
+    first member when it is an ensemble (:mod:`agents.ensemble`)."""
+    from agents import PRETRAINED
+    from agents.ensemble import is_ensemble, member_paths
+
+    return member_paths(PRETRAINED)[0] if is_ensemble(PRETRAINED) else PRETRAINED

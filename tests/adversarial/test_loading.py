@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from helpers import shipped_agent
 from safetensors.torch import load_file, save_file
 
 import train
-from agents import PRETRAINED
 from agents.policy import load_agent
 from imm_gym.cli.evaluate import main as evaluate_main
 from imm_gym.validation import ConfigError
@@ -80,8 +80,8 @@ def planted_sb3_zip(file: Path, marker: Path) -> None:
 
 @pytest.fixture
 def agent(tmp_path) -> Path:
-    """A copy of the shipped agent, to damage."""
-    return Path(shutil.copytree(PRETRAINED, tmp_path / "agent"))
+    """A copy of an agent of the shipped policy, to damage."""
+    return Path(shutil.copytree(shipped_agent(), tmp_path / "agent"))
 
 
 def old_format(directory: Path) -> None:
@@ -143,7 +143,7 @@ def test_an_ensemble_of_a_planted_member_runs_no_code(agent, tmp_path, capsys) -
     planted_torch(agent / "policy.pt", marker)
     ensemble = tmp_path / "ensemble"
     ensemble.mkdir()
-    members = [str(PRETRAINED), str(agent)]
+    members = [str(shipped_agent()), str(agent)]
     (ensemble / "ensemble.json").write_text(
         json.dumps({"format": "imm_gym-ensemble", "members": members})
     )

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import shipped_agent
 from safetensors.torch import load_file, save_file
 
-from agents import PRETRAINED
 from agents.ensemble import ENSEMBLE_FILE, EnsemblePolicy, load_ensemble, load_policy
 from agents.ensemble import main as ensemble_main
 from agents.policy import LearnedPolicy, load_agent
@@ -20,12 +20,14 @@ from imm_gym.validation import ConfigError
 
 @pytest.fixture
 def members(tmp_path) -> tuple[Path, Path]:
-    """The shipped agent and a copy whose action head's bias is shifted (another policy)."""
-    other = Path(shutil.copytree(PRETRAINED, tmp_path / "other"))
+    """An agent of the shipped policy and a copy whose action head's bias is shifted (another
+    policy)."""
+    agent = shipped_agent()
+    other = Path(shutil.copytree(agent, tmp_path / "other"))
     tensors = load_file(str(other / "policy.safetensors"))
     tensors["action_net.bias"] = tensors["action_net.bias"] + 0.3
     save_file(tensors, str(other / "policy.safetensors"))
-    return PRETRAINED, other
+    return agent, other
 
 
 def observations(policy: LearnedPolicy, steps: int = 6, n: int = 5) -> list[np.ndarray]:
@@ -50,9 +52,9 @@ def write(directory: Path, data: dict) -> Path:
 
 
 def test_an_ensemble_of_one_is_its_member(tmp_path) -> None:
-    member = load_agent(PRETRAINED)
+    member = load_agent(shipped_agent())
     ensemble = load_policy(write(tmp_path / "e", {
-        "format": "imm_gym-ensemble", "members": [str(PRETRAINED)],
+        "format": "imm_gym-ensemble", "members": [str(shipped_agent())],
     }))
     assert isinstance(ensemble, EnsemblePolicy)
     frames = observations(member)
@@ -107,8 +109,8 @@ def test_members_must_read_and_write_alike(members, tmp_path) -> None:
     (other / "env.json").write_text(json.dumps(env))
     with pytest.raises(ConfigError, match="logit_scale differ"):
         load_policy(write(tmp_path / "e", {
-            "format": "imm_gym-ensemble", "members": [str(PRETRAINED), str(other)],
+            "format": "imm_gym-ensemble", "members": [str(shipped_agent()), str(other)],
         }))
-    twice = {"format": "imm_gym-ensemble", "members": [str(PRETRAINED), str(PRETRAINED)]}
+    twice = {"format": "imm_gym-ensemble", "members": [str(shipped_agent())] * 2}
     with pytest.raises(ConfigError, match="listed twice"):
         load_ensemble(write(tmp_path / "t", twice))

@@ -5,16 +5,14 @@ from __future__ import annotations
 
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import shipped_agent
 
 from imm_gym.cli.evaluate import main
 from imm_gym.cli.seeds import across_seeds, suite_across_seeds
 from imm_gym.evaluation.metrics import stratified_bootstrap_iqm
-
-PRETRAINED = Path(__file__).resolve().parents[2] / "agents" / "pretrained"
 
 
 def _result(armse: dict[str, float], accuracy: float = 0.6, ref: str = "best-fixed") -> dict:
@@ -63,7 +61,7 @@ def test_over_a_suite_scenarios_are_the_strata() -> None:
 
 
 def test_the_command_adds_the_seeds_rows_and_their_aggregate(tmp_path, capsys) -> None:
-    dirs = [str(shutil.copytree(PRETRAINED, tmp_path / f"seed_{s}")) for s in range(2)]
+    dirs = [str(shutil.copytree(shipped_agent(), tmp_path / f"seed_{s}")) for s in range(2)]
     out = tmp_path / "res.json"
     argv = ["--policy", "fixed", "--agent-seeds", *dirs, "--reference", "fixed",
             "--scenario", "paper", "--runs", "3", "--no-clairvoyant", "--quiet"]

@@ -15,7 +15,7 @@ import pytest
 
 import imm_gym
 from agents import PRETRAINED
-from agents.policy import load_agent
+from agents.ensemble import load_policy
 from baselines import make_baseline
 from imm_gym import EnvConfig, Sonar, TrackingCore
 from imm_gym.cli.evaluate import agent_overrides
@@ -99,11 +99,11 @@ def test_npz_through_python_m_with_the_agent_and_a_config_file(tmp_path: Path) -
         cwd=ROOT, capture_output=True, text=True, check=False,
     )
     assert done.returncode == 0, done.stderr
-    agent = load_agent(PRETRAINED)
+    agent = load_policy(PRETRAINED)
     kept, _ = agent_overrides(agent, agent.env_overrides, config)  # the agent's own settings
     expected = imm_gym.run_policy(core.z, agent, config, velocity=core.truth[:, 0, 2:4],
                                   overrides=kept)
-    default = imm_gym.run_policy(core.z, load_agent(PRETRAINED), velocity=core.truth[:, 0, 2:4])
+    default = imm_gym.run_policy(core.z, load_policy(PRETRAINED), velocity=core.truth[:, 0, 2:4])
     with np.load(tmp_path / "out.npz") as out:
         for key in ("estimate", "covariance", "mode_probs", "tpm", "x0", "P0", "diverged"):
             np.testing.assert_array_equal(out[key], getattr(expected, key), err_msg=key)
@@ -170,7 +170,7 @@ def test_an_agent_tracks_with_the_configured_tracker(
     """A trained agent recorded with another sensor keeps its own settings and tracks with the
     configuration's sensor (said on stderr); a bank whose size its network cannot take is
     refused before any work."""
-    agent = load_agent(PRETRAINED)
+    agent = load_policy(PRETRAINED)
     paper = agent.trained_across[0]  # the part of its training on the paper's tracker
     agent.trained_across = ()
     recorded = {**agent.env_overrides, **paper, "sensor": {"sigma_r": 20.0}}

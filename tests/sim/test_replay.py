@@ -12,7 +12,7 @@ import pytest
 
 import imm_gym
 from agents import PRETRAINED
-from agents.policy import load_agent
+from agents.ensemble import load_policy
 from baselines import make_baseline
 from imm_gym import ConfigError, EnvConfig, paper_scenario
 from imm_gym.envs.tpm_adapt import TPMAdaptEnv
@@ -25,7 +25,7 @@ SEEDS = (3, 11)
 
 
 def _policy(name: str) -> Any:
-    return load_agent(PRETRAINED) if name == "pretrained" else make_baseline(name)
+    return load_policy(PRETRAINED) if name == "pretrained" else make_baseline(name)
 
 
 def _episodes(name: str, config: EnvConfig) -> dict[str, np.ndarray]:
