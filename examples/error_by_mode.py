@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from imm_gym import EnvConfig, TrackingCore
 from imm_gym.cli.evaluate import evaluate, load_trained, suite_configs
 from imm_gym.evaluation.rollout import Rollout, armse_from_squared
 
@@ -68,9 +69,9 @@ def score(
     configs = suite_configs("benchmark")
     extra = {}
     for path in zero:
-        agent, overrides, _ = load_trained(path)  # type: ignore[arg-type]
-        extra[f"zero of {path}"] = (ZeroAction(int(np.prod(agent.model.action_space.shape))),
-                                    overrides)
+        _, overrides, _ = load_trained(path)  # type: ignore[arg-type]
+        size = TrackingCore(EnvConfig.build(overrides), 1).action_dim
+        extra[f"zero of {path}"] = (ZeroAction(size), overrides)
     results: dict[str, dict[str, dict[str, Any]]] = {}
     for name in scenarios:
         config = configs[name]
