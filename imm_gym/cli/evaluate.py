@@ -474,7 +474,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         help="policy to evaluate (repeatable; at least one, or --agent-seeds): "
         + "; ".join(f"{name}: {entry.help}" for name, entry in REGISTRY.items()).replace("%", "%%")
-        + "; pretrained: the shipped PPO agent; or a trained agent's directory",
+        + "; pretrained: the shipped PPO policy (five seeds' mean action); or a trained agent's or "
+        "an ensemble's directory",
     )
     parser.add_argument(
         "--scenario",
