@@ -2,6 +2,7 @@
 
     python train.py                      # defaults: imm_gym/TPMAdapt-v0, seed 0, ~12 min on 2 cores
     python train.py --seed 0 1 2         # several training seeds: each reported, then mean ± std
+    python train.py --seed 0 1 2 3 4 --jobs 2 --no-eval   # two seeds at a time: the shipped policy
     python train.py --timesteps 200000 --out runs/quick
     python train.py --resume runs/default/seed_0/checkpoints/latest
     python train.py --env-config examples/my_tracker.yaml --timesteps 200000
@@ -19,7 +20,9 @@ seeds 0..99) and (b) held-out randomized scenarios (``--random-runs``, seeds 0..
 uses seeds from 100,000,000 on), with common random numbers and paired bootstrap CIs.
 ``OUT/summary.json`` and ``OUT/report.md`` gather the seeds; with several seeds,
 ``OUT/ensemble/`` names their agents as one policy acting on the mean of their actions
-(:mod:`agents.ensemble`; ``python -m imm_gym.evaluate --policy OUT/ensemble``).
+(:mod:`agents.ensemble`; ``python -m imm_gym.evaluate --policy OUT/ensemble``). ``--jobs N`` trains
+N seeds at a time, each in its own spawned process with one torch thread (a seed's agent is the
+one it gets alone); Ctrl-C or SIGTERM to the job reaches every worker.
 
 ``--env-config FILE`` (YAML or JSON of EnvConfig fields, :mod:`imm_gym.sim.config_file`) trains on
 that configuration instead of the entry's trackers: its fields are applied over what the entry's
@@ -143,6 +146,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--paper-runs", type=int, default=100)
     p.add_argument("--random-runs", type=int, default=1000)
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="train (and evaluate) N seeds at a time, each in its own process (one torch thread "
+        "each; a seed's agent is the one it gets alone); with N > 1 no progress bar",
+    )
     p.add_argument("--no-eval", action="store_true", help="train only")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
@@ -207,6 +218,10 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
         parser.error(f"--timesteps must be >= 1, got {args.timesteps}")
     if any(s < 0 for s in args.seed) or len(set(args.seed)) != len(args.seed):
         parser.error(f"--seed values must be distinct non-negative integers, got {args.seed}")
+    if args.jobs < 1:
+        parser.error(f"--jobs must be >= 1, got {args.jobs}")
+    if args.jobs > 1 and args.engine == "rllib":
+        parser.error("--jobs is for --engine sb3; RLlib runs its own workers (--env-runners)")
     if args.checkpoint_every < 1:
         parser.error(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
     if args.validate_every < 0:
@@ -346,12 +361,17 @@ class StopRequest:
     the checkpoint). Training checks :attr:`requested` after every step, then saves
     ``checkpoints/latest`` and exits with ``128 + signal`` (130 for Ctrl-C); the evaluation
     checks it between scenarios and seeds. Further signals while stopping are ignored.
+
+    Args:
+        parent: in a worker process of ``--jobs``, the parent's request — a shared integer, the
+            signal number the parent received (0 until then) — honoured as the worker's own.
     """
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    def __init__(self) -> None:
+    def __init__(self, parent: Any = None) -> None:
         self.signum: int | None = None
+        self.parent = parent
         self._previous: dict[int, Any] = {}
 
     def __enter__(self) -> StopRequest:
@@ -376,6 +396,8 @@ class StopRequest:
 
     @property
     def requested(self) -> bool:
+        if self.signum is None and self.parent is not None and self.parent.value:
+            self.signum = int(self.parent.value)
         return self.signum is not None
 
     def exit(self, message: str) -> NoReturn:
@@ -523,12 +545,9 @@ def train_one(
                 self.next_validation += self.validate_every
                 armse = validate()
             if (saved or armse is not None) and not progress_bar:
-                print(
-                    progress_line(
-                        self.num_timesteps, done, total, time.perf_counter() - self.start, armse
-                    ),
-                    flush=True,
-                )
+                elapsed = time.perf_counter() - self.start
+                line = progress_line(self.num_timesteps, done, total, elapsed, armse)
+                print(f"seed {seed}: {line}", flush=True)
             return True
 
     def save(directory: Path, **more: Any) -> None:
@@ -680,7 +699,7 @@ def train_one_rllib(
             armse = validate()
         if armse is not None or not args.no_progress:
             elapsed = time.perf_counter() - start
-            print(progress_line(steps, 0, total, elapsed, armse), flush=True)
+            print(f"seed {seed}: {progress_line(steps, 0, total, elapsed, armse)}", flush=True)
     seconds = time.perf_counter() - start
     if stop.requested:
         export(agent_dir)
@@ -840,6 +859,140 @@ def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None
     path.write_text("\n".join(lines) + "\n")
 
 
+def run_seed(
+    args: argparse.Namespace,
+    params: dict[str, Any],
+    seed: int,
+    resume: dict[str, Any] | None,
+    command: str,
+    versions: dict[str, str],
+    stop: StopRequest,
+) -> tuple[Path, dict[str, Any]]:
+    """Train (or resume) one seed and, unless ``--no-eval``, evaluate it, writing
+    ``OUT/seed_S/``; returns the agent's directory and the seed's entry of ``summary.json``.
+
+    Raises:
+        ConfigError: a checkpoint to resume does not fit the model.
+    """
+    from agents.training import jsonable
+
+    run_dir = args.out / f"seed_{seed}"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.json").write_text(
+        json.dumps(
+            {"env": args.env, "algo": args.algo, "seed": seed, "hyperparams": jsonable(params)},
+            indent=2,
+        )
+    )
+    if args.engine == "rllib":
+        agent_dir, stats = train_one_rllib(args, params, seed, run_dir, stop)
+    else:
+        agent_dir, stats = train_one(args, params, seed, run_dir, resume, stop)
+    print(
+        f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
+        f"({stats['fps']:.0f} steps/s)",
+        flush=True,
+    )
+    entry: dict[str, Any] = {"training": stats}
+    if not args.no_eval:
+        results = evaluate_agent(agent_dir, args, run_dir, stop)
+        entry.update(results)
+        (run_dir / "results.json").write_text(json.dumps(results, indent=2))
+        write_report(
+            run_dir / "report.md",
+            results,
+            [
+                f"# {args.algo.upper()} on {args.env}, seed {seed}",
+                "",
+                f"Command: `{command}`. Training: {stats['timesteps']} steps in "
+                f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, {_engine(args)}).",
+                f"Agent: {_describe_selection(stats['selected'])}.",
+                f"Versions: {versions}.",
+            ],
+        )
+    return agent_dir, entry
+
+
+#: In a worker process of ``--jobs``: the parent's stop request (see :class:`StopRequest`).
+_PARENT_STOP: Any = None
+
+
+def _start_worker(parent_stop: Any) -> None:
+    """A ``--jobs`` worker: one torch thread; Ctrl-C ignored until a seed's :class:`StopRequest`
+    handles it (it reaches the parent too, which passes it on through ``parent_stop``)."""
+    global _PARENT_STOP
+    _PARENT_STOP = parent_stop
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    set_threads(1)
+
+
+def _run_seed_in_worker(
+    args: argparse.Namespace,
+    params: dict[str, Any],
+    seed: int,
+    command: str,
+    versions: dict[str, str],
+) -> tuple[Path, dict[str, Any]]:
+    """:func:`run_seed` in a worker process of ``--jobs``, stopping when the parent is asked to
+    (a seed already queued when it was does not start)."""
+    if _PARENT_STOP is not None and _PARENT_STOP.value:
+        raise SystemExit(128 + _PARENT_STOP.value)
+    with StopRequest(parent=_PARENT_STOP) as stop:
+        return run_seed(args, params, seed, None, command, versions, stop)
+
+
+def run_seeds_in_parallel(
+    args: argparse.Namespace,
+    params: dict[str, Any],
+    command: str,
+    versions: dict[str, str],
+    stop: StopRequest,
+) -> dict[int, tuple[Path, dict[str, Any]]]:
+    """``--jobs N``: :func:`run_seed` for every seed, N processes at a time (spawned, so each
+    starts as a lone run does and its agent is the one it gets alone). Ctrl-C reaches the workers
+    too: each saves its checkpoint; seeds not started are not started, and the job exits with
+    ``128 + signal`` once the workers have stopped. Returns ``{seed: (agent_dir, entry)}`` in the
+    order of ``--seed``."""
+    import multiprocessing
+    from concurrent.futures import CancelledError, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    args = argparse.Namespace(**{**vars(args), "no_progress": True})
+    context = multiprocessing.get_context("spawn")
+    parent_stop = context.RawValue("i", 0)
+    with ProcessPoolExecutor(
+        max_workers=min(args.jobs, len(args.seed)),
+        mp_context=context,
+        initializer=_start_worker,
+        initargs=(parent_stop,),
+    ) as pool:
+        futures = {
+            seed: pool.submit(_run_seed_in_worker, args, params, seed, command, versions)
+            for seed in args.seed
+        }
+        pending = set(futures.values())
+        while pending:
+            _, pending = wait(pending, timeout=0.5)
+            if stop.requested and not parent_stop.value:
+                parent_stop.value = stop.signum
+                for future in pending:
+                    future.cancel()
+    trained: dict[int, tuple[Path, dict[str, Any]]] = {}
+    unfinished: list[int] = []
+    for seed, future in futures.items():
+        try:
+            trained[seed] = future.result()
+        except (CancelledError, SystemExit, BrokenProcessPool):
+            unfinished.append(seed)  # not started, or stopped after saving its checkpoint
+    if unfinished:
+        done = ", ".join(map(str, trained)) or "none"
+        message = f"seeds trained: {done}; not finished: {unfinished}"
+        if stop.requested:
+            stop.exit(f"interrupted: {message}")
+        raise SystemExit(f"a worker process died: {message}")
+    return trained
+
+
 def main(argv: list[str] | None = None) -> int:
     from imm_gym.validation import ConfigError
 
@@ -855,57 +1008,20 @@ def main(argv: list[str] | None = None) -> int:
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
     versions = _versions(args.engine)
     summary: dict[str, Any] = {"command": command, "versions": versions, "seeds": {}}
-    agents_trained: list[Path] = []
     with StopRequest() as stop:
-        for seed in args.seed:
-            if stop.requested:
-                stop.exit(f"interrupted before training seed {seed}")
-            run_dir = args.out / f"seed_{seed}"
-            run_dir.mkdir(parents=True, exist_ok=True)
-            from agents.training import jsonable
-
-            (run_dir / "config.json").write_text(
-                json.dumps(
-                    {
-                        "env": args.env,
-                        "algo": args.algo,
-                        "seed": seed,
-                        "hyperparams": jsonable(params),
-                    },
-                    indent=2,
-                )
-            )
-            try:
-                if args.engine == "rllib":
-                    agent_dir, stats = train_one_rllib(args, params, seed, run_dir, stop)
-                else:
-                    agent_dir, stats = train_one(args, params, seed, run_dir, resume, stop)
-            except ConfigError as err:  # a checkpoint that does not fit the model
-                parser.error(str(err))
-            print(
-                f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
-                f"({stats['fps']:.0f} steps/s)"
-            )
-            entry: dict[str, Any] = {"training": stats}
-            if not args.no_eval:
-                results = evaluate_agent(agent_dir, args, run_dir, stop)
-                entry.update(results)
-                (run_dir / "results.json").write_text(json.dumps(results, indent=2))
-                write_report(
-                    run_dir / "report.md",
-                    results,
-                    [
-                        f"# {args.algo.upper()} on {args.env}, seed {seed}",
-                        "",
-                        f"Command: `{command}`. Training: {stats['timesteps']} steps in "
-                        f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, "
-                        f"{_engine(args)}).",
-                        f"Agent: {_describe_selection(stats['selected'])}.",
-                        f"Versions: {versions}.",
-                    ],
-                )
-            summary["seeds"][str(seed)] = entry
-            agents_trained.append(agent_dir)
+        try:
+            if args.jobs > 1 and len(args.seed) > 1:
+                trained = run_seeds_in_parallel(args, params, command, versions, stop)
+            else:
+                trained = {}
+                for seed in args.seed:
+                    if stop.requested:
+                        stop.exit(f"interrupted before training seed {seed}")
+                    trained[seed] = run_seed(args, params, seed, resume, command, versions, stop)
+        except ConfigError as err:  # a checkpoint that does not fit the model
+            parser.error(str(err))
+    summary["seeds"] = {str(seed): entry for seed, (_, entry) in trained.items()}
+    agents_trained = [agent_dir for agent_dir, _ in trained.values()]
     if len(agents_trained) > 1:
         from agents.ensemble import write_ensemble
 

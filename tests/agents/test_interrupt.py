@@ -102,3 +102,35 @@ def test_sigint_at_eight_points_always_leaves_a_checkpoint_that_resumes(tmp_path
     runs = interrupted_runs(tmp_path, [(delay, signal.SIGINT) for delay in delays])
     for run in runs:
         resume(run, check_interrupted(run, 130))
+
+
+def test_a_signal_to_the_parent_of_jobs_stops_every_worker_at_a_checkpoint(tmp_path) -> None:
+    """``--jobs 2 --seed 0 1 2``: SIGTERM to the parent process alone, once both workers train,
+    reaches them (each saves its checkpoint), seed 2 never starts, and the job exits 143."""
+    config = tmp_path / "small.yml"
+    config.write_text(SMALL)
+    out = tmp_path / "run"
+    argv = [sys.executable, "train.py", "--config", str(config), "--out", str(out), *RUN]
+    argv += ["--jobs", "2", "--seed", "0", "1", "2"]
+    proc = subprocess.Popen(
+        argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    assert proc.stdout is not None
+    lines, started = [], 0
+    for line in proc.stdout:
+        lines.append(line)
+        started += "training ppo" in line
+        if started == 2:
+            time.sleep(1.0)
+            proc.send_signal(signal.SIGTERM)
+            break
+    lines += proc.stdout.readlines()
+    output = "".join(lines)
+    assert proc.wait(timeout=120) == 143, output
+    for seed in (0, 1):
+        latest = out / f"seed_{seed}" / "checkpoints" / "latest"
+        assert f"checkpoint saved to {latest}" in output, output
+        assert json.loads((latest / "resume.json").read_text())["num_timesteps"] > 0
+    assert not (out / "seed_2").exists()
+    assert "interrupted: seeds trained: none; not finished: [0, 1, 2]" in output, output
+    assert "Traceback" not in output, output

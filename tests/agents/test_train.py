@@ -118,8 +118,9 @@ def test_without_a_progress_bar_each_checkpoint_and_validation_prints_a_line(
 ) -> None:
     argv = ("--timesteps", "1024", "--checkpoint-every", "256", "--validate-every", "512")
     assert train_small(tmp_path, *argv, "--validation-runs", "3", "--no-eval") == 0
-    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("step ")]
-    pattern = r"step ([\d,]+)/1,024, [\d,]+ steps/s(, validation ARMSE \d+\.\d{3} m)?, .+ left"
+    out = capsys.readouterr().out.splitlines()
+    lines = [line for line in out if line.startswith("seed 0: step ")]
+    pattern = r"seed 0: step ([\d,]+)/1,024, [\d,]+ steps/s(, validation ARMSE \d+\.\d{3} m)?, .+ left"
     matches = [re.fullmatch(pattern, line) for line in lines]
     assert all(matches), lines
     assert [m[1] for m in matches] == ["256", "512", "768", "1,024"]
@@ -364,3 +365,32 @@ def test_several_seeds_make_an_ensemble_of_their_agents(tmp_path) -> None:
     np.testing.assert_allclose(ensemble.predict(obs)[0], (each[0] + each[1]) / 2, atol=1e-7)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["ensemble"] == str(tmp_path / "ensemble")
+
+
+def test_jobs_train_seeds_in_parallel_processes_to_the_agents_they_get_alone(tmp_path) -> None:
+    """``--jobs 2``: each seed in its own spawned process, its agent byte for byte the one a
+    sequential run gives, the summary in ``--seed`` order and the ensemble written."""
+    args = ("--timesteps", "256", "--no-eval", "--seed", "1", "0")
+    for run in ("one_by_one", "parallel"):
+        (tmp_path / run).mkdir()
+    assert train_small(tmp_path / "one_by_one", *args) == 0
+    assert train_small(tmp_path / "parallel", *args, "--jobs", "2") == 0
+    for seed in (0, 1):
+        weights = [
+            (tmp_path / run / f"seed_{seed}" / "agent" / "policy.safetensors").read_bytes()
+            for run in ("one_by_one", "parallel")
+        ]
+        assert weights[0] == weights[1]
+    summary = json.loads((tmp_path / "parallel" / "summary.json").read_text())
+    assert list(summary["seeds"]) == ["1", "0"]
+    assert (tmp_path / "parallel" / "ensemble" / "ensemble.json").is_file()
+
+
+def test_jobs_must_be_positive_and_are_for_sb3(tmp_path, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        train_small(tmp_path, "--jobs", "0")
+    assert exit_info.value.code == 2
+    assert "--jobs must be >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        train_small(tmp_path, "--jobs", "2", "--engine", "rllib")
+    assert "--jobs is for --engine sb3" in capsys.readouterr().err
