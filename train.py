@@ -1,6 +1,6 @@
 """The main job: train PPO to adapt the IMM's TPM, then evaluate it against the baselines.
 
-    python train.py                      # defaults: imm_gym/TPMAdapt-v0, seed 0, ~12 min on 2 cores
+    python train.py                      # defaults: imm_gym/TPMAdapt-v0, seed 0, ~14 min on 2 cores
     python train.py --seed 0 1 2         # several training seeds: each reported, then mean ± std
     python train.py --seed 0 1 2 3 4 --jobs 2 --no-eval   # two seeds at a time: the shipped policy
     python train.py --timesteps 200000 --out runs/quick
