@@ -47,13 +47,13 @@ def cluster():
 
 def test_evaluation_split_across_both_nodes_is_bit_identical(cluster):
     from agents import PRETRAINED
-    from agents.policy import load_agent
+    from agents.ensemble import load_policy
     from imm_gym.cli.evaluate import evaluate
     from imm_gym.evaluation.distributed import ShardPool
 
     pool = ShardPool()
     assert len(set(pool.nodes())) == 2, "the two shards should sit on the two nodes"
-    agent = load_agent(PRETRAINED)
+    agent = load_policy(PRETRAINED)
     kwargs = {
         "extra": {"learned": (agent, agent.env_overrides)},
         "reference": "fixed",
