@@ -1007,7 +1007,6 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
     versions = _versions(args.engine)
-    summary: dict[str, Any] = {"command": command, "versions": versions, "seeds": {}}
     with StopRequest() as stop:
         try:
             if args.jobs > 1 and len(args.seed) > 1:
@@ -1020,7 +1019,11 @@ def main(argv: list[str] | None = None) -> int:
                     trained[seed] = run_seed(args, params, seed, resume, command, versions, stop)
         except ConfigError as err:  # a checkpoint that does not fit the model
             parser.error(str(err))
-    summary["seeds"] = {str(seed): entry for seed, (_, entry) in trained.items()}
+    summary: dict[str, Any] = {
+        "command": command,
+        "versions": versions,
+        "seeds": {str(seed): entry for seed, (_, entry) in trained.items()},
+    }
     agents_trained = [agent_dir for agent_dir, _ in trained.values()]
     if len(agents_trained) > 1:
         from agents.ensemble import write_ensemble
