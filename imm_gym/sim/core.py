@@ -113,6 +113,7 @@ class TrackingCore:
             config.mode_reward,
             config.tpm_change_cost,
             stay_bank=needs_bank,
+            mode_score=config.mode_score,
         )
         #: the stay bank, where the configuration uses its evidence (else None)
         self.stay_bank = StayBank(

@@ -19,7 +19,7 @@ from imm_gym.scenarios.catalog import SCENARIOS
 from imm_gym.scenarios.segments import RandomFamily, Scenario, TruthSource
 from imm_gym.sim.conditions import Variation, check_variation
 from imm_gym.sim.features import FEATURES, shadow_features
-from imm_gym.sim.rewards import REWARD_TERMS
+from imm_gym.sim.rewards import MODE_SCORES, REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, paper_bank
@@ -146,6 +146,10 @@ class EnvConfig:
             of bank A's mode probabilities beyond the shadow's on the true model
             (:func:`imm_gym.sim.rewards.mode_score`; training only: it reads the truth; needs the
             shadow).
+        mode_score: the mode-identification term: ``"log"`` the log score above, ``"hit"``
+            whether the most probable model is the true one, beyond the shadow's
+            (:func:`imm_gym.sim.rewards.mode_hit`: identification without paying for
+            confidence).
         obs_features: extra observation blocks, from :data:`OBS_FEATURES` (declared in
             :mod:`imm_gym.sim.features`).
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
@@ -180,6 +184,7 @@ class EnvConfig:
     tpm_cost: float = 0.0
     tpm_change_cost: float = 0.0
     mode_reward: float = 0.0
+    mode_score: str = "log"
     obs_features: tuple[str, ...] = ()
     loglik_clip: float = 20.0
     velocity_std: float = 5.0
@@ -258,6 +263,7 @@ class EnvConfig:
         if self.mode_reward > 0.0 and self.shadow == "none":
             raise ConfigError("mode_reward > 0 needs shadow 'fixed' (the probabilities it is "
                               "measured against)")
+        check_choice("mode_score", self.mode_score, tuple(MODE_SCORES))
         features = check_sequence("obs_features", self.obs_features)
         for i, f in enumerate(features):
             check_choice(f"obs_features[{i}]", f, tuple(FEATURES))

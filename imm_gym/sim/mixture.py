@@ -42,7 +42,8 @@ POLICY_FIELDS = (
 #: hyperparameter entry's ``env_kwargs`` keep only these under ``train.py --env-config`` (the
 #: files give the trackers and targets).
 AGENT_FIELDS = (
-    *POLICY_FIELDS, "reward", "reward_scale", "tpm_cost", "tpm_change_cost", "mode_reward"
+    *POLICY_FIELDS, "reward", "reward_scale", "tpm_cost", "tpm_change_cost", "mode_reward",
+    "mode_score",
 )
 
 

@@ -30,7 +30,10 @@ step's TPM (the TPM stays a switching prior rather than a per-step mixing knob),
 the shadow's on the model that matches the true motion,
 :math:`\ln(\mu_{j^*} + \epsilon) - \ln(\mu^s_{j^*} + \epsilon)` (:func:`mode_score`; 0 where no
 model matches): the policy is paid for mode probabilities that identify the maneuver, the IMM's
-maneuver detection, not only for position.
+maneuver detection, not only for position. With ``EnvConfig.mode_score = "hit"`` the term is
+:func:`mode_hit` instead, :math:`[\arg\max_j \mu_j = j^*] - [\arg\max_j \mu^s_j = j^*]`: the
+maneuver identified, whatever the confidence (the log score also pays for a sticky TPM's
+confidence, which costs position error where the bank's models bracket the motion).
 Adding a term is one :func:`register` call here; :class:`Reward` evaluates them.
 """
 
@@ -123,6 +126,22 @@ def mode_score(mode_probs: Array, shadow_probs: Array, true_model: NDArray[np.in
     return np.where(true_model >= 0, score, 0.0)
 
 
+def mode_hit(mode_probs: Array, shadow_probs: Array, true_model: NDArray[np.int64]) -> Array:
+    r"""``(N,)`` :math:`[\arg\max_j \mu_j = j^*] - [\arg\max_j \mu^s_j = j^*]`, the step's
+    mode identification (the argmax on the true model) beyond the shadow's; 0 where
+    ``j* = -1``."""
+    hit = np.argmax(mode_probs, axis=1) == true_model
+    shadow_hit = np.argmax(shadow_probs, axis=1) == true_model
+    return np.where(true_model >= 0, hit.astype(np.float64) - shadow_hit, 0.0)
+
+
+#: The mode-identification terms by ``EnvConfig.mode_score``.
+MODE_SCORES: dict[str, Callable[[Array, Array, NDArray[np.int64]], Array]] = {
+    "log": mode_score,
+    "hit": mode_hit,
+}
+
+
 class Reward:
     """The reward of one configuration, its terms resolved once (a step costs only the terms'
     arithmetic).
@@ -132,7 +151,7 @@ class Reward:
             (its terms are computed only then).
         tpm_cost: weight of the TPM's divergence from ``shadow_tpm`` ``(M, M)`` or ``(N, M, M)``
             (the slots', read at each call).
-        mode_reward: weight of :func:`mode_score`.
+        mode_reward: weight of the mode-identification term, ``MODE_SCORES[mode_score]``.
         tpm_change_cost: weight of the TPM's divergence from the previous step's.
     """
 
@@ -145,6 +164,7 @@ class Reward:
         mode_reward: float = 0.0,
         tpm_change_cost: float = 0.0,
         stay_bank: bool = False,
+        mode_score: str = "log",
     ) -> None:
         usable = [
             t
@@ -159,6 +179,7 @@ class Reward:
         self._tpm_cost = tpm_cost
         self._shadow_tpm = shadow_tpm
         self._mode_reward = mode_reward
+        self._mode_score = MODE_SCORES[mode_score]
         self._tpm_change_cost = tpm_change_cost
 
     def __call__(
@@ -188,6 +209,6 @@ class Reward:
             terms["tpm_change"] = row_divergence(step.tpm, previous_tpm)
             reward -= self._tpm_change_cost * terms["tpm_change"]
         if self._mode_reward > 0.0:
-            terms["mode_score"] = mode_score(step.mode_probs, step.mu_s, true_model)
+            terms["mode_score"] = self._mode_score(step.mode_probs, step.mu_s, true_model)
             reward += self._mode_reward * terms["mode_score"]
         return reward, terms

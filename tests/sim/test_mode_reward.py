@@ -1,5 +1,5 @@
-"""The mode-identification reward term: the log score of the mode probabilities beyond the
-shadow's on the true model."""
+"""The mode-identification reward terms: the log score of the mode probabilities beyond the
+shadow's on the true model, or the identification (argmax) beyond the shadow's."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.rewards import MODE_SCORE_FLOOR, mode_score
+from imm_gym.sim.rewards import MODE_SCORE_FLOOR, mode_hit, mode_score
 from imm_gym.validation import ConfigError
 
 
@@ -21,20 +21,35 @@ def test_mode_score_by_hand() -> None:
     np.testing.assert_allclose(mode_score(mu, mu_s, true), expected, rtol=1e-15)
 
 
-def test_the_reward_adds_the_weighted_mode_score() -> None:
+def test_mode_hit_by_hand() -> None:
+    """+1 where only the policy's argmax is the true model, -1 where only the shadow's, 0 where
+    both or neither are, or no model matches."""
+    mu = np.array([[0.7, 0.2, 0.1], [0.1, 0.1, 0.8], [0.3, 0.3, 0.4], [0.5, 0.4, 0.1],
+                   [0.2, 0.5, 0.3], [0.2, 0.2, 0.6]])
+    mu_s = np.array([[0.2, 0.5, 0.3], [0.1, 0.1, 0.8], [0.3, 0.3, 0.4], [0.1, 0.8, 0.1],
+                     [0.2, 0.3, 0.5], [0.2, 0.2, 0.6]])
+    true = np.array([0, 2, 1, 1, 0, -1])
+    np.testing.assert_array_equal(mode_hit(mu, mu_s, true), [1.0, 0.0, 0.0, -1.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize(("kind", "score_of"), [("log", mode_score), ("hit", mode_hit)])
+def test_the_reward_adds_the_weighted_mode_score(kind: str, score_of) -> None:
     """Same episodes and actions with and without the term: the rewards differ by exactly
-    ``mode_reward * info["mode_score"]``, computed from the step's probabilities."""
+    ``mode_reward * info["mode_score"]``, the chosen score of the step's probabilities."""
     plain = TrackingCore(EnvConfig(), 6)
-    paid = TrackingCore(EnvConfig(mode_reward=0.5), 6)
+    paid = TrackingCore(EnvConfig(mode_reward=0.5, mode_score=kind), 6)
     for core in (plain, paid):
         core.reset(np.arange(6), list(range(6)))
     rng = np.random.default_rng(0)
+    paid_steps = 0
     for _ in range(20):
         action = rng.uniform(-1, 1, (6, 9))
         a, b = plain.step(action), paid.step(action)
-        score = mode_score(b.info["mode_probs"], paid.mu_s, b.info["true_model"])
+        score = score_of(b.info["mode_probs"], paid.mu_s, b.info["true_model"])
         np.testing.assert_array_equal(b.info["mode_score"], score)
         np.testing.assert_allclose(b.reward, a.reward + 0.5 * score, rtol=1e-12, atol=1e-12)
+        paid_steps += int(np.count_nonzero(score))
+    assert paid_steps > 0
     assert "mode_score" not in a.info
 
 
@@ -43,6 +58,8 @@ def test_mode_reward_is_checked() -> None:
         EnvConfig(mode_reward=-1.0)
     with pytest.raises(ConfigError, match="mode_reward > 0 needs shadow"):
         EnvConfig(mode_reward=1.0, shadow="none", reward="error")
+    with pytest.raises(ConfigError, match=r"mode_score.*'log', 'hit'"):
+        EnvConfig(mode_score="brier")
 
 
 def test_the_tpm_change_cost_is_the_divergence_from_the_previous_tpm() -> None:
