@@ -1,4 +1,6 @@
-"""The best fixed TPM: the classical IMM whose stay probability has the lowest training ARMSE."""
+"""The best fixed TPM: the classical IMM whose stay probability has the lowest training ARMSE —
+one stay for every model (``best-fixed``), or one for the first model and one for the others
+(``best-fixed-rows``)."""
 
 from __future__ import annotations
 
@@ -46,3 +48,37 @@ def build_best_fixed(context: BuildContext) -> tuple[FixedTPM, dict[str, Any]]:
         "train_seeds": context.train_seeds(),
     }
     return FixedTPM(M, stay), notes
+
+
+@register(
+    "best-fixed-rows",
+    help="the fixed TPM with one stay for the first model and one for the others, lowest "
+    "ARMSE on training runs",
+)
+def build_best_fixed_rows(context: BuildContext) -> tuple[FixedTPM, dict[str, Any]]:
+    """:class:`FixedTPM` with the stays ``(a, b, ..., b)`` scoring best on the training runs,
+    ``a`` (the first model's: straight flight in the built-in banks) and ``b`` (every other
+    model's) each from :data:`STAY_GRID` — the TPM of models with different mean sojourns, a
+    sticky non-maneuvering model beside short-lived maneuver models, which a single stay cannot
+    express (``best-fixed`` is its diagonal ``a = b``). Every pair's classical IMM on the same
+    runs, in one roll-out of ``len(STAY_GRID)²`` TPMs.
+
+    Notes: the stays found, the training ARMSE of every pair searched (``"a/b"``), the training
+    runs and seeds.
+    """
+    if context.train_armse_from is None:
+        raise ConfigError("best-fixed-rows needs a build context that offers train_armse_from")
+    M = context.n_models
+    pairs = [(a, b) for a in STAY_GRID for b in STAY_GRID]
+    tpms = np.stack([stay_tpm(M, (a,) + (b,) * (M - 1)) for a, b in pairs])
+    scores = context.train_armse_from(FixedTPM(M), tpms)
+    best = int(np.argmin(scores))
+    a, b = pairs[best]
+    stays = (float(a),) + (float(b),) * (M - 1)
+    notes = {
+        "stays": list(stays),
+        "search": {f"{a:.4f}/{b:.4f}": float(v) for (a, b), v in zip(pairs, scores, strict=True)},
+        "train_runs": context.train_runs,
+        "train_seeds": context.train_seeds(),
+    }
+    return FixedTPM(M, stays), notes

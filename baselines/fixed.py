@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -13,20 +14,24 @@ from .registry import register
 
 @register("fixed", help="classical IMM, the fixed TPM")
 class FixedTPM(Baseline):
-    """Classical IMM with ``stay`` on the diagonal of the TPM at every step.
+    """Classical IMM with ``stay`` on the diagonal of the TPM at every step: one stay for
+    every model or one per model (:func:`imm_gym.tracking.tpm.stay_tpm`).
 
     The environment starts from this TPM (``initial_stay``; without ``stay``, the configured
     initial TPM, sojourn-based if configured) and the policy's zero ``scale`` action keeps it.
     """
 
-    def __init__(self, n_models: int = 3, stay: float | None = None) -> None:
+    def __init__(
+        self, n_models: int = 3, stay: float | Sequence[float] | None = None
+    ) -> None:
         super().__init__(n_models)
-        self.stay = stay
+        self.stay = stay if stay is None or isinstance(stay, (int, float)) else tuple(stay)
         self.env_overrides = {"action_mode": "scale"}
         if stay is not None:
-            off = (1.0 - stay) / (n_models - 1)
+            stays = np.broadcast_to(np.asarray(stay, dtype=np.float64), (n_models,))
+            smallest = float(min(stays.min(), ((1.0 - stays) / (n_models - 1)).min()))
             self.env_overrides.update(
-                {"initial_stay": stay, "sojourn": None, "p_min": min(1e-3, stay, off)}
+                {"initial_stay": self.stay, "sojourn": None, "p_min": min(1e-3, smallest)}
             )
 
     def act(

@@ -26,6 +26,16 @@ BEHAVIOUR_COLUMNS = (
 )
 
 
+def policy_label(name: str, row: dict[str, Any]) -> str:
+    """The policy's name with the stays a fixed-TPM search found (``best-fixed (stay 0.6)``,
+    ``best-fixed-rows (stays 0.995/0.5/0.5)``, one per model)."""
+    if "stay" in row:
+        return f"{name} (stay {row['stay']:.3g})"
+    if "stays" in row:
+        return f"{name} (stays {'/'.join(f'{s:.3g}' for s in row['stays'])})"
+    return name
+
+
 def _cell(row: dict[str, Any], key: str, fmt: str) -> str:
     value = row.get(key)
     return "—" if value is None else fmt.format(value)
@@ -50,7 +60,7 @@ def render_tables(results: dict[str, Any]) -> None:
     for label in ("NIS ≤ χ²95", "NEES ≤ χ²95", "mode acc.", "diverged"):
         table.add_column(label, justify="right")
     for name, r in results["policies"].items():
-        label = f"{name} (stay {r['stay']:.3g})" if "stay" in r else name
+        label = policy_label(name, r)
         table.add_row(
             label,
             *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS),
@@ -137,7 +147,7 @@ def render_suite_table(results: dict[str, Any]) -> None:
                 delta = f"{d['diff']:+.2f} [{d['low']:+.2f}, {d['high']:+.2f}]"
             table.add_row(
                 steps if i == 0 else "",
-                name,
+                policy_label(name, row),
                 f"{row['armse_pos']:.2f}",
                 f"{100 * row['mode_accuracy']:.1f}%",
                 f"{100 * row['nees']['inside']:.1f}%",

@@ -86,7 +86,9 @@ class EnvConfig:
             NCV/CT/CTRA models in their own state spaces (needs ``filter="ekf"``).
         filter: ``"ukf"`` (SVD-UKF), ``"ukf-cholesky"`` (the UKF with Cholesky sigma points:
             faster, not the paper's) or ``"ekf"``.
-        initial_stay: diagonal of the initial (and fixed-bank) TPM, off-diagonal entries equal.
+        initial_stay: diagonal of the initial (and fixed-bank) TPM, one stay for every model or
+            one per model; each row's off-diagonal entries equal
+            (:func:`~imm_gym.tracking.tpm.stay_tpm`).
         sojourn: mean sojourn time of each model (s), or None: the initial (and fixed-bank) TPM
             is then ``exp(A T)`` of the continuous-time chain with these sojourns
             (:func:`~imm_gym.tracking.tpm.tpm_from_sojourn`), for each episode's ``T``, in place
@@ -168,7 +170,7 @@ class EnvConfig:
     vary: Variation = field(default_factory=Variation)
     bank: tuple[MotionModel, ...] | HeteroBank = field(default_factory=paper_bank)
     filter: str = "ukf"
-    initial_stay: float = 0.995
+    initial_stay: float | tuple[float, ...] = 0.995
     sojourn: tuple[float, ...] | None = None
     p_min: float = 1e-3
     action_mode: str = "scale"
@@ -214,7 +216,14 @@ class EnvConfig:
         store(self, "bank", bank)
         check_choice("filter", self.filter, tuple(f for f in FILTERS if f != "kf"))
         M = len(bank)
-        store(self, "initial_stay", check_range("initial_stay", self.initial_stay, 0.0, 1.0))
+        if isinstance(self.initial_stay, (int, float)):
+            stay = check_range("initial_stay", self.initial_stay, 0.0, 1.0)
+        else:
+            stay = tuple(
+                check_range(f"initial_stay[{i}]", s, 0.0, 1.0)
+                for i, s in enumerate(check_sequence("initial_stay", self.initial_stay, M))
+            )
+        store(self, "initial_stay", stay)
         if self.sojourn is not None:
             sojourn = check_sequence("sojourn", self.sojourn, M)
             store(self, "sojourn", tuple(

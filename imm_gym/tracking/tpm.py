@@ -31,18 +31,26 @@ ROW_SUM_TOL = 1e-8
 MAX_T_OVER_SOJOURN = 1e12
 
 
-def stay_tpm(n_models: int, stay: float) -> Array:
-    """TPM with ``stay`` on the diagonal and ``(1 - stay) / (M - 1)`` elsewhere.
+def stay_tpm(n_models: int, stay: float | Sequence[float]) -> Array:
+    """TPM with ``stay`` on the diagonal and ``(1 - stay) / (M - 1)`` elsewhere in each row.
 
-    ``stay = 0.995`` with M = 3 is the paper-preset fixed TPM (SPEC §6); ``stay = 1/M`` is the
-    uniform TPM.
+    ``stay`` is one probability for every model or one per model (``stay[i]`` on row ``i``:
+    models of different mean sojourns, e.g. a sticky straight-flight model beside short-lived
+    maneuver models). ``stay = 0.995`` with M = 3 is the paper-preset fixed TPM (SPEC §6);
+    ``stay = 1/M`` is the uniform TPM.
     """
     n_models = check_int("n_models", n_models, 1)
-    stay = check_range("stay", stay, 0.0, 1.0)
+    if isinstance(stay, (int, float, np.floating)):
+        stays = np.full(n_models, check_range("stay", stay, 0.0, 1.0))
+    else:
+        stays = np.array([
+            check_range(f"stay[{i}]", s, 0.0, 1.0)
+            for i, s in enumerate(check_sequence("stay", stay, n_models))
+        ])
     if n_models == 1:
         return np.ones((1, 1))
-    tpm = np.full((n_models, n_models), (1.0 - stay) / (n_models - 1))
-    np.fill_diagonal(tpm, stay)
+    tpm = np.repeat(((1.0 - stays) / (n_models - 1))[:, None], n_models, axis=1)
+    np.fill_diagonal(tpm, stays)
     return tpm
 
 

@@ -60,7 +60,9 @@ def test_runs_through_sb3_evaluate_policy(name: str) -> None:
 
 
 def test_registry_lists_every_shipped_baseline_in_order() -> None:
-    assert list(REGISTRY) == ["fixed", "tip-imm", "best-fixed", "amp-imm", "window", "bbsca"]
+    assert list(REGISTRY) == [
+        "fixed", "tip-imm", "best-fixed", "best-fixed-rows", "amp-imm", "window", "bbsca"
+    ]
     assert UNTUNED == ["fixed", "tip-imm", "amp-imm", "window"]
     assert all(REGISTRY[name].cls.name == name for name in UNTUNED)
     assert all(entry.help for entry in REGISTRY.values())
@@ -115,6 +117,42 @@ def test_best_fixed_picks_the_lowest_training_armse_on_the_grid() -> None:
     assert notes["stay"] == 0.7 and notes["search"]["0.7000"] == pytest.approx(0.02)
     assert len(notes["search"]) == len(STAY_GRID)
     assert (notes["train_runs"], notes["train_seeds"]) == (40, "1000000..1000039")
+
+
+def test_best_fixed_rows_searches_the_first_models_stay_and_the_others() -> None:
+    """Every pair (a, b) of the grid scored in one roll-out; the policy holds (a, b, b)."""
+    scored: list[tuple[float, float, float]] = []
+
+    def train_armse_from(policy: FixedTPM, tpms: np.ndarray) -> np.ndarray:
+        assert policy.stay is None
+        stays = np.diagonal(tpms, axis1=1, axis2=2)
+        scored.extend(map(tuple, stays))
+        np.testing.assert_allclose(tpms.sum(axis=2), 1.0)
+        return np.abs(stays[:, 0] - 0.98) + np.abs(stays[:, 1] - 0.52)
+
+    def no_single_runs(policy: FixedTPM) -> float:
+        raise AssertionError("the search scores the grid in one roll-out")
+
+    context = BuildContext(PAPER, 1_000_000, 40, no_single_runs, train_armse_from)
+    policy, notes = REGISTRY["best-fixed-rows"].build(context)
+    assert scored == [(a, b, b) for a in STAY_GRID for b in STAY_GRID]
+    assert isinstance(policy, FixedTPM) and policy.stay == (0.98, 0.5, 0.5)
+    assert policy.env_overrides["initial_stay"] == (0.98, 0.5, 0.5)
+    assert policy.env_overrides["p_min"] == pytest.approx(1e-3)
+    assert notes["stays"] == [0.98, 0.5, 0.5]
+    assert notes["search"]["0.9800/0.5000"] == pytest.approx(0.02)
+    assert len(notes["search"]) == len(STAY_GRID) ** 2
+
+
+def test_best_fixed_rows_holds_its_tpm_on_the_environment() -> None:
+    """The found stays are the TPM of every step (the zero ``scale`` action keeps it)."""
+    policy = FixedTPM(3, (0.999, 1 / 3, 1 / 3))
+    env = _env_for(policy)
+    obs, _ = env.reset(seed=4)
+    for _ in range(5):
+        action, _ = policy.predict(obs)
+        obs, _, _, _, info = env.step(action)
+        np.testing.assert_allclose(info["tpm"], stay_tpm(3, (0.999, 1 / 3, 1 / 3)), rtol=1e-12)
 
 
 def test_fixed_policy_is_classical_imm_with_zero_reward() -> None:
@@ -239,3 +277,20 @@ def test_uniform_tpm_is_the_best_fixed_choice_on_the_paper_scenario(paper_fixed)
     r = rollout(uniform, evaluation_config(PAPER, uniform.env_overrides), 100, 0)
     assert score(r)["armse_pos"] == pytest.approx(16.7, rel=0.03)
     assert score(r)["armse_pos"] < score(paper_fixed)["armse_pos"]
+
+
+def test_best_fixed_rows_on_real_runs_contains_the_single_stay_search() -> None:
+    """On the same training runs the pairs (a, a) score what ``best-fixed`` scores for a, so
+    the per-row search is never worse on them."""
+    from imm_gym.cli.evaluate import make_policy
+
+    base = EnvConfig(scenario="random")
+    _, _, single = make_policy("best-fixed", base, seed=5, train_runs=3)
+    _, _, rows = make_policy("best-fixed-rows", base, seed=5, train_runs=3)
+    assert rows["train_seeds"] == single["train_seeds"]
+    for key, value in single["search"].items():
+        assert rows["search"][f"{key}/{key}"] == pytest.approx(value, rel=1e-9)
+    assert min(rows["search"].values()) <= min(single["search"].values())
+    assert rows["search"][
+        "/".join(f"{s:.4f}" for s in rows["stays"][:2])
+    ] == min(rows["search"].values())

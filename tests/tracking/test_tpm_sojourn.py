@@ -1,5 +1,6 @@
-"""Tests of imm_gym.tracking.tpm.tpm_from_sojourn: a TPM from the models' mean sojourn times, the
-continuous-time Markov generator discretized as exp(A T)."""
+"""Tests of imm_gym.tracking.tpm's constructions: tpm_from_sojourn, a TPM from the models' mean
+sojourn times (the continuous-time Markov generator discretized as exp(A T)), and stay_tpm with
+one stay per model."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from imm_gym import ConfigError
 from imm_gym.tracking.tpm import (
     MAX_T_OVER_SOJOURN,
     sojourn_generator,
+    stay_tpm,
     tpm_from_sojourn,
     validate_tpm,
 )
@@ -165,3 +167,31 @@ def test_invalid_inputs_name_the_field(args: tuple, field: str) -> None:
 def test_largest_step_ratio_is_accepted() -> None:
     tpm = tpm_from_sojourn([1.0, 1.0], MAX_T_OVER_SOJOURN)
     np.testing.assert_allclose(tpm, 0.5, rtol=1e-12)
+
+
+def test_stay_tpm_takes_one_stay_per_model() -> None:
+    """Row i keeps ``stay[i]`` and spreads the rest evenly; one stay for all is every row's."""
+    tpm = stay_tpm(3, (0.99, 0.5, 0.8))
+    np.testing.assert_allclose(
+        tpm, [[0.99, 0.005, 0.005], [0.25, 0.5, 0.25], [0.1, 0.1, 0.8]], rtol=1e-14
+    )
+    np.testing.assert_array_equal(stay_tpm(3, (0.9, 0.9, 0.9)), stay_tpm(3, 0.9))
+    with pytest.raises(ConfigError, match="stay must have 3 entries"):
+        stay_tpm(3, (0.9, 0.5))
+    with pytest.raises(ConfigError, match=r"stay\[1\]"):
+        stay_tpm(3, (0.9, 1.5, 0.5))
+
+
+def test_an_environment_starts_from_one_stay_per_model() -> None:
+    """``initial_stay`` per model is the fixed TPM of the core and the shadow's, checked by
+    name."""
+    from imm_gym import EnvConfig, TrackingCore
+
+    config = EnvConfig(initial_stay=(0.995, 0.5, 0.5))
+    core = TrackingCore(config, 2)
+    np.testing.assert_array_equal(core.fixed_tpms[0], stay_tpm(3, (0.995, 0.5, 0.5)))
+    np.testing.assert_array_equal(config.shadow_tpm(1.0), stay_tpm(3, (0.995, 0.5, 0.5)))
+    with pytest.raises(ConfigError, match=r"initial_stay must have 3 entries"):
+        EnvConfig(initial_stay=(0.9, 0.5))
+    with pytest.raises(ConfigError, match=r"initial_stay\[2\]"):
+        EnvConfig(initial_stay=(0.9, 0.5, -0.1))
