@@ -73,8 +73,9 @@ def tradeoff_figure(
     meta: dict[str, Any],
 ) -> Path:
     """Position ARMSE against mode accuracy: the fixed TPMs of a stay grid as one curve, every
-    other policy as a labelled point (its mode-probability total variation per step beside its
-    name), all on the same runs.
+    other policy as a point named in the legend (with its mode-probability total variation per
+    step; a legend, not labels beside the points, which overlap where policies are close), all
+    on the same runs.
 
     Args:
         policies: each policy's :func:`~imm_gym.evaluation.rollout.score`.
@@ -96,10 +97,8 @@ def tradeoff_figure(
                     color="0.4")
     for name, row in policies.items():
         a, e = 100.0 * row["mode_accuracy"], row["armse_pos"]
-        ax.plot(a, e, "D", ms=6)
         label = name if len(name) <= 28 else "…" + name[-27:]  # an agent's directory
-        ax.annotate(f"{label} (TV {row['mode_prob_tv']:.2f})", (a, e), textcoords="offset points",
-                    xytext=(5, 4), fontsize=8)
+        ax.plot(a, e, "D", ms=6, label=f"{label} (TV {row['mode_prob_tv']:.2f})")
     ax.set(
         xlabel="mode accuracy (%): argmax of the mode probabilities = the true model",
         ylabel="position ARMSE (m)",
