@@ -403,7 +403,7 @@ class StopRequest:
     def exit(self, message: str) -> NoReturn:
         """Print ``message`` and exit with ``128 + signal``."""
         assert self.signum is not None
-        print(message, flush=True)
+        say(message)
         raise SystemExit(128 + self.signum)
 
 
@@ -478,10 +478,7 @@ def train_one(
     done = model.num_timesteps
     total = params["n_timesteps"]
     remaining = max(total - done, 0)
-    print(
-        f"seed {seed}: training {args.algo} on {args.env} from step {done:,} to {total:,}",
-        flush=True,
-    )
+    say(f"seed {seed}: training {args.algo} on {args.env} from step {done:,} to {total:,}")
     best_dir = run_dir / "best"
     best_file = best_dir / "validation.json"
     best = json.loads(best_file.read_text()) if best_file.is_file() else {"armse_pos": None}
@@ -547,7 +544,7 @@ def train_one(
             if (saved or armse is not None) and not progress_bar:
                 elapsed = time.perf_counter() - self.start
                 line = progress_line(self.num_timesteps, done, total, elapsed, armse)
-                print(f"seed {seed}: {line}", flush=True)
+                say(f"seed {seed}: {line}")
             return True
 
     def save(directory: Path, **more: Any) -> None:
@@ -684,10 +681,9 @@ def train_one_rllib(
         (best_dir / "validation.json").write_text(json.dumps({**best, "history": history}))
         return armse
 
-    print(
+    say(
         f"seed {seed}: training ppo on {args.env} with RLlib, {args.env_runners} env runner(s), "
-        f"to {total:,} steps",
-        flush=True,
+        f"to {total:,} steps"
     )
     start = time.perf_counter()
     next_validation = args.validate_every
@@ -699,7 +695,7 @@ def train_one_rllib(
             armse = validate()
         if armse is not None or not args.no_progress:
             elapsed = time.perf_counter() - start
-            print(f"seed {seed}: {progress_line(steps, 0, total, elapsed, armse)}", flush=True)
+            say(f"seed {seed}: {progress_line(steps, 0, total, elapsed, armse)}")
     seconds = time.perf_counter() - start
     if stop.requested:
         export(agent_dir)
@@ -745,6 +741,14 @@ def adopt_best(best_dir: Path, agent_dir: Path, best: dict[str, Any]) -> dict[st
         shutil.rmtree(agent_dir)
     shutil.copytree(best_dir, agent_dir)
     return {k: v for k, v in best.items() if k != "history"}
+
+
+def say(line: str) -> None:
+    """Print ``line`` in one write and flush: lines of seeds trained side by side (``--jobs``)
+    stay whole even where stdout is unbuffered (``print`` writes the text and the newline
+    apart)."""
+    sys.stdout.write(f"{line}\n")
+    sys.stdout.flush()
 
 
 def progress_line(step: int, start: int, total: int, seconds: float, armse: float | None) -> str:
@@ -888,10 +892,9 @@ def run_seed(
         agent_dir, stats = train_one_rllib(args, params, seed, run_dir, stop)
     else:
         agent_dir, stats = train_one(args, params, seed, run_dir, resume, stop)
-    print(
+    say(
         f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
-        f"({stats['fps']:.0f} steps/s)",
-        flush=True,
+        f"({stats['fps']:.0f} steps/s)"
     )
     entry: dict[str, Any] = {"training": stats}
     if not args.no_eval:

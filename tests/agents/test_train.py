@@ -141,6 +141,24 @@ def test_the_progress_line_rates_the_steps_of_this_call() -> None:
     assert line == "step 3,000/5,000, 500 steps/s, validation ARMSE 17.500 m, 4 s left"
 
 
+def test_a_progress_line_is_one_write(monkeypatch) -> None:
+    """Seeds trained side by side share stdout: each line, newline included, goes out in one
+    write, so lines of two processes cannot interleave within a line."""
+    writes: list[str] = []
+
+    class Recorder:
+        def write(self, text: str) -> int:
+            writes.append(text)
+            return len(text)
+
+        def flush(self) -> None:
+            writes.append("<flush>")
+
+    monkeypatch.setattr(train.sys, "stdout", Recorder())
+    train.say("seed 3: step 1,000/2,000")
+    assert writes == ["seed 3: step 1,000/2,000\n", "<flush>"]
+
+
 def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> None:
     # 8 envs x 32 steps: an update every 256 steps; averaging from step 512 of 1024 takes the
     # weights after updates 2, 3 and 4, which checkpoints step_768, step_1024 (saved while the
