@@ -216,13 +216,13 @@ class EnvConfig:
         store(self, "bank", bank)
         check_choice("filter", self.filter, tuple(f for f in FILTERS if f != "kf"))
         M = len(bank)
-        if isinstance(self.initial_stay, (int, float)):
-            stay = check_range("initial_stay", self.initial_stay, 0.0, 1.0)
-        else:
+        if isinstance(self.initial_stay, (list, tuple, np.ndarray)):
             stay = tuple(
                 check_range(f"initial_stay[{i}]", s, 0.0, 1.0)
                 for i, s in enumerate(check_sequence("initial_stay", self.initial_stay, M))
             )
+        else:
+            stay = check_range("initial_stay", self.initial_stay, 0.0, 1.0)
         store(self, "initial_stay", stay)
         if self.sojourn is not None:
             sojourn = check_sequence("sojourn", self.sojourn, M)

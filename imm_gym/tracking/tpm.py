@@ -40,18 +40,23 @@ def stay_tpm(n_models: int, stay: float | Sequence[float]) -> Array:
     ``stay = 1/M`` is the uniform TPM.
     """
     n_models = check_int("n_models", n_models, 1)
-    if isinstance(stay, (int, float, np.floating)):
-        stays = np.full(n_models, check_range("stay", stay, 0.0, 1.0))
-    else:
+    if _is_sequence(stay):
         stays = np.array([
             check_range(f"stay[{i}]", s, 0.0, 1.0)
             for i, s in enumerate(check_sequence("stay", stay, n_models))
         ])
+    else:
+        stays = np.full(n_models, check_range("stay", stay, 0.0, 1.0))
     if n_models == 1:
         return np.ones((1, 1))
     tpm = np.repeat(((1.0 - stays) / (n_models - 1))[:, None], n_models, axis=1)
     np.fill_diagonal(tpm, stays)
     return tpm
+
+
+def _is_sequence(value: object) -> bool:
+    """A list, tuple or array of entries (a string is a value, checked as one)."""
+    return isinstance(value, (Sequence, np.ndarray)) and not isinstance(value, (str, bytes))
 
 
 def sojourn_generator(sojourn_s: Sequence[float], switch: ArrayLike | None = None) -> Array:

@@ -180,6 +180,8 @@ def test_stay_tpm_takes_one_stay_per_model() -> None:
         stay_tpm(3, (0.9, 0.5))
     with pytest.raises(ConfigError, match=r"stay\[1\]"):
         stay_tpm(3, (0.9, 1.5, 0.5))
+    with pytest.raises(ConfigError, match=r"stay must be a real number"):
+        stay_tpm(3, "0.9")  # type: ignore[arg-type]
 
 
 def test_an_environment_starts_from_one_stay_per_model() -> None:
@@ -195,3 +197,5 @@ def test_an_environment_starts_from_one_stay_per_model() -> None:
         EnvConfig(initial_stay=(0.9, 0.5))
     with pytest.raises(ConfigError, match=r"initial_stay\[2\]"):
         EnvConfig(initial_stay=(0.9, 0.5, -0.1))
+    with pytest.raises(ConfigError, match=r"initial_stay must be a real number"):
+        EnvConfig(initial_stay="0.9")  # type: ignore[arg-type]
