@@ -121,6 +121,7 @@ class TrackingCore:
             n_envs,
             self.kernel_args if self._advance is compiled_step else None,
             config.detector_share,
+            config.stay_grid,
         ) if needs_bank else None
         self.horizon = config.source.horizon
         #: entries of one slot's action: ``M * M``, or ``M`` in the stay modes
@@ -330,7 +331,8 @@ class TrackingCore:
     @property
     def stay_base_tpms(self) -> Array:
         """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's), or
-        a stay on the diagonal and the rest of each row spread evenly (``stay_base="evidence"``:
+        a stay on each row's diagonal and the rest of the row spread evenly
+        (``stay_base="evidence"``:
         the stay bank's :meth:`~imm_gym.sim.stay_bank.StayBank.centre`, ``"evidence_best"``:
         its :meth:`~imm_gym.sim.stay_bank.StayBank.best`, ``"uniform"``: 1/M) — with
         ``detector_share``, that share of the jumps placed by the shadow's mode probabilities
@@ -350,8 +352,10 @@ class TrackingCore:
 
     @property
     def stay_bank_evidence(self) -> Array:
-        """``(N, S)`` the stay bank's evidence for each stay minus the best's (nats)."""
-        return self.stay_bank.relative()  # type: ignore[union-attr]
+        """``(N, S)`` the stay bank's evidence for each single stay minus the best prior's
+        (nats; the pairs of ``stay_grid="pairs"`` are not observed)."""
+        bank = self.stay_bank
+        return bank.relative()[:, : bank.n_single]  # type: ignore[union-attr]
 
     # ------------------------------------------------------------------ actions
     def tpm_from_action(self, action: NDArray[Any], tpm: Array | None = None) -> Array:

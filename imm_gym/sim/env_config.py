@@ -37,6 +37,9 @@ from imm_gym.validation import (
 ACTION_MODES = ("scale", "set", "stay", "stay_step")
 SHADOWS = ("fixed", "none")
 STAY_BASES = ("tracker", "evidence", "evidence_best", "uniform")
+#: The stay bank's grids (:func:`imm_gym.sim.stay_bank.grid_stays`): one stay for every row, or
+#: also the per-model pairs.
+STAY_GRIDS = ("stays", "pairs")
 #: The built-in reward terms (the registry, :data:`imm_gym.sim.rewards.REWARD_TERMS`, is what
 #: ``reward`` is checked against).
 REWARDS = tuple(REWARD_TERMS)
@@ -118,6 +121,10 @@ class EnvConfig:
             (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`); the stay bank's IMMs run these
             priors too, so its evidence weighs them. 0 (default) turns it off; in ``[0, 1]``;
             needs ``shadow="fixed"``.
+        stay_grid: the stay bank's priors: ``"stays"`` (one stay for every row, 1/M .. 0.995)
+            or ``"pairs"`` (those and the per-model pairs, the first model's stay sticky and the
+            others' shorter-lived, :func:`imm_gym.sim.stay_bank.grid_stays`), so that the
+            ``evidence`` and ``evidence_best`` bases are a stay per row; needs one of them.
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode, or change of the stay's logit in the stay modes,
             for an action of 1 (> 0).
@@ -176,6 +183,7 @@ class EnvConfig:
     action_mode: str = "scale"
     stay_base: str = "tracker"
     detector_share: float = 0.0
+    stay_grid: str = "stays"
     max_factor: float = 2.0
     logit_scale: float = 4.0
     parallel: bool = False
@@ -242,6 +250,12 @@ class EnvConfig:
             raise ConfigError(
                 "detector_share > 0 needs stay_base 'evidence', 'evidence_best' or 'uniform' (the "
                 "stays it places the jumps of), got 'tracker'"
+            )
+        check_choice("stay_grid", self.stay_grid, STAY_GRIDS)
+        if self.stay_grid != "stays" and self.stay_base not in ("evidence", "evidence_best"):
+            raise ConfigError(
+                f"stay_grid {self.stay_grid!r} needs stay_base 'evidence' or 'evidence_best' (the "
+                f"bases it gives a stay per row), got {self.stay_base!r}"
             )
         store(self, "max_factor", check_range("max_factor", self.max_factor, 1.0, lo_open=True))
         store(self, "logit_scale", check_range("logit_scale", self.logit_scale, 0.0, lo_open=True))

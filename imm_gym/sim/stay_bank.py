@@ -1,7 +1,7 @@
 r"""The stay bank: one classical IMM per switching prior of a grid, run on each slot's
 measurements, and the exact evidence of the measurements for each.
 
-For the stays :math:`s \in \{1/M, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995\}` (:func:`stay_tpms`) each
+For the stays :math:`s \in \{1/M, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995\}` (:func:`grid_stays`) each
 slot runs the classical IMM with the TPM :math:`\Pi_s` (the stay on the diagonal, the rest of
 the row spread evenly) beside its banks. The IMM's predictive density of a measurement is the
 normalizer of its mode update, :math:`p_s(z_t \mid Z^{t-1}) = \sum_j \bar c_{s,j} \Lambda_{s,j}`
@@ -23,6 +23,13 @@ The evidence serves two ends: the ``stay_bank_evidence`` observation block and t
 :math:`w = \operatorname{softmax}(E)` (:meth:`StayBank.centre`), with ``"evidence_best"`` the
 stay :math:`\arg\max_s E_s` (:meth:`StayBank.best`).
 
+With ``EnvConfig.stay_grid = "pairs"`` the bank also runs the per-model priors of
+:data:`PAIR_FIRST` × :data:`PAIR_OTHERS` (:func:`grid_stays`): the first model's stay — straight
+flight in the built-in banks — sticky, every other model's shorter-lived, which no single stay
+expresses (the ``best-fixed-rows`` baseline's family). The stays are then per row,
+:math:`s_{k,i}`, and the centre and the best are per row too:
+:math:`\sigma(\sum_k w_k \operatorname{logit} s_{k,i})` and :math:`s_{\arg\max_k E_k, i}`.
+
 With ``EnvConfig.detector_share`` each IMM runs the prior of :func:`detector_tpm_rows` at its
 stay instead of :math:`\Pi_s`: its jumps placed partly by the slot's maneuver detector (the
 shadow IMM's mode probabilities), the priors the ``stay`` action then moves between.
@@ -42,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.sim.features import stay_tpms
+from imm_gym.sim.features import EVIDENCE_STAYS
 from imm_gym.tracking.imm import IMMState, Tracker, measurement_loglik
 from imm_gym.tracking.kernels.imm import imm_step
 
@@ -54,14 +61,35 @@ STAY_BANK_FACTOR = 0.99
 STAY_BANK_FLOOR = 10.0
 
 
-def stay_tpm_rows(stays: Array, n_models: int) -> Array:
-    """``(N, M, M)`` TPMs with ``stays (N,)`` on the diagonal and the rest of each row spread
-    evenly (:func:`imm_gym.tracking.tpm.stay_tpm` for many stays at once)."""
+#: ``stay_grid: "pairs"``: the first model's stays of the per-model priors the stay bank runs
+#: beside the single stays...
+PAIR_FIRST = (0.95, 0.99, 0.999)
+#: ...and every other model's (after ``1/M``).
+PAIR_OTHERS = (0.6, 0.8, 0.9)
+
+
+def grid_stays(n_models: int, grid: str = "stays") -> Array:
+    """``(S, M)`` each prior's stay per row: the single stays ``1/M`` and :data:`EVIDENCE_STAYS`
+    on every row, then with ``grid="pairs"`` each ``(a, b, ..., b)``, ``a`` of
+    :data:`PAIR_FIRST` and ``b`` of ``1/M`` and :data:`PAIR_OTHERS`."""
     M = n_models
-    off = (1.0 - stays) / max(M - 1, 1)
-    tpm = np.repeat(np.repeat(off[:, None, None], M, axis=1), M, axis=2)
+    singles = np.repeat(np.array([1.0 / M, *EVIDENCE_STAYS])[:, None], M, axis=1)
+    if grid == "stays":
+        return singles
+    pairs = [(a,) + (b,) * (M - 1) for a in PAIR_FIRST for b in (1.0 / M, *PAIR_OTHERS)]
+    return np.concatenate([singles, np.array(pairs)])
+
+
+def stay_tpm_rows(stays: Array, n_models: int) -> Array:
+    """``(N, M, M)`` TPMs with ``stays`` on the diagonal — ``(N,)``, one for every row, or
+    ``(N, M)``, one per row — and the rest of each row spread evenly
+    (:func:`imm_gym.tracking.tpm.stay_tpm` for many TPMs at once)."""
+    M = n_models
+    per_row = np.broadcast_to(np.asarray(stays).reshape(len(stays), -1), (len(stays), M))
+    off = (1.0 - per_row) / max(M - 1, 1)
+    tpm = np.repeat(off[:, :, None], M, axis=2)
     idx = np.arange(M)
-    tpm[:, idx, idx] = stays[:, None]
+    tpm[:, idx, idx] = per_row
     return tpm
 
 
@@ -85,23 +113,26 @@ def detector_tpm_rows(stays: Array, belief: Array, share: float | Array) -> Arra
     maneuver where one step's likelihoods cannot.
 
     Args:
-        stays: ``(N,)`` the stays ``s`` in ``[1/M, 1]`` (the stay bank's).
+        stays: the stays ``s`` in ``[1/M, 1]`` (the stay bank's), ``(N,)`` or one per row
+            ``(N, M)`` (row ``i`` keeps its mode with its own :math:`r_i`).
         belief: ``(N, M)`` the detector's mode probabilities.
         share: ``v`` in ``[0, 1]``, one for all rows or ``(N,)``.
     """
-    M = belief.shape[-1]
-    keep = (stays - 1.0 / M) / (1.0 - 1.0 / M)
+    N, M = belief.shape
+    per_row = np.broadcast_to(np.asarray(stays).reshape(N, -1), (N, M))
+    keep = (per_row - 1.0 / M) / (1.0 - 1.0 / M)
     v = np.asarray(share, dtype=np.float64)
     v = v[:, None] if v.ndim else v
     q = (1.0 - v) / M + v * belief
-    rows = (1.0 - keep)[:, None, None] * np.repeat(q[:, None, :], M, axis=1)
+    rows = (1.0 - keep)[:, :, None] * np.repeat(q[:, None, :], M, axis=1)
     idx = np.arange(M)
-    rows[:, idx, idx] += keep[:, None]
+    rows[:, idx, idx] += keep
     return rows
 
 
 class StayBank:
-    """One classical IMM per stay of :func:`stay_tpms` for each of N slots (module docstring).
+    """One classical IMM per prior of :func:`grid_stays` for each of N slots (module
+    docstring).
 
     The ``N * S`` IMMs are rows ``i * S + s`` of one batch: one call of the tracker's compiled
     cycle (or of its numpy ``step``) advances them all.
@@ -115,20 +146,28 @@ class StayBank:
             (the jumps placed by the slot's detector, :meth:`step`'s ``belief``) instead of the
             evenly spread stay TPM, so that the evidence compares the priors the ``stay``
             action moves between.
+        grid: ``"stays"`` or ``"pairs"`` (:func:`grid_stays`).
     """
 
     def __init__(
-        self, imm: Tracker, n_envs: int, kernel_args: tuple | None, detector_share: float = 0.0
+        self,
+        imm: Tracker,
+        n_envs: int,
+        kernel_args: tuple | None,
+        detector_share: float = 0.0,
+        grid: str = "stays",
     ) -> None:
         M, n = imm.n_models, imm.n
         self.imm = imm
         self.n_envs = N = n_envs
         self.detector_share = detector_share
-        #: ``(S, M, M)`` the bank's TPMs, ``(S,)`` their stays and the stays' logits
-        self.tpms = stay_tpms(M)
-        self.S = S = len(self.tpms)
-        self.stays = np.diagonal(self.tpms, axis1=1, axis2=2)[:, 0].copy()
+        #: ``(S, M)`` each prior's stay per row, the stays' logits, ``(S, M, M)`` the TPMs
+        self.stays = grid_stays(M, grid)
         self.logits = np.log(self.stays) - np.log1p(-self.stays)
+        self.tpms = stay_tpm_rows(self.stays, M)
+        self.S = S = len(self.tpms)
+        #: the single stays' count: the first columns of the evidence (the observed ones)
+        self.n_single = 1 + len(EVIDENCE_STAYS)
         # a fresh, writable array for every N (a read-only view at N = 1 would compile another
         # specialization of the kernel)
         self._tpm_rows = np.tile(self.tpms, (N, 1, 1))
@@ -189,12 +228,12 @@ class StayBank:
         return w / w.sum(axis=1, keepdims=True)
 
     def centre(self) -> Array:
-        r"""``(N,)`` the evidence's stay :math:`\sigma(\sum_s w_s \operatorname{logit} s)`,
-        :math:`w` = :meth:`posterior_weights`: the switching prior the measurements so far
-        support, averaged on the logit scale (the mean of the logit stays, ``1/M`` .. 0.995, at
-        the start of an episode)."""
+        r"""``(N, M)`` the evidence's stay of each row
+        :math:`\sigma(\sum_s w_s \operatorname{logit} s_i)`, :math:`w` =
+        :meth:`posterior_weights`: the switching prior the measurements so far support, averaged
+        on the logit scale (the mean of the grid's logit stays at the start of an episode)."""
         w = self._relative_likelihoods()
-        logit = (w @ self.logits) / w.sum(axis=1)
+        logit = (w @ self.logits) / w.sum(axis=1, keepdims=True)
         return 1.0 / (1.0 + np.exp(-logit))
 
     def estimates(self) -> Array:
@@ -214,8 +253,8 @@ class StayBank:
         return np.sum(self.weights * error, axis=1)
 
     def best(self) -> Array:
-        """``(N,)`` the stay whose IMM has the largest evidence so far (the grid's first, 1/M, at
-        the start of an episode)."""
+        """``(N, M)`` the stays of the prior whose IMM has the largest evidence so far (the
+        grid's first, 1/M, at the start of an episode)."""
         return self.stays[np.argmax(self.evidence, axis=1)]
 
     def relative(self) -> Array:
@@ -238,7 +277,7 @@ class StayBank:
             if belief is None:
                 raise ValueError("a stay bank with detector_share needs the detector's belief")
             self._tpm_rows[:] = detector_tpm_rows(
-                np.tile(self.stays, N), np.repeat(belief, S, axis=0), self.detector_share
+                np.tile(self.stays, (N, 1)), np.repeat(belief, S, axis=0), self.detector_share
             )
         z_rows = np.ascontiguousarray(np.repeat(z, S, axis=0))
         det_rows = np.ascontiguousarray(np.repeat(detected, S))

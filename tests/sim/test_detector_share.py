@@ -137,7 +137,7 @@ def test_the_stay_bank_weighs_the_detector_priors() -> None:
         z, det = core.z[np.arange(2), k1], core.detected[np.arange(2), k1]
         e = np.zeros((2, bank.S))
         for s, stay in enumerate(bank.stays):
-            prior = detector_tpm_rows(np.full(2, stay), core.mu_s, 0.5)
+            prior = detector_tpm_rows(np.tile(stay, (2, 1)), core.mu_s, 0.5)
             states[s], out = reference.step(states[s], prior, z, det)
             e[:, s] = np.where(det, np.log(np.sum(out.cbar * np.exp(out.loglik), axis=1)), 0.0)
         total = STAY_BANK_FACTOR * total + np.maximum(

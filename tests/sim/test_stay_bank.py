@@ -14,7 +14,14 @@ from hypothesis.extra.numpy import arrays
 from imm_gym import EnvConfig, TrackingCore
 from imm_gym.sim.features import EVIDENCE_SCALE, EVIDENCE_STAYS
 from imm_gym.sim.presets import CONTINUOUS_BANK
-from imm_gym.sim.stay_bank import STAY_BANK_FACTOR, STAY_BANK_FLOOR, StayBank, stay_tpm_rows
+from imm_gym.sim.stay_bank import (
+    STAY_BANK_FACTOR,
+    STAY_BANK_FLOOR,
+    StayBank,
+    detector_tpm_rows,
+    grid_stays,
+    stay_tpm_rows,
+)
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
 from imm_gym.tracking.tpm import stay_tpm
@@ -24,21 +31,23 @@ M = 3
 STAYS = (1.0 / M, *EVIDENCE_STAYS)
 
 
-def test_the_evidence_is_that_of_one_classical_imm_per_stay() -> None:
-    # the reference: each stay's IMM alone on the numpy engine, the predictive density of each
+@pytest.mark.parametrize("grid", ["stays", "pairs"])
+def test_the_evidence_is_that_of_one_classical_imm_per_stay(grid: str) -> None:
+    # the reference: each prior's IMM alone on the numpy engine, the predictive density of each
     # measurement summed directly, the relative evidence floored and discounted step by step
-    core = stay_core(2)
+    core = stay_core(2, stay_base="evidence", stay_grid=grid)
     reference = make_tracker(core.config.bank, core.config.sensor, "ukf", 1.0, engine="numpy")
-    states = [core.state_a for _ in STAYS]
-    total = np.zeros((2, len(STAYS)))
+    priors = [tuple(row) for row in grid_stays(M, grid)]
+    states = [core.state_a for _ in priors]
+    total = np.zeros((2, len(priors)))
     rng = np.random.default_rng(0)
     missed = 0
     for _ in range(80):
         k1 = core.k + 1
         z, det = core.z[np.arange(2), k1], core.detected[np.arange(2), k1]
         missed += int((~det).sum())
-        e = np.zeros((2, len(STAYS)))
-        for s, stay in enumerate(STAYS):
+        e = np.zeros((2, len(priors)))
+        for s, stay in enumerate(priors):
             states[s], out = reference.step(states[s], stay_tpm(M, stay), z, det)
             e[:, s] = np.where(det, np.log(np.sum(out.cbar * np.exp(out.loglik), axis=1)), 0.0)
         total = STAY_BANK_FACTOR * total + np.maximum(
@@ -46,13 +55,13 @@ def test_the_evidence_is_that_of_one_classical_imm_per_stay() -> None:
         )
         obs = core.step(rng.uniform(-1, 1, (2, M))).obs
         np.testing.assert_allclose(core.stay_bank.evidence, total, rtol=1e-9, atol=1e-9)
+        relative = total - total.max(axis=1, keepdims=True)
         np.testing.assert_allclose(
-            obs[:, 2 * M :], np.tanh((total - total.max(axis=1, keepdims=True)) / EVIDENCE_SCALE),
-            atol=1e-6,
+            obs[:, 2 * M :], np.tanh(relative[:, : len(STAYS)] / EVIDENCE_SCALE), atol=1e-6
         )
-    for s in range(len(STAYS)):
+    for s in range(len(priors)):
         np.testing.assert_allclose(
-            core.stay_bank.state.x[s :: len(STAYS)], states[s].x, rtol=1e-9, atol=1e-6
+            core.stay_bank.state.x[s :: len(priors)], states[s].x, rtol=1e-9, atol=1e-6
         )
     assert missed > 0 and np.ptp(total[:, 1:]) > 1.0  # missed detections; the stays disagree
 
@@ -97,9 +106,7 @@ def test_an_action_moves_the_stay_from_the_evidence_s() -> None:
     tpm = core.step(np.full((2, M), 0.5)).info["tpm"]
     logit = np.log(centre) - np.log1p(-centre) + 0.5 * core.config.logit_scale
     expected = 1.0 / (1.0 + np.exp(-logit))
-    np.testing.assert_allclose(
-        np.diagonal(tpm, axis1=1, axis2=2), np.repeat(expected[:, None], M, axis=1), rtol=1e-12
-    )
+    np.testing.assert_allclose(np.diagonal(tpm, axis1=1, axis2=2), expected, rtol=1e-12)
 
 
 @pytest.mark.parametrize("stay_base", ["tracker", "evidence"])
@@ -173,18 +180,57 @@ def test_a_failed_filter_gets_the_floor_and_restarts_from_bank_a() -> None:
 
 
 @settings(max_examples=200, deadline=None)
-@given(arrays(np.float64, (4, 1 + len(EVIDENCE_STAYS)), elements=st.floats(-500.0, 0.0)))
-def test_the_centre_is_a_stay_between_the_grid_s_ends(evidence) -> None:
-    bank = StayBank(make_tracker(EnvConfig().bank, EnvConfig().sensor, "ukf", 1.0), 4, None)
+@given(
+    st.sampled_from(["stays", "pairs"]).flatmap(
+        lambda grid: st.tuples(
+            st.just(grid),
+            arrays(np.float64, (4, len(grid_stays(M, grid))), elements=st.floats(-500.0, 0.0)),
+        )
+    )
+)
+def test_the_centre_is_a_stay_between_the_grid_s_ends(drawn) -> None:
+    """Each row's centre lies between its smallest and largest stay of the grid, and where
+    one prior's evidence is far ahead of the others', it is that prior's stays."""
+    grid, evidence = drawn
+    tracker = make_tracker(EnvConfig().bank, EnvConfig().sensor, "ukf", 1.0)
+    bank = StayBank(tracker, 4, None, grid=grid)
     bank.evidence = evidence
     centre = bank.centre()
-    assert np.all(centre >= 1.0 / M - 1e-12) and np.all(centre <= EVIDENCE_STAYS[-1] + 1e-12)
+    assert centre.shape == (4, M)
+    stays = grid_stays(M, grid)
+    assert np.all(centre >= stays.min(axis=0) - 1e-12)
+    assert np.all(centre <= stays.max(axis=0) + 1e-12)
     tpm = stay_tpm_rows(centre, M)
     np.testing.assert_allclose(tpm.sum(axis=-1), 1.0, rtol=0, atol=1e-15)
-    # one stay far ahead of the others: the centre is that stay
     winner = np.argmax(evidence, axis=1)
     clear = np.sort(evidence, axis=1)[:, -2] < evidence.max(axis=1) - 60.0
-    np.testing.assert_allclose(centre[clear], np.asarray(STAYS)[winner[clear]], rtol=1e-12)
+    np.testing.assert_allclose(centre[clear], stays[winner[clear]], rtol=1e-12)
+    np.testing.assert_array_equal(bank.best(), stays[winner])
+
+
+def test_the_pairs_grid_adds_per_model_priors_and_its_base_is_per_row() -> None:
+    """``stay_grid: pairs``: the single stays first (the observed block keeps its size), then
+    each (a, b, b) with a sticky first model; the evidence base's TPM has a stay per row."""
+    stays = grid_stays(M, "pairs")
+    np.testing.assert_array_equal(stays[: 1 + len(EVIDENCE_STAYS)], np.repeat(
+        np.array(STAYS)[:, None], M, axis=1))
+    pairs = stays[1 + len(EVIDENCE_STAYS) :]
+    assert len(pairs) == 12 and np.all(pairs[:, 1] == pairs[:, 2])
+    assert {round(a, 3) for a in pairs[:, 0]} == {0.95, 0.99, 0.999}
+    plain, paired = stay_core(2, stay_base="evidence"), stay_core(2, stay_base="evidence",
+                                                                  stay_grid="pairs")
+    assert paired.obs_dim == plain.obs_dim and paired.stay_bank.S == len(stays)
+    moved = False
+    for _ in range(60):
+        centre = paired.stay_bank.centre()
+        tpm = paired.step(np.zeros((2, M))).info["tpm"]
+        np.testing.assert_allclose(tpm, stay_tpm_rows(centre, M), rtol=0, atol=1e-15)
+        moved |= bool(np.any(np.abs(centre[:, 0] - centre[:, 1]) > 0.01))
+    assert moved  # the first model's stay apart from the others'
+    with pytest.raises(ConfigError, match="stay_grid 'pairs' needs stay_base 'evidence'"):
+        EnvConfig(action_mode="stay", stay_base="tracker", stay_grid="pairs")
+    with pytest.raises(ConfigError, match="stay_grid must be one of"):
+        EnvConfig(stay_grid="grid")
 
 
 def test_the_evidence_base_needs_the_stay_mode() -> None:
@@ -203,3 +249,18 @@ def test_the_kernel_gets_the_same_array_types_at_every_n(n: int) -> None:
     rows = bank._tpm_rows
     assert rows.flags.c_contiguous and rows.flags.writeable
     np.testing.assert_array_equal(rows, np.concatenate([bank.tpms] * n))
+
+
+def test_priors_with_a_stay_per_row() -> None:
+    """``stay_tpm_rows`` and ``detector_tpm_rows`` take one stay per row: without the detector
+    each row keeps its own stay and spreads the rest evenly; with it every row still sums to 1
+    and keeps at least its share ``r_i`` on the diagonal."""
+    stays = np.array([[0.999, 0.4, 0.4], [0.9, 0.6, 0.8]])
+    tpm = stay_tpm_rows(stays, M)
+    np.testing.assert_allclose(tpm[1], stay_tpm(M, (0.9, 0.6, 0.8)), rtol=1e-15)
+    belief = np.array([[0.1, 0.8, 0.1], [0.2, 0.2, 0.6]])
+    np.testing.assert_allclose(detector_tpm_rows(stays, belief, 0.0), tpm, rtol=1e-12)
+    leaning = detector_tpm_rows(stays, belief, 0.7)
+    np.testing.assert_allclose(leaning.sum(axis=-1), 1.0, rtol=0, atol=1e-15)
+    keep = (stays - 1 / M) / (1 - 1 / M)
+    assert np.all(np.diagonal(leaning, axis1=1, axis2=2) >= keep - 1e-15)
