@@ -32,8 +32,8 @@ the shadow's on the model that matches the true motion,
 model matches): the policy is paid for mode probabilities that identify the maneuver, the IMM's
 maneuver detection, not only for position. With ``EnvConfig.mode_score = "hit"`` the term is
 :func:`mode_hit` instead, :math:`[\arg\max_j \mu_j = j^*] - [\arg\max_j \mu^s_j = j^*]`: the
-maneuver identified, whatever the confidence (the log score also pays for a sticky TPM's
-confidence, which costs position error where the bank's models bracket the motion).
+maneuver identified, whatever the confidence (the log score also pays for confidence; trained
+both ways, the agents were alike: docs/experiments.md, "A fixed TPM with a stay per model").
 Adding a term is one :func:`register` call here; :class:`Reward` evaluates them.
 """
 
