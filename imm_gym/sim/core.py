@@ -30,10 +30,10 @@ from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds
 from imm_gym.sim.kernels import step_inputs
 from imm_gym.sim.rewards import REWARD_TERMS, Reward
-from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows, stay_tpm_rows
+from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
-from imm_gym.tracking.tpm import validate_tpm
+from imm_gym.tracking.tpm import stay_tpm_rows, validate_tpm
 from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]

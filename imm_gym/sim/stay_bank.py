@@ -52,6 +52,7 @@ from numpy.typing import NDArray
 from imm_gym.sim.features import EVIDENCE_STAYS
 from imm_gym.tracking.imm import IMMState, Tracker, measurement_loglik
 from imm_gym.tracking.kernels.imm import imm_step
+from imm_gym.tracking.tpm import stay_tpm_rows
 
 Array = NDArray[np.float64]
 
@@ -80,19 +81,6 @@ def grid_stays(n_models: int, grid: str = "stays") -> Array:
     return np.concatenate([singles, np.array(pairs)])
 
 
-def stay_tpm_rows(stays: Array, n_models: int) -> Array:
-    """``(N, M, M)`` TPMs with ``stays`` on the diagonal — ``(N,)``, one for every row, or
-    ``(N, M)``, one per row — and the rest of each row spread evenly
-    (:func:`imm_gym.tracking.tpm.stay_tpm` for many TPMs at once)."""
-    M = n_models
-    per_row = np.broadcast_to(np.asarray(stays).reshape(len(stays), -1), (len(stays), M))
-    off = (1.0 - per_row) / max(M - 1, 1)
-    tpm = np.repeat(off[:, :, None], M, axis=2)
-    idx = np.arange(M)
-    tpm[:, idx, idx] = per_row
-    return tpm
-
-
 def detector_tpm_rows(stays: Array, belief: Array, share: float | Array) -> Array:
     r"""``(N, M, M)`` switching priors whose jumps follow a maneuver detector
     (``EnvConfig.detector_share``).
@@ -107,7 +95,8 @@ def detector_tpm_rows(stays: Array, belief: Array, share: float | Array) -> Arra
         r = \frac{s - 1/M}{1 - 1/M},
 
     so the predicted mode probabilities are :math:`\bar c = r \mu + (1 - r) q`. With
-    :math:`v = 0` (or a uniform belief) this is :func:`stay_tpm_rows` of the stays ``s``
+    :math:`v = 0` (or a uniform belief) this is
+    :func:`~imm_gym.tracking.tpm.stay_tpm_rows` of the stays ``s``
     (to rounding); with :math:`v > 0` a nearly uniform prior still leans toward the mode the
     detector has accumulated evidence for, so the mode probabilities keep identifying the
     maneuver where one step's likelihoods cannot.

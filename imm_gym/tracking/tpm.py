@@ -49,8 +49,19 @@ def stay_tpm(n_models: int, stay: float | Sequence[float]) -> Array:
         stays = np.full(n_models, check_range("stay", stay, 0.0, 1.0))
     if n_models == 1:
         return np.ones((1, 1))
-    tpm = np.repeat(((1.0 - stays) / (n_models - 1))[:, None], n_models, axis=1)
-    np.fill_diagonal(tpm, stays)
+    return stay_tpm_rows(stays[None], n_models)[0]
+
+
+def stay_tpm_rows(stays: ArrayLike, n_models: int) -> Array:
+    """``(N, M, M)`` TPMs with ``stays`` on the diagonal — ``(N,)``, one for every row, or
+    ``(N, M)``, one per row — and the rest of each row spread evenly: :func:`stay_tpm` for
+    many TPMs at once, unchecked (stays in ``[0, 1]``)."""
+    M = n_models
+    stays = np.asarray(stays, dtype=np.float64)
+    per_row = np.broadcast_to(stays.reshape(len(stays), -1), (len(stays), M))
+    tpm = np.repeat(((1.0 - per_row) / max(M - 1, 1))[:, :, None], M, axis=2)
+    idx = np.arange(M)
+    tpm[:, idx, idx] = per_row
     return tpm
 
 

@@ -16,7 +16,8 @@ from imm_gym import EnvConfig, TrackingCore
 from imm_gym.evaluation.rollout import evaluation_config
 from imm_gym.sim import kernels
 from imm_gym.sim.actions import tpm_from_action
-from imm_gym.sim.stay_bank import detector_tpm_rows, stay_tpm_rows
+from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.tracking.tpm import stay_tpm_rows
 from imm_gym.validation import ConfigError
 
 M = 3

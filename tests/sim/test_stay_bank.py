@@ -20,11 +20,10 @@ from imm_gym.sim.stay_bank import (
     StayBank,
     detector_tpm_rows,
     grid_stays,
-    stay_tpm_rows,
 )
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
-from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.tracking.tpm import stay_tpm, stay_tpm_rows
 from imm_gym.validation import ConfigError
 
 M = 3
