@@ -25,10 +25,11 @@ of :class:`SoloStep`'s arrays. The numbers are the core's bit for bit (``tests/s
 holds every info entry, the observation, the reward and the core's state after each step equal
 to the core's own step).
 It covers the configurations whose whole step is compiled: the compiled engine on a tracker of
-:func:`~imm_gym.tracking.kernels.imm.imm_step_one`'s shape, no observation feature, no stay
-bank, the built-in reward terms only and none of the reward's TPM or mode terms
-(``tpm_cost``, ``tpm_change_cost``, ``mode_reward``: their ``log`` is numpy's vectorized one in the
-core, which rounds differently from the scalar ``log`` compiled code calls) —
+:func:`~imm_gym.tracking.kernels.imm.imm_step_one`'s shape, no observation feature, the
+``stay`` mode from the tracker's own TPM (no other base, no stay bank), the built-in reward
+terms only and none of the reward's TPM or mode terms (``tpm_cost``, ``tpm_change_cost``,
+``mode_reward``: their ``log`` is numpy's vectorized one in the core, which rounds differently
+from the scalar ``log`` compiled code calls) —
 :meth:`SoloStep.fits`; the scalar env runs every other configuration through the core.
 """
 
@@ -262,9 +263,10 @@ class SoloStep:
     @staticmethod
     def fits(core: TrackingCore) -> bool:
         """Whether the core's whole step is :func:`solo_step`'s: one slot, the compiled engine
-        on a tracker of ``imm_step_one``'s shape, no observation feature, no stay bank, and the
-        reward registry holding the built-in terms only (a stay bank's terms apart: without the
-        stay bank they are not computed)."""
+        on a tracker of ``imm_step_one``'s shape, no observation feature, the ``stay`` mode (if
+        any) moving from the tracker's own TPM (the base :func:`solo_step` passes; no stay
+        bank, no detector), and the reward registry holding the built-in terms only (a stay
+        bank's terms apart: without the stay bank they are not computed)."""
         cfg = core.config
         return (
             core.n_envs == 1
@@ -272,6 +274,8 @@ class SoloStep:
             and core.imm.kernel_args is not None
             and fits_one(1, core.M, core.n, cfg.sensor.dim_z)
             and not cfg.obs_features
+            and cfg.stay_base == "tracker"
+            and cfg.detector_share == 0.0
             and core.stay_bank is None
             and tuple(k for k, t in REWARD_TERMS.items() if not t.needs_stay_bank)
             == tuple(REWARD_CODES)

@@ -130,6 +130,9 @@ def test_the_solo_step_is_the_cores_step_for_random_settings(seed, mode, paralle
     [
         ({"obs_features": ("tpm",)}, None),
         ({"action_mode": "stay", "stay_base": "evidence"}, None),
+        ({"action_mode": "stay", "stay_base": "uniform"}, None),
+        ({"action_mode": "stay", "stay_base": "uniform", "detector_share": 0.5,
+          "detector": "turn_rate"}, None),
         ({"engine": "numpy"}, None),
         ({"tpm_cost": 0.1}, None),
         ({"tpm_change_cost": 0.1}, None),
@@ -146,6 +149,22 @@ def test_other_configurations_step_through_the_core(changes: dict, render_mode) 
     *_, info = env.step(np.zeros(env.action_space.shape))
     assert isinstance(info["step"], int) and isinstance(info["diverged"], bool)
     assert isinstance(info["position_error"], float) and info["estimate"].shape == (4,)
+    env.close()
+
+
+def test_the_uniform_base_steps_from_the_uniform_tpm() -> None:
+    """The scalar env's zero action on the ``uniform`` base is the uniform TPM, as the core's
+    (the compiled single-slot step moves from the tracker's TPM only, so it does not take it)."""
+    config = {"action_mode": "stay", "stay_base": "uniform"}
+    env = TPMAdaptEnv(config=config)
+    env.reset(seed=3)
+    reference = TrackingCore(EnvConfig(**config), 1)
+    reference.reset(np.arange(1), [3])
+    for _ in range(5):
+        *_, info = env.step(np.zeros(3))
+        expected = reference.step(np.zeros((1, 3))).info["tpm"][0]
+        np.testing.assert_array_equal(info["tpm"], expected)
+    np.testing.assert_allclose(info["tpm"], np.full((3, 3), 1.0 / 3.0), rtol=1e-12)
     env.close()
 
 
