@@ -71,10 +71,13 @@ def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
     """``base`` with a policy's overrides; the shadow tracker is turned off (it only shapes
     rewards) unless the policy observes a feature computed from it
     (:attr:`imm_gym.sim.features.Feature.needs_shadow`) or its TPM follows it
-    (``detector_share``)."""
+    (``detector_share`` with the ``shadow`` detector)."""
     features = overrides.get("obs_features", ())
     observed = any(FEATURES[f].needs_shadow for f in features if f in FEATURES)
-    detector = overrides.get("detector_share", base.detector_share) > 0.0
+    detector = (
+        overrides.get("detector_share", base.detector_share) > 0.0
+        and overrides.get("detector", base.detector) == "shadow"
+    )
     defaults = {} if observed or detector else {"shadow": "none", "reward": "error"}
     return base.replace(**{**defaults, **overrides})
 

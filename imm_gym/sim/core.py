@@ -24,10 +24,11 @@ from imm_gym.seeding import clone, streams
 from imm_gym.sim.actions import action_size, tpm_from_action, validate_action
 from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.conditions import Conditions, bank_constants
+from imm_gym.sim.detectors import TURN_RATE_FACTOR, model_turn_rates, turn_rate_belief
 from imm_gym.sim.engines import choose_engine, compiled_step
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_episodes
-from imm_gym.sim.features import FEATURES, bounds
+from imm_gym.sim.features import FEATURES, bounds, heading_rate
 from imm_gym.sim.kernels import step_inputs
 from imm_gym.sim.rewards import REWARD_TERMS, Reward
 from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows
@@ -160,6 +161,10 @@ class TrackingCore:
         self.velocity_prev = np.zeros((N, 2))
         self.velocity_s = np.zeros((N, 2))  # the same for the shadow IMM
         self.velocity_s_prev = np.zeros((N, 2))
+        #: ``(N,)`` the smoothed heading rate of bank A's estimate (rad/s), the ``turn_rate``
+        #: detector's (:mod:`imm_gym.sim.detectors`; kept at 0 with another detector)
+        self.turn_rate_estimate = np.zeros(N)
+        self._model_turn_rates = model_turn_rates(config.bank)
         #: the observed features' memories (:class:`imm_gym.sim.features.Memory`)
         self._memories = {
             f: FEATURES[f].memory for f in config.obs_features if FEATURES[f].memory is not None
@@ -307,6 +312,7 @@ class TrackingCore:
             "velocity_prev": x0[:, 2:4],
             "velocity_s": x0[:, 2:4],
             "velocity_s_prev": x0[:, 2:4],
+            "turn_rate_estimate": 0.0,
             "k": 0,
             "done": False,
         }
@@ -330,25 +336,36 @@ class TrackingCore:
 
     @property
     def stay_base_tpms(self) -> Array:
-        """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's), or
-        a stay on each row's diagonal and the rest of the row spread evenly
-        (``stay_base="evidence"``:
-        the stay bank's :meth:`~imm_gym.sim.stay_bank.StayBank.centre`, ``"evidence_best"``:
-        its :meth:`~imm_gym.sim.stay_bank.StayBank.best`, ``"uniform"``: 1/M) — with
-        ``detector_share``, that share of the jumps placed by the shadow's mode probabilities
+        """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's; with
+        ``detector_share``, their stays), or a stay on each row's diagonal and the rest of the
+        row spread evenly (``stay_base="evidence"``: the stay bank's
+        :meth:`~imm_gym.sim.stay_bank.StayBank.centre`, ``"evidence_best"``: its
+        :meth:`~imm_gym.sim.stay_bank.StayBank.best`, ``"uniform"``: 1/M) — with
+        ``detector_share``, that share of the jumps placed by the :attr:`detector_belief`
         (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`)."""
         base = self.config.stay_base
-        if base == "tracker":
+        if base == "tracker" and self.config.detector_share == 0.0:
             return self.fixed_tpms
-        if base == "uniform":
+        if base == "tracker":
+            stays = np.diagonal(self.fixed_tpms, axis1=-2, axis2=-1)
+        elif base == "uniform":
             stays = np.full(self.n_envs, 1.0 / self.M)
         elif base == "evidence":
             stays = self.stay_bank.centre()  # type: ignore[union-attr]
         else:
             stays = self.stay_bank.best()  # type: ignore[union-attr]
         if self.config.detector_share > 0.0:
-            return detector_tpm_rows(stays, self.mu_s, self.config.detector_share)
+            return detector_tpm_rows(stays, self.detector_belief, self.config.detector_share)
         return stay_tpm_rows(stays, self.M)
+
+    @property
+    def detector_belief(self) -> Array:
+        """``(N, M)`` the maneuver detector's belief (``EnvConfig.detector``,
+        :mod:`imm_gym.sim.detectors`): the shadow IMM's mode probabilities, or the smoothed
+        turn rate of bank A's estimate interpolated between the models' turn rates."""
+        if self.config.detector == "shadow":
+            return self.mu_s
+        return turn_rate_belief(self.turn_rate_estimate, self._model_turn_rates)  # type: ignore[arg-type]
 
     @property
     def stay_bank_evidence(self) -> Array:
@@ -431,7 +448,7 @@ class TrackingCore:
         out = self._advance(self, action, z, detected, truth)
         if self.stay_bank is not None:
             self.stay_bank.step(
-                z, detected, IMMState(out.x_a, out.P_a, out.mode_probs), self.mu_s
+                z, detected, IMMState(out.x_a, out.P_a, out.mode_probs), self.detector_belief
             )
         return out
 
@@ -458,6 +475,11 @@ class TrackingCore:
         self.model_nis = out.model_nis
         self.innovation = out.innovation
         self.velocity_prev, self.velocity = self.velocity, out.velocity
+        if cfg.detector == "turn_rate":
+            rate = heading_rate(self.velocity_prev, self.velocity, self.sampling_period)
+            self.turn_rate_estimate = (
+                TURN_RATE_FACTOR * self.turn_rate_estimate + (1.0 - TURN_RATE_FACTOR) * rate
+            )
         self._update_memories()
 
     _SLOT_ARRAYS = (
@@ -479,6 +501,7 @@ class TrackingCore:
         "velocity_prev",
         "velocity_s",
         "velocity_s_prev",
+        "turn_rate_estimate",
     )
 
     def _snapshot(self) -> dict[str, Any]:

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from imm_gym.scenarios.catalog import SCENARIOS
 from imm_gym.scenarios.segments import RandomFamily, Scenario, TruthSource
 from imm_gym.sim.conditions import Variation, check_variation
+from imm_gym.sim.detectors import DETECTORS, model_turn_rates
 from imm_gym.sim.features import FEATURES, shadow_features
 from imm_gym.sim.rewards import MODE_SCORES, REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
@@ -113,14 +114,20 @@ class EnvConfig:
             largest evidence), or ``"uniform"`` (the stay ``1/M``: with ``detector_share`` the
             prior the detector alone leans, and the policy learns where to hold a mode). All
             but ``"tracker"`` need ``action_mode="stay"``.
-        detector_share: with a ``stay_base`` other than the tracker's, the share ``v`` of each
-            row's jumps placed by the shadow IMM's mode probabilities (a maneuver detector the
-            action does not steer) instead of evenly: each step's base TPM is
+        detector_share: in the ``stay`` mode, the share ``v`` of each row of the base's jumps
+            placed by a maneuver detector's belief (``detector``; by default the shadow IMM's
+            mode probabilities, which the action does not steer) instead of evenly (the
+            ``tracker`` base: its TPM's stays, the rest of the row so placed): each step's base
+            TPM is
             ``r I + (1 - r) 1 q^T`` with ``q = (1 - v) / M + v mu_S`` and ``r`` the base's stay
             rescaled so that ``v = 0`` gives the base's TPM
             (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`); the stay bank's IMMs run these
             priors too, so its evidence weighs them. 0 (default) turns it off; in ``[0, 1]``;
-            needs ``shadow="fixed"``.
+            with the ``shadow`` detector needs ``shadow="fixed"``.
+        detector: the belief that places ``detector_share`` of the jumps
+            (:mod:`imm_gym.sim.detectors`): ``"shadow"`` (default; the shadow IMM's mode
+            probabilities) or ``"turn_rate"`` (the estimated turn rate, smoothed, interpolated
+            between the models' turn rates: needs a linear bank and ``detector_share > 0``).
         stay_grid: the stay bank's priors: ``"stays"`` (one stay for every row, 1/M .. 0.995)
             or ``"pairs"`` (those and the per-model pairs, the first model's stay sticky and the
             others' shorter-lived, :func:`imm_gym.sim.stay_bank.grid_stays`), so that the
@@ -183,6 +190,7 @@ class EnvConfig:
     action_mode: str = "scale"
     stay_base: str = "tracker"
     detector_share: float = 0.0
+    detector: str = "shadow"
     stay_grid: str = "stays"
     max_factor: float = 2.0
     logit_scale: float = 4.0
@@ -246,10 +254,21 @@ class EnvConfig:
             )
         share = check_range("detector_share", self.detector_share, 0.0, 1.0)
         store(self, "detector_share", share)
-        if share > 0.0 and self.stay_base == "tracker":
+        if share > 0.0 and self.action_mode != "stay":
             raise ConfigError(
-                "detector_share > 0 needs stay_base 'evidence', 'evidence_best' or 'uniform' (the "
-                "stays it places the jumps of), got 'tracker'"
+                f"detector_share > 0 needs action_mode 'stay' (the stays it places the jumps of), "
+                f"got {self.action_mode!r}"
+            )
+        check_choice("detector", self.detector, DETECTORS)
+        if self.detector == "turn_rate" and share == 0.0:
+            raise ConfigError(
+                "detector 'turn_rate' places the detector_share of the jumps: detector_share must "
+                "be in (0, 1], got 0"
+            )
+        if self.detector == "turn_rate" and model_turn_rates(self.bank) is None:
+            raise ConfigError(
+                "detector 'turn_rate' needs a linear bank (the models' turn rates it interpolates "
+                "between), got a heterogeneous one"
             )
         check_choice("stay_grid", self.stay_grid, STAY_GRIDS)
         if self.stay_grid != "stays" and self.stay_base not in ("evidence", "evidence_best"):
@@ -262,7 +281,7 @@ class EnvConfig:
         if not isinstance(self.parallel, bool):
             raise ConfigError(f"parallel must be a bool, got {self.parallel!r}")
         check_choice("shadow", self.shadow, SHADOWS)
-        if self.detector_share > 0.0 and self.shadow == "none":
+        if self.detector_share > 0.0 and self.detector == "shadow" and self.shadow == "none":
             raise ConfigError("detector_share > 0 needs shadow 'fixed' (the detector whose mode "
                               "probabilities place the jumps)")
         if self.shadow_stay is not None:

@@ -30,6 +30,7 @@ POLICY_FIELDS = (
     "action_mode",
     "stay_base",
     "detector_share",
+    "detector",
     "stay_grid",
     "max_factor",
     "logit_scale",

@@ -108,8 +108,8 @@ def test_a_small_action_moves_a_leaning_row_a_little() -> None:
 def test_the_configuration_names_what_the_share_needs() -> None:
     with pytest.raises(ConfigError, match=r"detector_share must be in \[0.0, 1.0\]"):
         EnvConfig(action_mode="stay", stay_base="evidence", detector_share=1.5)
-    with pytest.raises(ConfigError, match="detector_share > 0 needs stay_base 'evidence'"):
-        EnvConfig(action_mode="stay", detector_share=0.5)
+    with pytest.raises(ConfigError, match="detector_share > 0 needs action_mode 'stay'"):
+        EnvConfig(detector_share=0.5)
     with pytest.raises(ConfigError, match="detector_share > 0 needs shadow 'fixed'"):
         EnvConfig(action_mode="stay", stay_base="evidence", detector_share=0.5, shadow="none")
 
