@@ -21,6 +21,7 @@ from .registry import REGISTRY, BuildContext, Entry, Registry, register
 from .fixed import FixedTPM
 from .tip_imm import TIPIMM
 from .best_fixed import STAY_GRID, best_fixed_stay
+from .turn_rate_prior import TurnRatePrior
 from .amp_imm import AMPIMM
 from .window import SlidingWindowTPM
 from .bbsca import BBSCATunedIMM
@@ -67,6 +68,7 @@ __all__ = [
     "Policy",
     "Registry",
     "SlidingWindowTPM",
+    "TurnRatePrior",
     "best_fixed_stay",
     "make_baseline",
     "register",

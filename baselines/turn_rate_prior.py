@@ -1,0 +1,93 @@
+"""A fixed switching prior whose jumps lean toward the estimated turn rate (``turn-rate-prior``).
+
+Each row keeps its model with the stay ``s`` and otherwise redraws it from
+``q = (1 - v) / M + v b``, ``b`` the ``turn_rate`` detector's belief: the smoothed heading rate of
+the tracker's own estimate interpolated between the models' turn rates
+(:mod:`imm_gym.sim.detectors`, :func:`imm_gym.sim.stay_bank.detector_tpm_rows`). A turn slower
+than the bank's CT models is a blend of CV and the turn of its sign; a nearly uniform fixed
+prior mixes them at every step blindly, this one aims the mixing at the blend. The stay and the
+share are searched like ``best-fixed``'s stay, on the training runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError
+
+from .base import Baseline
+from .best_fixed import STAY_GRID
+from .registry import BuildContext, register
+
+#: Detector shares ``v`` searched with the stays of :data:`~baselines.best_fixed.STAY_GRID`.
+SHARE_GRID = (0.25, 0.5, 0.75, 1.0)
+#: The TPM's floor ``p_min``: below every searched stay TPM's entries (up to 11 models), so the
+#: search's roll-outs run at the floor the policy runs at.
+P_MIN = 1e-4
+
+
+class TurnRatePrior(Baseline):
+    """The zero ``stay`` action on the tracker's TPM of stay ``stay``, the ``share`` of its
+    jumps placed by the ``turn_rate`` detector (``stay=None``: the configured initial TPM's
+    stays)."""
+
+    name = "turn-rate-prior"
+
+    def __init__(
+        self, n_models: int = 3, stay: float | Sequence[float] | None = None, share: float = 0.5
+    ) -> None:
+        super().__init__(n_models)
+        self.stay = stay
+        self.share = share
+        self.env_overrides = {
+            "action_mode": "stay",
+            "stay_base": "tracker",
+            "detector": "turn_rate",
+            "detector_share": share,
+            "p_min": P_MIN,
+        }
+        if stay is not None:
+            self.env_overrides.update({"initial_stay": stay, "sojourn": None})
+
+    def act(
+        self, obs: NDArray[np.float64], state: Any, episode_start: NDArray[np.bool_]
+    ) -> tuple[NDArray[np.float64], Any]:
+        return np.zeros((obs.shape[0], self.n_models)), state
+
+
+@register(
+    "turn-rate-prior",
+    help="a fixed stay with jumps leaning toward the estimated turn rate; stay and share with "
+    "the lowest ARMSE on training runs",
+)
+def build_turn_rate_prior(context: BuildContext) -> tuple[TurnRatePrior, dict[str, Any]]:
+    """:class:`TurnRatePrior` with the stay of :data:`STAY_GRID` (those at least ``1/M``) and
+    the share of :data:`SHARE_GRID` scoring best on the training runs: one roll-out of every
+    stay per share.
+
+    Notes: the stay and share found, the training ARMSE of every pair (``"stay/share"``), the
+    training runs and seeds.
+    """
+    if context.train_armse_from is None:
+        raise ConfigError("turn-rate-prior needs a build context that offers train_armse_from")
+    M = context.n_models
+    stays = [s for s in STAY_GRID if s >= 1.0 / M]
+    tpms = np.stack([stay_tpm(M, s) for s in stays])
+    search: dict[tuple[float, float], float] = {}
+    for share in SHARE_GRID:
+        scores = context.train_armse_from(TurnRatePrior(M, share=share), tpms)
+        search.update(((s, share), float(v)) for s, v in zip(stays, scores, strict=True))
+    stay, share = min(search, key=search.__getitem__)
+    notes = {
+        "stay": float(stay),
+        "share": float(share),
+        "search": {f"{s:.4f}/{v:.2f}": score for (s, v), score in search.items()},
+        "train_runs": context.train_runs,
+        "train_seeds": context.train_seeds(),
+    }
+    return TurnRatePrior(M, float(stay), float(share)), notes
