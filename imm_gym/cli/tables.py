@@ -28,7 +28,10 @@ BEHAVIOUR_COLUMNS = (
 
 def policy_label(name: str, row: dict[str, Any]) -> str:
     """The policy's name with the stays a fixed-TPM search found (``best-fixed (stay 0.6)``,
-    ``best-fixed-rows (stays 0.995/0.5/0.5)``, one per model)."""
+    ``best-fixed-rows (stays 0.995/0.5/0.5)``, one per model; ``turn-rate-prior (stay 0.333,
+    share 0.25)``, with the detector's share)."""
+    if "stay" in row and "share" in row:
+        return f"{name} (stay {row['stay']:.3g}, share {row['share']:.3g})"
     if "stay" in row:
         return f"{name} (stay {row['stay']:.3g})"
     if "stays" in row:

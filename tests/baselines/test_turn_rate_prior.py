@@ -77,3 +77,15 @@ def test_the_search_on_real_runs_scores_what_each_candidate_scores_alone() -> No
     assert notes["search"][f"{notes['stay']:.4f}/{notes['share']:.2f}"] == min(
         notes["search"].values()
     )
+
+
+def test_the_tables_label_the_stay_and_share_found() -> None:
+    from imm_gym.cli.tables import policy_label
+
+    assert policy_label("turn-rate-prior", {"stay": 1 / 3, "share": 0.25}) == (
+        "turn-rate-prior (stay 0.333, share 0.25)"
+    )
+    assert policy_label("best-fixed", {"stay": 0.6}) == "best-fixed (stay 0.6)"
+    assert policy_label("best-fixed-rows", {"stays": [0.995, 0.5, 0.5]}) == (
+        "best-fixed-rows (stays 0.995/0.5/0.5)"
+    )
