@@ -337,8 +337,8 @@ class TrackingCore:
     @property
     def stay_base_tpms(self) -> Array:
         """``(N, M, M)`` the TPMs the ``stay`` action moves from: the slots' own (bank B's; with
-        ``detector_share``, their stays), or a stay on each row's diagonal and the rest of the
-        row spread evenly (``stay_base="evidence"``: the stay bank's
+        ``detector_share``, their stays, at least 1/M), or a stay on each row's diagonal and the
+        rest of the row spread evenly (``stay_base="evidence"``: the stay bank's
         :meth:`~imm_gym.sim.stay_bank.StayBank.centre`, ``"evidence_best"``: its
         :meth:`~imm_gym.sim.stay_bank.StayBank.best`, ``"uniform"``: 1/M) — with
         ``detector_share``, that share of the jumps placed by the :attr:`detector_belief`
@@ -346,8 +346,8 @@ class TrackingCore:
         base = self.config.stay_base
         if base == "tracker" and self.config.detector_share == 0.0:
             return self.fixed_tpms
-        if base == "tracker":
-            stays = np.diagonal(self.fixed_tpms, axis1=-2, axis2=-1)
+        if base == "tracker":  # the detector's rows take stays of at least 1/M
+            stays = np.maximum(np.diagonal(self.fixed_tpms, axis1=-2, axis2=-1), 1.0 / self.M)
         elif base == "uniform":
             stays = np.full(self.n_envs, 1.0 / self.M)
         elif base == "evidence":

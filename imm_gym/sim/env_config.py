@@ -117,11 +117,11 @@ class EnvConfig:
         detector_share: in the ``stay`` mode, the share ``v`` of each row of the base's jumps
             placed by a maneuver detector's belief (``detector``; by default the shadow IMM's
             mode probabilities, which the action does not steer) instead of evenly (the
-            ``tracker`` base: its TPM's stays, the rest of the row so placed): each step's base
-            TPM is
-            ``r I + (1 - r) 1 q^T`` with ``q = (1 - v) / M + v mu_S`` and ``r`` the base's stay
-            rescaled so that ``v = 0`` gives the base's TPM
-            (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`); the stay bank's IMMs run these
+            ``tracker`` base: its TPM's stays, at least 1/M, the rest of the row so placed):
+            each step's base TPM is ``r I + (1 - r) 1 q^T`` with ``q = (1 - v) / M + v b``
+            (``b`` the belief) and ``r`` the base's stay rescaled so that ``v = 0`` gives the
+            base's TPM (:func:`imm_gym.sim.stay_bank.detector_tpm_rows`); the stay bank's IMMs
+            run these
             priors too, so its evidence weighs them. 0 (default) turns it off; in ``[0, 1]``;
             with the ``shadow`` detector needs ``shadow="fixed"``.
         detector: the belief that places ``detector_share`` of the jumps

@@ -115,3 +115,15 @@ def test_the_configuration_names_what_the_detector_needs() -> None:
     config = EnvConfig(action_mode="stay", stay_base="uniform", detector_share=0.5,
                        detector="turn_rate", shadow="none", reward="error")
     np.testing.assert_allclose(model_turn_rates(config.bank), PAPER_RATES)
+
+
+def test_the_tracker_base_leans_stays_of_at_least_one_in_m() -> None:
+    """A tracker TPM whose stay is below 1/M gives the detector's rows at the stay 1/M (a
+    switching prior, every entry non-negative), not a row of negative entries."""
+    core = _core(2, stay_base="tracker", initial_stay=0.1)
+    for _ in range(10):
+        belief = core.detector_belief
+        expected = detector_tpm_rows(np.full(2, 1.0 / M), belief, 0.5)
+        np.testing.assert_allclose(core.stay_base_tpms, expected, rtol=0, atol=1e-15)
+        core.step(np.zeros((2, M)))
+    assert np.all(core.stay_base_tpms >= 0.0)
