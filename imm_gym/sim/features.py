@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.tracking.imm import measurement_loglik
-from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.tracking.tpm import stay_tpm_rows
 
 Array = NDArray[np.float64]
 
@@ -252,11 +252,16 @@ def shadow_evidence_step(view: StepView) -> Array:
     return np.clip(gain, -EVIDENCE_STEP_CLIP, EVIDENCE_STEP_CLIP)
 
 
+def evidence_stays(n_models: int) -> Array:
+    """``(S,)`` the stays whose evidence is weighed (the ``stay_evidence`` feature, the stay
+    bank's single stays): ``1/M`` (uniform), then each of :data:`EVIDENCE_STAYS`."""
+    return np.array([1.0 / n_models, *EVIDENCE_STAYS])
+
+
 def stay_tpms(n_models: int) -> Array:
-    """``(S, M, M)`` the TPMs the ``stay_evidence`` feature weighs: stay ``1/M`` (uniform),
-    then each of :data:`EVIDENCE_STAYS`, the rest of each row spread evenly."""
-    stays = (1.0 / n_models, *EVIDENCE_STAYS)
-    return np.stack([stay_tpm(n_models, s) for s in stays])
+    """``(S, M, M)`` the TPMs the ``stay_evidence`` feature weighs: the :func:`evidence_stays`
+    on the diagonal, the rest of each row spread evenly."""
+    return stay_tpm_rows(evidence_stays(n_models), n_models)
 
 
 def stay_evidence_step(view: StepView) -> Array:

@@ -49,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.sim.features import EVIDENCE_STAYS
+from imm_gym.sim.features import EVIDENCE_STAYS, evidence_stays
 from imm_gym.tracking.imm import IMMState, Tracker, measurement_loglik
 from imm_gym.tracking.kernels.imm import imm_step
 from imm_gym.tracking.tpm import stay_tpm_rows
@@ -74,7 +74,7 @@ def grid_stays(n_models: int, grid: str = "stays") -> Array:
     on every row, then with ``grid="pairs"`` each ``(a, b, ..., b)``, ``a`` of
     :data:`PAIR_FIRST` and ``b`` of ``1/M`` and :data:`PAIR_OTHERS`."""
     M = n_models
-    singles = np.repeat(np.array([1.0 / M, *EVIDENCE_STAYS])[:, None], M, axis=1)
+    singles = np.repeat(evidence_stays(M)[:, None], M, axis=1)
     if grid == "stays":
         return singles
     pairs = [(a,) + (b,) * (M - 1) for a in PAIR_FIRST for b in (1.0 / M, *PAIR_OTHERS)]
