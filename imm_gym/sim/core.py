@@ -24,7 +24,7 @@ from imm_gym.seeding import clone, streams
 from imm_gym.sim.actions import action_size, tpm_from_action, validate_action
 from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.conditions import Conditions, bank_constants
-from imm_gym.sim.detectors import TURN_RATE_FACTOR, model_turn_rates, turn_rate_belief
+from imm_gym.sim.detectors import TURN_RATE_FACTOR, TurnRateBelief, model_turn_rates
 from imm_gym.sim.engines import choose_engine, compiled_step
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_episodes
@@ -164,7 +164,10 @@ class TrackingCore:
         #: ``(N,)`` the smoothed heading rate of bank A's estimate (rad/s), the ``turn_rate``
         #: detector's (:mod:`imm_gym.sim.detectors`; kept at 0 with another detector)
         self.turn_rate_estimate = np.zeros(N)
-        self._model_turn_rates = model_turn_rates(config.bank)
+        omegas = model_turn_rates(config.bank)
+        #: the ``turn_rate`` detector's interpolation between the models' turn rates (None: a
+        #: heterogeneous bank, which has no fixed turn rates)
+        self._turn_rate_belief = None if omegas is None else TurnRateBelief(omegas)
         #: the observed features' memories (:class:`imm_gym.sim.features.Memory`)
         self._memories = {
             f: FEATURES[f].memory for f in config.obs_features if FEATURES[f].memory is not None
@@ -365,7 +368,7 @@ class TrackingCore:
         turn rate of bank A's estimate interpolated between the models' turn rates."""
         if self.config.detector == "shadow":
             return self.mu_s
-        return turn_rate_belief(self.turn_rate_estimate, self._model_turn_rates)  # type: ignore[arg-type]
+        return self._turn_rate_belief(self.turn_rate_estimate)  # type: ignore[misc]
 
     @property
     def stay_bank_evidence(self) -> Array:

@@ -41,25 +41,49 @@ def model_turn_rates(bank: Any) -> Array | None:
     return np.array([m.omega for m in bank])
 
 
-def turn_rate_belief(rate: Array, omegas: Array) -> Array:
-    r"""``(N, M)`` the piecewise-linear interpolation weights of the turn rates ``rate (N,)``
-    between the models' turn rates ``omegas (M,)`` (rad/s).
+class TurnRateBelief:
+    r"""The piecewise-linear interpolation weights of turn rates between the models' turn rates
+    ``omegas (M,)`` (rad/s), the levels sorted once: a call ``(N,) -> (N, M)``.
 
-    With the distinct rates :math:`u_0 < \dots < u_{L-1}` and :math:`u_l \le \omega \le
-    u_{l+1}`, level :math:`l` gets :math:`(u_{l+1} - \omega) / (u_{l+1} - u_l)` and level
-    :math:`l + 1` the rest (:math:`\omega` clipped to :math:`[u_0, u_{L-1}]`); models sharing
-    a rate share its weight evenly. Rows sum to 1; a bank of one rate gets the uniform belief.
+    With the distinct rates :math:`u_0 < \dots < u_{L-1}`, level :math:`l` gets the hat
+    function
+
+    .. math::
+        h_l(\omega) = \operatorname{clip}\Big(\min\Big(
+        \frac{\omega - u_{l-1}}{u_l - u_{l-1}},\ \frac{u_{l+1} - \omega}{u_{l+1} - u_l}\Big),
+        0, 1\Big)
+
+    (a missing neighbour's ratio dropped), at :math:`\omega` clipped to :math:`[u_0, u_{L-1}]`:
+    between :math:`u_l` and :math:`u_{l+1}` the two neighbours share it linearly and every
+    other level gets 0. Models sharing a rate share its weight evenly. Rows sum to 1; a bank of
+    one rate gets the uniform belief.
     """
-    levels, level_of = np.unique(omegas, return_inverse=True)
-    N, M, L = rate.shape[0], omegas.shape[0], levels.size
-    if L == 1:
-        return np.full((N, M), 1.0 / M)
-    w = np.clip(rate, levels[0], levels[-1])
-    low = np.clip(np.searchsorted(levels, w, side="right") - 1, 0, L - 2)
-    t = (w - levels[low]) / (levels[low + 1] - levels[low])
-    weight = np.zeros((N, L))
-    rows = np.arange(N)
-    weight[rows, low] = 1.0 - t
-    weight[rows, low + 1] += t
-    per_model = np.bincount(level_of, minlength=L)
-    return weight[:, level_of] / per_model[level_of]
+
+    def __init__(self, omegas: Array) -> None:
+        levels, level_of = np.unique(np.asarray(omegas, dtype=np.float64), return_inverse=True)
+        self.M, self.L = level_of.size, levels.size
+        self._lo, self._hi = levels[0], levels[-1]
+        self._levels = levels
+        # each level's distance to its lower and upper neighbour (inf: none)
+        self._gap_down = np.append(np.inf, np.diff(levels))
+        self._gap_up = np.append(np.diff(levels), np.inf)
+        self._level_of = level_of
+        self._share = 1.0 / np.bincount(level_of, minlength=self.L)[level_of]
+
+    def __call__(self, rate: Array) -> Array:
+        N = rate.shape[0]
+        if self.L == 1:
+            return np.full((N, self.M), 1.0 / self.M)
+        d = np.clip(rate, self._lo, self._hi)[:, None] - self._levels
+        # above a level it falls toward the upper neighbour, below toward the lower one (the
+        # other ratio is then <= 0); levels a subnormal gap apart overflow to inf, weight 0
+        with np.errstate(over="ignore"):
+            fall = np.maximum(d / self._gap_up, -d / self._gap_down)
+        weight = np.maximum(1.0 - fall, 0.0)
+        return weight[:, self._level_of] * self._share
+
+
+def turn_rate_belief(rate: Array, omegas: Array) -> Array:
+    """``(N, M)`` the interpolation weights of the turn rates ``rate (N,)`` between the models'
+    turn rates ``omegas (M,)`` (rad/s): :class:`TurnRateBelief` built for one call."""
+    return TurnRateBelief(omegas)(rate)
