@@ -1,0 +1,176 @@
+"""What a better maneuver detector is worth to the turn-rate prior, scenario by scenario.
+
+The ``turn-rate-prior`` baseline leans the share ``v`` of a fixed prior's jumps toward where the
+bank's models place an estimated turn rate (:class:`imm_gym.sim.detectors.TurnRateBelief`,
+:func:`imm_gym.sim.stay_bank.detector_tpm_rows`)::
+
+    Pi = r I + (1 - r) 1 q^T,   q = (1 - v) / M + v b(omega),   r = (s - 1/M) / (1 - 1/M).
+
+This runs that prior, on the same runs (common random numbers), led by three kinds of turn rate:
+
+* ``true, d steps late``: the target's own turn rate over step ``k - d`` (``d = 0``: the step
+  being predicted, which no causal detector has) — a privileged detector, the head-room;
+* ``tracker (env)``: the env's ``turn_rate`` detector, the heading rate of the tracker's own
+  combined estimate smoothed by :data:`~imm_gym.sim.detectors.TURN_RATE_FACTOR` (closed loop:
+  the prior steers the estimate it reads) — what the baseline runs;
+* ``CT-omega EKF``: the turn rate estimated by an EKF of the coordinated-turn model with the
+  turn rate in its state (:class:`imm_gym.tracking.hetero.HeteroModel` ``"ct"``, yaw
+  acceleration noise ``--yaw-noise``) run on the same measurements beside the tracker (open
+  loop).
+
+For each detector it prints the best (stay, share) of the grid by position ARMSE (m), with its
+mode accuracy: picked on the evaluation's own runs, so each row is its detector's best case::
+
+    python examples/detector_headroom.py --runs 100 --seed 0 --scenario random --scenario paper
+
+The rows are handed to the core as ``set``-mode logits (``log pi``, exact above the floor).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym import EnvConfig, TrackingCore
+from imm_gym.cli.evaluate import suite_configs
+from imm_gym.evaluation.metrics import mode_accuracy
+from imm_gym.evaluation.rollout import armse_from_squared
+from imm_gym.sim.detectors import TURN_RATE_FACTOR, TurnRateBelief, model_turn_rates
+from imm_gym.sim.features import heading_rate
+from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.tracking.hetero import HeteroIMM, HeteroModel
+
+Array = NDArray[np.float64]
+
+STAYS = (1 / 3, 0.4, 0.5, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995)
+SHARES = (0.25, 0.5, 0.75, 1.0)
+#: ``set`` mode's logit per unit action: ``log pi`` of every row stays inside [-1, 1] · LOGIT.
+LOGIT = 10.0
+#: The EKF's speed noise (m/s²) and the standard deviation of its first turn rate (rad/s).
+EKF_SPEED_NOISE = 0.1
+EKF_TURN_RATE_STD = np.radians(3.0)
+
+
+def true_turn_rates(truth: Array, T: float) -> Array:
+    """``(R, K)`` the target's turn rate over each step ``k`` (from state ``k`` to ``k + 1`` of
+    ``truth (R, K + 1, 4)``, ``[x, y, vx, vy]``): the heading change over ``T``."""
+    heading = np.unwrap(np.arctan2(truth[..., 3], truth[..., 2]), axis=1)
+    return np.diff(heading, axis=1) / T
+
+
+def ekf_turn_rates(core: TrackingCore, runs: int, yaw_noise: float) -> Array:
+    """``(R, K + 1)`` the CT-omega EKF's turn rate after each measurement of the first ``runs``
+    slots (column 0: its prior, 0), started from the tracker's first estimate."""
+    ekf = HeteroIMM([HeteroModel("ct", (EKF_SPEED_NOISE, yaw_noise))], core.imm.sensor,
+                    T=float(core.config.source.T))
+    state = ekf.init(core.state_a.x[:runs, 0], core.state_a.P[:runs, 0], np.ones(1))
+    state.P[:, 0, 4, 4] = EKF_TURN_RATE_STD**2
+    rates = np.zeros((runs, core.horizon + 1))
+    one = np.ones((runs, 1, 1))
+    for k in range(1, core.horizon + 1):
+        state, _ = ekf.step(state, one, core.z[:runs, k], core.detected[:runs, k], check=False,
+                            allow_failure=True)
+        rates[:, k] = np.nan_to_num(state.x[:, 0, 4])
+    return rates
+
+
+def detector_runs(
+    overrides: dict[str, Any], delays: Sequence[int], runs: int, seed: int,
+    yaw_noise: float = 0.01,
+) -> dict[tuple[str, float, float], tuple[float, float]]:
+    """``{(detector, stay, share): (ARMSE, mode accuracy)}`` of the turn-rate prior at every
+    stay of :data:`STAYS` and share of :data:`SHARES` led by each detector (module docstring:
+    ``"true, d late"`` for each of ``delays``, ``"tracker (env)"``, ``"CT-omega EKF"``), on runs
+    ``seed .. seed + runs - 1``."""
+    config = EnvConfig.build(overrides).replace(
+        action_mode="set", logit_scale=LOGIT, p_min=1e-4, shadow="fixed", reward="error",
+        obs_features=(), tpm_cost=0.0, tpm_change_cost=0.0, mode_reward=0.0,
+    )
+    omegas = model_turn_rates(config.bank)
+    if omegas is None:
+        raise ValueError("the turn-rate prior needs a linear bank (CV and CT models)")
+    M, T = len(config.bank), float(config.source.T)
+    belief = TurnRateBelief(omegas)
+    names = [f"true, {d} late" for d in delays] + ["tracker (env)", "CT-omega EKF"]
+    combos = [(name, s, v) for name in names for s in STAYS for v in SHARES]
+    C = len(combos)
+    core = TrackingCore(config, C * runs)
+    core.reset(np.arange(C * runs), [seed + r for _ in range(C) for r in range(runs)])
+    K = core.horizon
+    truth = core.truth[:runs].copy()
+    true_rate = true_turn_rates(truth, T)
+    ekf_rate = ekf_turn_rates(core, runs, yaw_noise)
+    kind = np.repeat([names.index(name) for name, _, _ in combos], runs)
+    delay = np.array([*delays, 0, 0])[kind]
+    stays = np.repeat([s for _, s, _ in combos], runs)
+    shares = np.repeat([v for _, _, v in combos], runs)
+    run = np.tile(np.arange(runs), C)
+    tracker = kind == len(delays)
+    ekf = kind == len(delays) + 1
+    smoothed = np.zeros(C * runs)
+    velocity = core.state_a.x[:, 0, 2:4].copy()
+    pos = np.empty((C, runs, K, 2))
+    probs = np.empty((C, runs, K, M))
+    for k in range(K):
+        late = k - delay
+        rate = np.where(late >= 0, true_rate[run, np.clip(late, 0, K - 1)], 0.0)
+        rate = np.where(tracker, smoothed, rate)
+        rate = np.where(ekf, ekf_rate[run, k], rate)
+        rows = detector_tpm_rows(stays, belief(rate), shares)
+        action = np.log(np.maximum(rows, 1e-300)) / LOGIT
+        info = core.step(np.clip(action, -1.0, 1.0).reshape(C * runs, M * M)).info
+        estimate = info["estimate"]
+        smoothed = TURN_RATE_FACTOR * smoothed + (1.0 - TURN_RATE_FACTOR) * heading_rate(
+            velocity, estimate[:, 2:4], T
+        )
+        velocity = estimate[:, 2:4].copy()
+        pos[:, :, k] = estimate[:, :2].reshape(C, runs, 2)
+        probs[:, :, k] = info["mode_probs"].reshape(C, runs, M)
+    err2 = np.sum((pos - truth[None, :, 1:, :2]) ** 2, axis=-1)
+    true_model = core.true_model[:runs]
+    return {
+        combo: (armse_from_squared(err2[c]), mode_accuracy(probs[c], true_model))
+        for c, combo in enumerate(combos)
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--suite", default="benchmark")
+    p.add_argument("--scenario", action="append", help="a scenario of the suite (default: all)")
+    p.add_argument("--delay", type=int, action="append",
+                   help="steps the true turn rate is known late (default: 0 1 3 5 8)")
+    p.add_argument("--yaw-noise", type=float, default=0.01,
+                   help="the CT-omega EKF's yaw acceleration noise (rad/s²)")
+    args = p.parse_args()
+    delays = args.delay or [0, 1, 3, 5, 8]
+    configs = suite_configs(args.suite)
+    chosen = args.scenario or list(configs)
+    unknown = sorted(set(chosen) - set(configs))
+    if unknown:
+        p.error(f"--scenario must be among {list(configs)}, got {unknown}")
+    print(f"runs {args.seed}..{args.seed + args.runs - 1}; position ARMSE (m) / mode accuracy "
+          f"(stay, share) of each detector's best prior on these runs")
+    table: dict[str, list[str]] = {}
+    for name in chosen:
+        scores = detector_runs(configs[name], delays, args.runs, args.seed, args.yaw_noise)
+        for detector in dict.fromkeys(d for d, _, _ in scores):
+            (armse, acc), s, v = min(
+                (scores[(detector, s, v)], s, v) for s in STAYS for v in SHARES
+            )
+            cell = f"{armse:.2f} / {100 * acc:.0f} % ({s:.3g}, {v:g})"
+            table.setdefault(detector, []).append(cell)
+    print("| detector | " + " | ".join(chosen) + " |")
+    print("|---|" + "---|" * len(chosen))
+    for detector, cells in table.items():
+        print(f"| {detector} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,41 @@
+"""``examples/detector_headroom.py``: its ``tracker (env)`` rows are the ``turn-rate-prior``
+baseline's roll-outs, run for run; its true turn rates are the truth's heading changes; the
+turn rate known sooner leads the prior better."""
+
+from __future__ import annotations
+
+import numpy as np
+from helpers import load_example
+
+from baselines.turn_rate_prior import TurnRatePrior
+from imm_gym import EnvConfig
+from imm_gym.evaluation.metrics import mode_accuracy
+from imm_gym.evaluation.rollout import armse_from_squared, evaluation_config, rollout
+
+
+def test_the_trackers_rows_are_the_baselines_and_a_sooner_rate_leads_better() -> None:
+    example = load_example("detector_headroom")
+    scores = example.detector_runs({"scenario": "random"}, (0, 8), 12, 3)
+    for stay, share in ((1 / 3, 0.5), (0.9, 0.25), (0.995, 0.75)):
+        policy = TurnRatePrior(3, stay, share)
+        config = evaluation_config(EnvConfig.build({"scenario": "random"}), policy.env_overrides)
+        run = rollout(policy, config, 12, 3)
+        armse, accuracy = scores[("tracker (env)", stay, share)]
+        np.testing.assert_allclose(armse, armse_from_squared(run.squared_position_error),
+                                   rtol=1e-6)
+        np.testing.assert_allclose(accuracy, mode_accuracy(run.mode_probs, run.true_model),
+                                   atol=0.005)
+
+    def best(detector: str) -> float:
+        return min(scores[(detector, s, v)][0] for s in example.STAYS for v in example.SHARES)
+
+    assert best("true, 0 late") < best("true, 8 late") < best("tracker (env)")
+
+
+def test_true_turn_rates_are_the_heading_changes() -> None:
+    example = load_example("detector_headroom")
+    T, omega = 2.0, np.array([0.0, 0.01, -0.03])
+    heading = np.concatenate([[3.1], 3.1 + np.cumsum(omega * T)])  # crosses +-pi
+    truth = np.zeros((1, 4, 4))
+    truth[0, :, 2], truth[0, :, 3] = 20.0 * np.cos(heading), 20.0 * np.sin(heading)
+    np.testing.assert_allclose(example.true_turn_rates(truth, T)[0], omega, atol=1e-12)
