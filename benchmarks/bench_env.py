@@ -92,6 +92,12 @@ VECTOR_CONFIGS: tuple[tuple[str, dict[str, Any]], ...] = (
         "stay bank, shadow on",
         {"action_mode": "stay", "stay_base": "evidence", "obs_features": ("stay_bank_evidence",)},
     ),
+    # ...its priors and the base leaning toward the turn-rate detector (imm_gym/sim/detectors.py)
+    (
+        "stay bank, turn-rate lean",
+        {"action_mode": "stay", "stay_base": "evidence", "detector": "turn_rate",
+         "detector_share": 0.5, "obs_features": ("stay_bank_evidence",)},
+    ),
 )
 HEADLINE_VECTOR = ("parallel on,  shadow on", 1024)
 QUICK_MAX_N = 64  # --quick: larger N only for the headline configuration
