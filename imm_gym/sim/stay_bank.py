@@ -160,6 +160,10 @@ class StayBank:
         # a fresh, writable array for every N (a read-only view at N = 1 would compile another
         # specialization of the kernel)
         self._tpm_rows = np.tile(self.tpms, (N, 1, 1))
+        # detector_tpm_rows' terms that do not change: (1 - r) per row and r on the diagonal
+        keep = (self.stays - 1.0 / M) / (1.0 - 1.0 / M)
+        self._jump = (1.0 - keep)[:, :, None]
+        self._diagonal = keep[:, :, None] * np.eye(M)
         self._args = None if kernel_args is None else self._own_args(kernel_args)
         #: the IMMs' posteriors, ``(N * S, M, n)``, ``(N * S, M, n, n)``, ``(N * S, M)``
         self.state = IMMState(
@@ -261,18 +265,19 @@ class StayBank:
         the step's evidence; an IMM that fails restarts from ``fallback``, bank A's posterior
         after the step. ``belief (N, M)``: the detector's mode probabilities before the step
         (needed with ``detector_share``)."""
-        N, S = self.n_envs, self.S
+        N, S, M = self.n_envs, self.S, self.stays.shape[1]
         if self.detector_share > 0.0:
             if belief is None:
                 raise ValueError("a stay bank with detector_share needs the detector's belief")
-            self._tpm_rows[:] = detector_tpm_rows(
-                np.tile(self.stays, (N, 1)), np.repeat(belief, S, axis=0), self.detector_share
-            )
+            # detector_tpm_rows of every stay, its fixed terms built once: (1 - r) q + r I
+            q = (1.0 - self.detector_share) / M + self.detector_share * belief
+            rows = self._tpm_rows.reshape(N, S, M, M)
+            np.multiply(self._jump, q[:, None, None, :], out=rows)
+            rows += self._diagonal
         z_rows = np.ascontiguousarray(np.repeat(z, S, axis=0))
         det_rows = np.ascontiguousarray(np.repeat(detected, S))
         state, cbar, loglik, failed = self._advance(z_rows, det_rows)
         ok = ~failed
-        M = cbar.shape[1]
         e = measurement_loglik(  # failed rows: finite stand-ins, replaced by the floor below
             np.where(ok[:, None], loglik, 0.0), np.where(ok[:, None], cbar, 1.0 / M)
         )

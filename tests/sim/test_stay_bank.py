@@ -263,3 +263,26 @@ def test_priors_with_a_stay_per_row() -> None:
     np.testing.assert_allclose(leaning.sum(axis=-1), 1.0, rtol=0, atol=1e-15)
     keep = (stays - 1 / M) / (1 - 1 / M)
     assert np.all(np.diagonal(leaning, axis1=1, axis2=2) >= keep - 1e-15)
+
+
+@pytest.mark.parametrize("grid", ["stays", "pairs"])
+def test_the_detectors_priors_are_detector_tpm_rows_of_every_stay(grid: str) -> None:
+    """The bank builds each step's priors from terms it keeps (``(1 - r)``, ``r I``): the same
+    numbers as :func:`detector_tpm_rows` of every slot's stays at its belief, bit for bit."""
+    rng = np.random.default_rng(4)
+    N, share = 3, 0.6
+    config = EnvConfig()
+    bank = StayBank(make_tracker(config.bank, config.sensor, "ukf", 1.0), N, None,
+                    detector_share=share, grid=grid)
+    x0 = np.tile([2000.0, 3000.0, 10.0, -5.0], (N, 1))
+    bank.start(np.arange(N), IMMState(np.repeat(x0[:, None], M, 1),
+                                      np.tile(np.diag([100.0, 100.0, 25.0, 25.0]), (N, M, 1, 1)),
+                                      np.full((N, M), 1.0 / M)), None)
+    belief = rng.dirichlet(np.ones(M), size=N)
+    z = np.column_stack([np.hypot(2000.0, 3000.0) + rng.normal(0, 25, N),
+                         np.arctan2(3000.0, 2000.0) + rng.normal(0, 0.003, N)])
+    bank.step(z, np.ones(N, dtype=bool), IMMState(*(a[::bank.S] for a in (
+        bank.state.x, bank.state.P, bank.state.mu))), belief)
+    expected = detector_tpm_rows(np.tile(bank.stays, (N, 1)), np.repeat(belief, bank.S, axis=0),
+                                 share)
+    np.testing.assert_array_equal(bank._tpm_rows, expected)
