@@ -23,7 +23,8 @@ mode accuracy: picked on the evaluation's own runs, so each row is its detector'
 
     python examples/detector_headroom.py --runs 100 --seed 0 --scenario random --scenario paper
 
-The rows are handed to the core as ``set``-mode logits (``log pi``, exact above the floor).
+The priors run through :mod:`imm_gym.evaluation.priors` (``set``-mode logits, exact above the
+floor).
 """
 
 from __future__ import annotations
@@ -35,10 +36,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym import EnvConfig, TrackingCore
+from imm_gym import TrackingCore
 from imm_gym.cli.evaluate import suite_configs
-from imm_gym.evaluation.metrics import mode_accuracy
-from imm_gym.evaluation.rollout import armse_from_squared
+from imm_gym.evaluation.priors import prior_core, run_priors
 from imm_gym.sim.detectors import TURN_RATE_FACTOR, TurnRateBelief, model_turn_rates
 from imm_gym.sim.features import heading_rate
 from imm_gym.sim.stay_bank import detector_tpm_rows
@@ -48,8 +48,6 @@ Array = NDArray[np.float64]
 
 STAYS = (1 / 3, 0.4, 0.5, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995)
 SHARES = (0.25, 0.5, 0.75, 1.0)
-#: ``set`` mode's logit per unit action: ``log pi`` of every row stays inside [-1, 1] · LOGIT.
-LOGIT = 10.0
 #: The EKF's speed noise (m/s²) and the standard deviation of its first turn rate (rad/s).
 EKF_SPEED_NOISE = 0.1
 EKF_TURN_RATE_STD = np.radians(3.0)
@@ -86,56 +84,41 @@ def detector_runs(
     stay of :data:`STAYS` and share of :data:`SHARES` led by each detector (module docstring:
     ``"true, d late"`` for each of ``delays``, ``"tracker (env)"``, ``"CT-omega EKF"``), on runs
     ``seed .. seed + runs - 1``."""
-    config = EnvConfig.build(overrides).replace(
-        action_mode="set", logit_scale=LOGIT, p_min=1e-4, shadow="fixed", reward="error",
-        obs_features=(), tpm_cost=0.0, tpm_change_cost=0.0, mode_reward=0.0,
-    )
-    omegas = model_turn_rates(config.bank)
-    if omegas is None:
-        raise ValueError("the turn-rate prior needs a linear bank (CV and CT models)")
-    M, T = len(config.bank), float(config.source.T)
-    belief = TurnRateBelief(omegas)
     names = [f"true, {d} late" for d in delays] + ["tracker (env)", "CT-omega EKF"]
     combos = [(name, s, v) for name in names for s in STAYS for v in SHARES]
-    C = len(combos)
-    core = TrackingCore(config, C * runs)
-    core.reset(np.arange(C * runs), [seed + r for _ in range(C) for r in range(runs)])
-    K = core.horizon
-    truth = core.truth[:runs].copy()
-    true_rate = true_turn_rates(truth, T)
+    core = prior_core(overrides, len(combos), runs, seed)
+    omegas = model_turn_rates(core.config.bank)
+    if omegas is None:
+        raise ValueError("the turn-rate prior needs a linear bank (CV and CT models)")
+    belief, T, K = TurnRateBelief(omegas), float(core.config.source.T), core.horizon
+    true_rate = true_turn_rates(core.truth[:runs], T)
     ekf_rate = ekf_turn_rates(core, runs, yaw_noise)
     kind = np.repeat([names.index(name) for name, _, _ in combos], runs)
     delay = np.array([*delays, 0, 0])[kind]
     stays = np.repeat([s for _, s, _ in combos], runs)
     shares = np.repeat([v for _, _, v in combos], runs)
-    run = np.tile(np.arange(runs), C)
-    tracker = kind == len(delays)
-    ekf = kind == len(delays) + 1
-    smoothed = np.zeros(C * runs)
+    run = np.tile(np.arange(runs), len(combos))
+    tracker, ekf = kind == len(delays), kind == len(delays) + 1
+    # the env's detector: the heading rate of each slot's own estimate, smoothed
+    smoothed = np.zeros(core.n_envs)
     velocity = core.state_a.x[:, 0, 2:4].copy()
-    pos = np.empty((C, runs, K, 2))
-    probs = np.empty((C, runs, K, M))
-    for k in range(K):
+
+    def rows(k: int, info: dict[str, Any] | None) -> Array:
+        nonlocal smoothed, velocity
+        if info is not None:
+            estimate = info["estimate"][:, 2:4]
+            smoothed = TURN_RATE_FACTOR * smoothed + (1.0 - TURN_RATE_FACTOR) * heading_rate(
+                velocity, estimate, T
+            )
+            velocity = estimate.copy()
         late = k - delay
         rate = np.where(late >= 0, true_rate[run, np.clip(late, 0, K - 1)], 0.0)
         rate = np.where(tracker, smoothed, rate)
         rate = np.where(ekf, ekf_rate[run, k], rate)
-        rows = detector_tpm_rows(stays, belief(rate), shares)
-        action = np.log(np.maximum(rows, 1e-300)) / LOGIT
-        info = core.step(np.clip(action, -1.0, 1.0).reshape(C * runs, M * M)).info
-        estimate = info["estimate"]
-        smoothed = TURN_RATE_FACTOR * smoothed + (1.0 - TURN_RATE_FACTOR) * heading_rate(
-            velocity, estimate[:, 2:4], T
-        )
-        velocity = estimate[:, 2:4].copy()
-        pos[:, :, k] = estimate[:, :2].reshape(C, runs, 2)
-        probs[:, :, k] = info["mode_probs"].reshape(C, runs, M)
-    err2 = np.sum((pos - truth[None, :, 1:, :2]) ** 2, axis=-1)
-    true_model = core.true_model[:runs]
-    return {
-        combo: (armse_from_squared(err2[c]), mode_accuracy(probs[c], true_model))
-        for c, combo in enumerate(combos)
-    }
+        return detector_tpm_rows(stays, belief(rate), shares)
+
+    result = run_priors(core, len(combos), rows)
+    return {combo: result.scores(c)[:2] for c, combo in enumerate(combos)}
 
 
 def main() -> None:

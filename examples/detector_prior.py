@@ -12,7 +12,8 @@ probability total variation per step, and the best stay of each share::
 
     python examples/detector_prior.py --runs 100 --seed 0
 
-The rows are handed to the core as ``set``-mode logits (``log pi``, exact above the floor).
+The priors run through :mod:`imm_gym.evaluation.priors` (``set``-mode logits, exact above the
+floor).
 """
 
 from __future__ import annotations
@@ -22,15 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from imm_gym import EnvConfig, TrackingCore
 from imm_gym.cli.evaluate import suite_configs
-from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
-from imm_gym.evaluation.rollout import armse_from_squared
+from imm_gym.evaluation.priors import prior_core, run_priors
 from imm_gym.sim.stay_bank import detector_tpm_rows
 
 STAYS = (1 / 3, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995)
-#: ``set`` mode's logit per unit action: ``log pi`` of every row stays inside [-1, 1] · LOGIT.
-LOGIT = 10.0
 
 
 def detector_runs(
@@ -38,34 +35,16 @@ def detector_runs(
 ) -> dict[tuple[float, float], tuple[float, float, float]]:
     """``{(stay, share): (ARMSE, mode accuracy, TV)}`` of the prior at every stay of
     :data:`STAYS` and every share, on runs ``seed .. seed + runs - 1``."""
-    config = EnvConfig.build(overrides).replace(
-        action_mode="set", logit_scale=LOGIT, p_min=1e-4, shadow="fixed", reward="error",
-        obs_features=(), tpm_cost=0.0, tpm_change_cost=0.0, mode_reward=0.0,
-    )
-    M = len(config.bank)
     combos = [(s, v) for s in STAYS for v in shares]
-    C = len(combos)
-    core = TrackingCore(config, C * runs)
-    core.reset(np.arange(C * runs), [seed + r for _ in range(C) for r in range(runs)])
-    K = core.horizon
+    core = prior_core(overrides, len(combos), runs, seed)
     stays = np.repeat([s for s, _ in combos], runs)
     share = np.repeat([v for _, v in combos], runs)
-    truth = core.truth[:runs, 1 : K + 1, :2].copy()
-    pos = np.empty((C, runs, K, 2))
-    probs = np.empty((C, runs, K, M))
-    for k in range(K):
-        rows = detector_tpm_rows(stays, core.mu_s, share)
-        action = np.log(np.maximum(rows, 1e-300)) / LOGIT
-        info = core.step(np.clip(action, -1.0, 1.0).reshape(C * runs, M * M)).info
-        pos[:, :, k] = info["estimate"][:, :2].reshape(C, runs, 2)
-        probs[:, :, k] = info["mode_probs"].reshape(C, runs, M)
-    err2 = np.sum((pos - truth) ** 2, axis=-1)
-    true_model = core.true_model[:runs]
-    return {
-        combo: (armse_from_squared(err2[c]), mode_accuracy(probs[c], true_model),
-                mode_prob_tv(probs[c]))
-        for c, combo in enumerate(combos)
-    }
+
+    def rows(k: int, info: dict[str, Any] | None) -> np.ndarray:
+        return detector_tpm_rows(stays, core.mu_s, share)
+
+    result = run_priors(core, len(combos), rows)
+    return {combo: result.scores(c) for c, combo in enumerate(combos)}
 
 
 def main() -> None:

@@ -1,0 +1,89 @@
+r"""Switching priors given step by step, scored on common random numbers.
+
+A study of TPM rules (``examples/detector_prior.py``, ``examples/detector_headroom.py``) runs
+``P`` priors on the same ``R`` runs: one core of ``P * R`` slots, prior-major (slot
+``p * R + r`` is prior ``p`` on run ``r``, seed ``seed + r``), in ``set`` mode with each step's
+rows handed over as logits :math:`\log \pi / L`. The ``set`` action's softmax per row gives the
+rows back exactly wherever every entry is above :math:`e^{-L}` (:data:`LOGIT` :math:`L = 10`:
+4.5e-5), and the floor ``p_min`` (:data:`P_MIN`) is below the entries of any prior studied.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
+from imm_gym.evaluation.rollout import armse_from_squared
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+
+Array = NDArray[np.float64]
+
+#: ``set`` mode's logit per unit action: ``log pi`` of every row stays inside [-1, 1] · LOGIT.
+LOGIT = 10.0
+#: The TPM's floor while the priors run.
+P_MIN = 1e-4
+
+
+def prior_core(overrides: Mapping[str, Any], n_priors: int, runs: int, seed: int) -> TrackingCore:
+    """A reset core of ``n_priors * runs`` slots on the configuration ``overrides`` in ``set``
+    mode: every prior on runs ``seed .. seed + runs - 1`` (module docstring), no features and an
+    error reward (nothing but the tracker is read)."""
+    config = EnvConfig.build(dict(overrides)).replace(
+        action_mode="set", logit_scale=LOGIT, p_min=P_MIN, shadow="fixed", reward="error",
+        obs_features=(), tpm_cost=0.0, tpm_change_cost=0.0, mode_reward=0.0,
+    )
+    core = TrackingCore(config, n_priors * runs)
+    core.reset(np.arange(n_priors * runs), [seed + r for _ in range(n_priors) for r in range(runs)])
+    return core
+
+
+@dataclass(frozen=True)
+class PriorRuns:
+    """Every prior's errors and mode probabilities on the runs.
+
+    Attributes:
+        squared_error: ``(P, R, K)`` squared position errors.
+        mode_probs: ``(P, R, K, M)``.
+        true_model: ``(R, K)`` the true model of each step.
+    """
+
+    squared_error: Array
+    mode_probs: Array
+    true_model: NDArray[np.int64]
+
+    def scores(self, prior: int) -> tuple[float, float, float]:
+        """Prior ``prior``'s position ARMSE, mode accuracy and mode-probability total variation
+        per step (:mod:`imm_gym.evaluation.metrics`)."""
+        probs = self.mode_probs[prior]
+        return (
+            armse_from_squared(self.squared_error[prior]),
+            mode_accuracy(probs, self.true_model),
+            mode_prob_tv(probs),
+        )
+
+
+def run_priors(
+    core: TrackingCore, n_priors: int, rows: Callable[[int, dict[str, Any] | None], Array]
+) -> PriorRuns:
+    """Run the core of :func:`prior_core` to its horizon, the TPM of step ``k`` (all slots,
+    ``(P * R, M, M)``, prior-major) given by ``rows(k, info)``, ``info`` the previous step's
+    (None before the first)."""
+    N, M, K = core.n_envs, core.M, core.horizon
+    runs = N // n_priors
+    truth = core.truth[:runs, 1:, :2].copy()
+    true_model = core.true_model[:runs].copy()
+    position = np.empty((n_priors, runs, K, 2))
+    probs = np.empty((n_priors, runs, K, M))
+    info = None
+    for k in range(K):
+        action = np.log(np.maximum(rows(k, info), 1e-300)) / LOGIT
+        info = core.step(np.clip(action, -1.0, 1.0).reshape(N, M * M)).info
+        position[:, :, k] = info["estimate"][:, :2].reshape(n_priors, runs, 2)
+        probs[:, :, k] = info["mode_probs"].reshape(n_priors, runs, M)
+    return PriorRuns(np.sum((position - truth) ** 2, axis=-1), probs, true_model)
