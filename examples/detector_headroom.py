@@ -22,6 +22,7 @@ For each detector it prints the best (stay, share) of the grid by position ARMSE
 mode accuracy: picked on the evaluation's own runs, so each row is its detector's best case::
 
     python examples/detector_headroom.py --runs 100 --seed 0 --scenario random --scenario paper
+    python examples/detector_headroom.py --env-config examples/broad.yaml   # your own tracker
 
 The priors run through :mod:`imm_gym.evaluation.priors` (``set``-mode logits, exact above the
 floor).
@@ -31,14 +32,16 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym import TrackingCore
+from imm_gym import EnvConfig, TrackingCore
 from imm_gym.cli.evaluate import suite_configs
 from imm_gym.evaluation.priors import prior_core, run_priors
+from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.detectors import TURN_RATE_FACTOR, TurnRateBelief, model_turn_rates
 from imm_gym.sim.features import heading_rate
 from imm_gym.sim.stay_bank import detector_tpm_rows
@@ -53,11 +56,12 @@ EKF_SPEED_NOISE = 0.1
 EKF_TURN_RATE_STD = np.radians(3.0)
 
 
-def true_turn_rates(truth: Array, T: float) -> Array:
+def true_turn_rates(truth: Array, T: float | Array) -> Array:
     """``(R, K)`` the target's turn rate over each step ``k`` (from state ``k`` to ``k + 1`` of
-    ``truth (R, K + 1, 4)``, ``[x, y, vx, vy]``): the heading change over ``T``."""
+    ``truth (R, K + 1, 4)``, ``[x, y, vx, vy]``): the heading change over the sampling period
+    ``T`` (one, or one per run ``(R,)``)."""
     heading = np.unwrap(np.arctan2(truth[..., 3], truth[..., 2]), axis=1)
-    return np.diff(heading, axis=1) / T
+    return np.diff(heading, axis=1) / np.reshape(T, (-1, 1))
 
 
 def ekf_turn_rates(core: TrackingCore, runs: int, yaw_noise: float) -> Array:
@@ -83,16 +87,19 @@ def detector_runs(
     """``{(detector, stay, share): (ARMSE, mode accuracy)}`` of the turn-rate prior at every
     stay of :data:`STAYS` and share of :data:`SHARES` led by each detector (module docstring:
     ``"true, d late"`` for each of ``delays``, ``"tracker (env)"``, ``"CT-omega EKF"``), on runs
-    ``seed .. seed + runs - 1``."""
-    names = [f"true, {d} late" for d in delays] + ["tracker (env)", "CT-omega EKF"]
+    ``seed .. seed + runs - 1``. Where the conditions vary per run (``vary``) the EKF, which
+    runs one sampling period and one sensor, is left out."""
+    varied = EnvConfig.build(dict(overrides)).vary.active
+    names = [f"true, {d} late" for d in delays] + ["tracker (env)"]
+    names += [] if varied else ["CT-omega EKF"]
     combos = [(name, s, v) for name in names for s in STAYS for v in SHARES]
     core = prior_core(overrides, len(combos), runs, seed)
     omegas = model_turn_rates(core.config.bank)
     if omegas is None:
         raise ValueError("the turn-rate prior needs a linear bank (CV and CT models)")
-    belief, T, K = TurnRateBelief(omegas), float(core.config.source.T), core.horizon
-    true_rate = true_turn_rates(core.truth[:runs], T)
-    ekf_rate = ekf_turn_rates(core, runs, yaw_noise)
+    belief, T, K = TurnRateBelief(omegas), core.sampling_period, core.horizon
+    true_rate = true_turn_rates(core.truth[:runs], T[:runs])
+    ekf_rate = np.zeros((runs, K + 1)) if varied else ekf_turn_rates(core, runs, yaw_noise)
     kind = np.repeat([names.index(name) for name, _, _ in combos], runs)
     delay = np.array([*delays, 0, 0])[kind]
     stays = np.repeat([s for _, s, _ in combos], runs)
@@ -126,31 +133,37 @@ def main() -> None:
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--suite", default="benchmark")
-    p.add_argument("--scenario", action="append", help="a scenario of the suite (default: all)")
+    p.add_argument("--scenario", action="append", help="a scenario of the suite (default: all "
+                   "of them, unless --env-config is given)")
+    p.add_argument("--env-config", type=Path, action="append", default=[], metavar="FILE",
+                   help="a configuration file (YAML or JSON of EnvConfig fields): a column of its "
+                   "own")
     p.add_argument("--delay", type=int, action="append",
                    help="steps the true turn rate is known late (default: 0 1 3 5 8)")
     p.add_argument("--yaw-noise", type=float, default=0.01,
                    help="the CT-omega EKF's yaw acceleration noise (rad/s²)")
     args = p.parse_args()
     delays = args.delay or [0, 1, 3, 5, 8]
-    configs = suite_configs(args.suite)
-    chosen = args.scenario or list(configs)
-    unknown = sorted(set(chosen) - set(configs))
+    suite = suite_configs(args.suite)
+    chosen = args.scenario or ([] if args.env_config else list(suite))
+    unknown = sorted(set(chosen) - set(suite))
     if unknown:
-        p.error(f"--scenario must be among {list(configs)}, got {unknown}")
+        p.error(f"--scenario must be among {list(suite)}, got {unknown}")
+    configs = {name: suite[name] for name in chosen}
+    configs.update({path.name: read_env_config(path) for path in args.env_config})
     print(f"runs {args.seed}..{args.seed + args.runs - 1}; position ARMSE (m) / mode accuracy "
           f"(stay, share) of each detector's best prior on these runs")
     table: dict[str, list[str]] = {}
-    for name in chosen:
-        scores = detector_runs(configs[name], delays, args.runs, args.seed, args.yaw_noise)
+    for column, overrides in enumerate(configs.values()):
+        scores = detector_runs(overrides, delays, args.runs, args.seed, args.yaw_noise)
         for detector in dict.fromkeys(d for d, _, _ in scores):
             (armse, acc), s, v = min(
                 (scores[(detector, s, v)], s, v) for s in STAYS for v in SHARES
             )
-            cell = f"{armse:.2f} / {100 * acc:.0f} % ({s:.3g}, {v:g})"
-            table.setdefault(detector, []).append(cell)
-    print("| detector | " + " | ".join(chosen) + " |")
-    print("|---|" + "---|" * len(chosen))
+            cells = table.setdefault(detector, ["—"] * len(configs))
+            cells[column] = f"{armse:.2f} / {100 * acc:.0f} % ({s:.3g}, {v:g})"
+    print("| detector | " + " | ".join(configs) + " |")
+    print("|---|" + "---|" * len(configs))
     for detector, cells in table.items():
         print(f"| {detector} | " + " | ".join(cells) + " |")
 

@@ -4,6 +4,8 @@ turn rate known sooner leads the prior better."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from helpers import load_example
 
@@ -11,6 +13,7 @@ from baselines.turn_rate_prior import TurnRatePrior
 from imm_gym import EnvConfig
 from imm_gym.evaluation.metrics import mode_accuracy
 from imm_gym.evaluation.rollout import armse_from_squared, evaluation_config, rollout
+from imm_gym.sim.config_file import read_env_config
 
 
 def test_the_trackers_rows_are_the_baselines_and_a_sooner_rate_leads_better() -> None:
@@ -39,3 +42,15 @@ def test_true_turn_rates_are_the_heading_changes() -> None:
     truth = np.zeros((1, 4, 4))
     truth[0, :, 2], truth[0, :, 3] = 20.0 * np.cos(heading), 20.0 * np.sin(heading)
     np.testing.assert_allclose(example.true_turn_rates(truth, T)[0], omega, atol=1e-12)
+
+
+def test_varied_conditions_take_each_runs_sampling_period_and_leave_out_the_ekf() -> None:
+    example = load_example("detector_headroom")
+    overrides = read_env_config(Path(__file__).parents[2] / "examples" / "broad.yaml")
+    scores = example.detector_runs(overrides, (0,), 6, 2)
+    assert {d for d, _, _ in scores} == {"true, 0 late", "tracker (env)"}
+    policy = TurnRatePrior(3, 0.6, 0.5)
+    config = evaluation_config(EnvConfig.build(overrides), policy.env_overrides)
+    run = rollout(policy, config, 6, 2)
+    np.testing.assert_allclose(scores[("tracker (env)", 0.6, 0.5)][0],
+                               armse_from_squared(run.squared_position_error), rtol=1e-6)
