@@ -8,7 +8,7 @@ bank's models place an estimated turn rate (:class:`imm_gym.sim.detectors.TurnRa
 
 This runs that prior, on the same runs (common random numbers), led by three kinds of turn rate:
 
-* ``true, d steps late``: the target's own turn rate over step ``k - d`` (``d = 0``: the step
+* ``true, d late``: the target's own turn rate over step ``k - d`` (``d = 0``: the step
   being predicted, which no causal detector has) — a privileged detector, the head-room;
 * ``tracker (env)``: the env's ``turn_rate`` detector, the heading rate of the tracker's own
   combined estimate smoothed by :data:`~imm_gym.sim.detectors.TURN_RATE_FACTOR` (closed loop:
@@ -16,7 +16,7 @@ This runs that prior, on the same runs (common random numbers), led by three kin
 * ``CT-omega EKF``: the turn rate estimated by an EKF of the coordinated-turn model with the
   turn rate in its state (:class:`imm_gym.tracking.hetero.HeteroModel` ``"ct"``, yaw
   acceleration noise ``--yaw-noise``) run on the same measurements beside the tracker (open
-  loop).
+  loop; left out where the conditions vary per run: it runs one sampling period and sensor).
 
 For each detector it prints the best (stay, share) of the grid by position ARMSE (m), with its
 mode accuracy: picked on the evaluation's own runs, so each row is its detector's best case::
