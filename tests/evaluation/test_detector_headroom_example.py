@@ -54,3 +54,37 @@ def test_varied_conditions_take_each_runs_sampling_period_and_leave_out_the_ekf(
     run = rollout(policy, config, 6, 2)
     np.testing.assert_allclose(scores[("tracker (env)", 0.6, 0.5)][0],
                                armse_from_squared(run.squared_position_error), rtol=1e-6)
+
+
+def test_given_beliefs_lead_rows_of_their_own() -> None:
+    """The true turn rate's belief three steps late, handed over as a detector's, gives the rows
+    of the true rate known three steps late, prior for prior (not those of its own slots'
+    default, the rate known at once)."""
+    example = load_example("detector_headroom")
+    overrides = {"scenario": "random"}
+    truth = example.true_beliefs(overrides, 8, 3)
+    straight = np.broadcast_to([1.0, 0.0, 0.0], (8, 3, 3))  # CV's before the first turn rate
+    late = np.concatenate([straight, truth[:, :-3]], axis=1)
+    scores = example.detector_runs(overrides, (0, 3), 8, 3, beliefs={"given": late})
+    for s in example.STAYS[::4]:
+        for v in example.SHARES:
+            assert scores[("given", s, v)] == scores[("true, 3 late", s, v)]
+    assert scores[("given", 1 / 3, 1.0)] != scores[("true, 0 late", 1 / 3, 1.0)]
+
+
+def test_the_learned_detector_is_repeatable_and_beats_a_constant_belief() -> None:
+    example = load_example("detector_headroom")
+    overrides = {"scenario": "random"}
+    net = example.train_detector(overrides, 200, 100, epochs=4)
+    again = example.train_detector(overrides, 200, 100, epochs=4)
+    belief = example.learned_beliefs(net, overrides, 40, 0)
+    np.testing.assert_array_equal(belief, example.learned_beliefs(again, overrides, 40, 0))
+    assert belief.shape == (40, 150, 3)
+    np.testing.assert_allclose(belief.sum(axis=-1), 1.0, atol=1e-6)
+    # on held-out runs its cross-entropy to the true rate's belief is below that of the
+    # training targets' mean belief, the best constant
+    target = example.true_beliefs(overrides, 40, 0)
+    constant = example.true_beliefs(overrides, 200, 100).reshape(-1, 3).mean(axis=0)
+    learned = -np.mean(np.sum(target * np.log(belief), axis=-1))
+    mean = -np.mean(np.sum(target * np.log(constant), axis=-1))
+    assert learned < 0.9 * mean
