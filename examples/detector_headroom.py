@@ -94,8 +94,8 @@ BATCH = 1024
 
 def uniform_imm_features(overrides: Mapping[str, Any], runs: int, seed: int) -> Array:
     """``(R, K, WINDOW * (2 M + 2))`` what the learned detector reads before each step ``k``:
-    the last :data:`WINDOW` steps (through measurement ``k``; the first repeated before the
-    start) of a classical IMM at the uniform TPM on the runs' measurements — its mode
+    the last :data:`WINDOW` steps (through measurement ``k``) of a classical IMM at the uniform
+    TPM on the runs' measurements — its mode
     probabilities, its models' log-likelihoods relative to the best (clipped to -20, / 10), its
     NIS (clipped to 50, / 10) and the heading rate of its estimate in units of the bank's
     fastest turn (clipped to ±3); zeros before the first measurement. No action steers it;
