@@ -199,11 +199,12 @@ def detector_runs(
     shares = np.repeat([v for _, _, v in combos], runs)
     run = np.tile(np.arange(runs), len(combos))
     tracker, ekf = kind == len(delays), kind == len(delays) + 1
-    # the given beliefs of every slot, one row per step (zeros on the other detectors' slots)
+    # the given detectors' slots and their beliefs, one per step (every prior of one detector
+    # on the same runs)
+    from_given = np.isin(kind, [names.index(name) for name in given])
     given_belief = np.zeros((core.n_envs, K, len(omegas)))
     for name, value in given.items():
         given_belief[kind == names.index(name)] = np.tile(value, (len(STAYS) * len(SHARES), 1, 1))
-    from_given = kind >= names.index(next(iter(given))) if given else np.zeros(core.n_envs, bool)
     # the env's detector: the heading rate of each slot's own estimate, smoothed
     smoothed = np.zeros(core.n_envs)
     velocity = core.state_a.x[:, 0, 2:4].copy()

@@ -102,21 +102,25 @@ def detector_tpm_rows(stays: Array, belief: Array, share: float | Array) -> Arra
     maneuver where one step's likelihoods cannot.
 
     Args:
-        stays: the stays ``s`` in ``[1/M, 1]`` (the stay bank's), ``(N,)`` or one per row
-            ``(N, M)`` (row ``i`` keeps its mode with its own :math:`r_i`).
-        belief: ``(N, M)`` the detector's mode probabilities.
-        share: ``v`` in ``[0, 1]``, one for all rows or ``(N,)``.
+        stays: the stays ``s`` in ``[1/M, 1]``: one per prior ``(..., )`` or one per row
+            ``(..., M)`` (row ``i`` keeps its mode with its own :math:`r_i`), told apart by
+            having one axis fewer than ``belief`` or as many.
+        belief: ``(..., M)`` the detector's mode probabilities.
+        share: ``v`` in ``[0, 1]``, one for all rows or one per prior ``(...,)``.
+
+    Returns:
+        ``(..., M, M)``, the leading axes of the three broadcast together (the stay bank's
+        ``(N, S)``: every slot's belief at every stay of its grid).
     """
-    N, M = belief.shape
-    per_row = np.broadcast_to(np.asarray(stays).reshape(N, -1), (N, M))
+    belief = np.asarray(belief, dtype=np.float64)
+    M = belief.shape[-1]
+    s = np.asarray(stays, dtype=np.float64)
+    per_row = s if s.ndim == belief.ndim else s[..., None]
     keep = (per_row - 1.0 / M) / (1.0 - 1.0 / M)
     v = np.asarray(share, dtype=np.float64)
-    v = v[:, None] if v.ndim else v
+    v = v[..., None] if v.ndim else v
     q = (1.0 - v) / M + v * belief
-    rows = (1.0 - keep)[:, :, None] * np.repeat(q[:, None, :], M, axis=1)
-    idx = np.arange(M)
-    rows[:, idx, idx] += keep
-    return rows
+    return (1.0 - keep)[..., :, None] * q[..., None, :] + keep[..., :, None] * np.eye(M)
 
 
 class StayBank:
@@ -160,10 +164,6 @@ class StayBank:
         # a fresh, writable array for every N (a read-only view at N = 1 would compile another
         # specialization of the kernel)
         self._tpm_rows = np.tile(self.tpms, (N, 1, 1))
-        # detector_tpm_rows' terms that do not change: (1 - r) per row and r on the diagonal
-        keep = (self.stays - 1.0 / M) / (1.0 - 1.0 / M)
-        self._jump = (1.0 - keep)[:, :, None]
-        self._diagonal = keep[:, :, None] * np.eye(M)
         self._args = None if kernel_args is None else self._own_args(kernel_args)
         #: the IMMs' posteriors, ``(N * S, M, n)``, ``(N * S, M, n, n)``, ``(N * S, M)``
         self.state = IMMState(
@@ -269,11 +269,10 @@ class StayBank:
         if self.detector_share > 0.0:
             if belief is None:
                 raise ValueError("a stay bank with detector_share needs the detector's belief")
-            # detector_tpm_rows of every stay, its fixed terms built once: (1 - r) q + r I
-            q = (1.0 - self.detector_share) / M + self.detector_share * belief
-            rows = self._tpm_rows.reshape(N, S, M, M)
-            np.multiply(self._jump, q[:, None, None, :], out=rows)
-            rows += self._diagonal
+            # every slot's belief at every stay of the grid, (N, S, M, M), in the kernel's array
+            self._tpm_rows.reshape(N, S, M, M)[:] = detector_tpm_rows(
+                self.stays[None], belief[:, None], self.detector_share
+            )
         z_rows = np.ascontiguousarray(np.repeat(z, S, axis=0))
         det_rows = np.ascontiguousarray(np.repeat(detected, S))
         state, cbar, loglik, failed = self._advance(z_rows, det_rows)

@@ -267,8 +267,9 @@ def test_priors_with_a_stay_per_row() -> None:
 
 @pytest.mark.parametrize("grid", ["stays", "pairs"])
 def test_the_detectors_priors_are_detector_tpm_rows_of_every_stay(grid: str) -> None:
-    """The bank builds each step's priors from terms it keeps (``(1 - r)``, ``r I``): the same
-    numbers as :func:`detector_tpm_rows` of every slot's stays at its belief, bit for bit."""
+    """The bank builds each step's priors for all its stays at once (the belief broadcast over
+    the grid): the same numbers as :func:`detector_tpm_rows` of every slot's stays, row by row,
+    bit for bit."""
     rng = np.random.default_rng(4)
     N, share = 3, 0.6
     config = EnvConfig()
