@@ -50,8 +50,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.features import EVIDENCE_STAYS, evidence_stays
+from imm_gym.sim.imm_batch import IMMBatch
 from imm_gym.tracking.imm import IMMState, Tracker, measurement_loglik
-from imm_gym.tracking.kernels.imm import imm_step
 from imm_gym.tracking.tpm import stay_tpm_rows
 
 Array = NDArray[np.float64]
@@ -127,8 +127,8 @@ class StayBank:
     """One classical IMM per prior of :func:`grid_stays` for each of N slots (module
     docstring).
 
-    The ``N * S`` IMMs are rows ``i * S + s`` of one batch: one call of the tracker's compiled
-    cycle (or of its numpy ``step``) advances them all.
+    The ``N * S`` IMMs are rows ``i * S + s`` of one :class:`~imm_gym.sim.imm_batch.IMMBatch`:
+    one call of the tracker's compiled cycle (or of its numpy ``step``) advances them all.
 
     Args:
         imm: the slots' tracker.
@@ -150,8 +150,7 @@ class StayBank:
         detector_share: float = 0.0,
         grid: str = "stays",
     ) -> None:
-        M, n = imm.n_models, imm.n
-        self.imm = imm
+        M = imm.n_models
         self.n_envs = N = n_envs
         self.detector_share = detector_share
         #: ``(S, M)`` each prior's stay per row, the stays' logits, ``(S, M, M)`` the TPMs
@@ -164,13 +163,8 @@ class StayBank:
         # a fresh, writable array for every N (a read-only view at N = 1 would compile another
         # specialization of the kernel)
         self._tpm_rows = np.tile(self.tpms, (N, 1, 1))
-        self._args = None if kernel_args is None else self._own_args(kernel_args)
-        #: the IMMs' posteriors, ``(N * S, M, n)``, ``(N * S, M, n, n)``, ``(N * S, M)``
-        self.state = IMMState(
-            np.zeros((N * S, M, n)),
-            np.repeat(np.eye(n)[None, None], N * S * M, 0).reshape(N * S, M, n, n),
-            np.full((N * S, M), 1.0 / M),
-        )
+        #: the ``N * S`` IMMs, rows ``i * S + s``
+        self.batch = IMMBatch(imm, N, S, kernel_args)
         #: ``(N, S)`` the discounted evidence :math:`E_s` (relative: its largest entry is the
         #: best stay's)
         self.evidence = np.zeros((N, S))
@@ -178,17 +172,10 @@ class StayBank:
         #: step (the step's base was computed from them)
         self.weights = np.full((N, S), 1.0 / S)
 
-    def _own_args(self, kernel_args: tuple) -> tuple:
-        """The compiled constants for the ``N * S`` rows: shared ones as they are, one bank per
-        slot repeated for each of its stays (rows set at :meth:`start`)."""
-        F, Q, R, *rest = kernel_args
-        if F.shape[0] == 1:
-            return kernel_args
-        return (*(np.repeat(a, self.S, axis=0) for a in (F, Q, R)), *rest)
-
-    def rows(self, indices: NDArray[np.int64]) -> NDArray[np.int64]:
-        """The batch rows of the slots ``indices`` (each slot's S IMMs)."""
-        return (np.asarray(indices)[:, None] * self.S + np.arange(self.S)).ravel()
+    @property
+    def state(self) -> IMMState:
+        """The IMMs' posteriors, ``(N * S, M, n)``, ``(N * S, M, n, n)``, ``(N * S, M)``."""
+        return self.batch.state
 
     def start(
         self, indices: NDArray[np.int64], init: IMMState, kernel_args: tuple | None
@@ -196,18 +183,9 @@ class StayBank:
         """Start the slots ``indices`` from bank A's initial posterior ``init`` (one row per
         slot), with zero evidence; under varied conditions, at the slots' constants
         ``kernel_args`` (the core's, rows ``indices`` already set)."""
-        rows = self.rows(indices)
-        parts = []
-        for a, value in zip(_arrays(self.state), _arrays(init), strict=True):
-            a = a.copy()
-            a[rows] = np.repeat(value, self.S, axis=0)
-            parts.append(a)
-        self.state = IMMState(*parts)
+        self.batch.start(indices, init, kernel_args)
         self.evidence = self.evidence.copy()
         self.evidence[indices] = 0.0
-        if self._args is not None and self._args[0].shape[0] > 1 and kernel_args is not None:
-            for own, slot in zip(self._args[:3], kernel_args[:3], strict=True):
-                own[rows] = np.repeat(slot[indices], self.S, axis=0)
 
     def _relative_likelihoods(self) -> Array:
         r"""``(N, S)`` :math:`\exp(E_s - \max_r E_r)` (:meth:`relative`), the unnormalized
@@ -273,13 +251,12 @@ class StayBank:
             self._tpm_rows.reshape(N, S, M, M)[:] = detector_tpm_rows(
                 self.stays[None], belief[:, None], self.detector_share
             )
-        z_rows = np.ascontiguousarray(np.repeat(z, S, axis=0))
-        det_rows = np.ascontiguousarray(np.repeat(detected, S))
-        state, cbar, loglik, failed = self._advance(z_rows, det_rows)
-        ok = ~failed
+        out = self.batch.step(self._tpm_rows, z, detected, fallback)
+        ok = ~out.failed
         e = measurement_loglik(  # failed rows: finite stand-ins, replaced by the floor below
-            np.where(ok[:, None], loglik, 0.0), np.where(ok[:, None], cbar, 1.0 / M)
+            np.where(ok[:, None], out.loglik, 0.0), np.where(ok[:, None], out.cbar, 1.0 / M)
         )
+        det_rows = np.repeat(detected, S)
         e = np.where(det_rows & ok, e, 0.0).reshape(N, S)  # a missed detection: no evidence
         ok = ok.reshape(N, S)
         best = np.max(np.where(ok, e, -np.inf), axis=1, keepdims=True)
@@ -287,52 +264,13 @@ class StayBank:
         gain = np.where(ok, np.maximum(e - best, -STAY_BANK_FLOOR), -STAY_BANK_FLOOR)
         self.weights = self.posterior_weights()
         self.evidence = STAY_BANK_FACTOR * self.evidence + gain
-        if np.count_nonzero(failed):
-            slot = np.repeat(np.arange(N), S)[failed]
-            for a, value in zip(_arrays(state), _arrays(fallback), strict=True):
-                a[failed] = value[slot]
-        self.state = state
-
-    def _advance(
-        self, z: Array, detected: NDArray[np.bool_]
-    ) -> tuple[IMMState, Array, Array, NDArray[np.bool_]]:
-        """One cycle of all ``N * S`` IMMs: posteriors, ``cbar``, per-model log-likelihoods
-        and the failed rows."""
-        if self._args is None:
-            state, out = self.imm.step(
-                self.state, self._tpm_rows, z, detected, check=False, allow_failure=True
-            )
-            return state, out.cbar, out.loglik, out.failed
-        NS, M, n = self.state.x.shape
-        x, P, mu = np.empty((NS, M, n)), np.empty((NS, M, n, n)), np.empty((NS, M))
-        cbar, loglik = np.empty((NS, M)), np.empty((NS, M))
-        failed = np.empty(NS, dtype=bool)
-        outs = (
-            x, P, mu, cbar, loglik, np.empty((NS, M)), np.empty((NS, M, z.shape[1])),
-            np.empty(NS), np.empty((NS, n)), np.empty((NS, n, n)), failed,
-        )
-        imm_step(
-            self.state.x, self.state.P, self.state.mu, self._tpm_rows, z, detected,
-            *self._args, False, *outs,
-        )
-        return IMMState(x, P, mu), cbar, loglik, failed
 
     def snapshot(self) -> tuple[IMMState, Array]:
         """The bank's state (arrays are replaced, never written, by a step)."""
-        return self.state, self.evidence
+        return self.batch.snapshot(), self.evidence
 
     def restore(self, snap: tuple[IMMState, Array], slots: NDArray[np.bool_]) -> None:
         """Put back the values of ``snap`` for the slots where ``slots (N,)`` is True."""
         state, evidence = snap
-        rows = np.repeat(slots, self.S)
-        parts = []
-        for new, old in zip(_arrays(self.state), _arrays(state), strict=True):
-            new = new.copy()
-            new[rows] = old[rows]
-            parts.append(new)
-        self.state = IMMState(*parts)
+        self.batch.restore(state, slots)
         self.evidence = np.where(slots[:, None], evidence, self.evidence)
-
-
-def _arrays(state: IMMState) -> tuple[Array, Array, Array]:
-    return state.x, state.P, state.mu

@@ -159,15 +159,15 @@ def test_a_failed_filter_gets_the_floor_and_restarts_from_bank_a() -> None:
     bank = core.stay_bank
     S, n = bank.S, core.n
     before = bank.evidence.copy()
-    real = bank._advance
+    real = bank.batch._advance
 
-    def failing(z, det):  # the second slot's stay-0.9 IMM fails this step
-        state, cbar, loglik, failed = real(z, det)
+    def failing(tpm_rows, z, det):  # the second slot's stay-0.9 IMM fails this step
+        state, out = real(tpm_rows, z, det)
         row = S + 3
-        state.x[row], failed[row] = np.nan, True
-        return state, cbar, loglik, failed
+        state.x[row], out.failed[row] = np.nan, True
+        return state, out
 
-    bank._advance = failing  # type: ignore[method-assign]
+    bank.batch._advance = failing  # type: ignore[method-assign]
     fallback = IMMState(np.full((2, M, n), 7.0), np.repeat(np.eye(n)[None, None], 2 * M, 0)
                         .reshape(2, M, n, n), np.full((2, M), 1.0 / M))
     k1 = core.k + 1
