@@ -30,6 +30,7 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds, heading_rate
 from imm_gym.sim.kernels import step_inputs
+from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, DetectorNetwork, LearnedDetector
 from imm_gym.sim.rewards import REWARD_TERMS, Reward
 from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows
 from imm_gym.tracking.hetero import make_tracker
@@ -120,10 +121,18 @@ class TrackingCore:
         self.stay_bank = StayBank(
             self.imm,
             n_envs,
-            self.kernel_args if self._advance is compiled_step else None,
+            self.batch_kernel_args,
             config.detector_share,
             config.stay_grid,
         ) if needs_bank else None
+        #: the ``learned`` detector (:mod:`imm_gym.sim.learned_detector`), else None
+        self.learned_detector = LearnedDetector(
+            self.imm,
+            n_envs,
+            self.batch_kernel_args,
+            model_turn_rates(config.bank),  # type: ignore[arg-type]
+            DetectorNetwork.load(config.detector_weights or DEFAULT_WEIGHTS),
+        ) if config.detector == "learned" else None
         self.horizon = config.source.horizon
         #: entries of one slot's action: ``M * M``, or ``M`` in the stay modes
         self.action_dim = action_size(config.action_mode, M)
@@ -175,6 +184,13 @@ class TrackingCore:
         self.memories = {
             name: np.zeros((N, *memory.shape(M))) for name, memory in self._memories.items()
         }
+
+    @property
+    def batch_kernel_args(self) -> tuple | None:
+        """The bank constants of the classical IMMs run beside the banks
+        (:class:`~imm_gym.sim.imm_batch.IMMBatch`): the compiled engine's, None on the numpy
+        engine."""
+        return self.kernel_args if self._advance is compiled_step else None
 
     def _bank_per_slot(self) -> tuple:
         """The tracker's kernel constants with ``F``, ``Q``, ``R`` repeated for every slot."""
@@ -329,6 +345,8 @@ class TrackingCore:
             self.memories[name] = state
         if self.stay_bank is not None:
             self.stay_bank.start(indices, init, self.kernel_args)
+        if self.learned_detector is not None:
+            self.learned_detector.start(indices, init, self.kernel_args)
 
     @property
     def reward_scale(self) -> float | Array:
@@ -364,10 +382,13 @@ class TrackingCore:
     @property
     def detector_belief(self) -> Array:
         """``(N, M)`` the maneuver detector's belief (``EnvConfig.detector``,
-        :mod:`imm_gym.sim.detectors`): the shadow IMM's mode probabilities, or the smoothed
-        turn rate of bank A's estimate interpolated between the models' turn rates."""
+        :mod:`imm_gym.sim.detectors`): the shadow IMM's mode probabilities, the smoothed
+        turn rate of bank A's estimate interpolated between the models' turn rates, or the
+        learned detector's belief."""
         if self.config.detector == "shadow":
             return self.mu_s
+        if self.learned_detector is not None:
+            return self.learned_detector.belief
         return self._turn_rate_belief(self.turn_rate_estimate)  # type: ignore[misc]
 
     @property
@@ -447,12 +468,14 @@ class TrackingCore:
     def _advance_banks(
         self, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array
     ) -> BankStep:
-        """The banks' step by the engine, then the stay bank's on the same measurements."""
+        """The banks' step by the engine, then the stay bank's on the same measurements (at the
+        detector's belief before the step), then the learned detector's."""
         out = self._advance(self, action, z, detected, truth)
+        bank_a = IMMState(out.x_a, out.P_a, out.mode_probs)
         if self.stay_bank is not None:
-            self.stay_bank.step(
-                z, detected, IMMState(out.x_a, out.P_a, out.mode_probs), self.detector_belief
-            )
+            self.stay_bank.step(z, detected, bank_a, self.detector_belief)
+        if self.learned_detector is not None:
+            self.learned_detector.step(z, detected, bank_a, self.sampling_period)
         return out
 
     def _record(self, out: BankStep, k: NDArray[np.int64]) -> None:
@@ -514,6 +537,8 @@ class TrackingCore:
         snap["memories"] = dict(self.memories)
         if self.stay_bank is not None:
             snap["stay_bank"] = self.stay_bank.snapshot()
+        if self.learned_detector is not None:
+            snap["learned_detector"] = self.learned_detector.snapshot()
         return snap
 
     def _restore(self, snap: dict[str, Any], rows: NDArray[np.bool_]) -> None:
@@ -541,6 +566,8 @@ class TrackingCore:
                 self.memories[name] = new
         if self.stay_bank is not None:
             self.stay_bank.restore(snap["stay_bank"], rows)
+        if self.learned_detector is not None:
+            self.learned_detector.restore(snap["learned_detector"], rows)
 
     def _update_memories(self) -> None:
         """Advance the observed features' memories by one step."""

@@ -16,6 +16,8 @@ r"""Maneuver detectors: the belief that leans a switching prior's jumps
   to :math:`[-1, 1]`. A turn slower than the bank's CT models is a blend of CV and the turn
   model of its sign; a nearly uniform prior's mixing at every step stands in for it blindly
   (docs/experiments.md, "Where the default loses"), this prior aims the mixing at it.
+* ``"learned"``: a network's belief of the coming step's turn rate, learned from the true one's
+  interpolation weights (:mod:`imm_gym.sim.learned_detector`).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 
 #: The detectors ``EnvConfig.detector`` names.
-DETECTORS = ("shadow", "turn_rate")
+DETECTORS = ("shadow", "turn_rate", "learned")
 #: Smoothing factor ``lambda`` of the ``turn_rate`` detector's heading rate (about 3 steps).
 TURN_RATE_FACTOR = 0.7
 

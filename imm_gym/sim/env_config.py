@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ from imm_gym.scenarios.segments import RandomFamily, Scenario, TruthSource
 from imm_gym.sim.conditions import Variation, check_variation
 from imm_gym.sim.detectors import DETECTORS, model_turn_rates
 from imm_gym.sim.features import FEATURES, shadow_features
+from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, DetectorNetwork, model_order
 from imm_gym.sim.rewards import MODE_SCORES, REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
@@ -126,8 +128,15 @@ class EnvConfig:
             with the ``shadow`` detector needs ``shadow="fixed"``.
         detector: the belief that places ``detector_share`` of the jumps
             (:mod:`imm_gym.sim.detectors`): ``"shadow"`` (default; the shadow IMM's mode
-            probabilities) or ``"turn_rate"`` (the estimated turn rate, smoothed, interpolated
-            between the models' turn rates: needs a linear bank and ``detector_share > 0``).
+            probabilities), ``"turn_rate"`` (the estimated turn rate, smoothed, interpolated
+            between the models' turn rates: needs a linear bank and ``detector_share > 0``) or
+            ``"learned"`` (a network's belief of the coming step's turn rate from a window of an
+            unsteered uniform-TPM IMM, :mod:`imm_gym.sim.learned_detector`: needs a linear bank
+            of distinct turn rates and ``detector_share > 0``).
+        detector_weights: the ``learned`` detector's network, a detector file
+            (:class:`~imm_gym.sim.learned_detector.DetectorNetwork`; ``python -m
+            agents.detector`` writes one); None (default): the shipped one. Unused by the other
+            detectors (a configuration file may name it for the policies that use it).
         stay_grid: the stay bank's priors: ``"stays"`` (one stay for every row, 1/M .. 0.995)
             or ``"pairs"`` (those and the per-model pairs, the first model's stay sticky and the
             others' shorter-lived, :func:`imm_gym.sim.stay_bank.grid_stays`), so that the
@@ -191,6 +200,7 @@ class EnvConfig:
     stay_base: str = "tracker"
     detector_share: float = 0.0
     detector: str = "shadow"
+    detector_weights: str | None = None
     stay_grid: str = "stays"
     max_factor: float = 2.0
     logit_scale: float = 4.0
@@ -260,16 +270,31 @@ class EnvConfig:
                 f"got {self.action_mode!r}"
             )
         check_choice("detector", self.detector, DETECTORS)
-        if self.detector == "turn_rate" and share == 0.0:
+        observed = "detector_belief" in check_sequence("obs_features", self.obs_features)
+        if self.detector != "shadow" and share == 0.0 and not observed:
             raise ConfigError(
-                "detector 'turn_rate' places the detector_share of the jumps: detector_share must "
-                "be in (0, 1], got 0"
+                f"detector {self.detector!r} places the detector_share of the jumps (unless "
+                f"obs_features has 'detector_belief'): detector_share must be in (0, 1], got 0"
             )
-        if self.detector == "turn_rate" and model_turn_rates(self.bank) is None:
+        omegas = model_turn_rates(self.bank)
+        if self.detector != "shadow" and omegas is None:
             raise ConfigError(
-                "detector 'turn_rate' needs a linear bank (the models' turn rates it interpolates "
-                "between), got a heterogeneous one"
+                f"detector {self.detector!r} needs a linear bank (the models' turn rates its "
+                f"belief is placed on), got a heterogeneous one"
             )
+        if self.detector_weights is not None:
+            if not isinstance(self.detector_weights, str | Path):
+                raise ConfigError(f"detector_weights must be a file path or None, got "
+                                  f"{self.detector_weights!r}")
+            store(self, "detector_weights", str(self.detector_weights))
+        if self.detector == "learned":
+            model_order(omegas)  # distinct turn rates
+            network = DetectorNetwork.load(self.detector_weights or DEFAULT_WEIGHTS)
+            if network.n_models != M:
+                raise ConfigError(
+                    f"detector_weights: the network places beliefs on {network.n_models} models, "
+                    f"the bank has {M}"
+                )
         check_choice("stay_grid", self.stay_grid, STAY_GRIDS)
         if self.stay_grid != "stays" and self.stay_base not in ("evidence", "evidence_best"):
             raise ConfigError(
@@ -281,9 +306,12 @@ class EnvConfig:
         if not isinstance(self.parallel, bool):
             raise ConfigError(f"parallel must be a bool, got {self.parallel!r}")
         check_choice("shadow", self.shadow, SHADOWS)
-        if self.detector_share > 0.0 and self.detector == "shadow" and self.shadow == "none":
-            raise ConfigError("detector_share > 0 needs shadow 'fixed' (the detector whose mode "
-                              "probabilities place the jumps)")
+        if self.detector == "shadow" and self.shadow == "none" and (
+            self.detector_share > 0.0 or observed
+        ):
+            raise ConfigError("detector_share > 0 and the detector_belief feature need shadow "
+                              "'fixed' with the shadow detector (whose mode probabilities they "
+                              "use)")
         if self.shadow_stay is not None:
             store(self, "shadow_stay", check_range("shadow_stay", self.shadow_stay, 0.0, 1.0))
         check_choice("reward", self.reward, tuple(REWARD_TERMS))

@@ -76,6 +76,7 @@ class StepView(Protocol):
     velocity_s: Array  # (N, 2) the shadow's estimate at t
     velocity_s_prev: Array  # (N, 2) at t-1
     stay_bank_evidence: Array  # (N, S) the stay bank's evidence minus the best (nats)
+    detector_belief: Array  # (N, M) the maneuver detector's belief for the coming step
     sampling_period: Array  # (N,) each slot's T (s)
     position_accuracy: Array  # (N,) RMS position accuracy of the slot's first measurement (m)
     memories: dict[str, Array]  # each memory feature's state
@@ -439,4 +440,9 @@ register(Feature(
     lambda M, m: 1 + len(EVIDENCE_STAYS), -1.0, 0.0,
     lambda v: np.tanh(v.stay_bank_evidence / EVIDENCE_SCALE),
     size_label=str(1 + len(EVIDENCE_STAYS)), needs_stay_bank=True,
+))
+register(Feature(
+    "detector_belief", "the maneuver detector's belief for the coming step (EnvConfig.detector:"
+    " the learned network's, the turn-rate interpolation, or the shadow's probabilities)",
+    lambda M, m: M, 0.0, 1.0, lambda v: v.detector_belief, size_label="M",
 ))

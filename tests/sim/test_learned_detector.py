@@ -1,0 +1,229 @@
+"""The learned detector (imm_gym.sim.learned_detector): its network against torch, its files
+(data, checked before use), its uniform IMM's records against a separate numpy IMM, the TPM it
+leads, its order of models, its slots (inactive, reset, repeatable) and the configuration's
+errors."""
+
+from __future__ import annotations
+
+from itertools import pairwise
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from safetensors.numpy import save_file
+
+from imm_gym import EnvConfig, TrackingCore
+from imm_gym.sim.features import heading_rate
+from imm_gym.sim.learned_detector import (
+    FORMAT,
+    DetectorNetwork,
+    features_per_step,
+)
+from imm_gym.sim.presets import BANK_PRESETS
+from imm_gym.tracking.hetero import make_tracker
+from imm_gym.validation import ConfigError
+
+M = 3
+PAPER_RATES = np.radians([0.0, 4.0, -4.0])  # CV, CT(+4 °/s), CT(-4 °/s)
+
+
+def random_network(seed: int, window: int = 4, hidden: tuple[int, ...] = (16, 8)
+                   ) -> DetectorNetwork:
+    rng = np.random.default_rng(seed)
+    sizes = [window * features_per_step(M), *hidden, M]
+    weights = tuple(rng.normal(0, 0.5, (b, a)) for a, b in pairwise(sizes))
+    biases = tuple(rng.normal(0, 0.5, b) for b in sizes[1:])
+    return DetectorNetwork(weights, biases, window)
+
+
+def learned_core(n: int, tmp_path, network: DetectorNetwork | None = None,
+                 **changes) -> TrackingCore:
+    weights = None
+    if network is not None:
+        weights = str(tmp_path / "detector.safetensors")
+        network.save(weights)
+    config = EnvConfig(
+        action_mode="stay", stay_base="tracker", detector="learned", detector_share=0.5,
+        detector_weights=weights, initial_stay=0.8, sojourn=None,
+        sensor={"detection_prob": 0.8}, family={"horizon": 60},
+    ).replace(**changes)
+    core = TrackingCore(config, n)
+    core.reset(np.arange(n), list(range(40, 40 + n)))
+    return core
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 6))
+def test_the_network_is_torch_s_mlp(seed: int, window: int) -> None:
+    net = random_network(seed, window)
+    x = np.random.default_rng(seed + 1).normal(size=(5, net.n_inputs))
+    layers = []
+    for i, (W, c) in enumerate(zip(net.weights, net.biases, strict=True)):
+        linear = torch.nn.Linear(W.shape[1], W.shape[0]).double()
+        linear.weight.data, linear.bias.data = torch.from_numpy(W), torch.from_numpy(c)
+        layers += [linear] if i == len(net.weights) - 1 else [linear, torch.nn.Tanh()]
+    with torch.no_grad():
+        expected = torch.softmax(torch.nn.Sequential(*layers)(torch.from_numpy(x)), -1).numpy()
+    belief = net(x)
+    np.testing.assert_allclose(belief, expected, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(belief.sum(axis=1), 1.0, atol=1e-12)
+
+
+def test_a_saved_network_loads_as_float32_data(tmp_path) -> None:
+    net = random_network(0)
+    net.save(tmp_path / "d.safetensors", {"runs": 3})
+    loaded = DetectorNetwork.load(tmp_path / "d.safetensors")
+    assert loaded.window == net.window and len(loaded.weights) == 3
+    for a, b in zip(loaded.weights + loaded.biases, net.weights + net.biases, strict=True):
+        np.testing.assert_array_equal(a, b.astype(np.float32))
+
+
+def _write(path, tensors, header) -> str:
+    save_file({k: np.asarray(v, dtype=np.float32) for k, v in tensors.items()}, str(path),
+              metadata=header)
+    return str(path)
+
+
+def test_a_bad_file_is_refused_naming_what_is_wrong(tmp_path) -> None:
+    good = {"layer0.weight": np.zeros((M, 2 * features_per_step(M))), "layer0.bias": np.zeros(M)}
+    header = {"format": FORMAT, "window": "2"}
+    DetectorNetwork.load(_write(tmp_path / "ok", good, header))
+    cases = [
+        (good, {"window": "2"}, "header format must be"),
+        (good, {"format": FORMAT, "window": "two"}, "header window must be an integer"),
+        (good, {"format": FORMAT, "window": "3"}, r"input must be window \* \(2 M \+ 2\) = 24"),
+        ({"layer0.weight": good["layer0.weight"]}, header, "tensors must be layer0.weight"),
+        ({**good, "layer0.bias": np.zeros(M + 1)}, header, "shapes must chain"),
+        ({**good, "layer0.bias": np.full(M, np.nan)}, header, "non-finite"),
+        ({"layer0.weight": np.zeros((4, 16)), "layer0.bias": np.zeros(4),
+          "layer1.weight": np.zeros((M, 5)), "layer1.bias": np.zeros(M)}, header, "must chain"),
+    ]
+    for i, (tensors, head, message) in enumerate(cases):
+        path = _write(tmp_path / f"bad{i}", tensors, head)
+        with pytest.raises(ConfigError, match=message):
+            DetectorNetwork.load(path)
+    with pytest.raises(ConfigError, match="no such file"):
+        DetectorNetwork.load(tmp_path / "missing")
+    pickle = tmp_path / "net.pkl"
+    pickle.write_bytes(b"\x80\x04\x95" + b"cos\nsystem\n" * 20)  # a pickle is not read
+    with pytest.raises(ConfigError, match="not a safetensors file"):
+        DetectorNetwork.load(pickle)
+
+
+def test_the_records_are_those_of_a_separate_uniform_imm(tmp_path) -> None:
+    # the reference: the classical IMM at the uniform TPM on the numpy engine, its outputs put
+    # into the records by the module docstring's formulas
+    N = 3
+    core = learned_core(N, tmp_path, random_network(1, window=5))
+    detector = core.learned_detector
+    reference = make_tracker(core.config.bank, core.config.sensor, "ukf", 1.0, engine="numpy")
+    state = core.state_a
+    velocity = np.einsum("rm,rmi->ri", state.mu, state.x)[:, 2:4]
+    order = np.argsort(PAPER_RATES)
+    records = []
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        k1 = core.k + 1
+        z, det = core.z[np.arange(N), k1], core.detected[np.arange(N), k1]
+        state, out = reference.step(state, np.full((M, M), 1.0 / M), z, det)
+        rate = heading_rate(velocity, out.x[:, 2:4], 1.0)
+        velocity = out.x[:, 2:4]
+        relative = out.loglik - out.loglik.max(axis=1, keepdims=True)
+        records.append(np.column_stack([
+            out.mode_probs[:, order], np.clip(relative[:, order], -20, 0) / 10,
+            np.minimum(out.nis, 50) / 10, np.clip(rate / np.radians(4.0), -3, 3),
+        ]))
+        core.step(rng.uniform(-1, 1, (N, M)))
+        np.testing.assert_allclose(detector.window[:, -1], records[-1], rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(detector.window, np.stack(records[-5:], axis=1), rtol=1e-6,
+                               atol=1e-7)
+    assert (~core.detected[:, 1:41]).any()  # missed detections among them
+    np.testing.assert_allclose(detector.belief[:, order], detector.network(detector.inputs()),
+                               rtol=1e-15)
+
+
+def test_the_zero_action_is_the_prior_its_belief_leads(tmp_path) -> None:
+    N, v = 2, 0.5
+    core = learned_core(N, tmp_path, random_network(2))
+    keep = (0.8 - 1 / M) / (1 - 1 / M)
+    for _ in range(30):
+        b = core.learned_detector.belief.copy()
+        tpm = core.step(np.zeros((N, M))).info["tpm"]
+        q = (1 - v) / M + v * b
+        expected = keep * np.eye(M) + (1 - keep) * q[:, None, :]
+        np.testing.assert_allclose(tpm, expected, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(tpm.sum(axis=2), 1.0, atol=1e-12)
+
+
+def test_the_network_s_levels_are_the_models_in_the_order_of_their_turn_rates(tmp_path) -> None:
+    # a network that always says "the slowest turn rate" (level 0): the CT(-4 °/s) model
+    window = 2
+    weights = (np.zeros((M, window * features_per_step(M))),)
+    net = DetectorNetwork(weights, (np.array([8.0, 0.0, 0.0]),), window)
+    core = learned_core(2, tmp_path, net)
+    for _ in range(3):
+        assert np.all(np.argmax(core.learned_detector.belief, axis=1) == 2)
+        core.step(np.zeros((2, M)))
+
+
+def test_inactive_slots_keep_their_detector_and_a_reset_empties_the_window(tmp_path) -> None:
+    core = learned_core(3, tmp_path, random_network(3))
+    for _ in range(6):
+        core.step(np.zeros((3, M)))
+    d = core.learned_detector
+    window, belief, x = d.window.copy(), d.belief.copy(), d.batch.state.x.copy()
+    core.step(np.zeros((3, M)), active=np.array([True, False, True]))
+    np.testing.assert_array_equal(d.window[1], window[1])
+    np.testing.assert_array_equal(d.belief[1], belief[1])
+    np.testing.assert_array_equal(d.batch.state.x[1], x[1])
+    assert not np.array_equal(d.window[0], window[0])
+    core.reset(np.array([2]), [7])
+    assert np.all(d.window[2] == 0.0) and np.any(d.window[0] != 0.0)
+    assert np.isfinite(d.belief[2]).all()
+    fresh = learned_core(1, tmp_path, random_network(3))
+    fresh.reset(np.array([0]), [7])
+    np.testing.assert_array_equal(d.belief[2], fresh.learned_detector.belief[0])
+
+
+def test_same_seeds_same_beliefs_on_both_engines_and_under_varied_conditions(tmp_path) -> None:
+    beliefs = []
+    for engine in ("compiled", "compiled", "numpy"):
+        core = learned_core(2, tmp_path, random_network(4), engine=engine)
+        run = []
+        for _ in range(25):
+            core.step(np.zeros((2, M)))
+            run.append(core.learned_detector.belief.copy())
+        beliefs.append(np.array(run))
+    np.testing.assert_array_equal(beliefs[0], beliefs[1])
+    np.testing.assert_allclose(beliefs[0], beliefs[2], rtol=1e-6, atol=1e-8)
+    varied = learned_core(4, tmp_path, random_network(4), vary={"T": [0.5, 5.0]},
+                          **BANK_PRESETS["cv-ct-continuous"])
+    for _ in range(25):
+        varied.step(np.zeros((4, M)))
+    assert np.ptp(varied.sampling_period) > 0.5
+    assert np.isfinite(varied.learned_detector.window).all()
+
+
+def test_its_belief_is_an_observation(tmp_path) -> None:
+    core = learned_core(2, tmp_path, random_network(5), detector_share=0.0,
+                        obs_features=("detector_belief",))
+    obs = core.step(np.zeros((2, M))).obs
+    np.testing.assert_allclose(obs[:, 2 * M:], core.learned_detector.belief, rtol=1e-6)
+    np.testing.assert_allclose(core.tpm[:, 0, 0], 0.8)  # share 0: the tracker's TPM
+
+
+def test_the_configuration_s_errors() -> None:
+    base = {"action_mode": "stay", "detector": "learned"}
+    with pytest.raises(ConfigError, match="detector_share must be in"):
+        EnvConfig(**base)
+    with pytest.raises(ConfigError, match="distinct turn rates"):
+        EnvConfig(**base, detector_share=0.5, bank=[
+            {"kind": "cv"}, {"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 4.0}])
+    with pytest.raises(ConfigError, match="needs a linear bank"):
+        EnvConfig(**base, detector_share=0.5, **BANK_PRESETS["hetero"])
+    with pytest.raises(ConfigError, match=r"detector_weights 'nope\.safetensors': no such file"):
+        EnvConfig(**base, detector_share=0.5, detector_weights="nope.safetensors")
+    with pytest.raises(ConfigError, match="detector_weights must be a file path"):
+        EnvConfig(**base, detector_share=0.5, detector_weights=3)
