@@ -48,6 +48,8 @@ WINDOW = 20
 FORMAT = "imm_gym-turn-detector"
 #: The shipped detector (``EnvConfig.detector_weights=None``).
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "data" / "turn_detector.safetensors"
+#: Entries of a record below this in magnitude are 0 (:func:`step_features`).
+TINY = 1e-12
 #: A network's largest layer count and width (a file beyond them is refused).
 MAX_LAYERS, MAX_WIDTH = 8, 4096
 
@@ -61,12 +63,13 @@ def step_features(mu: Array, loglik: Array, nis: Array, rate: Array, scale: floa
     r"""``(N, 2 M + 2)`` one step's record (module docstring) from the uniform IMM's mode
     probabilities ``mu (N, M)``, log-likelihoods ``loglik (N, M)``, NIS ``(N,)`` and heading
     rate ``rate (N,)`` (rad/s), ``scale`` the bank's fastest turn rate; a failed filter's NaN
-    is 0."""
+    is 0, and so is every entry below :data:`TINY` in magnitude (no subnormal numbers, which
+    would slow the network's products many times over)."""
     relative = np.clip(loglik - loglik.max(axis=1, keepdims=True), -20.0, 0.0) / 10.0
-    record = np.column_stack([
+    record = np.nan_to_num(np.column_stack([
         mu, relative, np.clip(nis, 0.0, 50.0) / 10.0, np.clip(rate / scale, -3.0, 3.0),
-    ])
-    return np.nan_to_num(record)
+    ]))
+    return np.where(np.abs(record) < TINY, 0.0, record)
 
 
 @dataclass(frozen=True)
