@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from threadpoolctl import threadpool_limits
 
 from agents.schema import check_flag, check_number, check_policy_kwargs, check_size
 from imm_gym.sim.mixture import check_mixture
@@ -53,6 +54,9 @@ def set_threads(n: int = 1) -> None:
     """
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(n))
+    # numpy's BLAS started its threads at import, before the variables: pinned where they run
+    # (the learned detector's products would otherwise wait for a thread the learner holds)
+    threadpool_limits(n)
     import torch
 
     torch.set_num_threads(n)
