@@ -13,6 +13,10 @@ import numpy as np
 #: Training runs of the tuners use seeds ``seed + TRAIN_SEED_OFFSET + r`` (never evaluation seeds).
 TRAIN_SEED_OFFSET = 1_000_000
 
+#: The learned detector's episodes (``python -m agents.detector``): seeds from ``2**61`` on,
+#: above every evaluation, validation and SB3 training seed and below RLlib's.
+DETECTOR_SEED_BASE = 1 << 61
+
 #: RLlib training (``train.py --engine rllib``): sub-env seeds from ``2**62`` on, above every
 #: evaluation (``0..``), validation (``50,000,000..``) and SB3 training (``100,000,000 +
 #: 10,000 s + i``) seed of training seeds ``s < 4 * 10**14``.

@@ -1,0 +1,108 @@
+"""Training the learned detector (agents.detector): what it collects is what the env's detector
+reads, its targets are the true turn rates' beliefs, the fit is repeatable and beats a constant
+belief on held-out episodes, and the command writes a file the env loads."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from safetensors import safe_open
+
+from agents.detector import Samples, collect, cross_entropy, fit, main
+from imm_gym import EnvConfig, TrackingCore
+from imm_gym.sim.detectors import TurnRateBelief
+from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, WINDOW, DetectorNetwork
+from imm_gym.sim.presets import BANK_PRESETS
+from imm_gym.validation import ConfigError
+
+M = 3
+PAPER_RATES = np.radians([0.0, 4.0, -4.0])
+ORDER = np.argsort(PAPER_RATES)
+
+
+def test_it_collects_what_the_env_s_detector_reads_and_the_true_turn_rates(tmp_path) -> None:
+    seeds = [5, 6]
+    family = {"horizon": 40, "min_duration": 5}
+    samples = collect({"scenario": "random", "family": family}, seeds, window=6)
+    assert samples.inputs.shape == (80, 6 * 8) and samples.targets.shape == (80, M)
+    # the env's own detector, stepped by the core on the same episodes: the same windows
+    net = DetectorNetwork((np.zeros((M, 6 * 8)),), (np.zeros(M),), 6)
+    net.save(tmp_path / "d.safetensors")
+    core = TrackingCore(EnvConfig(
+        scenario="random", family=family, action_mode="stay", detector="learned",
+        detector_share=0.5, detector_weights=str(tmp_path / "d.safetensors"),
+    ), 2)
+    core.reset(np.arange(2), seeds)
+    windows = []
+    for _ in range(40):
+        windows.append(core.learned_detector.inputs().copy())
+        core.step(np.zeros((2, M)))
+    # step-major: every episode's window before step k, then before step k + 1
+    np.testing.assert_allclose(samples.inputs.reshape(40, 2, -1), np.stack(windows), rtol=1e-5,
+                               atol=1e-6)
+    assert np.all(samples.inputs.reshape(40, 2, -1)[0] == 0.0)  # before the first measurement
+    # the targets: the heading change from state k to k + 1, interpolated between the models
+    truth = core.truth
+    heading = np.arctan2(truth[..., 3], truth[..., 2])
+    step = (heading[:, 1:] - heading[:, :-1] + np.pi) % (2 * np.pi) - np.pi
+    belief = TurnRateBelief(PAPER_RATES)(step.T.ravel())[:, ORDER]
+    np.testing.assert_allclose(samples.targets, belief, rtol=1e-6, atol=1e-7)
+    assert np.ptp(step) > np.radians(1.0)  # turns among them
+
+
+def test_the_fit_is_repeatable_and_beats_a_constant_belief_on_held_out_episodes() -> None:
+    family = {"scenario": "random", "family": {"horizon": 100}}
+    train = collect(family, range(1000, 1080))
+    held_out = collect(family, range(2000, 2030))
+    nets = [fit(train, (32,), 5, seed=0, batch=128) for _ in range(2)]
+    for a, b in zip(nets[0].weights, nets[1].weights, strict=True):
+        np.testing.assert_array_equal(a, b)
+    score = cross_entropy(nets[0](held_out.inputs.astype(np.float64)), held_out.targets)
+    constant = cross_entropy(np.broadcast_to(train.targets.mean(axis=0), held_out.targets.shape),
+                             held_out.targets)
+    assert score < 0.9 * constant
+
+
+def test_cross_entropy_by_hand() -> None:
+    belief = np.array([[0.5, 0.25, 0.25], [0.1, 0.1, 0.8]])
+    targets = np.array([[1.0, 0.0, 0.0], [0.0, 0.5, 0.5]])
+    expected = -(np.log(0.5) + 0.5 * np.log(0.1) + 0.5 * np.log(0.8)) / 2
+    assert cross_entropy(belief, targets) == pytest.approx(expected, rel=1e-12)
+    assert isinstance(Samples(np.zeros((1, 2), np.float32), np.zeros((1, 3), np.float32)), Samples)
+
+
+def test_the_command_writes_a_file_the_env_loads(tmp_path, capsys) -> None:
+    config = tmp_path / "family.yaml"
+    config.write_text("scenario: random\nfamily: {horizon: 30, min_duration: 5}\n")
+    out = tmp_path / "det" / "d.safetensors"
+    main(["--env-config", str(config), "--runs", "12", "--held-out-runs", "4", "--epochs", "1",
+          "--hidden", "8", "--out", str(out)])
+    assert "wrote" in capsys.readouterr().out
+    with safe_open(str(out), framework="np") as f:
+        notes = json.loads(f.metadata()["notes"])
+    assert notes["runs"] == 12 and notes["samples"] == 12 * 30 and notes["hidden"] == [8]
+    core = TrackingCore(EnvConfig(action_mode="stay", detector="learned", detector_share=0.5,
+                                  detector_weights=str(out)), 1)
+    core.reset(np.array([0]), [0])
+    assert np.isfinite(core.step(np.zeros((1, M))).info["tpm"]).all()
+
+
+def test_the_shipped_detector_says_how_it_was_trained() -> None:
+    network = DetectorNetwork.load(DEFAULT_WEIGHTS)
+    assert network.n_models == M and network.window == WINDOW
+    with safe_open(str(DEFAULT_WEIGHTS), framework="np") as f:
+        notes = json.loads(f.metadata()["notes"])
+    assert notes["command"].startswith("python -m agents.detector --env-config")
+    assert notes["held_out_cross_entropy"] < 0.8 * notes["constant_cross_entropy"]
+
+
+def test_bad_arguments_fail_before_any_work(tmp_path) -> None:
+    config = tmp_path / "hetero.yaml"
+    config.write_text(json.dumps({"scenario": "random", **BANK_PRESETS["hetero"]}))
+    out = str(tmp_path / "d.safetensors")
+    with pytest.raises(ConfigError, match="runs must be"):
+        main(["--env-config", str(config), "--runs", "0", "--out", out])
+    with pytest.raises(ConfigError, match="needs a linear bank"):
+        main(["--env-config", str(config), "--runs", "5", "--out", out])
