@@ -7,6 +7,11 @@ the tracker's own estimate interpolated between the models' turn rates
 than the bank's CT models is a blend of CV and the turn of its sign; a nearly uniform fixed
 prior mixes them at every step blindly, this one aims the mixing at the blend. The stay and the
 share are searched like ``best-fixed``'s stay, on the training runs.
+
+``learned-prior`` is the same rule led by the ``learned`` detector: a network's belief of the
+coming step's turn rate from a window of an unsteered uniform-TPM IMM
+(:mod:`imm_gym.sim.learned_detector`; ``EnvConfig.detector_weights``, by default the shipped
+network).
 """
 
 from __future__ import annotations
@@ -33,21 +38,27 @@ P_MIN = 1e-4
 
 class TurnRatePrior(Baseline):
     """The zero ``stay`` action on the tracker's TPM of stay ``stay``, the ``share`` of its
-    jumps placed by the ``turn_rate`` detector (``stay=None``: the configured initial TPM's
-    stays)."""
+    jumps placed by the ``detector`` (``turn_rate``, or ``learned``: ``learned-prior``;
+    ``stay=None``: the configured initial TPM's stays)."""
 
     name = "turn-rate-prior"
 
     def __init__(
-        self, n_models: int = 3, stay: float | Sequence[float] | None = None, share: float = 0.5
+        self,
+        n_models: int = 3,
+        stay: float | Sequence[float] | None = None,
+        share: float = 0.5,
+        detector: str = "turn_rate",
     ) -> None:
         super().__init__(n_models)
         self.stay = stay
         self.share = share
+        if detector == "learned":
+            self.name = "learned-prior"
         self.env_overrides = {
             "action_mode": "stay",
             "stay_base": "tracker",
-            "detector": "turn_rate",
+            "detector": detector,
             "detector_share": share,
             "p_min": P_MIN,
         }
@@ -65,7 +76,9 @@ class TurnRatePrior(Baseline):
     help="a fixed stay with jumps leaning toward the estimated turn rate; stay and share with "
     "the lowest ARMSE on training runs",
 )
-def build_turn_rate_prior(context: BuildContext) -> tuple[TurnRatePrior, dict[str, Any]]:
+def build_turn_rate_prior(
+    context: BuildContext, detector: str = "turn_rate"
+) -> tuple[TurnRatePrior, dict[str, Any]]:
     """:class:`TurnRatePrior` with the stay of :data:`STAY_GRID` (those at least ``1/M``) and
     the share of :data:`SHARE_GRID` scoring best on the training runs: one roll-out of every
     stay per share.
@@ -74,13 +87,13 @@ def build_turn_rate_prior(context: BuildContext) -> tuple[TurnRatePrior, dict[st
     training runs and seeds.
     """
     if context.train_armse_from is None:
-        raise ConfigError("turn-rate-prior needs a build context that offers train_armse_from")
+        raise ConfigError("a detector prior needs a build context that offers train_armse_from")
     M = context.n_models
     stays = [s for s in STAY_GRID if s >= 1.0 / M]
     tpms = np.stack([stay_tpm(M, s) for s in stays])
     search: dict[tuple[float, float], float] = {}
     for share in SHARE_GRID:
-        scores = context.train_armse_from(TurnRatePrior(M, share=share), tpms)
+        scores = context.train_armse_from(TurnRatePrior(M, share=share, detector=detector), tpms)
         search.update(((s, share), float(v)) for s, v in zip(stays, scores, strict=True))
     stay, share = min(search, key=search.__getitem__)
     notes = {
@@ -90,4 +103,15 @@ def build_turn_rate_prior(context: BuildContext) -> tuple[TurnRatePrior, dict[st
         "train_runs": context.train_runs,
         "train_seeds": context.train_seeds(),
     }
-    return TurnRatePrior(M, float(stay), float(share)), notes
+    return TurnRatePrior(M, float(stay), float(share), detector), notes
+
+
+@register(
+    "learned-prior",
+    help="turn-rate-prior led by the learned detector (a network's belief of the coming turn "
+    "rate; EnvConfig.detector_weights); stay and share searched the same way",
+)
+def build_learned_prior(context: BuildContext) -> tuple[TurnRatePrior, dict[str, Any]]:
+    """:func:`build_turn_rate_prior` with the ``learned`` detector
+    (:mod:`imm_gym.sim.learned_detector`)."""
+    return build_turn_rate_prior(context, "learned")

@@ -61,7 +61,8 @@ def test_runs_through_sb3_evaluate_policy(name: str) -> None:
 
 def test_registry_lists_every_shipped_baseline_in_order() -> None:
     assert list(REGISTRY) == [
-        "fixed", "tip-imm", "best-fixed", "best-fixed-rows", "turn-rate-prior", "amp-imm",
+        "fixed", "tip-imm", "best-fixed", "best-fixed-rows", "turn-rate-prior", "learned-prior",
+        "amp-imm",
         "window", "bbsca",
     ]
     assert UNTUNED == ["fixed", "tip-imm", "amp-imm", "window"]
