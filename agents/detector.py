@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from imm_gym.seeding import DETECTOR_SEED_BASE
 from imm_gym.sim.core import TrackingCore
-from imm_gym.sim.detectors import TurnRateBelief, model_turn_rates
+from imm_gym.sim.detectors import TurnRateBelief, model_turn_rates, true_turn_rates
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.learned_detector import WINDOW, DetectorNetwork, LearnedDetector
 from imm_gym.validation import ConfigError, check_int
@@ -63,14 +63,6 @@ def collection_config(overrides: Mapping[str, Any]) -> EnvConfig:
         stay_grid="stays", obs_features=(), reward="advantage", mode_reward=0.0,
         tpm_change_cost=0.0, tpm_cost=0.0,
     )
-
-
-def true_turn_rates(truth: Array, T: Array) -> Array:
-    """``(N, K)`` the target's turn rate over each step ``k`` (from state ``k`` to ``k + 1`` of
-    ``truth (N, K + 1, 4)``, ``[x, y, vx, vy]``): the heading change over the slot's sampling
-    period ``T (N,)``."""
-    heading = np.unwrap(np.arctan2(truth[..., 3], truth[..., 2]), axis=1)
-    return np.diff(heading, axis=1) / T[:, None]
 
 
 def collect(overrides: Mapping[str, Any], seeds: Sequence[int], window: int = WINDOW) -> Samples:

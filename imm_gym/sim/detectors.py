@@ -89,3 +89,12 @@ def turn_rate_belief(rate: Array, omegas: Array) -> Array:
     """``(N, M)`` the interpolation weights of the turn rates ``rate (N,)`` between the models'
     turn rates ``omegas (M,)`` (rad/s): :class:`TurnRateBelief` built for one call."""
     return TurnRateBelief(omegas)(rate)
+
+
+def true_turn_rates(truth: Array, T: float | Array) -> Array:
+    """``(R, K)`` the target's turn rate over each step ``k`` (from state ``k`` to ``k + 1`` of
+    ``truth (R, K + 1, 4)``, ``[x, y, vx, vy]``): the heading change, across ±π, over the
+    sampling period ``T`` (one, or one per run ``(R,)``) — what the ``learned`` detector learns
+    to believe (``python -m agents.detector``)."""
+    heading = np.unwrap(np.arctan2(truth[..., 3], truth[..., 2]), axis=1)
+    return np.diff(heading, axis=1) / np.reshape(T, (-1, 1))

@@ -11,7 +11,12 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from imm_gym import EnvConfig
-from imm_gym.sim.detectors import TURN_RATE_FACTOR, model_turn_rates, turn_rate_belief
+from imm_gym.sim.detectors import (
+    TURN_RATE_FACTOR,
+    model_turn_rates,
+    true_turn_rates,
+    turn_rate_belief,
+)
 from imm_gym.sim.features import heading_rate
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.sim.stay_bank import detector_tpm_rows
@@ -33,6 +38,16 @@ def test_the_belief_by_hand() -> None:
         [0.25, 0.75, 0.0],
     ])
     np.testing.assert_allclose(turn_rate_belief(rates, PAPER_RATES), expected, atol=1e-15)
+
+
+def test_true_turn_rates_are_the_heading_changes() -> None:
+    T, omega = 2.0, np.array([0.0, 0.01, -0.03])
+    heading = np.concatenate([[3.1], 3.1 + np.cumsum(omega * T)])  # crosses +-pi
+    truth = np.zeros((1, 4, 4))
+    truth[0, :, 2], truth[0, :, 3] = 20.0 * np.cos(heading), 20.0 * np.sin(heading)
+    np.testing.assert_allclose(true_turn_rates(truth, T)[0], omega, atol=1e-12)
+    np.testing.assert_allclose(true_turn_rates(np.repeat(truth, 2, 0), np.array([T, 2 * T])),
+                               [omega, omega / 2], atol=1e-12)
 
 
 def test_models_of_one_rate_share_its_weight() -> None:
