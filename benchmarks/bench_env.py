@@ -14,10 +14,11 @@ unless stated:
    picture's histories recorded at every step) and once calling ``render()`` after every
    ``reset`` and ``step`` (one frame each); without a render mode nothing is recorded or drawn.
 2. Native vector env, ``gymnasium.make_vec(id, num_envs=N, vectorization_mode=
-   "vector_entry_point")`` for N = 1, 64, 1024 in five configurations: parallel bank B off / on
+   "vector_entry_point")`` for N = 1, 64, 1024 in seven configurations: parallel bank B off / on
    (``parallel=True``) x shadow tracker on (default: ``shadow="fixed"``, ``reward="advantage"``) /
    off (``shadow="none", reward="error"``), and the stay bank (one classical IMM per stay of
-   the evidence grid beside the banks, the ``stay`` action centred on its evidence). The timed
+   the evidence grid beside the banks, the ``stay`` action centred on its evidence; leaned by
+   the turn-rate or the learned detector). The timed
    call is ``venv.step(actions)``; a repeat runs whole cycles of 151 batch steps (150 steps of
    an episode + the ``NEXT_STEP`` autoreset step, so each repeat holds its share of resets).
 3. stable-baselines3 adapter ``imm_gym.envs.sb3.TPMAdaptSB3VecEnv(num_envs=N)`` for N = 64, 1024,
@@ -96,6 +97,13 @@ VECTOR_CONFIGS: tuple[tuple[str, dict[str, Any]], ...] = (
     (
         "stay bank, turn-rate lean",
         {"action_mode": "stay", "stay_base": "evidence", "detector": "turn_rate",
+         "detector_share": 0.5, "obs_features": ("stay_bank_evidence",)},
+    ),
+    # ...toward the learned detector: one more IMM per slot and its network
+    # (imm_gym/sim/learned_detector.py)
+    (
+        "stay bank, learned lean",
+        {"action_mode": "stay", "stay_base": "evidence", "detector": "learned",
          "detector_share": 0.5, "obs_features": ("stay_bank_evidence",)},
     ),
 )
