@@ -42,9 +42,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
       ``"evidence_best"``) moved from the stay the stay bank's evidence supports
       (:mod:`imm_gym.sim.stay_bank`; ``"uniform"``: from 1/M), and with ``detector_share=v``
       the share ``v`` of its jumps placed by a maneuver detector instead of evenly — the shadow
-      IMM's mode probabilities, or with ``detector="turn_rate"`` the estimated turn rate between
-      the models' (:mod:`imm_gym.sim.detectors`). ``"stay_step"``: from the current TPM's
-      stays (:mod:`imm_gym.sim.actions`).
+      IMM's mode probabilities, with ``detector="turn_rate"`` the estimated turn rate between
+      the models' (:mod:`imm_gym.sim.detectors`), with ``detector="learned"`` a network's belief
+      of the coming turn rate (:mod:`imm_gym.sim.learned_detector`). ``"stay_step"``: from the
+      current TPM's stays (:mod:`imm_gym.sim.actions`).
 
     Then rows are normalized and every entry kept in ``[p_min, 1 − p_min]``. Out-of-range
     actions are clipped; a wrong shape or a NaN/inf entry raises ``ActionError``. Float64 actions

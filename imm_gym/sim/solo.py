@@ -277,6 +277,7 @@ class SoloStep:
             and cfg.stay_base == "tracker"
             and cfg.detector_share == 0.0
             and core.stay_bank is None
+            and core.learned_detector is None
             and tuple(k for k, t in REWARD_TERMS.items() if not t.needs_stay_bank)
             == tuple(REWARD_CODES)
             and cfg.tpm_cost == cfg.tpm_change_cost == cfg.mode_reward == 0.0

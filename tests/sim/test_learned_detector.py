@@ -227,3 +227,19 @@ def test_the_configuration_s_errors() -> None:
         EnvConfig(**base, detector_share=0.5, detector_weights="nope.safetensors")
     with pytest.raises(ConfigError, match="detector_weights must be a file path"):
         EnvConfig(**base, detector_share=0.5, detector_weights=3)
+
+
+def test_the_envs_run_it_and_pass_gymnasium_s_checker() -> None:
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    kwargs = {"action_mode": "stay", "detector": "learned", "detector_share": 0.5}
+    env = gym.make("imm_gym/TPMAdapt-v0", **kwargs)
+    check_env(env.unwrapped, skip_render_check=True)
+    assert env.unwrapped.core.learned_detector is not None
+    venv = gym.make_vec("imm_gym/TPMAdapt-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                        **kwargs)
+    venv.reset(seed=0)
+    for _ in range(5):
+        _, reward, *_ = venv.step(np.zeros((3, M)))
+    assert np.isfinite(reward).all()
