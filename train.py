@@ -70,6 +70,9 @@ from typing import Any, NoReturn
 from agents.training import DEFAULT_ENTRY, set_threads
 
 BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
+#: The strongest rules, compared too where the tracker admits them (a linear bank; the learned
+#: detector's network fitting it): an agent is judged against them, not only the classics.
+DETECTOR_RULES = ("turn-rate-prior", "learned-prior")
 ALGOS = ("ppo", "recurrent-ppo")
 ENGINES = ("sb3", "rllib")
 
@@ -785,14 +788,20 @@ def _algo_class(algo: str) -> Any:
 def evaluate_agent(
     agent_dir: Path, args: argparse.Namespace, run_dir: Path, stop: StopRequest
 ) -> dict[str, Any]:
-    """Paper scenario and held-out random scenarios, learned agent vs the baselines; a stop
+    """Paper scenario and held-out random scenarios, learned agent vs the baselines (and the
+    detector rules the tracker admits) on the first configuration's tracker and targets; a stop
     request is honoured before each scenario (the agent is saved by then)."""
     from agents.policy import load_agent
     from imm_gym.cli.evaluate import evaluate
     from imm_gym.cli.tables import render_tables
     from imm_gym.evaluation.plots import write_figures
+    from imm_gym.sim.config_file import TARGET_FIELDS, TRACKER_FIELDS
 
     policy = load_agent(agent_dir)
+    # every policy meets the configuration's tracker and targets; what the agent was trained
+    # with besides (its action mode, features, reward) is its own, not the rules'
+    compared = (*TRACKER_FIELDS, *TARGET_FIELDS)
+    env_config = {k: v for k, v in args.env_overrides.items() if k in compared and k != "scenario"}
     out: dict[str, Any] = {}
     for scenario, runs in (("paper", args.paper_runs), ("random", args.random_runs)):
         if stop.requested:
@@ -800,21 +809,44 @@ def evaluate_agent(
                 f"interrupted before evaluating on the {scenario} scenario; the trained agent "
                 f"is {agent_dir} (python -m imm_gym.evaluate --policy {agent_dir} ...)"
             )
+        rules = admitted_rules({"scenario": scenario, **env_config})
         results, rollouts = evaluate(
-            BASELINES_COMPARED,
+            (*BASELINES_COMPARED, *rules),
             scenario,
             runs,
             seed=0,
             reference="best-fixed",
             extra={"learned": (policy, policy.env_overrides)},
-            env_config={k: v for k, v in args.env_overrides.items() if k != "scenario"},
+            env_config=env_config,
         )
         results["vs_tip_imm"] = _paired(rollouts, "learned", "tip-imm")
+        for rule in rules:
+            results[f"vs_{rule.replace('-', '_')}"] = _paired(rollouts, "learned", rule)
         results["meta"]["scenario"] = scenario
         render_tables(results)
         write_figures(rollouts, run_dir / "plots" / scenario, results["meta"])
         out[scenario] = results
     return out
+
+
+def admitted_rules(overrides: dict[str, Any]) -> tuple[str, ...]:
+    """The rules of :data:`DETECTOR_RULES` whose configuration the tracker ``overrides``
+    admits (their detector needs a linear bank; the learned one, distinct turn rates and as many
+    models as its network)."""
+    from baselines.turn_rate_prior import TurnRatePrior
+    from imm_gym.evaluation.rollout import evaluation_config
+    from imm_gym.sim.env_config import EnvConfig
+    from imm_gym.validation import ConfigError
+
+    base = EnvConfig.build(overrides)
+    admitted = []
+    for name, detector in zip(DETECTOR_RULES, ("turn_rate", "learned"), strict=True):
+        try:
+            evaluation_config(base, TurnRatePrior(detector=detector).env_overrides)
+        except ConfigError:
+            continue
+        admitted.append(name)
+    return tuple(admitted)
 
 
 def _paired(rollouts: dict[str, Any], a: str, b: str) -> dict[str, float]:
@@ -854,12 +886,14 @@ def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None
                 f"- {name} − best-fixed: {d['diff']:+.3f} m [{d['low']:+.3f}, "
                 f"{d['high']:+.3f}] ({100 * d['relative']:+.2f} %)"
             )
-        d = r["vs_tip_imm"]
-        lines += [
-            f"- learned − tip-imm: {d['diff']:+.3f} m [{d['low']:+.3f}, {d['high']:+.3f}] "
-            f"({100 * d['relative']:+.2f} %)",
-            "",
-        ]
+        for rule in ("tip-imm", *DETECTOR_RULES):
+            d = r.get(f"vs_{rule.replace('-', '_')}")
+            if d is not None:
+                lines.append(
+                    f"- learned − {rule}: {d['diff']:+.3f} m [{d['low']:+.3f}, "
+                    f"{d['high']:+.3f}] ({100 * d['relative']:+.2f} %)"
+                )
+        lines.append("")
     path.write_text("\n".join(lines) + "\n")
 
 

@@ -11,6 +11,7 @@ import pytest
 import train
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.mixture import AGENT_FIELDS, MixtureCore
+from imm_gym.sim.presets import BANK_PRESETS
 
 POLICY = {"action_mode": "stay", "obs_features": ("loglik", "shadow_probs", "stay_bank_evidence"),
           "stay_base": "evidence", "shadow_stay": None}
@@ -55,6 +56,32 @@ def test_train_py_records_the_mixture_and_trains_on_it(tmp_path) -> None:
     assert part["env_kwargs"]["stay_base"] == "evidence"
     env = json.loads((tmp_path / "run" / "seed_0" / "agent" / "env.json").read_text())
     assert "sojourn" not in env and env["stay_base"] == "evidence"  # the first file's
+
+
+def test_train_py_evaluates_an_agent_of_a_configuration_file_against_every_rule(tmp_path) -> None:
+    """The evaluation after training meets the file's tracker and targets; the file's training
+    settings (here the evidence's base, which a rule's action mode does not admit) stay the
+    agent's. The detector rules are compared where the tracker admits them."""
+    file = tmp_path / "a.yaml"
+    file.write_text(json.dumps({**POLICY, "obs_features": list(POLICY["obs_features"]),
+                                "sensor": {"sigma_r": 50.0}, "mode_reward": 0.05}))
+    cfg = tmp_path / "small.yml"
+    cfg.write_text("n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n")
+    argv = ["--config", str(cfg), "--out", str(tmp_path / "run"), "--no-progress",
+            "--timesteps", "256", "--env-config", str(file), "--paper-runs", "2",
+            "--random-runs", "2"]
+    assert train.main(argv) == 0
+    results = json.loads((tmp_path / "run" / "seed_0" / "results.json").read_text())
+    for scenario in ("paper", "random"):
+        assert {"learned", "fixed", "tip-imm", "best-fixed", "turn-rate-prior",
+                "learned-prior"} <= set(results[scenario]["policies"])
+        d = results[scenario]["vs_learned_prior"]
+        assert d["low"] <= d["diff"] <= d["high"]
+        learned = results[scenario]["policies"]["learned"]
+        assert learned["evaluated_on"]["sensor"]["sigma_r"] == 50.0
+    report = (tmp_path / "run" / "seed_0" / "report.md").read_text()
+    assert "learned − learned-prior" in report and "learned − turn-rate-prior" in report
+    assert train.admitted_rules({"scenario": "random", **BANK_PRESETS["hetero"]}) == ()
 
 
 @pytest.mark.parametrize(
