@@ -289,12 +289,7 @@ class EnvConfig:
             store(self, "detector_weights", str(self.detector_weights))
         if self.detector == "learned":
             model_order(omegas)  # distinct turn rates
-            network = DetectorNetwork.load(self.detector_weights or DEFAULT_WEIGHTS)
-            if network.n_models != M:
-                raise ConfigError(
-                    f"detector_weights: the network places beliefs on {network.n_models} models, "
-                    f"the bank has {M}"
-                )
+            DetectorNetwork.load(self.detector_weights or DEFAULT_WEIGHTS).check_models(M)
         check_choice("stay_grid", self.stay_grid, STAY_GRIDS)
         if self.stay_grid != "stays" and self.stay_base not in ("evidence", "evidence_best"):
             raise ConfigError(

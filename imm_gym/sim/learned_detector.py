@@ -91,6 +91,12 @@ class DetectorNetwork:
     def n_inputs(self) -> int:
         return self.weights[0].shape[1]
 
+    def check_models(self, n_models: int) -> None:
+        """Raise :class:`ConfigError` unless the network places beliefs on ``n_models``."""
+        if self.n_models != n_models:
+            raise ConfigError(f"detector_weights: the network places beliefs on "
+                              f"{self.n_models} models, the bank has {n_models}")
+
     def __call__(self, x: Array) -> Array:
         h = x
         for W, c in zip(self.weights[:-1], self.biases[:-1], strict=True):
@@ -144,7 +150,7 @@ class DetectorNetwork:
             W, c = tensors[f"layer{i}.weight"], tensors[f"layer{i}.bias"]
             width = weights[-1].shape[0] if weights else None
             if (
-                W.ndim != 2 or c.shape != (W.shape[0],) or max(W.shape) > MAX_WIDTH * window
+                W.ndim != 2 or c.shape != (W.shape[0],) or W.shape[0] > MAX_WIDTH
                 or (width is not None and W.shape[1] != width)
                 or W.dtype.kind != "f" or c.dtype.kind != "f"
             ):
@@ -196,9 +202,8 @@ class LearnedDetector:
     ) -> None:
         M = imm.n_models
         self.order = model_order(omegas)
-        if network is not None and network.n_models != M:
-            raise ConfigError(f"detector_weights: the network places beliefs on "
-                              f"{network.n_models} models, the bank has {M}")
+        if network is not None:
+            network.check_models(M)
         self.network = network
         self.window_size = network.window if network is not None else window
         self.scale = float(np.abs(omegas).max()) or 1.0

@@ -214,8 +214,12 @@ def test_its_belief_is_an_observation(tmp_path) -> None:
     np.testing.assert_allclose(core.tpm[:, 0, 0], 0.8)  # share 0: the tracker's TPM
 
 
-def test_the_configuration_s_errors() -> None:
+def test_the_configuration_s_errors(tmp_path) -> None:
     base = {"action_mode": "stay", "detector": "learned"}
+    four = DetectorNetwork((np.zeros((4, 2 * features_per_step(4))),), (np.zeros(4),), 2)
+    four.save(tmp_path / "four.safetensors")
+    with pytest.raises(ConfigError, match="places beliefs on 4 models, the bank has 3"):
+        EnvConfig(**base, detector_share=0.5, detector_weights=str(tmp_path / "four.safetensors"))
     with pytest.raises(ConfigError, match="detector_share must be in"):
         EnvConfig(**base)
     with pytest.raises(ConfigError, match="distinct turn rates"):
