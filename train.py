@@ -789,19 +789,21 @@ def evaluate_agent(
     agent_dir: Path, args: argparse.Namespace, run_dir: Path, stop: StopRequest
 ) -> dict[str, Any]:
     """Paper scenario and held-out random scenarios, learned agent vs the baselines (and the
-    detector rules the tracker admits) on the first configuration's tracker and targets; a stop
+    detector rules the tracker admits) on the first configuration without its
+    :data:`~imm_gym.sim.mixture.AGENT_FIELDS`; a stop
     request is honoured before each scenario (the agent is saved by then)."""
     from agents.policy import load_agent
     from imm_gym.cli.evaluate import evaluate
     from imm_gym.cli.tables import render_tables
     from imm_gym.evaluation.plots import write_figures
-    from imm_gym.sim.config_file import TARGET_FIELDS, TRACKER_FIELDS
+    from imm_gym.sim.mixture import AGENT_FIELDS
 
     policy = load_agent(agent_dir)
-    # every policy meets the configuration's tracker and targets; what the agent was trained
-    # with besides (its action mode, features, reward) is its own, not the rules'
-    compared = (*TRACKER_FIELDS, *TARGET_FIELDS)
-    env_config = {k: v for k, v in args.env_overrides.items() if k in compared and k != "scenario"}
+    # every policy meets the configuration but what the agent is trained as (its action mode,
+    # features, reward: its own, not the rules')
+    env_config = {
+        k: v for k, v in args.env_overrides.items() if k not in (*AGENT_FIELDS, "scenario")
+    }
     out: dict[str, Any] = {}
     for scenario, runs in (("paper", args.paper_runs), ("random", args.random_runs)):
         if stop.requested:

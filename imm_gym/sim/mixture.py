@@ -31,6 +31,7 @@ POLICY_FIELDS = (
     "stay_base",
     "detector_share",
     "detector",
+    "detector_weights",
     "stay_grid",
     "max_factor",
     "logit_scale",
