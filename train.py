@@ -790,7 +790,7 @@ def evaluate_agent(
 ) -> dict[str, Any]:
     """Paper scenario and held-out random scenarios, learned agent vs the baselines (and the
     detector rules the tracker admits) on the first configuration without its
-    :data:`~imm_gym.sim.mixture.AGENT_FIELDS`; a stop
+    :data:`~imm_gym.sim.mixture.AGENT_FIELDS` (but a detector network it names); a stop
     request is honoured before each scenario (the agent is saved by then)."""
     from agents.policy import load_agent
     from imm_gym.cli.evaluate import evaluate
@@ -800,10 +800,9 @@ def evaluate_agent(
 
     policy = load_agent(agent_dir)
     # every policy meets the configuration but what the agent is trained as (its action mode,
-    # features, reward: its own, not the rules')
-    env_config = {
-        k: v for k, v in args.env_overrides.items() if k not in (*AGENT_FIELDS, "scenario")
-    }
+    # features, reward: its own, not the rules'); a detector network named is the rules' too
+    dropped = {*AGENT_FIELDS, "scenario"} - {"detector_weights"}
+    env_config = {k: v for k, v in args.env_overrides.items() if k not in dropped}
     out: dict[str, Any] = {}
     for scenario, runs in (("paper", args.paper_runs), ("random", args.random_runs)):
         if stop.requested:
