@@ -86,7 +86,8 @@ def parse_env_config(data: Any, where: str) -> dict[str, Any]:
 
 def read_env_config(path: str | Path) -> dict[str, Any]:
     """The EnvConfig overrides of the YAML (``.yaml``, ``.yml``) or JSON file ``path``, checked
-    (:func:`parse_env_config`) before anything runs.
+    (:func:`parse_env_config`) before anything runs. A relative ``detector_weights`` is taken
+    from the file's directory.
 
     Raises:
         ConfigError: the file cannot be read or parsed, or its content is invalid; the message
@@ -111,6 +112,9 @@ def read_env_config(path: str | Path) -> dict[str, Any]:
             raise ConfigError(f"{path}: not valid JSON ({err})") from None
     else:
         raise ConfigError(f"{path}: a configuration file ends in .yaml, .yml or .json")
+    if isinstance(data, Mapping) and isinstance(data.get("detector_weights"), str):
+        # a detector file named relative to the configuration file, wherever it is run from
+        data = {**data, "detector_weights": str(path.parent / data["detector_weights"])}
     return parse_env_config(data, str(path))
 
 

@@ -247,3 +247,18 @@ def test_the_envs_run_it_and_pass_gymnasium_s_checker() -> None:
     for _ in range(5):
         _, reward, *_ = venv.step(np.zeros((3, M)))
     assert np.isfinite(reward).all()
+
+
+def test_a_configuration_file_names_its_network_relative_to_itself(tmp_path, monkeypatch) -> None:
+    from imm_gym.sim.config_file import read_env_config
+
+    (tmp_path / "cfg").mkdir()
+    random_network(6).save(tmp_path / "cfg" / "mine.safetensors")
+    file = tmp_path / "cfg" / "tracker.yaml"
+    file.write_text("action_mode: stay\ndetector: learned\ndetector_share: 0.5\n"
+                    "detector_weights: mine.safetensors\n")
+    monkeypatch.chdir(tmp_path)
+    config = EnvConfig.build(read_env_config(file))
+    assert config.detector_weights == str(tmp_path / "cfg" / "mine.safetensors")
+    core = TrackingCore(config, 1)
+    assert core.learned_detector.network.window == 4
