@@ -52,15 +52,15 @@ class Samples:
 
 
 def collection_config(overrides: Mapping[str, Any]) -> EnvConfig:
-    """The configuration's targets, sensor and tracker, with the slots' own TPMs and no
-    detector: what the uniform IMM sees does not depend on them, and the collection runs
-    nothing else."""
+    """The configuration's targets, sensor and tracker, with the slots' own TPMs, no detector,
+    no shadow and no features: what the uniform IMM sees does not depend on them, and the
+    collection runs nothing else."""
     config = EnvConfig.build(dict(overrides))
     if model_turn_rates(config.bank) is None:
         raise ConfigError("the learned detector needs a linear bank (the models' turn rates)")
     return config.replace(
         detector="shadow", detector_share=0.0, detector_weights=None, stay_base="tracker",
-        stay_grid="stays", obs_features=(), reward="advantage", mode_reward=0.0,
+        stay_grid="stays", obs_features=(), shadow="none", reward="error", mode_reward=0.0,
         tpm_change_cost=0.0, tpm_cost=0.0,
     )
 
