@@ -789,20 +789,16 @@ def evaluate_agent(
     agent_dir: Path, args: argparse.Namespace, run_dir: Path, stop: StopRequest
 ) -> dict[str, Any]:
     """Paper scenario and held-out random scenarios, learned agent vs the baselines (and the
-    detector rules the tracker admits) on the first configuration without its
-    :data:`~imm_gym.sim.mixture.AGENT_FIELDS` (but a detector network it names); a stop
-    request is honoured before each scenario (the agent is saved by then)."""
+    detector rules the tracker admits) on the first configuration (what the agent is trained as
+    is its own: :func:`imm_gym.cli.evaluate.evaluate`); a stop request is honoured before each
+    scenario (the agent is saved by then)."""
     from agents.policy import load_agent
-    from imm_gym.cli.evaluate import evaluate
+    from imm_gym.cli.evaluate import evaluate, evaluated_config
     from imm_gym.cli.tables import render_tables
     from imm_gym.evaluation.plots import write_figures
-    from imm_gym.sim.mixture import AGENT_FIELDS
 
     policy = load_agent(agent_dir)
-    # every policy meets the configuration but what the agent is trained as (its action mode,
-    # features, reward: its own, not the rules'); a detector network named is the rules' too
-    dropped = {*AGENT_FIELDS, "scenario"} - {"detector_weights"}
-    env_config = {k: v for k, v in args.env_overrides.items() if k not in dropped}
+    env_config = {k: v for k, v in args.env_overrides.items() if k != "scenario"}
     out: dict[str, Any] = {}
     for scenario, runs in (("paper", args.paper_runs), ("random", args.random_runs)):
         if stop.requested:
@@ -810,7 +806,7 @@ def evaluate_agent(
                 f"interrupted before evaluating on the {scenario} scenario; the trained agent "
                 f"is {agent_dir} (python -m imm_gym.evaluate --policy {agent_dir} ...)"
             )
-        rules = admitted_rules({"scenario": scenario, **env_config})
+        rules = admitted_rules(evaluated_config(scenario, env_config))
         results, rollouts = evaluate(
             (*BASELINES_COMPARED, *rules),
             scenario,
@@ -830,16 +826,14 @@ def evaluate_agent(
     return out
 
 
-def admitted_rules(overrides: dict[str, Any]) -> tuple[str, ...]:
-    """The rules of :data:`DETECTOR_RULES` whose configuration the tracker ``overrides``
-    admits (their detector needs a linear bank; the learned one, distinct turn rates and as many
-    models as its network)."""
+def admitted_rules(base: Any) -> tuple[str, ...]:
+    """The rules of :data:`DETECTOR_RULES` whose configuration the evaluated ``base`` (an
+    EnvConfig) admits (their detector needs a linear bank; the learned one, distinct turn rates
+    and as many models as its network)."""
     from baselines.turn_rate_prior import TurnRatePrior
     from imm_gym.evaluation.rollout import evaluation_config
-    from imm_gym.sim.env_config import EnvConfig
     from imm_gym.validation import ConfigError
 
-    base = EnvConfig.build(overrides)
     admitted = []
     for name, detector in zip(DETECTOR_RULES, ("turn_rate", "learned"), strict=True):
         try:

@@ -85,6 +85,7 @@ from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.sim.features import bounds
+from imm_gym.sim.mixture import AGENT_FIELDS
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError, from_dict
@@ -193,15 +194,18 @@ def evaluate(
     default, changes nothing: EnvConfig's bank or the file's); ``hetero`` has no clairvoyant
     filter, said in the results. ``env_config``: EnvConfig overrides (a configuration file's,
     :func:`~imm_gym.sim.config_file.read_env_config`) every policy runs on, ``scenario``
-    replacing theirs. Trained agents (``extra`` and paths) are checked against it before any
-    work (:func:`agent_overrides`). The clairvoyant row is labelled a bound or a reference, or
-    skipped with the reason (:func:`clairvoyant_bound`). ``make_core``: builds the core of each
-    roll-out (:func:`~imm_gym.evaluation.rollout.rollout`; ``--ray``: a
+    replacing theirs; what an agent is trained as (:data:`~imm_gym.sim.mixture.AGENT_FIELDS`:
+    action mode, features, reward) is each policy's own and is dropped from it, a detector
+    network it names kept (the rules' learned detector). Trained agents (``extra`` and paths)
+    are checked against it before any work (:func:`agent_overrides`). The clairvoyant row is
+    labelled a bound or a reference, or skipped with the reason (:func:`clairvoyant_bound`).
+    ``make_core``: builds the core of each roll-out
+    (:func:`~imm_gym.evaluation.rollout.rollout`; ``--ray``: a
     :class:`~imm_gym.evaluation.distributed.ShardPool`'s, the same numbers).
     """
     if bank not in BANKS:
         raise ConfigError(f"--bank must be one of {list(BANKS)}, got {bank!r}")
-    base = EnvConfig.build({**(env_config or {}), **BANKS[bank], "scenario": scenario})
+    base = evaluated_config(scenario, env_config, bank)
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {list(policies)}")
     agents = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
@@ -254,6 +258,17 @@ def evaluate(
         "versions": _versions(),
     }
     return results, rollouts
+
+
+def evaluated_config(
+    scenario: Any, env_config: Mapping[str, Any] | None = None, bank: str = "paper"
+) -> EnvConfig:
+    """The configuration every policy of :func:`evaluate` runs on: ``env_config`` without what an
+    agent is trained as (:data:`~imm_gym.sim.mixture.AGENT_FIELDS`; a detector network it names
+    kept), ``bank``'s preset over it, at ``scenario``."""
+    dropped = set(AGENT_FIELDS) - {"detector_weights"}
+    shared = {k: v for k, v in (env_config or {}).items() if k not in dropped}
+    return EnvConfig.build({**shared, **BANKS[bank], "scenario": scenario})
 
 
 def agent_overrides(

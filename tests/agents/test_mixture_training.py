@@ -10,6 +10,7 @@ import pytest
 
 import train
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
+from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.mixture import AGENT_FIELDS, MixtureCore
 from imm_gym.sim.presets import BANK_PRESETS
 
@@ -81,7 +82,8 @@ def test_train_py_evaluates_an_agent_of_a_configuration_file_against_every_rule(
         assert learned["evaluated_on"]["sensor"]["sigma_r"] == 50.0
     report = (tmp_path / "run" / "seed_0" / "report.md").read_text()
     assert "learned − learned-prior" in report and "learned − turn-rate-prior" in report
-    assert train.admitted_rules({"scenario": "random", **BANK_PRESETS["hetero"]}) == ()
+    hetero = EnvConfig.build({"scenario": "random", **BANK_PRESETS["hetero"]})
+    assert train.admitted_rules(hetero) == ()
 
 
 @pytest.mark.parametrize(

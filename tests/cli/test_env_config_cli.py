@@ -5,12 +5,14 @@ before any work; trained agents evaluated on another tracker are reported, unrea
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import imm_gym.cli.evaluate as cli
 from imm_gym.cli.evaluate import evaluate, main
+from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
 
 SENSOR_FILE = "scenario: paper\nsensor: {sigma_r: 10.0, sigma_theta_deg: 0.02}\n"
@@ -180,3 +182,14 @@ def test_an_agent_starts_its_tracks_as_the_rules_do() -> None:
     _, rollouts = evaluate(["fixed"], "paper", 3, 0, extra={"zero": (Zero(), recorded)},
                            clairvoyant=False)
     np.testing.assert_array_equal(rollouts["zero"].estimate, rollouts["fixed"].estimate)
+
+
+def test_a_file_with_an_agent_s_settings_evaluates_every_policy_on_its_tracker() -> None:
+    """``examples/across_trackers.yaml`` says what the default agent is trained as too (the
+    evidence's base, its features, its reward): the rules run on its tracker and targets in
+    their own modes, not in the agent's."""
+    overrides = read_env_config(Path(__file__).parents[2] / "examples" / "across_trackers.yaml")
+    results, rollouts = evaluate(["fixed", "best-fixed"], "random", 2, 0, clairvoyant=False,
+                                 env_config=overrides)
+    assert set(rollouts) == {"fixed", "best-fixed"}
+    assert np.isfinite(results["policies"]["fixed"]["armse_pos"])
