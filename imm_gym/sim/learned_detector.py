@@ -220,11 +220,14 @@ class LearnedDetector:
         """``(N, window * (2 M + 2))`` the network's input: each slot's window, flattened."""
         return self.window.reshape(self.window.shape[0], -1)
 
-    def _believe(self) -> Array:
+    def _believe(self, inputs: Array) -> Array:
+        """The belief of the windows ``inputs (n, window * (2 M + 2))``, models in the bank's
+        order (uniform without a network)."""
+        M = self.belief.shape[1]
         if self.network is None:
-            return np.full(self.belief.shape, 1.0 / self.belief.shape[1])
-        belief = np.empty(self.belief.shape)
-        belief[:, self.order] = self.network(self.inputs())
+            return np.full((len(inputs), M), 1.0 / M)
+        belief = np.empty((len(inputs), M))
+        belief[:, self.order] = self.network(inputs)
         return belief
 
     def start(
@@ -238,7 +241,7 @@ class LearnedDetector:
         self.velocity = self.velocity.copy()
         self.velocity[indices] = np.einsum("rm,rmi->ri", init.mu, init.x)[:, 2:4]
         self.belief = self.belief.copy()
-        self.belief[indices] = self._believe()[indices]
+        self.belief[indices] = self._believe(self.inputs()[indices])
 
     def step(
         self, z: Array, detected: NDArray[np.bool_], fallback: IMMState, T: Array
@@ -257,7 +260,7 @@ class LearnedDetector:
         record = step_features(self.batch.state.mu[:, o], out.loglik[:, o], out.nis, rate,
                                self.scale)
         self.window = np.concatenate([self.window[:, 1:], record[:, None]], axis=1)
-        self.belief = self._believe()
+        self.belief = self._believe(self.inputs())
 
     def snapshot(self) -> tuple[IMMState, Array, Array, Array]:
         """The detector's state (arrays are replaced, never written, by a step)."""

@@ -31,8 +31,9 @@ expresses (the ``best-fixed-rows`` baseline's family). The stays are then per ro
 :math:`\sigma(\sum_k w_k \operatorname{logit} s_{k,i})` and :math:`s_{\arg\max_k E_k, i}`.
 
 With ``EnvConfig.detector_share`` each IMM runs the prior of :func:`detector_tpm_rows` at its
-stay instead of :math:`\Pi_s`: its jumps placed partly by the slot's maneuver detector (the
-shadow IMM's mode probabilities), the priors the ``stay`` action then moves between.
+stay instead of :math:`\Pi_s`: its jumps placed partly by the slot's maneuver detector
+(``EnvConfig.detector``: the shadow IMM's mode probabilities, the turn-rate interpolation or
+the learned belief), the priors the ``stay`` action then moves between.
 
 The bank also gives an accuracy no action moves (:meth:`StayBank.position_error`): the position
 errors of its IMMs weighted by the evidence the step's ``stay`` base was computed from,
