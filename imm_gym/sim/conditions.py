@@ -1,5 +1,6 @@
 """Tracking conditions drawn per episode: sampling period, sensor noise, outliers, detections,
-target speed and the bank's process-noise tuning.
+target speed and the bank's process-noise tuning (overall, and of the maneuver models against
+the first).
 
 A policy that has to work on someone else's tracker must see more than one sensor and one
 sampling period. :class:`Variation` gives each condition a range in the configuration
@@ -43,6 +44,7 @@ DRAWS: dict[str, str] = {
     "detection_prob": "uniform",
     "speed": "log",
     "q_scale": "log",
+    "q_maneuver": "log",
     "velocity_std": "log",
 }
 #: Each condition's allowed range (the sensor's own checks apply to a drawn sensor too).
@@ -55,10 +57,11 @@ LIMITS: dict[str, tuple[float, float]] = {
     "detection_prob": (0.0, 1.0),
     "speed": (0.0, math.inf),
     "q_scale": (0.0, math.inf),
+    "q_maneuver": (0.0, math.inf),
     "velocity_std": (0.0, math.inf),
 }
 #: The conditions that are not the sensor's fields.
-NOT_SENSOR = ("T", "speed", "q_scale", "velocity_std")
+NOT_SENSOR = ("T", "speed", "q_scale", "q_maneuver", "velocity_std")
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,11 @@ class Variation:
         q_scale: factor on every model's process noise (its ``q`` or ``intensity``,
             :meth:`~imm_gym.tracking.models.MotionModel.scaled`), log-uniform: trackers tuned
             tighter or looser than the configured bank.
+        q_maneuver: a further factor on the process noise of every model but the first (the
+            maneuver models of the built-in banks, whose first is CV), log-uniform: banks whose
+            maneuver models are tuned looser or tighter against straight flight than the
+            configured one (the CT models of ``atc`` and ``vsmm-s1..s3`` carry 10-20 times the
+            CV model's noise intensity, the paper's half of it).
         share: the share of episodes that draw their conditions (each decides by one uniform
             draw first); the others keep the configured tracker and target ranges, so that a
             training mixture keeps the configured tracker beside the varied ones (1: every
@@ -98,6 +106,7 @@ class Variation:
     detection_prob: tuple[float, float] | None = None
     speed: tuple[float, float] | None = None
     q_scale: tuple[float, float] | None = None
+    q_maneuver: tuple[float, float] | None = None
     velocity_std: tuple[float, float] | None = None
     share: float = 1.0
 
@@ -151,7 +160,7 @@ class Variation:
 
 @dataclass(frozen=True)
 class Conditions:
-    """Each run's sampling period, sensor, target speed, process-noise factor and track start.
+    """Each run's sampling period, sensor, target speed, process-noise factors and track start.
 
     Attributes:
         T: ``(R,)`` sampling periods (s).
@@ -159,6 +168,8 @@ class Conditions:
         speed: ``(R,)`` target speeds (m/s; NaN for a run that keeps the source's range), or
             None where no run varies it.
         q_scale: ``(R,)`` factors on the bank's process noise (1 where not varied).
+        q_maneuver: ``(R,)`` further factors on the process noise of every model but the first
+            (1 where not varied).
         velocity_std: ``(R,)`` prior standard deviations of the first velocity estimate
             (m/s; the configured one where not varied).
     """
@@ -167,6 +178,7 @@ class Conditions:
     sensors: tuple[Any, ...]
     speed: Array | None
     q_scale: Array
+    q_maneuver: Array
     velocity_std: Array
 
     @property
@@ -181,6 +193,7 @@ class Conditions:
             tuple(self.sensors[r] for r in rows.tolist()),
             None if self.speed is None else self.speed[rows],
             self.q_scale[rows],
+            self.q_maneuver[rows],
             self.velocity_std[rows],
         )
 
@@ -196,6 +209,7 @@ def draw_conditions(
     with the varied values drawn from each (:meth:`Variation.draw`)."""
     R = len(rngs)
     periods, speeds, q_scale = np.full(R, float(T)), np.full(R, np.nan), np.ones(R)
+    q_maneuver = np.ones(R)
     spreads = np.full(R, float(velocity_std))
     sensors = []
     for r, rng in enumerate(rngs):
@@ -203,24 +217,30 @@ def draw_conditions(
         periods[r] = values.pop("T", T)
         speeds[r] = values.pop("speed", np.nan)
         q_scale[r] = values.pop("q_scale", 1.0)
+        q_maneuver[r] = values.pop("q_maneuver", 1.0)
         spreads[r] = values.pop("velocity_std", velocity_std)
         sensors.append(dataclasses.replace(sensor, **values) if values else sensor)  # type: ignore[type-var]
     speed = None if variation.speed is None else speeds
-    return Conditions(periods, tuple(sensors), speed, q_scale, spreads)
+    return Conditions(periods, tuple(sensors), speed, q_scale, q_maneuver, spreads)
 
 
 def bank_constants(
-    models: Sequence[MotionModel], T: Array, q_scale: Array
+    models: Sequence[MotionModel], T: Array, q_scale: Array, q_maneuver: Array | None = None
 ) -> tuple[Array, Array]:
     """Per-run transition matrices and process noise of a linear bank, ``F (R, M, n, n)`` and
     ``Q (R, M, n, n)``: ``F_j(T_r)`` and the noise ``Q_j(T_r)`` of model ``j`` scaled by
-    ``q_scale[r]`` (:meth:`MotionModel.transition_matrix`, :meth:`MotionModel.noise_covariance`,
+    ``q_scale[r]``, and every model's but the first by ``q_maneuver[r]`` too (None: by 1)
+    (:meth:`MotionModel.transition_matrix`, :meth:`MotionModel.noise_covariance`,
     :meth:`MotionModel.scaled`)."""
     n = bank_dim(models)
+    q_maneuver = np.ones(len(T)) if q_maneuver is None else q_maneuver
     F = np.stack([np.stack([m.transition_matrix(t, n) for m in models]) for t in T])
     Q = np.stack([
-        np.stack([(m if s == 1.0 else m.scaled(s)).noise_covariance(n, t) for m in models])
-        for t, s in zip(T, q_scale, strict=True)
+        np.stack([
+            (m if f == 1.0 else m.scaled(f)).noise_covariance(n, t)
+            for m, f in zip(models, [s] + [s * a] * (len(models) - 1), strict=True)
+        ])
+        for t, s, a in zip(T, q_scale, q_maneuver, strict=True)
     ])
     return F, Q
 

@@ -274,8 +274,10 @@ class TrackingCore:
 
     def _set_conditions(self, indices: NDArray[np.int64], conditions: Conditions) -> None:
         """The slots ``indices`` at their episodes' conditions: their ``F (M, n, n)``, ``Q`` for
-        their ``T`` and process-noise factor, their ``R``."""
-        F, Q = bank_constants(self.models, conditions.T, conditions.q_scale)
+        their ``T`` and process-noise factors, their ``R``."""
+        F, Q = bank_constants(
+            self.models, conditions.T, conditions.q_scale, conditions.q_maneuver
+        )
         self.kernel_args[0][indices] = F
         self.kernel_args[1][indices] = Q
         self.kernel_args[2][indices] = conditions.R

@@ -53,6 +53,8 @@ def broad_config(**changes: object) -> EnvConfig:
         ({"vary": {"sigma_r": (10.0, 50.0)}, "engine": "numpy"}, "vary needs engine"),
         ({"vary": {"speed": (5.0, 50.0)}, "scenario": "atc"}, "vary.speed needs scenario"),
         ({"vary": {"q_scale": (0.0, 5.0)}}, "vary.q_scale[0] must be in (0.0"),
+        ({"vary": {"q_maneuver": (0.0, 5.0)}}, "vary.q_maneuver[0] must be in (0.0"),
+        ({"vary": {"q_maneuver": (5.0, 1.0)}}, "vary.q_maneuver[1] must be in [5.0"),
         ({"vary": {"sigma_r": (10.0, 50.0)}, "bank": "hetero"},
          "vary (sigma_r) needs a linear bank"),
         ({"vary": {"velocity_std": (5.0, 20.0)}, "bank": "hetero"},
@@ -145,6 +147,42 @@ def test_each_slot_tracks_as_an_imm_built_for_its_own_conditions() -> None:
         )
         bank = [m.scaled(conditions.q_scale[i]) for m in CONTINUOUS_BANK]
         reference = IMM(bank, sensor, T=T, engine="numpy")
+        run = reference.run(
+            core.z[i, 1 : K + 1], stay_tpm(3, config.initial_stay), x0[i], P0[i],
+            detected=core.detected[i, 1 : K + 1],
+        )
+        np.testing.assert_allclose(estimates[i], run.x, rtol=1e-9, atol=1e-9)
+
+
+def test_a_maneuver_noise_factor_scales_every_model_but_the_first() -> None:
+    """``vary.q_maneuver``: slot i = the numpy reference IMM whose CV model carries slot i's
+    ``q_scale`` and whose CT models carry ``q_scale * q_maneuver``; the other conditions are
+    those drawn without it, bit for bit (it is drawn after them)."""
+    N, K = 4, 40
+    config = EnvConfig(
+        bank=CONTINUOUS_BANK, vary={**BROAD, "q_maneuver": (0.5, 50.0)}, shadow="none",
+        reward="error", p_min=1e-4,
+    )
+    core = TrackingCore(config, N)
+    seeds = list(range(200, 200 + N))
+    core.reset(np.arange(N), seeds)
+    x0, P0 = core.state_a.x[:, 0].copy(), core.state_a.P[:, 0].copy()
+    estimates = np.stack(
+        [core.step(np.zeros((N, 9))).info["estimate"] for _ in range(K)], axis=1
+    )
+    drawn = draw_conditions(config.vary, 1.0, config.sensor, [streams(s)[0] for s in seeds])
+    plain = draw_conditions(
+        Variation(**BROAD), 1.0, config.sensor, [streams(s)[0] for s in seeds]
+    )
+    np.testing.assert_array_equal(drawn.T, plain.T)
+    np.testing.assert_array_equal(drawn.q_scale, plain.q_scale)
+    assert np.all((drawn.q_maneuver >= 0.5) & (drawn.q_maneuver <= 50.0))
+    assert np.ptp(drawn.q_maneuver) > 1.0
+    for i in range(N):
+        cv, *ct = CONTINUOUS_BANK
+        s, a = drawn.q_scale[i], drawn.q_maneuver[i]
+        bank = [cv.scaled(s), *(m.scaled(s * a) for m in ct)]
+        reference = IMM(bank, drawn.sensors[i], T=float(drawn.T[i]), engine="numpy")
         run = reference.run(
             core.z[i, 1 : K + 1], stay_tpm(3, config.initial_stay), x0[i], P0[i],
             detected=core.detected[i, 1 : K + 1],
