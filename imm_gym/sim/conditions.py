@@ -225,15 +225,14 @@ def draw_conditions(
 
 
 def bank_constants(
-    models: Sequence[MotionModel], T: Array, q_scale: Array, q_maneuver: Array | None = None
+    models: Sequence[MotionModel], T: Array, q_scale: Array, q_maneuver: Array
 ) -> tuple[Array, Array]:
     """Per-run transition matrices and process noise of a linear bank, ``F (R, M, n, n)`` and
     ``Q (R, M, n, n)``: ``F_j(T_r)`` and the noise ``Q_j(T_r)`` of model ``j`` scaled by
-    ``q_scale[r]``, and every model's but the first by ``q_maneuver[r]`` too (None: by 1)
+    ``q_scale[r]``, and every model's but the first by ``q_maneuver[r]`` too
     (:meth:`MotionModel.transition_matrix`, :meth:`MotionModel.noise_covariance`,
     :meth:`MotionModel.scaled`)."""
     n = bank_dim(models)
-    q_maneuver = np.ones(len(T)) if q_maneuver is None else q_maneuver
     F = np.stack([np.stack([m.transition_matrix(t, n) for m in models]) for t in T])
     Q = np.stack([
         np.stack([
