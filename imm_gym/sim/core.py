@@ -35,6 +35,7 @@ from imm_gym.sim.rewards import REWARD_TERMS, Reward
 from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
+from imm_gym.tracking.models import velocity_noise
 from imm_gym.tracking.tpm import stay_tpm_rows, validate_tpm
 from imm_gym.validation import ConfigError
 
@@ -140,6 +141,13 @@ class TrackingCore:
         self.obs_dim = self.obs_low.size
         #: ``(N,)`` each slot's sampling period (s)
         self.sampling_period = np.full(n_envs, float(config.source.T))
+        #: ``(N, M)`` each slot's per-model RMS velocity process noise per step (m/s), from its
+        #: ``Q`` (NaN for a heterogeneous bank, whose noise depends on the state)
+        self.velocity_noise = np.full((n_envs, M), np.nan) if not isinstance(
+            config.bank, tuple
+        ) else np.repeat(velocity_noise(np.stack(
+            [m.noise_covariance(self.n, T) for m in config.bank]
+        ))[None], n_envs, axis=0)
         #: ``(N,)`` RMS position accuracy of each slot's first measurement, ``sqrt(tr P0_pos / 2)``
         self.position_accuracy = np.ones(n_envs)
         N, K, m = n_envs, self.horizon, config.sensor.dim_z
@@ -283,6 +291,8 @@ class TrackingCore:
         self.kernel_args[2][indices] = conditions.R
         self.sampling_period = self.sampling_period.copy()
         self.sampling_period[indices] = conditions.T
+        self.velocity_noise = self.velocity_noise.copy()
+        self.velocity_noise[indices] = velocity_noise(Q)
         if self.config.sojourn is not None and self.config.vary.T is not None:
             for i, T in zip(indices, conditions.T, strict=True):
                 self.fixed_tpms[i] = self.config.initial_tpm(T)

@@ -339,6 +339,11 @@ class EnvConfig:
                 raise ConfigError(f"obs_features {f!r} needs parallel=True")
             if FEATURES[f].needs_shadow and self.shadow == "none":
                 raise ConfigError(f"obs_features {f!r} needs shadow 'fixed'")
+            if FEATURES[f].needs_linear_bank and not isinstance(self.bank, tuple):
+                raise ConfigError(
+                    f"obs_features {f!r} needs a linear bank (the models' Q), got a "
+                    "heterogeneous one"
+                )
         store(self, "obs_features", features)
         for name in ("loglik_clip", "velocity_std", "divergence_error", "divergence_cov"):
             store(self, name, check_range(name, getattr(self, name), 0.0, lo_open=True))

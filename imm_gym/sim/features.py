@@ -36,6 +36,8 @@ EMA_FACTORS = (0.7, 0.9)
 #: Factors of the ``turn_magnitude_ema`` memory (about 10 and 33 steps): gentle and sharp turners
 #: want different TPMs (a looser one for turn rates well below the bank's).
 MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
+#: Smallest tracking index the ``tracking_index`` feature resolves (its -1); its 1 is the inverse.
+TRACKING_INDEX_FLOOR = 1e-4
 #: Speed (m/s) that the ``speed`` feature maps to 1.
 SPEED_SCALE = 30.0
 #: Factors of the ``shadow_evidence`` memory (about 10 and 33 steps).
@@ -78,6 +80,7 @@ class StepView(Protocol):
     stay_bank_evidence: Array  # (N, S) the stay bank's evidence minus the best (nats)
     detector_belief: Array  # (N, M) the maneuver detector's belief for the coming step
     sampling_period: Array  # (N,) each slot's T (s)
+    velocity_noise: Array  # (N, M) each model's RMS velocity process noise per step (m/s)
     position_accuracy: Array  # (N,) RMS position accuracy of the slot's first measurement (m)
     memories: dict[str, Array]  # each memory feature's state
 
@@ -112,6 +115,8 @@ class Feature:
         needs_parallel: computed from bank B (needs ``parallel=True``).
         needs_stay_bank: computed from the stay bank (:mod:`imm_gym.sim.stay_bank`; the core
             runs it when an observed feature needs it).
+        needs_linear_bank: computed from the models' ``Q`` (a linear bank's, not the
+            heterogeneous bank's state-dependent noise).
         memory: the state it keeps across steps, if any.
     """
 
@@ -125,6 +130,7 @@ class Feature:
     needs_shadow: bool = False
     needs_parallel: bool = False
     needs_stay_bank: bool = False
+    needs_linear_bank: bool = False
     memory: Memory | None = None
 
 
@@ -177,6 +183,7 @@ def datasheet_table() -> str:
             " [shadow]" if f.needs_shadow
             else " [parallel]" if f.needs_parallel
             else " [stay bank]" if f.needs_stay_bank
+            else " [linear bank]" if f.needs_linear_bank
             else ""
         )
         rows.append(
@@ -238,6 +245,19 @@ def maneuver_snr(view: StepView) -> Array:
     T = view.sampling_period
     offset = speed * bank_turn_rate(view.config.bank) * T * T / (2.0 * view.position_accuracy)
     return np.clip(np.log10(np.maximum(offset, 1e-3)) / 3.0, -1.0, 1.0)
+
+
+def tracking_index(view: StepView) -> Array:
+    r"""``(N, M)`` each model's tracking index (Kalata 1984) on a log scale: the position spread
+    one step of the model's process noise causes, in units of the measurement accuracy,
+    :math:`\lambda_j = \sigma_{v,j} T / \sigma_p`, with :math:`\sigma_{v,j}^2` the mean of
+    ``Q_j``'s velocity variances (``q T`` for white-noise acceleration of intensity ``q``, so
+    :math:`\lambda_j = \sqrt{q_j T^3} / \sigma_p`), as :math:`\log_{10}\lambda_j / 4` clipped to
+    [-1, 1]. How the tracker is tuned against its sensor, model by model: the differences
+    between entries are the maneuver models' noise against the first model's."""
+    index = view.velocity_noise * (view.sampling_period / view.position_accuracy)[:, None]
+    floor = TRACKING_INDEX_FLOOR
+    return np.clip(np.log10(np.maximum(index, floor)) / -np.log10(floor), -1.0, 1.0)
 
 
 def shadow_evidence_step(view: StepView) -> Array:
@@ -407,6 +427,11 @@ register(Feature(
     "maneuver_snr", "log10 of a bank turn's one-step offset |v| ω T² / 2 over the measurement"
     " accuracy, / 3, clipped: how distinguishable the models are", lambda M, m: 1, -1.0, 1.0,
     lambda v: maneuver_snr(v)[:, None], size_label="1",
+))
+register(Feature(
+    "tracking_index", "each model's tracking index σ_v T / σ_p (RMS velocity process noise per"
+    " step times T over the measurement accuracy), log10 / 4, clipped: how the tracker is tuned",
+    lambda M, m: M, -1.0, 1.0, tracking_index, size_label="M", needs_linear_bank=True,
 ))
 register(Feature(
     "shadow_evidence", "discounted sums of the measurements' log-likelihood under the shadow"

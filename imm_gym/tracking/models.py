@@ -369,3 +369,10 @@ def paper_bank(turn_rate_deg: float = 4.0, ct_q_scale: float = 0.5) -> tuple[Mot
 def bank_dim(models: tuple[MotionModel, ...] | list[MotionModel]) -> int:
     """State dimension of a bank: 6 if any model is CA, else 4."""
     return max(m.dim for m in models)
+
+
+def velocity_noise(Q: Array) -> Array:
+    r"""RMS velocity process noise per step of ``Q (..., n, n)`` (m/s):
+    :math:`\sqrt{(Q_{v_x v_x} + Q_{v_y v_y}) / 2}` (``sqrt(q T)`` for white-noise acceleration
+    of intensity ``q``)."""
+    return np.sqrt(0.5 * (Q[..., 2, 2] + Q[..., 3, 3]))

@@ -6,12 +6,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import TURN_RATE_SCALE, bank_turn_rate
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.models import MotionModel
+from imm_gym.validation import ConfigError
 
 FEATURES = ("turn_rate_bank", "shadow_turn_rate_bank", "turn_magnitude_bank_ema", "maneuver_snr")
 
@@ -49,3 +51,20 @@ def test_the_features_by_hand() -> None:
             np.clip(own, -2, 2) / 2, np.clip(shadow, -2, 2) / 2, magnitude, snr
         ])
         np.testing.assert_allclose(obs[:, 6:], expected, rtol=1e-5, atol=1e-6)
+
+
+def test_the_tracking_index_of_a_bank_with_per_step_noise() -> None:
+    """The paper bank's ``Q`` is per step: velocity variances 0.12 (CV) and 0.06 (CT) at
+    T = 1 s, whatever the sensor; the index is their root over the first measurement's
+    accuracy."""
+    core = TrackingCore(EnvConfig(obs_features=("tracking_index",)), 4)
+    core.reset(np.arange(4), list(range(4)))
+    obs = core.step(np.zeros((4, 9))).obs[:, 6:]
+    sigma_v = np.sqrt([0.12, 0.06, 0.06])
+    expected = np.log10(sigma_v[None] / core.position_accuracy[:, None]) / 4
+    np.testing.assert_allclose(obs, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_the_tracking_index_needs_a_linear_bank() -> None:
+    with pytest.raises(ConfigError, match="'tracking_index' needs a linear bank"):
+        EnvConfig(**BANK_PRESETS["hetero"], obs_features=("tracking_index",))

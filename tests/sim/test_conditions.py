@@ -310,3 +310,27 @@ def test_a_varied_track_start_draws_last_and_spreads_the_first_velocity_estimate
 def test_a_varied_track_start_must_be_a_positive_range() -> None:
     with pytest.raises(ConfigError, match=r"vary.velocity_std\[0\] must be in \(0.0"):
         Variation(velocity_std=(0.0, 10.0))
+
+
+def test_the_tracking_index_follows_each_slots_drawn_tracker() -> None:
+    """``tracking_index`` by hand: for white-noise acceleration of intensity ``q_j`` the velocity
+    variance per step is ``q_j T``, so the index is ``sqrt(q_j T³) / σ_p``, with CV's ``q`` times
+    the slot's ``q_scale`` and the CT models' times ``q_scale * q_maneuver`` too."""
+    N = 6
+    config = EnvConfig(
+        bank=CONTINUOUS_BANK, vary={**BROAD, "q_maneuver": (0.5, 50.0)},
+        obs_features=("tracking_index",),
+    )
+    core = TrackingCore(config, N)
+    seeds = list(range(300, 300 + N))
+    core.reset(np.arange(N), seeds)
+    obs = core.step(np.zeros((N, 9))).obs[:, 6:]
+    drawn = draw_conditions(config.vary, 1.0, config.sensor, [streams(s)[0] for s in seeds])
+    q = np.array([m.intensity for m in CONTINUOUS_BANK])
+    a = drawn.q_maneuver
+    factors = drawn.q_scale[:, None] * np.column_stack([np.ones(N), a, a])
+    index = np.sqrt(q * factors * drawn.T[:, None] ** 3) / core.position_accuracy[:, None]
+    assert np.all(np.abs(obs) < 1.0)  # inside the clip
+    np.testing.assert_allclose(obs, np.log10(index) / 4, rtol=1e-5, atol=1e-6)
+    ratio = obs[:, 1] - obs[:, 0]  # the maneuver models' noise against CV's, per slot
+    np.testing.assert_allclose(ratio, np.log10(np.sqrt(0.5 * a)) / 4, rtol=1e-4, atol=1e-6)
