@@ -141,13 +141,12 @@ class TrackingCore:
         self.obs_dim = self.obs_low.size
         #: ``(N,)`` each slot's sampling period (s)
         self.sampling_period = np.full(n_envs, float(config.source.T))
+        noise = velocity_noise(np.stack(
+            [m.noise_covariance(self.n, T) for m in config.bank]
+        )) if isinstance(config.bank, tuple) else np.full(M, np.nan)
         #: ``(N, M)`` each slot's per-model RMS velocity process noise per step (m/s), from its
         #: ``Q`` (NaN for a heterogeneous bank, whose noise depends on the state)
-        self.velocity_noise = np.full((n_envs, M), np.nan) if not isinstance(
-            config.bank, tuple
-        ) else np.repeat(velocity_noise(np.stack(
-            [m.noise_covariance(self.n, T) for m in config.bank]
-        ))[None], n_envs, axis=0)
+        self.velocity_noise = np.repeat(noise[None], n_envs, axis=0)
         #: ``(N,)`` RMS position accuracy of each slot's first measurement, ``sqrt(tr P0_pos / 2)``
         self.position_accuracy = np.ones(n_envs)
         N, K, m = n_envs, self.horizon, config.sensor.dim_z
