@@ -36,8 +36,10 @@ EMA_FACTORS = (0.7, 0.9)
 #: Factors of the ``turn_magnitude_ema`` memory (about 10 and 33 steps): gentle and sharp turners
 #: want different TPMs (a looser one for turn rates well below the bank's).
 MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
-#: Smallest tracking index the ``tracking_index`` feature resolves (its -1); its 1 is the inverse.
-TRACKING_INDEX_FLOOR = 1e-4
+#: Decades either side of 1 that the ``maneuver_snr`` and ``tracking_index`` features resolve
+#: (:func:`log_decades`).
+MANEUVER_SNR_DECADES = 3.0
+TRACKING_INDEX_DECADES = 4.0
 #: Speed (m/s) that the ``speed`` feature maps to 1.
 SPEED_SCALE = 30.0
 #: Factors of the ``shadow_evidence`` memory (about 10 and 33 steps).
@@ -235,6 +237,12 @@ def shadow_turn_rate_bank(view: StepView) -> Array:
     return rate / bank_turn_rate(view.config.bank)
 
 
+def log_decades(x: Array, decades: float) -> Array:
+    r"""A positive ratio on a log scale, :math:`\log_{10} x / d` clipped to [-1, 1]: ``d``
+    decades either side of 1 resolved."""
+    return np.clip(np.log10(np.maximum(x, 10.0**-decades)) / decades, -1.0, 1.0)
+
+
 def maneuver_snr(view: StepView) -> Array:
     r"""``(N,)`` how far a turn at the bank's rate moves the target off a straight line in one
     step, in units of the measurement accuracy, on a log scale:
@@ -244,7 +252,7 @@ def maneuver_snr(view: StepView) -> Array:
     speed = np.hypot(view.velocity[:, 0], view.velocity[:, 1])
     T = view.sampling_period
     offset = speed * bank_turn_rate(view.config.bank) * T * T / (2.0 * view.position_accuracy)
-    return np.clip(np.log10(np.maximum(offset, 1e-3)) / 3.0, -1.0, 1.0)
+    return log_decades(offset, MANEUVER_SNR_DECADES)
 
 
 def tracking_index(view: StepView) -> Array:
@@ -256,8 +264,7 @@ def tracking_index(view: StepView) -> Array:
     [-1, 1]. How the tracker is tuned against its sensor, model by model: the differences
     between entries are the maneuver models' noise against the first model's."""
     index = view.velocity_noise * (view.sampling_period / view.position_accuracy)[:, None]
-    floor = TRACKING_INDEX_FLOOR
-    return np.clip(np.log10(np.maximum(index, floor)) / -np.log10(floor), -1.0, 1.0)
+    return log_decades(index, TRACKING_INDEX_DECADES)
 
 
 def shadow_evidence_step(view: StepView) -> Array:
