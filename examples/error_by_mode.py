@@ -11,11 +11,17 @@ code on the same runs of each scenario of the benchmark suite (common random num
 * the median over those steps of each row's stay probability :math:`\\pi_{ii}` of the TPM the
   step used: how sticky the policy keeps each model while the target flies straight or turns.
 
+``--window N`` adds, per scenario, the same over the episode's time: for each window of ``N``
+steps, each policy's ARMSE over the window's steps (the mean over them of the RMS error over
+runs, so the windows average back to the ARMSE), the true motion of the window's steps, and the
+median stay of the first model (straight flight in the built-in banks): where in the episode a
+policy gains or loses, say at a maneuver's onset or on a long straight leg.
+
 ``--zero DIR`` adds a trained agent's zero action (its settings, the action all zeros): the TPM
 its ``stay`` action moves from, so the table shows what the policy adds to its base::
 
     python examples/error_by_mode.py --policy best-fixed --policy pretrained \\
-        --zero agents/pretrained --runs 100 --seed 0
+        --zero agents/pretrained --runs 100 --seed 0 [--window 10]
 """
 
 from __future__ import annotations
@@ -61,11 +67,32 @@ def by_mode(run: Rollout) -> dict[str, Any]:
     return {"armse": armse_from_squared(error), "rms": rms, "stays": median}
 
 
+def by_time(run: Rollout, window: int) -> dict[str, Any]:
+    """``{"start" (W,), "armse" (W,), "steps" (W, M), "stay" (W,)}`` over windows of
+    ``window`` steps (the last may be shorter): each window's first step, the ARMSE over its
+    steps :math:`\\operatorname{mean}_{k \\in w} \\sqrt{\\operatorname{mean}_r e_{rk}^2}`,
+    the count of its (run, step) pairs whose true model is each model, and the median of the
+    first row's stay :math:`\\pi_{11}` over all its (run, step) pairs."""
+    rms = np.sqrt(run.squared_position_error.mean(axis=0))
+    stay = np.diagonal(run.tpm, axis1=-2, axis2=-1)[..., 0]
+    M = run.tpm.shape[-1]
+    starts = np.arange(0, rms.shape[0], window)
+    return {
+        "start": starts,
+        "armse": np.array([rms[a:a + window].mean() for a in starts]),
+        "steps": np.stack([np.bincount(run.true_model[:, a:a + window].ravel(), minlength=M)
+                           for a in starts]),
+        "stay": np.array([np.median(stay[:, a:a + window]) for a in starts]),
+    }
+
+
 def score(
-    policies: Sequence[str], zero: Sequence[str], scenarios: Sequence[str], runs: int, seed: int
+    policies: Sequence[str], zero: Sequence[str], scenarios: Sequence[str], runs: int, seed: int,
+    window: int = 0,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """``{scenario: {policy: by_mode(...)}}`` on runs ``seed .. seed + runs - 1`` of each
-    scenario's suite configuration; ``zero``'s agents as ``"zero of DIR"``."""
+    scenario's suite configuration; ``zero``'s agents as ``"zero of DIR"``; with ``window > 0``
+    each entry also holds ``"time"``, :func:`by_time` of that window."""
     configs = suite_configs("benchmark")
     extra = {}
     for path in zero:
@@ -78,6 +105,9 @@ def score(
         _, rollouts = evaluate(list(policies), config.get("scenario", "random"), runs, seed,
                                clairvoyant=False, extra=extra, env_config=config)
         results[name] = {policy: by_mode(run) for policy, run in rollouts.items()}
+        if window > 0:
+            for policy, run in rollouts.items():
+                results[name][policy]["time"] = by_time(run, window)
     return results
 
 
@@ -90,9 +120,14 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="a scenario of the benchmark suite (repeatable; default: all)")
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--window", type=int, default=0, metavar="N",
+                   help="also the ARMSE and the first model's stay over windows of N steps")
     args = p.parse_args(argv)
+    if args.window < 0:
+        p.error(f"--window must be a number of steps >= 1 (0: no time table), got {args.window}")
     scenarios = args.scenario or list(suite_configs("benchmark"))
-    results = score(args.policy or ["best-fixed"], args.zero, scenarios, args.runs, args.seed)
+    results = score(args.policy or ["best-fixed"], args.zero, scenarios, args.runs, args.seed,
+                    args.window)
     print("| scenario | policy | ARMSE (m) | RMS error on each true model (m) "
           "| median stays (row 1..M) on each true model |")
     print("|---|---|---|---|---|")
@@ -104,6 +139,25 @@ def main(argv: Sequence[str] | None = None) -> None:
                 for row in r["stays"]
             )
             print(f"| {name} | {policy} | {r['armse']:.2f} | {rms} | {stays} |")
+    if args.window > 0:
+        for name, policies in results.items():
+            print_time_table(name, policies)
+
+
+def print_time_table(name: str, policies: dict[str, dict[str, Any]]) -> None:
+    """One scenario's :func:`by_time` table: a row per window, each policy's ARMSE / first
+    stay."""
+    first = next(iter(policies.values()))["time"]
+    print(f"\n{name}: ARMSE (m) / median stay of the first model, by window of the episode\n")
+    print("| steps | true model (run-steps per model) | " + " | ".join(policies) + " |")
+    print("|---" * (2 + len(policies)) + "|")
+    for w, start in enumerate(first["start"]):
+        end = first["start"][w + 1] if w + 1 < len(first["start"]) else None
+        span = f"{start}–{end - 1}" if end is not None else f"{start}–"
+        cells = " | ".join(f"{p['time']['armse'][w]:.2f} / {p['time']['stay'][w]:.3f}"
+                           for p in policies.values())
+        steps = " ".join(str(c) for c in first["steps"][w])
+        print(f"| {span} | {steps} | {cells} |")
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ squared error, a fixed TPM's stays are its stay, and an agent's zero action is i
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from helpers import load_example
 
 from imm_gym.cli.evaluate import evaluate, suite_configs
@@ -39,3 +40,31 @@ def test_an_agents_zero_action_is_its_base_tpm() -> None:
     assert np.all((rows > 1 / 3) & (rows < 0.999))
     assert not np.allclose(agent["stays"][seen], rows)
     assert np.isnan(zero["rms"][2]) and np.all(np.isfinite(zero["rms"][:2]))
+
+
+def test_the_windows_average_back_to_the_armse_and_count_every_step() -> None:
+    example = load_example("error_by_mode")
+    config = suite_configs("benchmark")["paper"]
+    _, rollouts = evaluate(["fixed"], "paper", 5, 11, clairvoyant=False, env_config=config)
+    run = rollouts["fixed"]
+    R, K = run.true_model.shape
+    window = 40  # 150 steps: three windows of 40 and one of 30
+    time = example.by_time(run, window)
+    lengths = np.diff(np.append(time["start"], K))
+    assert lengths.tolist() == [40, 40, 40, 30]
+    np.testing.assert_allclose(
+        np.sum(lengths * time["armse"]) / K, armse_from_squared(run.squared_position_error),
+        rtol=1e-12,
+    )
+    assert time["steps"].sum(axis=1).tolist() == (R * lengths).tolist()
+    np.testing.assert_array_equal(
+        time["steps"][-1], np.bincount(run.true_model[:, 120:].ravel(), minlength=3)
+    )
+    np.testing.assert_allclose(time["stay"], 0.995, rtol=1e-12)  # the classical IMM's TPM
+
+
+def test_a_window_below_one_step_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    example = load_example("error_by_mode")
+    with pytest.raises(SystemExit):
+        example.main(["--window", "-1"])
+    assert "--window must be" in capsys.readouterr().err
