@@ -1,0 +1,287 @@
+"""A stay chosen by supervision: a network that picks, every step, the switching prior whose
+IMM the coming steps favour.
+
+The stay bank (:mod:`imm_gym.sim.stay_bank`) runs beside each slot's tracker one IMM per stay
+``s`` of its grid (``1/M`` ... 0.995), each on the ``learned-prior`` rows at that stay::
+
+    Pi_s = r I + (1 - r) 1 q^T,   q = (1 - v) / M + v b,   r = (s - 1/M) / (1 - 1/M),
+
+``b`` the learned detector's belief, ``v`` the share. On the same measurements, their position
+errors ``e_s(k)`` are what every stay would have given, so the choice of stay can be learned by
+regression instead of from a reward. A network maps the observation before step ``k`` to each
+stay's discounted future squared error over the next ``H`` steps, relative to the stays' mean
+(scale-free across trackers and sensors)::
+
+    y_s(k) = log( sum_{d<H} g^d e_s(k+d) / sum_{d<H} g^d ) - mean_s'( ... ),
+
+and the policy sets every row to the stay of the smallest prediction — the ``stay`` action that
+gives ``Pi_s`` exactly from the uniform base (:func:`stay_action`). It is the ``learned-prior``
+rule with its stay chosen online by a network trained across trackers instead of searched on
+each tracker's own runs; the TPM stays a switching prior by construction.
+
+Training data: ``--episodes`` episodes spread evenly over the ``--env-config`` files, seeds from
+:data:`SELECTOR_SEED_BASE` (disjoint from every evaluation, validation and training seed). While
+collecting, each slot runs a random stay of the grid, redrawn with probability 1/30 per step, so
+the observations cover trackers steered by every stay; every ``--stride``-th step is kept. Then
+the selector is scored with the evaluation's own code (common random numbers, paired bootstrap
+CIs) beside ``best-fixed``, the shipped policy and ``learned-prior``::
+
+    python examples/stay_selector.py --env-config A.yaml B.yaml --episodes 100000 \\
+        --runs 100 --seed 0 [--scenario paper ...] [--off-suite FILE ...]
+
+(docs/experiments.md, "Where in the episode the agents lose, and a stay chosen by supervision").
+The fit is torch-seeded and the data seeded: the same arguments give the same numbers on one
+machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from imm_gym.cli.evaluate import evaluate, suite_configs
+from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
+from imm_gym.evaluation.rollout import armse_from_squared, paired_bootstrap
+from imm_gym.sim.config_file import read_env_config
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+
+Array = NDArray[np.float64]
+
+#: The selector's training episodes: seeds from ``2**60`` on, below the learned detector's
+#: (``2**61``) and above every evaluation, validation and SB3 training seed.
+SELECTOR_SEED_BASE = 1 << 60
+#: Logits per unit action of the ``stay`` action: 0.995 from the uniform base within reach.
+GAIN = 9.0
+#: Features the selector reads beyond a training file's: the tracker's tuning, and the belief
+#: its action is computed from (last, ``M`` entries).
+EXTRA_FEATURES = ("tracking_index", "detector_belief")
+#: The largest share: every ``q_i >= (1 - v) / M``, and from ``q_i`` the stay action reaches the
+#: grid's 0.995 within :data:`GAIN` logits only while ``(1 - v) / M`` is not much below 1/30.
+MAX_SHARE = 0.9
+#: Probability per step that a collecting slot redraws its stay.
+REDRAW = 1.0 / 30.0
+#: Episodes per collection batch.
+BATCH = 256
+
+
+def selector_overrides(
+    base: Mapping[str, Any], share: float, q_maneuver: Sequence[float] | None,
+    n_segments: Sequence[int] | None,
+) -> dict[str, Any]:
+    """A training file's overrides as the selector runs it: the ``stay`` action from the uniform
+    base, the learned detector leaning the share ``share`` of the jumps (of the stay bank's IMMs
+    too), :data:`EXTRA_FEATURES` observed; ``q_maneuver`` added to its ``vary`` and
+    ``n_segments`` to its ``family`` where given."""
+    out = dict(base)
+    features = [f for f in out.get("obs_features", ()) if f not in EXTRA_FEATURES]
+    out.update(action_mode="stay", stay_base="uniform", detector="learned",
+               detector_share=share, logit_scale=GAIN,
+               obs_features=(*features, *EXTRA_FEATURES))
+    if q_maneuver is not None:
+        out["vary"] = {**out.get("vary", {}), "q_maneuver": list(q_maneuver)}
+    if n_segments is not None:
+        out["family"] = {**out.get("family", {}), "n_segments": list(n_segments)}
+    return out
+
+
+def stay_action(stays: Array, belief: Array, share: float, gain: float = GAIN) -> Array:
+    """``(N, M)`` the ``stay`` action (uniform base, detector share ``share``) whose rows are
+    ``Pi_s`` of the module docstring: each row's diagonal ``r + (1 - r) q_i`` from the base's
+    ``q_i``, in logits over ``gain`` (the off-diagonal keeps ``q``'s proportions)."""
+    M = belief.shape[-1]
+    q = (1.0 - share) / M + share * belief
+    r = ((stays - 1.0 / M) / (1.0 - 1.0 / M))[:, None]
+    target = r + (1.0 - r) * q
+    logit = np.log(target) - np.log1p(-target) - (np.log(q) - np.log1p(-q))
+    return np.clip(logit / gain, -1.0, 1.0)
+
+
+def future_error(errors: Array, gamma: float, horizon: int) -> Array:
+    """``(R, K, S)`` targets ``y_s(k)`` of the module docstring from the squared errors
+    ``errors (R, K, S)`` (``errors[:, k]``: after step ``k``, the first the action before it
+    moves); the window is cut at the episode's end."""
+    K = errors.shape[1]
+    total = np.zeros(errors.shape)
+    weight = np.zeros((1, K, 1))
+    for d in range(min(horizon, K)):
+        total[:, : K - d] += gamma**d * errors[:, d:]
+        weight[:, : K - d] += gamma**d
+    y = np.log(total / weight + 1e-6)
+    return y - y.mean(axis=2, keepdims=True)
+
+
+def collect(
+    overrides: Mapping[str, Any], episodes: int, first_seed: int, rng: np.random.Generator,
+    gamma: float, horizon: int, stride: int,
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Observations and targets (:func:`future_error`) of ``episodes`` episodes of one
+    configuration, seeds ``first_seed ...``, every ``stride``-th step; episodes whose tracker
+    diverged are left out."""
+    config = EnvConfig.build(overrides)
+    n = min(BATCH, episodes)
+    core = TrackingCore(config, n)
+    grid = core.stay_bank.stays[:, 0]  # type: ignore[union-attr]
+    M, cap = core.M, config.divergence_error**2
+    X, Y = [], []
+    for start in range(0, episodes, n):
+        core.reset(np.arange(n), [first_seed + start + i for i in range(n)])
+        obs = core.observe()
+        K = core.horizon
+        pick = rng.integers(0, len(grid), n)
+        seen = np.zeros((n, K, obs.shape[1]), np.float32)
+        errors = np.zeros((n, K, len(grid)))
+        for k in range(K):
+            seen[:, k] = obs
+            pick = np.where(rng.random(n) < REDRAW, rng.integers(0, len(grid), n), pick)
+            action = stay_action(grid[pick], obs[:, -M:].astype(np.float64),
+                                 config.detector_share)
+            live = ~core.done
+            result = core.step(action) if live.all() else core.step(action, live)
+            truth = result.info["true_state"][:, None, :2]
+            e2 = np.sum((core.stay_bank.estimates()[:, :, :2] - truth) ** 2, axis=-1)  # type: ignore[union-attr]
+            errors[:, k] = np.where(np.isfinite(e2) & (e2 < cap), e2, cap)
+            errors[~live, k] = np.nan
+            obs = result.obs
+        ok = ~np.isnan(errors).any(axis=(1, 2))
+        y = future_error(errors[ok], gamma, horizon)
+        X.append(seen[ok][:, ::stride].reshape(-1, seen.shape[-1]))
+        Y.append(y[:, ::stride].reshape(-1, len(grid)).astype(np.float32))
+    return np.concatenate(X), np.concatenate(Y)
+
+
+def network(inputs: int, outputs: int, hidden: int = 256) -> torch.nn.Sequential:
+    """Two tanh layers of ``hidden`` units."""
+    return torch.nn.Sequential(
+        torch.nn.Linear(inputs, hidden), torch.nn.Tanh(),
+        torch.nn.Linear(hidden, hidden), torch.nn.Tanh(),
+        torch.nn.Linear(hidden, outputs),
+    )
+
+
+def fit(X: NDArray[np.float32], Y: NDArray[np.float32], epochs: int, seed: int
+        ) -> tuple[torch.nn.Sequential, dict[str, float]]:
+    """The network fitted by mean squared error (Adam, batches of 4096; ``torch.manual_seed``),
+    with its held-out score on a twentieth of the samples: the error, the targets' variance, and
+    the regret of choosing the predicted best stay (nats of future squared error)."""
+    torch.manual_seed(seed)
+    order = np.random.default_rng(seed).permutation(len(X))
+    held, used = order[: len(X) // 20], order[len(X) // 20:]
+    x, y = torch.from_numpy(X[used]), torch.from_numpy(Y[used])
+    net = network(X.shape[1], Y.shape[1])
+    optimizer = torch.optim.Adam(net.parameters(), 1e-3)
+    for _ in range(epochs):
+        for batch in torch.randperm(len(x)).split(4096):
+            loss = torch.mean((net(x[batch]) - y[batch]) ** 2)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+    with torch.no_grad():
+        xh, yh = torch.from_numpy(X[held]), torch.from_numpy(Y[held])
+        pred = net(xh)
+        chosen = yh.gather(1, pred.argmin(1, keepdim=True)).squeeze(1)
+        score = {"mse": float(torch.mean((pred - yh) ** 2)), "variance": float(yh.var(0).mean()),
+                 "regret": float((chosen - yh.min(1).values).mean())}
+    return net, score
+
+
+class StaySelector:
+    """A policy (SB3's ``predict``) of the grid's stay with the smallest predicted future error,
+    every row at that stay (:func:`stay_action`)."""
+
+    def __init__(self, net: torch.nn.Sequential, grid: Array, share: float, n_models: int
+                 ) -> None:
+        self.net, self.grid, self.share, self.M = net, grid, share, n_models
+
+    def stays(self, obs: NDArray[Any]) -> Array:
+        """``(N,)`` the chosen stay of each observation."""
+        with torch.no_grad():
+            predicted = self.net(torch.from_numpy(np.asarray(obs, dtype=np.float32)))
+        return self.grid[predicted.argmin(1).numpy()]
+
+    def predict(self, obs: NDArray[Any], state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[Array, None]:
+        belief = np.asarray(obs[:, -self.M:], dtype=np.float64)
+        return stay_action(self.stays(obs), belief, self.share), None
+
+
+def score(selector: StaySelector, overrides: Mapping[str, Any],
+          configs: Mapping[str, Mapping[str, Any]], runs: int, seed: int) -> None:
+    """Print the selector beside ``best-fixed``, ``pretrained`` and ``learned-prior`` on each
+    configuration: ARMSE (m), mode accuracy, the selector's mode-probability total variation and
+    its paired difference from ``best-fixed`` with a 95 % CI."""
+    policies = ["best-fixed", "pretrained", "learned-prior"]
+    print("| configuration | selector | " + " | ".join(policies)
+          + " | selector − best-fixed (m) | mode acc. selector / best-fixed | TV |")
+    print("|---" * (6 + len(policies) - 1) + "|")
+    for name, config in configs.items():
+        _, rollouts = evaluate(policies, config.get("scenario", "random"), runs, seed,
+                               clairvoyant=False, extra={"selector": (selector, overrides)},
+                               env_config=config)
+        err = {k: r.squared_position_error for k, r in rollouts.items()}
+        armse = " | ".join(f"{armse_from_squared(err[k]):.2f}" for k in ["selector", *policies])
+        d = paired_bootstrap(err["selector"], err["best-fixed"])
+        acc = [mode_accuracy(rollouts[k].mode_probs, rollouts[k].true_model)
+               for k in ("selector", "best-fixed")]
+        tv = mode_prob_tv(rollouts["selector"].mode_probs)
+        print(f"| {name} | {armse} | {d['diff']:+.2f} [{d['low']:+.2f}, {d['high']:+.2f}] "
+              f"| {acc[0]:.1%} / {acc[1]:.1%} | {tv:.3f} |", flush=True)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--env-config", nargs="+", required=True, metavar="FILE",
+                   help="training configurations (episodes spread evenly over them)")
+    p.add_argument("--episodes", type=int, default=100_000)
+    p.add_argument("--share", type=float, default=0.75,
+                   help=f"the detector's share v, at most {MAX_SHARE}")
+    p.add_argument("--q-maneuver", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                   help="add vary.q_maneuver to every training file")
+    p.add_argument("--n-segments", type=int, nargs=2, default=None, metavar=("LO", "HI"),
+                   help="set family.n_segments in every training file")
+    p.add_argument("--gamma", type=float, default=1.0)
+    p.add_argument("--horizon", type=int, default=30, help="steps of future error (H)")
+    p.add_argument("--stride", type=int, default=3, help="keep every N-th step")
+    p.add_argument("--epochs", type=int, default=6)
+    p.add_argument("--fit-seed", type=int, default=0)
+    p.add_argument("--runs", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scenario", action="append", default=[],
+                   help="a scenario of the benchmark suite (repeatable; default: all)")
+    p.add_argument("--off-suite", nargs="*", default=[], metavar="FILE",
+                   help="configuration files scored after the suite")
+    args = p.parse_args(argv)
+    if not 0.0 <= args.share <= MAX_SHARE:
+        p.error(f"--share must be in [0, {MAX_SHARE}], got {args.share}")
+    if args.episodes < len(args.env_config):
+        p.error(f"--episodes must be at least one per file ({len(args.env_config)})")
+    torch.set_num_threads(1)
+    files = [selector_overrides(read_env_config(f), args.share, args.q_maneuver,
+                                args.n_segments) for f in args.env_config]
+    rng = np.random.default_rng(args.fit_seed)
+    start = time.perf_counter()
+    parts = [collect(o, args.episodes // len(files), SELECTOR_SEED_BASE + j * 10**9, rng,
+                     args.gamma, args.horizon, args.stride) for j, o in enumerate(files)]
+    X = np.concatenate([x for x, _ in parts])
+    Y = np.concatenate([y for _, y in parts])
+    collected = time.perf_counter() - start
+    net, held_out = fit(X, Y, args.epochs, args.fit_seed)
+    print(f"{len(X)} samples ({collected:.0f} s), fitted in "
+          f"{time.perf_counter() - start - collected:.0f} s; held-out: "
+          + ", ".join(f"{k} {v:.4f}" for k, v in held_out.items()))
+    core = TrackingCore(EnvConfig.build(files[0]), 1)
+    selector = StaySelector(net, core.stay_bank.stays[:, 0].copy(), args.share, core.M)  # type: ignore[union-attr]
+    suite = suite_configs("benchmark")
+    configs = {k: v for k, v in suite.items() if not args.scenario or k in args.scenario}
+    configs.update({f: read_env_config(f) for f in args.off_suite})
+    score(selector, files[0], configs, args.runs, args.seed)
+
+
+if __name__ == "__main__":
+    main()
