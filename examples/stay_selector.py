@@ -19,10 +19,12 @@ gives ``Pi_s`` exactly from the uniform base (:func:`stay_action`). It is the ``
 rule with its stay chosen online by a network trained across trackers instead of searched on
 each tracker's own runs; the TPM stays a switching prior by construction.
 
-Training data: ``--episodes`` episodes spread evenly over the ``--env-config`` files, seeds from
-:data:`SELECTOR_SEED_BASE` (disjoint from every evaluation, validation and training seed). While
-collecting, each slot runs a random stay of the grid, redrawn with probability 1/30 per step, so
-the observations cover trackers steered by every stay; every ``--stride``-th step is kept. Then
+Training data: ``--episodes`` episodes spread evenly over the ``--env-config`` files, all
+observing the first file's features (or ``--features-from FILE``'s) and the stay bank's
+evidence, seeds from :data:`SELECTOR_SEED_BASE` (disjoint from every evaluation, validation and
+training seed). While collecting, each slot runs a random stay of the grid, redrawn with
+probability 1/30 per step, so the observations cover trackers steered by every stay; every
+``--stride``-th step is kept. Then
 the selector is scored with the evaluation's own code (common random numbers, paired bootstrap
 CIs) beside ``best-fixed``, the shipped policy and ``learned-prior``::
 
@@ -37,6 +39,7 @@ machine.
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -44,6 +47,7 @@ from typing import Any
 import numpy as np
 import torch
 from numpy.typing import NDArray
+from safetensors.torch import load_file, save_file
 
 from imm_gym.cli.evaluate import evaluate, suite_configs
 from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
@@ -59,9 +63,10 @@ Array = NDArray[np.float64]
 SELECTOR_SEED_BASE = 1 << 60
 #: Logits per unit action of the ``stay`` action: 0.995 from the uniform base within reach.
 GAIN = 9.0
-#: Features the selector reads beyond a training file's: the tracker's tuning, and the belief
-#: its action is computed from (last, ``M`` entries).
-EXTRA_FEATURES = ("tracking_index", "detector_belief")
+#: Features the selector reads beyond a training file's: the stay bank's evidence (the bank
+#: whose errors are the targets runs for it), the tracker's tuning, and the belief its action is
+#: computed from (last, ``M`` entries).
+EXTRA_FEATURES = ("stay_bank_evidence", "tracking_index", "detector_belief")
 #: The largest share: every ``q_i >= (1 - v) / M``, and from ``q_i`` the stay action reaches the
 #: grid's 0.995 within :data:`GAIN` logits only while ``(1 - v) / M`` is not much below 1/30.
 MAX_SHARE = 0.9
@@ -192,17 +197,19 @@ def fit(X: NDArray[np.float32], Y: NDArray[np.float32], epochs: int, seed: int
 
 
 class StaySelector:
-    """A policy (SB3's ``predict``) of the grid's stay with the smallest predicted future error,
-    every row at that stay (:func:`stay_action`)."""
+    """A policy (SB3's ``predict``) of the grid's stay with the smallest predicted future error
+    (the mean of several networks' predictions: an ensemble of fits), every row at that stay
+    (:func:`stay_action`)."""
 
-    def __init__(self, net: torch.nn.Sequential, grid: Array, share: float, n_models: int
-                 ) -> None:
-        self.net, self.grid, self.share, self.M = net, grid, share, n_models
+    def __init__(self, nets: Sequence[torch.nn.Sequential], grid: Array, share: float,
+                 n_models: int) -> None:
+        self.nets, self.grid, self.share, self.M = list(nets), grid, share, n_models
 
     def stays(self, obs: NDArray[Any]) -> Array:
         """``(N,)`` the chosen stay of each observation."""
+        x = torch.from_numpy(np.asarray(obs, dtype=np.float32))
         with torch.no_grad():
-            predicted = self.net(torch.from_numpy(np.asarray(obs, dtype=np.float32)))
+            predicted = torch.stack([net(x) for net in self.nets]).mean(0)
         return self.grid[predicted.argmin(1).numpy()]
 
     def predict(self, obs: NDArray[Any], state: Any = None, episode_start: Any = None,
@@ -234,6 +241,32 @@ def score(selector: StaySelector, overrides: Mapping[str, Any],
               f"| {acc[0]:.1%} / {acc[1]:.1%} | {tv:.3f} |", flush=True)
 
 
+def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace) -> torch.nn.Sequential:
+    """Collect ``args.episodes`` episodes spread over ``files`` and fit the network to them,
+    printing what it took and its held-out score."""
+    rng = np.random.default_rng(args.fit_seed)
+    start = time.perf_counter()
+    first = SELECTOR_SEED_BASE + 10**10 * args.fit_seed
+    parts = [collect(o, args.episodes // len(files), first + j * 10**9, rng, args.gamma,
+                     args.horizon, args.stride) for j, o in enumerate(files)]
+    X = np.concatenate([x for x, _ in parts])
+    Y = np.concatenate([y for _, y in parts])
+    collected = time.perf_counter() - start
+    net, held_out = fit(X, Y, args.epochs, args.fit_seed)
+    print(f"{len(X)} samples ({collected:.0f} s), fitted in "
+          f"{time.perf_counter() - start - collected:.0f} s; held-out: "
+          + ", ".join(f"{k} {v:.4f}" for k, v in held_out.items()))
+    return net
+
+
+def load_network(path: str, inputs: int, outputs: int) -> torch.nn.Sequential:
+    """A network written by ``--save`` (safetensors: tensors only, no code runs), checked
+    against the observation's and the grid's sizes."""
+    net = network(inputs, outputs)
+    net.load_state_dict(load_file(path))  # raises on a missing, extra or misshapen tensor
+    return net
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--env-config", nargs="+", required=True, metavar="FILE",
@@ -241,6 +274,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=100_000)
     p.add_argument("--share", type=float, default=0.75,
                    help=f"the detector's share v, at most {MAX_SHARE}")
+    p.add_argument("--features-from", default=None, metavar="FILE",
+                   help="observe this file's obs_features on every training file (default: the "
+                        "first file's)")
     p.add_argument("--q-maneuver", type=float, nargs=2, default=None, metavar=("LO", "HI"),
                    help="add vary.q_maneuver to every training file")
     p.add_argument("--n-segments", type=int, nargs=2, default=None, metavar=("LO", "HI"),
@@ -249,7 +285,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--horizon", type=int, default=30, help="steps of future error (H)")
     p.add_argument("--stride", type=int, default=3, help="keep every N-th step")
     p.add_argument("--epochs", type=int, default=6)
-    p.add_argument("--fit-seed", type=int, default=0)
+    p.add_argument("--fit-seed", type=int, default=0,
+                   help="seed of the data (episodes from SELECTOR_SEED_BASE + 10**10 seed) "
+                        "and of the fit")
+    p.add_argument("--save", default=None, metavar="FILE",
+                   help="write the fitted network (safetensors, data only)")
+    p.add_argument("--weights", nargs="+", default=[], metavar="FILE",
+                   help="networks written by --save, acting as one (mean prediction); "
+                        "nothing is collected or fitted")
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--scenario", action="append", default=[],
@@ -262,21 +305,19 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.episodes < len(args.env_config):
         p.error(f"--episodes must be at least one per file ({len(args.env_config)})")
     torch.set_num_threads(1)
-    files = [selector_overrides(read_env_config(f), args.share, args.q_maneuver,
-                                args.n_segments) for f in args.env_config]
-    rng = np.random.default_rng(args.fit_seed)
-    start = time.perf_counter()
-    parts = [collect(o, args.episodes // len(files), SELECTOR_SEED_BASE + j * 10**9, rng,
-                     args.gamma, args.horizon, args.stride) for j, o in enumerate(files)]
-    X = np.concatenate([x for x, _ in parts])
-    Y = np.concatenate([y for _, y in parts])
-    collected = time.perf_counter() - start
-    net, held_out = fit(X, Y, args.epochs, args.fit_seed)
-    print(f"{len(X)} samples ({collected:.0f} s), fitted in "
-          f"{time.perf_counter() - start - collected:.0f} s; held-out: "
-          + ", ".join(f"{k} {v:.4f}" for k, v in held_out.items()))
+    features = read_env_config(args.features_from or args.env_config[0]).get("obs_features", ())
+    files = [selector_overrides({**read_env_config(f), "obs_features": features}, args.share,
+                                args.q_maneuver, args.n_segments) for f in args.env_config]
     core = TrackingCore(EnvConfig.build(files[0]), 1)
-    selector = StaySelector(net, core.stay_bank.stays[:, 0].copy(), args.share, core.M)  # type: ignore[union-attr]
+    grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
+    if args.weights:
+        nets = [load_network(f, core.observe().shape[1], len(grid)) for f in args.weights]
+    else:
+        nets = [train(files, args)]
+        if args.save:
+            save_file(nets[0].state_dict(), args.save,
+                      metadata={"args": json.dumps(vars(args), default=str)})
+    selector = StaySelector(nets, grid, args.share, core.M)
     suite = suite_configs("benchmark")
     configs = {k: v for k, v in suite.items() if not args.scenario or k in args.scenario}
     configs.update({f: read_env_config(f) for f in args.off_suite})

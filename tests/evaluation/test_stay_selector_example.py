@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 from helpers import load_example
 
 from imm_gym.sim.config_file import read_env_config
@@ -68,7 +69,7 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
     assert np.isfinite(list(held_out.values())).all()
     core = selector_core(example, 5, 0.75)
     grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
-    selector = example.StaySelector(net, grid, 0.75, core.M)
+    selector = example.StaySelector([net], grid, 0.75, core.M)
     obs = core.observe()
     stays = selector.stays(obs)
     assert set(stays.tolist()) <= set(grid.tolist())
@@ -87,3 +88,28 @@ def test_a_share_beyond_the_actions_reach_is_refused(
     with pytest.raises(SystemExit):
         example.main(["--env-config", FILE, "--share", "1.0"])
     assert "--share must be in [0, 0.9]" in capsys.readouterr().err
+
+
+def test_a_saved_network_acts_alike_and_two_act_on_their_mean(tmp_path: object) -> None:
+    from safetensors.torch import save_file
+
+    example = load_example("stay_selector")
+    core = selector_core(example, 6, 0.75)
+    grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
+    obs = core.observe()
+    torch.manual_seed(0)
+    nets = [example.network(obs.shape[1], len(grid)) for _ in range(2)]
+    paths = [f"{tmp_path}/net_{k}.safetensors" for k in range(2)]
+    for net, path in zip(nets, paths, strict=True):
+        save_file(net.state_dict(), path)
+    loaded = [example.load_network(p, obs.shape[1], len(grid)) for p in paths]
+    one = example.StaySelector(nets[:1], grid, 0.75, core.M)
+    np.testing.assert_array_equal(example.StaySelector(loaded[:1], grid, 0.75, core.M).stays(obs),
+                                  one.stays(obs))
+    x = torch.from_numpy(obs)
+    with torch.no_grad():
+        mean = (nets[0](x) + nets[1](x)) / 2
+    np.testing.assert_array_equal(example.StaySelector(loaded, grid, 0.75, core.M).stays(obs),
+                                  grid[mean.argmin(1).numpy()])
+    with pytest.raises(RuntimeError):  # a network for another observation is refused
+        example.load_network(paths[0], obs.shape[1] + 1, len(grid))
