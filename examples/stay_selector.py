@@ -127,8 +127,8 @@ def collect(
     gamma: float, horizon: int, stride: int,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Observations and targets (:func:`future_error`) of ``episodes`` episodes of one
-    configuration, seeds ``first_seed ...``, every ``stride``-th step; episodes whose tracker
-    diverged are left out."""
+    configuration (rounded up to whole batches of :data:`BATCH`), seeds ``first_seed ...``,
+    every ``stride``-th step; episodes whose tracker diverged are left out."""
     config = EnvConfig.build(overrides)
     n = min(BATCH, episodes)
     core = TrackingCore(config, n)
