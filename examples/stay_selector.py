@@ -49,6 +49,7 @@ import torch
 from numpy.typing import NDArray
 from safetensors.torch import load_file, save_file
 
+from agents.training import set_threads
 from imm_gym.cli.evaluate import evaluate, suite_configs
 from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
 from imm_gym.evaluation.rollout import armse_from_squared, paired_bootstrap
@@ -304,7 +305,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         p.error(f"--share must be in [0, {MAX_SHARE}], got {args.share}")
     if args.episodes < len(args.env_config):
         p.error(f"--episodes must be at least one per file ({len(args.env_config)})")
-    torch.set_num_threads(1)
+    set_threads(1)  # one BLAS and torch thread: jobs beside it do not wait on each other
     features = read_env_config(args.features_from or args.env_config[0]).get("obs_features", ())
     files = [selector_overrides({**read_env_config(f), "obs_features": features}, args.share,
                                 args.q_maneuver, args.n_segments) for f in args.env_config]
