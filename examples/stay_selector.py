@@ -227,7 +227,7 @@ def score(selector: StaySelector, overrides: Mapping[str, Any],
     policies = ["best-fixed", "pretrained", "learned-prior"]
     print("| configuration | selector | " + " | ".join(policies)
           + " | selector − best-fixed (m) | mode acc. selector / best-fixed | TV |")
-    print("|---" * (6 + len(policies) - 1) + "|")
+    print("|---" * (5 + len(policies)) + "|")
     for name, config in configs.items():
         _, rollouts = evaluate(policies, config.get("scenario", "random"), runs, seed,
                                clairvoyant=False, extra={"selector": (selector, overrides)},
@@ -305,6 +305,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         p.error(f"--share must be in [0, {MAX_SHARE}], got {args.share}")
     if args.episodes < len(args.env_config):
         p.error(f"--episodes must be at least one per file ({len(args.env_config)})")
+    if not 0.0 < args.gamma <= 1.0:
+        p.error(f"--gamma must be in (0, 1], got {args.gamma}")
+    for name in ("horizon", "stride", "epochs"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name} must be at least 1, got {getattr(args, name)}")
+    suite = suite_configs("benchmark")
+    unknown = sorted(set(args.scenario) - set(suite))
+    if unknown:
+        p.error(f"--scenario {unknown[0]!r} is not in the benchmark suite ({', '.join(suite)})")
     set_threads(1)  # one BLAS and torch thread: jobs beside it do not wait on each other
     features = read_env_config(args.features_from or args.env_config[0]).get("obs_features", ())
     files = [selector_overrides({**read_env_config(f), "obs_features": features}, args.share,
@@ -319,7 +328,6 @@ def main(argv: Sequence[str] | None = None) -> None:
             save_file(nets[0].state_dict(), args.save,
                       metadata={"args": json.dumps(vars(args), default=str)})
     selector = StaySelector(nets, grid, args.share, core.M)
-    suite = suite_configs("benchmark")
     configs = {k: v for k, v in suite.items() if not args.scenario or k in args.scenario}
     configs.update({f: read_env_config(f) for f in args.off_suite})
     score(selector, files[0], configs, args.runs, args.seed)

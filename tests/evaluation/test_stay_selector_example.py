@@ -81,13 +81,19 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
     )
 
 
-def test_a_share_beyond_the_actions_reach_is_refused(
-    capsys: pytest.CaptureFixture[str],
+@pytest.mark.parametrize(("option", "message"), [
+    (["--share", "1.0"], "--share must be in [0, 0.9]"),
+    (["--gamma", "3"], "--gamma must be in (0, 1]"),
+    (["--horizon", "0"], "--horizon must be at least 1"),
+    (["--scenario", "nowhere"], "--scenario 'nowhere' is not in the benchmark suite"),
+])
+def test_bad_options_are_refused_before_any_work(
+    option: list[str], message: str, capsys: pytest.CaptureFixture[str],
 ) -> None:
     example = load_example("stay_selector")
     with pytest.raises(SystemExit):
-        example.main(["--env-config", FILE, "--share", "1.0"])
-    assert "--share must be in [0, 0.9]" in capsys.readouterr().err
+        example.main(["--env-config", FILE, *option])
+    assert message in capsys.readouterr().err
 
 
 def test_a_saved_network_acts_alike_and_two_act_on_their_mean(tmp_path: object) -> None:
