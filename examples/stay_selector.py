@@ -31,6 +31,8 @@ CIs) beside ``best-fixed``, the shipped policy and ``learned-prior``::
     python examples/stay_selector.py --env-config A.yaml B.yaml --episodes 100000 \\
         --runs 100 --seed 0 [--scenario paper ...] [--off-suite FILE ...]
 
+``--save FILE`` writes the fitted network (safetensors, data only); ``--weights A B ...`` scores
+saved networks acting on their mean prediction without collecting or fitting
 (docs/experiments.md, "Where in the episode the agents lose, and a stay chosen by supervision").
 The fit is torch-seeded and the data seeded: the same arguments give the same numbers on one
 machine.

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 from helpers import load_example
+from safetensors.torch import save_file
 
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.core import TrackingCore
@@ -97,8 +98,6 @@ def test_bad_options_are_refused_before_any_work(
 
 
 def test_a_saved_network_acts_alike_and_two_act_on_their_mean(tmp_path: object) -> None:
-    from safetensors.torch import save_file
-
     example = load_example("stay_selector")
     core = selector_core(example, 6, 0.75)
     grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
