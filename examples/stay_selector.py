@@ -86,16 +86,16 @@ def selector_overrides(
     """A training file's overrides as the selector runs it: the ``stay`` action from the uniform
     base, the learned detector leaning the share ``share`` of the jumps (of the stay bank's IMMs
     too), :data:`EXTRA_FEATURES` observed; ``q_maneuver`` added to its ``vary`` and
-    ``n_segments`` to its ``family`` where given."""
+    ``n_segments`` to its ``family`` where given and the file does not set them."""
     out = dict(base)
     features = [f for f in out.get("obs_features", ()) if f not in EXTRA_FEATURES]
     out.update(action_mode="stay", stay_base="uniform", detector="learned",
                detector_share=share, logit_scale=GAIN,
                obs_features=(*features, *EXTRA_FEATURES))
     if q_maneuver is not None:
-        out["vary"] = {**out.get("vary", {}), "q_maneuver": list(q_maneuver)}
+        out["vary"] = {"q_maneuver": list(q_maneuver), **out.get("vary", {})}
     if n_segments is not None:
-        out["family"] = {**out.get("family", {}), "n_segments": list(n_segments)}
+        out["family"] = {"n_segments": list(n_segments), **out.get("family", {})}
     return out
 
 
@@ -281,9 +281,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="observe this file's obs_features on every training file (default: the "
                         "first file's)")
     p.add_argument("--q-maneuver", type=float, nargs=2, default=None, metavar=("LO", "HI"),
-                   help="add vary.q_maneuver to every training file")
+                   help="vary.q_maneuver of every training file that does not set it")
     p.add_argument("--n-segments", type=int, nargs=2, default=None, metavar=("LO", "HI"),
-                   help="set family.n_segments in every training file")
+                   help="family.n_segments of every training file that does not set it")
     p.add_argument("--gamma", type=float, default=1.0)
     p.add_argument("--horizon", type=int, default=30, help="steps of future error (H)")
     p.add_argument("--stride", type=int, default=3, help="keep every N-th step")

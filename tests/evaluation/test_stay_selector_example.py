@@ -118,3 +118,14 @@ def test_a_saved_network_acts_alike_and_two_act_on_their_mean(tmp_path: object) 
                                   grid[mean.argmin(1).numpy()])
     with pytest.raises(RuntimeError):  # a network for another observation is refused
         example.load_network(paths[0], obs.shape[1] + 1, len(grid))
+
+
+def test_the_options_fill_in_what_a_file_does_not_set() -> None:
+    example = load_example("stay_selector")
+    plain = example.selector_overrides(read_env_config(FILE), 0.75, (0.5, 50.0), (1, 6))
+    assert plain["vary"]["q_maneuver"] == [0.5, 50.0] and plain["family"]["n_segments"] == [1, 6]
+    assert plain["vary"]["T"] == read_env_config(FILE)["vary"]["T"]  # the rest kept
+    field = read_env_config("examples/across_trackers_field.yaml")
+    kept = example.selector_overrides(field, 0.75, (0.5, 50.0), (2, 3))
+    assert kept["vary"]["q_maneuver"] == field["vary"]["q_maneuver"] == [1.0, 50.0]
+    assert kept["family"]["n_segments"] == field["family"]["n_segments"] == [1, 6]
