@@ -24,9 +24,9 @@ observing the first file's features (or ``--features-from FILE``'s) and the stay
 evidence, seeds from :data:`SELECTOR_SEED_BASE` (disjoint from every evaluation, validation and
 training seed). While collecting, each slot runs a random stay of the grid, redrawn with
 probability 1/30 per step, so the observations cover trackers steered by every stay; every
-``--stride``-th step is kept. Then
-the selector is scored with the evaluation's own code (common random numbers, paired bootstrap
-CIs) beside ``best-fixed``, the shipped policy and ``learned-prior``::
+``--stride``-th step is kept. Then the selector is scored with the evaluation's own code (common
+random numbers, paired bootstrap CIs) beside ``best-fixed``, the shipped policy and
+``learned-prior``::
 
     python examples/stay_selector.py --env-config A.yaml B.yaml --episodes 100000 \\
         --runs 100 --seed 0 [--scenario paper ...] [--off-suite FILE ...]
