@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agents.policy import AGENT_FILE, LearnedPolicy, load_agent, read_json
+from agents.selector import StaySelector, is_selector, load_selector
 from imm_gym.sim.mixture import POLICY_FIELDS
 from imm_gym.validation import ConfigError
 
@@ -163,8 +164,11 @@ def load_ensemble(path: str | Path) -> EnsemblePolicy:
     return EnsemblePolicy(loaded, source=f"ensemble {str(directory)!r}")
 
 
-def load_policy(path: str | Path) -> LearnedPolicy | EnsemblePolicy:
-    """A trained agent or an ensemble of them, whichever ``path`` holds."""
+def load_policy(path: str | Path) -> LearnedPolicy | EnsemblePolicy | StaySelector:
+    """A trained agent, an ensemble of them or a stay selector (:mod:`agents.selector`),
+    whichever ``path`` holds."""
+    if is_selector(path):
+        return load_selector(path)
     return load_ensemble(path) if is_ensemble(path) else load_agent(path)
 
 

@@ -31,9 +31,11 @@ random numbers, paired bootstrap CIs) beside ``best-fixed``, the shipped policy 
     python examples/stay_selector.py --env-config A.yaml B.yaml --episodes 100000 \\
         --runs 100 --seed 0 [--scenario paper ...] [--off-suite FILE ...]
 
-``--save FILE`` writes the fitted network (safetensors, data only); ``--weights A B ...`` scores
-saved networks acting on their mean prediction without collecting or fitting
-(docs/experiments.md, "Where in the episode the agents lose, and a stay chosen by supervision").
+``--save DIR`` writes the selector as a directory of data files (:mod:`agents.selector`), which
+``python -m imm_gym.evaluate --policy DIR`` (and every tool that takes an agent) loads;
+``--weights A B ...`` scores saved selectors acting as one on their mean prediction without
+collecting or fitting, and with ``--save`` writes them as one directory (docs/experiments.md,
+"Where in the episode the agents lose, and a stay chosen by supervision").
 The fit is torch-seeded and the data seeded: the same arguments give the same numbers on one
 machine.
 """
@@ -41,7 +43,6 @@ machine.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -49,15 +50,23 @@ from typing import Any
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from safetensors.torch import load_file, save_file
 
+from agents.selector import (
+    StaySelector,
+    combine,
+    load_selector,
+    network,
+    save_selector,
+    stay_action,
+)
 from agents.training import set_threads
 from imm_gym.cli.evaluate import evaluate, suite_configs
 from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
 from imm_gym.evaluation.rollout import armse_from_squared, paired_bootstrap
-from imm_gym.sim.config_file import read_env_config
+from imm_gym.sim.config_file import read_env_config, tracker_of
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
 
@@ -99,18 +108,6 @@ def selector_overrides(
     return out
 
 
-def stay_action(stays: Array, belief: Array, share: float, gain: float = GAIN) -> Array:
-    """``(N, M)`` the ``stay`` action (uniform base, detector share ``share``) whose rows are
-    ``Pi_s`` of the module docstring: each row's diagonal ``r + (1 - r) q_i`` from the base's
-    ``q_i``, in logits over ``gain`` (the off-diagonal keeps ``q``'s proportions)."""
-    M = belief.shape[-1]
-    q = (1.0 - share) / M + share * belief
-    r = ((stays - 1.0 / M) / (1.0 - 1.0 / M))[:, None]
-    target = r + (1.0 - r) * q
-    logit = np.log(target) - np.log1p(-target) - (np.log(q) - np.log1p(-q))
-    return np.clip(logit / gain, -1.0, 1.0)
-
-
 def future_error(errors: Array, gamma: float, horizon: int) -> Array:
     """``(R, K, S)`` targets ``y_s(k)`` of the module docstring from the squared errors
     ``errors (R, K, S)`` (``errors[:, k]``: after step ``k``, the first the action before it
@@ -149,7 +146,7 @@ def collect(
             seen[:, k] = obs
             pick = np.where(rng.random(n) < REDRAW, rng.integers(0, len(grid), n), pick)
             action = stay_action(grid[pick], obs[:, -M:].astype(np.float64),
-                                 config.detector_share)
+                                 config.detector_share, GAIN)
             live = ~core.done
             result = core.step(action) if live.all() else core.step(action, live)
             truth = result.info["true_state"][:, None, :2]
@@ -162,15 +159,6 @@ def collect(
         X.append(seen[ok][:, ::stride].reshape(-1, seen.shape[-1]))
         Y.append(y[:, ::stride].reshape(-1, len(grid)).astype(np.float32))
     return np.concatenate(X), np.concatenate(Y)
-
-
-def network(inputs: int, outputs: int, hidden: int = 256) -> torch.nn.Sequential:
-    """Two tanh layers of ``hidden`` units."""
-    return torch.nn.Sequential(
-        torch.nn.Linear(inputs, hidden), torch.nn.Tanh(),
-        torch.nn.Linear(hidden, hidden), torch.nn.Tanh(),
-        torch.nn.Linear(hidden, outputs),
-    )
 
 
 def fit(X: NDArray[np.float32], Y: NDArray[np.float32], epochs: int, seed: int
@@ -199,30 +187,8 @@ def fit(X: NDArray[np.float32], Y: NDArray[np.float32], epochs: int, seed: int
     return net, score
 
 
-class StaySelector:
-    """A policy (SB3's ``predict``) of the grid's stay with the smallest predicted future error
-    (the mean of several networks' predictions: an ensemble of fits), every row at that stay
-    (:func:`stay_action`)."""
-
-    def __init__(self, nets: Sequence[torch.nn.Sequential], grid: Array, share: float,
-                 n_models: int) -> None:
-        self.nets, self.grid, self.share, self.M = list(nets), grid, share, n_models
-
-    def stays(self, obs: NDArray[Any]) -> Array:
-        """``(N,)`` the chosen stay of each observation."""
-        x = torch.from_numpy(np.asarray(obs, dtype=np.float32))
-        with torch.no_grad():
-            predicted = torch.stack([net(x) for net in self.nets]).mean(0)
-        return self.grid[predicted.argmin(1).numpy()]
-
-    def predict(self, obs: NDArray[Any], state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[Array, None]:
-        belief = np.asarray(obs[:, -self.M:], dtype=np.float64)
-        return stay_action(self.stays(obs), belief, self.share), None
-
-
-def score(selector: StaySelector, overrides: Mapping[str, Any],
-          configs: Mapping[str, Mapping[str, Any]], runs: int, seed: int) -> None:
+def score(selector: StaySelector, configs: Mapping[str, Mapping[str, Any]], runs: int,
+          seed: int) -> None:
     """Print the selector beside ``best-fixed``, ``pretrained`` and ``learned-prior`` on each
     configuration: ARMSE (m), mode accuracy, the selector's mode-probability total variation and
     its paired difference from ``best-fixed`` with a 95 % CI."""
@@ -231,9 +197,9 @@ def score(selector: StaySelector, overrides: Mapping[str, Any],
           + " | selector − best-fixed (m) | mode acc. selector / best-fixed | TV |")
     print("|---" * (5 + len(policies)) + "|")
     for name, config in configs.items():
+        extra = {"selector": (selector, selector.env_overrides)}
         _, rollouts = evaluate(policies, config.get("scenario", "random"), runs, seed,
-                               clairvoyant=False, extra={"selector": (selector, overrides)},
-                               env_config=config)
+                               clairvoyant=False, extra=extra, env_config=config)
         err = {k: r.squared_position_error for k, r in rollouts.items()}
         armse = " | ".join(f"{armse_from_squared(err[k]):.2f}" for k in ["selector", *policies])
         d = paired_bootstrap(err["selector"], err["best-fixed"])
@@ -262,14 +228,6 @@ def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace) -> torch
     return net
 
 
-def load_network(path: str, inputs: int, outputs: int) -> torch.nn.Sequential:
-    """A network written by ``--save`` (safetensors: tensors only, no code runs), checked
-    against the observation's and the grid's sizes."""
-    net = network(inputs, outputs)
-    net.load_state_dict(load_file(path))  # raises on a missing, extra or misshapen tensor
-    return net
-
-
 def main(argv: Sequence[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--env-config", nargs="+", required=True, metavar="FILE",
@@ -291,10 +249,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--fit-seed", type=int, default=0,
                    help="seed of the data (episodes from SELECTOR_SEED_BASE + 10**10 seed) "
                         "and of the fit")
-    p.add_argument("--save", default=None, metavar="FILE",
-                   help="write the fitted network (safetensors, data only)")
-    p.add_argument("--weights", nargs="+", default=[], metavar="FILE",
-                   help="networks written by --save, acting as one (mean prediction); "
+    p.add_argument("--save", default=None, metavar="DIR",
+                   help="write the selector (a directory of data files: agents.selector)")
+    p.add_argument("--weights", nargs="+", default=[], metavar="DIR",
+                   help="selectors written by --save, acting as one (mean prediction); "
                         "nothing is collected or fitted")
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
@@ -322,17 +280,29 @@ def main(argv: Sequence[str] | None = None) -> None:
                                 args.q_maneuver, args.n_segments) for f in args.env_config]
     core = TrackingCore(EnvConfig.build(files[0]), 1)
     grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
+    priors = np.stack([grid, np.full(len(grid), args.share)], axis=1)
     if args.weights:
-        nets = [load_network(f, core.observe().shape[1], len(grid)) for f in args.weights]
+        try:
+            loaded = combine([load_selector(d) for d in args.weights])
+        except ConfigError as err:
+            p.error(f"--weights: {err}")
+        nets, priors, files[0] = loaded.nets, loaded.priors, loaded.env_overrides
+        across = loaded.trained_across
+        fit_record = {"members_from": list(args.weights)}
     else:
         nets = [train(files, args)]
-        if args.save:
-            save_file(nets[0].state_dict(), args.save,
-                      metadata={"args": json.dumps(vars(args), default=str)})
-    selector = StaySelector(nets, grid, args.share, core.M)
+        across = tuple(tracker_of(f) for f in files[1:])
+        fit_record = {k: v for k, v in vars(args).items() if k not in ("save", "weights")}
+    if args.save:
+        selector = save_selector(args.save, nets, priors, files[0], trained_across=across,
+                                 fit=fit_record)
+        print(f"wrote {args.save} ({len(nets)} network{'s' * (len(nets) > 1)})")
+    else:
+        selector = StaySelector(nets, priors, files[0], core.observe().shape[1], core.M,
+                                trained_across=across)
     configs = {k: v for k, v in suite.items() if not args.scenario or k in args.scenario}
     configs.update({f: read_env_config(f) for f in args.off_suite})
-    score(selector, files[0], configs, args.runs, args.seed)
+    score(selector, configs, args.runs, args.seed)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
-"""``examples/stay_selector.py``: its action gives the stay bank's prior at the chosen stay, its
-targets are the discounted future errors by hand, and the policy it fits picks stays of the
-grid."""
+"""``examples/stay_selector.py``: its targets are the discounted future errors by hand, the
+policy it fits picks stays of the grid and sets their priors, and saved fits act as one (the
+selector's actions and files: ``tests/agents/test_selector.py``)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 import torch
 from helpers import load_example
-from safetensors.torch import save_file
 
+from agents.selector import StaySelector, combine, load_selector, network, save_selector
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.validation import ConfigError
 
 FILE = "examples/across_trackers.yaml"
 
@@ -25,23 +26,6 @@ def selector_core(example: object, n: int, share: float, **changes: object) -> T
     core = TrackingCore(EnvConfig.build({**overrides, **changes}), n)
     core.reset(np.arange(n), list(range(n)))
     return core
-
-
-@pytest.mark.parametrize("share", [0.0, 0.25, 0.75, 0.9])
-def test_the_action_gives_the_banks_prior_at_the_chosen_stay(share: float) -> None:
-    example = load_example("stay_selector")
-    core = selector_core(example, 7, share, p_min=1e-9)  # no floor between the two
-    grid = core.stay_bank.stays[:, 0]  # type: ignore[union-attr]
-    assert grid.tolist() == pytest.approx([1 / 3, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995])
-    obs = core.observe()
-    for _ in range(3):
-        belief = core.detector_belief.copy()
-        np.testing.assert_allclose(obs[:, -3:], belief, atol=1e-6)  # observed last
-        result = core.step(example.stay_action(grid, belief, share))
-        np.testing.assert_allclose(
-            result.info["tpm"], detector_tpm_rows(grid, belief, share), atol=1e-9
-        )
-        obs = result.obs
 
 
 def test_the_targets_are_the_discounted_future_errors_relative_to_the_stays_mean() -> None:
@@ -70,10 +54,10 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
     assert np.isfinite(list(held_out.values())).all()
     core = selector_core(example, 5, 0.75)
     grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
-    selector = example.StaySelector([net], grid, 0.75, core.M)
+    priors = np.stack([grid, np.full(len(grid), 0.75)], axis=1)
     obs = core.observe()
-    stays = selector.stays(obs)
-    assert set(stays.tolist()) <= set(grid.tolist())
+    selector = StaySelector([net], priors, overrides, obs.shape[1], core.M)
+    stays = grid[selector.choose(obs)]
     action, _ = selector.predict(obs)
     belief = core.detector_belief.copy()
     result = core.step(action)
@@ -97,27 +81,26 @@ def test_bad_options_are_refused_before_any_work(
     assert message in capsys.readouterr().err
 
 
-def test_a_saved_network_acts_alike_and_two_act_on_their_mean(tmp_path: object) -> None:
+def test_saved_selectors_act_as_one_and_are_written_as_one(tmp_path: object) -> None:
     example = load_example("stay_selector")
+    overrides = example.selector_overrides(read_env_config(FILE), 0.75, None, None)
     core = selector_core(example, 6, 0.75)
     grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
+    priors = np.stack([grid, np.full(len(grid), 0.75)], axis=1)
     obs = core.observe()
     torch.manual_seed(0)
-    nets = [example.network(obs.shape[1], len(grid)) for _ in range(2)]
-    paths = [f"{tmp_path}/net_{k}.safetensors" for k in range(2)]
-    for net, path in zip(nets, paths, strict=True):
-        save_file(net.state_dict(), path)
-    loaded = [example.load_network(p, obs.shape[1], len(grid)) for p in paths]
-    one = example.StaySelector(nets[:1], grid, 0.75, core.M)
-    np.testing.assert_array_equal(example.StaySelector(loaded[:1], grid, 0.75, core.M).stays(obs),
-                                  one.stays(obs))
+    nets = [network(obs.shape[1], len(grid)) for _ in range(2)]
+    for k, net in enumerate(nets):
+        save_selector(f"{tmp_path}/fit_{k}", [net], priors, overrides)
+    both = combine([load_selector(f"{tmp_path}/fit_{k}") for k in range(2)])
     x = torch.from_numpy(obs)
     with torch.no_grad():
         mean = (nets[0](x) + nets[1](x)) / 2
-    np.testing.assert_array_equal(example.StaySelector(loaded, grid, 0.75, core.M).stays(obs),
-                                  grid[mean.argmin(1).numpy()])
-    with pytest.raises(RuntimeError):  # a network for another observation is refused
-        example.load_network(paths[0], obs.shape[1] + 1, len(grid))
+    np.testing.assert_array_equal(both.choose(obs), mean.argmin(1).numpy())
+    other = save_selector(f"{tmp_path}/other", [network(obs.shape[1], len(grid) - 1)],
+                          priors[:-1], overrides)
+    with pytest.raises(ConfigError, match="other priors"):
+        combine([both, other])
 
 
 def test_the_options_fill_in_what_a_file_does_not_set() -> None:

@@ -1,0 +1,283 @@
+r"""A switching prior chosen by supervision, as a policy the evaluation loads by path.
+
+The stay selector (``examples/stay_selector.py``; docs/experiments.md, "Where in the episode the
+agents lose, and a stay chosen by supervision") holds a grid of switching priors, each a stay
+``s`` and a detector share ``v`` of the ``learned-prior`` family
+(:func:`~imm_gym.sim.stay_bank.detector_tpm_rows`)::
+
+    Pi(s, v) = r I + (1 - r) 1 q^T,   q = (1 - v) / M + v b,   r = (s - 1/M) / (1 - 1/M),
+
+``b`` the learned detector's belief, observed as the last ``M`` entries of the observation. A
+network predicts each prior's future squared error (log, relative to the priors' mean) from the
+observation, and every step the policy sets the TPM to the prior of the smallest prediction: the
+TPM is a switching prior by construction. Several fitted networks act as one on their mean
+prediction.
+
+How the prior reaches the tracker depends on the action mode it was fitted in (``env.json``):
+
+* ``stay`` (one share ``v``, the environment's ``detector_share``, ``stay_base: uniform``): each
+  row's diagonal ``r + (1 - r) q_i`` in logits from the base's ``q_i``, over ``logit_scale``
+  (:func:`stay_action`; the off-diagonal keeps ``q``'s proportions);
+* ``set`` (shares per prior): each row's logits ``log Pi_ij`` centred and over ``logit_scale``
+  (:func:`set_action`), exact wherever every entry is at least ``p_min``.
+
+A selector is a directory of data files only — loading never unpickles, so it cannot run code:
+
+* ``selector.json``: ``{"format": "imm_gym-stay-selector", "combine": "mean_prediction",
+  "priors": [[s, v], ...], "hidden": H, "members": ["net_0.safetensors", ...]}`` and optionally
+  ``"trained_across"`` (the trackers of the further training files) and ``"fit"`` (how it was
+  fitted: a record, not read);
+* ``env.json``: the :class:`~imm_gym.EnvConfig` overrides it reads and acts in;
+* the members: each network's tensors (two tanh layers of ``H``, :func:`network`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from safetensors.torch import load_file, save_file
+
+from agents.policy import ENV_FILE, _check_env, read_json
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.tracking.tpm import apply_floor
+from imm_gym.validation import ConfigError
+
+Array = NDArray[np.float64]
+
+SELECTOR_FILE = "selector.json"
+FORMAT = "imm_gym-stay-selector"
+COMBINE = ("mean_prediction",)
+SELECTOR_KEYS = ("format", "combine", "priors", "hidden", "members", "trained_across", "fit")
+#: The action modes a selector acts in (module docstring).
+SELECTOR_MODES = ("stay", "set")
+
+
+def network(inputs: int, outputs: int, hidden: int = 256) -> torch.nn.Sequential:
+    """Two tanh layers of ``hidden`` units: observation -> one prediction per prior."""
+    return torch.nn.Sequential(
+        torch.nn.Linear(inputs, hidden), torch.nn.Tanh(),
+        torch.nn.Linear(hidden, hidden), torch.nn.Tanh(),
+        torch.nn.Linear(hidden, outputs),
+    )
+
+
+def stay_action(stays: Array, belief: Array, share: float, gain: float) -> Array:
+    """``(N, M)`` the ``stay`` action (uniform base, detector share ``share``, ``logit_scale``
+    ``gain``) whose rows are ``Pi(s, v)``: each row's diagonal ``r + (1 - r) q_i`` in logits from
+    the base's ``q_i`` (the off-diagonal keeps ``q``'s proportions)."""
+    M = belief.shape[-1]
+    q = (1.0 - share) / M + share * belief
+    r = ((stays - 1.0 / M) / (1.0 - 1.0 / M))[:, None]
+    target = r + (1.0 - r) * q
+    logit = np.log(target) - np.log1p(-target) - (np.log(q) - np.log1p(-q))
+    return np.clip(logit / gain, -1.0, 1.0)
+
+
+def set_action(stays: Array, shares: Array, belief: Array, gain: float, p_min: float) -> Array:
+    """``(N, M*M)`` the ``set`` action (``logit_scale`` ``gain``) whose rows are ``Pi(s, v)``
+    floored to ``p_min`` as the environment floors them
+    (:func:`~imm_gym.tracking.tpm.apply_floor`): each row's logits centred between its largest
+    and smallest, over ``gain`` (exact while ``gain >= log(1 / p_min) / 2``)."""
+    logits = np.log(apply_floor(detector_tpm_rows(stays, belief, shares), p_min))
+    centre = 0.5 * (logits.max(axis=-1, keepdims=True) + logits.min(axis=-1, keepdims=True))
+    return np.clip((logits - centre) / gain, -1.0, 1.0).reshape(len(stays), -1)
+
+
+class StaySelector:
+    """The policy (the ``predict`` protocol of the evaluation): the prior of the smallest
+    predicted future error, the mean of ``nets``' predictions.
+
+    Args:
+        nets: the fitted networks (one output per prior).
+        priors: ``(P, 2)`` each prior's stay ``s`` and share ``v``.
+        env_overrides: the environment it acts in (action mode, features, ...).
+        obs_size: entries of one observation (the networks' input).
+        n_models: the bank's models ``M`` (the belief is the observation's last ``M``).
+        source: where it comes from, for messages.
+        trained_across: the trackers of further training files (the evaluation's notes).
+    """
+
+    name = "selector"
+
+    def __init__(
+        self, nets: Sequence[torch.nn.Module], priors: Array, env_overrides: Mapping[str, Any],
+        obs_size: int, n_models: int, source: str = "the selector",
+        trained_across: Sequence[Mapping[str, Any]] = (),
+    ) -> None:
+        self.nets = list(nets)
+        self.priors = np.asarray(priors, dtype=np.float64)
+        self.env_overrides = dict(env_overrides)
+        self.obs_size, self.M = obs_size, n_models
+        self.source = source
+        self.trained_across = tuple(dict(t) for t in trained_across)
+        config = EnvConfig.build({**self.env_overrides,
+                                  "obs_features": tuple(self.env_overrides["obs_features"])})
+        check_priors(source, self.priors, config)
+        self.mode, self.gain = config.action_mode, config.logit_scale
+        self.p_min, self.share = config.p_min, config.detector_share
+
+    def choose(self, obs: NDArray[Any]) -> NDArray[np.int64]:
+        """``(N,)`` the index of the chosen prior for each observation ``(N, obs_size)``."""
+        x = torch.from_numpy(np.asarray(obs, dtype=np.float32))
+        with torch.no_grad():
+            predicted = torch.stack([net(x) for net in self.nets]).mean(0)
+        return predicted.argmin(1).numpy()
+
+    def predict(
+        self, observation: NDArray[Any], state: Any = None,
+        episode_start: NDArray[np.bool_] | None = None, deterministic: bool = True,
+    ) -> tuple[Array, None]:
+        """The action that sets the chosen prior (module docstring); no state."""
+        obs = np.asarray(observation)
+        single = obs.ndim == 1
+        obs = obs[None] if single else obs
+        if obs.ndim != 2 or obs.shape[1] != self.obs_size:
+            raise ConfigError(f"{self.source} reads observations of {self.obs_size} entries, "
+                              f"the environment gives {obs.shape[1:]}")
+        belief = np.asarray(obs[:, -self.M:], dtype=np.float64)
+        s, v = self.priors[self.choose(obs)].T
+        if self.mode == "stay":
+            action = stay_action(s, belief, self.share, self.gain)
+        else:
+            action = set_action(s, v, belief, self.gain, self.p_min)
+        return (action[0] if single else action), None
+
+
+def combine(selectors: Sequence[StaySelector]) -> StaySelector:
+    """Several selectors as one, every network of each a member (the mean prediction).
+
+    Raises:
+        ConfigError: they choose among other priors or act in another environment.
+    """
+    first = selectors[0]
+    for other in selectors[1:]:
+        if not np.array_equal(other.priors, first.priors) or (
+            other.env_overrides != first.env_overrides
+        ):
+            raise ConfigError(f"{other.source} has other priors or another environment than "
+                              f"{first.source}: they cannot act as one")
+    nets = [net for one in selectors for net in one.nets]
+    return StaySelector(nets, first.priors, first.env_overrides, first.obs_size, first.M,
+                        " + ".join(one.source for one in selectors), first.trained_across)
+
+
+def check_priors(where: str, priors: Any, config: EnvConfig) -> Array:
+    """``priors`` as a ``(P, 2)`` array after checking it against the environment ``config``:
+    stays in ``[1/M, 1)``, shares in ``[0, 1]``; in ``stay`` mode at ``stay_base: uniform``,
+    every share the environment's ``detector_share``."""
+    M = len(config.bank)
+    try:
+        array = np.array(priors, dtype=np.float64)
+    except (TypeError, ValueError):
+        array = np.empty(0)
+    if array.ndim != 2 or array.shape[1:] != (2,) or len(array) < 2:
+        raise ConfigError(f"{where}: priors must be a list of at least two [stay, share] pairs")
+    s, v = array.T
+    if not (np.all(s >= 1.0 / M - 1e-12) and np.all(s < 1.0)):
+        raise ConfigError(f"{where}: every stay must be in [1/{M}, 1), got {s.tolist()}")
+    if not (np.all(v >= 0.0) and np.all(v <= 1.0)):
+        raise ConfigError(f"{where}: every share must be in [0, 1], got {v.tolist()}")
+    if config.action_mode not in SELECTOR_MODES:
+        raise ConfigError(f"{where}: the environment's action_mode must be one of "
+                          f"{list(SELECTOR_MODES)}, got {config.action_mode!r}")
+    if config.action_mode == "stay" and (
+        config.stay_base != "uniform" or not np.all(v == config.detector_share)
+    ):
+        raise ConfigError(f"{where}: in the stay action mode every share must be the "
+                          f"environment's detector_share ({config.detector_share}) at "
+                          f"stay_base 'uniform' (got {config.stay_base!r})")
+    if "detector_belief" not in config.obs_features or (
+        config.obs_features[-1] != "detector_belief"
+    ):
+        raise ConfigError(f"{where}: the environment's obs_features must end with "
+                          f"'detector_belief' (the belief the priors are computed from)")
+    return array
+
+
+def is_selector(path: str | Path) -> bool:
+    """Whether ``path`` is a selector's directory (or its ``selector.json``)."""
+    path = Path(path)
+    return path.name == SELECTOR_FILE or (path / SELECTOR_FILE).is_file()
+
+
+def load_selector(path: str | Path) -> StaySelector:
+    """Load a selector from its directory (or its ``selector.json``), every file checked.
+
+    Raises:
+        ConfigError: a file is missing or malformed (unknown keys, another format, priors out
+            of range, a member that is not there or whose tensors do not fit the observation
+            and the priors); the message names the file.
+    """
+    path = Path(path)
+    directory = path.parent if path.name == SELECTOR_FILE else path
+    file = directory / SELECTOR_FILE
+    data = read_json(file)
+    unknown = sorted(set(data) - set(SELECTOR_KEYS))
+    if unknown:
+        raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(SELECTOR_KEYS)}")
+    if data.get("format") != FORMAT:
+        raise ConfigError(f"{file}: format must be {FORMAT!r}, got {data.get('format')!r}")
+    if data.get("combine", COMBINE[0]) not in COMBINE:
+        raise ConfigError(f"{file}: combine must be one of {list(COMBINE)}, got "
+                          f"{data.get('combine')!r}")
+    hidden = data.get("hidden")
+    if not isinstance(hidden, int) or isinstance(hidden, bool) or hidden < 1:
+        raise ConfigError(f"{file}: hidden must be a positive integer, got {hidden!r}")
+    members = data.get("members")
+    if (not isinstance(members, list) or not members
+            or not all(isinstance(m, str) and m and "/" not in m for m in members)
+            or len(set(members)) != len(members)):
+        raise ConfigError(f"{file}: members must be a non-empty list of distinct file names "
+                          f"in the selector's directory")
+    env, obs_size, _ = _check_env(directory / ENV_FILE, None)
+    config = EnvConfig.build(env)  # _check_env built it already: no error here
+    priors = check_priors(f"{file}", data.get("priors"), config)
+    nets = []
+    for member in members:
+        net = network(obs_size, len(priors), hidden)
+        try:
+            net.load_state_dict(load_file(directory / member))
+        except FileNotFoundError:
+            raise ConfigError(f"{file}: member {member!r} is not there") from None
+        except Exception as err:  # safetensors' and torch's errors: a misshapen file
+            raise ConfigError(f"{file}: member {member!r} does not fit an observation of "
+                              f"{obs_size} entries and {len(priors)} priors ({err})") from None
+        nets.append(net.eval())
+    trained_across = data.get("trained_across", [])
+    if not isinstance(trained_across, list) or not all(
+        isinstance(t, dict) for t in trained_across
+    ):
+        raise ConfigError(f"{file}: trained_across must be a list of trackers (objects)")
+    source = f"selector {str(directory)!r}"
+    return StaySelector(nets, priors, env, obs_size, len(config.bank), source, trained_across)
+
+
+def save_selector(
+    directory: str | Path, nets: Sequence[torch.nn.Module], priors: Array,
+    env_overrides: Mapping[str, Any], hidden: int = 256,
+    trained_across: Sequence[Mapping[str, Any]] = (), fit: Mapping[str, Any] | None = None,
+) -> StaySelector:
+    """Write a selector's directory (module docstring) and load it back, checked."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    members = [f"net_{k}.safetensors" for k in range(len(nets))]
+    for net, member in zip(nets, members, strict=True):
+        save_file(net.state_dict(), str(directory / member))
+    env = {k: list(v) if isinstance(v, tuple) else v for k, v in env_overrides.items()}
+    (directory / ENV_FILE).write_text(json.dumps(env, indent=2) + "\n")
+    data: dict[str, Any] = {
+        "format": FORMAT, "combine": COMBINE[0],
+        "priors": np.asarray(priors, dtype=np.float64).tolist(), "hidden": hidden,
+        "members": members, "trained_across": [dict(t) for t in trained_across],
+    }
+    if fit is not None:
+        data["fit"] = dict(fit)
+    (directory / SELECTOR_FILE).write_text(json.dumps(data, indent=2) + "\n")
+    return load_selector(directory)

@@ -1,0 +1,164 @@
+"""``agents.selector``: the selector's actions give the priors it chooses on the environment, a
+saved selector loads as data and acts alike (several members on their mean prediction), the
+evaluation takes it by path, and malformed directories are refused naming the file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from agents.ensemble import load_policy
+from agents.selector import (
+    SELECTOR_FILE,
+    StaySelector,
+    load_selector,
+    network,
+    save_selector,
+    set_action,
+    stay_action,
+)
+from imm_gym.cli.evaluate import evaluate
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.tracking.tpm import apply_floor
+from imm_gym.validation import ConfigError
+
+FEATURES = ["shadow_probs", "stay_bank_evidence", "detector_belief"]
+STAY_ENV: dict[str, Any] = {
+    "obs_features": FEATURES, "action_mode": "stay", "stay_base": "uniform",
+    "detector": "learned", "detector_share": 0.75, "logit_scale": 9.0,
+}
+SET_ENV: dict[str, Any] = {
+    "obs_features": FEATURES, "action_mode": "set", "detector": "learned",
+    "logit_scale": 10.0, "p_min": 1e-4,
+}
+GRID = np.array([1 / 3, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995])
+
+
+def core_of(env: dict[str, Any], n: int, **changes: Any) -> TrackingCore:
+    config = EnvConfig.build({**env, "obs_features": tuple(env["obs_features"]), **changes})
+    core = TrackingCore(config, n)
+    core.reset(np.arange(n), list(range(n)))
+    return core
+
+
+def stay_priors(share: float) -> np.ndarray:
+    return np.stack([GRID, np.full(len(GRID), share)], axis=1)
+
+
+def pair_priors() -> np.ndarray:
+    return np.array([(s, v) for v in (0.0, 0.25, 1.0) for s in GRID])
+
+
+@pytest.mark.parametrize("share", [0.0, 0.25, 0.75, 0.9])
+def test_the_stay_action_gives_the_prior_at_the_chosen_stay(share: float) -> None:
+    core = core_of(STAY_ENV, 7, detector_share=share, p_min=1e-9)  # no floor between the two
+    obs = core.observe()
+    for _ in range(3):
+        belief = core.detector_belief.copy()
+        np.testing.assert_allclose(obs[:, -3:], belief, atol=1e-6)  # observed last
+        result = core.step(stay_action(GRID, belief, share, 9.0))
+        np.testing.assert_allclose(
+            result.info["tpm"], detector_tpm_rows(GRID, belief, share), atol=1e-9
+        )
+        obs = result.obs
+
+
+def test_the_set_action_gives_any_stay_and_share_floored_at_p_min() -> None:
+    core = core_of(SET_ENV, 21)
+    priors = pair_priors()
+    for _ in range(3):
+        belief = core.detector_belief.copy()
+        result = core.step(set_action(priors[:, 0], priors[:, 1], belief, 10.0, 1e-4))
+        expected = apply_floor(detector_tpm_rows(priors[:, 0], belief, priors[:, 1]), 1e-4)
+        assert expected.min() < 2e-4  # the floor is reached: share 1 at the stickiest stays
+        np.testing.assert_allclose(result.info["tpm"], expected, atol=1e-9)
+        assert np.all(np.diagonal(result.info["tpm"], axis1=1, axis2=2)[:, 0] >= 1 / 3 - 1e-9)
+
+
+@pytest.mark.parametrize(("env", "priors"), [(STAY_ENV, stay_priors(0.75)),
+                                             (SET_ENV, pair_priors())])
+def test_a_saved_selector_acts_alike_and_two_act_on_their_mean(
+    tmp_path: Path, env: dict[str, Any], priors: np.ndarray
+) -> None:
+    core = core_of(env, 6)
+    obs = core.observe()
+    torch.manual_seed(0)
+    nets = [network(obs.shape[1], len(priors), hidden=16) for _ in range(2)]
+    one = save_selector(tmp_path / "one", nets[:1], priors, env, hidden=16)
+    two = save_selector(tmp_path / "two", nets, priors, env, hidden=16)
+    fresh = StaySelector(nets[:1], priors, env, obs.shape[1], 3)
+    np.testing.assert_array_equal(one.predict(obs)[0], fresh.predict(obs)[0])
+    x = torch.from_numpy(obs.astype(np.float32))
+    with torch.no_grad():
+        mean = (nets[0](x) + nets[1](x)) / 2
+    np.testing.assert_array_equal(two.choose(obs), mean.argmin(1).numpy())
+    assert isinstance(load_policy(tmp_path / "two"), StaySelector)  # the loaders' dispatch
+    chosen = priors[two.choose(obs)]
+    belief = core.detector_belief.copy()
+    result = core.step(two.predict(obs)[0])
+    expected = detector_tpm_rows(chosen[:, 0], belief, chosen[:, 1])
+    np.testing.assert_allclose(result.info["tpm"], expected, atol=1e-3)  # the p_min floor
+
+
+def test_the_evaluation_takes_a_selector_by_path(tmp_path: Path) -> None:
+    core = core_of(SET_ENV, 1)
+    torch.manual_seed(1)
+    nets = [network(core.observe().shape[1], len(pair_priors()), hidden=16)]
+    save_selector(tmp_path / "sel", nets, pair_priors(), SET_ENV, hidden=16)
+    results, rollouts = evaluate([str(tmp_path / "sel"), "fixed"], "paper", 2, 0,
+                                 clairvoyant=False)
+    armse = results["policies"][str(tmp_path / "sel")]["armse_pos"]
+    assert np.isfinite(armse) and armse > 0
+    tpms = rollouts[str(tmp_path / "sel")].tpm
+    np.testing.assert_allclose(tpms.sum(axis=-1), 1.0, atol=1e-12)
+
+
+def write_selector(tmp_path: Path, **changes: Any) -> Path:
+    core = core_of(STAY_ENV, 1)
+    torch.manual_seed(0)
+    nets = [network(core.observe().shape[1], len(GRID), hidden=8)]
+    directory = tmp_path / "sel"
+    save_selector(directory, nets, stay_priors(0.75), STAY_ENV, hidden=8)
+    data = json.loads((directory / SELECTOR_FILE).read_text())
+    data.update(changes)
+    (directory / SELECTOR_FILE).write_text(json.dumps(data))
+    return directory
+
+
+@pytest.mark.parametrize(("changes", "message"), [
+    ({"code": "import os"}, "unknown keys ['code']"),
+    ({"format": "pickle"}, "format must be 'imm_gym-stay-selector'"),
+    ({"combine": "vote"}, "combine must be one of ['mean_prediction']"),
+    ({"hidden": 0}, "hidden must be a positive integer"),
+    ({"members": []}, "members must be a non-empty list"),
+    ({"members": ["../net_0.safetensors"]}, "members must be a non-empty list"),
+    ({"members": ["gone.safetensors"]}, "member 'gone.safetensors' is not there"),
+    ({"hidden": 9}, "does not fit an observation"),
+    ({"priors": [[0.2, 0.75], [0.9, 0.75]]}, "every stay must be in [1/3, 1)"),
+    ({"priors": [[0.5, 0.25], [0.9, 0.25]]}, "every share must be the environment's"),
+    ({"priors": [[0.5, 1.5], [0.9, 0.75]]}, "every share must be in [0, 1]"),
+    ({"priors": [[0.5, 0.75]]}, "at least two [stay, share] pairs"),
+])
+def test_malformed_selectors_are_refused_naming_the_file(
+    tmp_path: Path, changes: dict[str, Any], message: str
+) -> None:
+    directory = write_selector(tmp_path, **changes)
+    with pytest.raises(ConfigError, match=r"selector\.json") as err:
+        load_selector(directory)
+    assert message in str(err.value)
+
+
+def test_an_environment_without_the_belief_last_is_refused(tmp_path: Path) -> None:
+    directory = write_selector(tmp_path)
+    env = {**STAY_ENV, "obs_features": ["stay_bank_evidence", "detector_belief",
+                                         "shadow_probs"]}
+    (directory / "env.json").write_text(json.dumps(env))
+    with pytest.raises(ConfigError, match="must end with 'detector_belief'"):
+        load_selector(directory)
