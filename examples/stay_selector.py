@@ -15,9 +15,9 @@ stay's discounted future squared error over the next ``H`` steps, relative to th
     y_s(k) = log( sum_{d<H} g^d e_s(k+d) / sum_{d<H} g^d ) - mean_s'( ... ),
 
 and the policy sets every row to the stay of the smallest prediction — the ``stay`` action that
-gives ``Pi_s`` exactly from the uniform base (:func:`stay_action`). It is the ``learned-prior``
-rule with its stay chosen online by a network trained across trackers instead of searched on
-each tracker's own runs; the TPM stays a switching prior by construction.
+gives ``Pi_s`` exactly from the uniform base (:func:`agents.selector.stay_action`). It is the
+``learned-prior`` rule with its stay chosen online by a network trained across trackers instead
+of searched on each tracker's own runs; the TPM stays a switching prior by construction.
 
 Training data: ``--episodes`` episodes spread evenly over the ``--env-config`` files, all
 observing the first file's features (or ``--features-from FILE``'s) and the stay bank's
@@ -30,6 +30,11 @@ random numbers, paired bootstrap CIs) beside ``best-fixed``, the shipped policy 
 
     python examples/stay_selector.py --env-config A.yaml B.yaml --episodes 100000 \\
         --runs 100 --seed 0 [--scenario paper ...] [--off-suite FILE ...]
+
+``--shares V V ...`` chooses the share with the stay: the priors are every stay at every share
+``v`` (the ``set`` action sets their rows, :func:`agents.selector.set_action`), their errors
+from one core per share replaying the same episodes (docs/experiments.md, "The selector as a
+policy, and a share chosen with the stay").
 
 ``--save DIR`` writes the selector as a directory of data files (:mod:`agents.selector`), which
 ``python -m imm_gym.evaluate --policy DIR`` (and every tool that takes an agent) loads;
@@ -57,6 +62,7 @@ from agents.selector import (
     load_selector,
     network,
     save_selector,
+    set_action,
     stay_action,
 )
 from agents.training import set_threads
@@ -82,6 +88,9 @@ EXTRA_FEATURES = ("stay_bank_evidence", "tracking_index", "detector_belief")
 #: The largest share: every ``q_i >= (1 - v) / M``, and from ``q_i`` the stay action reaches the
 #: grid's 0.995 within :data:`GAIN` logits only while ``(1 - v) / M`` is not much below 1/30.
 MAX_SHARE = 0.9
+#: ``--shares``: the ``set`` action's logits per unit action, and the floor of its rows (every
+#: prior's rows exact: ``SET_GAIN >= log(1 / P_MIN) / 2``).
+SET_GAIN, P_MIN = 10.0, 1e-4
 #: Probability per step that a collecting slot redraws its stay.
 REDRAW = 1.0 / 30.0
 #: Episodes per collection batch.
@@ -90,17 +99,22 @@ BATCH = 256
 
 def selector_overrides(
     base: Mapping[str, Any], share: float, q_maneuver: Sequence[float] | None,
-    n_segments: Sequence[int] | None,
+    n_segments: Sequence[int] | None, action_mode: str = "stay",
 ) -> dict[str, Any]:
     """A training file's overrides as the selector runs it: the ``stay`` action from the uniform
     base, the learned detector leaning the share ``share`` of the jumps (of the stay bank's IMMs
-    too), :data:`EXTRA_FEATURES` observed; ``q_maneuver`` added to its ``vary`` and
+    too), :data:`EXTRA_FEATURES` observed; with ``action_mode="set"`` (``--shares``) the ``set``
+    action instead (:data:`SET_GAIN`, :data:`P_MIN`), which takes no share: the stay bank runs
+    at share 0 and ``share`` is not used. ``q_maneuver`` is added to its ``vary`` and
     ``n_segments`` to its ``family`` where given and the file does not set them."""
     out = dict(base)
     features = [f for f in out.get("obs_features", ()) if f not in EXTRA_FEATURES]
     out.update(action_mode="stay", stay_base="uniform", detector="learned",
                detector_share=share, logit_scale=GAIN,
                obs_features=(*features, *EXTRA_FEATURES))
+    if action_mode == "set":
+        out.update(action_mode="set", stay_base="tracker", detector_share=0.0,
+                   logit_scale=SET_GAIN, p_min=P_MIN)
     if q_maneuver is not None:
         out["vary"] = {"q_maneuver": list(q_maneuver), **out.get("vary", {})}
     if n_segments is not None:
@@ -124,40 +138,66 @@ def future_error(errors: Array, gamma: float, horizon: int) -> Array:
 
 def collect(
     overrides: Mapping[str, Any], episodes: int, first_seed: int, rng: np.random.Generator,
-    gamma: float, horizon: int, stride: int,
+    gamma: float, horizon: int, stride: int, shares: Sequence[float] | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Observations and targets (:func:`future_error`) of ``episodes`` episodes of one
     configuration (rounded up to whole batches of :data:`BATCH`), seeds ``first_seed ...``,
-    every ``stride``-th step; episodes whose tracker diverged are left out."""
+    every ``stride``-th step; episodes whose tracker diverged are left out.
+
+    With ``shares`` (``overrides`` in the ``set`` action mode) the priors are every stay of the
+    grid at every share, share-major, and each slot runs a random one of them; their errors
+    come from one core per share replaying the same episodes (the same seeds, so the same
+    targets and measurements; the observing core's own bank gives share 0)."""
     config = EnvConfig.build(overrides)
     n = min(BATCH, episodes)
     core = TrackingCore(config, n)
     grid = core.stay_bank.stays[:, 0]  # type: ignore[union-attr]
     M, cap = core.M, config.divergence_error**2
+    if shares is None:
+        banks, priors = [core], np.stack([grid, np.full(len(grid), config.detector_share)], 1)
+    else:
+        banks = [core if v == config.detector_share else TrackingCore(EnvConfig.build(
+            {**overrides, "action_mode": "stay", "stay_base": "uniform", "detector_share": v,
+             "logit_scale": GAIN}), n) for v in shares]
+        priors = np.array([(stay, v) for v in shares for stay in grid])
+    others = [bank for bank in dict.fromkeys(banks) if bank is not core]
     X, Y = [], []
     for start in range(0, episodes, n):
-        core.reset(np.arange(n), [first_seed + start + i for i in range(n)])
+        for one in (core, *others):
+            one.reset(np.arange(n), [first_seed + start + i for i in range(n)])
         obs = core.observe()
         K = core.horizon
-        pick = rng.integers(0, len(grid), n)
+        pick = rng.integers(0, len(priors), n)
         seen = np.zeros((n, K, obs.shape[1]), np.float32)
-        errors = np.zeros((n, K, len(grid)))
+        errors = np.zeros((n, K, len(priors)))
         for k in range(K):
             seen[:, k] = obs
-            pick = np.where(rng.random(n) < REDRAW, rng.integers(0, len(grid), n), pick)
-            action = stay_action(grid[pick], obs[:, -M:].astype(np.float64),
-                                 config.detector_share, GAIN)
+            pick = np.where(rng.random(n) < REDRAW, rng.integers(0, len(priors), n), pick)
+            belief = obs[:, -M:].astype(np.float64)
+            stays, v = priors[pick].T
+            action = (stay_action(stays, belief, config.detector_share, GAIN) if shares is None
+                      else set_action(stays, v, belief, SET_GAIN, P_MIN))
             live = ~core.done
             result = core.step(action) if live.all() else core.step(action, live)
-            truth = result.info["true_state"][:, None, :2]
-            e2 = np.sum((core.stay_bank.estimates()[:, :, :2] - truth) ** 2, axis=-1)  # type: ignore[union-attr]
+            truth = result.info["true_state"][:, :2]
+            for other in others:  # their banks run unsteered; their own action is not used
+                ok = ~other.done
+                zero = np.zeros((n, M))
+                step = other.step(zero) if ok.all() else other.step(zero, ok)
+                both = live & ok
+                if not np.array_equal(step.info["true_state"][both, :2], truth[both]):
+                    raise RuntimeError("the cores of the shares replay other targets")
+                live = both
+            e2 = np.concatenate([np.sum(
+                (bank.stay_bank.estimates()[:, :, :2] - truth[:, None]) ** 2, axis=-1  # type: ignore[union-attr]
+            ) for bank in banks], axis=1)
             errors[:, k] = np.where(np.isfinite(e2) & (e2 < cap), e2, cap)
             errors[~live, k] = np.nan
             obs = result.obs
         ok = ~np.isnan(errors).any(axis=(1, 2))
         y = future_error(errors[ok], gamma, horizon)
         X.append(seen[ok][:, ::stride].reshape(-1, seen.shape[-1]))
-        Y.append(y[:, ::stride].reshape(-1, len(grid)).astype(np.float32))
+        Y.append(y[:, ::stride].reshape(-1, len(priors)).astype(np.float32))
     return np.concatenate(X), np.concatenate(Y)
 
 
@@ -217,7 +257,7 @@ def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace) -> torch
     start = time.perf_counter()
     first = SELECTOR_SEED_BASE + 10**10 * args.fit_seed
     parts = [collect(o, args.episodes // len(files), first + j * 10**9, rng, args.gamma,
-                     args.horizon, args.stride) for j, o in enumerate(files)]
+                     args.horizon, args.stride, args.shares) for j, o in enumerate(files)]
     X = np.concatenate([x for x, _ in parts])
     Y = np.concatenate([y for _, y in parts])
     collected = time.perf_counter() - start
@@ -235,6 +275,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=100_000)
     p.add_argument("--share", type=float, default=0.75,
                    help=f"the detector's share v, at most {MAX_SHARE}")
+    p.add_argument("--shares", type=float, nargs="+", default=None, metavar="V",
+                   help="choose the share too, among these (in [0, 1]; the set action)")
     p.add_argument("--features-from", default=None, metavar="FILE",
                    help="observe this file's obs_features on every training file (default: the "
                         "first file's)")
@@ -263,6 +305,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = p.parse_args(argv)
     if not 0.0 <= args.share <= MAX_SHARE:
         p.error(f"--share must be in [0, {MAX_SHARE}], got {args.share}")
+    if args.shares is not None and (
+        not all(0.0 <= v <= 1.0 for v in args.shares) or len(set(args.shares)) < 2
+        or len(set(args.shares)) != len(args.shares)
+    ):
+        p.error(f"--shares must be at least two distinct shares in [0, 1], got {args.shares}")
     if args.episodes < len(args.env_config):
         p.error(f"--episodes must be at least one per file ({len(args.env_config)})")
     if not 0.0 < args.gamma <= 1.0:
@@ -276,11 +323,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         p.error(f"--scenario {unknown[0]!r} is not in the benchmark suite ({', '.join(suite)})")
     set_threads(1)  # one BLAS and torch thread: jobs beside it do not wait on each other
     features = read_env_config(args.features_from or args.env_config[0]).get("obs_features", ())
+    mode = "stay" if args.shares is None else "set"
     files = [selector_overrides({**read_env_config(f), "obs_features": features}, args.share,
-                                args.q_maneuver, args.n_segments) for f in args.env_config]
+                                args.q_maneuver, args.n_segments, mode) for f in args.env_config]
     core = TrackingCore(EnvConfig.build(files[0]), 1)
     grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
-    priors = np.stack([grid, np.full(len(grid), args.share)], axis=1)
+    priors = (np.stack([grid, np.full(len(grid), args.share)], axis=1) if args.shares is None
+              else np.array([(stay, v) for v in args.shares for stay in grid]))
     if args.weights:
         try:
             loaded = combine([load_selector(d) for d in args.weights])

@@ -68,6 +68,8 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
 
 @pytest.mark.parametrize(("option", "message"), [
     (["--share", "1.0"], "--share must be in [0, 0.9]"),
+    (["--shares", "0.5"], "--shares must be at least two distinct shares in [0, 1]"),
+    (["--shares", "0", "1.5"], "--shares must be at least two distinct shares in [0, 1]"),
     (["--gamma", "3"], "--gamma must be in (0, 1]"),
     (["--horizon", "0"], "--horizon must be at least 1"),
     (["--scenario", "nowhere"], "--scenario 'nowhere' is not in the benchmark suite"),
@@ -79,6 +81,23 @@ def test_bad_options_are_refused_before_any_work(
     with pytest.raises(SystemExit):
         example.main(["--env-config", FILE, *option])
     assert message in capsys.readouterr().err
+
+
+def test_the_shares_cores_replay_the_episodes_each_share_alone_gives() -> None:
+    example = load_example("stay_selector")
+    base = read_env_config(FILE)
+    single = example.selector_overrides(base, 0.75, None, None)
+    pairs = example.selector_overrides(base, 0.75, None, None, "set")
+    assert pairs["action_mode"] == "set" and pairs["detector_share"] == 0.0
+    _, Y1 = example.collect(single, 8, example.SELECTOR_SEED_BASE,
+                            np.random.default_rng(0), 1.0, 30, 10)
+    X2, Y2 = example.collect(pairs, 8, example.SELECTOR_SEED_BASE,
+                             np.random.default_rng(0), 1.0, 30, 10, [0.0, 0.75])
+    assert Y2.shape == (8 * 15, 14) and X2.shape[0] == Y1.shape[0]
+    # the bank errors do not depend on the action: share 0.75's block, re-centred, is the
+    # single-share collection's targets
+    block = Y2[:, 7:] - Y2[:, 7:].mean(axis=1, keepdims=True)
+    np.testing.assert_allclose(block, Y1, atol=1e-5)
 
 
 def test_saved_selectors_act_as_one_and_are_written_as_one(tmp_path: object) -> None:
