@@ -184,7 +184,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
         spec["critic_dims"] != critic_dims or spec["frame_stack"] != frame_stack
     ):
         raise ConfigError(f"{where}: critic_dims/frame_stack differ from the agent's")
-    env_overrides, frame, actions = _check_env(directory / ENV_FILE, meta.get("env_id"))
+    env_overrides, frame, actions = read_env_file(directory / ENV_FILE, meta.get("env_id"))
     frame += critic_dims
     if spec["observation_size"] != frame_stack * frame or spec["action_size"] != actions:
         raise ConfigError(
@@ -261,7 +261,7 @@ def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _check_env(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
+def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     """``env.json``'s overrides (validated on the preset of ``env_id``), the size of one
     observation and of an action in that environment."""
     from imm_gym.envs import PRESETS

@@ -43,7 +43,7 @@ import torch
 from numpy.typing import NDArray
 from safetensors.torch import load_file, save_file
 
-from agents.policy import ENV_FILE, _check_env, read_json
+from agents.policy import ENV_FILE, read_env_file, read_json
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
 from imm_gym.tracking.tpm import apply_floor
@@ -236,8 +236,8 @@ def load_selector(path: str | Path) -> StaySelector:
             or len(set(members)) != len(members)):
         raise ConfigError(f"{file}: members must be a non-empty list of distinct file names "
                           f"in the selector's directory")
-    env, obs_size, _ = _check_env(directory / ENV_FILE, None)
-    config = EnvConfig.build(env)  # _check_env built it already: no error here
+    env, obs_size, _ = read_env_file(directory / ENV_FILE, None)
+    config = EnvConfig.build(env)  # read_env_file built it already: no error here
     priors = check_priors(f"{file}", data.get("priors"), config)
     nets = []
     for member in members:
