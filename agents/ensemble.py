@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.policy import AGENT_FILE, LearnedPolicy, load_agent, read_json
+from agents.policy import AGENT_FILE, LearnedPolicy, load_agent, read_manifest
 from agents.selector import StaySelector, is_selector, load_selector
 from imm_gym.sim.mixture import POLICY_FIELDS
 from imm_gym.validation import ConfigError
@@ -118,15 +118,7 @@ def member_paths(path: str | Path) -> list[Path]:
     path = Path(path)
     directory = path.parent if path.name == ENSEMBLE_FILE else path
     file = directory / ENSEMBLE_FILE
-    data = read_json(file)
-    unknown = sorted(set(data) - set(ENSEMBLE_KEYS))
-    if unknown:
-        raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(ENSEMBLE_KEYS)}")
-    if data.get("format") != FORMAT:
-        raise ConfigError(f"{file}: format must be {FORMAT!r}, got {data.get('format')!r}")
-    if data.get("combine", COMBINE[0]) not in COMBINE:
-        raise ConfigError(f"{file}: combine must be one of {list(COMBINE)}, got "
-                          f"{data.get('combine')!r}")
+    data = read_manifest(file, ENSEMBLE_KEYS, FORMAT, COMBINE)
     members = data.get("members")
     if (
         not isinstance(members, list)

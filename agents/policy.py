@@ -234,6 +234,28 @@ def read_json(file: Path) -> dict[str, Any]:
     return data
 
 
+def read_manifest(
+    file: Path, keys: Sequence[str], fmt: str, combine: Sequence[str]
+) -> dict[str, Any]:
+    """The JSON object of a directory of several networks acting as one (``ensemble.json``,
+    ``selector.json``), checked: only ``keys``, the format ``fmt``, a ``combine`` rule among
+    ``combine`` (the first when absent).
+
+    Raises:
+        ConfigError: the file is unreadable or breaks one of those; the message names it.
+    """
+    data = read_json(file)
+    unknown = sorted(set(data) - set(keys))
+    if unknown:
+        raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(keys)}")
+    if data.get("format") != fmt:
+        raise ConfigError(f"{file}: format must be {fmt!r}, got {data.get('format')!r}")
+    if data.get("combine", combine[0]) not in combine:
+        raise ConfigError(f"{file}: combine must be one of {list(combine)}, got "
+                          f"{data.get('combine')!r}")
+    return data
+
+
 def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
     """``agent.json`` checked: known keys; ``algo``, ``frame_stack``, ``critic_dims`` valid, each
     tracker of ``trained_across`` a valid one (the ``policy`` entry is checked by

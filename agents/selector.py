@@ -43,7 +43,7 @@ import torch
 from numpy.typing import NDArray
 from safetensors.torch import load_file, save_file
 
-from agents.policy import ENV_FILE, read_env_file, read_json
+from agents.policy import ENV_FILE, read_env_file, read_manifest
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
 from imm_gym.tracking.tpm import apply_floor
@@ -218,15 +218,7 @@ def load_selector(path: str | Path) -> StaySelector:
     path = Path(path)
     directory = path.parent if path.name == SELECTOR_FILE else path
     file = directory / SELECTOR_FILE
-    data = read_json(file)
-    unknown = sorted(set(data) - set(SELECTOR_KEYS))
-    if unknown:
-        raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(SELECTOR_KEYS)}")
-    if data.get("format") != FORMAT:
-        raise ConfigError(f"{file}: format must be {FORMAT!r}, got {data.get('format')!r}")
-    if data.get("combine", COMBINE[0]) not in COMBINE:
-        raise ConfigError(f"{file}: combine must be one of {list(COMBINE)}, got "
-                          f"{data.get('combine')!r}")
+    data = read_manifest(file, SELECTOR_KEYS, FORMAT, COMBINE)
     hidden = data.get("hidden")
     if not isinstance(hidden, int) or isinstance(hidden, bool) or hidden < 1:
         raise ConfigError(f"{file}: hidden must be a positive integer, got {hidden!r}")
