@@ -160,7 +160,8 @@ def collect(
             {**overrides, "action_mode": "stay", "stay_base": "uniform", "detector_share": v,
              "logit_scale": GAIN}), n) for v in shares]
         priors = np.array([(stay, v) for v in shares for stay in grid])
-    others = [bank for bank in dict.fromkeys(banks) if bank is not core]
+    others = [bank for bank in banks if bank is not core]
+    zero = np.zeros((n, M))  # the other cores' action: their banks run unsteered
     X, Y = [], []
     for start in range(0, episodes, n):
         for one in (core, *others):
@@ -180,9 +181,8 @@ def collect(
             live = ~core.done
             result = core.step(action) if live.all() else core.step(action, live)
             truth = result.info["true_state"][:, :2]
-            for other in others:  # their banks run unsteered; their own action is not used
+            for other in others:
                 ok = ~other.done
-                zero = np.zeros((n, M))
                 step = other.step(zero) if ok.all() else other.step(zero, ok)
                 both = live & ok
                 if not np.array_equal(step.info["true_state"][both, :2], truth[both]):

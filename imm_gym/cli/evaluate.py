@@ -162,8 +162,9 @@ def make_policy(
 
 
 def load_trained(path: Path) -> tuple[Any, dict[str, Any], dict[str, Any]]:
-    """A trained agent (``agents.policy`` directory layout) or an ensemble of them
-    (``agents.ensemble``) and its environment overrides."""
+    """A trained agent (``agents.policy`` directory layout), an ensemble of them
+    (``agents.ensemble``) or a stay selector (``agents.selector``) and its environment
+    overrides."""
     from agents.ensemble import load_policy
 
     try:
