@@ -253,10 +253,12 @@ def load_selector(path: str | Path) -> StaySelector:
 
 def save_selector(
     directory: str | Path, nets: Sequence[torch.nn.Module], priors: Array,
-    env_overrides: Mapping[str, Any], hidden: int = 256,
-    trained_across: Sequence[Mapping[str, Any]] = (), fit: Mapping[str, Any] | None = None,
+    env_overrides: Mapping[str, Any], trained_across: Sequence[Mapping[str, Any]] = (),
+    fit: Mapping[str, Any] | None = None,
 ) -> StaySelector:
-    """Write a selector's directory (module docstring) and load it back, checked."""
+    """Write a selector's directory (module docstring; the width ``hidden`` is the networks'
+    first layer's) and load it back, checked."""
+    hidden = nets[0][0].out_features
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     members = [f"net_{k}.safetensors" for k in range(len(nets))]

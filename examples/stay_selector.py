@@ -270,8 +270,9 @@ def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace) -> torch
 
 def main(argv: Sequence[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--env-config", nargs="+", required=True, metavar="FILE",
-                   help="training configurations (episodes spread evenly over them)")
+    p.add_argument("--env-config", nargs="+", default=[], metavar="FILE",
+                   help="training configurations (episodes spread evenly over them); unused "
+                        "with --weights (a selector records its environment)")
     p.add_argument("--episodes", type=int, default=100_000)
     p.add_argument("--share", type=float, default=0.75,
                    help=f"the detector's share v, at most {MAX_SHARE}")
@@ -310,6 +311,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         or len(set(args.shares)) != len(args.shares)
     ):
         p.error(f"--shares must be at least two distinct shares in [0, 1], got {args.shares}")
+    if not args.weights and not args.env_config:
+        p.error("give --env-config FILE ... (collect and fit) or --weights DIR ... (score saved "
+                "selectors)")
     if args.episodes < len(args.env_config):
         p.error(f"--episodes must be at least one per file ({len(args.env_config)})")
     if not 0.0 < args.gamma <= 1.0:
@@ -322,33 +326,36 @@ def main(argv: Sequence[str] | None = None) -> None:
     if unknown:
         p.error(f"--scenario {unknown[0]!r} is not in the benchmark suite ({', '.join(suite)})")
     set_threads(1)  # one BLAS and torch thread: jobs beside it do not wait on each other
-    features = read_env_config(args.features_from or args.env_config[0]).get("obs_features", ())
-    mode = "stay" if args.shares is None else "set"
-    files = [selector_overrides({**read_env_config(f), "obs_features": features}, args.share,
-                                args.q_maneuver, args.n_segments, mode) for f in args.env_config]
-    core = TrackingCore(EnvConfig.build(files[0]), 1)
-    grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
-    priors = (np.stack([grid, np.full(len(grid), args.share)], axis=1) if args.shares is None
-              else np.array([(stay, v) for v in args.shares for stay in grid]))
     if args.weights:
         try:
-            loaded = combine([load_selector(d) for d in args.weights])
+            selector = combine([load_selector(d) for d in args.weights])
         except ConfigError as err:
             p.error(f"--weights: {err}")
-        nets, priors, files[0] = loaded.nets, loaded.priors, loaded.env_overrides
-        across = loaded.trained_across
-        fit_record = {"members_from": list(args.weights)}
+        if args.save:
+            selector = save_selector(args.save, selector.nets, selector.priors,
+                                     selector.env_overrides, trained_across=selector.trained_across,
+                                     fit={"members_from": list(args.weights)})
     else:
+        features = read_env_config(args.features_from or args.env_config[0]).get(
+            "obs_features", ())
+        mode = "stay" if args.shares is None else "set"
+        files = [selector_overrides({**read_env_config(f), "obs_features": features}, args.share,
+                                    args.q_maneuver, args.n_segments, mode)
+                 for f in args.env_config]
+        core = TrackingCore(EnvConfig.build(files[0]), 1)
+        grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
+        priors = (np.stack([grid, np.full(len(grid), args.share)], axis=1) if args.shares is None
+                  else np.array([(stay, v) for v in args.shares for stay in grid]))
         nets = [train(files, args)]
         across = tuple(tracker_of(f) for f in files[1:])
         fit_record = {k: v for k, v in vars(args).items() if k not in ("save", "weights")}
+        selector = (save_selector(args.save, nets, priors, files[0], trained_across=across,
+                                  fit=fit_record) if args.save
+                    else StaySelector(nets, priors, files[0], core.observe().shape[1], core.M,
+                                      trained_across=across))
     if args.save:
-        selector = save_selector(args.save, nets, priors, files[0], trained_across=across,
-                                 fit=fit_record)
-        print(f"wrote {args.save} ({len(nets)} network{'s' * (len(nets) > 1)})")
-    else:
-        selector = StaySelector(nets, priors, files[0], core.observe().shape[1], core.M,
-                                trained_across=across)
+        print(f"wrote {args.save} ({len(selector.nets)} network"
+              f"{'s' * (len(selector.nets) > 1)})")
     configs = {k: v for k, v in suite.items() if not args.scenario or k in args.scenario}
     configs.update({f: read_env_config(f) for f in args.off_suite})
     score(selector, configs, args.runs, args.seed)

@@ -91,8 +91,8 @@ def test_a_saved_selector_acts_alike_and_two_act_on_their_mean(
     obs = core.observe()
     torch.manual_seed(0)
     nets = [network(obs.shape[1], len(priors), hidden=16) for _ in range(2)]
-    one = save_selector(tmp_path / "one", nets[:1], priors, env, hidden=16)
-    two = save_selector(tmp_path / "two", nets, priors, env, hidden=16)
+    one = save_selector(tmp_path / "one", nets[:1], priors, env)
+    two = save_selector(tmp_path / "two", nets, priors, env)
     fresh = StaySelector(nets[:1], priors, env, obs.shape[1], 3)
     np.testing.assert_array_equal(one.predict(obs)[0], fresh.predict(obs)[0])
     x = torch.from_numpy(obs.astype(np.float32))
@@ -111,7 +111,7 @@ def test_the_evaluation_takes_a_selector_by_path(tmp_path: Path) -> None:
     core = core_of(SET_ENV, 1)
     torch.manual_seed(1)
     nets = [network(core.observe().shape[1], len(pair_priors()), hidden=16)]
-    save_selector(tmp_path / "sel", nets, pair_priors(), SET_ENV, hidden=16)
+    save_selector(tmp_path / "sel", nets, pair_priors(), SET_ENV)
     results, rollouts = evaluate([str(tmp_path / "sel"), "fixed"], "paper", 2, 0,
                                  clairvoyant=False)
     armse = results["policies"][str(tmp_path / "sel")]["armse_pos"]
@@ -125,7 +125,7 @@ def write_selector(tmp_path: Path, **changes: Any) -> Path:
     torch.manual_seed(0)
     nets = [network(core.observe().shape[1], len(GRID), hidden=8)]
     directory = tmp_path / "sel"
-    save_selector(directory, nets, stay_priors(0.75), STAY_ENV, hidden=8)
+    save_selector(directory, nets, stay_priors(0.75), STAY_ENV)
     data = json.loads((directory / SELECTOR_FILE).read_text())
     data.update(changes)
     (directory / SELECTOR_FILE).write_text(json.dumps(data))

@@ -122,6 +122,26 @@ def test_saved_selectors_act_as_one_and_are_written_as_one(tmp_path: object) -> 
         combine([both, other])
 
 
+def test_saved_selectors_are_scored_without_a_training_file(
+    tmp_path: object, capsys: pytest.CaptureFixture[str],
+) -> None:
+    example = load_example("stay_selector")
+    with pytest.raises(SystemExit):
+        example.main([])
+    assert "give --env-config FILE ... (collect and fit) or --weights" in capsys.readouterr().err
+    overrides = example.selector_overrides(read_env_config(FILE), 0.75, None, None)
+    core = selector_core(example, 1, 0.75)
+    grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
+    torch.manual_seed(0)
+    net = network(core.observe().shape[1], len(grid), hidden=8)
+    save_selector(f"{tmp_path}/fit", [net], np.stack([grid, np.full(7, 0.75)], axis=1),
+                  overrides)
+    example.main(["--weights", f"{tmp_path}/fit", f"{tmp_path}/fit", "--save", f"{tmp_path}/two",
+                  "--scenario", "paper", "--runs", "2"])
+    assert "wrote" in capsys.readouterr().out
+    assert len(load_selector(f"{tmp_path}/two").nets) == 2
+
+
 def test_the_options_fill_in_what_a_file_does_not_set() -> None:
     example = load_example("stay_selector")
     plain = example.selector_overrides(read_env_config(FILE), 0.75, (0.5, 50.0), (1, 6))
