@@ -99,7 +99,6 @@ class StaySelector:
         priors: ``(P, 2)`` each prior's stay ``s`` and share ``v``.
         env_overrides: the environment it acts in (action mode, features, ...).
         obs_size: entries of one observation (the networks' input).
-        n_models: the bank's models ``M`` (the belief is the observation's last ``M``).
         source: where it comes from, for messages.
         trained_across: the trackers of further training files (the evaluation's notes).
     """
@@ -107,19 +106,21 @@ class StaySelector:
     name = "selector"
 
     def __init__(
-        self, nets: Sequence[torch.nn.Module], priors: Array, env_overrides: Mapping[str, Any],
-        obs_size: int, n_models: int, source: str = "the selector",
+        self, nets: Sequence[torch.nn.Module], priors: Any, env_overrides: Mapping[str, Any],
+        obs_size: int, source: str = "the selector",
         trained_across: Sequence[Mapping[str, Any]] = (),
     ) -> None:
         self.nets = list(nets)
-        self.priors = np.asarray(priors, dtype=np.float64)
         self.env_overrides = dict(env_overrides)
-        self.obs_size, self.M = obs_size, n_models
+        self.obs_size = obs_size
         self.source = source
         self.trained_across = tuple(dict(t) for t in trained_across)
         config = EnvConfig.build({**self.env_overrides,
                                   "obs_features": tuple(self.env_overrides["obs_features"])})
-        check_priors(source, self.priors, config)
+        #: ``(P, 2)`` each prior's stay and share, checked (:func:`check_priors`)
+        self.priors = check_priors(source, priors, config)
+        #: the bank's models ``M``: the belief is the observation's last ``M`` entries
+        self.M = len(config.bank)
         self.mode, self.gain = config.action_mode, config.logit_scale
         self.p_min, self.share = config.p_min, config.detector_share
 
@@ -164,7 +165,7 @@ def combine(selectors: Sequence[StaySelector]) -> StaySelector:
             raise ConfigError(f"{other.source} has other priors or another environment than "
                               f"{first.source}: they cannot act as one")
     nets = [net for one in selectors for net in one.nets]
-    return StaySelector(nets, first.priors, first.env_overrides, first.obs_size, first.M,
+    return StaySelector(nets, first.priors, first.env_overrides, first.obs_size,
                         " + ".join(one.source for one in selectors), first.trained_across)
 
 
@@ -228,27 +229,27 @@ def load_selector(path: str | Path) -> StaySelector:
             or len(set(members)) != len(members)):
         raise ConfigError(f"{file}: members must be a non-empty list of distinct file names "
                           f"in the selector's directory")
+    trained_across = data.get("trained_across", [])
+    if not isinstance(trained_across, list) or not all(
+        isinstance(t, dict) for t in trained_across
+    ):
+        raise ConfigError(f"{file}: trained_across must be a list of trackers (objects)")
     env, obs_size, _ = read_env_file(directory / ENV_FILE, None)
-    config = EnvConfig.build(env)  # read_env_file built it already: no error here
-    priors = check_priors(f"{file}", data.get("priors"), config)
-    nets = []
+    # the priors and the environment checked first, the members' tensors loaded into it
+    selector = StaySelector([], data.get("priors"), env, obs_size, f"selector {str(file)!r}",
+                            trained_across)
     for member in members:
-        net = network(obs_size, len(priors), hidden)
+        net = network(obs_size, len(selector.priors), hidden)
         try:
             net.load_state_dict(load_file(directory / member))
         except FileNotFoundError:
             raise ConfigError(f"{file}: member {member!r} is not there") from None
         except Exception as err:  # safetensors' and torch's errors: a misshapen file
             raise ConfigError(f"{file}: member {member!r} does not fit an observation of "
-                              f"{obs_size} entries and {len(priors)} priors ({err})") from None
-        nets.append(net.eval())
-    trained_across = data.get("trained_across", [])
-    if not isinstance(trained_across, list) or not all(
-        isinstance(t, dict) for t in trained_across
-    ):
-        raise ConfigError(f"{file}: trained_across must be a list of trackers (objects)")
-    source = f"selector {str(directory)!r}"
-    return StaySelector(nets, priors, env, obs_size, len(config.bank), source, trained_across)
+                              f"{obs_size} entries and {len(selector.priors)} priors "
+                              f"({err})") from None
+        selector.nets.append(net.eval())
+    return selector
 
 
 def save_selector(

@@ -351,7 +351,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         fit_record = {k: v for k, v in vars(args).items() if k not in ("save", "weights")}
         selector = (save_selector(args.save, nets, priors, files[0], trained_across=across,
                                   fit=fit_record) if args.save
-                    else StaySelector(nets, priors, files[0], core.observe().shape[1], core.M,
+                    else StaySelector(nets, priors, files[0], core.observe().shape[1],
                                       trained_across=across))
     if args.save:
         print(f"wrote {args.save} ({len(selector.nets)} network"

@@ -93,7 +93,7 @@ def test_a_saved_selector_acts_alike_and_two_act_on_their_mean(
     nets = [network(obs.shape[1], len(priors), hidden=16) for _ in range(2)]
     one = save_selector(tmp_path / "one", nets[:1], priors, env)
     two = save_selector(tmp_path / "two", nets, priors, env)
-    fresh = StaySelector(nets[:1], priors, env, obs.shape[1], 3)
+    fresh = StaySelector(nets[:1], priors, env, obs.shape[1])
     np.testing.assert_array_equal(one.predict(obs)[0], fresh.predict(obs)[0])
     x = torch.from_numpy(obs.astype(np.float32))
     with torch.no_grad():

@@ -56,7 +56,7 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
     grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
     priors = np.stack([grid, np.full(len(grid), 0.75)], axis=1)
     obs = core.observe()
-    selector = StaySelector([net], priors, overrides, obs.shape[1], core.M)
+    selector = StaySelector([net], priors, overrides, obs.shape[1])
     stays = grid[selector.choose(obs)]
     action, _ = selector.predict(obs)
     belief = core.detector_belief.copy()
