@@ -31,6 +31,13 @@ random numbers, paired bootstrap CIs) beside ``best-fixed``, the shipped policy 
     python examples/stay_selector.py --env-config A.yaml B.yaml --episodes 100000 \\
         --runs 100 --seed 0 [--scenario paper ...] [--off-suite FILE ...]
 
+``--targets branch`` replaces each stay's error by what switching the tracker to it gives:
+every ``--stride``-th step the tracker's own posterior is restarted under each stay and run
+on the episode's measurements for the next ``H`` steps (:func:`branch_errors`); the bank's IMMs
+(the default, ``bank``) have run their stay since the episode's start, so their errors also
+carry what that history did for them (docs/experiments.md, "Targets from the tracker's own
+state").
+
 ``--shares V V ...`` chooses the share with the stay: the priors are every stay at every share
 ``v`` (the ``set`` action sets their rows, :func:`agents.selector.set_action`), their errors
 from one core per share replaying the same episodes (docs/experiments.md, "The selector as a
@@ -72,6 +79,9 @@ from imm_gym.evaluation.rollout import armse_from_squared, paired_bootstrap
 from imm_gym.sim.config_file import read_env_config, tracker_of
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.imm_batch import IMMBatch
+from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.tracking.imm import IMMState
 from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
@@ -136,9 +146,51 @@ def future_error(errors: Array, gamma: float, horizon: int) -> Array:
     return y - y.mean(axis=2, keepdims=True)
 
 
+def branch_errors(
+    core: TrackingCore, starts: IMMState, points: NDArray[np.int64], beliefs: Array,
+    stays: Array, gamma: float, horizon: int,
+) -> Array:
+    r"""``(n, B, S)`` the future error of :func:`future_error` for the tracker restarted at each
+    branch point under each prior and held there: the tracker's posterior before step ``b``
+    (``starts``, ``(n * B, ...)`` slot-major, ``points (B,)`` the steps ``b``) runs the rows
+    :func:`detector_tpm_rows` of each stay ``s`` on the episode's own measurements for the next
+    ``H`` steps, ``e_s(b + d) = \lVert \hat p_s(b + d) - p(b + d) \rVert^2`` (capped like the
+    collection's), and the log of their weighted mean over the steps left in the episode,
+
+        log( sum_{d<H} g^d e_s(b+d) / sum_{d<H} g^d )
+
+    (not yet centred). Unlike the bank's errors — each stay's IMM run from the
+    episode's start — this is what switching the tracker to ``s`` at ``b`` gives, from the
+    state its own history left (the learned detector's beliefs, ``beliefs (n, K, M)`` before
+    each step, do not depend on the tracker's TPM)."""
+    n, B, S, M = core.n_envs, len(points), len(stays), core.M
+    K, share, cap = core.horizon, core.config.detector_share, core.config.divergence_error**2
+    args = core.batch_kernel_args
+    if args is not None and args[0].shape[0] > 1:
+        args = (*(np.repeat(a, B, axis=0) for a in args[:3]), *args[3:])
+    batch = IMMBatch(core.imm, n * B, S, args)
+    batch.start(np.arange(n * B), starts, None)
+    slot = np.repeat(np.arange(n), B)
+    total, weight = np.zeros((n * B, S)), np.zeros((n * B, 1))
+    for d in range(min(horizon, K - int(points.min()))):
+        t = np.tile(points + d, n)  # the step each row takes now
+        live = t < K
+        t = np.minimum(t, K - 1)
+        rows = detector_tpm_rows(stays[None], beliefs[slot, t][:, None], share)
+        out = batch.step(np.ascontiguousarray(rows.reshape(-1, M, M)), core.z[slot, t + 1],
+                         core.detected[slot, t + 1], starts)
+        e2 = np.sum((out.estimate[:, :2].reshape(n * B, S, 2)
+                     - core.truth[slot, t + 1, None, :2]) ** 2, axis=-1)
+        e2 = np.where(np.isfinite(e2) & (e2 < cap), e2, cap)
+        total += np.where(live[:, None], gamma**d * e2, 0.0)
+        weight += np.where(live[:, None], gamma**d, 0.0)
+    return np.log(total / weight + 1e-6).reshape(n, B, S)
+
+
 def collect(
     overrides: Mapping[str, Any], episodes: int, first_seed: int, rng: np.random.Generator,
     gamma: float, horizon: int, stride: int, shares: Sequence[float] | None = None,
+    branch: bool = False, behaviour: StaySelector | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Observations and targets (:func:`future_error`) of ``episodes`` episodes of one
     configuration (rounded up to whole batches of :data:`BATCH`), seeds ``first_seed ...``,
@@ -160,6 +212,8 @@ def collect(
             {**overrides, "action_mode": "stay", "stay_base": "uniform", "detector_share": v,
              "logit_scale": GAIN}), n) for v in shares]
         priors = np.array([(stay, v) for v in shares for stay in grid])
+    if behaviour is not None and not np.array_equal(behaviour.priors, priors):
+        raise ConfigError(f"{behaviour.source} chooses among other priors than the collection's")
     others = [bank for bank in banks if bank is not core]
     zero = np.zeros((n, M))  # the other cores' action: their banks run unsteered
     X, Y = [], []
@@ -171,9 +225,17 @@ def collect(
         pick = rng.integers(0, len(priors), n)
         seen = np.zeros((n, K, obs.shape[1]), np.float32)
         errors = np.zeros((n, K, len(priors)))
+        beliefs = np.zeros((n, K, M))
+        points = np.arange(0, K, stride)
+        starts: list[IMMState] = []
         for k in range(K):
             seen[:, k] = obs
+            beliefs[:, k] = core.detector_belief
+            if branch and k % stride == 0:
+                starts.append(core.state_a)
             pick = np.where(rng.random(n) < REDRAW, rng.integers(0, len(priors), n), pick)
+            if behaviour is not None:  # the even slots follow it
+                pick[::2] = behaviour.choose(obs[::2])
             belief = obs[:, -M:].astype(np.float64)
             stays, v = priors[pick].T
             action = (stay_action(stays, belief, config.detector_share, GAIN) if shares is None
@@ -195,9 +257,15 @@ def collect(
             errors[~live, k] = np.nan
             obs = result.obs
         ok = ~np.isnan(errors).any(axis=(1, 2))
-        y = future_error(errors[ok], gamma, horizon)
+        if branch:
+            state = IMMState(*(np.stack([getattr(one, a) for one in starts], axis=1).reshape(
+                n * len(points), *getattr(starts[0], a).shape[1:]) for a in ("x", "P", "mu")))
+            y = branch_errors(core, state, points, beliefs, priors[:, 0], gamma, horizon)[ok]
+            y -= y.mean(axis=2, keepdims=True)
+        else:
+            y = future_error(errors[ok], gamma, horizon)[:, ::stride]
         X.append(seen[ok][:, ::stride].reshape(-1, seen.shape[-1]))
-        Y.append(y[:, ::stride].reshape(-1, len(priors)).astype(np.float32))
+        Y.append(y.reshape(-1, len(priors)).astype(np.float32))
     return np.concatenate(X), np.concatenate(Y)
 
 
@@ -256,8 +324,10 @@ def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace) -> torch
     rng = np.random.default_rng(args.fit_seed)
     start = time.perf_counter()
     first = SELECTOR_SEED_BASE + 10**10 * args.fit_seed
+    behaviour = combine([load_selector(d) for d in args.behaviour]) if args.behaviour else None
     parts = [collect(o, args.episodes // len(files), first + j * 10**9, rng, args.gamma,
-                     args.horizon, args.stride, args.shares) for j, o in enumerate(files)]
+                     args.horizon, args.stride, args.shares, args.targets == "branch",
+                     behaviour) for j, o in enumerate(files)]
     X = np.concatenate([x for x, _ in parts])
     Y = np.concatenate([y for _, y in parts])
     collected = time.perf_counter() - start
@@ -288,6 +358,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--gamma", type=float, default=1.0)
     p.add_argument("--horizon", type=int, default=30, help="steps of future error (H)")
     p.add_argument("--stride", type=int, default=3, help="keep every N-th step")
+    p.add_argument("--behaviour", nargs="+", default=[], metavar="DIR",
+                   help="while collecting, half of the slots follow these selectors (as one) "
+                        "instead of random stays")
+    p.add_argument("--targets", choices=("bank", "branch"), default="bank",
+                   help="each stay's future error: its stay bank IMM's, run from the episode's "
+                        "start (bank), or the tracker's switched to it at the step (branch)")
     p.add_argument("--epochs", type=int, default=6)
     p.add_argument("--fit-seed", type=int, default=0,
                    help="seed of the data (episodes from SELECTOR_SEED_BASE + 10**10 seed) "
@@ -311,6 +387,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         or len(set(args.shares)) != len(args.shares)
     ):
         p.error(f"--shares must be at least two distinct shares in [0, 1], got {args.shares}")
+    if args.targets == "branch" and args.shares is not None:
+        p.error("--targets branch takes one share (--share), not --shares")
     if not args.weights and not args.env_config:
         p.error("give --env-config FILE ... (collect and fit) or --weights DIR ... (score saved "
                 "selectors)")

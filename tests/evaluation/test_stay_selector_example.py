@@ -14,6 +14,7 @@ from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.tracking.imm import IMMState
 from imm_gym.validation import ConfigError
 
 FILE = "examples/across_trackers.yaml"
@@ -73,6 +74,7 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
     (["--gamma", "3"], "--gamma must be in (0, 1]"),
     (["--horizon", "0"], "--horizon must be at least 1"),
     (["--scenario", "nowhere"], "--scenario 'nowhere' is not in the benchmark suite"),
+    (["--targets", "branch", "--shares", "0", "1"], "--targets branch takes one share"),
 ])
 def test_bad_options_are_refused_before_any_work(
     option: list[str], message: str, capsys: pytest.CaptureFixture[str],
@@ -98,6 +100,75 @@ def test_the_shares_cores_replay_the_episodes_each_share_alone_gives() -> None:
     # single-share collection's targets
     block = Y2[:, 7:] - Y2[:, 7:].mean(axis=1, keepdims=True)
     np.testing.assert_allclose(block, Y1, atol=1e-5)
+
+
+def test_a_branch_is_the_stay_banks_imm_where_the_tracker_ran_its_prior() -> None:
+    """From the episode's start every branch is the stay bank's IMM of its stay (both start
+    from the tracker's initial posterior); later, the branch at the stay the tracker has run
+    since the start is that stay's IMM too (the ``stay`` action gives its prior exactly below
+    the grid's last stay, which the belief can put out of the action's reach)."""
+    example = load_example("stay_selector")
+    n, stride, horizon = 6, 10, 30
+    core = selector_core(example, n, 0.75)
+    grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
+    pick = np.arange(n) % (len(grid) - 1)
+    K, M = core.horizon, core.M
+    points = np.arange(0, K, stride)
+    beliefs, bank = np.zeros((n, K, M)), np.zeros((n, K, len(grid)))
+    starts = []
+    for k in range(K):
+        beliefs[:, k] = core.detector_belief
+        if k % stride == 0:
+            starts.append(core.state_a)
+        result = core.step(example.stay_action(grid[pick], core.detector_belief, 0.75,
+                                               example.GAIN))
+        truth = result.info["true_state"][:, None, :2]
+        estimates = core.stay_bank.estimates()[:, :, :2]  # type: ignore[union-attr]
+        bank[:, k] = np.sum((estimates - truth) ** 2, axis=-1)
+    assert not result.info["diverged"].any()
+    state = IMMState(*(np.stack([getattr(s, a) for s in starts], axis=1).reshape(
+        n * len(points), *getattr(starts[0], a).shape[1:]) for a in ("x", "P", "mu")))
+    y = example.branch_errors(core, state, points, beliefs, grid, 1.0, horizon)
+    assert y.shape == (n, len(points), len(grid))
+    np.testing.assert_allclose(y[:, 0], np.log(bank[:, :horizon].mean(axis=1) + 1e-6),
+                               rtol=1e-9)
+    own = np.stack([np.log(bank[np.arange(n), b:b + horizon, pick].mean(axis=1) + 1e-6)
+                    for b in points], axis=1)
+    np.testing.assert_allclose(y[np.arange(n), :, pick], own, rtol=1e-6)
+    overrides = example.selector_overrides(read_env_config(FILE), 0.75, None, None)
+    X, Y = example.collect(overrides, 8, example.SELECTOR_SEED_BASE, np.random.default_rng(0),
+                           1.0, horizon, stride, None, True)
+    assert X.shape[0] == Y.shape[0] == 8 * len(points) and Y.shape[1] == len(grid)
+    np.testing.assert_allclose(Y.mean(axis=1), 0.0, atol=1e-5)
+    # another stay's branch is not its bank IMM's once the histories differ
+    other = (pick + 3) % len(grid)
+    later = np.log(bank[np.arange(n), 50:50 + horizon, other].mean(axis=1) + 1e-6)
+    assert np.abs(y[np.arange(n), 5, other] - later).max() > 1e-3
+
+
+def test_half_of_the_slots_follow_a_behaviour_selector() -> None:
+    """``--behaviour``: the even slots follow the selector (here one that always picks the grid's
+    third stay), the odd slots run the random stays they run without it."""
+    example = load_example("stay_selector")
+    overrides = example.selector_overrides(read_env_config(FILE), 0.75, None, None)
+    core = selector_core(example, 1, 0.75)
+    grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
+    priors = np.stack([grid, np.full(len(grid), 0.75)], axis=1)
+    net = network(core.observe().shape[1], len(grid), hidden=4)
+    with torch.no_grad():
+        net[-1].weight.zero_()
+        net[-1].bias.copy_(torch.tensor([0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0]))
+    third = StaySelector([net], priors, overrides, core.observe().shape[1])
+    args = (overrides, 4, example.SELECTOR_SEED_BASE)
+    X, _ = example.collect(*args, np.random.default_rng(0), 1.0, 30, 10)
+    Xb, _ = example.collect(*args, np.random.default_rng(0), 1.0, 30, 10, behaviour=third)
+    per_slot = X.shape[0] // 4
+    X, Xb = X.reshape(4, per_slot, -1), Xb.reshape(4, per_slot, -1)
+    np.testing.assert_array_equal(Xb[1::2], X[1::2])
+    assert not np.array_equal(Xb[0::2], X[0::2])
+    other = StaySelector([net], priors[::-1].copy(), overrides, core.observe().shape[1])
+    with pytest.raises(ConfigError, match="other priors"):
+        example.collect(*args, np.random.default_rng(0), 1.0, 30, 10, behaviour=other)
 
 
 def test_saved_selectors_act_as_one_and_are_written_as_one(tmp_path: object) -> None:
