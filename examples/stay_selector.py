@@ -199,7 +199,11 @@ def collect(
     With ``shares`` (``overrides`` in the ``set`` action mode) the priors are every stay of the
     grid at every share, share-major, and each slot runs a random one of them; their errors
     come from one core per share replaying the same episodes (the same seeds, so the same
-    targets and measurements; the observing core's own bank gives share 0)."""
+    targets and measurements; the observing core's own bank gives share 0).
+
+    With ``branch`` the targets are :func:`branch_errors`' from every ``stride``-th step
+    instead of the bank's; with ``behaviour`` the even slots follow that selector (its priors
+    must be the collection's) and only the odd ones run random stays."""
     config = EnvConfig.build(overrides)
     n = min(BATCH, episodes)
     core = TrackingCore(config, n)
@@ -230,9 +234,10 @@ def collect(
         starts: list[IMMState] = []
         for k in range(K):
             seen[:, k] = obs
-            beliefs[:, k] = core.detector_belief
-            if branch and k % stride == 0:
-                starts.append(core.state_a)
+            if branch:
+                beliefs[:, k] = core.detector_belief
+                if k % stride == 0:
+                    starts.append(core.state_a)
             pick = np.where(rng.random(n) < REDRAW, rng.integers(0, len(priors), n), pick)
             if behaviour is not None:  # the even slots follow it
                 pick[::2] = behaviour.choose(obs[::2])
@@ -318,13 +323,14 @@ def score(selector: StaySelector, configs: Mapping[str, Mapping[str, Any]], runs
               f"| {acc[0]:.1%} / {acc[1]:.1%} | {tv:.3f} |", flush=True)
 
 
-def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace) -> torch.nn.Sequential:
-    """Collect ``args.episodes`` episodes spread over ``files`` and fit the network to them,
-    printing what it took and its held-out score."""
+def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace,
+          behaviour: StaySelector | None = None) -> torch.nn.Sequential:
+    """Collect ``args.episodes`` episodes spread over ``files`` (``behaviour``: the selector
+    half of the slots follow) and fit the network to them, printing what it took and its
+    held-out score."""
     rng = np.random.default_rng(args.fit_seed)
     start = time.perf_counter()
     first = SELECTOR_SEED_BASE + 10**10 * args.fit_seed
-    behaviour = combine([load_selector(d) for d in args.behaviour]) if args.behaviour else None
     parts = [collect(o, args.episodes // len(files), first + j * 10**9, rng, args.gamma,
                      args.horizon, args.stride, args.shares, args.targets == "branch",
                      behaviour) for j, o in enumerate(files)]
@@ -424,7 +430,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
         priors = (np.stack([grid, np.full(len(grid), args.share)], axis=1) if args.shares is None
                   else np.array([(stay, v) for v in args.shares for stay in grid]))
-        nets = [train(files, args)]
+        try:
+            behaviour = (combine([load_selector(d) for d in args.behaviour]) if args.behaviour
+                         else None)
+        except ConfigError as err:
+            p.error(f"--behaviour: {err}")
+        nets = [train(files, args, behaviour)]
         across = tuple(tracker_of(f) for f in files[1:])
         fit_record = {k: v for k, v in vars(args).items() if k not in ("save", "weights")}
         selector = (save_selector(args.save, nets, priors, files[0], trained_across=across,

@@ -75,6 +75,7 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
     (["--horizon", "0"], "--horizon must be at least 1"),
     (["--scenario", "nowhere"], "--scenario 'nowhere' is not in the benchmark suite"),
     (["--targets", "branch", "--shares", "0", "1"], "--targets branch takes one share"),
+    (["--behaviour", "no/such/selector"], "--behaviour: "),
 ])
 def test_bad_options_are_refused_before_any_work(
     option: list[str], message: str, capsys: pytest.CaptureFixture[str],
