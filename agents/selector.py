@@ -258,8 +258,17 @@ def save_selector(
     fit: Mapping[str, Any] | None = None,
 ) -> StaySelector:
     """Write a selector's directory (module docstring; the width ``hidden`` is the networks'
-    first layer's) and load it back, checked."""
-    hidden = nets[0][0].out_features
+    first layer's) and load it back, checked.
+
+    Raises:
+        ConfigError: the networks are of different widths (``selector.json`` holds one), before
+            anything is written.
+    """
+    widths = sorted({net[0].out_features for net in nets})
+    if len(widths) > 1:
+        raise ConfigError(f"the networks of {directory} have different widths {widths}: a "
+                          f"selector's directory holds networks of one width")
+    hidden = widths[0]
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     members = [f"net_{k}.safetensors" for k in range(len(nets))]

@@ -107,6 +107,16 @@ def test_a_saved_selector_acts_alike_and_two_act_on_their_mean(
     np.testing.assert_allclose(result.info["tpm"], expected, atol=1e-3)  # the p_min floor
 
 
+def test_networks_of_different_widths_are_refused_before_anything_is_written(
+    tmp_path: Path,
+) -> None:
+    obs_size = core_of(STAY_ENV, 1).observe().shape[1]
+    nets = [network(obs_size, len(GRID), hidden=h) for h in (8, 16)]
+    with pytest.raises(ConfigError, match=r"different widths \[8, 16\]"):
+        save_selector(tmp_path / "mixed", nets, stay_priors(0.75), STAY_ENV)
+    assert not (tmp_path / "mixed").exists()
+
+
 def test_the_evaluation_takes_a_selector_by_path(tmp_path: Path) -> None:
     core = core_of(SET_ENV, 1)
     torch.manual_seed(1)
