@@ -147,12 +147,12 @@ def future_error(errors: Array, gamma: float, horizon: int) -> Array:
 
 
 def branch_errors(
-    core: TrackingCore, starts: IMMState, points: NDArray[np.int64], beliefs: Array,
+    core: TrackingCore, starts: Sequence[IMMState], points: NDArray[np.int64], beliefs: Array,
     stays: Array, gamma: float, horizon: int,
 ) -> Array:
     r"""``(n, B, S)`` the future error of :func:`future_error` for the tracker restarted at each
     branch point under each prior and held there: the tracker's posterior before step ``b``
-    (``starts``, ``(n * B, ...)`` slot-major, ``points (B,)`` the steps ``b``) runs the rows
+    (``starts``, one per step of ``points (B,)``) runs the rows
     :func:`detector_tpm_rows` of each stay ``s`` on the episode's own measurements for the next
     ``H`` steps, ``e_s(b + d) = \lVert \hat p_s(b + d) - p(b + d) \rVert^2`` (capped like the
     collection's), and the log of their weighted mean over the steps left in the episode,
@@ -168,8 +168,11 @@ def branch_errors(
     args = core.batch_kernel_args
     if args is not None and args[0].shape[0] > 1:
         args = (*(np.repeat(a, B, axis=0) for a in args[:3]), *args[3:])
+    # the posteriors slot-major: row i * B + j is slot i before step points[j]
+    start = IMMState(*(np.stack([getattr(one, a) for one in starts], axis=1).reshape(
+        n * B, *getattr(starts[0], a).shape[1:]) for a in ("x", "P", "mu")))
     batch = IMMBatch(core.imm, n * B, S, args)
-    batch.start(np.arange(n * B), starts, None)
+    batch.start(np.arange(n * B), start, None)
     slot = np.repeat(np.arange(n), B)
     total, weight = np.zeros((n * B, S)), np.zeros((n * B, 1))
     for d in range(min(horizon, K - int(points.min()))):
@@ -178,7 +181,7 @@ def branch_errors(
         t = np.minimum(t, K - 1)
         rows = detector_tpm_rows(stays[None], beliefs[slot, t][:, None], share)
         out = batch.step(np.ascontiguousarray(rows.reshape(-1, M, M)), core.z[slot, t + 1],
-                         core.detected[slot, t + 1], starts)
+                         core.detected[slot, t + 1], start)
         e2 = np.sum((out.estimate[:, :2].reshape(n * B, S, 2)
                      - core.truth[slot, t + 1, None, :2]) ** 2, axis=-1)
         e2 = np.where(np.isfinite(e2) & (e2 < cap), e2, cap)
@@ -229,12 +232,12 @@ def collect(
         pick = rng.integers(0, len(priors), n)
         seen = np.zeros((n, K, obs.shape[1]), np.float32)
         errors = np.zeros((n, K, len(priors)))
-        beliefs = np.zeros((n, K, M))
-        points = np.arange(0, K, stride)
+        ended = np.zeros(n, dtype=bool)
+        beliefs = np.zeros((n, K, M)) if branch else None
         starts: list[IMMState] = []
         for k in range(K):
             seen[:, k] = obs
-            if branch:
+            if beliefs is not None:
                 beliefs[:, k] = core.detector_belief
                 if k % stride == 0:
                     starts.append(core.state_a)
@@ -255,17 +258,18 @@ def collect(
                 if not np.array_equal(step.info["true_state"][both, :2], truth[both]):
                     raise RuntimeError("the cores of the shares replay other targets")
                 live = both
+            ended |= ~live
+            obs = result.obs
+            if beliefs is not None:  # the targets come from the branches
+                continue
             e2 = np.concatenate([np.sum(
                 (bank.stay_bank.estimates()[:, :, :2] - truth[:, None]) ** 2, axis=-1  # type: ignore[union-attr]
             ) for bank in banks], axis=1)
             errors[:, k] = np.where(np.isfinite(e2) & (e2 < cap), e2, cap)
-            errors[~live, k] = np.nan
-            obs = result.obs
-        ok = ~np.isnan(errors).any(axis=(1, 2))
-        if branch:
-            state = IMMState(*(np.stack([getattr(one, a) for one in starts], axis=1).reshape(
-                n * len(points), *getattr(starts[0], a).shape[1:]) for a in ("x", "P", "mu")))
-            y = branch_errors(core, state, points, beliefs, priors[:, 0], gamma, horizon)[ok]
+        ok = ~ended
+        if beliefs is not None:
+            y = branch_errors(core, starts, np.arange(0, K, stride), beliefs, priors[:, 0],
+                              gamma, horizon)[ok]
             y -= y.mean(axis=2, keepdims=True)
         else:
             y = future_error(errors[ok], gamma, horizon)[:, ::stride]

@@ -14,7 +14,6 @@ from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
-from imm_gym.tracking.imm import IMMState
 from imm_gym.validation import ConfigError
 
 FILE = "examples/across_trackers.yaml"
@@ -127,9 +126,7 @@ def test_a_branch_is_the_stay_banks_imm_where_the_tracker_ran_its_prior() -> Non
         estimates = core.stay_bank.estimates()[:, :, :2]  # type: ignore[union-attr]
         bank[:, k] = np.sum((estimates - truth) ** 2, axis=-1)
     assert not result.info["diverged"].any()
-    state = IMMState(*(np.stack([getattr(s, a) for s in starts], axis=1).reshape(
-        n * len(points), *getattr(starts[0], a).shape[1:]) for a in ("x", "P", "mu")))
-    y = example.branch_errors(core, state, points, beliefs, grid, 1.0, horizon)
+    y = example.branch_errors(core, starts, points, beliefs, grid, 1.0, horizon)
     assert y.shape == (n, len(points), len(grid))
     np.testing.assert_allclose(y[:, 0], np.log(bank[:, :horizon].mean(axis=1) + 1e-6),
                                rtol=1e-9)
