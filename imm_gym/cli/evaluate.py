@@ -423,7 +423,9 @@ def clairvoyant_bound(
             "note": f"skipped: conditions vary per run ({varied}); the filter runs one sensor "
             "and sampling period",
         }
-    batch = draw_batch(base.source, base.sensor, runs, seed, base.velocity_std)
+    batch = draw_batch(
+        base.source, base.sensor, runs, seed, base.velocity_std, bank=base.linear_bank
+    )
     reason = unsupported(batch.truth, base.bank)
     if reason is not None:
         return {"role": "skipped", "note": f"skipped: {reason}"}

@@ -95,7 +95,8 @@ def side_by_side_frames(
             bank is not ``config``'s.
     """
     batch = draw_batch(
-        config.source, config.sensor, run + 1, seed, config.velocity_std, config.vary
+        config.source, config.sensor, run + 1, seed, config.velocity_std, config.vary,
+        config.linear_bank,
     )
     labels = model_labels(config.bank)
     for name, rollout in rollouts.items():

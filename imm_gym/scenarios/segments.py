@@ -168,6 +168,22 @@ class RandomFamily:
     heading ``U(-pi, pi)``; ``n_segments`` drawn uniformly, each at least ``min_duration`` steps
     (durations uniform over all such compositions of ``horizon``); straight first, then alternating
     straight / turn; turn rates ``±U(turn_rate_deg)`` with a random sign.
+
+    With ``designed_share > 0`` the family draws some of its targets for the tracker that will
+    follow them: each run first draws, with probability ``designed_share``, whether its turns are
+    the ones its tracker's CT models are designed to fly (:class:`TurnDesign`); such a run draws
+    each turn's model uniformly among them and its rate uniformly within that model's
+    :meth:`designed_band`, the sign the model's. A textbook IMM tunes a CT model's process noise
+    to the turns it is to follow, so the tracker is evidence about its targets; a family that
+    ignores it meets every tracker with every turn.
+
+    Attributes:
+        designed_share: the share of runs whose turns lie within their tracker's designed bands
+            (0: none, the family as above; needs the tracker, :meth:`varied_truth`).
+        designed_width: the bands' half-width in standard deviations of a CT model's
+            acceleration noise (2: the noise's intensity ``q`` meets ``sqrt(q T) >= a T / 2`` for
+            every lateral acceleration ``a`` of the band, the lower end of Bar-Shalom et al.'s
+            2001 guideline ``a T / 2 <= sqrt(q T) <= a T``, §6.2.2).
     """
 
     horizon: int = 150
@@ -178,6 +194,8 @@ class RandomFamily:
     turn_rate_deg: tuple[float, float] = (0.5, 3.0)
     T: float = 1.0
     truth_q: tuple[float, float, float, float] | None = None
+    designed_share: float = 0.0
+    designed_width: float = 2.0
 
     def __post_init__(self) -> None:
         store(self, "horizon", check_int("family.horizon", self.horizon, 1))
@@ -198,6 +216,35 @@ class RandomFamily:
         if self.truth_q is not None:
             q = check_sequence("family.truth_q (x, y, vx, vy)", self.truth_q, 4)
             store(self, "truth_q", tuple(check_range("family.truth_q", v, 0.0) for v in q))
+        share = check_range("family.designed_share", self.designed_share, 0.0, 1.0)
+        store(self, "designed_share", share)
+        if share > 0.0 and self.truth_q is not None:
+            raise ConfigError(
+                "family.designed_share needs a noise-free family (truth_q null): its runs are "
+                "drawn with their trackers' designs"
+            )
+        width = check_range("family.designed_width", self.designed_width, 0.0, lo_open=True)
+        store(self, "designed_width", width)
+
+    def designed_band(self, rate: Array, accel_std: Array, speed: float) -> tuple[Array, Array]:
+        r"""The turn-rate magnitudes (°/s) CT models of turn rates ``rate`` (rad/s) and
+        acceleration noise ``accel_std`` (m/s²) are designed to fly at ``speed`` (m/s): those
+        whose lateral acceleration :math:`v\,\omega` lies within ``designed_width`` (c)
+        standard deviations of the model's,
+
+        .. math:: |\omega| \in [|\omega_j| - c\,a_j / v,\; |\omega_j| + c\,a_j / v],
+
+        clipped to ``turn_rate_deg`` (which bounds every target of the family; a band beyond
+        it becomes its nearer end). At ``speed = 0`` the band is the family's range.
+
+        Returns:
+            ``(low, high)``, each of the shape of ``rate``.
+        """
+        degrees = 180.0 / math.pi
+        centre = np.abs(rate) * degrees
+        half = self.designed_width * accel_std * degrees / speed if speed > 0 else math.inf
+        lo, hi = self.turn_rate_deg
+        return np.clip(centre - half, lo, hi), np.clip(centre + half, lo, hi)
 
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`TruthSource`): a scenario drawn from each
@@ -209,32 +256,36 @@ class RandomFamily:
             return generate_truth([], rngs)
         if self.truth_q is not None:
             return generate_truth(self._scenarios(self._draws(rngs)), rngs)
-        return self.varied_truth(rngs)
+        return self.varied_truth(rngs)  # raises with designed_share > 0: it needs the tracker
 
     def varied_truth(
         self,
         rngs: Sequence[np.random.Generator],
         T: Array | None = None,
         speed: Array | None = None,
+        design: TurnDesign | None = None,
     ) -> Truth:
         """The noise-free truth of one run per generator, run ``r`` as the family with
         ``T = T[r]`` and ``speed = (speed[r], speed[r])`` draws it (None, or a NaN speed: the
-        family's own): the runs of :class:`~imm_gym.sim.conditions.Variation`, all at once.
+        family's own) for a tracker of design ``design`` (row ``r``): the runs of
+        :class:`~imm_gym.sim.conditions.Variation`, all at once.
 
         Args:
             rngs: one generator per run (at least one).
             T: ``(R,)`` sampling periods (s), or None.
             speed: ``(R,)`` target speeds (m/s; NaN keeps the family's range), or None.
+            design: the runs' trackers (required with ``designed_share > 0``, else unused).
 
         Returns:
             The :class:`Truth`; its ``T`` is ``T`` where given.
 
         Raises:
-            ConfigError: the family has truth noise (its runs need one family per ``T``).
+            ConfigError: the family has truth noise (its runs need one family per ``T``), or
+                ``designed_share > 0`` and no ``design``.
         """
         if self.truth_q is not None:
             raise ConfigError("varied_truth draws noise-free runs; this family has truth_q")
-        draws = self._draws(rngs, speed)
+        draws = self._draws(rngs, speed, design)
         rates = draws.rates * (math.pi / 180.0)  # as math.radians
         omega = np.repeat(rates, draws.durations).reshape(len(rngs), self.horizon)
         period = self.T if T is None else np.asarray(T, dtype=np.float64)
@@ -246,7 +297,10 @@ class RandomFamily:
         return self._scenarios(self._draws([rng]))[0]
 
     def _draws(
-        self, rngs: Sequence[np.random.Generator], speed: Array | None = None
+        self,
+        rngs: Sequence[np.random.Generator],
+        speed: Array | None = None,
+        design: TurnDesign | None = None,
     ) -> FamilyDraws:
         """The scenarios' draws, one run per generator (at least one); run ``r`` draws its speed
         from ``(speed[r], speed[r])`` where given and not NaN (:meth:`varied_truth`).
@@ -254,9 +308,17 @@ class RandomFamily:
         Run ``r`` draws from ``rngs[r]``, in this order: range, bearing, speed and heading
         (uniform), the number of segments ``n``, the composition's ``n - 1`` bars (a choice
         without replacement), ``n`` turn-rate magnitudes (uniform) and ``n`` signs (the index
-        draw of ``choice([-1, 1], size=n)``, :data:`_SIGNS`). Only these calls are made per run;
-        what follows from them (the signed rates, the durations) is computed for all runs at once.
+        draw of ``choice([-1, 1], size=n)``, :data:`_SIGNS`). With ``designed_share > 0`` then one
+        uniform; below the share, ``n`` CT models of ``design`` (an index each) and ``n``
+        uniforms that place the magnitudes in their :meth:`designed_band`, which replace the
+        magnitudes and signs drawn before. Only these calls are made per run; what follows from
+        them (the signed rates, the durations) is computed for all runs at once.
         """
+        if self.designed_share > 0.0 and design is None:
+            raise ConfigError(
+                "family.designed_share draws turns for the tracker that follows them: draw the "
+                "family with its bank (draw_episodes(..., bank=...), or an environment)"
+            )
         lo, hi = self.n_segments
         K, minimum = self.horizon, self.min_duration
         speeds = [self.speed] * len(rngs)
@@ -264,7 +326,7 @@ class RandomFamily:
             speeds = [s if math.isnan(v) else (v, v) for s, v in zip(speeds, speed.tolist(),
                                                                      strict=True)]
         starts, counts, bars, magnitudes, signs = [], [], [], [], []
-        for rng, speed_range in zip(rngs, speeds, strict=True):
+        for r, (rng, speed_range) in enumerate(zip(rngs, speeds, strict=True)):
             rng_range = rng.uniform(*self.range_m)
             bearing = rng.uniform(-math.pi, math.pi)
             v = rng.uniform(*speed_range)
@@ -273,6 +335,13 @@ class RandomFamily:
             bars.append(rng.choice(K - n * minimum + n - 1, size=n - 1, replace=False))
             magnitudes.append(rng.uniform(*self.turn_rate_deg, size=n))
             signs.append(rng.integers(0, 2, size=n))
+            if design is not None and self.designed_share > 0.0:
+                if rng.uniform() < self.designed_share:
+                    model = rng.integers(0, design.rates.shape[1], size=n)
+                    rate = design.rates[r, model]
+                    low, high = self.designed_band(rate, design.accel_std[r, model], v)
+                    magnitudes[-1] = low + rng.uniform(size=n) * (high - low)
+                    signs[-1] = (rate > 0).astype(np.int64)
             counts.append(n)
             starts.append((rng_range * math.cos(bearing), rng_range * math.sin(bearing),
                            v * math.cos(heading), v * math.sin(heading)))
@@ -307,6 +376,20 @@ class RandomFamily:
 #: ``_SIGNS[rng.integers(0, 2, size=n)]`` (``Generator.choice`` without ``p``, with replacement,
 #: draws its indices with ``integers(0, len(a), size, dtype=int64)`` and takes them from ``a``).
 _SIGNS = np.array([-1.0, 1.0])
+
+
+class TurnDesign(NamedTuple):
+    """The turns each run's tracker is designed to fly (:attr:`RandomFamily.designed_share`):
+    its CT models' turn rates and the lateral acceleration their process noise absorbs.
+
+    Attributes:
+        rates: ``(R, C)`` the turn rates (rad/s, > 0 counter-clockwise) of the C CT models.
+        accel_std: ``(R, C)`` their RMS velocity process noise per step over the sampling
+            period (m/s²): ``sqrt(q / T)`` for white-noise acceleration of intensity ``q``.
+    """
+
+    rates: Array
+    accel_std: Array
 
 
 class FamilyDraws(NamedTuple):

@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.tracking.models import MotionModel, bank_dim
+from imm_gym.scenarios.segments import TurnDesign
+from imm_gym.tracking.models import MotionModel, bank_dim, velocity_noise
 from imm_gym.validation import ConfigError, check_range, check_sequence, store
 
 Array = NDArray[np.float64]
@@ -242,6 +243,29 @@ def bank_constants(
         for t, s, a in zip(T, q_scale, q_maneuver, strict=True)
     ])
     return F, Q
+
+
+def turn_design(
+    models: Sequence[MotionModel], T: Array, q_scale: Array, q_maneuver: Array
+) -> TurnDesign:
+    """The turns each run's tracker is designed to fly: the turn rates of the bank's CT models
+    and their :func:`~imm_gym.tracking.models.velocity_noise` per step at the run's ``T`` and
+    process-noise factors (:func:`bank_constants`) over ``T``, the lateral acceleration
+    ``sqrt(q / T)`` (m/s²) their noise absorbs.
+
+    Raises:
+        ConfigError: the bank has no CT model.
+    """
+    cts = [j for j, m in enumerate(models) if m.kind == "ct"]
+    if not cts:
+        raise ConfigError(
+            "family.designed_share needs a bank with a CT model (the turns it is designed to "
+            f"fly), got {[m.label for m in models]}"
+        )
+    _, Q = bank_constants(models, T, q_scale, q_maneuver)
+    rates = np.array([models[j].omega for j in cts])
+    accel_std = velocity_noise(Q[:, cts]) / np.asarray(T, dtype=np.float64)[:, None]
+    return TurnDesign(np.broadcast_to(rates, accel_std.shape).copy(), accel_std)
 
 
 def check_variation(variation: Variation, scenario: object, bank: object, sensor: object) -> None:

@@ -262,7 +262,8 @@ class TrackingCore:
         noise_rngs = [self._rngs[i][1] for i in indices[drawn]]  # type: ignore[index]
         cfg = self.config
         batch = draw_episodes(
-            cfg.source, cfg.sensor, scen_rngs, noise_rngs, cfg.velocity_std, cfg.vary
+            cfg.source, cfg.sensor, scen_rngs, noise_rngs, cfg.velocity_std, cfg.vary,
+            cfg.linear_bank,
         )
         for p in np.flatnonzero(twin != np.arange(indices.size)).tolist():
             scenario, noise = self._rngs[indices[twin[p]]]  # type: ignore[misc]

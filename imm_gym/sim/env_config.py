@@ -351,6 +351,17 @@ class EnvConfig:
         check_variation(self.vary, self.scenario, self.bank, self.sensor)
         if self.vary.active and self.engine == "numpy":
             raise ConfigError("vary needs engine 'compiled' or 'auto' (a bank per episode)")
+        designed = self.scenario == "random" and self.family.designed_share > 0.0
+        if designed and not any(m.kind == "ct" for m in self.linear_bank or ()):
+            raise ConfigError(
+                "family.designed_share needs a linear bank with a CT model (the turns its "
+                "targets are drawn for)"
+            )
+
+    @property
+    def linear_bank(self) -> tuple[MotionModel, ...] | None:
+        """The bank's models where the bank is linear, else None (a heterogeneous bank)."""
+        return self.bank if isinstance(self.bank, tuple) else None
 
     @property
     def source(self) -> TruthSource:

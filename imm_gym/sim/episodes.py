@@ -8,7 +8,9 @@ targets and the same noise as an environment reset with those seeds.
 
 With a :class:`~imm_gym.sim.conditions.Variation` (``EnvConfig.vary``), each run first draws its
 conditions (sampling period, sensor noise, outlier and detection probabilities) from its scenario
-stream, then its target at its ``T`` and its measurements from its own sensor.
+stream, then its target at its ``T`` and its measurements from its own sensor. A randomized
+family with ``designed_share > 0`` draws its targets for the runs' trackers: it needs the bank
+(:func:`~imm_gym.sim.conditions.turn_design`).
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import RandomFamily, Truth, TruthSource
 from imm_gym.seeding import streams
-from imm_gym.sim.conditions import Conditions, Variation, draw_conditions
+from imm_gym.sim.conditions import Conditions, Variation, draw_conditions, turn_design
 from imm_gym.tracking.initiation import initiate
+from imm_gym.tracking.models import MotionModel
 from imm_gym.tracking.sensors import Measurements
 from imm_gym.validation import ConfigError, check_int
 
@@ -63,14 +66,38 @@ def draw_episodes(
     noise_rngs: Sequence[np.random.Generator],
     velocity_std: float = 5.0,
     variation: Variation | None = None,
+    bank: Sequence[MotionModel] | None = None,
 ) -> Batch:
     """One run per pair of generators: the truth of ``source``, the measurements of ``sensor``,
     and the filter start from the first measurement and the true initial velocity (SPEC §6);
-    with an active ``variation``, run by run at its own conditions (:func:`_draw_varied`)."""
+    with an active ``variation``, run by run at its own conditions (:func:`_draw_varied`).
+    ``bank``: the tracker's models, which a family with ``designed_share > 0`` needs."""
     if variation is not None and variation.active:
-        return _draw_varied(source, sensor, scenario_rngs, noise_rngs, velocity_std, variation)
-    truth = source.truth(scenario_rngs)
+        return _draw_varied(
+            source, sensor, scenario_rngs, noise_rngs, velocity_std, variation, bank
+        )
+    if _designed(source):
+        T = np.full(len(scenario_rngs), source.T)
+        design = turn_design(_bank(bank), T, np.ones_like(T), np.ones_like(T))
+        truth = source.varied_truth(scenario_rngs, design=design)  # type: ignore[attr-defined]
+    else:
+        truth = source.truth(scenario_rngs)
     return Batch(truth, *_observe(sensor, truth.states, noise_rngs, velocity_std))
+
+
+def _designed(source: TruthSource) -> bool:
+    """Whether ``source`` draws its targets for their trackers (``designed_share > 0``)."""
+    return isinstance(source, RandomFamily) and source.designed_share > 0.0
+
+
+def _bank(bank: Sequence[MotionModel] | None) -> Sequence[MotionModel]:
+    """``bank``, which a designed family needs."""
+    if bank is None:
+        raise ConfigError(
+            "family.designed_share draws turns for the tracker that follows them: pass its "
+            "bank (bank=...)"
+        )
+    return bank
 
 
 def _observe(
@@ -90,6 +117,7 @@ def _draw_varied(
     noise_rngs: Sequence[np.random.Generator],
     velocity_std: float,
     variation: Variation,
+    bank: Sequence[MotionModel] | None,
 ) -> Batch:
     """Run ``r``: its conditions from ``scenario_rngs[r]``
     (:func:`~imm_gym.sim.conditions.draw_conditions`), then the truth of ``source`` at its ``T``
@@ -99,7 +127,12 @@ def _draw_varied(
     the same numbers as a family per run); another source, run by run."""
     conditions = draw_conditions(variation, source.T, sensor, scenario_rngs, velocity_std)
     if isinstance(source, RandomFamily) and source.truth_q is None:
-        truth = source.varied_truth(scenario_rngs, conditions.T, conditions.speed)
+        design = None
+        if _designed(source):
+            design = turn_design(
+                _bank(bank), conditions.T, conditions.q_scale, conditions.q_maneuver
+            )
+        truth = source.varied_truth(scenario_rngs, conditions.T, conditions.speed, design)
         states, turn_rate, accel = truth.states, truth.turn_rate, truth.accel
     else:
         truths = [
@@ -141,9 +174,11 @@ def draw_batch(
     seed: int,
     velocity_std: float = 5.0,
     variation: Variation | None = None,
+    bank: Sequence[MotionModel] | None = None,
 ) -> Batch:
     """R runs of ``source`` (a fixed scenario or a family) seen by ``sensor``, run ``r`` from the
-    streams of seed ``seed + r`` (at conditions drawn from ``variation``, if given)."""
+    streams of seed ``seed + r`` (at conditions drawn from ``variation``, if given; for the
+    tracker of models ``bank``, which a family with ``designed_share > 0`` needs)."""
     runs = check_int("runs", runs, 1)
     seed = check_int("seed", seed, 0)
     if not callable(getattr(source, "truth", None)):
@@ -152,4 +187,6 @@ def draw_batch(
             f"{type(source).__name__}"
         )
     scenario_rngs, noise_rngs = zip(*(streams(seed + r) for r in range(runs)), strict=True)
-    return draw_episodes(source, sensor, scenario_rngs, noise_rngs, velocity_std, variation)
+    return draw_episodes(
+        source, sensor, scenario_rngs, noise_rngs, velocity_std, variation, bank
+    )
