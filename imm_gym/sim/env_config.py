@@ -344,6 +344,8 @@ class EnvConfig:
                     f"obs_features {f!r} needs a linear bank (the models' Q), got a "
                     "heterogeneous one"
                 )
+        if "turn_band" in features and not any(m.kind == "ct" for m in self.linear_bank or ()):
+            raise ConfigError("obs_features 'turn_band' needs a linear bank with a CT model")
         store(self, "obs_features", features)
         for name in ("loglik_clip", "velocity_std", "divergence_error", "divergence_cov"):
             store(self, name, check_range(name, getattr(self, name), 0.0, lo_open=True))

@@ -40,6 +40,8 @@ MAGNITUDE_EMA_FACTORS = (0.9, 0.97)
 #: (:func:`log_decades`).
 MANEUVER_SNR_DECADES = 3.0
 TRACKING_INDEX_DECADES = 4.0
+#: Decades either side of 1 that the ``turn_band`` feature resolves.
+TURN_BAND_DECADES = 2.0
 #: Speed (m/s) that the ``speed`` feature maps to 1.
 SPEED_SCALE = 30.0
 #: Factors of the ``shadow_evidence`` memory (about 10 and 33 steps).
@@ -255,6 +257,23 @@ def maneuver_snr(view: StepView) -> Array:
     return log_decades(offset, MANEUVER_SNR_DECADES)
 
 
+def turn_band(view: StepView) -> Array:
+    r"""``(N,)`` how wide a band of turn rates the bank's CT models are designed to fly, relative
+    to their rate, at the estimated speed, on a log scale: the lateral acceleration their
+    process noise absorbs over the one a turn at their rate takes,
+    :math:`\bar a / (|\hat v|\,\omega_{bank})` with :math:`\bar a` the CT models' mean RMS
+    velocity noise per step over ``T`` (``sqrt(q / T)`` for white-noise acceleration of
+    intensity ``q``) and :math:`|\hat v|` the combined estimate's speed, as
+    :math:`\log_{10} / 2` clipped to [-1, 1] (the band of
+    :meth:`~imm_gym.scenarios.segments.RandomFamily.designed_band` is ``±c`` times it). Near -1 a
+    turn off the bank's rate is one its CT models do not absorb; near 1 they absorb any turn."""
+    cts = [j for j, m in enumerate(view.config.bank) if m.kind == "ct"]
+    accel = view.velocity_noise[:, cts].mean(axis=1) / view.sampling_period
+    speed = np.hypot(view.velocity[:, 0], view.velocity[:, 1])
+    turn = np.maximum(speed * bank_turn_rate(view.config.bank), np.finfo(np.float64).tiny)
+    return log_decades(accel / turn, TURN_BAND_DECADES)
+
+
 def tracking_index(view: StepView) -> Array:
     r"""``(N, M)`` each model's tracking index (Kalata 1984) on a log scale: the position spread
     one step of the model's process noise causes, in units of the measurement accuracy,
@@ -439,6 +458,12 @@ register(Feature(
     "tracking_index", "each model's tracking index σ_v T / σ_p (RMS velocity process noise per"
     " step times T over the measurement accuracy), log10 / 4, clipped: how the tracker is tuned",
     lambda M, m: M, -1.0, 1.0, tracking_index, size_label="M", needs_linear_bank=True,
+))
+register(Feature(
+    "turn_band", "the CT models' acceleration noise sqrt(q / T) over the acceleration |v| ω of a"
+    " turn at the bank's rate, log10 / 2, clipped: how wide a band of turns they are designed"
+    " to fly", lambda M, m: 1, -1.0, 1.0, lambda v: turn_band(v)[:, None], size_label="1",
+    needs_linear_bank=True,
 ))
 register(Feature(
     "shadow_evidence", "discounted sums of the measurements' log-likelihood under the shadow"

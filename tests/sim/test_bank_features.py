@@ -1,5 +1,6 @@
-"""Observation features in the tracker's own units: turn rates in units of the bank's, and how
-distinguishable a bank turn is from the measurement noise in one step."""
+"""Observation features in the tracker's own units: turn rates in units of the bank's, how
+distinguishable a bank turn is from the measurement noise in one step, and how wide a band of
+turns the CT models absorb."""
 
 from __future__ import annotations
 
@@ -8,10 +9,12 @@ import math
 import numpy as np
 import pytest
 
+from imm_gym.seeding import streams
+from imm_gym.sim.conditions import draw_conditions
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import TURN_RATE_SCALE, bank_turn_rate
-from imm_gym.sim.presets import BANK_PRESETS
+from imm_gym.sim.presets import BANK_PRESETS, CONTINUOUS_BANK
 from imm_gym.tracking.models import MotionModel
 from imm_gym.validation import ConfigError
 
@@ -68,3 +71,39 @@ def test_the_tracking_index_of_a_bank_with_per_step_noise() -> None:
 def test_the_tracking_index_needs_a_linear_bank() -> None:
     with pytest.raises(ConfigError, match="'tracking_index' needs a linear bank"):
         EnvConfig(**BANK_PRESETS["hetero"], obs_features=("tracking_index",))
+
+
+def test_the_turn_band_follows_each_slots_drawn_tracker_and_speed() -> None:
+    """``turn_band`` by hand: white-noise acceleration of intensity ``q`` absorbs
+    ``sqrt(q / T)`` of acceleration, here the CT models' ``q`` times the slot's ``q_scale`` and
+    ``q_maneuver``; a turn at the bank's 4°/s takes ``|v| ω``, ``v`` the combined estimate."""
+    N = 6
+    vary = {"T": (0.5, 5.0), "speed": (20.0, 400.0), "q_scale": (0.1, 30.0),
+            "q_maneuver": (0.5, 50.0)}
+    config = EnvConfig(bank=CONTINUOUS_BANK, vary=vary, obs_features=("turn_band",))
+    core = TrackingCore(config, N)
+    seeds = list(range(40, 40 + N))
+    core.reset(np.arange(N), seeds)
+    drawn = draw_conditions(config.vary, 1.0, config.sensor, [streams(s)[0] for s in seeds])
+    q_ct = CONTINUOUS_BANK[1].intensity * drawn.q_scale * drawn.q_maneuver
+    for _ in range(3):
+        obs = core.step(np.zeros((N, 9))).obs[:, 6]
+        speed = np.hypot(core.velocity[:, 0], core.velocity[:, 1])
+        ratio = np.sqrt(q_ct / drawn.T) / (speed * math.radians(4.0))
+        np.testing.assert_allclose(obs, np.clip(np.log10(ratio) / 2, -1, 1), rtol=1e-5,
+                                   atol=1e-6)
+
+
+def test_the_turn_band_of_the_paper_bank_and_its_checks() -> None:
+    """The paper bank's CT velocity noise is 0.06 m²/s² per step at T = 1 s."""
+    core = TrackingCore(EnvConfig(obs_features=("turn_band",)), 3)
+    core.reset(np.arange(3), [0, 1, 2])
+    obs = core.step(np.zeros((3, 9))).obs[:, 6]
+    speed = np.hypot(core.velocity[:, 0], core.velocity[:, 1])
+    expected = np.log10(math.sqrt(0.06) / (speed * math.radians(4.0))) / 2
+    np.testing.assert_allclose(obs, np.clip(expected, -1, 1), rtol=1e-5, atol=1e-6)
+    with pytest.raises(ConfigError, match="'turn_band' needs a linear bank"):
+        EnvConfig(**BANK_PRESETS["hetero"], obs_features=("turn_band",))
+    cv_only = (MotionModel("cv"), MotionModel("cv", q=(1.0,) * 4))
+    with pytest.raises(ConfigError, match="'turn_band' needs a linear bank with a CT model"):
+        EnvConfig(bank=cv_only, obs_features=("turn_band",))
