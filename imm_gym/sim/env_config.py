@@ -344,7 +344,8 @@ class EnvConfig:
                     f"obs_features {f!r} needs a linear bank (the models' Q), got a "
                     "heterogeneous one"
                 )
-        if "turn_band" in features and not any(m.kind == "ct" for m in self.linear_bank or ()):
+        has_ct = any(m.kind == "ct" for m in self.linear_bank or ())
+        if "turn_band" in features and not has_ct:
             raise ConfigError("obs_features 'turn_band' needs a linear bank with a CT model")
         store(self, "obs_features", features)
         for name in ("loglik_clip", "velocity_std", "divergence_error", "divergence_cov"):
@@ -353,8 +354,7 @@ class EnvConfig:
         check_variation(self.vary, self.scenario, self.bank, self.sensor)
         if self.vary.active and self.engine == "numpy":
             raise ConfigError("vary needs engine 'compiled' or 'auto' (a bank per episode)")
-        designed = self.scenario == "random" and self.family.designed_share > 0.0
-        if designed and not any(m.kind == "ct" for m in self.linear_bank or ()):
+        if self.scenario == "random" and self.family.designed_share > 0.0 and not has_ct:
             raise ConfigError(
                 "family.designed_share needs a linear bank with a CT model (the turns its "
                 "targets are drawn for)"
