@@ -235,14 +235,21 @@ def bank_constants(
     :meth:`MotionModel.scaled`)."""
     n = bank_dim(models)
     F = np.stack([np.stack([m.transition_matrix(t, n) for m in models]) for t in T])
-    Q = np.stack([
+    return F, bank_noise(models, T, q_scale, q_maneuver)
+
+
+def bank_noise(
+    models: Sequence[MotionModel], T: Array, q_scale: Array, q_maneuver: Array
+) -> Array:
+    """The process noise ``Q (R, M, n, n)`` of :func:`bank_constants`."""
+    n = bank_dim(models)
+    return np.stack([
         np.stack([
             (m if f == 1.0 else m.scaled(f)).noise_covariance(n, t)
             for m, f in zip(models, [s] + [s * a] * (len(models) - 1), strict=True)
         ])
         for t, s, a in zip(T, q_scale, q_maneuver, strict=True)
     ])
-    return F, Q
 
 
 def turn_design(
@@ -250,7 +257,7 @@ def turn_design(
 ) -> TurnDesign:
     """The turns each run's tracker is designed to fly: the turn rates of the bank's CT models
     and their :func:`~imm_gym.tracking.models.velocity_noise` per step at the run's ``T`` and
-    process-noise factors (:func:`bank_constants`) over ``T``, the lateral acceleration
+    process-noise factors (:func:`bank_noise`) over ``T``, the lateral acceleration
     ``sqrt(q / T)`` (m/s²) their noise absorbs.
 
     Raises:
@@ -262,7 +269,7 @@ def turn_design(
             "family.designed_share needs a bank with a CT model (the turns it is designed to "
             f"fly), got {[m.label for m in models]}"
         )
-    _, Q = bank_constants(models, T, q_scale, q_maneuver)
+    Q = bank_noise(models, T, q_scale, q_maneuver)
     rates = np.array([models[j].omega for j in cts])
     accel_std = velocity_noise(Q[:, cts]) / np.asarray(T, dtype=np.float64)[:, None]
     return TurnDesign(np.broadcast_to(rates, accel_std.shape).copy(), accel_std)
