@@ -31,6 +31,12 @@ from imm_gym.sim.episodes import draw_episodes
 from imm_gym.sim.features import FEATURES, bounds, heading_rate
 from imm_gym.sim.kernels import step_inputs
 from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, DetectorNetwork, LearnedDetector
+from imm_gym.sim.model_order import (
+    action_index,
+    canonical_order,
+    critic_index,
+    observation_index,
+)
 from imm_gym.sim.rewards import REWARD_TERMS, Reward
 from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows
 from imm_gym.tracking.hetero import make_tracker
@@ -147,6 +153,17 @@ class TrackingCore:
         #: ``(N, M)`` each slot's per-model RMS velocity process noise per step (m/s), from its
         #: ``Q`` (NaN for a heterogeneous bank, whose noise depends on the state)
         self.velocity_noise = np.repeat(noise[None], n_envs, axis=0)
+        order = canonical_order(config.bank, noise) if config.model_order == "canonical" else None
+        #: the policy's order of the models (:mod:`imm_gym.sim.model_order`): ``order[c]`` is
+        #: the bank index of the observation's and the action's model ``c``; None where it is
+        #: the bank's own
+        self.model_order = None if order is None or (order == np.arange(M)).all() else order
+        if self.model_order is not None:
+            self._obs_index = observation_index(
+                config.obs_features, self.model_order, config.sensor.dim_z
+            )
+            self._action_index = action_index(self.action_dim, self.model_order)
+            self._critic_index = critic_index(critic_state_size(M), self.model_order)
         #: ``(N,)`` RMS position accuracy of each slot's first measurement, ``sqrt(tr P0_pos / 2)``
         self.position_accuracy = np.ones(n_envs)
         N, K, m = n_envs, self.horizon, config.sensor.dim_z
@@ -422,8 +439,10 @@ class TrackingCore:
         return np.clip(self.validate_action(action), -1.0, 1.0)
 
     def validate_action(self, action: NDArray[Any]) -> Array:
-        """``action`` as float64 after checking shape ``(N, M*M)`` and finiteness (not clipped)."""
-        return validate_action(action, self.n_envs, self.action_dim)
+        """``action`` as float64 after checking shape ``(N, action_dim)`` and finiteness (not
+        clipped), its entries in the bank's order of the models."""
+        a = validate_action(action, self.n_envs, self.action_dim)
+        return a if self.model_order is None else a[:, self._action_index]
 
     # ------------------------------------------------------------------ step
     def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
@@ -592,6 +611,8 @@ class TrackingCore:
         blocks = [self.mu, self.mu_prev]
         blocks += [FEATURES[f].observe(self) for f in self.config.obs_features]
         obs = np.concatenate(blocks, axis=-1)
+        if self.model_order is not None:
+            obs = obs[:, self._obs_index]
         if np.count_nonzero(np.isfinite(obs)) != obs.size:  # a diverged slot
             obs = np.nan_to_num(obs, nan=0.0, posinf=1.0, neginf=-1.0)
         obs = obs.astype(np.float32)
@@ -627,6 +648,8 @@ class TrackingCore:
         coming = self.true_model[rows, np.minimum(self.k, self.horizon - 1)]
         blocks.append(np.eye(self.M)[coming])
         out = np.clip(np.concatenate(blocks, axis=-1), -CRITIC_CLIP, CRITIC_CLIP)
+        if self.model_order is not None:
+            out = out[:, self._critic_index]
         return np.nan_to_num(out).astype(np.float32)
 
 

@@ -21,7 +21,8 @@ from imm_gym.scenarios.segments import RandomFamily, Scenario, TruthSource
 from imm_gym.sim.conditions import Variation, check_variation
 from imm_gym.sim.detectors import DETECTORS, model_turn_rates
 from imm_gym.sim.features import FEATURES, shadow_features
-from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, DetectorNetwork, model_order
+from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, DetectorNetwork, turn_rate_order
+from imm_gym.sim.model_order import MODEL_ORDERS
 from imm_gym.sim.rewards import MODE_SCORES, REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
@@ -177,6 +178,10 @@ class EnvConfig:
             confidence).
         obs_features: extra observation blocks, from :data:`OBS_FEATURES` (declared in
             :mod:`imm_gym.sim.features`).
+        model_order: the order of the models in the observation and the action: ``"bank"`` (as
+            ``bank`` lists them) or ``"canonical"`` (CV, CA, then CT by turn rate, +ω before
+            −ω: :mod:`imm_gym.sim.model_order`), so that a policy acts alike on a tracker
+            however its configuration lists the models. ``info`` keeps the bank's order.
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
@@ -214,6 +219,7 @@ class EnvConfig:
     mode_reward: float = 0.0
     mode_score: str = "log"
     obs_features: tuple[str, ...] = ()
+    model_order: str = "bank"
     loglik_clip: float = 20.0
     velocity_std: float = 5.0
     divergence_error: float = 5000.0
@@ -257,6 +263,7 @@ class EnvConfig:
             ))
         store(self, "p_min", check_range("p_min", self.p_min, 0.0, 1.0 / M, hi_open=True))
         check_choice("action_mode", self.action_mode, ACTION_MODES)
+        check_choice("model_order", self.model_order, MODEL_ORDERS)
         check_choice("stay_base", self.stay_base, STAY_BASES)
         if self.stay_base != "tracker" and self.action_mode != "stay":
             raise ConfigError(
@@ -288,7 +295,7 @@ class EnvConfig:
                                   f"{self.detector_weights!r}")
             store(self, "detector_weights", str(self.detector_weights))
         if self.detector == "learned":
-            model_order(omegas)  # distinct turn rates
+            turn_rate_order(omegas)  # distinct turn rates
             DetectorNetwork.load(self.detector_weights or DEFAULT_WEIGHTS).check_models(M)
         check_choice("stay_grid", self.stay_grid, STAY_GRIDS)
         if self.stay_grid != "stays" and self.stay_base not in ("evidence", "evidence_best"):

@@ -122,6 +122,10 @@ class Feature:
         needs_linear_bank: computed from the models' ``Q`` (a linear bank's, not the
             heterogeneous bank's state-dependent noise).
         memory: the state it keeps across steps, if any.
+        models: how the block's entries are per model (:mod:`imm_gym.sim.model_order` reorders
+            them): ``""`` not at all, ``"M"`` entry ``j`` is model ``j``'s, ``"kM"`` blocks of
+            ``M`` (factor-major), ``"Mm"`` ``M`` blocks of ``m`` (model-major), ``"MM"`` an
+            ``M x M`` matrix, row-major.
     """
 
     name: str
@@ -136,6 +140,7 @@ class Feature:
     needs_stay_bank: bool = False
     needs_linear_bank: bool = False
     memory: Memory | None = None
+    models: str = ""
 
 
 #: Every feature by name, in declaration order.
@@ -367,27 +372,29 @@ _EVIDENCE_LAM = np.asarray(EVIDENCE_FACTORS)
 # ---------------------------------------------------------------------------- the registry
 register(Feature(
     "tpm", "current TPM, row-major", lambda M, m: M * M, 0.0, 1.0,
-    lambda v: v.tpm.reshape(v.n_envs, -1), size_label="M·M",
+    lambda v: v.tpm.reshape(v.n_envs, -1), size_label="M·M", models="MM",
 ))
 register(Feature(
     "loglik", "log-likelihood minus the best model's, clipped to ±``loglik_clip`` and divided"
-    " by it", lambda M, m: M, -1.0, 0.0, _relative_loglik, size_label="M",
+    " by it", lambda M, m: M, -1.0, 0.0, _relative_loglik, size_label="M", models="M",
 ))
 register(Feature(
     "nis", "per-model NIS squashed, nis / (nis + m)", lambda M, m: M, 0.0, 1.0,
-    lambda v: v.model_nis / (v.model_nis + v.config.sensor.dim_z), size_label="M",
+    lambda v: v.model_nis / (v.model_nis + v.config.sensor.dim_z), size_label="M", models="M",
 ))
 register(Feature(
     "innovation", "per-model whitened innovations L⁻¹ν clipped to ±5 and divided by 5,"
     " model-major", lambda M, m: M * m, -1.0, 1.0, _whitened_innovation, size_label="M·m",
+    models="Mm",
 ))
 register(Feature(
     "bank_b", "bank B's probabilities before fusion", lambda M, m: M, 0.0, 1.0,
-    lambda v: v.mu_b, size_label="M", needs_parallel=True,
+    lambda v: v.mu_b, size_label="M", models="M", needs_parallel=True,
 ))
 register(Feature(
     "shadow_probs", "the shadow IMM's probabilities: a maneuver detector the action does not"
-    " influence", lambda M, m: M, 0.0, 1.0, lambda v: v.mu_s, size_label="M", needs_shadow=True,
+    " influence", lambda M, m: M, 0.0, 1.0, lambda v: v.mu_s, size_label="M", models="M",
+    needs_shadow=True,
 ))
 register(Feature(
     "time", "k / K", lambda M, m: 1, 0.0, 1.0, lambda v: (v.k / v.horizon)[:, None],
@@ -410,6 +417,7 @@ register(Feature(
 register(Feature(
     "prob_ema", "moving averages of μ(t), λ = 0.7, 0.9, starting at μ(0), factor-major",
     lambda M, m: len(EMA_FACTORS) * M, 0.0, 1.0, _memory_of("prob_ema"), size_label="2M",
+    models="kM",
     memory=Memory(
         shape=lambda M: (len(EMA_FACTORS), M),
         initial=lambda mu0: mu0[:, None, :],
@@ -457,7 +465,7 @@ register(Feature(
 register(Feature(
     "tracking_index", "each model's tracking index σ_v T / σ_p (RMS velocity process noise per"
     " step times T over the measurement accuracy), log10 / 4, clipped: how the tracker is tuned",
-    lambda M, m: M, -1.0, 1.0, tracking_index, size_label="M", needs_linear_bank=True,
+    lambda M, m: M, -1.0, 1.0, tracking_index, size_label="M", models="M", needs_linear_bank=True,
 ))
 register(Feature(
     "turn_band", "the CT models' acceleration noise sqrt(q / T) over the acceleration |v| ω of a"
@@ -501,5 +509,5 @@ register(Feature(
 register(Feature(
     "detector_belief", "the maneuver detector's belief for the coming step (EnvConfig.detector:"
     " the learned network's, the turn-rate interpolation, or the shadow's probabilities)",
-    lambda M, m: M, 0.0, 1.0, lambda v: v.detector_belief, size_label="M",
+    lambda M, m: M, 0.0, 1.0, lambda v: v.detector_belief, size_label="M", models="M",
 ))

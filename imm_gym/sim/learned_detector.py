@@ -168,7 +168,7 @@ class DetectorNetwork:
         return cls(tuple(weights), tuple(biases), window)
 
 
-def model_order(omegas: Array) -> NDArray[np.int64]:
+def turn_rate_order(omegas: Array) -> NDArray[np.int64]:
     """The models in the order of their turn rates (the network's order); raises
     :class:`ConfigError` unless the rates are distinct."""
     omegas = np.asarray(omegas, dtype=np.float64)
@@ -201,7 +201,7 @@ class LearnedDetector:
         window: int = WINDOW,
     ) -> None:
         M = imm.n_models
-        self.order = model_order(omegas)
+        self.order = turn_rate_order(omegas)
         if network is not None:
             network.check_models(M)
         self.network = network

@@ -27,6 +27,7 @@ from imm_gym.validation import ConfigError
 #: they are per), the action's meaning and the banks a feature reads.
 POLICY_FIELDS = (
     "obs_features",
+    "model_order",
     "action_mode",
     "stay_base",
     "detector_share",

@@ -263,10 +263,11 @@ class SoloStep:
     @staticmethod
     def fits(core: TrackingCore) -> bool:
         """Whether the core's whole step is :func:`solo_step`'s: one slot, the compiled engine
-        on a tracker of ``imm_step_one``'s shape, no observation feature, the ``stay`` mode (if
-        any) moving from the tracker's own TPM (the base :func:`solo_step` passes; no stay
-        bank, no detector), and the reward registry holding the built-in terms only (a stay
-        bank's terms apart: without the stay bank they are not computed)."""
+        on a tracker of ``imm_step_one``'s shape, no observation feature, the models in the
+        bank's order, the ``stay`` mode (if any) moving from the tracker's own TPM (the base
+        :func:`solo_step` passes; no stay bank, no detector), and the reward registry holding
+        the built-in terms only (a stay bank's terms apart: without the stay bank they are not
+        computed)."""
         cfg = core.config
         return (
             core.n_envs == 1
@@ -274,6 +275,7 @@ class SoloStep:
             and core.imm.kernel_args is not None
             and fits_one(1, core.M, core.n, cfg.sensor.dim_z)
             and not cfg.obs_features
+            and core.model_order is None
             and cfg.stay_base == "tracker"
             and cfg.detector_share == 0.0
             and core.stay_bank is None
