@@ -373,6 +373,27 @@ def test_pretrained_agent_keeps_the_mode_probabilities_meaning(scenario, runs, t
     assert rows["pretrained"]["mode_prob_tv"] <= 0.15
 
 
+@pytest.mark.parametrize("scenario", ["vsmm-s1", "atc"])
+def test_pretrained_agent_reads_a_tracker_however_its_models_are_listed(scenario, tmp_path):
+    """The suite's tracker with its models listed CT(+), CV, CT(−): the shipped policy
+    (``model_order: canonical``) scores what it scores on the file's own listing."""
+    lines = (SUITE / f"{scenario}.yaml").read_text().splitlines()
+    models = [i for i, line in enumerate(lines) if line.lstrip().startswith("- {kind")]
+    assert len(models) == 3
+    listed = list(lines)
+    listed[models[0]], listed[models[1]] = lines[models[1]], lines[models[0]]
+    assert "kind: ct" in listed[models[0]] and "kind: cv" in listed[models[1]]
+    (tmp_path / "listed.yaml").write_text("\n".join(listed) + "\n")
+    scores = []
+    for name in (SUITE / f"{scenario}.yaml", tmp_path / "listed.yaml"):
+        result = tmp_path / "res.json"
+        argv = ["--policy", "pretrained", "--env-config", str(name), "--runs", "20"]
+        assert evaluate_main([*argv, "--json", str(result), "--quiet", "--no-clairvoyant"]) == 0
+        scores.append(json.loads(result.read_text())["policies"]["pretrained"])
+    assert scores[1]["armse_pos"] == pytest.approx(scores[0]["armse_pos"], rel=1e-9)
+    assert scores[1]["mode_accuracy"] == pytest.approx(scores[0]["mode_accuracy"], abs=1e-12)
+
+
 def test_several_seeds_make_an_ensemble_of_their_agents(tmp_path) -> None:
     from agents.ensemble import load_ensemble
 
