@@ -56,7 +56,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     {observation_table}
 
-    Policies act on the observation only; ground truth is in ``info`` for evaluation.
+    Policies act on the observation only; ground truth is in ``info`` for evaluation. Per-model
+    entries (and the action's) follow the bank's order, or with ``model_order="canonical"`` one
+    order however the bank lists its models — CV, CA, then CT by turn rate, +ω before −ω
+    (:mod:`imm_gym.sim.model_order`); ``info`` keeps the bank's order.
 
     ## Rewards
     ``reward="advantage"`` (default): ``(e_shadow − e) / reward_scale`` with ``e`` the position
