@@ -36,10 +36,12 @@ instance); every number is the single-process one. Ray is imported only then.
 policy — baselines, the best-fixed search and trained agents —; ``--scenario``, when given,
 replaces the file's scenario and ``--bank`` its bank and filter. A trained agent runs on the
 evaluated tracker (sensor, bank, filter) with its own settings (action mode, features...); the
-JSON gives its ``trained_on`` and ``evaluated_on`` trackers and ``tracker_differs`` (the fields
-that differ, also said under the table) and ``meta.env_config`` the file (the overrides when
-called from Python; the paper's Table 2 rows are printed only without one); an agent whose
-observation or action size the evaluated configuration does not give is refused before any work.
+JSON gives its ``trained_on`` and ``evaluated_on`` trackers and ``tracker_differs`` (the fields that
+differ, also said under the table), ``models_differ`` where the evaluated bank's models stand for
+others than the trained banks' (said too: the agent reads them as its own), and ``meta.env_config``
+the file (the overrides when called from Python; the paper's Table 2 rows are printed only without
+one); an agent whose observation or action size the evaluated configuration does not give is
+refused before any work.
 """
 
 from __future__ import annotations
@@ -86,6 +88,7 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.sim.features import bounds
 from imm_gym.sim.mixture import AGENT_FIELDS
+from imm_gym.sim.model_order import model_roles
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError, from_dict
@@ -280,9 +283,12 @@ def agent_overrides(
     The agent keeps its own settings (action mode, features, ...) and runs on ``base``'s tracker
     and targets: its recorded :data:`~imm_gym.sim.config_file.TRACKER_FIELDS` and
     :data:`~imm_gym.sim.config_file.TARGET_FIELDS` are dropped. The notes give ``trained_on``
-    (the recorded tracker), ``evaluated_on`` (``base``'s) and ``tracker_differs`` (the fields
-    that differ); for an agent trained across trackers (``policy.trained_across``), ``trained_on``
-    is the trained tracker with the fewest fields differing and ``trained_across`` lists them all.
+    (the recorded tracker), ``evaluated_on`` (``base``'s) and ``tracker_differs`` (the fields that
+    differ), and ``models_differ`` where the evaluated bank's models stand for others than every
+    trained bank's, position by position (:func:`~imm_gym.sim.model_order.model_roles`: the policy
+    reads them as the ones it was trained on); for an agent trained across trackers
+    (``policy.trained_across``), ``trained_on`` is the trained tracker with the fewest fields
+    differing and ``trained_across`` lists them all.
 
     Raises:
         ConfigError: the observation (one frame, ``policy.obs_size``) or the action (M² entries,
@@ -317,6 +323,11 @@ def agent_overrides(
         "evaluated_on": evaluated_on,
         "tracker_differs": differs[closest],
     }
+    roles = model_roles(cfg.bank, cfg.model_order)
+    trained = [model_roles(EnvConfig.build({"bank": t["bank"]}).bank, cfg.model_order)
+               for t in trackers]
+    if roles not in trained:
+        notes["models_differ"] = {"trained": list(trained[closest]), "evaluated": list(roles)}
     if len(trackers) > 1:
         notes["trained_across"] = trackers
     return kept, notes

@@ -100,11 +100,14 @@ def render_tables(results: dict[str, Any]) -> None:
     console.print(behaviour)
     for name, r in results["policies"].items():
         if r.get("tracker_differs"):
+            fields = r["tracker_differs"]
             console.print(
                 f"{name} was trained on another tracker than the evaluated one "
-                f"({', '.join(r['tracker_differs'])} differ: see trained_on and evaluated_on in "
-                "the JSON)"
+                f"({', '.join(fields)} {'differs' if len(fields) == 1 else 'differ'}: see "
+                "trained_on and evaluated_on in the JSON)"
             )
+        if r.get("models_differ"):
+            console.print(models_differ_note(name, r["models_differ"]))
     paired = results["paired"]
     if paired["differences"]:
         diff = Table(title=f"Position ARMSE minus {paired['reference']}'s, 95% paired bootstrap CI")
@@ -178,6 +181,10 @@ def render_suite_table(results: dict[str, Any]) -> None:
             "trained_on, evaluated_on, tracker_differs)"
         )
     console.print(table)
+    for scenario, r in results["scenarios"].items():
+        for name, row in r["policies"].items():
+            if row.get("models_differ"):
+                console.print(f"{scenario}: " + models_differ_note(name, row["models_differ"]))
 
 
 SYSTEM_COLUMNS = (
@@ -220,3 +227,11 @@ def render_system_tables(results: dict[str, object]) -> None:
             style="dim",
         )
     console.print(table)
+
+
+def models_differ_note(name: str, roles: dict[str, list[str]]) -> str:
+    """One line: the policy reads the evaluated bank's models as the ones it was trained on."""
+    return (
+        f"{name} reads the evaluated bank's models ({', '.join(roles['evaluated'])}) as those it "
+        f"was trained on ({', '.join(roles['trained'])})"
+    )

@@ -62,6 +62,21 @@ def canonical_order(bank: Any, velocity_noise: Sequence[float] | None = None) ->
     return np.array(sorted(range(len(keys)), key=lambda j: keys[j]), dtype=np.intp)
 
 
+def model_roles(bank: Any, order: str = "bank") -> tuple[str, ...]:
+    """What each model of ``bank`` stands for, in ``order`` (``EnvConfig.model_order``): its kind,
+    and for a CT model of a linear bank the sense of its turn (``"CT(+)"``, ``"CT(−)"``) — what a
+    policy trained on one bank reads each per-model entry as."""
+    if isinstance(bank, tuple):
+        roles = [
+            m.kind.upper() + ("" if m.kind != "ct" else "(+)" if m.omega > 0.0 else "(−)")
+            for m in bank
+        ]
+    else:
+        roles = [kind.upper() for kind in bank.models]
+    ranks = canonical_order(bank) if order == "canonical" else range(len(roles))
+    return tuple(roles[j] for j in ranks)
+
+
 def block_index(models: str, order: Index, size: int, dim_z: int) -> Index:
     """The positions of one observation block of ``size`` entries whose entries are per model
     as ``models`` says (:class:`~imm_gym.sim.features.Feature`), read in canonical order."""

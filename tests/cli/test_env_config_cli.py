@@ -102,6 +102,28 @@ def test_an_agent_on_another_tracker_is_reported(tmp_path, capsys) -> None:
     assert results["policies"]["pretrained"]["tracker_differs"] == []
 
 
+def test_an_agent_reading_other_models_as_its_own_is_reported(tmp_path, capsys) -> None:
+    """A bank of three models standing for others than the trained banks' (CV, CA, CT(+)): the
+    agent runs, and the report says what it reads each model as; the same models listed in
+    another order are not reported (the canonical order)."""
+    file = tmp_path / "cvcact.yaml"
+    file.write_text("bank: [{kind: cv}, {kind: ca, q: [0.1, 0.1, 0.1, 0.1, 0.1, 0.1]},\n"
+                    "       {kind: ct, turn_rate_deg: 3.0}]\n")
+    out = tmp_path / "out.json"
+    argv = ["--env-config", str(file), "--policy", "pretrained", "--runs", "2"]
+    main([*argv, "--quiet", "--json", str(out), "--no-clairvoyant"])
+    assert ("pretrained reads the evaluated bank's models (CV, CA, CT(+)) as those it was "
+            "trained on (CV, CT(+), CT(−))") in capsys.readouterr().out
+    row = json.loads(out.read_text())["policies"]["pretrained"]
+    assert row["models_differ"] == {"trained": ["CV", "CT(+)", "CT(−)"],
+                                    "evaluated": ["CV", "CA", "CT(+)"]}
+    file.write_text("bank: [{kind: ct, turn_rate_deg: -3.0}, {kind: ct, turn_rate_deg: 3.0},\n"
+                    "       {kind: cv}]\n")
+    main([*argv, "--quiet", "--json", str(out), "--no-clairvoyant"])
+    assert "reads the evaluated bank's models" not in capsys.readouterr().out
+    assert "models_differ" not in json.loads(out.read_text())["policies"]["pretrained"]
+
+
 def test_an_agent_that_cannot_read_the_observation_is_refused_before_any_work(
     tmp_path, capsys, no_work
 ) -> None:

@@ -19,6 +19,7 @@ from imm_gym.sim.model_order import (
     block_index,
     canonical_order,
     critic_index,
+    model_roles,
     observation_index,
 )
 from imm_gym.tracking.hetero import HeteroBank
@@ -60,6 +61,14 @@ def test_the_key_ranks_kinds_rates_signs_then_noise() -> None:
     assert canonical_order(twins).tolist() == [1, 0, 2]
     hetero = HeteroBank(models=("ctra", "ncv", "ct"))
     assert canonical_order(hetero).tolist() == [1, 2, 0]
+
+
+def test_the_roles_of_the_models_in_either_order() -> None:
+    ca = MotionModel("ca", noise="continuous", intensity=0.5)
+    assert model_roles((RIGHT, CV, LEFT)) == ("CT(−)", "CV", "CT(+)")
+    assert model_roles((RIGHT, CV, LEFT), "canonical") == ("CV", "CT(+)", "CT(−)")
+    assert model_roles((LEFT, ca, CV), "canonical") == ("CV", "CA", "CT(+)")
+    assert model_roles(HeteroBank(), "canonical") == ("NCV", "CT", "CTRA")
 
 
 @settings(max_examples=60, deadline=None)
