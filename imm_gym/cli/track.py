@@ -54,6 +54,7 @@ import numpy as np
 
 from baselines import REGISTRY
 from imm_gym.cli.evaluate import agent_overrides, make_policy
+from imm_gym.cli.tables import models_differ_note
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.replay import TrackResult, run_policy
@@ -259,6 +260,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 verb = "differs" if len(fields) == 1 else "differ"
                 print(f"{args.policy} was trained on another tracker (its {' and '.join(fields)} "
                       f"{verb}): it tracks with the configured one", file=sys.stderr)
+            if "models_differ" in notes:
+                print(models_differ_note(args.policy, notes["models_differ"]), file=sys.stderr)
         results = run(sequences, policy, config, args.velocity, overrides)
         write(args.out, results)
     except ConfigError as err:

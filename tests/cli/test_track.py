@@ -168,8 +168,8 @@ def test_an_agent_tracks_with_the_configured_tracker(
     tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A trained agent recorded with another sensor keeps its own settings and tracks with the
-    configuration's sensor (said on stderr); a bank whose size its network cannot take is
-    refused before any work."""
+    configuration's sensor (said on stderr), and says so when the bank's models stand for others
+    than its own; a bank whose size its network cannot take is refused before any work."""
     agent = load_policy(PRETRAINED)
     paper = agent.trained_across[0]  # the part of its training on the paper's tracker
     agent.trained_across = ()
@@ -188,6 +188,13 @@ def test_an_agent_tracks_with_the_configured_tracker(
     expected = imm_gym.run_policy(core.z[0], agent, overrides=kept)
     with np.load(tmp_path / "out.npz") as result:
         np.testing.assert_array_equal(result["estimate"], expected.estimate)
+    (tmp_path / "ca.yaml").write_text(
+        "bank: [{kind: cv}, {kind: ca, q: [0.1, 0.1, 0.1, 0.1, 0.1, 0.1]},\n"
+        "       {kind: ct, turn_rate_deg: 3.0}]\n"
+    )
+    assert main([*out, "--env-config", str(tmp_path / "ca.yaml")]) == 0
+    assert ("reads the evaluated bank's models (CV, CA, CT(+)) as those it was trained on "
+            "(CV, CT(+), CT(−))") in capsys.readouterr().err
     (tmp_path / "two.yaml").write_text("bank: [{kind: cv}, {kind: ct, turn_rate_deg: 3.0}]\n")
     (tmp_path / "out.npz").unlink()
     with pytest.raises(SystemExit):
