@@ -51,7 +51,9 @@ def test_round_trip_file_config_file(tmp_path, name, suffix) -> None:
 
 @pytest.mark.parametrize(
     "path",
-    sorted(EXAMPLES.glob("*.yaml")) + sorted(SUITE_CONFIGS.glob("*.yaml")),
+    sorted(EXAMPLES.glob("*.yaml"))
+    + sorted((EXAMPLES / "probes").glob("*.yaml"))
+    + sorted(SUITE_CONFIGS.glob("*.yaml")),
     ids=lambda p: p.name,
 )
 def test_shipped_examples_are_valid(path) -> None:
