@@ -20,6 +20,19 @@ def random_pd(rng: np.random.Generator, std: np.ndarray) -> np.ndarray:
     return (std[:, None] * std[None, :]) * (d[:, None] * C * d[None, :])
 
 
+#: A small PPO for training in the tests (8 envs, 32-step rollouts, one epoch).
+SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
+
+
+def train_small(out: Path, *args: str, extra: str = "") -> int:
+    """``train.py`` with :data:`SMALL` (``extra`` YAML on top) writing to ``out``."""
+    import train
+
+    cfg = out / "small.yml"
+    cfg.write_text(SMALL + extra)
+    return train.main(["--config", str(cfg), "--out", str(out), "--no-progress", *args])
+
+
 def load_example(name: str) -> ModuleType:
     """The script ``examples/NAME.py`` as a module (the examples are not a package)."""
     path = Path(__file__).parents[1] / "examples" / f"{name}.py"

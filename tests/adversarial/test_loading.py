@@ -23,15 +23,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from helpers import shipped_agent
+from helpers import SMALL, shipped_agent
 from safetensors.torch import load_file, save_file
 
 import train
 from agents.policy import load_agent
 from imm_gym.cli.evaluate import main as evaluate_main
 from imm_gym.validation import ConfigError
-
-SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
 
 
 class Payload:

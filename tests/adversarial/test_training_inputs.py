@@ -8,11 +8,10 @@ import json
 from pathlib import Path
 
 import pytest
+from helpers import SMALL
 
 import train
 from agents.training import read_yaml
-
-SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
 
 
 def usage_error(argv: list[str], tmp_path: Path, capsys) -> str:

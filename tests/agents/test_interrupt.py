@@ -16,11 +16,11 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import SMALL
 
 import train
 
 ROOT = Path(__file__).resolve().parents[2]
-SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
 #: checkpoints every 512 steps and validations every 1024: every phase of a run is frequent
 RUN = ["--no-eval", "--no-progress", "--checkpoint-every", "512", "--validate-every", "1024"]
 RUN += ["--validation-runs", "3", "--timesteps", "10000000"]

@@ -9,21 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import SMALL, train_small
 
 import train
 from agents.policy import load_agent
 from imm_gym import EnvConfig, TrackingCore
 from imm_gym.cli.evaluate import main as evaluate_main
-
-SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"
-
-
-def train_small(out, *args: str, extra: str = "") -> int:
-    """``train.py`` with a small PPO (8 envs, 32-step rollouts; ``extra`` YAML on top) writing
-    to ``out``."""
-    cfg = out / "small.yml"
-    cfg.write_text(SMALL + extra)
-    return train.main(["--config", str(cfg), "--out", str(out), "--no-progress", *args])
 
 
 @pytest.fixture(scope="module")
