@@ -232,6 +232,15 @@ def bank_turn_rate(bank: Any) -> float:
     return max(rates) if rates else TURN_RATE_SCALE
 
 
+def model_turn_rates(bank: Any) -> Array:
+    """``(M,)`` each model's turn rate in units of :func:`bank_turn_rate` (CT models; 0 for CV,
+    CA and every model of a heterogeneous bank): which model a per-model entry belongs to."""
+    if not isinstance(bank, tuple):
+        return np.zeros(len(bank.models))
+    rates = [m.omega if getattr(m, "kind", None) == "ct" else 0.0 for m in bank]
+    return np.asarray(rates, dtype=float) / bank_turn_rate(bank)
+
+
 def turn_rate_bank(view: StepView) -> Array:
     """``(N,)`` heading rate of the combined estimate in units of the bank's turn rate."""
     rate = heading_rate(view.velocity_prev, view.velocity, view.sampling_period)
@@ -445,6 +454,13 @@ register(Feature(
     "turn_rate_bank", "heading rate of the combined estimate over the last step in units of the"
     " bank's largest CT turn rate, clipped to ±2 and halved", lambda M, m: 1, -1.0, 1.0,
     lambda v: (np.clip(turn_rate_bank(v), -2.0, 2.0) / 2.0)[:, None], size_label="1",
+))
+register(Feature(
+    "model_turn_rate", "each model's turn rate over the bank's largest |ω| (0 for CV and CA"
+    " models): which model a per-model entry is, for a network shared by the models",
+    lambda M, m: M, -1.0, 1.0,
+    lambda v: np.broadcast_to(model_turn_rates(v.config.bank), (v.n_envs, len(v.config.bank))),
+    size_label="M", models="M",
 ))
 register(Feature(
     "shadow_turn_rate_bank", "the same for the shadow IMM's estimate", lambda M, m: 1, -1.0, 1.0,

@@ -123,3 +123,39 @@ def critic_index(size: int, order: Index) -> Index:
     the coming model one-hot in its last ``M`` entries) to canonical ``order``."""
     M = len(order)
     return np.concatenate([np.arange(size - M), size - M + order]).astype(np.intp)
+
+
+def frame_layout(features: Sequence[str], n_models: int, dim_z: int) -> tuple[Index, Index]:
+    """Where each model's entries and the shared ones are in one observation frame
+    ``[μ(t), μ(t−1)]`` + the blocks of ``features``: ``(per_model, shared)``, ``per_model[j]``
+    the positions of model ``j``'s entries (the same feature entry in the same column for every
+    model), ``shared`` those of no model. A network that reads ``obs[per_model[j]]`` with
+    ``obs[shared]`` through weights shared by the models reads a bank of any size
+    (:mod:`agents.per_model`).
+
+    Raises:
+        ValueError: a block is an ``M x M`` matrix (``models="MM"``, the TPM): its entries are
+            per pair of models, not per model.
+    """
+    M = n_models
+    per_model = [np.arange(M)[:, None], M + np.arange(M)[:, None]]
+    shared = []
+    offset = 2 * M
+    for name in features:
+        f = FEATURES[name]
+        size = f.size(M, dim_z)
+        if f.models == "MM":
+            raise ValueError(f"feature {name!r} is per pair of models, not per model")
+        if f.models == "":
+            shared.append(offset + np.arange(size))
+        else:
+            block = offset + block_index(f.models, np.arange(M), size, dim_z)
+            if f.models == "kM":
+                per_model.append(block.reshape(size // M, M).T)
+            else:
+                per_model.append(block.reshape(M, size // M))
+        offset += size
+    return (
+        np.concatenate(per_model, axis=1).astype(np.intp),
+        np.concatenate(shared or [np.zeros(0)]).astype(np.intp),
+    )
