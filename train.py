@@ -446,6 +446,7 @@ def train_one(
         gamma,
         critic_state,
         params.get("env_mixture", ()),
+        tie_models=params["policy"] == "PerModelPolicy",
     )
     algo_cls = _algo_class(args.algo)
     ckpt_dir = run_dir / "checkpoints"
@@ -454,7 +455,26 @@ def train_one(
     run = {"algo": args.algo, "env_id": args.env, "seed": seed, "hyperparams": jsonable(params)}
     kwargs = algo_kwargs(params)
     policy = params["policy"]
-    if critic_dims:
+    if policy == "PerModelPolicy":
+        from agents.per_model import PerModelActorCriticPolicy
+        from imm_gym.sim.actions import STAY_MODES
+        from imm_gym.validation import ConfigError
+
+        policy = PerModelActorCriticPolicy
+        config = env.unwrapped.config
+        if config.action_mode not in STAY_MODES:
+            raise ConfigError(
+                f"policy PerModelPolicy writes one action entry per model: action_mode must be "
+                f"one of {list(STAY_MODES)}, got {config.action_mode!r}"
+            )
+        kwargs["policy_kwargs"] = {
+            **kwargs.get("policy_kwargs", {}),
+            "obs_features": list(config.obs_features),
+            "dim_z": config.sensor.dim_z,
+            "critic_dims": critic_dims,
+            "frame_stack": frame_stack,
+        }
+    elif critic_dims:
         from agents.asymmetric import AsymmetricActorCriticPolicy
 
         policy = AsymmetricActorCriticPolicy

@@ -82,6 +82,19 @@ class EnsemblePolicy:
                     trackers.append(tracker)
         self.trained_across = tuple(trackers)
 
+    @property
+    def shares_models(self) -> bool:
+        """Whether every member's network is shared by the models."""
+        return all(member.shares_models for member in self.members)
+
+    def for_models(self, n_models: int) -> EnsemblePolicy:
+        """The ensemble of its members for a bank of ``n_models`` models
+        (:meth:`LearnedPolicy.for_models`)."""
+        members = [member.for_models(n_models) for member in self.members]
+        if all(new is old for new, old in zip(members, self.members, strict=True)):
+            return self
+        return EnsemblePolicy(members, self.source)
+
     def predict(
         self,
         observation: NDArray[Any],

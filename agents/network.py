@@ -23,6 +23,7 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
 from agents.asymmetric import AsymmetricActorCriticPolicy
+from agents.per_model import PerModelActorCriticPolicy
 from agents.schema import ACTIVATIONS, SDE_KEYS
 from imm_gym.validation import ConfigError
 
@@ -42,6 +43,7 @@ def _recurrent_policy() -> type[ActorCriticPolicy]:
 POLICY_CLASSES: dict[str, Callable[[], type[ActorCriticPolicy]]] = {
     "MlpPolicy": lambda: ActorCriticPolicy,
     "AsymmetricMlpPolicy": lambda: AsymmetricActorCriticPolicy,
+    "PerModelPolicy": lambda: PerModelActorCriticPolicy,
     "MlpLstmPolicy": _recurrent_policy,
 }
 
@@ -100,6 +102,13 @@ def policy_spec(policy: ActorCriticPolicy) -> dict[str, Any]:
         spec.update({k: bool(policy.dist_kwargs[k]) for k in SDE_KEYS})
     if name == "AsymmetricMlpPolicy":
         spec.update(critic_dims=policy.critic_dims, frame_stack=policy.frame_stack)
+    if name == "PerModelPolicy":
+        spec.update(
+            critic_dims=policy.critic_dims,
+            frame_stack=policy.frame_stack,
+            obs_features=list(policy.obs_features),
+            dim_z=policy.dim_z,
+        )
     if name == "MlpLstmPolicy":
         spec.update(
             lstm_hidden_size=policy.lstm_actor.hidden_size,

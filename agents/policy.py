@@ -68,6 +68,8 @@ class LearnedPolicy:
         trained_across: the trackers (:data:`~imm_gym.sim.config_file.TRACKER_FIELDS`) of the
             further parts of the mixture it was trained on (``env_mixture``), besides the one of
             ``env_overrides``.
+        spec: the network's description (:func:`agents.network.policy_spec`), which
+            :meth:`for_models` rebuilds a network shared by the models from.
     """
 
     name = "learned"
@@ -85,8 +87,10 @@ class LearnedPolicy:
         critic_dims: int = 0,
         source: str = "the agent",
         trained_across: Sequence[dict[str, Any]] = (),
+        spec: dict[str, Any] | None = None,
     ) -> None:
         self.model = model
+        self.spec = spec
         self.env_overrides = env_overrides
         self.obs_mean, self.obs_var = obs_mean, obs_var
         self.clip_obs, self.epsilon = clip_obs, epsilon
@@ -97,6 +101,54 @@ class LearnedPolicy:
         self.trained_across = tuple(trained_across)
         #: entries of one environment observation, the critic's excluded
         self.obs_size = int(model.observation_space.shape[0]) // frame_stack - critic_dims
+
+    @property
+    def shares_models(self) -> bool:
+        """Whether its network is shared by the models (reads a bank of any size and order)."""
+        return self.spec is not None and self.spec["class"] == "PerModelPolicy"
+
+    def for_models(self, n_models: int) -> LearnedPolicy:
+        """This agent for a bank of ``n_models`` models: its network shared by the models
+        (``PerModelPolicy``, :mod:`agents.per_model`) rebuilt for that many, with the same actor
+        weights and the normalizer's statistics per model carried over; itself when it has that
+        many models or its network reads them by position (the evaluation's size check then
+        refuses another bank)."""
+        from agents.network import build_policy
+        from agents.per_model import frame_groups, refit_normalizer, refit_state
+        from imm_gym.sim.core import critic_state_size
+
+        trained = int(self.model.action_space.shape[0])
+        if self.spec is None or not self.shares_models or n_models == trained:
+            return self
+        features, dim_z = self.spec["obs_features"], self.spec["dim_z"]
+        critic_dims = critic_state_size(n_models) if self.critic_dims else 0
+        frame = sum(a.size for a in frame_groups(features, n_models, dim_z, False))
+        spec = {
+            **self.spec,
+            "observation_size": self.frame_stack * (frame + critic_dims),
+            "action_size": n_models,
+            "critic_dims": critic_dims,
+        }
+        model = build_policy(spec, self.source)
+        model.load_state_dict(refit_state(self.model.state_dict(), model.state_dict()))
+        mean, var = self.obs_mean, self.obs_var
+        if mean is not None and var is not None:
+            mean, var = refit_normalizer(
+                mean, var, features, dim_z, trained, n_models, bool(self.critic_dims)
+            )
+        return LearnedPolicy(
+            model,
+            self.env_overrides,
+            mean,
+            var,
+            self.clip_obs,
+            self.epsilon,
+            frame_stack=self.frame_stack,
+            critic_dims=critic_dims,
+            source=f"{self.source} (for {n_models} models)",
+            trained_across=self.trained_across,
+            spec=spec,
+        )
 
     def normalize(self, obs: NDArray[Any]) -> NDArray[np.float32]:
         if self.obs_mean is None or self.obs_var is None:
@@ -172,15 +224,19 @@ def load_agent(path: str | Path) -> LearnedPolicy:
     recurrent = meta["algo"] == "recurrent-ppo"
     if recurrent and critic_dims:
         raise ConfigError(f"{agent_file}: critic_dims {critic_dims} with algo 'recurrent-ppo'")
-    expected_class = (
-        "MlpLstmPolicy" if recurrent else "AsymmetricMlpPolicy" if critic_dims else "MlpPolicy"
+    expected = (
+        ("MlpLstmPolicy",)
+        if recurrent
+        else ("AsymmetricMlpPolicy", "PerModelPolicy")
+        if critic_dims
+        else ("MlpPolicy", "PerModelPolicy")
     )
-    if spec["class"] != expected_class:
+    if spec["class"] not in expected:
         raise ConfigError(
             f"{where}.class is {spec['class']!r}, but algo {meta['algo']!r} with critic_dims "
-            f"{critic_dims} needs {expected_class!r}"
+            f"{critic_dims} needs one of {list(expected)}"
         )
-    if spec["class"] == "AsymmetricMlpPolicy" and (
+    if spec["class"] in ("AsymmetricMlpPolicy", "PerModelPolicy") and (
         spec["critic_dims"] != critic_dims or spec["frame_stack"] != frame_stack
     ):
         raise ConfigError(f"{where}: critic_dims/frame_stack differ from the agent's")
@@ -204,6 +260,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
         critic_dims=critic_dims,
         source=f"agent {str(directory)!r}",
         trained_across=meta.get("trained_across", ()),
+        spec=spec,
     )
 
 

@@ -239,6 +239,7 @@ def check_params(params: dict[str, Any]) -> None:
         "target_kl": params.get("target_kl") is not None,
         "use_sde": bool(params.get("use_sde")),
         "normalize_advantage": params.get("normalize_advantage") is False,
+        "policy": params.get("policy", "MlpPolicy") != "MlpPolicy",
     }
     kwargs = params.get("policy_kwargs", {})
     arch = kwargs.get("net_arch", {"pi": [64, 64], "vf": [64, 64]})

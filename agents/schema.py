@@ -28,7 +28,7 @@ ACTIVATIONS = {
 }
 
 #: The policy classes an agent may record (:data:`agents.network.POLICY_CLASSES`).
-POLICY_CLASS_NAMES = ("MlpPolicy", "AsymmetricMlpPolicy", "MlpLstmPolicy")
+POLICY_CLASS_NAMES = ("MlpPolicy", "AsymmetricMlpPolicy", "PerModelPolicy", "MlpLstmPolicy")
 
 
 def check_flag(where: str, value: Any) -> bool:
@@ -77,6 +77,12 @@ def _layers(where: str, value: Any) -> list[int]:
     return [check_size(f"{where}[{i}]", n) for i, n in enumerate(value)]
 
 
+def _names(where: str, value: Any) -> list[str]:
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"{where} must be a list of names, got {value!r}")
+    return list(value)
+
+
 def _net_arch(where: str, value: Any) -> list[int] | dict[str, list[int]]:
     """``[64, 64]`` (shared sizes) or ``{pi: [...], vf: [...]}`` (actor and critic)."""
     if isinstance(value, Mapping):
@@ -113,6 +119,8 @@ SPEC_FIELDS: dict[str, Callable[[str, Any], Any]] = {
     "use_sde": check_flag,
     "critic_dims": check_count,
     "frame_stack": check_size,
+    "obs_features": _names,
+    "dim_z": check_size,
 }
 
 #: description keys of every policy class, and those of one class only
@@ -125,6 +133,7 @@ _COMMON_KEYS = (
 _CLASS_KEYS = {
     "MlpPolicy": (),
     "AsymmetricMlpPolicy": ("critic_dims", "frame_stack"),
+    "PerModelPolicy": ("critic_dims", "frame_stack", "obs_features", "dim_z"),
     "MlpLstmPolicy": LSTM_KEYS,
 }
 

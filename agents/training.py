@@ -43,8 +43,8 @@ VALIDATION_SEED_BASE = 50_000_000
 ALGO_FILES = {"ppo": "ppo.yml", "recurrent-ppo": "recurrent_ppo.yml"}
 #: The entry used for an environment id that has none in the hyperparameter file.
 DEFAULT_ENTRY = "imm_gym/TPMAdapt-v0"
-#: The policy each algorithm trains.
-POLICIES = {"ppo": "MlpPolicy", "recurrent-ppo": "MlpLstmPolicy"}
+#: The policies each algorithm trains (``PerModelPolicy``: :mod:`agents.per_model`).
+POLICIES = {"ppo": ("MlpPolicy", "PerModelPolicy"), "recurrent-ppo": ("MlpLstmPolicy",)}
 
 
 def set_threads(n: int = 1) -> None:
@@ -223,9 +223,10 @@ def check_hyperparams(where: str, params: Any, algo: str, complete: bool = True)
     missing = [k for k in ("n_envs", "n_timesteps", "policy") if k not in params]
     if complete and missing:
         raise ConfigError(f"{where}: missing {missing}")
-    if "policy" in out and out["policy"] != POLICIES[algo]:
+    if "policy" in out and out["policy"] not in POLICIES[algo]:
         raise ConfigError(
-            f"{where}: policy must be {POLICIES[algo]!r} for {algo}, got {out['policy']!r}"
+            f"{where}: policy must be one of {list(POLICIES[algo])} for {algo}, got "
+            f"{out['policy']!r}"
         )
     if out.get("critic_state") and algo != "ppo":
         raise ConfigError(f"{where}: critic_state: true needs --algo ppo, got --algo {algo}")
@@ -242,11 +243,14 @@ def make_training_env(
     gamma: float,
     critic_state: bool = False,
     mixture: Sequence[Mapping[str, Any]] = (),
+    tie_models: bool = False,
 ) -> Any:
     """The vectorized training environment (see the module docstring); ``critic_state`` appends
     ground truth for an asymmetric critic (:mod:`agents.asymmetric`); ``mixture`` (the entry's
     ``env_mixture``) gives further configurations their share of the slots
-    (:class:`~imm_gym.envs.sb3.TPMAdaptSB3VecEnv`)."""
+    (:class:`~imm_gym.envs.sb3.TPMAdaptSB3VecEnv`); ``tie_models``: the normalizer keeps one
+    statistic per feature entry over the models (a ``PerModelPolicy``'s,
+    :class:`agents.per_model.TiedRunningMeanStd`)."""
     from stable_baselines3.common.vec_env import VecFrameStack, VecMonitor, VecNormalize
 
     from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
@@ -258,6 +262,14 @@ def make_training_env(
     env: Any = VecMonitor(venv)
     if normalize:
         env = VecNormalize(env, norm_obs=True, norm_reward=True, gamma=gamma)
+        if tie_models:
+            from agents.per_model import TiedRunningMeanStd, frame_groups
+
+            cfg = venv.config
+            per_model, _ = frame_groups(
+                cfg.obs_features, venv.core.M, cfg.sensor.dim_z, critic_state
+            )
+            env.obs_rms = TiedRunningMeanStd(per_model, env.obs_rms.mean.shape)
     if frame_stack > 1:
         env = VecFrameStack(env, frame_stack)
     return env

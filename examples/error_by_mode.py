@@ -96,7 +96,7 @@ def score(
     configs = suite_configs("benchmark")
     extra = {}
     for path in zero:
-        _, overrides, _ = load_trained(path)  # type: ignore[arg-type]
+        _, overrides, _ = load_trained(path, EnvConfig.build({}))  # type: ignore[arg-type]
         size = TrackingCore(EnvConfig.build(overrides), 1).action_dim
         extra[f"zero of {path}"] = (ZeroAction(size), overrides)
     results: dict[str, dict[str, dict[str, Any]]] = {}

@@ -154,27 +154,35 @@ def make_policy(
     if name == "pretrained":
         from agents import PRETRAINED
 
-        return load_trained(PRETRAINED)
+        return load_trained(PRETRAINED, base)
     path = Path(name)
     if path.suffix == ".zip" or path.is_dir() or path.exists():
-        return load_trained(path)
+        return load_trained(path, base)
     raise ConfigError(
         f"unknown policy {name!r}: use one of {list(REGISTRY)}, 'pretrained' or a "
         "trained agent's directory"
     )
 
 
-def load_trained(path: Path) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+def load_trained(path: Path, base: EnvConfig) -> tuple[Any, dict[str, Any], dict[str, Any]]:
     """A trained agent (``agents.policy`` directory layout), an ensemble of them
-    (``agents.ensemble``) or a stay selector (``agents.selector``) and its environment
-    overrides."""
+    (``agents.ensemble``) or a stay selector (``agents.selector``) for ``base``'s bank
+    (:func:`for_bank`) and its environment overrides."""
     from agents.ensemble import load_policy
 
     try:
         policy = load_policy(path)
     except FileNotFoundError as err:
         raise ConfigError(str(err)) from None
-    return policy, policy.env_overrides, {"path": str(path)}
+    return for_bank(policy, base), policy.env_overrides, {"path": str(path)}
+
+
+def for_bank(policy: Any, base: EnvConfig) -> Any:
+    """``policy`` for the number of models of ``base``'s bank: an agent whose network is shared
+    by the models rebuilt for them (``policy.for_models``, :mod:`agents.per_model`); any other
+    as it is."""
+    for_models = getattr(policy, "for_models", None)
+    return policy if for_models is None else for_models(len(base.bank))
 
 
 def evaluate(
@@ -212,7 +220,7 @@ def evaluate(
     base = evaluated_config(scenario, env_config, bank)
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {list(policies)}")
-    agents = {name: (p, o, {}) for name, (p, o) in (extra or {}).items()}
+    agents = {name: (for_bank(p, base), o, {}) for name, (p, o) in (extra or {}).items()}
     loaded = (name for name in policies if name not in REGISTRY)
     agents.update({name: make_policy(name, base, seed, make_core=make_core) for name in loaded})
     for name, (policy, overrides, notes) in agents.items():
@@ -286,7 +294,8 @@ def agent_overrides(
     (the recorded tracker), ``evaluated_on`` (``base``'s) and ``tracker_differs`` (the fields that
     differ), and ``models_differ`` where the evaluated bank's models stand for others than every
     trained bank's, position by position (:func:`~imm_gym.sim.model_order.model_roles`: the policy
-    reads them as the ones it was trained on); for an agent trained across trackers
+    reads them as the ones it was trained on; not for a network shared by the models,
+    ``policy.shares_models``, which reads each model's role); for an agent trained across trackers
     (``policy.trained_across``), ``trained_on`` is the trained tracker with the fewest fields
     differing and ``trained_across`` lists them all.
 
@@ -326,7 +335,7 @@ def agent_overrides(
     roles = model_roles(cfg.bank, cfg.model_order)
     trained = [model_roles(EnvConfig.build({"bank": t["bank"]}).bank, cfg.model_order)
                for t in trackers]
-    if roles not in trained:
+    if roles not in trained and not getattr(policy, "shares_models", False):
         notes["models_differ"] = {"trained": list(trained[closest]), "evaluated": list(roles)}
     if len(trackers) > 1:
         notes["trained_across"] = trackers

@@ -1,0 +1,282 @@
+"""The policy shared by the models (agents/per_model.py): its layout reads every model's entries
+alike, its actor is equivariant under a reordering of the models, the same weights act on a
+bank of any size, and its normalizer's statistics are those of the models' pooled samples."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from helpers import train_small
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents.network import build_policy, save_weights
+from agents.per_model import (
+    TiedRunningMeanStd,
+    frame_groups,
+    refit_normalizer,
+)
+from agents.policy import LearnedPolicy, load_agent
+from agents.schema import check_spec
+from imm_gym.cli.evaluate import evaluate
+from imm_gym.sim.core import critic_state_size
+from imm_gym.sim.features import FEATURES, model_turn_rates
+from imm_gym.sim.model_order import frame_layout
+from imm_gym.tracking.models import MotionModel
+from imm_gym.validation import ConfigError
+
+#: per-model layouts of every kind ("M", "Mm", "kM") and shared blocks, as the default reads them
+FEATURES_READ = ["loglik", "innovation", "shadow_probs", "turn_rate", "turn_rate_ema",
+                 "prob_ema", "speed", "stay_bank_evidence", "model_turn_rate"]
+DIM_Z = 2
+
+
+def labels(features: list[str], M: int, dim_z: int) -> list[tuple[str, int | None, int]]:
+    """Each entry of a frame as (block, model or None, entry within the model's part), written
+    out from the features' declared layouts."""
+    out: list[tuple[str, int | None, int]] = [("mu(t)", j, 0) for j in range(M)]
+    out += [("mu(t-1)", j, 0) for j in range(M)]
+    for name in features:
+        f = FEATURES[name]
+        size = f.size(M, dim_z)
+        if f.models == "":
+            out += [(name, None, i) for i in range(size)]
+        elif f.models == "M":
+            out += [(name, j, 0) for j in range(M)]
+        elif f.models == "kM":
+            out += [(name, j, k) for k in range(size // M) for j in range(M)]
+        elif f.models == "Mm":
+            out += [(name, j, i) for j in range(M) for i in range(dim_z)]
+    return out
+
+
+@settings(max_examples=30, deadline=None)
+@given(M=st.integers(2, 6), dim_z=st.integers(1, 3))
+def test_the_layout_gives_each_model_its_own_entries_column_by_column(M, dim_z) -> None:
+    features = [*FEATURES_READ, "nis", "tracking_index", "shadow_evidence"]
+    per_model, shared = frame_layout(features, M, dim_z)
+    label = labels(features, M, dim_z)
+    assert sorted([*per_model.ravel(), *shared]) == list(range(len(label)))
+    for j in range(M):
+        assert all(label[i][1] == j for i in per_model[j])
+    for column in per_model.T:
+        assert len({(label[i][0], label[i][2]) for i in column}) == 1
+    assert all(label[i][1] is None for i in shared)
+
+
+def test_a_block_per_pair_of_models_is_refused() -> None:
+    with pytest.raises(ValueError, match="tpm"):
+        frame_layout(["loglik", "tpm"], 3, DIM_Z)
+    with pytest.raises(ConfigError, match=r"obs_features.*tpm"):
+        frame_groups(["tpm"], 3, DIM_Z, critic=False)
+
+
+def test_the_model_turn_rate_says_which_model_an_entry_is() -> None:
+    bank = (
+        MotionModel("ct", -5.0),
+        MotionModel("cv"),
+        MotionModel("ct", 2.0),
+        MotionModel("ca", noise="continuous", intensity=0.1),
+    )
+    assert model_turn_rates(bank) == pytest.approx([-1.0, 0.0, 0.4, 0.0])
+
+
+def spec_for(M: int, frame_stack: int = 2, critic: bool = True) -> dict:
+    per_model, shared = frame_layout(FEATURES_READ, M, DIM_Z)
+    critic_dims = critic_state_size(M) if critic else 0
+    return check_spec("test", {
+        "class": "PerModelPolicy",
+        "observation_size": frame_stack * (per_model.size + shared.size + critic_dims),
+        "action_size": M,
+        "net_arch": {"pi": [16, 16], "vf": [16]},
+        "activation_fn": "tanh",
+        "log_std_init": -1.0,
+        "ortho_init": False,
+        "share_features_extractor": True,
+        "use_sde": False,
+        "critic_dims": critic_dims,
+        "frame_stack": frame_stack,
+        "obs_features": FEATURES_READ,
+        "dim_z": DIM_Z,
+    })
+
+
+def mean_action(policy, obs: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        dist = policy.get_distribution(torch.as_tensor(obs, dtype=torch.float32))
+    return dist.distribution.mean.numpy()
+
+
+@pytest.mark.parametrize("M", [2, 3, 5])
+def test_the_actor_is_equivariant_and_blind_to_the_critics_ground_truth(M) -> None:
+    torch.manual_seed(0)
+    policy = build_policy(spec_for(M), "test")
+    frame_stack = 2
+    per_model, shared = frame_groups(FEATURES_READ, M, DIM_Z, critic=True)
+    frame = per_model.size + shared.size
+    rng = np.random.default_rng(1)
+    obs = rng.normal(size=(4, frame_stack * frame))
+    perm = rng.permutation(M)
+    permuted = obs.copy()
+    for f in range(frame_stack):
+        permuted[:, f * frame + per_model] = obs[:, f * frame + per_model[perm]]
+    a = mean_action(policy, obs)
+    assert mean_action(policy, permuted) == pytest.approx(a[:, perm], abs=1e-6)
+    truth = obs.copy()
+    critic = frame - critic_state_size(M) + np.arange(critic_state_size(M))
+    for f in range(frame_stack):
+        truth[:, f * frame + critic] = rng.normal(size=(4, critic.size))
+    assert mean_action(policy, truth) == pytest.approx(a, abs=1e-7)
+    assert not np.allclose(mean_action(policy, obs + 0.1), a)
+
+
+def tied_stats(M: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    per_model, shared = frame_groups(FEATURES_READ, M, DIM_Z, critic=True)
+    mean, var = np.zeros(per_model.size + shared.size), np.zeros(per_model.size + shared.size)
+    mean[per_model] = rng.normal(size=per_model.shape[1])[None]
+    var[per_model] = rng.uniform(0.1, 2.0, size=per_model.shape[1])[None]
+    mean[shared], var[shared] = rng.normal(size=shared.size), rng.uniform(0.1, 2.0, shared.size)
+    return mean, var
+
+
+def test_every_model_duplicated_gives_every_action_twice() -> None:
+    """Mean pooling: a bank whose every model appears twice has the same context, so each copy
+    acts as the model did in the bank of three (normalizer and frame stack included)."""
+    torch.manual_seed(2)
+    rng = np.random.default_rng(3)
+    model = build_policy(spec_for(3), "test")
+    mean, var = tied_stats(3, rng)
+    spec = spec_for(3)
+    agent = LearnedPolicy(model, {}, mean, var, frame_stack=2, critic_dims=critic_state_size(3),
+                          spec=spec)
+    twice = agent.for_models(6)
+    three, _ = frame_layout(FEATURES_READ, 3, DIM_Z)
+    six, shared6 = frame_layout(FEATURES_READ, 6, DIM_Z)
+    _, shared3 = frame_layout(FEATURES_READ, 3, DIM_Z)
+    assert twice.obs_size == six.size + shared6.size
+    state3 = state6 = None
+    for step in range(3):
+        obs3 = rng.normal(size=(5, agent.obs_size))
+        obs6 = np.zeros((5, twice.obs_size))
+        obs6[:, six] = obs3[:, three[[0, 1, 2, 0, 1, 2]]]
+        obs6[:, shared6] = obs3[:, shared3]
+        start = np.full(5, step == 0)
+        a3, state3 = agent.predict(obs3, state3, start)
+        a6, state6 = twice.predict(obs6, state6, start)
+        assert a6 == pytest.approx(np.concatenate([a3, a3], axis=1), abs=1e-5)
+    assert agent.for_models(3) is agent
+
+
+def test_the_normalizer_keeps_the_models_pooled_statistics() -> None:
+    M = 4
+    per_model, shared = frame_groups(FEATURES_READ, M, DIM_Z, critic=True)
+    size = per_model.size + shared.size
+    rms = TiedRunningMeanStd(per_model, (size,))
+    rng = np.random.default_rng(4)
+    batches = [rng.normal(rng.normal(size=size), rng.uniform(0.5, 3, size), (64, size))
+               for _ in range(5)]
+    for batch in batches:
+        rms.update(batch)
+    data = np.concatenate(batches)
+    for column in per_model.T:
+        pooled = data[:, column].ravel()
+        assert rms.mean[column] == pytest.approx(pooled.mean(), abs=1e-4)
+        assert rms.var[column] == pytest.approx(pooled.var(), rel=1e-3)
+    assert rms.mean[shared] == pytest.approx(data[:, shared].mean(axis=0), abs=1e-4)
+    assert rms.var[shared] == pytest.approx(data[:, shared].var(axis=0), rel=1e-3)
+    mean, var = refit_normalizer(rms.mean, rms.var, FEATURES_READ, DIM_Z, M, 2, critic=True)
+    two, shared2 = frame_groups(FEATURES_READ, 2, DIM_Z, critic=True)
+    assert mean[two[1]] == pytest.approx(rms.mean[per_model[0]])
+    assert var[shared2] == pytest.approx(rms.var[shared])
+    untied = rms.mean.copy()
+    untied[per_model[0, 0]] += 1.0
+    with pytest.raises(ConfigError, match="not shared by the models"):
+        refit_normalizer(untied, rms.var, FEATURES_READ, DIM_Z, M, 2, critic=True)
+
+
+def test_a_description_without_its_layout_is_refused() -> None:
+    spec = dict(spec_for(3))
+    del spec["obs_features"]
+    with pytest.raises(ConfigError, match=r"missing.*obs_features"):
+        check_spec("agent.json: policy", spec)
+    with pytest.raises(ConfigError, match="obs_features must be a list of names"):
+        check_spec("agent.json: policy", {**spec_for(3), "obs_features": "loglik"})
+
+
+PER_MODEL = """policy: PerModelPolicy
+normalize: true
+frame_stack: 2
+critic_state: true
+env_kwargs:
+  obs_features: [loglik, innovation, shadow_probs, turn_rate, prob_ema, model_turn_rate]
+  action_mode: stay
+  stay_base: tracker
+"""
+
+FIVE = [
+    {"kind": "cv", "noise": "continuous", "intensity": 0.1},
+    {"kind": "ct", "turn_rate_deg": 2.0, "noise": "continuous", "intensity": 0.05},
+    {"kind": "ct", "turn_rate_deg": -2.0, "noise": "continuous", "intensity": 0.05},
+    {"kind": "ct", "turn_rate_deg": 5.0, "noise": "continuous", "intensity": 0.05},
+    {"kind": "ct", "turn_rate_deg": -5.0, "noise": "continuous", "intensity": 0.05},
+]
+
+
+@pytest.fixture(scope="module")
+def per_model_agent(tmp_path_factory):
+    out = tmp_path_factory.mktemp("per_model")
+    tracker = out / "tracker.yaml"
+    tracker.write_text("scenario: random\n")
+    argv = ["--timesteps", "256", "--no-eval", "--env-config", str(tracker)]
+    assert train_small(out, *argv, extra=PER_MODEL) == 0
+    return out / "seed_0" / "agent"
+
+
+def test_a_trained_agent_acts_on_banks_of_other_sizes(per_model_agent) -> None:
+    meta = json.loads((per_model_agent / "agent.json").read_text())
+    assert meta["policy"]["class"] == "PerModelPolicy"
+    stats = json.loads((per_model_agent / "vecnormalize.json").read_text())
+    per_model, _ = frame_groups(meta["policy"]["obs_features"], 3, DIM_Z, critic=True)
+    mean = np.asarray(stats["mean"])
+    assert np.all(mean[per_model] == mean[per_model[:1]])
+    results, _ = evaluate(
+        [str(per_model_agent), "tip-imm"], "random", 2, 0, clairvoyant=False,
+        env_config={"bank": FIVE},
+    )
+    row = results["policies"][str(per_model_agent)]
+    assert np.isfinite(row["armse_pos"]) and "models_differ" not in row
+    assert row["tracker_differs"] == ["bank"]
+    two = {"bank": FIVE[:1] + FIVE[3:4]}
+    results, _ = evaluate([str(per_model_agent)], "random", 2, 0, clairvoyant=False,
+                          env_config=two)
+    assert np.isfinite(results["policies"][str(per_model_agent)]["armse_pos"])
+
+
+def test_an_agent_reading_models_by_position_is_still_refused_on_another_bank(tmp_path) -> None:
+    spec = {**spec_for(3), "class": "AsymmetricMlpPolicy"}
+    del spec["obs_features"], spec["dim_z"]
+    agent = LearnedPolicy(build_policy(spec, "test"), {}, frame_stack=2,
+                          critic_dims=critic_state_size(3), spec=spec)
+    assert agent.for_models(5) is agent and not agent.shares_models
+    save_weights(agent.model, tmp_path)
+    with pytest.raises(ConfigError, match="cannot be evaluated"):
+        evaluate(["tip-imm"], "random", 1, 0, clairvoyant=False, env_config={"bank": FIVE},
+                 extra={"mlp": (agent, {"obs_features": FEATURES_READ, "action_mode": "stay"})})
+
+
+def test_the_policy_needs_one_action_per_model(tmp_path, capsys) -> None:
+    extra = PER_MODEL.replace("action_mode: stay", "action_mode: set")
+    tracker = tmp_path / "tracker.yaml"
+    tracker.write_text("scenario: random\n")
+    with pytest.raises(SystemExit):
+        train_small(tmp_path, "--timesteps", "64", "--no-eval", "--env-config", str(tracker),
+                    extra=extra)
+    assert "PerModelPolicy writes one action entry per model" in capsys.readouterr().err
+
+
+def test_load_agent_reads_the_class(per_model_agent) -> None:
+    agent = load_agent(per_model_agent)
+    assert agent.shares_models and agent.for_models(4).model.action_space.shape == (4,)
