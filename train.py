@@ -282,7 +282,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     Raises:
         ConfigError: a file is malformed, or ``--config`` changes a resumed run.
     """
-    from agents.training import check_hyperparams, load_hyperparams, read_yaml
+    from agents.training import check_hyperparams, check_policy, load_hyperparams, read_yaml
     from imm_gym.envs import PRESETS
     from imm_gym.sim.env_config import EnvConfig
     from imm_gym.sim.mixture import AGENT_FIELDS, check_parts
@@ -353,6 +353,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
         except ConfigError as err:
             raise ConfigError(f"{where} of the hyperparameters: {err}") from None
     check_parts(configs)
+    check_policy(params, configs)
     return params
 
 
@@ -457,16 +458,9 @@ def train_one(
     policy = params["policy"]
     if policy == "PerModelPolicy":
         from agents.per_model import PerModelActorCriticPolicy
-        from imm_gym.sim.actions import STAY_MODES
-        from imm_gym.validation import ConfigError
 
         policy = PerModelActorCriticPolicy
         config = env.unwrapped.config
-        if config.action_mode not in STAY_MODES:
-            raise ConfigError(
-                f"policy PerModelPolicy writes one action entry per model: action_mode must be "
-                f"one of {list(STAY_MODES)}, got {config.action_mode!r}"
-            )
         kwargs["policy_kwargs"] = {
             **kwargs.get("policy_kwargs", {}),
             "obs_features": list(config.obs_features),

@@ -233,6 +233,29 @@ def check_hyperparams(where: str, params: Any, algo: str, complete: bool = True)
     return out
 
 
+def check_policy(params: Mapping[str, Any], configs: Sequence[Any]) -> None:
+    """The entry's policy against the configurations it trains on (every part's), before any
+    work: a ``PerModelPolicy`` writes one action entry per model (the stay modes), and only it
+    takes ``policy_kwargs.interaction``.
+
+    Raises:
+        ConfigError: naming the key and what it allows.
+    """
+    from imm_gym.sim.actions import STAY_MODES
+
+    per_model = params.get("policy") == "PerModelPolicy"
+    if "interaction" in params.get("policy_kwargs", {}) and not per_model:
+        raise ConfigError(
+            f"policy_kwargs.interaction needs policy PerModelPolicy, got {params.get('policy')!r}"
+        )
+    modes = sorted({cfg.action_mode for cfg in configs} - set(STAY_MODES))
+    if per_model and modes:
+        raise ConfigError(
+            f"policy PerModelPolicy writes one action entry per model: action_mode must be one "
+            f"of {list(STAY_MODES)}, got {modes[0]!r}"
+        )
+
+
 def make_training_env(
     env_id: str,
     n_envs: int,
