@@ -108,7 +108,6 @@ def policy_spec(policy: ActorCriticPolicy) -> dict[str, Any]:
             frame_stack=policy.frame_stack,
             obs_features=list(policy.obs_features),
             dim_z=policy.dim_z,
-            interaction=policy.interaction,
         )
     if name == "MlpLstmPolicy":
         spec.update(

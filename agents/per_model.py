@@ -45,9 +45,6 @@ from imm_gym.validation import ConfigError
 #: Entries of the critic's ground truth that are no model's (two 4-d errors); the rest is the
 #: coming model, one-hot (:meth:`imm_gym.sim.core.TrackingCore.critic_state`).
 CRITIC_SHARED = critic_state_size(0)
-#: How the models' embeddings meet: their mean, or self-attention over them (heads).
-INTERACTIONS = ("mean", "attention")
-ATTENTION_HEADS = 4
 
 
 def _mlp(sizes: Sequence[int], activation: type[nn.Module]) -> nn.Sequential:
@@ -100,7 +97,6 @@ class PerModelExtractor(nn.Module):
         pi: Sequence[int],
         vf: Sequence[int],
         activation_fn: type[nn.Module],
-        interaction: str = "mean",
     ) -> None:
         super().__init__()
         if len(pi) < 2:
@@ -109,11 +105,6 @@ class PerModelExtractor(nn.Module):
         self.register_buffer("shared", torch.as_tensor(shared, dtype=torch.long), persistent=False)
         self.phi = _mlp([tokens.shape[1] + shared.size, pi[0]], activation_fn)
         self.psi = _mlp([2 * pi[0], *pi[1:]], activation_fn)
-        self.attention = (
-            nn.MultiheadAttention(pi[0], ATTENTION_HEADS, batch_first=True)
-            if interaction == "attention"
-            else None
-        )
         self.value_net = _mlp([feature_dim, *vf], activation_fn)
         self.latent_dim_pi = pi[-1]
         self.latent_dim_vf = vf[-1] if vf else feature_dim
@@ -125,10 +116,7 @@ class PerModelExtractor(nn.Module):
         tokens = features[:, self.tokens]  # (N, M, F p)
         shared = features[:, self.shared].unsqueeze(1).expand(-1, tokens.shape[1], -1)
         e = self.phi(torch.cat([tokens, shared], dim=-1))
-        if self.attention is None:
-            context = e.mean(dim=1, keepdim=True).expand_as(e)
-        else:
-            context, _ = self.attention(e, e, e, need_weights=False)
+        context = e.mean(dim=1, keepdim=True).expand_as(e)
         return self.psi(torch.cat([e, context], dim=-1))
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
@@ -165,14 +153,8 @@ class PerModelActorCriticPolicy(ActorCriticPolicy):
         dim_z: int = 2,
         frame_stack: int = 1,
         critic_dims: int = 0,
-        interaction: str = "mean",
         **kwargs: Any,
     ) -> None:
-        if interaction not in INTERACTIONS:
-            raise ConfigError(
-                f"interaction must be one of {list(INTERACTIONS)}, got {interaction!r}"
-            )
-        self.interaction = interaction
         self.obs_features, self.dim_z = list(obs_features), dim_z
         self.frame_stack, self.critic_dims = frame_stack, critic_dims
         super().__init__(*args, **kwargs)
@@ -206,8 +188,7 @@ class PerModelActorCriticPolicy(ActorCriticPolicy):
         arch = self.net_arch
         pi, vf = (arch["pi"], arch["vf"]) if isinstance(arch, dict) else (arch, arch)
         self.mlp_extractor = PerModelExtractor(
-            self.features_dim, tokens, shared, list(pi), list(vf), self.activation_fn,
-            self.interaction,
+            self.features_dim, tokens, shared, list(pi), list(vf), self.activation_fn
         ).to(self.device)
 
     def _build(self, lr_schedule: Any) -> None:
@@ -229,7 +210,6 @@ class PerModelActorCriticPolicy(ActorCriticPolicy):
             dim_z=self.dim_z,
             frame_stack=self.frame_stack,
             critic_dims=self.critic_dims,
-            interaction=self.interaction,
         )
         return data
 

@@ -83,12 +83,6 @@ def _names(where: str, value: Any) -> list[str]:
     return list(value)
 
 
-def _interaction(where: str, value: Any) -> str:
-    if value not in ("mean", "attention"):
-        raise ConfigError(f"{where} must be 'mean' or 'attention', got {value!r}")
-    return str(value)
-
-
 def _net_arch(where: str, value: Any) -> list[int] | dict[str, list[int]]:
     """``[64, 64]`` (shared sizes) or ``{pi: [...], vf: [...]}`` (actor and critic)."""
     if isinstance(value, Mapping):
@@ -112,7 +106,6 @@ POLICY_KWARGS: dict[str, Callable[[str, Any], Any]] = {
     "n_lstm_layers": check_size,
     "shared_lstm": check_flag,
     "enable_critic_lstm": check_flag,
-    "interaction": _interaction,
 }
 
 #: the recurrent policy's own keys, and those of the gSDE distribution
@@ -132,7 +125,7 @@ SPEC_FIELDS: dict[str, Callable[[str, Any], Any]] = {
 
 #: description keys of every policy class, and those of one class only
 _COMMON_KEYS = (
-    *(k for k in POLICY_KWARGS if k not in (*LSTM_KEYS, "interaction")),
+    *(k for k in POLICY_KWARGS if k not in LSTM_KEYS),
     "observation_size",
     "action_size",
     "use_sde",
@@ -140,7 +133,7 @@ _COMMON_KEYS = (
 _CLASS_KEYS = {
     "MlpPolicy": (),
     "AsymmetricMlpPolicy": ("critic_dims", "frame_stack"),
-    "PerModelPolicy": ("critic_dims", "frame_stack", "obs_features", "dim_z", "interaction"),
+    "PerModelPolicy": ("critic_dims", "frame_stack", "obs_features", "dim_z"),
     "MlpLstmPolicy": LSTM_KEYS,
 }
 

@@ -235,8 +235,7 @@ def check_hyperparams(where: str, params: Any, algo: str, complete: bool = True)
 
 def check_policy(params: Mapping[str, Any], configs: Sequence[Any]) -> None:
     """The entry's policy against the configurations it trains on (every part's), before any
-    work: a ``PerModelPolicy`` writes one action entry per model (the stay modes), and only it
-    takes ``policy_kwargs.interaction``.
+    work: a ``PerModelPolicy`` writes one action entry per model (the stay modes).
 
     Raises:
         ConfigError: naming the key and what it allows.
@@ -244,10 +243,6 @@ def check_policy(params: Mapping[str, Any], configs: Sequence[Any]) -> None:
     from imm_gym.sim.actions import STAY_MODES
 
     per_model = params.get("policy") == "PerModelPolicy"
-    if "interaction" in params.get("policy_kwargs", {}) and not per_model:
-        raise ConfigError(
-            f"policy_kwargs.interaction needs policy PerModelPolicy, got {params.get('policy')!r}"
-        )
     modes = sorted({cfg.action_mode for cfg in configs} - set(STAY_MODES))
     if per_model and modes:
         raise ConfigError(

@@ -84,7 +84,7 @@ def test_the_model_turn_rate_says_which_model_an_entry_is() -> None:
     assert model_turn_rates(bank) == pytest.approx([-1.0, 0.0, 0.4, 0.0])
 
 
-def spec_for(M: int, frame_stack: int = 2, critic: bool = True, interaction: str = "mean") -> dict:
+def spec_for(M: int, frame_stack: int = 2, critic: bool = True) -> dict:
     per_model, shared = frame_layout(FEATURES_READ, M, DIM_Z)
     critic_dims = critic_state_size(M) if critic else 0
     return check_spec("test", {
@@ -101,7 +101,6 @@ def spec_for(M: int, frame_stack: int = 2, critic: bool = True, interaction: str
         "frame_stack": frame_stack,
         "obs_features": FEATURES_READ,
         "dim_z": DIM_Z,
-        "interaction": interaction,
     })
 
 
@@ -111,11 +110,10 @@ def mean_action(policy, obs: np.ndarray) -> np.ndarray:
     return dist.distribution.mean.numpy()
 
 
-@pytest.mark.parametrize("interaction", ["mean", "attention"])
 @pytest.mark.parametrize("M", [2, 3, 5])
-def test_the_actor_is_equivariant_and_blind_to_the_critics_ground_truth(M, interaction) -> None:
+def test_the_actor_is_equivariant_and_blind_to_the_critics_ground_truth(M) -> None:
     torch.manual_seed(0)
-    policy = build_policy(spec_for(M, interaction=interaction), "test")
+    policy = build_policy(spec_for(M), "test")
     frame_stack = 2
     per_model, shared = frame_groups(FEATURES_READ, M, DIM_Z, critic=True)
     frame = per_model.size + shared.size
@@ -144,13 +142,12 @@ def tied_stats(M: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray
     return mean, var
 
 
-@pytest.mark.parametrize("interaction", ["mean", "attention"])
-def test_every_model_duplicated_gives_every_action_twice(interaction) -> None:
+def test_every_model_duplicated_gives_every_action_twice() -> None:
     """Mean pooling: a bank whose every model appears twice has the same context, so each copy
     acts as the model did in the bank of three (normalizer and frame stack included)."""
     torch.manual_seed(2)
     rng = np.random.default_rng(3)
-    spec = spec_for(3, interaction=interaction)
+    spec = spec_for(3)
     model = build_policy(spec, "test")
     mean, var = tied_stats(3, rng)
     agent = LearnedPolicy(model, {}, mean, var, frame_stack=2, critic_dims=critic_state_size(3),
@@ -260,7 +257,7 @@ def test_a_trained_agent_acts_on_banks_of_other_sizes(per_model_agent) -> None:
 
 def test_an_agent_reading_models_by_position_is_still_refused_on_another_bank(tmp_path) -> None:
     spec = {**spec_for(3), "class": "AsymmetricMlpPolicy"}
-    del spec["obs_features"], spec["dim_z"], spec["interaction"]
+    del spec["obs_features"], spec["dim_z"]
     agent = LearnedPolicy(build_policy(spec, "test"), {}, frame_stack=2,
                           critic_dims=critic_state_size(3), spec=spec)
     assert agent.for_models(5) is agent and not agent.shares_models
@@ -278,15 +275,6 @@ def test_the_policy_needs_one_action_per_model(tmp_path, capsys) -> None:
         train_small(tmp_path, "--timesteps", "64", "--no-eval", "--env-config", str(tracker),
                     extra=extra)
     assert "PerModelPolicy writes one action entry per model" in capsys.readouterr().err
-
-
-def test_only_the_per_model_policy_takes_an_interaction(tmp_path, capsys) -> None:
-    with pytest.raises(SystemExit):
-        train_small(tmp_path, "--timesteps", "64", "--no-eval",
-                    extra="policy_kwargs: {interaction: attention}\n")
-    assert "interaction needs policy PerModelPolicy" in capsys.readouterr().err
-    with pytest.raises(ConfigError, match="interaction must be 'mean' or 'attention'"):
-        check_spec("agent.json: policy", {**spec_for(3), "interaction": "max"})
 
 
 def test_load_agent_reads_the_class(per_model_agent) -> None:
