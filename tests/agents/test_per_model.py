@@ -21,6 +21,13 @@ from agents.per_model import (
 )
 from agents.policy import LearnedPolicy, load_agent
 from agents.schema import check_spec
+from agents.training import (
+    DEFAULT_ENTRY,
+    HYPERPARAMS,
+    check_hyperparams,
+    load_hyperparams,
+    read_yaml,
+)
 from imm_gym.cli.evaluate import evaluate
 from imm_gym.sim.core import critic_state_size
 from imm_gym.sim.features import FEATURES, model_turn_rates
@@ -275,6 +282,20 @@ def test_the_policy_needs_one_action_per_model(tmp_path, capsys) -> None:
         train_small(tmp_path, "--timesteps", "64", "--no-eval", "--env-config", str(tracker),
                     extra=extra)
     assert "PerModelPolicy writes one action entry per model" in capsys.readouterr().err
+
+
+def test_the_per_model_configuration_is_the_default_with_the_models_role() -> None:
+    """agents/hyperparams/per_model.yml: the default entry's features and both parts of its
+    slots, with ``model_turn_rate``, as a ``--config`` file."""
+    default, _ = load_hyperparams(DEFAULT_ENTRY, "ppo")
+    extra = check_hyperparams("per_model.yml", read_yaml(HYPERPARAMS / "per_model.yml"), "ppo",
+                              complete=False)
+    features = [*default["env_kwargs"]["obs_features"], "model_turn_rate"]
+    assert extra["policy"] == "PerModelPolicy"
+    assert extra["env_kwargs"]["obs_features"] == features
+    (part,) = extra["env_mixture"]
+    (default_part,) = default["env_mixture"]
+    assert part["env_kwargs"] == {**default_part["env_kwargs"], "obs_features": features}
 
 
 def test_load_agent_reads_the_class(per_model_agent) -> None:
