@@ -313,7 +313,8 @@ def agent_overrides(
         raise ConfigError(
             f"{source} reads observations of {policy.obs_size} entries, but the evaluated "
             f"configuration gives {obs_size} (a bank of {M} models, features "
-            f"{list(cfg.obs_features)}): it cannot be evaluated on this configuration"
+            f"{list(cfg.obs_features)}): it cannot be evaluated on this configuration (an agent "
+            "trained with agents/hyperparams/per_model.yml reads a bank of any size)"
         )
     space = getattr(getattr(policy, "model", None), "action_space", None)
     size = action_size(cfg.action_mode, M)

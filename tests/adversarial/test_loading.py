@@ -293,7 +293,7 @@ def _obs_features(directory: Path) -> None:
             "agent.json: trained_across: .*filter",
         ),
         (_json("agent.json", frame_stack=2), "critic_dims/frame_stack differ from the agent's"),
-        (_json("agent.json", critic_dims=0), "needs 'MlpPolicy'"),
+        (_json("agent.json", critic_dims=0), r"needs one of \['MlpPolicy', 'PerModelPolicy'\]"),
         (_json("env.json", sigma_r=50.0), r"env\.json: EnvConfig: unknown key\(s\) \['sigma_r'\]"),
         (_json("env.json", p_min="0.01"), "env.json: p_min must be a real number"),
         (

@@ -46,7 +46,7 @@ def usage_error(argv: list[str], tmp_path: Path, capsys) -> str:
         ("clip_range: lin_x", "clip_range must be a number or 'lin_<number>'"),
         ("ent_coef: .nan", "ent_coef must be a finite number"),
         ("frobnicate: 1", "unknown hyperparameters ['frobnicate']"),
-        ("policy: CnnPolicy", "policy must be 'MlpPolicy' for ppo"),
+        ("policy: CnnPolicy", "policy must be one of ['MlpPolicy', 'PerModelPolicy'] for ppo"),
         ("env_kwargs: [1, 2]", "env_kwargs must be a mapping"),
         ("env_kwargs: {no_such_field: 1}", "unknown key(s) ['no_such_field']"),
         ("env_kwargs: {p_min: '0.01'}", "p_min must be a real number"),
