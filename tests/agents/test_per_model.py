@@ -13,6 +13,7 @@ from helpers import train_small
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import train
 from agents.network import build_policy, save_weights
 from agents.per_model import (
     TiedRunningMeanStd,
@@ -28,7 +29,9 @@ from agents.training import (
     load_hyperparams,
     read_yaml,
 )
+from imm_gym import EnvConfig, TrackingCore
 from imm_gym.cli.evaluate import evaluate
+from imm_gym.cli.track import main as track_main
 from imm_gym.sim.core import critic_state_size
 from imm_gym.sim.features import FEATURES, model_turn_rates
 from imm_gym.sim.model_order import frame_layout
@@ -260,6 +263,43 @@ def test_a_trained_agent_acts_on_banks_of_other_sizes(per_model_agent) -> None:
     results, _ = evaluate([str(per_model_agent)], "random", 2, 0, clairvoyant=False,
                           env_config=two)
     assert np.isfinite(results["policies"][str(per_model_agent)]["armse_pos"])
+
+
+def test_a_resumed_run_keeps_the_statistics_tied(per_model_agent, tmp_path) -> None:
+    run = per_model_agent.parents[1]
+    argv = ["--timesteps", "512", "--config", str(run / "small.yml"), "--out", str(tmp_path),
+            "--resume", str(run / "seed_0" / "checkpoints" / "latest"), "--no-eval",
+            "--no-progress"]
+    assert train.main(argv) == 0
+    stats = json.loads((tmp_path / "seed_0" / "agent" / "vecnormalize.json").read_text())
+    features = json.loads((per_model_agent / "agent.json").read_text())["policy"]["obs_features"]
+    per_model, _ = frame_groups(features, 3, DIM_Z, critic=True)
+    for key in ("mean", "var"):
+        values = np.asarray(stats[key])
+        assert np.all(values[per_model] == values[per_model[:1]])
+    assert stats["count"] > json.loads((per_model_agent / "vecnormalize.json").read_text())[
+        "count"]
+
+
+def test_the_agent_tracks_recorded_measurements_with_a_bank_of_five(
+    per_model_agent, tmp_path, capsys
+) -> None:
+    config = EnvConfig.build({"bank": FIVE})
+    core = TrackingCore(config, n_envs=1)
+    core.reset(np.arange(1), np.array([7]))
+    np.savez(tmp_path / "z.npz", z=core.z[0])
+    (tmp_path / "five.yaml").write_text(json.dumps({"bank": FIVE}))
+    argv = ["--measurements", str(tmp_path / "z.npz"), "--policy", str(per_model_agent),
+            "--env-config", str(tmp_path / "five.yaml"), "--out", str(tmp_path / "out.npz")]
+    assert track_main(argv) == 0
+    assert "reads the evaluated bank's models" not in capsys.readouterr().err
+    with np.load(tmp_path / "out.npz") as result:
+        estimate = result["estimate"]
+    argv[3], argv[-1] = "fixed", str(tmp_path / "fixed.npz")
+    assert track_main(argv) == 0
+    with np.load(tmp_path / "fixed.npz") as result:
+        assert estimate.shape == result["estimate"].shape
+    assert np.all(np.isfinite(estimate))
 
 
 def test_an_agent_reading_models_by_position_is_still_refused_on_another_bank(tmp_path) -> None:
