@@ -13,6 +13,7 @@ for Image-Based Robot Learning", 2017).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from itertools import pairwise
 from typing import Any
 
@@ -33,7 +34,8 @@ def actor_index(features: int, frame_stack: int, critic_dims: int) -> list[int]:
     return [f * frame + j for f in range(frame_stack) for j in range(frame - critic_dims)]
 
 
-def _mlp(sizes: list[int], activation: type[nn.Module]) -> nn.Sequential:
+def mlp(sizes: Sequence[int], activation: type[nn.Module]) -> nn.Sequential:
+    """Linear layers of ``sizes`` (input first), each followed by ``activation``."""
     layers: list[nn.Module] = []
     for n_in, n_out in pairwise(sizes):
         layers += [nn.Linear(n_in, n_out), activation()]
@@ -55,8 +57,8 @@ class AsymmetricMlpExtractor(nn.Module):
     ) -> None:
         super().__init__()
         self.register_buffer("index", torch.as_tensor(index, dtype=torch.long))
-        self.policy_net = _mlp([len(index), *pi], activation_fn)
-        self.value_net = _mlp([feature_dim, *vf], activation_fn)
+        self.policy_net = mlp([len(index), *pi], activation_fn)
+        self.value_net = mlp([feature_dim, *vf], activation_fn)
         self.latent_dim_pi = pi[-1] if pi else len(index)
         self.latent_dim_vf = vf[-1] if vf else feature_dim
 

@@ -28,7 +28,6 @@ the models (:class:`TiedRunningMeanStd`), so that its statistics hold for a bank
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -38,6 +37,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from torch import nn
 
+from agents.asymmetric import mlp
 from imm_gym.sim.core import critic_state_size
 from imm_gym.sim.model_order import frame_layout
 from imm_gym.validation import ConfigError
@@ -45,13 +45,6 @@ from imm_gym.validation import ConfigError
 #: Entries of the critic's ground truth that are no model's (two 4-d errors); the rest is the
 #: coming model, one-hot (:meth:`imm_gym.sim.core.TrackingCore.critic_state`).
 CRITIC_SHARED = critic_state_size(0)
-
-
-def _mlp(sizes: Sequence[int], activation: type[nn.Module]) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for n_in, n_out in pairwise(sizes):
-        layers += [nn.Linear(n_in, n_out), activation()]
-    return nn.Sequential(*layers)
 
 
 def frame_groups(
@@ -103,9 +96,9 @@ class PerModelExtractor(nn.Module):
             raise ConfigError(f"net_arch.pi of a PerModelPolicy needs two layers or more, got {pi}")
         self.register_buffer("tokens", torch.as_tensor(tokens, dtype=torch.long), persistent=False)
         self.register_buffer("shared", torch.as_tensor(shared, dtype=torch.long), persistent=False)
-        self.phi = _mlp([tokens.shape[1] + shared.size, pi[0]], activation_fn)
-        self.psi = _mlp([2 * pi[0], *pi[1:]], activation_fn)
-        self.value_net = _mlp([feature_dim, *vf], activation_fn)
+        self.phi = mlp([tokens.shape[1] + shared.size, pi[0]], activation_fn)
+        self.psi = mlp([2 * pi[0], *pi[1:]], activation_fn)
+        self.value_net = mlp([feature_dim, *vf], activation_fn)
         self.latent_dim_pi = pi[-1]
         self.latent_dim_vf = vf[-1] if vf else feature_dim
 
