@@ -231,7 +231,8 @@ def check_params(params: dict[str, Any]) -> None:
 
     Raises:
         ConfigError: a ``lin_`` clip range, ``clip_range_vf``, ``target_kl``, gSDE, no advantage
-            normalization, different actor and critic sizes, an activation RLlib lacks.
+            normalization, different actor and critic sizes, an activation RLlib lacks, a policy
+            other than ``MlpPolicy``.
     """
     refused = {
         "clip_range": isinstance(params.get("clip_range"), str),

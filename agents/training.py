@@ -242,9 +242,10 @@ def check_policy(params: Mapping[str, Any], configs: Sequence[Any]) -> None:
     """
     from imm_gym.sim.actions import STAY_MODES
 
-    per_model = params.get("policy") == "PerModelPolicy"
+    if params.get("policy") != "PerModelPolicy":
+        return
     modes = sorted({cfg.action_mode for cfg in configs} - set(STAY_MODES))
-    if per_model and modes:
+    if modes:
         raise ConfigError(
             f"policy PerModelPolicy writes one action entry per model: action_mode must be one "
             f"of {list(STAY_MODES)}, got {modes[0]!r}"
