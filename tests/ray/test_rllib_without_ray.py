@@ -78,6 +78,7 @@ def test_runner_env_seeds_its_sub_envs_once_and_returns_no_infos():
         ({"target_kl": 0.02}, "target_kl"),
         ({"policy_kwargs": {"net_arch": {"pi": [64], "vf": [128]}}}, "net_arch"),
         ({"policy_kwargs": {"activation_fn": "gelu"}}, "activation_fn"),
+        ({"policy": "PerModelPolicy"}, "PerModelPolicy"),
     ],
 )
 def test_rllib_refuses_what_it_has_no_equivalent_for(change, named):
