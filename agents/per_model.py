@@ -71,7 +71,7 @@ def stacked_index(
     """The actor's inputs in a stacked observation of ``frame_stack`` frames (oldest first),
     each the observation and ``critic_dims`` entries of ground truth the actor skips:
     ``(tokens (M, F p), shared (F g))``, frame-major."""
-    per_model, shared = frame_layout(features, n_models, dim_z)
+    per_model, shared = frame_groups(features, n_models, dim_z, critic=False)
     frame = per_model.size + shared.size + critic_dims
     offsets = frame * np.arange(frame_stack)
     tokens = (offsets[:, None, None] + per_model[None]).transpose(1, 0, 2).reshape(n_models, -1)
@@ -163,12 +163,9 @@ class PerModelActorCriticPolicy(ActorCriticPolicy):
                 f"critic_dims must be 0 or {critic_state_size(M)} for {M} models, "
                 f"got {self.critic_dims}"
             )
-        try:
-            tokens, shared = stacked_index(
-                self.obs_features, M, self.dim_z, self.frame_stack, self.critic_dims
-            )
-        except (KeyError, ValueError) as err:
-            raise ConfigError(f"a PerModelPolicy cannot read obs_features: {err}") from None
+        tokens, shared = stacked_index(
+            self.obs_features, M, self.dim_z, self.frame_stack, self.critic_dims
+        )
         expected = self.frame_stack * (
             (tokens.size + shared.size) // self.frame_stack + self.critic_dims
         )
