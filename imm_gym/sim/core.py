@@ -632,17 +632,18 @@ class TrackingCore:
         predicts returns with less noise. Policies must not act on it (SPEC §5).
         """
         rows = np.arange(self.n_envs)
-        truth = self.truth[rows, self.k]
+        truth = self.truth[rows, self.k, :4]
         scale = np.array([50.0, 50.0, 5.0, 5.0])
+        # position and velocity: the first four entries of a bank's common state (6 with CA)
         estimate = self.imm.combine(self.mu, self.state_a.x, self.state_a.P)[0]
-        blocks = [(estimate - truth) / scale]
+        blocks = [(estimate[:, :4] - truth) / scale]
         if REWARD_TERMS[self.config.reward].needs_stay_bank:
             bank = self.stay_bank  # type: ignore[union-attr]
             estimate_b = np.einsum("rs,rsi->ri", bank.posterior_weights(), bank.estimates())
-            blocks.append((estimate_b[:, :4] - truth[:, :4]) / scale)
+            blocks.append((estimate_b[:, :4] - truth) / scale)
         elif self.config.shadow == "fixed":
             estimate_s = self.imm.combine(self.mu_s, self.state_s.x, self.state_s.P)[0]
-            blocks.append((estimate_s - truth) / scale)
+            blocks.append((estimate_s[:, :4] - truth) / scale)
         else:
             blocks.append(np.zeros((self.n_envs, 4)))
         coming = self.true_model[rows, np.minimum(self.k, self.horizon - 1)]

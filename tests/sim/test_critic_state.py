@@ -1,0 +1,40 @@
+"""The critic's ground truth (``TrackingCore.critic_state``): the combined estimates' errors in
+position and velocity and the coming model, for a bank of any state size."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym import EnvConfig, TrackingCore
+from imm_gym.sim.core import critic_state_size
+
+CV_CA_CT = [
+    {"kind": "cv", "noise": "continuous", "intensity": 0.1},
+    {"kind": "ca", "noise": "continuous", "intensity": 0.05},
+    {"kind": "ct", "turn_rate_deg": 4.0, "noise": "continuous", "intensity": 0.05},
+]
+SCALE = np.array([50.0, 50.0, 5.0, 5.0])
+
+
+@pytest.mark.parametrize("bank", [None, CV_CA_CT])
+def test_the_critic_sees_the_errors_of_the_tracker_and_the_shadow(bank) -> None:
+    # x̂ = Σ_j μ_j x̂_j over each model's state, position and velocity only (a CA model's
+    # common state is 6-d: x, y, vx, vy, ax, ay)
+    changes = {"family": {"horizon": 60}, "action_mode": "stay", "shadow": "fixed"}
+    config = EnvConfig.build(changes if bank is None else {**changes, "bank": bank})
+    core = TrackingCore(config, 3)
+    core.reset(np.arange(3), [5, 6, 7])
+    for _ in range(12):
+        core.step(np.zeros((3, len(config.bank))))
+    state = core.critic_state()
+    assert state.shape == (3, critic_state_size(len(config.bank)))
+    rows = np.arange(3)
+    truth = core.truth[rows, core.k]
+    for block, (mu, x) in enumerate([(core.mu, core.state_a.x), (core.mu_s, core.state_s.x)]):
+        estimate = np.einsum("nj,nji->ni", mu, x)[:, :4]
+        np.testing.assert_allclose(
+            state[:, 4 * block:4 * block + 4], (estimate - truth) / SCALE, rtol=1e-4, atol=1e-5
+        )
+    coming = core.true_model[rows, core.k]
+    np.testing.assert_array_equal(state[:, 8:], np.eye(len(config.bank))[coming])
