@@ -193,7 +193,9 @@ class MixtureCore:
 
     def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
         """Every part's step on its slots' actions; the results concatenated in slot order (the
-        info keys every part gives)."""
+        info keys every part gives, each cut to the leading block every part has: a bank with a
+        CA model estimates a 6-d state, whose first four entries — position and velocity — are
+        those of a bank without one)."""
         results = []
         for p, core in enumerate(self.cores):
             part = slice(self.starts[p], self.starts[p + 1])
@@ -204,7 +206,7 @@ class MixtureCore:
             np.concatenate([r.reward for r in results]),
             np.concatenate([r.terminated for r in results]),
             np.concatenate([r.truncated for r in results]),
-            {k: np.concatenate([np.asarray(r.info[k]) for r in results]) for k in keys},
+            {k: _concatenate_leading([np.asarray(r.info[k]) for r in results]) for k in keys},
         )
 
     def observe(self) -> NDArray[np.float32]:
@@ -223,3 +225,12 @@ class MixtureCore:
             raise ValueError(f"{len(generators)} stream pairs for {self.n_envs} slots")
         for p, core in enumerate(self.cores):
             core.set_streams(list(generators[self.starts[p] : self.starts[p + 1]]))
+
+
+def _concatenate_leading(arrays: Sequence[NDArray[Any]]) -> NDArray[Any]:
+    """The arrays concatenated along the slots, each cut to the smallest size of every further
+    axis (the leading block, e.g. position and velocity of estimates of 4 and 6 entries)."""
+    if all(a.shape[1:] == arrays[0].shape[1:] for a in arrays[1:]):
+        return np.concatenate(arrays)
+    common = tuple(slice(min(a.shape[i] for a in arrays)) for i in range(1, arrays[0].ndim))
+    return np.concatenate([a[(slice(None), *common)] for a in arrays])

@@ -74,6 +74,34 @@ def test_each_part_s_slots_are_its_own_core_s_episodes() -> None:
     )
 
 
+
+def test_a_bank_with_a_ca_model_beside_one_without_gives_position_and_velocity() -> None:
+    # CA's common state is 6-d (x, y, vx, vy, ax, ay): the mixture's estimate and covariance are
+    # the 4-d leading block every part has; the critic's state is alike in size
+    ca = PAPER.replace(bank=(
+        {"kind": "cv", "noise": "continuous", "intensity": 0.1},
+        {"kind": "ca", "noise": "continuous", "intensity": 0.05},
+        {"kind": "ct", "turn_rate_deg": 4.0, "noise": "continuous", "intensity": 0.05},
+    ))
+    mixture = MixtureCore([PAPER, ca], [0.5, 0.5], 4)
+    alone = [TrackingCore(PAPER, 2), TrackingCore(ca, 2)]
+    mixture.reset(np.arange(4), [1, 2, 3, 4])
+    alone[0].reset(np.arange(2), [1, 2])
+    alone[1].reset(np.arange(2), [3, 4])
+    action = np.zeros((4, 3))
+    got = mixture.step(action)
+    parts = [alone[0].step(action[:2]), alone[1].step(action[2:])]
+    assert parts[1].info["estimate"].shape == (2, 6)
+    np.testing.assert_array_equal(
+        got.info["estimate"], np.concatenate([p.info["estimate"][:, :4] for p in parts])
+    )
+    np.testing.assert_array_equal(
+        got.info["covariance"], np.concatenate([p.info["covariance"][:, :4, :4] for p in parts])
+    )
+    np.testing.assert_array_equal(
+        mixture.critic_state(), np.concatenate([c.critic_state() for c in alone])
+    )
+
 def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
     with pytest.raises(ConfigError, match=r"part 1 differs from part 0 in \['obs_features'"):
         MixtureCore([PAPER, SCALED.replace(obs_features=("loglik",))], [0.5, 0.5], 4)
