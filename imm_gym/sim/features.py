@@ -241,6 +241,15 @@ def model_turn_rates(bank: Any) -> Array:
     return np.asarray(rates, dtype=float) / bank_turn_rate(bank)
 
 
+def model_kinds(bank: Any) -> Array:
+    """``(2 M,)`` which kind each model is, factor-major: ``[is CA per model, is CT per model]``
+    (CV models and every model of a heterogeneous bank are 0 in both)."""
+    kinds = [getattr(m, "kind", None) for m in bank] if isinstance(bank, tuple) else [
+        None
+    ] * len(bank.models)
+    return np.array([[k == "ca" for k in kinds], [k == "ct" for k in kinds]], float).ravel()
+
+
 def turn_rate_bank(view: StepView) -> Array:
     """``(N,)`` heading rate of the combined estimate in units of the bank's turn rate."""
     rate = heading_rate(view.velocity_prev, view.velocity, view.sampling_period)
@@ -461,6 +470,13 @@ register(Feature(
     lambda M, m: M, -1.0, 1.0,
     lambda v: np.broadcast_to(model_turn_rates(v.config.bank), (v.n_envs, len(v.config.bank))),
     size_label="M", models="M",
+))
+register(Feature(
+    "model_kind", "whether each model is a CA model, then whether it is a CT model (factor-"
+    "major; CV models are 0 in both): the rest of which model a per-model entry is",
+    lambda M, m: 2 * M, 0.0, 1.0,
+    lambda v: np.broadcast_to(model_kinds(v.config.bank), (v.n_envs, 2 * len(v.config.bank))),
+    size_label="2M", models="kM",
 ))
 register(Feature(
     "shadow_turn_rate_bank", "the same for the shadow IMM's estimate", lambda M, m: 1, -1.0, 1.0,

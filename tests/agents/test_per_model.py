@@ -33,7 +33,7 @@ from imm_gym import EnvConfig, TrackingCore
 from imm_gym.cli.evaluate import evaluate
 from imm_gym.cli.track import main as track_main
 from imm_gym.sim.core import critic_state_size
-from imm_gym.sim.features import FEATURES, model_turn_rates
+from imm_gym.sim.features import FEATURES, model_kinds, model_turn_rates
 from imm_gym.sim.model_order import frame_layout
 from imm_gym.tracking.models import MotionModel
 from imm_gym.validation import ConfigError
@@ -66,7 +66,7 @@ def labels(features: list[str], M: int, dim_z: int) -> list[tuple[str, int | Non
 @settings(max_examples=30, deadline=None)
 @given(M=st.integers(2, 6), dim_z=st.integers(1, 3))
 def test_the_layout_gives_each_model_its_own_entries_column_by_column(M, dim_z) -> None:
-    features = [*FEATURES_READ, "nis", "tracking_index", "shadow_evidence"]
+    features = [*FEATURES_READ, "nis", "tracking_index", "shadow_evidence", "model_kind"]
     per_model, shared = frame_layout(features, M, dim_z)
     label = labels(features, M, dim_z)
     assert sorted([*per_model.ravel(), *shared]) == list(range(len(label)))
@@ -84,7 +84,7 @@ def test_a_block_per_pair_of_models_is_refused() -> None:
         frame_groups(["tpm"], 3, DIM_Z, critic=False)
 
 
-def test_the_model_turn_rate_says_which_model_an_entry_is() -> None:
+def test_the_model_s_turn_rate_and_kind_say_which_model_an_entry_is() -> None:
     bank = (
         MotionModel("ct", -5.0),
         MotionModel("cv"),
@@ -92,6 +92,12 @@ def test_the_model_turn_rate_says_which_model_an_entry_is() -> None:
         MotionModel("ca", noise="continuous", intensity=0.1),
     )
     assert model_turn_rates(bank) == pytest.approx([-1.0, 0.0, 0.4, 0.0])
+    # is CA, then is CT, factor-major: the CA model is no longer read as a CV
+    assert model_kinds(bank).tolist() == [0, 0, 0, 1, 1, 0, 1, 0]
+    config = EnvConfig(bank=bank, obs_features=("model_kind",))
+    core = TrackingCore(config, 2)
+    core.reset(np.arange(2), [0, 1])
+    np.testing.assert_array_equal(core.observe()[:, 8:], np.tile(model_kinds(bank), (2, 1)))
 
 
 def spec_for(M: int, frame_stack: int = 2, critic: bool = True) -> dict:
