@@ -151,15 +151,15 @@ def make_policy(
         context = BuildContext(base, train_seed, train_runs, train_armse, train_armse_from)
         policy, notes = REGISTRY[name].build(context)
         return policy, policy.env_overrides, notes
-    if name == "pretrained":
-        from agents import PRETRAINED
+    from agents import SHIPPED
 
-        return load_trained(PRETRAINED, base)
+    if name in SHIPPED:
+        return load_trained(SHIPPED[name], base)
     path = Path(name)
     if path.suffix == ".zip" or path.is_dir() or path.exists():
         return load_trained(path, base)
     raise ConfigError(
-        f"unknown policy {name!r}: use one of {list(REGISTRY)}, 'pretrained' or a "
+        f"unknown policy {name!r}: use one of {list(REGISTRY)}, {list(SHIPPED)} or a "
         "trained agent's directory"
     )
 
@@ -313,8 +313,9 @@ def agent_overrides(
         raise ConfigError(
             f"{source} reads observations of {policy.obs_size} entries, but the evaluated "
             f"configuration gives {obs_size} (a bank of {M} models, features "
-            f"{list(cfg.obs_features)}): it cannot be evaluated on this configuration (an agent "
-            "trained with agents/hyperparams/per_model.yml reads a bank of any size)"
+            f"{list(cfg.obs_features)}): it cannot be evaluated on this configuration (the shipped "
+            "'pretrained-per-model', or an agent trained with agents/hyperparams/per_model.yml, "
+            "reads a bank of any size)"
         )
     space = getattr(getattr(policy, "model", None), "action_space", None)
     size = action_size(cfg.action_mode, M)
@@ -513,8 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         help="policy to evaluate (repeatable; at least one, or --agent-seeds): "
         + "; ".join(f"{name}: {entry.help}" for name, entry in REGISTRY.items()).replace("%", "%%")
-        + "; pretrained: the shipped PPO policy (five seeds' mean action); or a trained agent's or "
-        "an ensemble's directory",
+        + "; pretrained: the shipped PPO policy (five seeds' mean action, banks of three models); "
+        "pretrained-per-model: the shipped policy shared by the models (banks of any size); or a "
+        "trained agent's or an ensemble's directory",
     )
     parser.add_argument(
         "--scenario",

@@ -8,9 +8,10 @@ Example::
 
 Runs :func:`imm_gym.sim.replay.run_policy` (the policy's whole observation pipeline, no truth) on
 every recorded sequence and writes, per step, the estimate, its covariance, the mode
-probabilities and the TPM used. ``--policy`` is a baseline's name, ``pretrained`` or a trained
-agent's directory, resolved as ``python -m imm_gym.evaluate`` resolves them (a tuned baseline
-such as ``best-fixed`` is tuned on simulated runs of the configuration, seeds from ``--seed``).
+probabilities and the TPM used. ``--policy`` is a baseline's name, ``pretrained``,
+``pretrained-per-model`` (a bank of any size) or a trained agent's directory, resolved as
+``python -m imm_gym.evaluate`` resolves them (a tuned baseline such as ``best-fixed`` is tuned on
+simulated runs of the configuration, seeds from ``--seed``).
 ``--env-config FILE`` (YAML or JSON, :mod:`imm_gym.sim.config_file`) is a mapping of
 EnvConfig fields: the sensor (whose components ``z`` are), the bank, the filter, the TPM settings,
 the scenario (its sampling period). A trained agent keeps its own settings (action mode,
@@ -222,7 +223,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--measurements", required=True, type=Path,
                         help="CSV (columns z0.., optional sequence, detected, vx, vy) or NPZ")
     parser.add_argument("--policy", required=True,
-                        help="a baseline's name, 'pretrained' or a trained agent's directory")
+                        help="a baseline's name, 'pretrained', 'pretrained-per-model' or a trained "
+                             "agent's directory")
     parser.add_argument("--env-config", type=Path, default=None,
                         help="YAML or JSON mapping of EnvConfig fields (sensor, bank, filter...)")
     parser.add_argument("--out", required=True, type=Path, help="output file: .csv or .npz")

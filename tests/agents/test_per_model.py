@@ -330,20 +330,59 @@ def test_the_policy_needs_one_action_per_model(tmp_path, capsys) -> None:
     assert "PerModelPolicy writes one action entry per model" in capsys.readouterr().err
 
 
-def test_the_per_model_configuration_is_the_default_with_the_models_role() -> None:
-    """agents/hyperparams/per_model.yml: the default entry's features and both parts of its
-    slots, with ``model_turn_rate``, as a ``--config`` file."""
+def test_the_per_model_configuration_adds_the_models_role_and_ca_trackers() -> None:
+    """agents/hyperparams/per_model.yml, a ``--config`` file: the default entry's features with
+    ``model_turn_rate`` and ``model_kind``; its second part of the slots at 0.35, and its first
+    part's tracker at 0.15 twice with a CA model in place of CT(-4 °/s), then of CT(+4 °/s)."""
     default, _ = load_hyperparams(DEFAULT_ENTRY, "ppo")
     extra = check_hyperparams("per_model.yml", read_yaml(HYPERPARAMS / "per_model.yml"), "ppo",
                               complete=False)
-    features = [*default["env_kwargs"]["obs_features"], "model_turn_rate"]
+    features = [*default["env_kwargs"]["obs_features"], "model_turn_rate", "model_kind"]
     assert extra["policy"] == "PerModelPolicy"
     assert extra["env_kwargs"]["obs_features"] == features
-    (part,) = extra["env_mixture"]
     (default_part,) = default["env_mixture"]
-    assert part["env_kwargs"] == {**default_part["env_kwargs"], "obs_features": features}
+    paper, *ca = extra["env_mixture"]
+    assert paper == {"share": 0.35,
+                     "env_kwargs": {**default_part["env_kwargs"], "obs_features": features}}
+    main = {k: v for k, v in default["env_kwargs"].items() if k != "bank"}
+    cv, ct_plus, ct_minus = default["env_kwargs"]["bank"]
+    for part, kept in zip(ca, (ct_plus, ct_minus), strict=True):
+        assert part["share"] == 0.15
+        kinds = [(m["kind"], m.get("turn_rate_deg"), m["intensity"]) for m in
+                 part["env_kwargs"]["bank"]]
+        assert kinds == [("cv", None, cv["intensity"]), ("ca", None, kept["intensity"]),
+                         ("ct", kept["turn_rate_deg"], kept["intensity"])]
+        tracker = {k: v for k, v in part["env_kwargs"].items() if k != "bank"}
+        assert tracker == {**main, "obs_features": features}
 
 
 def test_load_agent_reads_the_class(per_model_agent) -> None:
     agent = load_agent(per_model_agent)
     assert agent.shares_models and agent.for_models(4).model.action_space.shape == (4,)
+
+
+def test_the_shipped_per_model_policy_acts_on_banks_of_any_size() -> None:
+    """``pretrained-per-model``: five seeds of the policy shared by the models, shipped as data
+    (a few hundred KiB each), evaluated by name on banks of two, four (with a CA model) and five
+    models."""
+    from agents import PRETRAINED_PER_MODEL
+    from agents.ensemble import load_policy, member_paths
+
+    size = sum(p.stat().st_size for p in PRETRAINED_PER_MODEL.rglob("*") if p.is_file())
+    assert size < 5 * 1024 * 1024
+    members = member_paths(PRETRAINED_PER_MODEL)
+    assert len(members) == 5
+    assert {load_agent(m).spec["class"] for m in members} == {"PerModelPolicy"}
+    assert load_policy(PRETRAINED_PER_MODEL).shares_models
+    with_ca = [FIVE[0], {"kind": "ca", "noise": "continuous", "intensity": 0.05}, *FIVE[3:]]
+    for bank in (FIVE, FIVE[:1] + FIVE[3:4], with_ca):
+        results, _ = evaluate(["pretrained-per-model"], "random", 2, 0, clairvoyant=False,
+                              env_config={"bank": bank})
+        row = results["policies"]["pretrained-per-model"]
+        assert np.isfinite(row["armse_pos"]) and row["diverged"] == 0
+        assert "models_differ" not in row
+
+
+def test_the_shipped_mlp_policy_names_the_per_model_one_on_another_bank() -> None:
+    with pytest.raises(ConfigError, match=r"'pretrained-per-model'.*reads a bank of any size"):
+        evaluate(["pretrained"], "random", 1, 0, clairvoyant=False, env_config={"bank": FIVE})
