@@ -287,15 +287,17 @@ def test_a_resumed_run_keeps_the_statistics_tied(per_model_agent, tmp_path) -> N
         "count"]
 
 
+@pytest.mark.parametrize("shipped", [False, True])
 def test_the_agent_tracks_recorded_measurements_with_a_bank_of_five(
-    per_model_agent, tmp_path, capsys
+    per_model_agent, shipped, tmp_path, capsys
 ) -> None:
     config = EnvConfig.build({"bank": FIVE})
     core = TrackingCore(config, n_envs=1)
     core.reset(np.arange(1), np.array([7]))
     np.savez(tmp_path / "z.npz", z=core.z[0])
     (tmp_path / "five.yaml").write_text(json.dumps({"bank": FIVE}))
-    argv = ["--measurements", str(tmp_path / "z.npz"), "--policy", str(per_model_agent),
+    policy = "pretrained-per-model" if shipped else str(per_model_agent)
+    argv = ["--measurements", str(tmp_path / "z.npz"), "--policy", policy,
             "--env-config", str(tmp_path / "five.yaml"), "--out", str(tmp_path / "out.npz")]
     assert track_main(argv) == 0
     assert "reads the evaluated bank's models" not in capsys.readouterr().err
