@@ -88,7 +88,7 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.sim.features import bounds
 from imm_gym.sim.mixture import AGENT_FIELDS
-from imm_gym.sim.model_order import model_roles
+from imm_gym.sim.model_order import for_bank, model_roles
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError, from_dict
@@ -167,22 +167,14 @@ def make_policy(
 def load_trained(path: Path, base: EnvConfig) -> tuple[Any, dict[str, Any], dict[str, Any]]:
     """A trained agent (``agents.policy`` directory layout), an ensemble of them
     (``agents.ensemble``) or a stay selector (``agents.selector``) for ``base``'s bank
-    (:func:`for_bank`) and its environment overrides."""
+    (:func:`~imm_gym.sim.model_order.for_bank`) and its environment overrides."""
     from agents.ensemble import load_policy
 
     try:
         policy = load_policy(path)
     except FileNotFoundError as err:
         raise ConfigError(str(err)) from None
-    return for_bank(policy, base), policy.env_overrides, {"path": str(path)}
-
-
-def for_bank(policy: Any, base: EnvConfig) -> Any:
-    """``policy`` for the number of models of ``base``'s bank: an agent whose network is shared
-    by the models rebuilt for them (``policy.for_models``, :mod:`agents.per_model`); any other
-    as it is."""
-    for_models = getattr(policy, "for_models", None)
-    return policy if for_models is None else for_models(len(base.bank))
+    return for_bank(policy, len(base.bank)), policy.env_overrides, {"path": str(path)}
 
 
 def evaluate(
@@ -220,7 +212,9 @@ def evaluate(
     base = evaluated_config(scenario, env_config, bank)
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {list(policies)}")
-    agents = {name: (for_bank(p, base), o, {}) for name, (p, o) in (extra or {}).items()}
+    agents = {
+        name: (for_bank(p, len(base.bank)), o, {}) for name, (p, o) in (extra or {}).items()
+    }
     loaded = (name for name in policies if name not in REGISTRY)
     agents.update({name: make_policy(name, base, seed, make_core=make_core) for name in loaded})
     for name, (policy, overrides, notes) in agents.items():

@@ -28,6 +28,7 @@ from imm_gym.evaluation.metrics import (
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import FEATURES
+from imm_gym.sim.model_order import for_bank
 
 Array = NDArray[np.float64]
 
@@ -94,7 +95,9 @@ def rollout(
     """Run ``policy`` on ``runs`` episodes seeded ``seed + r``; see the module docstring.
 
     Args:
-        policy: an object with ``predict(obs, state, episode_start, deterministic)``.
+        policy: an object with ``predict(obs, state, episode_start, deterministic)``; a policy
+            shared by the models is rebuilt for the bank's size
+            (:func:`~imm_gym.sim.model_order.for_bank`).
         config: the environment configuration (with the policy's overrides applied).
         runs: R, the number of Monte-Carlo runs.
         seed: run ``r`` uses seed ``seed + r``.
@@ -107,6 +110,7 @@ def rollout(
             ``r`` from ``initial_tpms[g]``; the records in that order). The floor ``p_min`` is
             lowered to their smallest entry where it is above it, so each starts as given.
     """
+    policy = for_bank(policy, len(config.bank))
     G = 1
     if initial_tpms is not None:
         G = len(initial_tpms)

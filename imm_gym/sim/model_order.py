@@ -159,3 +159,12 @@ def frame_layout(features: Sequence[str], n_models: int, dim_z: int) -> tuple[In
         np.concatenate(per_model, axis=1).astype(np.intp),
         np.concatenate(shared or [np.zeros(0)]).astype(np.intp),
     )
+
+
+def for_bank(policy: Any, n_models: int) -> Any:
+    """``policy`` for a bank of ``n_models`` models: a learned policy whose network is shared by
+    the models rebuilt for that many (its ``for_models``, :mod:`agents.per_model`); any other
+    policy as it is (a network that reads models by position is refused on another bank by the
+    size of what it reads)."""
+    for_models = getattr(policy, "for_models", None)
+    return policy if for_models is None else for_models(n_models)

@@ -29,6 +29,7 @@ from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.conditions import Variation
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.model_order import for_bank
 from imm_gym.tracking.initiation import initiate
 from imm_gym.validation import ConfigError
 
@@ -122,7 +123,9 @@ def run_policy(
         z: ``(N, K+1, m)`` measurements of N sequences (or ``(K+1, m)`` for one) in the sensor's
             components (the sonar's range and bearing); ``z[:, 0]`` initiates the track. A NaN
             row is a missed detection when ``detected`` is not given.
-        policy: anything with SB3's ``predict(obs, state, episode_start, deterministic)``.
+        policy: anything with SB3's ``predict(obs, state, episode_start, deterministic)``; a
+            policy shared by the models is rebuilt for the bank's size
+            (:func:`~imm_gym.sim.model_order.for_bank`).
         config: the tracker's configuration (default :class:`EnvConfig`): sensor, bank, filter,
             TPM settings; its scenario gives the sampling period ``T``.
         detected: ``(N, K+1)`` detection flags (default: the rows of ``z`` without NaN); an
@@ -148,6 +151,7 @@ def run_policy(
     if overrides is None:
         overrides = getattr(policy, "env_overrides", {})
     cfg = base.replace(**overrides)
+    policy = for_bank(policy, len(cfg.bank))
     z_in = np.asarray(z, dtype=np.float64)
     single = z_in.ndim == 2
     z_all = _as_batch("z", z_in, 3, single)

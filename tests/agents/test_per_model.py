@@ -388,3 +388,23 @@ def test_the_shipped_per_model_policy_acts_on_banks_of_any_size() -> None:
 def test_the_shipped_mlp_policy_names_the_per_model_one_on_another_bank() -> None:
     with pytest.raises(ConfigError, match=r"'pretrained-per-model'.*reads a bank of any size"):
         evaluate(["pretrained"], "random", 1, 0, clairvoyant=False, env_config={"bank": FIVE})
+
+
+def test_the_python_api_rebuilds_the_agent_for_the_bank(per_model_agent) -> None:
+    """``imm_gym.run_policy`` and ``rollout`` take the agent as loaded, for a bank of five, and
+    act as with the agent rebuilt for five beforehand."""
+    import imm_gym
+    from imm_gym.evaluation.rollout import rollout
+    from imm_gym.sim.config_file import TRACKER_FIELDS
+
+    agent = load_agent(per_model_agent)
+    overrides = {k: v for k, v in agent.env_overrides.items() if k not in TRACKER_FIELDS}
+    config = EnvConfig.build({"bank": FIVE}).replace(**overrides)
+    core = TrackingCore(config, 2)
+    core.reset(np.arange(2), [3, 4])
+    loaded = imm_gym.run_policy(core.z[:, :40], agent, config, overrides={})
+    rebuilt = imm_gym.run_policy(core.z[:, :40], agent.for_models(5), config, overrides={})
+    assert loaded.mode_probs.shape[-1] == 5
+    np.testing.assert_array_equal(loaded.estimate, rebuilt.estimate)
+    runs = [rollout(policy, config, 2, 0) for policy in (agent, agent.for_models(5))]
+    np.testing.assert_array_equal(runs[0].estimate, runs[1].estimate)
