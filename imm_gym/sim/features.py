@@ -244,9 +244,9 @@ def model_turn_rates(bank: Any) -> Array:
 def model_kinds(bank: Any) -> Array:
     """``(2 M,)`` which kind each model is, factor-major: ``[is CA per model, is CT per model]``
     (CV models and every model of a heterogeneous bank are 0 in both)."""
-    kinds = [getattr(m, "kind", None) for m in bank] if isinstance(bank, tuple) else [
-        None
-    ] * len(bank.models)
+    if not isinstance(bank, tuple):
+        return np.zeros(2 * len(bank.models))
+    kinds = [getattr(m, "kind", None) for m in bank]
     return np.array([[k == "ca" for k in kinds], [k == "ct" for k in kinds]], float).ravel()
 
 
@@ -473,7 +473,7 @@ register(Feature(
 ))
 register(Feature(
     "model_kind", "whether each model is a CA model, then whether it is a CT model (factor-"
-    "major; CV models are 0 in both): the rest of which model a per-model entry is",
+    "major; CV models are 0 in both): with model_turn_rate, which model a per-model entry is",
     lambda M, m: 2 * M, 0.0, 1.0,
     lambda v: np.broadcast_to(model_kinds(v.config.bank), (v.n_envs, 2 * len(v.config.bank))),
     size_label="2M", models="kM",
