@@ -96,6 +96,18 @@ from imm_gym.validation import ConfigError, from_dict
 #: ``--bank``: environment overrides of each bank.
 BANKS = BANK_PRESETS
 TRAIN_RUNS = 100
+#: The files a directory suite reads (``--suite DIR``).
+CONFIG_SUFFIXES = (".yaml", ".yml", ".json")
+
+
+class UnreadableTracker(ConfigError):
+    """A trained agent's network cannot read or write the evaluated tracker: its observation or
+    action is of another size (a bank of another number of models, say). ``reason`` says so in
+    a few words, for a suite's table."""
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
 
 
 def load_source(name: str) -> str | Scenario:
@@ -294,9 +306,9 @@ def agent_overrides(
     differing and ``trained_across`` lists them all.
 
     Raises:
-        ConfigError: the observation (one frame, ``policy.obs_size``) or the action (M² entries,
-            M in the stay modes) that ``base`` gives is not the size the agent's network reads or
-            writes.
+        UnreadableTracker: the observation (one frame, ``policy.obs_size``) or the action (M²
+            entries, M in the stay modes) that ``base`` gives is not the size the agent's network
+            reads or writes.
     """
     kept = {k: v for k, v in overrides.items() if k not in (*TRACKER_FIELDS, *TARGET_FIELDS)}
     cfg = evaluation_config(base, kept)
@@ -304,20 +316,24 @@ def agent_overrides(
     obs_size = int(bounds(cfg.obs_features, M, cfg.sensor.dim_z)[0].size)
     source = getattr(policy, "source", "the agent")
     if hasattr(policy, "obs_size") and obs_size != policy.obs_size:
-        raise ConfigError(
+        raise UnreadableTracker(
             f"{source} reads observations of {policy.obs_size} entries, but the evaluated "
             f"configuration gives {obs_size} (a bank of {M} models, features "
             f"{list(cfg.obs_features)}): it cannot be evaluated on this configuration (the shipped "
             "'pretrained-per-model', or an agent trained with agents/hyperparams/per_model.yml, "
-            "reads a bank of any size)"
+            "reads a bank of any size)",
+            f"reads {policy.obs_size} observation entries, the tracker gives {obs_size} "
+            f"({M} models)",
         )
     space = getattr(getattr(policy, "model", None), "action_space", None)
     size = action_size(cfg.action_mode, M)
     if space is not None and int(np.prod(space.shape)) != size:
-        raise ConfigError(
+        raise UnreadableTracker(
             f"{source} writes actions of {int(np.prod(space.shape))} entries, but a bank of {M} "
             f"models takes {size} in {cfg.action_mode!r} mode: it cannot be evaluated on this "
-            "configuration"
+            "configuration",
+            f"writes {int(np.prod(space.shape))} action entries, the tracker takes {size} "
+            f"({M} models)",
         )
     evaluated_on = {name: plain(getattr(base, name)) for name in TRACKER_FIELDS}
     trackers = [tracker_of(overrides), *getattr(policy, "trained_across", ())]
@@ -338,21 +354,56 @@ def agent_overrides(
     return kept, notes
 
 
+def suite_files(suite: str) -> dict[str, Path]:
+    """Each case of ``suite`` and its configuration file: a named suite's
+    (:data:`~imm_gym.scenarios.catalog.SUITES`) ``SUITE_CONFIGS/NAME.yaml`` per scenario,
+    shipped in the package; or, for a directory, every ``.yaml``, ``.yml`` and ``.json`` file in
+    it, named by its stem, in name order (your own suite: ``examples/probes/``).
+
+    Raises:
+        ConfigError: neither a suite's name nor a directory, a directory without configuration
+            files, or two files of one stem.
+    """
+    if suite in SUITES:
+        return {name: SUITE_CONFIGS / f"{name}.yaml" for name in SUITES[suite]}
+    folder = Path(suite)
+    if not folder.is_dir():
+        raise ConfigError(
+            f"--suite must be one of {list(SUITES)} or a directory of configuration files, "
+            f"got {suite!r}"
+        )
+    files: dict[str, Path] = {}
+    for path in sorted(folder.iterdir()):
+        if path.suffix not in CONFIG_SUFFIXES or not path.is_file():
+            continue
+        if path.stem in files:
+            raise ConfigError(
+                f"--suite {suite}: {files[path.stem].name} and {path.name} name one case, "
+                f"{path.stem!r}; keep one"
+            )
+        files[path.stem] = path
+    if not files:
+        raise ConfigError(
+            f"--suite {suite}: the directory holds no configuration file "
+            f"({', '.join(CONFIG_SUFFIXES)})"
+        )
+    return files
+
+
 def suite_configs(suite: str) -> dict[str, dict[str, Any]]:
-    """The EnvConfig overrides of every scenario of ``suite``: ``SUITE_CONFIGS/NAME.yaml`` each
-    (:data:`imm_gym.scenarios.catalog.SUITE_CONFIGS`, shipped in the package).
+    """The EnvConfig overrides of every case of ``suite`` (:func:`suite_files`), each with its
+    ``scenario``: a named suite's file must give its own name (or none, the randomized family
+    then), a directory's file its scenario (``paper`` when it gives none, as ``--env-config``).
 
     Raises:
         ConfigError: an unknown suite, or a configuration file missing or invalid.
     """
-    if suite not in SUITES:
-        raise ConfigError(f"--suite must be one of {list(SUITES)}, got {suite!r}")
     configs = {}
-    for name in SUITES[suite]:
-        overrides = read_env_config(SUITE_CONFIGS / f"{name}.yaml")
-        if overrides.get("scenario", "random") != name:
-            raise ConfigError(f"{SUITE_CONFIGS / f'{name}.yaml'}: scenario must be {name!r}")
-        configs[name] = overrides
+    for name, path in suite_files(suite).items():
+        overrides = read_env_config(path)
+        if suite in SUITES and overrides.get("scenario", "random") != name:
+            raise ConfigError(f"{path}: scenario must be {name!r}")
+        configs[name] = {"scenario": "random" if suite in SUITES else "paper", **overrides}
     return configs
 
 
@@ -366,45 +417,95 @@ def evaluate_suite(
     progress: bool = False,
     make_core: Callable[[EnvConfig, int], Any] = TrackingCore,
 ) -> dict[str, Any]:
-    """:func:`evaluate` on every scenario of ``suite`` with its own configuration file
+    """:func:`evaluate` on every case of ``suite`` with its own configuration file
     (:func:`suite_configs`; baselines, best-fixed search and trained agents on it), the same
     seeds on each. Every file and every trained agent is checked against every configuration
-    before any work.
+    before any work; an agent whose network cannot read a case's tracker
+    (:class:`UnreadableTracker`: a bank of another size) is not run there, and the results say
+    why; an agent that can read no case's tracker, or a reference (``fixed`` when among the
+    policies, else the first) that cannot read one, is refused.
 
     Returns:
-        ``{"scenarios": {NAME: evaluate's results}, "meta": {...}}``.
+        ``{"scenarios": {CASE: evaluate's results, with "skipped": {POLICY: reason}},
+        "tally": {POLICY: {"below", "level", "above", "skipped": [CASE, ...]}}, "meta": {...}}``;
+        the tally sorts the cases by the paired difference against the reference (its 95 % CI
+        below zero, including it, above it).
     """
     configs = suite_configs(suite)
-    for overrides in configs.values():
-        base = EnvConfig.build(overrides)
+    ref = reference or ("fixed" if "fixed" in policies else policies[0])
+    if ref not in policies:
+        raise ConfigError(f"--reference {ref!r} is not among the evaluated policies")
+    skipped: dict[str, dict[str, str]] = {case: {} for case in configs}
+    for case, overrides in configs.items():
+        base = evaluated_config(overrides["scenario"], overrides)
         for name in policies:
-            if name not in REGISTRY:
-                policy, recorded, _ = make_policy(name, base, seed)
+            if name in REGISTRY:
+                continue
+            policy, recorded, _ = make_policy(name, base, seed)
+            try:
                 agent_overrides(policy, recorded, base)
+            except UnreadableTracker as err:
+                if name == ref:
+                    raise ConfigError(f"{case}: the reference {err}") from None
+                skipped[case][name] = err.reason
+    for name in policies:
+        if all(name in skipped[case] for case in configs):
+            raise ConfigError(
+                f"{name} cannot read the tracker of any case of the suite "
+                f"({next(iter(skipped.values()))[name]})"
+            )
     out: dict[str, Any] = {"scenarios": {}}
-    for name, overrides in configs.items():
+    files = suite_files(suite)
+    for case, overrides in configs.items():
         env_config = {k: v for k, v in overrides.items() if k != "scenario"}
         results, _ = evaluate(
-            policies,
-            name,
+            [name for name in policies if name not in skipped[case]],
+            overrides["scenario"],
             runs,
             seed,
-            reference=reference,
+            reference=ref,
             clairvoyant=clairvoyant,
             progress=progress,
             env_config=env_config,
             make_core=make_core,
         )
-        results["meta"]["env_config"] = str(SUITE_CONFIGS / f"{name}.yaml")
-        out["scenarios"][name] = results
+        results["meta"]["env_config"] = str(files[case])
+        results["skipped"] = skipped[case]
+        out["scenarios"][case] = results
+    out["tally"] = suite_tally(out["scenarios"], [name for name in policies if name != ref])
     out["meta"] = {
         "suite": suite,
+        "reference": ref,
         "runs": runs,
         "seed": seed,
         "seeds": f"{seed}..{seed + runs - 1}",
         "versions": _versions(),
     }
     return out
+
+
+def suite_tally(
+    scenarios: Mapping[str, Mapping[str, Any]], policies: Sequence[str]
+) -> dict[str, dict[str, list[str]]]:
+    """For each of ``policies``, the cases where its paired difference of the position ARMSE
+    against the reference is below zero (the 95 % CI's upper bound below zero), level (the CI
+    includes zero, or undefined with one run) or above (its lower bound above zero), and those
+    it was not run on."""
+    tally: dict[str, dict[str, list[str]]] = {}
+    for name in policies:
+        sorted_cases: dict[str, list[str]] = {"below": [], "level": [], "above": [], "skipped": []}
+        for case, r in scenarios.items():
+            d = r["paired"]["differences"].get(name)
+            if d is None:
+                sorted_cases["skipped"].append(case)
+            elif d["high"] is not None and d["high"] < 0:
+                sorted_cases["below"].append(case)
+            elif d["low"] is not None and d["low"] > 0:
+                sorted_cases["above"].append(case)
+            else:
+                sorted_cases["level"].append(case)
+        tally[name] = sorted_cases
+    return tally
 
 
 def paired_difference(
@@ -521,11 +622,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--suite",
-        choices=list(SUITES),
+        metavar="NAME|DIR",
         help="evaluate on every scenario of the suite ("
         + "; ".join(f"{k}: {', '.join(v)}" for k, v in SUITES.items())
-        + "), each with its configuration file (imm_gym/scenarios/suite/NAME.yaml), and print "
-        + "one table",
+        + "), each with its configuration file (imm_gym/scenarios/suite/NAME.yaml), or on every "
+        "configuration file (.yaml, .yml, .json) of the directory DIR (e.g. examples/probes), "
+        "and print one table with, per policy, the cases below, level with and above the "
+        "reference; an agent that cannot read a case's tracker is not run there, and the table "
+        "says so",
     )
     parser.add_argument(
         "--env-config",
@@ -783,7 +887,7 @@ def _main_suite(
     args: argparse.Namespace,
     make_core: Callable[[EnvConfig, int], Any],
 ) -> int:
-    """``--suite NAME``: every scenario of the suite with its configuration file, one table."""
+    """``--suite NAME|DIR``: every case of the suite with its configuration file, one table."""
     from imm_gym.cli.tables import render_suite_table
 
     unused = {

@@ -50,13 +50,20 @@ def across_seeds(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, A
 
 
 def suite_across_seeds(results: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, Any]:
-    """A suite: :func:`across_seeds` of every scenario and the IQM over all scenarios and seeds
-    of the relative difference against the reference, stratified by scenario."""
-    per_scenario = {name: across_seeds(r, seeds) for name, r in results["scenarios"].items()}
+    """A suite: :func:`across_seeds` of every scenario the seeds ran on (``not_run``: those
+    their network cannot read, a bank of another size) and the IQM over those scenarios and the
+    seeds of the relative difference against the reference, stratified by scenario."""
+    ran = {
+        name: r
+        for name, r in results["scenarios"].items()
+        if all(seed in r["policies"] for seed in seeds)
+    }
+    per_scenario = {name: across_seeds(r, seeds) for name, r in ran.items()}
     relative = np.array([s["relative_vs_reference"]["per_seed"] for s in per_scenario.values()])
     return {
         "seeds": list(seeds),
         "scenarios": per_scenario,
+        "not_run": [name for name in results["scenarios"] if name not in ran],
         "relative_vs_reference": stratified_bootstrap_iqm(relative),
     }
 
@@ -90,4 +97,6 @@ def render_seeds(summary: Mapping[str, Any]) -> None:
             f"all scenarios, relative Δ vs reference: {100 * pooled['iqm']:+.2f}% "
             f"[{100 * pooled['low']:+.2f}, {100 * pooled['high']:+.2f}]"
         )
+        if summary.get("not_run"):
+            table.caption += f"; not run on {', '.join(summary['not_run'])}"
     console.print(table)

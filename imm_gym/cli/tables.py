@@ -124,17 +124,18 @@ def render_tables(results: dict[str, Any]) -> None:
 
 
 def render_suite_table(results: dict[str, Any]) -> None:
-    """Print one table of a suite's evaluation: a row per scenario and policy with the position
+    """Print one table of a suite's evaluation: a row per case and policy with the position
     ARMSE, the mode accuracy, the share of NEES values inside the 95 % χ² interval, the
     diverged runs and the paired difference of the position ARMSE against the reference with its
-    95 % bootstrap CI; the clairvoyant row by its role."""
+    95 % bootstrap CI; the clairvoyant row by its role; a policy not run on a case, and why.
+    Then each policy's tally against the reference (:func:`~imm_gym.cli.evaluate.suite_tally`)."""
     from rich.console import Console
     from rich.table import Table
 
     meta = results["meta"]
     console = Console(width=None if sys.stdout.isatty() else 150)
     table = Table(
-        title=f"Suite '{meta['suite']}', {meta['runs']} runs (seeds {meta['seeds']}) per scenario, "
+        title=f"Suite '{meta['suite']}', {meta['runs']} runs (seeds {meta['seeds']}) per case, "
         "each with its configuration file"
     )
     for col in ("scenario", "policy", "pos ARMSE (m)", "mode acc.", "NEES ≤ χ²95", "diverged"):
@@ -161,6 +162,8 @@ def render_suite_table(results: dict[str, Any]) -> None:
                 delta,
                 end_section=False,
             )
+        for name, reason in r.get("skipped", {}).items():
+            table.add_row("", name, *["—"] * 4, f"not run: {reason}", style="dim")
         c = r.get("clairvoyant")
         if c is not None and c["role"] != "skipped":
             table.add_row(
@@ -185,6 +188,16 @@ def render_suite_table(results: dict[str, Any]) -> None:
         for name, row in r["policies"].items():
             if row.get("models_differ"):
                 console.print(f"{scenario}: " + models_differ_note(name, row["models_differ"]))
+    n = len(results["scenarios"])
+    for name, cases in results.get("tally", {}).items():
+        counts = ", ".join(
+            f"{label} on {len(cases[key])}"
+            for key, label in (("below", "below"), ("level", "level"), ("above", "above"))
+        )
+        line = f"{name} against {meta['reference']} ({n} cases, 95% CIs): {counts}"
+        if cases["skipped"]:
+            line += f"; not run on {len(cases['skipped'])}"
+        console.print(line)
 
 
 SYSTEM_COLUMNS = (

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 import imm_gym.cli.evaluate as cli
 from imm_gym.cli.evaluate import evaluate, main
@@ -162,6 +163,105 @@ def test_the_benchmark_suite_runs_end_to_end(tmp_path, capsys) -> None:
     alone, _ = evaluate(["fixed"], "atc", 2, 0, clairvoyant=False)
     atc = results["scenarios"]["atc"]["policies"]["fixed"]["armse_pos"]
     assert atc != alone["policies"]["fixed"]["armse_pos"]
+
+
+FOUR_MODELS = (
+    "scenario: random\n"
+    "bank: [{kind: cv}, {kind: ct, turn_rate_deg: 2.0}, {kind: ct, turn_rate_deg: -2.0},\n"
+    "       {kind: ct, turn_rate_deg: 6.0}]\n"
+)
+
+
+def _directory_suite(tmp_path: Path) -> Path:
+    """A suite of two configuration files (the paper with a finer sonar; a bank of four models)
+    and a file that is not one."""
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    (folder / "fine.yaml").write_text(SENSOR_FILE)
+    (folder / "four.json").write_text(json.dumps(yaml.safe_load(FOUR_MODELS)))
+    (folder / "notes.txt").write_text("not a configuration")
+    return folder
+
+
+def test_a_directory_is_a_suite_of_its_configuration_files(tmp_path, capsys) -> None:
+    """``--suite DIR``: one case per file (named by its stem, in name order), each run as
+    ``--env-config FILE``; the shipped MLP, which reads three models, is not run on the bank of
+    four and the table and the JSON say why; the tally sorts the cases by the paired CI."""
+    folder = _directory_suite(tmp_path)
+    out = tmp_path / "suite.json"
+    argv = ["--suite", str(folder), "--policy", "fixed", "--policy", "pretrained",
+            "--policy", "best-fixed", "--runs", "3", "--no-clairvoyant", "--quiet"]
+    assert main([*argv, "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    results = json.loads(out.read_text())
+    assert list(results["scenarios"]) == ["fine", "four"]
+    assert results["meta"]["suite"] == str(folder) and results["meta"]["reference"] == "fixed"
+    fine, four = results["scenarios"]["fine"], results["scenarios"]["four"]
+    assert fine["meta"]["env_config"] == str(folder / "fine.yaml")
+    assert four["meta"]["scenario"] == "random"
+    assert fine["skipped"] == {} and set(fine["policies"]) == {"fixed", "pretrained", "best-fixed"}
+    assert set(four["policies"]) == {"fixed", "best-fixed"}
+    assert "4 models" in four["skipped"]["pretrained"]
+    assert "not run: reads 44 observation entries" in printed
+    # each case is what --env-config FILE gives, on the same runs
+    alone, _ = evaluate(["fixed", "best-fixed"], "random", 3, 0, clairvoyant=False,
+                        env_config=yaml.safe_load(FOUR_MODELS))
+    for name in ("fixed", "best-fixed"):
+        assert four["policies"][name]["armse_pos"] == alone["policies"][name]["armse_pos"]
+    tally = results["tally"]
+    assert set(tally) == {"pretrained", "best-fixed"} and tally["pretrained"]["skipped"] == ["four"]
+    for name, cases in tally.items():
+        assert sorted(case for group in cases.values() for case in group) == ["fine", "four"]
+        for case in cases["below"]:
+            assert results["scenarios"][case]["paired"]["differences"][name]["high"] < 0
+    assert "pretrained against fixed (2 cases, 95% CIs)" in printed and "not run on 1" in printed
+
+
+def test_the_tally_sorts_the_cases_by_the_paired_ci() -> None:
+    from imm_gym.cli.evaluate import suite_tally
+
+    def case(low, high) -> dict:
+        d = {"diff": 0.0 if low is None else (low + high) / 2, "low": low, "high": high}
+        return {"paired": {"differences": {"agent": d}}}
+
+    scenarios = {
+        "a": case(-2.0, -0.1),
+        "b": case(-1.0, 0.5),
+        "c": case(0.0, 1.0),  # a bound at zero includes it
+        "d": case(0.2, 0.9),
+        "e": case(None, None),  # one run: no CI
+        "f": {"paired": {"differences": {}}},
+    }
+    assert suite_tally(scenarios, ["agent"]) == {
+        "agent": {"below": ["a"], "level": ["b", "c", "e"], "above": ["d"], "skipped": ["f"]}
+    }
+
+
+def test_a_directory_suite_is_checked_before_any_work(tmp_path, capsys, no_work) -> None:
+    folder = _directory_suite(tmp_path)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    cases = [
+        (["--suite", str(tmp_path / "missing")], "or a directory of configuration files"),
+        (["--suite", str(empty)], "holds no configuration file"),
+        (["--suite", str(folder), "--reference", "pretrained"], "four: the reference"),
+        (["--suite", str(folder)], "fine.json and fine.yaml name one case"),
+    ]
+    for argv, expected in cases:
+        if expected.startswith("fine.json"):
+            (folder / "fine.json").write_text("{}")
+        with pytest.raises(SystemExit):
+            main([*argv, "--policy", "fixed", "--policy", "pretrained", "--runs", "2"])
+        assert expected in capsys.readouterr().err
+
+
+def test_an_agent_that_reads_no_case_of_a_suite_is_refused(tmp_path, capsys, no_work) -> None:
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    (folder / "four.yaml").write_text(FOUR_MODELS)
+    with pytest.raises(SystemExit):
+        main(["--suite", str(folder), "--policy", "fixed", "--policy", "pretrained"])
+    assert "pretrained cannot read the tracker of any case" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flag", [["--scenario", "paper"], ["--bank", "hetero"]])

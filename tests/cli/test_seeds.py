@@ -57,7 +57,20 @@ def test_over_a_suite_scenarios_are_the_strata() -> None:
     relative = np.array([[-0.1, -0.05, 0.05], [0.1, 0.2, 0.0]])
     expected = stratified_bootstrap_iqm(relative)
     assert out["relative_vs_reference"] == pytest.approx(expected)
-    assert set(out["scenarios"]) == {"easy", "hard"}
+    assert set(out["scenarios"]) == {"easy", "hard"} and out["not_run"] == []
+
+
+def test_over_a_suite_the_cases_the_seeds_did_not_run_on_are_left_out() -> None:
+    """A case whose tracker the seeds cannot read (a bank of another size: ``--suite DIR``) has
+    no rows of theirs; the aggregate is over the others and names it."""
+    seeds = ["a", "b", "c"]
+    easy = _result({"best-fixed": 10.0, "a": 9.0, "b": 9.5, "c": 10.5})
+    hard = _result({"best-fixed": 50.0, "a": 55.0, "b": 60.0, "c": 50.0})
+    results = {"scenarios": {"easy": easy, "five": _result({"best-fixed": 30.0}), "hard": hard}}
+    out = suite_across_seeds(results, seeds)
+    assert out["not_run"] == ["five"] and list(out["scenarios"]) == ["easy", "hard"]
+    without = suite_across_seeds({"scenarios": {"easy": easy, "hard": hard}}, seeds)
+    assert out["relative_vs_reference"] == without["relative_vs_reference"]
 
 
 def test_the_command_adds_the_seeds_rows_and_their_aggregate(tmp_path, capsys) -> None:
