@@ -416,6 +416,7 @@ def evaluate_suite(
     clairvoyant: bool = True,
     progress: bool = False,
     make_core: Callable[[EnvConfig, int], Any] = TrackingCore,
+    bar: Sequence[str] = (),
 ) -> dict[str, Any]:
     """:func:`evaluate` on every case of ``suite`` with its own configuration file
     (:func:`suite_configs`; baselines, best-fixed search and trained agents on it), the same
@@ -423,18 +424,25 @@ def evaluate_suite(
     before any work; an agent whose network cannot read a case's tracker
     (:class:`UnreadableTracker`: a bank of another size) is not run there, and the results say
     why; an agent that can read no case's tracker, or a reference (``fixed`` when among the
-    policies, else the first) that cannot read one, is refused.
+    policies, else the first) or a policy of ``bar`` that cannot read one, is refused.
+
+    ``bar``: policies among ``policies`` whose better on each case (the lower position ARMSE on
+    its runs) is the bar the others are tallied against there (``("tip-imm", "best-fixed")``:
+    the better of the two rules); picking it on the same runs makes the bar, if anything,
+    harder to meet.
 
     Returns:
-        ``{"scenarios": {CASE: evaluate's results, with "skipped": {POLICY: reason}},
+        ``{"scenarios": {CASE: evaluate's results, with "skipped": {POLICY: reason}} and, with
+        ``bar``, "bar": {"policy": NAME, "differences": {POLICY: paired difference}}},
         "tally": {POLICY: {"below", "level", "above", "skipped": [CASE, ...]}}, "meta": {...}}``;
-        the tally sorts the cases by the paired difference against the reference (its 95 % CI
-        below zero, including it, above it).
+        the tally sorts the cases by the paired difference against the bar, else the reference
+        (its 95 % CI below zero, including it, above it).
     """
     configs = suite_configs(suite)
     ref = reference or ("fixed" if "fixed" in policies else policies[0])
-    if ref not in policies:
-        raise ConfigError(f"--reference {ref!r} is not among the evaluated policies")
+    for name, flag in ((ref, "--reference"), *((b, "--bar") for b in bar)):
+        if name not in policies:
+            raise ConfigError(f"{flag} {name!r} is not among the evaluated policies")
     skipped: dict[str, dict[str, str]] = {case: {} for case in configs}
     for case, overrides in configs.items():
         base = evaluated_config(overrides["scenario"], overrides)
@@ -445,8 +453,9 @@ def evaluate_suite(
             try:
                 agent_overrides(policy, recorded, base)
             except UnreadableTracker as err:
-                if name == ref:
-                    raise ConfigError(f"{case}: the reference {err}") from None
+                if name == ref or name in bar:
+                    role = "the reference" if name == ref else "a policy of --bar"
+                    raise ConfigError(f"{case}: {role} {err}") from None
                 skipped[case][name] = err.reason
     for name in policies:
         if all(name in skipped[case] for case in configs):
@@ -458,7 +467,7 @@ def evaluate_suite(
     files = suite_files(suite)
     for case, overrides in configs.items():
         env_config = {k: v for k, v in overrides.items() if k != "scenario"}
-        results, _ = evaluate(
+        results, rollouts = evaluate(
             [name for name in policies if name not in skipped[case]],
             overrides["scenario"],
             runs,
@@ -471,11 +480,24 @@ def evaluate_suite(
         )
         results["meta"]["env_config"] = str(files[case])
         results["skipped"] = skipped[case]
+        if bar:
+            best = min(bar, key=lambda name: results["policies"][name]["armse_pos"])
+            err2 = rollouts[best].squared_position_error
+            results["bar"] = {
+                "policy": best,
+                "differences": {
+                    name: paired_difference(r.squared_position_error, err2)
+                    for name, r in rollouts.items()
+                    if name not in bar
+                },
+            }
         out["scenarios"][case] = results
-    out["tally"] = suite_tally(out["scenarios"], [name for name in policies if name != ref])
+    tallied = [name for name in policies if name not in (bar or (ref,))]
+    out["tally"] = suite_tally(out["scenarios"], tallied, "bar" if bar else "paired")
     out["meta"] = {
         "suite": suite,
         "reference": ref,
+        "bar": list(bar),
         "runs": runs,
         "seed": seed,
         "seeds": f"{seed}..{seed + runs - 1}",
@@ -485,17 +507,17 @@ def evaluate_suite(
 
 
 def suite_tally(
-    scenarios: Mapping[str, Mapping[str, Any]], policies: Sequence[str]
+    scenarios: Mapping[str, Mapping[str, Any]], policies: Sequence[str], against: str = "paired"
 ) -> dict[str, dict[str, list[str]]]:
     """For each of ``policies``, the cases where its paired difference of the position ARMSE
-    against the reference is below zero (the 95 % CI's upper bound below zero), level (the CI
-    includes zero, or undefined with one run) or above (its lower bound above zero), and those
-    it was not run on."""
+    against the reference (``against="paired"``) or the bar (``"bar"``) is below zero (the 95 %
+    CI's upper bound below zero), level (the CI includes zero, or undefined with one run) or
+    above (its lower bound above zero), and those it was not run on."""
     tally: dict[str, dict[str, list[str]]] = {}
     for name in policies:
         sorted_cases: dict[str, list[str]] = {"below": [], "level": [], "above": [], "skipped": []}
         for case, r in scenarios.items():
-            d = r["paired"]["differences"].get(name)
+            d = r[against]["differences"].get(name)
             if d is None:
                 sorted_cases["skipped"].append(case)
             elif d["high"] is not None and d["high"] < 0:
@@ -651,6 +673,16 @@ def build_parser() -> argparse.ArgumentParser:
         "ARMSE, mode accuracy, relative difference against --reference; with --suite also over "
         "all scenarios; JSON: \"across_seeds\")",
     )
+    parser.add_argument(
+        "--bar",
+        nargs="+",
+        default=[],
+        metavar="POLICY",
+        help="with --suite: on each case the better of these policies (the lower position ARMSE "
+        "on its runs; added to --policy if absent) is the bar every other policy is tallied "
+        "against, with paired 95%% CIs (JSON: \"bar\" per case, \"tally\"); e.g. --bar "
+        "tip-imm best-fixed",
+    )
     parser.add_argument("--json", type=Path, help="write the results to this JSON file")
     parser.add_argument("--plots", type=Path, help="write PNG figures to this directory")
     parser.add_argument(
@@ -742,6 +774,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--agent-seeds needs two or more directories (one is a --policy)")
     if len(set(args.agent_seeds)) != len(args.agent_seeds):
         parser.error(f"--agent-seeds given a directory twice: {args.agent_seeds}")
+    if args.bar and args.suite is None:
+        parser.error("--bar applies to --suite")
+    args.policy += [d for d in args.bar if d not in args.policy]
     args.policy += [d for d in args.agent_seeds if d not in args.policy]
     if not args.policy:
         parser.error("give at least one --policy (or --agent-seeds)")
@@ -911,6 +946,7 @@ def _main_suite(
             clairvoyant=not args.no_clairvoyant,
             progress=not args.quiet and sys.stderr.isatty(),
             make_core=make_core,
+            bar=args.bar,
         )
     except ConfigError as err:
         parser.error(str(err))

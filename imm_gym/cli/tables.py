@@ -144,6 +144,7 @@ def render_suite_table(results: dict[str, Any]) -> None:
     for scenario, r in results["scenarios"].items():
         paired = r["paired"]
         steps = f"{scenario} ({r['meta']['steps']} steps)"
+        bar = r.get("bar", {}).get("policy")
         for i, (name, row) in enumerate(r["policies"].items()):
             d = paired["differences"].get(name)
             if d is None:
@@ -154,7 +155,7 @@ def render_suite_table(results: dict[str, Any]) -> None:
                 delta = f"{d['diff']:+.2f} [{d['low']:+.2f}, {d['high']:+.2f}]"
             table.add_row(
                 steps if i == 0 else "",
-                policy_label(name, row),
+                policy_label(name, row) + (" — the bar" if name == bar else ""),
                 f"{row['armse_pos']:.2f}",
                 f"{100 * row['mode_accuracy']:.1f}%",
                 f"{100 * row['nees']['inside']:.1f}%",
@@ -194,7 +195,10 @@ def render_suite_table(results: dict[str, Any]) -> None:
             f"{label} on {len(cases[key])}"
             for key, label in (("below", "below"), ("level", "level"), ("above", "above"))
         )
-        line = f"{name} against {meta['reference']} ({n} cases, 95% CIs): {counts}"
+        against = (
+            f"the better of {' and '.join(meta['bar'])}" if meta.get("bar") else meta["reference"]
+        )
+        line = f"{name} against {against} ({n} cases, paired 95% CIs): {counts}"
         if cases["skipped"]:
             line += f"; not run on {len(cases['skipped'])}"
         console.print(line)
