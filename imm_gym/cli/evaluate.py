@@ -424,7 +424,8 @@ def evaluate_suite(
     before any work; an agent whose network cannot read a case's tracker
     (:class:`UnreadableTracker`: a bank of another size) is not run there, and the results say
     why; an agent that can read no case's tracker, or a reference (``fixed`` when among the
-    policies, else the first) or a policy of ``bar`` that cannot read one, is refused.
+    policies, else the first rule, else the first policy) or a policy of ``bar`` that cannot
+    read one, is refused.
 
     ``bar``: policies among ``policies`` whose better on each case (the lower position ARMSE on
     its runs) is the bar the others are tallied against there (``("tip-imm", "best-fixed")``:
@@ -439,7 +440,8 @@ def evaluate_suite(
         (its 95 % CI below zero, including it, above it).
     """
     configs = suite_configs(suite)
-    ref = reference or ("fixed" if "fixed" in policies else policies[0])
+    rules = [name for name in policies if name in REGISTRY]
+    ref = reference or ("fixed" if "fixed" in policies else (rules or policies)[0])
     for name, flag in ((ref, "--reference"), *((b, "--bar") for b in bar)):
         if name not in policies:
             raise ConfigError(f"{flag} {name!r} is not among the evaluated policies")
@@ -455,7 +457,10 @@ def evaluate_suite(
             except UnreadableTracker as err:
                 if name == ref or name in bar:
                     role = "the reference" if name == ref else "a policy of --bar"
-                    raise ConfigError(f"{case}: {role} {err}") from None
+                    raise ConfigError(
+                        f"{case}: {role} {err}; the reference and the bar run on every case: "
+                        "choose them among the rules (fixed, best-fixed, tip-imm, ...)"
+                    ) from None
                 skipped[case][name] = err.reason
     for name in policies:
         if all(name in skipped[case] for case in configs):

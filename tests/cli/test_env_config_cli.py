@@ -275,7 +275,7 @@ def test_a_directory_suite_is_checked_before_any_work(tmp_path, capsys, no_work)
     cases = [
         (["--suite", str(tmp_path / "missing")], "or a directory of configuration files"),
         (["--suite", str(empty)], "holds no configuration file"),
-        (["--suite", str(folder), "--reference", "pretrained"], "four: the reference"),
+        (["--suite", str(folder), "--reference", "pretrained"], "choose them among the rules"),
         (["--suite", str(folder)], "fine.json and fine.yaml name one case"),
     ]
     for argv, expected in cases:
@@ -284,6 +284,18 @@ def test_a_directory_suite_is_checked_before_any_work(tmp_path, capsys, no_work)
         with pytest.raises(SystemExit):
             main([*argv, "--policy", "fixed", "--policy", "pretrained", "--runs", "2"])
         assert expected in capsys.readouterr().err
+
+
+def test_a_suite_s_reference_is_a_rule_when_none_is_given(tmp_path) -> None:
+    """Without ``--reference`` (and without ``fixed``) the first rule given is the reference, not
+    an agent listed before it, which may not read every case."""
+    out = tmp_path / "suite.json"
+    argv = ["--suite", str(_directory_suite(tmp_path)), "--policy", "pretrained", "--policy",
+            "tip-imm", "--runs", "2", "--no-clairvoyant", "--quiet", "--json", str(out)]
+    assert main(argv) == 0
+    results = json.loads(out.read_text())
+    assert results["meta"]["reference"] == "tip-imm"
+    assert results["tally"]["pretrained"]["skipped"] == ["four"]
 
 
 def test_an_agent_that_reads_no_case_of_a_suite_is_refused(tmp_path, capsys, no_work) -> None:
