@@ -104,6 +104,9 @@ class TrackingCore:
         #: each slot's sampling period (updated in place at a reset with varied conditions)
         self.fixed_tpms = np.repeat(config.initial_tpm(T)[None], n_envs, axis=0)
         self.shadow_tpms = np.repeat(config.shadow_tpm(T)[None], n_envs, axis=0)
+        # the configuration's initial TPMs, which a reset's ``initial_tpms`` replace for one
+        # episode only
+        self._configured_tpms = self.fixed_tpms.copy()
         self._advance = choose_engine(config.engine, self.imm.kernel_args)
         #: the compiled engine's bank constants (``kernel_args`` of the tracker); with
         #: ``config.vary`` one bank per slot, ``F``, ``Q``, ``R`` set at each reset for the
@@ -288,8 +291,10 @@ class TrackingCore:
         truth, meas = batch.truth, batch.measurements
         if batch.conditions is not None:
             self._set_conditions(indices, batch.conditions.take(rows))
-        if initial_tpms is not None:
-            self.fixed_tpms[indices] = initial_tpms
+        # the configuration's TPM unless told otherwise (also after a start from other TPMs)
+        self.fixed_tpms[indices] = (
+            self._configured_tpms[indices] if initial_tpms is None else initial_tpms
+        )
         self.truth[indices] = truth.states[rows]
         self.z[indices] = meas.z[rows]
         self.detected[indices] = meas.detected[rows]
@@ -312,7 +317,7 @@ class TrackingCore:
         self.velocity_noise[indices] = velocity_noise(Q)
         if self.config.sojourn is not None and self.config.vary.T is not None:
             for i, T in zip(indices, conditions.T, strict=True):
-                self.fixed_tpms[i] = self.config.initial_tpm(T)
+                self._configured_tpms[i] = self.config.initial_tpm(T)
                 self.shadow_tpms[i] = self.config.shadow_tpm(T)
 
     def streams(self) -> list[tuple[np.random.Generator, np.random.Generator] | None]:

@@ -35,6 +35,20 @@ def test_rollout_from_several_tpms_equals_one_rollout_per_tpm(scenario: str) -> 
         np.testing.assert_array_equal(part.tpm, np.broadcast_to(stay_tpm(3, stay), part.tpm.shape))
 
 
+@pytest.mark.parametrize("config", [EnvConfig(), EnvConfig.build({"sojourn": [60.0, 20.0, 20.0]})])
+def test_a_slot_started_from_other_tpms_returns_to_the_configured_one(config) -> None:
+    """``initial_tpms`` start one episode; the slot's next reset without them starts from the
+    configuration's TPM again (bank B and the stay action's base read it)."""
+    core = TrackingCore(config, n_envs=2)
+    configured = core.fixed_tpms.copy()
+    core.reset(np.arange(2), [0, 1], np.repeat(stay_tpm(3, 0.6)[None], 2, axis=0))
+    np.testing.assert_array_equal(core.fixed_tpms, np.repeat(stay_tpm(3, 0.6)[None], 2, axis=0))
+    core.reset(np.array([1]), [2])
+    np.testing.assert_array_equal(core.fixed_tpms[1], configured[1])
+    np.testing.assert_array_equal(core.fixed_tpms[0], stay_tpm(3, 0.6))
+    np.testing.assert_array_equal(core.tpm[1], configured[1])
+
+
 def test_reset_checks_the_initial_tpms() -> None:
     core = TrackingCore(EnvConfig(), n_envs=2)
     with pytest.raises(ConfigError, match="initial_tpms rows must sum to 1"):
