@@ -20,7 +20,7 @@ from .registry import REGISTRY, BuildContext, Entry, Registry, register
 # The shipped baselines register in this order, the order the command line lists them in.
 from .fixed import FixedTPM
 from .tip_imm import TIPIMM
-from .best_fixed import STAY_GRID, best_fixed_stay
+from .best_fixed import STAY_GRID, best_fixed_stay, stay_grid
 from .turn_rate_prior import TurnRatePrior
 from .amp_imm import AMPIMM
 from .window import SlidingWindowTPM
@@ -72,4 +72,5 @@ __all__ = [
     "best_fixed_stay",
     "make_baseline",
     "register",
+    "stay_grid",
 ]

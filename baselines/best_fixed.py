@@ -15,8 +15,17 @@ from imm_gym.validation import ConfigError
 from .fixed import FixedTPM
 from .registry import BuildContext, register
 
-#: Stay probabilities searched for the best fixed TPM: from 1/M (uniform) to 0.999.
+#: Stay probabilities searched for the best fixed TPM of three models: from 1/3 (uniform) to
+#: 0.999 (:func:`stay_grid` for M models).
 STAY_GRID = (1 / 3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999)
+
+
+def stay_grid(n_models: int) -> tuple[float, ...]:
+    """The stays searched for a bank of ``n_models``: ``1/M`` (the uniform TPM) and every stay
+    of :data:`STAY_GRID` above it — never one below ``1/M``, a prior that leaves its model more
+    often than it keeps it (:data:`STAY_GRID` itself for three models)."""
+    uniform = 1.0 / n_models
+    return (uniform, *(s for s in STAY_GRID if s > uniform * (1.0 + 1e-12)))
 
 
 def best_fixed_stay(
@@ -31,7 +40,7 @@ def best_fixed_stay(
 
 @register("best-fixed", help="the fixed TPM with the lowest ARMSE on training runs")
 def build_best_fixed(context: BuildContext) -> tuple[FixedTPM, dict[str, Any]]:
-    """:class:`FixedTPM` with the stay of :data:`STAY_GRID` scoring best on the training runs
+    """:class:`FixedTPM` with the stay of :func:`stay_grid` scoring best on the training runs
     (every stay's classical IMM on the same runs, in one roll-out).
 
     Notes: the stay found, the training ARMSE of every stay searched, the training runs and seeds.
@@ -39,8 +48,9 @@ def build_best_fixed(context: BuildContext) -> tuple[FixedTPM, dict[str, Any]]:
     if context.train_armse_from is None:
         raise ConfigError("best-fixed needs a build context that offers train_armse_from")
     M = context.n_models
-    tpms = np.stack([stay_tpm(M, p) for p in STAY_GRID])
-    stay, grid = best_fixed_stay(context.train_armse_from(FixedTPM(M), tpms))
+    stays = stay_grid(M)
+    tpms = np.stack([stay_tpm(M, p) for p in stays])
+    stay, grid = best_fixed_stay(context.train_armse_from(FixedTPM(M), tpms), stays)
     notes = {
         "stay": stay,
         "search": {f"{p:.4f}": v for p, v in grid.items()},
@@ -58,10 +68,10 @@ def build_best_fixed(context: BuildContext) -> tuple[FixedTPM, dict[str, Any]]:
 def build_best_fixed_rows(context: BuildContext) -> tuple[FixedTPM, dict[str, Any]]:
     """:class:`FixedTPM` with the stays ``(a, b, ..., b)`` scoring best on the training runs,
     ``a`` (the first model's: straight flight in the built-in banks) and ``b`` (every other
-    model's) each from :data:`STAY_GRID` — the TPM of models with different mean sojourns, a
+    model's) each from :func:`stay_grid` — the TPM of models with different mean sojourns, a
     sticky non-maneuvering model beside short-lived maneuver models, which a single stay cannot
     express (``best-fixed`` is its diagonal ``a = b``). Every pair's classical IMM on the same
-    runs, in one roll-out of ``len(STAY_GRID)²`` TPMs.
+    runs, in one roll-out of ``len(stay_grid(M))²`` TPMs.
 
     Notes: the stays found, the training ARMSE of every pair searched (``"a/b"``), the training
     runs and seeds.
@@ -69,7 +79,8 @@ def build_best_fixed_rows(context: BuildContext) -> tuple[FixedTPM, dict[str, An
     if context.train_armse_from is None:
         raise ConfigError("best-fixed-rows needs a build context that offers train_armse_from")
     M = context.n_models
-    pairs = [(a, b) for a in STAY_GRID for b in STAY_GRID]
+    stays = stay_grid(M)
+    pairs = [(a, b) for a in stays for b in stays]
     tpms = np.stack([stay_tpm(M, (a,) + (b,) * (M - 1)) for a, b in pairs])
     scores = context.train_armse_from(FixedTPM(M), tpms)
     best = int(np.argmin(scores))

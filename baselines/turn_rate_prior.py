@@ -26,10 +26,10 @@ from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError
 
 from .base import Baseline
-from .best_fixed import STAY_GRID
+from .best_fixed import stay_grid
 from .registry import BuildContext, register
 
-#: Detector shares ``v`` searched with the stays of :data:`~baselines.best_fixed.STAY_GRID`.
+#: Detector shares ``v`` searched with the stays of :func:`~baselines.best_fixed.stay_grid`.
 SHARE_GRID = (0.25, 0.5, 0.75, 1.0)
 #: The TPM's floor ``p_min``: below every searched stay TPM's entries (up to 11 models), so the
 #: search's roll-outs run at the floor the policy runs at.
@@ -79,7 +79,7 @@ class TurnRatePrior(Baseline):
 def build_turn_rate_prior(
     context: BuildContext, detector: str = "turn_rate"
 ) -> tuple[TurnRatePrior, dict[str, Any]]:
-    """:class:`TurnRatePrior` with the stay of :data:`STAY_GRID` (those at least ``1/M``) and
+    """:class:`TurnRatePrior` with the stay of :func:`~baselines.best_fixed.stay_grid` and
     the share of :data:`SHARE_GRID` scoring best on the training runs: one roll-out of every
     stay per share.
 
@@ -89,7 +89,7 @@ def build_turn_rate_prior(
     if context.train_armse_from is None:
         raise ConfigError("a detector prior needs a build context that offers train_armse_from")
     M = context.n_models
-    stays = [s for s in STAY_GRID if s >= 1.0 / M]
+    stays = stay_grid(M)
     tpms = np.stack([stay_tpm(M, s) for s in stays])
     search: dict[tuple[float, float], float] = {}
     for share in SHARE_GRID:

@@ -841,21 +841,23 @@ def _tradeoff(
     make_core: Callable[[EnvConfig, int], Any],
 ) -> dict[str, Any]:
     """``--tradeoff FILE``: the classical IMM at every stay of
-    :data:`baselines.best_fixed.STAY_GRID` on the evaluation's runs, the figure of ARMSE against
-    mode accuracy (:func:`~imm_gym.evaluation.plots.tradeoff_figure`) and the points."""
-    from baselines.best_fixed import STAY_GRID
+    :func:`baselines.best_fixed.stay_grid` on the evaluation's runs and configuration, the
+    figure of ARMSE against mode accuracy (:func:`~imm_gym.evaluation.plots.tradeoff_figure`)
+    and the points."""
+    from baselines.best_fixed import stay_grid
     from baselines.fixed import FixedTPM
     from imm_gym.evaluation.plots import tradeoff_figure
 
-    base = EnvConfig.build({**overrides, "scenario": scenario})
+    base = evaluated_config(scenario, overrides)
     keys = ("armse_pos", "mode_accuracy", "mode_prob_tv")
     M = len(base.bank)
     fixed = FixedTPM(M)
-    tpms = np.stack([stay_tpm(M, stay) for stay in STAY_GRID])
+    stays = stay_grid(M)
+    tpms = np.stack([stay_tpm(M, stay) for stay in stays])
     cfg = evaluation_config(base, fixed.env_overrides)
     run = rollout(fixed, cfg, args.runs, args.seed, make_core=make_core, initial_tpms=tpms)
     fixed_points = {}
-    for stay, part in zip(STAY_GRID, run.groups(len(STAY_GRID)), strict=True):
+    for stay, part in zip(stays, run.groups(len(stays)), strict=True):
         row = score(part)
         fixed_points[stay] = {k: row[k] for k in keys}
     points = {name: {k: row[k] for k in keys} for name, row in results["policies"].items()}

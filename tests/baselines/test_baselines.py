@@ -20,6 +20,7 @@ from baselines import (
     Registry,
     SlidingWindowTPM,
     make_baseline,
+    stay_grid,
 )
 from baselines.amp_imm import tpm_to_logits
 from imm_gym import EnvConfig, TrackingCore
@@ -119,6 +120,37 @@ def test_best_fixed_picks_the_lowest_training_armse_on_the_grid() -> None:
     assert notes["stay"] == 0.7 and notes["search"]["0.7000"] == pytest.approx(0.02)
     assert len(notes["search"]) == len(STAY_GRID)
     assert (notes["train_runs"], notes["train_seeds"]) == (40, "1000000..1000039")
+
+
+@pytest.mark.parametrize("M", [2, 3, 4, 5])
+def test_the_stays_searched_run_from_the_uniform_tpm_up(M) -> None:
+    """``1/M`` first (the uniform TPM), then the grid's stays above it: none below ``1/M`` for two
+    models, the uniform TPM for four and five; three models keep :data:`STAY_GRID`."""
+    grid = stay_grid(M)
+    assert grid[0] == pytest.approx(1.0 / M) and min(grid) == grid[0]
+    assert list(grid[1:]) == [s for s in STAY_GRID if s > 1.0 / M + 1e-9]
+    assert list(grid) == sorted(set(grid))
+    if M == 3:
+        assert grid == STAY_GRID
+
+
+def test_best_fixed_searches_a_five_model_bank_from_its_uniform_tpm() -> None:
+    scored: list[float] = []
+
+    def train_armse_from(policy: FixedTPM, tpms: np.ndarray) -> np.ndarray:
+        assert tpms.shape[1:] == (5, 5)
+        scored.extend(tpms[:, 0, 0])
+        return tpms[:, 0, 0]  # the lowest stay scores best
+
+    def no_single_runs(policy: FixedTPM) -> float:
+        raise AssertionError("the search scores the grid in one roll-out")
+
+    five = EnvConfig.build({"bank": [{"kind": "cv"}, *[{"kind": "ct", "turn_rate_deg": w}
+                                                       for w in (2.0, -2.0, 5.0, -5.0)]]})
+    context = BuildContext(five, 1_000_000, 10, no_single_runs, train_armse_from)
+    policy, notes = REGISTRY["best-fixed"].build(context)
+    assert scored == pytest.approx(list(stay_grid(5)))
+    assert policy.stay == pytest.approx(0.2) and "0.2000" in notes["search"]
 
 
 def test_best_fixed_rows_searches_the_first_models_stay_and_the_others() -> None:

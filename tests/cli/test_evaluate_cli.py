@@ -195,6 +195,20 @@ def test_the_hetero_bank_says_why_there_is_no_clairvoyant_row() -> None:
     assert results["policies"]["fixed"]["maneuver_response"] > 0.0
 
 
+def test_the_tradeoff_runs_on_a_training_file(tmp_path) -> None:
+    """A configuration file that also says what an agent is trained as (action mode, stay base,
+    features) gives the sweep the evaluated tracker, as it gives every policy: the configured
+    stay's point is the ``fixed`` row (it failed on the agent's settings before)."""
+    out, figure = tmp_path / "r.json", tmp_path / "t.png"
+    argv = ["--policy", "fixed", "--env-config", "examples/across_trackers_paper.yaml",
+            "--runs", "2", "--quiet", "--no-clairvoyant", "--json", str(out),
+            "--tradeoff", str(figure)]
+    assert main(argv) == 0
+    results = json.loads(out.read_text())
+    fixed = results["tradeoff"]["fixed"]
+    assert fixed["0.995"]["armse_pos"] == results["policies"]["fixed"]["armse_pos"]
+
+
 def test_the_tradeoff_figure_sweeps_the_fixed_tpms_on_the_same_runs(tmp_path) -> None:
     """``--tradeoff``: the classical IMM at every stay of the grid, on the evaluation's runs (the
     configured stay's point is the ``fixed`` policy's row), and each policy's point."""
