@@ -4,7 +4,8 @@
 :class:`~imm_gym.sim.core.TrackingCore` with R slots, slot ``r`` reset with seed ``seed + r`` — so
 all policies see the same targets and the same sensor noise (common random numbers) whatever
 environment settings they need. A run whose tracker diverges keeps an error of
-``divergence_error`` and uniform mode probabilities for the rest of its episode.
+``divergence_error`` and uniform mode probabilities from the step it diverges at to the end of its
+episode.
 """
 
 from __future__ import annotations
@@ -140,13 +141,14 @@ def rollout(
         start = np.zeros(R, dtype=bool)
         result = core.step(actions, active=alive)
         info = result.info
+        detected[:, k] = alive & info["detected"]
+        # a run diverged at this step records the capped error from this step on
+        alive &= ~result.terminated
         est[:, k] = np.where(alive[:, None], info["estimate"][:, :4], truth[:, k] + cap)
         cov[:, k] = np.where(alive[:, None, None], info["covariance"][:, :4, :4], np.eye(4))
         probs[:, k] = np.where(alive[:, None], info["mode_probs"], 1.0 / M)
         tpms[:, k] = info["tpm"]
         nis[:, k] = np.where(alive, info["nis"], 0.0)
-        detected[:, k] = alive & info["detected"]
-        alive &= ~result.terminated
         obs = result.obs
         if progress is not None:
             progress(k + 1)

@@ -57,3 +57,19 @@ def test_reset_checks_the_initial_tpms() -> None:
         core.reset(np.arange(2), [0, 1], np.eye(2)[None].repeat(2, axis=0))
     with pytest.raises(ConfigError, match=r"initial_tpms must have shape \(2, 3, 3\)"):
         core.reset(np.arange(2), [0, 1], stay_tpm(3, 0.9)[None])
+
+
+def test_a_diverged_run_records_the_cap_from_the_step_it_diverges_at() -> None:
+    """With a divergence threshold of 40 m most runs diverge; no recorded error exceeds it (the
+    step at which a run diverges held its raw estimate before, 42-111 m here)."""
+    policy = FixedTPM(3)
+    config = evaluation_config(EnvConfig(scenario="paper", divergence_error=40.0),
+                               policy.env_overrides)
+    run = rollout(policy, config, 20, 0)
+    assert run.diverged.sum() >= 5
+    error = np.sqrt(run.squared_position_error)
+    assert error.max() <= 40.0 + 1e-9
+    for r in np.flatnonzero(run.diverged):
+        capped = np.flatnonzero(np.isclose(error[r], 40.0))
+        assert capped.size and (capped == np.arange(capped[0], error.shape[1])).all()
+        np.testing.assert_array_equal(run.mode_probs[r, capped], 1.0 / 3)
