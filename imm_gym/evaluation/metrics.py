@@ -71,11 +71,19 @@ def consistency(
 
 
 def mode_accuracy(mode_probs: Array, true_index: NDArray[np.int64]) -> float:
-    """Share of steps whose most probable model is the true one (steps with a match only)."""
+    """Share of steps whose most probable model is the true one (steps with a match only).
+
+    The true model must be more probable than every other: a tie at the top — the uniform
+    probabilities of a diverged run, or of the uniform TPM after a missed detection — identifies
+    no model, and counts as a miss (not as the first model, which ``argmax`` would return)."""
     valid = true_index >= 0
     if not np.any(valid):
         return 0.0
-    return float(np.mean(np.argmax(mode_probs, axis=-1)[valid] == true_index[valid]))
+    probs, true = mode_probs[valid], true_index[valid]
+    is_true = np.arange(probs.shape[-1]) == true[:, None]
+    p_true = probs[is_true]
+    p_other = np.where(is_true, -np.inf, probs).max(axis=-1)
+    return float(np.mean(p_true > p_other))
 
 
 def mode_prob_tv(mode_probs: Array) -> float:

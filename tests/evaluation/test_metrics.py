@@ -166,6 +166,17 @@ def test_mode_accuracy() -> None:
     assert mode_accuracy(perfect, np.full_like(idx, -1)) == 0.0
 
 
+
+def test_a_tie_at_the_top_identifies_no_model() -> None:
+    """Uniform probabilities (a diverged run; the uniform TPM after a missed detection) and a
+    tie between the true model and another count as misses, whatever the true model's index."""
+    uniform = np.full((2, 4, 3), 1.0 / 3)
+    for j in range(3):
+        assert mode_accuracy(uniform, np.full((2, 4), j)) == 0.0
+    tie = np.array([[[0.4, 0.4, 0.2], [0.5, 0.3, 0.2]]])
+    assert mode_accuracy(tie, np.array([[0, 0]])) == 0.5
+    assert mode_accuracy(tie, np.array([[1, 1]])) == 0.0
+
 def test_mode_prob_tv_constant_is_zero_alternating_one_hots_is_one() -> None:
     rng = np.random.default_rng(3)
     p = rng.dirichlet(np.ones(3), size=4)  # (R=4, M=3), each run its own constant probabilities
