@@ -844,14 +844,13 @@ def admitted_rules(base: Any) -> tuple[str, ...]:
     """The rules of :data:`DETECTOR_RULES` whose configuration the evaluated ``base`` (an
     EnvConfig) admits (their detector needs a linear bank; the learned one, distinct turn rates
     and as many models as its network)."""
-    from baselines.turn_rate_prior import TurnRatePrior
-    from imm_gym.evaluation.rollout import evaluation_config
+    from baselines import REGISTRY
     from imm_gym.validation import ConfigError
 
     admitted = []
-    for name, detector in zip(DETECTOR_RULES, ("turn_rate", "learned"), strict=True):
+    for name in DETECTOR_RULES:
         try:
-            evaluation_config(base, TurnRatePrior(detector=detector).env_overrides)
+            REGISTRY[name].check(base)
         except ConfigError:
             continue
         admitted.append(name)

@@ -70,16 +70,22 @@ class BBSCATunedIMM(FixedTPM):
         self.env_overrides["bank"] = scaled_bank(bank, self.q_scale)
 
 
-def tune_classical(
-    base: EnvConfig, train_runs: int, seed: int, config: TunerConfig | None = None
-) -> tuple[BBSCATunedIMM, dict[str, Any]]:
-    """Tune ``base``'s bank on ``train_runs`` runs seeded ``seed + r``; the policy and notes."""
-    config = config or TunerConfig()
+def check_tunable(base: EnvConfig) -> None:
+    """Raise :class:`~imm_gym.validation.ConfigError` where the bank of ``base`` cannot be tuned:
+    varied conditions (one bank is tuned for one sampling period and sensor)."""
     if base.vary.active:
         raise ConfigError(
             "the bbsca baseline tunes one bank for one sampling period and sensor; it does not "
             f"take varied conditions (vary: {', '.join(base.vary.varied)})"
         )
+
+
+def tune_classical(
+    base: EnvConfig, train_runs: int, seed: int, config: TunerConfig | None = None
+) -> tuple[BBSCATunedIMM, dict[str, Any]]:
+    """Tune ``base``'s bank on ``train_runs`` runs seeded ``seed + r``; the policy and notes."""
+    config = config or TunerConfig()
+    check_tunable(base)
     batch = draw_batch(base.source, base.sensor, train_runs, seed, base.velocity_std)
     models = base.bank if isinstance(base.bank, HeteroBank) else linear_models(base.bank)
     imm = HeteroIMM(models, base.sensor, T=base.source.T)
@@ -96,10 +102,21 @@ def tune_classical(
     return BBSCATunedIMM(base.bank, tuned.q_scale), notes
 
 
-@register("bbsca", help="classical IMM with the bank's Q factors tuned by BBSCA on training runs")
+@register(
+    "bbsca",
+    help="classical IMM with the bank's Q factors tuned by BBSCA on training runs",
+    check=check_tunable,
+)
 def build_bbsca(context: BuildContext) -> tuple[BBSCATunedIMM, dict[str, Any]]:
     """:func:`tune_classical` on the first fifth of the training runs; notes as it returns them."""
     return tune_classical(context.base, context.train_runs // 5, context.train_seed)
 
 
-__all__ = ["BBSCATunedIMM", "TunedBank", "build_bbsca", "scaled_bank", "tune_classical"]
+__all__ = [
+    "BBSCATunedIMM",
+    "TunedBank",
+    "build_bbsca",
+    "check_tunable",
+    "scaled_bank",
+    "tune_classical",
+]

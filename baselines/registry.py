@@ -26,6 +26,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.evaluation.rollout import evaluation_config
 from imm_gym.sim.env_config import EnvConfig
 
 from .base import Baseline
@@ -78,12 +79,17 @@ class Entry:
         build: ``build(context) -> (policy, notes)``.
         cls: the class built from M alone (:func:`~baselines.make_baseline`); ``None`` for a
             baseline tuned on training runs.
+        check: ``check(base)`` raises :class:`~imm_gym.validation.ConfigError` where the
+            baseline cannot run on the configuration ``base`` (a detector rule on a bank its
+            detector cannot read, a tuner on varied conditions), before any tuning; a class's
+            checks its settings, ``cls(M).env_overrides`` on ``base``.
     """
 
     name: str
     help: str
     build: BuildFn
     cls: type[Baseline] | None
+    check: Callable[[EnvConfig], None]
 
 
 class Registry(Mapping[str, Entry]):
@@ -92,11 +98,14 @@ class Registry(Mapping[str, Entry]):
     def __init__(self) -> None:
         self._entries: dict[str, Entry] = {}
 
-    def register(self, name: str, *, help: str) -> Callable[[Registered], Registered]:
+    def register(
+        self, name: str, *, help: str, check: Callable[[EnvConfig], None] | None = None
+    ) -> Callable[[Registered], Registered]:
         """Decorator registering a :class:`Baseline` subclass or a build function as ``name``.
 
         A class is built as ``cls(M)`` with no notes and takes ``name`` as its ``name``; a
-        function is the ``build(context) -> (policy, notes)`` of a tuned baseline.
+        function is the ``build(context) -> (policy, notes)`` of a tuned baseline, ``check``
+        (:class:`Entry`) what it cannot run on (none when not given).
 
         Raises:
             ValueError: ``name`` is already registered.
@@ -107,9 +116,10 @@ class Registry(Mapping[str, Entry]):
                 raise ValueError(f"baseline {name!r} is already registered")
             if isinstance(target, type):
                 target.name = name
-                entry = Entry(name, help, _built_from_n_models(target), target)
+                entry = Entry(name, help, _built_from_n_models(target), target,
+                              check or _settings_check(target))
             else:
-                entry = Entry(name, help, target, None)
+                entry = Entry(name, help, target, None, check or _admits_all)
             self._entries[name] = entry
             return target
 
@@ -127,6 +137,19 @@ class Registry(Mapping[str, Entry]):
 
     def __len__(self) -> int:
         return len(self._entries)
+
+
+def _admits_all(base: EnvConfig) -> None:
+    """The check of a baseline that runs on every configuration."""
+
+
+def _settings_check(cls: type[Baseline]) -> Callable[[EnvConfig], None]:
+    """The check of a class: its settings (``cls(M).env_overrides``) on the configuration."""
+
+    def check(base: EnvConfig) -> None:
+        evaluation_config(base, cls(len(base.bank)).env_overrides)
+
+    return check
 
 
 def _built_from_n_models(cls: type[Baseline]) -> BuildFn:

@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.evaluation.rollout import evaluation_config
+from imm_gym.sim.env_config import EnvConfig
 from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError
 
@@ -71,10 +73,18 @@ class TurnRatePrior(Baseline):
         return np.zeros((obs.shape[0], self.n_models)), state
 
 
+def admits(base: EnvConfig, detector: str) -> None:
+    """Raise :class:`~imm_gym.validation.ConfigError` where ``base`` cannot run the prior led by
+    ``detector`` (a linear bank; for the learned one, distinct turn rates and as many models as
+    its network reads)."""
+    evaluation_config(base, TurnRatePrior(len(base.bank), detector=detector).env_overrides)
+
+
 @register(
     "turn-rate-prior",
     help="a fixed stay with jumps leaning toward the estimated turn rate; stay and share with "
     "the lowest ARMSE on training runs",
+    check=lambda base: admits(base, "turn_rate"),
 )
 def build_turn_rate_prior(
     context: BuildContext, detector: str = "turn_rate"
@@ -110,6 +120,7 @@ def build_turn_rate_prior(
     "learned-prior",
     help="turn-rate-prior led by the learned detector (a network's belief of the coming turn "
     "rate; EnvConfig.detector_weights); stay and share searched the same way",
+    check=lambda base: admits(base, "learned"),
 )
 def build_learned_prior(context: BuildContext) -> tuple[TurnRatePrior, dict[str, Any]]:
     """:func:`build_turn_rate_prior` with the ``learned`` detector

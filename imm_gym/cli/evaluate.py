@@ -227,6 +227,11 @@ def evaluate(
     agents = {
         name: (for_bank(p, len(base.bank)), o, {}) for name, (p, o) in (extra or {}).items()
     }
+    for name in (name for name in policies if name in REGISTRY):
+        try:
+            REGISTRY[name].check(base)
+        except ConfigError as err:
+            raise ConfigError(f"{name} cannot run on this configuration: {err}") from None
     loaded = (name for name in policies if name not in REGISTRY)
     agents.update({name: make_policy(name, base, seed, make_core=make_core) for name in loaded})
     for name, (policy, overrides, notes) in agents.items():
@@ -423,9 +428,10 @@ def evaluate_suite(
     seeds on each. Every file and every trained agent is checked against every configuration
     before any work; an agent whose network cannot read a case's tracker
     (:class:`UnreadableTracker`: a bank of another size) is not run there, and the results say
-    why; an agent that can read no case's tracker, or a reference (``fixed`` when among the
+    why (:func:`cannot_run`: a rule whose settings a case does not admit is not run there
+    either); a policy that can run on no case, or a reference (``fixed`` when among the
     policies, else the first rule, else the first policy) or a policy of ``bar`` that cannot
-    read one, is refused.
+    run on one, is refused.
 
     ``bar``: policies among ``policies`` whose better on each case (the lower position ARMSE on
     its runs) is the bar the others are tallied against there (``("tip-imm", "best-fixed")``:
@@ -449,23 +455,20 @@ def evaluate_suite(
     for case, overrides in configs.items():
         base = evaluated_config(overrides["scenario"], overrides)
         for name in policies:
-            if name in REGISTRY:
+            reason = cannot_run(name, base, seed)
+            if reason is None:
                 continue
-            policy, recorded, _ = make_policy(name, base, seed)
-            try:
-                agent_overrides(policy, recorded, base)
-            except UnreadableTracker as err:
-                if name == ref or name in bar:
-                    role = "the reference" if name == ref else "a policy of --bar"
-                    raise ConfigError(
-                        f"{case}: {role} {err}; the reference and the bar run on every case: "
-                        "choose them among the rules (fixed, best-fixed, tip-imm, ...)"
-                    ) from None
-                skipped[case][name] = err.reason
+            if name == ref or name in bar:
+                role = "the reference" if name == ref else "a policy of --bar"
+                raise ConfigError(
+                    f"{case}: {role}, {name}, cannot run there ({reason}); the reference and "
+                    "the bar run on every case"
+                )
+            skipped[case][name] = reason
     for name in policies:
         if all(name in skipped[case] for case in configs):
             raise ConfigError(
-                f"{name} cannot read the tracker of any case of the suite "
+                f"{name} cannot run on any case of the suite "
                 f"({next(iter(skipped.values()))[name]})"
             )
     out: dict[str, Any] = {"scenarios": {}}
@@ -509,6 +512,25 @@ def evaluate_suite(
         "versions": _versions(),
     }
     return out
+
+
+def cannot_run(name: str, base: EnvConfig, seed: int) -> str | None:
+    """Why the policy ``name`` cannot run on ``base``, in a few words, or None: a rule whose
+    settings the configuration does not admit (its registry entry's ``check``: a detector rule
+    on a bank its detector cannot read), an agent whose network cannot read the tracker
+    (:class:`UnreadableTracker`). Checked before any tuning or roll-out."""
+    if name in REGISTRY:
+        try:
+            REGISTRY[name].check(base)
+        except ConfigError as err:
+            return str(err)
+        return None
+    policy, recorded, _ = make_policy(name, base, seed)
+    try:
+        agent_overrides(policy, recorded, base)
+    except UnreadableTracker as err:
+        return err.reason
+    return None
 
 
 def suite_tally(

@@ -275,7 +275,7 @@ def test_a_directory_suite_is_checked_before_any_work(tmp_path, capsys, no_work)
     cases = [
         (["--suite", str(tmp_path / "missing")], "or a directory of configuration files"),
         (["--suite", str(empty)], "holds no configuration file"),
-        (["--suite", str(folder), "--reference", "pretrained"], "choose them among the rules"),
+        (["--suite", str(folder), "--reference", "pretrained"], "four: the reference, pretrained"),
         (["--suite", str(folder)], "fine.json and fine.yaml name one case"),
     ]
     for argv, expected in cases:
@@ -298,13 +298,48 @@ def test_a_suite_s_reference_is_a_rule_when_none_is_given(tmp_path) -> None:
     assert results["tally"]["pretrained"]["skipped"] == ["four"]
 
 
+#: A bank with two models of turn rate zero (CV and CA), which the learned detector cannot read.
+CV_CA_CT = (
+    "bank: [{kind: cv, noise: continuous, intensity: 0.1},\n"
+    "       {kind: ca, noise: continuous, intensity: 0.05},\n"
+    "       {kind: ct, turn_rate_deg: 4.0, noise: continuous, intensity: 0.05}]\n"
+)
+
+
+def test_a_rule_a_case_does_not_admit_is_not_run_there(tmp_path, capsys) -> None:
+    """The learned detector reads banks of distinct turn rates: ``learned-prior`` is not run on
+    a bank with two models of rate zero, said before any work, and runs on the others."""
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    (folder / "ca.yaml").write_text(f"scenario: random\n{CV_CA_CT}")
+    (folder / "paper.yaml").write_text("scenario: random\n")
+    out = tmp_path / "suite.json"
+    argv = ["--suite", str(folder), "--policy", "fixed", "--policy", "learned-prior", "--runs",
+            "2", "--no-clairvoyant", "--quiet", "--json", str(out)]
+    assert main(argv) == 0
+    results = json.loads(out.read_text())
+    assert "distinct turn rates" in results["scenarios"]["ca"]["skipped"]["learned-prior"]
+    assert "learned-prior" in results["scenarios"]["paper"]["policies"]
+    assert results["tally"]["learned-prior"]["skipped"] == ["ca"]
+
+
+def test_a_rule_the_configuration_does_not_admit_is_refused_before_any_work(
+    tmp_path, capsys, no_work
+) -> None:
+    file = tmp_path / "ca.yaml"
+    file.write_text(CV_CA_CT)
+    with pytest.raises(SystemExit):
+        main(["--env-config", str(file), "--policy", "best-fixed", "--policy", "learned-prior"])
+    assert "learned-prior cannot run on this configuration" in capsys.readouterr().err
+
+
 def test_an_agent_that_reads_no_case_of_a_suite_is_refused(tmp_path, capsys, no_work) -> None:
     folder = tmp_path / "cases"
     folder.mkdir()
     (folder / "four.yaml").write_text(FOUR_MODELS)
     with pytest.raises(SystemExit):
         main(["--suite", str(folder), "--policy", "fixed", "--policy", "pretrained"])
-    assert "pretrained cannot read the tracker of any case" in capsys.readouterr().err
+    assert "pretrained cannot run on any case" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flag", [["--scenario", "paper"], ["--bank", "hetero"]])
