@@ -76,6 +76,7 @@ from imm_gym.scenarios.segments import Scenario, true_model_index
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.sim.actions import action_size
 from imm_gym.sim.config_file import (
+    EVALUATION_FIELDS,
     TARGET_FIELDS,
     TRACKER_FIELDS,
     expand_presets,
@@ -300,22 +301,26 @@ def agent_overrides(
     """A trained agent's overrides for the evaluated configuration ``base`` and its notes.
 
     The agent keeps its own settings (action mode, features, ...) and runs on ``base``'s tracker
-    and targets: its recorded :data:`~imm_gym.sim.config_file.TRACKER_FIELDS` and
-    :data:`~imm_gym.sim.config_file.TARGET_FIELDS` are dropped. The notes give ``trained_on``
-    (the recorded tracker), ``evaluated_on`` (``base``'s) and ``tracker_differs`` (the fields that
-    differ), and ``models_differ`` where the evaluated bank's models stand for others than every
-    trained bank's, position by position (:func:`~imm_gym.sim.model_order.model_roles`: the policy
-    reads them as the ones it was trained on; not for a network shared by the models,
-    ``policy.shares_models``, which reads each model's role); for an agent trained across trackers
-    (``policy.trained_across``), ``trained_on`` is the trained tracker with the fewest fields
-    differing and ``trained_across`` lists them all.
+    and targets, scored as every other policy: its recorded
+    :data:`~imm_gym.sim.config_file.TRACKER_FIELDS`,
+    :data:`~imm_gym.sim.config_file.TARGET_FIELDS` and
+    :data:`~imm_gym.sim.config_file.EVALUATION_FIELDS` (the divergence cap) are dropped. The
+    notes give ``trained_on`` (the recorded tracker), ``evaluated_on`` (``base``'s) and
+    ``tracker_differs`` (the fields that differ), and ``models_differ`` where the evaluated
+    bank's models stand for others than every trained bank's, position by position
+    (:func:`~imm_gym.sim.model_order.model_roles`: the policy reads them as the ones it was
+    trained on; not for a network shared by the models, ``policy.shares_models``, which reads
+    each model's role); for an agent trained across trackers (``policy.trained_across``),
+    ``trained_on`` is the trained tracker with the fewest fields differing and
+    ``trained_across`` lists them all.
 
     Raises:
         UnreadableTracker: the observation (one frame, ``policy.obs_size``) or the action (M²
             entries, M in the stay modes) that ``base`` gives is not the size the agent's network
             reads or writes.
     """
-    kept = {k: v for k, v in overrides.items() if k not in (*TRACKER_FIELDS, *TARGET_FIELDS)}
+    dropped = (*TRACKER_FIELDS, *TARGET_FIELDS, *EVALUATION_FIELDS)
+    kept = {k: v for k, v in overrides.items() if k not in dropped}
     cfg = evaluation_config(base, kept)
     M = len(cfg.bank)
     obs_size = int(bounds(cfg.obs_features, M, cfg.sensor.dim_z)[0].size)
@@ -803,10 +808,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--agent-seeds given a directory twice: {args.agent_seeds}")
     if args.bar and args.suite is None:
         parser.error("--bar applies to --suite")
+    if args.tuned and args.scenario not in SYSTEMS:
+        parser.error(f"--tuned applies to --scenario {'|'.join(SYSTEMS)}")
+    if args.reference is not None and args.reference in args.agent_seeds:
+        parser.error(
+            f"--reference {args.reference} is one of --agent-seeds: the seeds are compared with a "
+            "policy outside them"
+        )
     args.policy += [d for d in args.bar if d not in args.policy]
     args.policy += [d for d in args.agent_seeds if d not in args.policy]
     if not args.policy:
         parser.error("give at least one --policy (or --agent-seeds)")
+    seeds_first = args.agent_seeds and args.policy[0] in args.agent_seeds
+    if seeds_first and args.reference is None and args.scenario not in SYSTEMS:
+        if "fixed" not in args.policy:
+            parser.error(
+                "--agent-seeds needs a reference outside the seeds: give --reference NAME (a "
+                "--policy of its own)"
+            )
     if args.ray is not None and args.scenario in SYSTEMS:
         parser.error(f"--ray does not apply to --scenario {args.scenario}")
     make_core = _cores(parser, args.ray)

@@ -32,6 +32,9 @@ TRACKER_FIELDS = ("sensor", "bank", "filter", "initial_stay", "sojourn")
 #: starts (``velocity_std``: the prior standard deviation of the first velocity estimate, which
 #: is the true velocity, SPEC §6): every policy evaluated on a configuration meets the same.
 TARGET_FIELDS = ("scenario", "family", "vary", "velocity_std")
+#: The fields of how an evaluation is run: when a track counts as diverged (and is capped) and
+#: which engine computes it. Every policy of an evaluation runs with the same.
+EVALUATION_FIELDS = ("divergence_error", "divergence_cov", "engine")
 
 
 def plain(value: Any) -> Any:

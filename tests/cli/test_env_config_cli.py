@@ -367,6 +367,17 @@ def test_an_agent_trained_on_varied_conditions_runs_on_a_named_scenario() -> Non
     assert set(notes["tracker_differs"]) == {"bank", "sojourn"}
 
 
+def test_an_agent_is_scored_with_the_evaluation_s_divergence_cap() -> None:
+    """An agent trained with another divergence threshold (or engine) is capped as every other
+    policy of the evaluation is: those settings are the evaluation's, not the agent's."""
+    from imm_gym.cli.evaluate import agent_overrides
+
+    recorded = {"action_mode": "stay", "divergence_error": 40.0, "divergence_cov": 1e6,
+                "engine": "numpy"}
+    kept, _ = agent_overrides(object(), recorded, EnvConfig(scenario="paper"))
+    assert kept == {"action_mode": "stay"}
+
+
 def test_an_agent_starts_its_tracks_as_the_rules_do() -> None:
     """A trained agent's recorded ``velocity_std`` (the prior standard deviation of the first
     velocity estimate) does not follow it to the evaluation: every policy's tracks start from

@@ -229,3 +229,9 @@ def test_the_tradeoff_figure_sweeps_the_fixed_tpms_on_the_same_runs(tmp_path) ->
     assert set(results["tradeoff"]["policies"]) == {"fixed", "tip-imm"}
     with pytest.raises(SystemExit):
         main(["--policy", "fixed", "--suite", "benchmark", "--tradeoff", str(figure)])
+
+
+def test_tuned_banks_apply_to_the_seed_systems_only(capsys) -> None:
+    with pytest.raises(SystemExit):
+        main(["--policy", "bbsca", "--tuned", "bbsca=t.json", "--scenario", "paper"])
+    assert "--tuned applies to --scenario seed002|seed003" in capsys.readouterr().err

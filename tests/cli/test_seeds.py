@@ -105,3 +105,19 @@ def test_bad_seed_lists_are_refused(argv, message, capsys) -> None:
         main([*argv, "--quiet"])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ([], "needs a reference outside the seeds"),
+        (["--policy", "tip-imm", "--reference", "SEED0"], "is one of --agent-seeds"),
+    ],
+)
+def test_the_seeds_are_not_their_own_reference(tmp_path, capsys, extra, message) -> None:
+    """A seed as the reference would add its zero difference to the seeds' IQM."""
+    dirs = [str(tmp_path / f"seed_{s}") for s in range(2)]
+    argv = ["--agent-seeds", *dirs, *[dirs[0] if a == "SEED0" else a for a in extra]]
+    with pytest.raises(SystemExit):
+        main([*argv, "--scenario", "paper", "--runs", "2"])
+    assert message in capsys.readouterr().err
