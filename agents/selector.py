@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from safetensors.torch import load_file, save_file
 
 from agents.policy import ENV_FILE, read_env_file, read_manifest
+from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
 from imm_gym.tracking.tpm import apply_floor
@@ -234,6 +235,10 @@ def load_selector(path: str | Path) -> StaySelector:
         isinstance(t, dict) for t in trained_across
     ):
         raise ConfigError(f"{file}: trained_across must be a list of trackers (objects)")
+    try:
+        trained_across = [tracker_of(t) for t in trained_across]
+    except ConfigError as err:
+        raise ConfigError(f"{file}: trained_across: {err}") from None
     env, obs_size, _ = read_env_file(directory / ENV_FILE, None)
     # the priors and the environment checked first, the members' tensors loaded into it
     selector = StaySelector([], data.get("priors"), env, obs_size, f"selector {str(file)!r}",

@@ -81,8 +81,8 @@ class Entry:
             baseline tuned on training runs.
         check: ``check(base)`` raises :class:`~imm_gym.validation.ConfigError` where the
             baseline cannot run on the configuration ``base`` (a detector rule on a bank its
-            detector cannot read, a tuner on varied conditions), before any tuning; a class's
-            checks its settings, ``cls(M).env_overrides`` on ``base``.
+            detector cannot read, a tuner on varied conditions), before any tuning; a class is
+            checked by its settings, ``cls(M).env_overrides`` on ``base``.
     """
 
     name: str

@@ -155,6 +155,7 @@ def write_selector(tmp_path: Path, **changes: Any) -> Path:
     ({"priors": [[0.5, 0.25], [0.9, 0.25]]}, "every share must be the environment's"),
     ({"priors": [[0.5, 1.5], [0.9, 0.75]]}, "every share must be in [0, 1]"),
     ({"priors": [[0.5, 0.75]]}, "at least two [stay, share] pairs"),
+    ({"trained_across": [{"bank": [{"kind": "spiral"}]}]}, "trained_across: bank[0]"),
 ])
 def test_malformed_selectors_are_refused_naming_the_file(
     tmp_path: Path, changes: dict[str, Any], message: str
@@ -172,3 +173,13 @@ def test_an_environment_without_the_belief_last_is_refused(tmp_path: Path) -> No
     (directory / "env.json").write_text(json.dumps(env))
     with pytest.raises(ConfigError, match="must end with 'detector_belief'"):
         load_selector(directory)
+
+
+def test_a_tracker_of_its_training_files_is_read_whole(tmp_path: Path) -> None:
+    """A tracker listed under ``trained_across`` with some fields given is read as the
+    EnvConfig it makes (every tracker field), as an agent's is: the evaluation's notes compare
+    field by field."""
+    directory = write_selector(tmp_path, trained_across=[{"sensor": {"sigma_r": 10.0}}])
+    (tracker,) = load_selector(directory).trained_across
+    assert set(tracker) == {"sensor", "bank", "filter", "initial_stay", "sojourn"}
+    assert tracker["sensor"]["sigma_r"] == 10.0
