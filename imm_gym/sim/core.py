@@ -4,7 +4,9 @@
 scenario -> truth -> sonar -> IMM bank(s) (TPM from the action) -> estimate -> reward, observation
 and diagnostics. Each episode slot ``i`` owns its two random streams
 (:func:`imm_gym.seeding.streams`): slot ``i`` reset with seed ``s`` replays exactly the episode of
-a scalar environment reset with seed ``s``, whatever the other slots do.
+a scalar environment reset with seed ``s``, whatever the other slots do — its draws, and its
+numbers bit for bit (a product over the slots is taken row by row where a batch-wide BLAS call
+would round by the batch's shape: ``tests/sim/test_batch_independence.py``).
 
 The observation is ``[mu(t), mu(t-1)]`` followed by the blocks of ``obs_features``, each
 declared once in :mod:`imm_gym.sim.features` (the datasheet table of

@@ -98,10 +98,12 @@ class DetectorNetwork:
                               f"{self.n_models} models, the bank has {n_models}")
 
     def __call__(self, x: Array) -> Array:
-        h = x
+        # one product per row ((N, 1, d) stacked): a slot's belief does not depend on how many
+        # slots share the batch (a BLAS product of the whole batch rounds by its shape)
+        h = x[..., None, :]
         for W, c in zip(self.weights[:-1], self.biases[:-1], strict=True):
             h = np.tanh(h @ W.T + c)
-        logits = h @ self.weights[-1].T + self.biases[-1]
+        logits = (h @ self.weights[-1].T + self.biases[-1])[..., 0, :]
         e = np.exp(logits - logits.max(axis=-1, keepdims=True))
         return e / e.sum(axis=-1, keepdims=True)
 

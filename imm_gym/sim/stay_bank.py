@@ -205,7 +205,9 @@ class StayBank:
         :meth:`posterior_weights`: the switching prior the measurements so far support, averaged
         on the logit scale (the mean of the grid's logit stays at the start of an episode)."""
         w = self._relative_likelihoods()
-        logit = (w @ self.logits) / w.sum(axis=1, keepdims=True)
+        # one product per row: a slot's stay does not depend on how many slots share the batch
+        # (a BLAS product of the whole batch rounds by its shape)
+        logit = np.matmul(w[:, None, :], self.logits)[:, 0] / w.sum(axis=1, keepdims=True)
         return 1.0 / (1.0 + np.exp(-logit))
 
     def estimates(self) -> Array:
