@@ -426,6 +426,7 @@ def train_one(
     from agents.training import (
         WeightAverage,
         algo_kwargs,
+        build_algorithm,
         jsonable,
         make_training_env,
         save_agent,
@@ -477,14 +478,8 @@ def train_one(
             "critic_dims": critic_dims,
             "frame_stack": frame_stack,
         }
-    model = algo_cls(
-        policy,
-        env,
-        seed=seed,
-        device="cpu",
-        verbose=0,
-        tensorboard_log=str(run_dir / "tb"),
-        **kwargs,
+    model = build_algorithm(
+        algo_cls, policy, env, seed, verbose=0, tensorboard_log=str(run_dir / "tb"), **kwargs
     )
     swa = None
     if params.get("swa_start") is not None:

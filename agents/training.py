@@ -9,14 +9,12 @@ YAML (``net_arch`` as lists, ``activation_fn`` by name) and nothing is evaluated
 environment stack is
 ``VecFrameStack(VecNormalize(VecMonitor(TPMAdaptSB3VecEnv)))`` — one batched core, no subprocesses.
 
-Seeds: :func:`make_train_env` seeds training slot ``i`` of run seed ``s`` with
-``TRAIN_SEED_BASE + 10_000 s + i``, but building ``PPO(seed=s)`` re-seeds the environment, so
-today slot ``i`` starts its streams from seed ``s + i`` and continues them across episodes: its
-first episode is held-out evaluation run ``s + i`` (64 of ~26 700 training episodes; 6 % of the
-1000 held-out runs seen once), and run seeds ``s`` and ``s + 1`` share 63 of their 64 streams.
-Seeding after building the model would keep the intended ranges; it changes every training run
-(and the shipped agent's regeneration), so it waits for the next default agent. The validation
-runs that pick the best checkpoint use seeds ``VALIDATION_SEED_BASE + r``, never trained on.
+Seeds: :func:`seed_training_env` seeds training slot ``i`` of run seed ``s`` with
+``TRAIN_SEED_BASE + 10_000 s + i`` once the algorithm is built (building ``PPO(seed=s)`` seeds
+the environment with ``s + i``, held-out evaluation runs, and run seeds ``s`` and ``s + 1``
+would share 63 of their 64 streams; the shipped agents were trained so, their first episode of
+each slot a held-out run). Each slot continues its streams across episodes. The validation runs
+that pick the best checkpoint use seeds ``VALIDATION_SEED_BASE + r``, never trained on.
 """
 
 from __future__ import annotations
@@ -252,6 +250,23 @@ def check_policy(params: Mapping[str, Any], configs: Sequence[Any]) -> None:
         )
 
 
+def seed_training_env(env: Any, seed: int) -> None:
+    """Seed the next reset of training slot ``i`` of run seed ``seed`` with
+    ``TRAIN_SEED_BASE + 10_000 seed + i`` (a VecEnv or a wrapper of one); again once the
+    algorithm is built (:func:`build_algorithm`): SB3's constructor seeds the environment with
+    its own seed, ``seed + i``, the held-out evaluation runs."""
+    env.seed(TRAIN_SEED_BASE + 10_000 * seed)
+
+
+def build_algorithm(algo_cls: type, policy: Any, env: Any, seed: int, **kwargs: Any) -> Any:
+    """``algo_cls(policy, env, seed=seed, device="cpu", **kwargs)`` (PPO, RecurrentPPO), its
+    training slots then seeded from the training seeds (:func:`seed_training_env`: the
+    constructor seeds them with the held-out ones)."""
+    model = algo_cls(policy, env, seed=seed, device="cpu", **kwargs)
+    seed_training_env(env, seed)
+    return model
+
+
 def make_training_env(
     env_id: str,
     n_envs: int,
@@ -277,7 +292,7 @@ def make_training_env(
     venv = TPMAdaptSB3VecEnv(
         num_envs=n_envs, env_id=env_id, critic_state=critic_state, mixture=mixture, **env_kwargs
     )
-    venv.seed(TRAIN_SEED_BASE + 10_000 * seed)
+    seed_training_env(venv, seed)
     env: Any = VecMonitor(venv)
     if normalize:
         env = VecNormalize(env, norm_obs=True, norm_reward=True, gamma=gamma)

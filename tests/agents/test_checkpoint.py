@@ -26,6 +26,7 @@ from agents.checkpoint import (
 from agents.training import (
     WeightAverage,
     algo_kwargs,
+    build_algorithm,
     find_normalizer,
     jsonable,
     load_hyperparams,
@@ -44,7 +45,7 @@ def build(params: dict, seed: int = 0) -> tuple[PPO, object]:
     )
     kwargs = algo_kwargs(params)
     kwargs["policy_kwargs"] = {**kwargs["policy_kwargs"], "critic_dims": 11, "frame_stack": 4}
-    return PPO(AsymmetricActorCriticPolicy, env, seed=seed, device="cpu", **kwargs), env
+    return build_algorithm(PPO, AsymmetricActorCriticPolicy, env, seed, **kwargs), env
 
 
 @pytest.fixture(scope="module")
@@ -169,3 +170,21 @@ def test_streams_of_another_slot_count_are_refused(saved) -> None:
     env = build({**params, "n_envs": 2})[1]
     with pytest.raises(ConfigError, match="4 streams for 2 training slots"):
         restore_streams(env.unwrapped, recorded, directory / "resume.json")
+
+
+def test_training_slots_start_from_the_training_seeds_not_the_held_out_ones() -> None:
+    """Slot i of run seed s plays the episode of seed TRAIN_SEED_BASE + 10 000 s + i, as a
+    core of one slot reset with that seed does — not held-out run s + i, which PPO's constructor
+    seeds the environment with."""
+    from agents.training import TRAIN_SEED_BASE
+    from imm_gym.sim.core import TrackingCore
+
+    params = {**load_hyperparams(ENV)[0], **SMALL}
+    _, env = build(params, seed=3)
+    env.reset()
+    core = env.unwrapped.core
+    for i in range(params["n_envs"]):
+        for seed, same in ((TRAIN_SEED_BASE + 30_000 + i, True), (3 + i, False)):
+            alone = TrackingCore(core.config, 1)
+            alone.reset(np.array([0]), [seed])
+            assert np.array_equal(core.truth[i], alone.truth[0]) == same, (i, seed)
