@@ -249,6 +249,9 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
     elif args.ray_address is not None or args.env_runners != 1:
         parser.error("--ray-address and --env-runners apply to --engine rllib")
     args.env_overrides, args.env_mixture = {}, []
+    if resume is not None and resume["evaluation_config"] is not None:
+        # the files the run was started with, which --resume needs not be given again
+        args.env_overrides = dict(resume["evaluation_config"])
     files = args.env_config or []
     if args.env_shares is not None:
         if len(files) < 2 or len(args.env_shares) != len(files):
@@ -454,7 +457,13 @@ def train_one(
     ckpt_dir = run_dir / "checkpoints"
     critic_dims = critic_state_size(env.unwrapped.core.M) if critic_state else 0
     extra = {"env_id": args.env, "seed": seed, "critic_dims": critic_dims, **trained_across(params)}
-    run = {"algo": args.algo, "env_id": args.env, "seed": seed, "hyperparams": jsonable(params)}
+    run = {
+        "algo": args.algo,
+        "env_id": args.env,
+        "seed": seed,
+        "hyperparams": jsonable(params),
+        "evaluation_config": jsonable(args.env_overrides) if args.env_overrides else None,
+    }
     kwargs = algo_kwargs(params)
     policy = params["policy"]
     if policy == "PerModelPolicy":

@@ -4,12 +4,13 @@ A checkpoint directory is an agent directory (the acting files of :mod:`agents.p
 ``agent.json``, ``policy.safetensors``, ``env.json``, ``vecnormalize.json`` with the observation
 normalizer's statistics) plus
 
-* ``resume.json`` — the run: algorithm, environment id, seed and hyperparameters; the algorithm's
+* ``resume.json`` — the run: algorithm, environment id, seed and hyperparameters, and the
+  configuration its final evaluation runs on (the first ``--env-config`` file's); the algorithm's
   counters (steps, updates, episodes); each training slot's two random streams (the numpy
   bit-generator states of its scenario and noise generators), so that a resumed run draws the
   episodes that come next instead of replaying the first ones; the global numpy generator
   (minibatch order); the reward normalizer's running mean, variance and count; the weight
-  average's counters;
+  average's counters and the step it began at;
 * ``resume.safetensors`` — the optimizer's state (Adam's step counts and moments per
   parameter), torch's generator state (action sampling) and the weight average's tensors.
 
@@ -52,6 +53,11 @@ RESUME_KEYS = (
     "reward_normalizer",
     "swa",
 )
+#: Keys a checkpoint of this format may lack (written since): ``evaluation_config``, the first
+#: ``--env-config`` file's fields the run's final evaluation runs on (null: the default
+#: tracker); ``swa.start``, the step the weight average began at.
+OPTIONAL_KEYS = ("evaluation_config",)
+SWA_KEYS = ["last_update", "snapshots"]
 
 
 def save_checkpoint(
@@ -107,7 +113,10 @@ def save_checkpoint(
             "var": float(norm.ret_rms.var),
             "count": float(norm.ret_rms.count),
         },
-        "swa": {"snapshots": swa.snapshots, "last_update": swa.last_update} if averaging else None,
+        "swa": {"snapshots": swa.snapshots, "last_update": swa.last_update, "start": swa.start}
+        if averaging
+        else None,
+        "evaluation_config": run.get("evaluation_config"),
     }
     (partial / RESUME_FILE).write_text(json.dumps(state))
     old = directory.with_name(f".{directory.name}.old")
@@ -143,8 +152,11 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
             )
         raise ConfigError(f"{directory} is not a checkpoint ({RESUME_FILE} missing)")
     state = read_json(file)
-    if sorted(state) != sorted(RESUME_KEYS):
-        raise ConfigError(f"{file}: keys must be {list(RESUME_KEYS)}, got {sorted(state)}")
+    if not set(RESUME_KEYS) <= set(state) <= {*RESUME_KEYS, *OPTIONAL_KEYS}:
+        raise ConfigError(
+            f"{file}: keys must be {list(RESUME_KEYS)} and optionally {list(OPTIONAL_KEYS)}, got "
+            f"{sorted(state)}"
+        )
     if state["format"] != FORMAT:
         raise ConfigError(f"{file}: format {state['format']!r} is not {FORMAT}")
     if state["algo"] not in ALGOS:
@@ -159,9 +171,15 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
     _numpy_state(file, state["numpy_rng"])
     state["reward_normalizer"] = _reward_normalizer(file, state["reward_normalizer"])
     swa = state["swa"]
-    counts = isinstance(swa, dict) and sorted(swa) == ["last_update", "snapshots"]
+    counts = isinstance(swa, dict) and sorted(swa) in (SWA_KEYS, sorted([*SWA_KEYS, "start"]))
     if swa is not None and not (counts and all(_is_count(v) for v in swa.values())):
-        raise ConfigError(f"{file}: swa must be null or {{snapshots, last_update}}, got {swa!r}")
+        raise ConfigError(
+            f"{file}: swa must be null or {{snapshots, last_update[, start]}}, got {swa!r}"
+        )
+    evaluation = state.setdefault("evaluation_config", None)
+    if evaluation is not None and not isinstance(evaluation, dict):
+        raise ConfigError(f"{file}: evaluation_config must be null or an object of EnvConfig "
+                          f"fields, got {evaluation!r}")
     load_agent(directory)
     load_tensors(directory / TENSORS_FILE)
     return state
@@ -207,6 +225,11 @@ def restore(
         swa.average = {k[4:]: v for k, v in tensors.items() if k.startswith("swa/")}
         swa.snapshots = state["swa"]["snapshots"]
         swa.last_update = state["swa"]["last_update"]
+        # the mean continues from where it began, whatever budget the resumed run is given (a
+        # checkpoint without it began at its own budget's fraction)
+        recorded = state["hyperparams"]
+        began = int(float(recorded.get("swa_start", 0.0)) * recorded["n_timesteps"])
+        swa.start = state["swa"].get("start", began)
     np.random.set_state(_numpy_state(file, state["numpy_rng"]))  # noqa: NPY002
     try:
         torch.set_rng_state(tensors["rng/torch"])

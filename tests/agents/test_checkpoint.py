@@ -188,3 +188,38 @@ def test_training_slots_start_from_the_training_seeds_not_the_held_out_ones() ->
             alone = TrackingCore(core.config, 1)
             alone.reset(np.array([0]), [seed])
             assert np.array_equal(core.truth[i], alone.truth[0]) == same, (i, seed)
+
+
+def test_a_resumed_weight_average_keeps_the_step_it_began_at(saved, tmp_path) -> None:
+    """A run resumed with another budget continues the mean from where it began (the start a
+    fresh build computes from the new budget would mislabel it); a checkpoint written before
+    the start was recorded began at its own budget's fraction."""
+    state = read_checkpoint(saved.directory)
+    assert state["swa"]["start"] == saved.swa.start == 0
+    model, env = build(saved.params, seed=0)
+    moved = WeightAverage(5_000)  # the start of a longer budget
+    restore(saved.directory, state, model, env, moved)
+    assert moved.start == 0 and moved.snapshots == saved.swa.snapshots
+    older = tmp_path / "older"
+    shutil.copytree(saved.directory, older)
+    data = json.loads((older / "resume.json").read_text())
+    del data["swa"]["start"], data["evaluation_config"]
+    data["hyperparams"] = {**data["hyperparams"], "swa_start": 0.5, "n_timesteps": 1000}
+    (older / "resume.json").write_text(json.dumps(data))
+    state = read_checkpoint(older)
+    assert state["evaluation_config"] is None
+    restore(older, state, model, env, moved)
+    assert moved.start == 500
+
+
+def test_the_initial_weights_enter_no_average() -> None:
+    """With ``swa_start: 0`` the first rollout starts before any update: the untrained weights
+    are no update's and stay out of the mean."""
+    params = {**load_hyperparams(ENV)[0], **SMALL}
+    model, _ = build(params)
+    swa = WeightAverage(0)
+    swa.update(model)
+    assert swa.snapshots == 0 and swa.average == {}
+    model.learn(128)
+    swa.update(model)
+    assert swa.snapshots == 1

@@ -64,3 +64,23 @@ def test_a_bad_file_is_a_usage_error_before_training(tmp_path, capsys) -> None:
     assert not (tmp_path / "out").exists()
     err = capsys.readouterr().err
     assert str(file) in err and "sonar.sigma_r" in err
+
+
+def test_a_resumed_run_is_evaluated_on_the_file_it_was_started_with(trained, tmp_path) -> None:
+    """The checkpoint records the file's configuration: ``--resume`` without ``--env-config``
+    (as its own refusal says to do) evaluates the agent on that tracker, not the default one."""
+    agent, file = trained
+    checkpoint = agent.parent / "checkpoints" / "latest"
+    recorded = json.loads((checkpoint / "resume.json").read_text())["evaluation_config"]
+    assert recorded == json.loads(json.dumps(read_env_config(file)))
+    parser = train.build_parser()
+    args = parser.parse_args(["--resume", str(checkpoint)])
+    train.check_args(parser, args)
+    assert args.env_overrides == recorded
+    out = tmp_path / "resumed"
+    argv = ["--resume", str(checkpoint), "--timesteps", "512", "--out", str(out),
+            "--paper-runs", "2", "--random-runs", "2", "--validate-every", "0", "--no-progress"]
+    assert train.main(argv) == 0
+    results = json.loads((out / "seed_0" / "results.json").read_text())
+    row = results["random"]["policies"]["learned"]
+    assert row["tracker_differs"] == [] and row["evaluated_on"]["sensor"]["sigma_r"] == 20.0
