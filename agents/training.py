@@ -416,7 +416,9 @@ class WeightAverage:
         ``start`` on; calling it again before the next update does nothing."""
         import torch
 
-        if model.num_timesteps < self.start or model._n_updates == self.last_update:
+        if model._n_updates == 0 or model.num_timesteps < self.start:
+            return  # the initial weights are no update's
+        if model._n_updates == self.last_update:
             return
         self.snapshots += 1
         with torch.no_grad():
