@@ -78,6 +78,11 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
                 f"{path}: columns must be {', '.join(z_cols)} and optionally "
                 f"{', '.join(OPTIONAL_COLUMNS)}; got {', '.join(header)}"
             )
+        if ("vx" in header) != ("vy" in header):
+            raise ConfigError(
+                f"{path}: the initial velocity needs both columns vx and vy; got only "
+                f"{'vx' if 'vx' in header else 'vy'}"
+            )
         rows = list(reader)
     groups: dict[str, list[dict[str, str]]] = {}
     previous = None

@@ -137,6 +137,7 @@ def test_velocity_flag_and_sequences_of_different_lengths(tmp_path: Path) -> Non
         ("z0,z1,range\n1,2,3\n", [], "columns must be z0, z1"),
         ("z0,z1\n1000,0.1\n1000,abc\n", [], "column z1: 'abc' is not a number"),
         ("sequence,z0,z1\na,1000,0\nb,1000,0\na,1000,0\n", [], "sequence 'a' are not consecut"),
+        ("z0,z1,vx\n1000,0.1,99\n1010,0.1,\n", [], "needs both columns vx and vy; got only vx"),
         ("z0,z1\n1000,0.1\n1010,0.1\n", ["--env-config", "{cfg}"],
          r"tracker.yaml: .*sensor.*sigma_rr"),
         ("z0,z1\n1000,0.1\n1010,0.1\n", ["--policy", "no-such"], "unknown policy 'no-such'"),
