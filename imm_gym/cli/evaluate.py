@@ -682,8 +682,8 @@ def build_parser() -> argparse.ArgumentParser:
         + "), each with its configuration file (imm_gym/scenarios/suite/NAME.yaml), or on every "
         "configuration file (.yaml, .yml, .json) of the directory DIR (e.g. examples/probes), "
         "and print one table with, per policy, the cases below, level with and above the "
-        "reference; an agent that cannot read a case's tracker is not run there, and the table "
-        "says so",
+        "reference; a policy that cannot run on a case (an agent that cannot read its tracker, "
+        "a rule whose settings it does not admit) is not run there, and the table says so",
     )
     parser.add_argument(
         "--env-config",
@@ -819,13 +819,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.policy += [d for d in args.agent_seeds if d not in args.policy]
     if not args.policy:
         parser.error("give at least one --policy (or --agent-seeds)")
-    seeds_first = args.agent_seeds and args.policy[0] in args.agent_seeds
-    if seeds_first and args.reference is None and args.scenario not in SYSTEMS:
-        if "fixed" not in args.policy:
-            parser.error(
-                "--agent-seeds needs a reference outside the seeds: give --reference NAME (a "
-                "--policy of its own)"
-            )
+    seeds_only = args.agent_seeds and args.policy[0] in args.agent_seeds
+    if seeds_only and args.reference is None and args.scenario not in SYSTEMS:
+        parser.error(
+            "--agent-seeds needs a reference outside the seeds: give --reference NAME (a "
+            "--policy of its own)"
+        )
     if args.ray is not None and args.scenario in SYSTEMS:
         parser.error(f"--ray does not apply to --scenario {args.scenario}")
     make_core = _cores(parser, args.ray)
