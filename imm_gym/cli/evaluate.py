@@ -408,8 +408,13 @@ def suite_configs(suite: str) -> dict[str, dict[str, Any]]:
     Raises:
         ConfigError: an unknown suite, or a configuration file missing or invalid.
     """
+    return _read_suite(suite, suite_files(suite))
+
+
+def _read_suite(suite: str, files: Mapping[str, Path]) -> dict[str, dict[str, Any]]:
+    """:func:`suite_configs` of the files :func:`suite_files` listed."""
     configs = {}
-    for name, path in suite_files(suite).items():
+    for name, path in files.items():
         overrides = read_env_config(path)
         if suite in SUITES and overrides.get("scenario", "random") != name:
             raise ConfigError(f"{path}: scenario must be {name!r}")
@@ -450,7 +455,8 @@ def evaluate_suite(
         the tally sorts the cases by the paired difference against the bar, else the reference
         (its 95 % CI below zero, including it, above it).
     """
-    configs = suite_configs(suite)
+    files = suite_files(suite)
+    configs = _read_suite(suite, files)
     rules = [name for name in policies if name in REGISTRY]
     ref = reference or ("fixed" if "fixed" in policies else (rules or policies)[0])
     for name, flag in ((ref, "--reference"), *((b, "--bar") for b in bar)):
@@ -477,7 +483,6 @@ def evaluate_suite(
                 f"({next(iter(skipped.values()))[name]})"
             )
     out: dict[str, Any] = {"scenarios": {}}
-    files = suite_files(suite)
     for case, overrides in configs.items():
         env_config = {k: v for k, v in overrides.items() if k != "scenario"}
         results, rollouts = evaluate(

@@ -128,7 +128,8 @@ def render_suite_table(results: dict[str, Any]) -> None:
     ARMSE, the mode accuracy, the share of NEES values inside the 95 % χ² interval, the
     diverged runs and the paired difference of the position ARMSE against the reference with its
     95 % bootstrap CI; the clairvoyant row by its role; a policy not run on a case, and why.
-    Then each policy's tally against the reference (:func:`~imm_gym.cli.evaluate.suite_tally`)."""
+    Then each policy's tally against the bar, else the reference
+    (:func:`~imm_gym.cli.evaluate.suite_tally`)."""
     from rich.console import Console
     from rich.table import Table
 
@@ -191,10 +192,7 @@ def render_suite_table(results: dict[str, Any]) -> None:
                 console.print(f"{scenario}: " + models_differ_note(name, row["models_differ"]))
     n = len(results["scenarios"])
     for name, cases in results.get("tally", {}).items():
-        counts = ", ".join(
-            f"{label} on {len(cases[key])}"
-            for key, label in (("below", "below"), ("level", "level"), ("above", "above"))
-        )
+        counts = ", ".join(f"{key} on {len(cases[key])}" for key in ("below", "level", "above"))
         against = (
             f"the better of {' and '.join(meta['bar'])}" if meta.get("bar") else meta["reference"]
         )
