@@ -95,10 +95,11 @@ class TPMAdaptVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != N:
                 raise ValueError(f"seed list must have {N} entries, got {len(seeds)}")
-        self.core.reset(np.arange(N), seeds)
-        self._autoreset[:] = False
+        slots = np.arange(N) if options is None else _masked_slots(options, N)
+        self.core.reset(slots, [seeds[i] for i in slots])
+        self._autoreset[slots] = False
         if self._renderer is not None:
-            self._renderer.start(np.arange(N))
+            self._renderer.start(slots)
         return self.core.observe(), {}
 
     def step(
@@ -154,3 +155,23 @@ class TPMAdaptVectorEnv(VectorEnv):
         renderer = getattr(self, "_renderer", None)
         if renderer is not None:
             renderer.close()
+
+
+def _masked_slots(options: Mapping[str, Any], num_envs: int) -> NDArray[np.int64]:
+    """The sub-envs ``options["reset_mask"]`` selects (all of them without the key), checked as
+    Gymnasium's ``SyncVectorEnv`` checks it: a boolean array of ``num_envs`` entries, one true."""
+    if "reset_mask" not in options:
+        return np.arange(num_envs)
+    mask = options["reset_mask"]
+    if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_:
+        raise TypeError(
+            f"options['reset_mask'] must be a numpy array of dtype bool, got {type(mask).__name__}"
+            + (f" of dtype {mask.dtype}" if isinstance(mask, np.ndarray) else "")
+        )
+    if mask.shape != (num_envs,):
+        raise ValueError(
+            f"options['reset_mask'] must have shape ({num_envs},), got {mask.shape}"
+        )
+    if not mask.any():
+        raise ValueError("options['reset_mask'] must select at least one sub-env (all False)")
+    return np.flatnonzero(mask)

@@ -103,6 +103,35 @@ def test_vector_env_metadata_and_reset_seeds() -> None:
         TPMAdaptVectorEnv(0, config=SHORT)
 
 
+def test_vector_reset_mask_resets_only_the_masked_sub_envs() -> None:
+    """Gymnasium's ``reset(options={"reset_mask": mask})``: the masked sub-envs start the
+    episodes their seeds give, the others go on as if no reset had been asked."""
+    N, steps = 4, 6
+    actions = np.random.default_rng(1).uniform(-1, 1, (2 * steps, N, 9))
+    masked, plain = TPMAdaptVectorEnv(N, config=SHORT), TPMAdaptVectorEnv(N, config=SHORT)
+    masked.reset(seed=5)
+    plain.reset(seed=5)
+    for t in range(steps):
+        masked.step(actions[t])
+        plain.step(actions[t])
+    mask = np.array([False, True, False, True])
+    obs, _ = masked.reset(seed=[None, 40, None, 41], options={"reset_mask": mask})
+    fresh, _ = TPMAdaptVectorEnv(N, config=SHORT).reset(seed=[0, 40, 0, 41])
+    np.testing.assert_array_equal(obs[mask], fresh[mask])
+    for t in range(steps, 2 * steps):
+        obs, *_ = masked.step(actions[t])
+        expected, *_ = plain.step(actions[t])
+        np.testing.assert_array_equal(obs[~mask], expected[~mask])
+    for bad, error in [
+        ([True] * N, TypeError),
+        (np.ones(N, dtype=int), TypeError),
+        (np.ones(N + 1, dtype=bool), ValueError),
+        (np.zeros(N, dtype=bool), ValueError),
+    ]:
+        with pytest.raises(error, match="reset_mask"):
+            masked.reset(options={"reset_mask": bad})
+
+
 def test_vector_info_masks_are_false_for_autoreset_sub_envs() -> None:
     N = 5
     venv = TPMAdaptVectorEnv(N, config={**SHORT, "divergence_error": 50.0})
