@@ -143,8 +143,11 @@ class TPMAdaptSB3VecEnv(VecEnv):
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **kwargs: Any
     ) -> list[Any]:
-        method = getattr(self, method_name)
-        return [method(*method_args, **kwargs) for _ in self._get_indices(indices)]
+        """Call the method once: the sub-envs share one core, so a method of "each" sub-env is
+        one call of the adapter's; its result is given for every index asked."""
+        targets = self._get_indices(indices)
+        result = getattr(self, method_name)(*method_args, **kwargs)
+        return [result for _ in targets]
 
     def env_is_wrapped(
         self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None

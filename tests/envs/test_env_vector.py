@@ -226,6 +226,21 @@ def test_sb3_vecenv_api_shapes_and_dtypes() -> None:
     venv.close()
 
 
+def test_sb3_env_method_runs_once_on_the_shared_core() -> None:
+    """``env_method`` on N indices is one call (the sub-envs share the core): a reset through it
+    gives the episodes one ``reset`` gives, not the N-th episode of each slot's sequence."""
+    N = 3
+    venv, twin = (TPMAdaptSB3VecEnv(num_envs=N, config=SHORT) for _ in range(2))
+    venv.seed(4)
+    twin.seed(4)
+    twin.reset()
+    obs = venv.env_method("reset")
+    assert len(obs) == N
+    np.testing.assert_array_equal(venv.core.truth, twin.core.truth)
+    np.testing.assert_array_equal(obs[0], twin.core.observe())
+    assert len(venv.env_method("reset", indices=[0, 2])) == 2
+
+
 def test_sb3_same_step_reset_matches_scalar_envs() -> None:
     """SB3 sub-env i plays the episodes of a scalar env seeded s + i; a finished episode is
     reset within the same step, its last observation in ``terminal_observation``."""
