@@ -24,8 +24,9 @@ Input, by the file's suffix:
   its order: the sonar's range in m and bearing in rad), optionally ``sequence`` (rows of a
   sequence are consecutive; default: one sequence), ``detected`` (0/1; default: 1 where every
   ``z`` cell is a number, an empty cell is a missed detection) and ``vx``, ``vy`` (the initial
-  velocity in m/s, read from a sequence's first row). The first row of a sequence initiates the
-  track; each later row is one filter step.
+  velocity in m/s, from a sequence's first row: both empty, none given; later rows leave them
+  empty or repeat them). The first row of a sequence initiates the track (a detection); each
+  later row is one filter step.
 * ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected``, ``velocity (N, 2)``, or
   ``x0 (N, 4)`` and ``P0 (N, 4, 4)``.
 
@@ -35,9 +36,9 @@ sequence that has none. Sequences of different lengths run in batches of equal l
 
 Output, by the suffix of ``--out``:
 
-* ``.csv``: one row per filtered step: ``sequence, step`` (1..K), ``x, y, vx, vy``,
-  ``P00 .. P33`` (the covariance, row-major), ``mu0 .. mu{M-1}``, ``tpm00 .. tpm{M-1}{M-1}``
-  (row-major);
+* ``.csv``: one row per filtered step, the sequences in the input's order: ``sequence, step``
+  (1..K), ``x, y, vx, vy``, ``P00 .. P33`` (the covariance, row-major), ``mu0 .. mu{M-1}``,
+  ``tpm00 .. tpm{M-1}{M-1}`` (row-major);
 * ``.npz``: ``estimate (N, K, 4)``, ``covariance (N, K, 4, 4)``, ``mode_probs (N, K, M)``,
   ``tpm (N, K, M, M)``, ``x0``, ``P0``, ``diverged (N,)`` (one sequence length only).
 """
@@ -85,39 +86,80 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
             )
         rows = list(reader)
     groups: dict[str, list[dict[str, str]]] = {}
+    starts: dict[str, int] = {}  # the file line of each sequence's first row
     previous = None
     for line, row in enumerate(rows, start=2):
         name = row.get("sequence") or "0"
         if name in groups and name != previous:
             raise ConfigError(f"{path}:{line}: the rows of sequence {name!r} are not consecutive")
         groups.setdefault(name, []).append(row)
+        starts.setdefault(name, line)
         previous = name
     sequences = []
     for name, group in groups.items():
-        z = np.array([[_number(path, row[c], c) for c in z_cols] for row in group])
+        first = starts[name]
+        z = np.array([
+            [_number(path, first + i, c, row[c]) for c in z_cols] for i, row in enumerate(group)
+        ])
         detected = (
-            np.array([_number(path, row["detected"], "detected") == 1 for row in group])
+            np.array([
+                _number(path, first + i, "detected", row["detected"]) == 1
+                for i, row in enumerate(group)
+            ])
             if "detected" in header
             else None
         )
-        first = group[0]
-        velocity = (
-            np.array([_number(path, first["vx"], "vx"), _number(path, first["vy"], "vy")])
-            if "vx" in header and "vy" in header
-            else None
-        )
+        finite = np.all(np.isfinite(z), axis=1)
+        seen = finite if detected is None else detected
+        if not (seen[0] and finite[0]):
+            raise ConfigError(
+                f"{path}:{first}: the first row of sequence {name!r} initiates the track: it "
+                "needs a number in every z cell" + ("" if detected is None else " and detected 1")
+            )
+        if np.any(seen & ~finite):
+            line = first + int(np.flatnonzero(seen & ~finite)[0])
+            raise ConfigError(
+                f"{path}:{line}: sequence {name!r}: a detection (detected 1) needs a number in "
+                "every z cell"
+            )
+        velocity = _velocity(path, first, name, group) if "vx" in header else None
         sequences.append({"name": name, "z": z, "detected": detected, "velocity": velocity})
     return sequences
 
 
-def _number(path: Path, text: str | None, column: str) -> float:
+def _velocity(
+    path: Path, first: int, name: str, group: list[dict[str, str]]
+) -> np.ndarray | None:
+    """A sequence's initial velocity: its first row's ``vx, vy`` (both empty: none given).
+    Later rows leave them empty or repeat them; a row that gives another velocity is refused,
+    since only the first row's is used."""
+    cells = tuple([(row[c] or "").strip() for row in group] for c in ("vx", "vy"))
+    if (cells[0][0] == "") != (cells[1][0] == ""):
+        raise ConfigError(
+            f"{path}:{first}: sequence {name!r} gives only one of vx and vy in its first row "
+            "(both or neither)"
+        )
+    for i in range(1, len(group)):
+        later = (cells[0][i], cells[1][i])
+        if later != ("", "") and later != (cells[0][0], cells[1][0]):
+            raise ConfigError(
+                f"{path}:{first + i}: vx, vy are the initial velocity, read from sequence "
+                f"{name!r}'s first row ({cells[0][0]}, {cells[1][0]}); later rows leave them "
+                f"empty or repeat them, got ({later[0]}, {later[1]})"
+            )
+    if cells[0][0] == "":
+        return None
+    return np.array([_number(path, first, c, group[0][c]) for c in ("vx", "vy")])
+
+
+def _number(path: Path, line: int, column: str, text: str | None) -> float:
     """A CSV cell as a float (an empty cell is NaN)."""
     if text is None or text.strip() == "":
         return float("nan")
     try:
         return float(text)
     except ValueError:
-        raise ConfigError(f"{path}: column {column}: {text!r} is not a number") from None
+        raise ConfigError(f"{path}:{line}: column {column}: {text!r} is not a number") from None
 
 
 def read_npz(path: Path) -> list[dict[str, Any]]:
@@ -191,8 +233,11 @@ def _stack(group: list[dict[str, Any]], key: str) -> Any:
     return np.stack(values)
 
 
-def write(path: Path, results: list[tuple[list[str], TrackResult]]) -> None:
-    """Write the results as CSV or NPZ (see the module docstring)."""
+def write(
+    path: Path, results: list[tuple[list[str], TrackResult]], order: Sequence[str]
+) -> None:
+    """Write the results as CSV or NPZ (see the module docstring); a CSV lists the sequences in
+    ``order`` (the input's), whatever batches of equal length they ran in."""
     if path.suffix == ".npz":
         if len(results) != 1:
             raise ConfigError(f"{path}: an NPZ output holds sequences of one length only")
@@ -206,17 +251,18 @@ def write(path: Path, results: list[tuple[list[str], TrackResult]]) -> None:
     header = ["sequence", "step", "x", "y", "vx", "vy"]
     header += [f"P{i}{j}" for i in range(4) for j in range(4)]
     header += [f"mu{i}" for i in range(M)] + [f"tpm{i}{j}" for i in range(M) for j in range(M)]
+    where = {name: (r, n) for names, r in results for n, name in enumerate(names)}
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(header)
-        for names, r in results:
-            for n, name in enumerate(names):
-                for k in range(r.estimate.shape[1]):
-                    values = np.concatenate([
-                        r.estimate[n, k], r.covariance[n, k].ravel(), r.mode_probs[n, k],
-                        r.tpm[n, k].ravel(),
-                    ])
-                    writer.writerow([name, k + 1, *(repr(float(v)) for v in values)])
+        for name in order:
+            r, n = where[name]
+            for k in range(r.estimate.shape[1]):
+                values = np.concatenate([
+                    r.estimate[n, k], r.covariance[n, k].ravel(), r.mode_probs[n, k],
+                    r.tpm[n, k].ravel(),
+                ])
+                writer.writerow([name, k + 1, *(repr(float(v)) for v in values)])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -270,7 +316,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if "models_differ" in notes:
                 print(models_differ_note(args.policy, notes["models_differ"]), file=sys.stderr)
         results = run(sequences, policy, config, args.velocity, overrides)
-        write(args.out, results)
+        write(args.out, results, [s["name"] for s in sequences])
     except ConfigError as err:
         parser.error(str(err))
     n = sum(len(names) for names, _ in results)

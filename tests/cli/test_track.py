@@ -131,11 +131,50 @@ def test_velocity_flag_and_sequences_of_different_lengths(tmp_path: Path) -> Non
         np.testing.assert_array_equal(table[first:first + length, 1:5], alone.estimate[0])
 
 
+def test_csv_sequences_come_back_in_the_input_order(tmp_path: Path) -> None:
+    """Sequences run in batches of equal length and with or without a velocity, and are written
+    in the order the input lists them; an empty vx, vy is no velocity; a repeated one is read."""
+    core = TrackingCore(EnvConfig(), n_envs=3)
+    core.reset(np.arange(3), [5, 6, 7])
+    lengths, names = (40, 20, 40), ("c", "a", "b")
+    velocities = (("", ""), ("3", "-4"), ("", ""))
+    with (tmp_path / "z.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["sequence", "z0", "z1", "vx", "vy"])
+        for n, length in enumerate(lengths):
+            for k in range(length + 1):
+                z0, z1 = (repr(float(v)) for v in core.z[n, k])
+                writer.writerow([names[n], z0, z1, *velocities[n]])
+    assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                 "--out", str(tmp_path / "out.csv")]) == 0
+    with (tmp_path / "out.csv").open(newline="") as handle:
+        rows = list(csv.reader(handle))[1:]
+    assert [row[0] for row in rows] == [
+        name for name, length in zip(names, lengths, strict=True) for _ in range(length)
+    ]
+    first = 0
+    for n, length in enumerate(lengths):
+        velocity = None if velocities[n][0] == "" else [3.0, -4.0]
+        alone = imm_gym.run_policy(core.z[n, : length + 1], make_baseline("fixed"),
+                                   velocity=velocity)
+        table = np.array([[float(v) for v in row[2:6]] for row in rows[first:first + length]])
+        np.testing.assert_array_equal(table, alone.estimate[0])
+        first += length
+
+
 @pytest.mark.parametrize(
     ("content", "extra", "message"),
     [
         ("z0,z1,range\n1,2,3\n", [], "columns must be z0, z1"),
-        ("z0,z1\n1000,0.1\n1000,abc\n", [], "column z1: 'abc' is not a number"),
+        ("z0,z1\n1000,0.1\n1000,abc\n", [], r"z.csv:3: column z1: 'abc' is not a number"),
+        ("sequence,z0,z1,vx,vy\na,1000,0,1,2\nb,1000,0,,2\nb,1000,0,,\n", [],
+         r"z.csv:3: sequence 'b' gives only one of vx and vy"),
+        ("sequence,z0,z1,vx,vy\na,1000,0,1,2\na,1000,0,1,2\na,1000,0,1,3\n", [],
+         r"z.csv:4: vx, vy are the initial velocity, read from sequence 'a'"),
+        ("sequence,z0,z1\na,1000,0\nb,,0\nb,1000,0\n", [],
+         r"z.csv:3: the first row of sequence 'b' initiates the track"),
+        ("sequence,z0,z1,detected\na,1000,0,1\na,,0,1\n", [],
+         r"z.csv:3: sequence 'a': a detection \(detected 1\) needs a number"),
         ("sequence,z0,z1\na,1000,0\nb,1000,0\na,1000,0\n", [], "sequence 'a' are not consecut"),
         ("z0,z1,vx\n1000,0.1,99\n1010,0.1,\n", [], "needs both columns vx and vy; got only vx"),
         ("z0,z1\n1000,0.1\n1010,0.1\n", ["--env-config", "{cfg}"],
