@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.best_fixed import STAY_GRID
+from baselines.best_fixed import stay_grid
 from imm_gym import EnvConfig, TrackingCore, stay_tpm
 from imm_gym.cli.evaluate import suite_configs
 from imm_gym.evaluation.rollout import armse_from_squared
@@ -38,17 +38,20 @@ STEP_FLOOR = -10.0
 
 def stay_runs(
     overrides: dict[str, Any], runs: int, seed: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(err2, pos, truth, evidence)`` of the classical IMM at every stay of ``STAY_GRID`` on
+) -> tuple[tuple[float, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(grid, err2, pos, truth, evidence)``: the stays of the best-fixed search for the bank
+    (:func:`~baselines.best_fixed.stay_grid`) and the classical IMM at each of them on
     runs ``seed .. seed + runs - 1``: squared position errors ``(S, R, K)``, position estimates
     ``(S, R, K, 2)``, true positions ``(R, K, 2)``, per-step measurement log-likelihoods
     ``(S, R, K)`` (0 on a missed detection)."""
     config = EnvConfig.build(overrides).replace(
         shadow="none", reward="error", action_mode="scale", sojourn=None, p_min=1e-4
     )
-    S, M = len(STAY_GRID), len(config.bank)
+    M = len(config.bank)
+    grid = stay_grid(M)
+    S = len(grid)
     core = TrackingCore(config, S * runs)
-    tpms = np.stack([stay_tpm(M, s) for s in STAY_GRID])
+    tpms = np.stack([stay_tpm(M, s) for s in grid])
     core.reset(np.arange(S * runs), [seed + r for _ in range(S) for r in range(runs)],
                np.repeat(tpms, runs, axis=0))
     K = core.horizon
@@ -61,7 +64,7 @@ def stay_runs(
         loglik = measurement_loglik(core.loglik, core.cbar)
         evidence[:, :, k] = np.where(result.info["detected"], loglik, 0.0).reshape(S, runs)
     err2 = np.sum((pos - truth) ** 2, axis=-1)
-    return err2, pos, truth, evidence
+    return grid, err2, pos, truth, evidence
 
 
 def choose(
@@ -94,10 +97,10 @@ def main() -> None:
           "| average, λ = 0.99 |")
     print("|---|---|---|---|---|---|")
     for name, overrides in suite_configs(args.suite).items():
-        err2, pos, truth, evidence = stay_runs(overrides, args.runs, args.seed)
+        grid, err2, pos, truth, evidence = stay_runs(overrides, args.runs, args.seed)
         fixed = [armse_from_squared(e) for e in err2]
         best = int(np.argmin(fixed))
-        cells = [f"{fixed[best]:.2f} ({STAY_GRID[best]:.3g})"]
+        cells = [f"{fixed[best]:.2f} ({grid[best]:.3g})"]
         for lam in (1.0, 0.99):
             cells += [f"{armse_from_squared(e):.2f}" for e in choose(pos, truth, evidence, lam)]
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)

@@ -3,24 +3,38 @@ per-episode choices follow the evidence."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from helpers import load_example
 
-from baselines.best_fixed import STAY_GRID
+from baselines.best_fixed import STAY_GRID, stay_grid
 from baselines.fixed import FixedTPM
 from imm_gym import EnvConfig
 from imm_gym.evaluation.rollout import evaluation_config, rollout
+from imm_gym.sim.config_file import read_env_config
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_each_stays_errors_are_the_evaluations_classical_imm_at_that_stay() -> None:
     example = load_example("stay_selection")
-    err2, _, _, evidence = example.stay_runs({"scenario": "paper"}, 3, 5)
+    grid, err2, _, _, evidence = example.stay_runs({"scenario": "paper"}, 3, 5)
+    assert grid == STAY_GRID
     assert evidence.shape == err2.shape and np.isfinite(evidence).all()
     for i in (0, STAY_GRID.index(0.95), len(STAY_GRID) - 1):
         policy = FixedTPM(3, STAY_GRID[i])
         config = evaluation_config(EnvConfig.build({"scenario": "paper"}), policy.env_overrides)
         run = rollout(policy, config, 3, 5)
         np.testing.assert_allclose(err2[i], run.squared_position_error, rtol=1e-12, atol=1e-9)
+
+
+def test_a_two_model_bank_is_swept_from_its_uniform_tpm() -> None:
+    """The sweep is the best-fixed search's for the bank: from 1/M, never an anti-sticky stay."""
+    example = load_example("stay_selection")
+    overrides = read_env_config(ROOT / "examples" / "probes" / "cv_ct.yaml")
+    grid, err2, _, _, _ = example.stay_runs(overrides, 2, 5)
+    assert grid == stay_grid(2) and grid[0] == 0.5 and len(err2) == len(grid)
 
 
 def test_select_follows_the_evidence_and_average_weighs_by_it() -> None:
