@@ -519,8 +519,8 @@ class IMM:
             detected: ``(N,)``; where False the filters only predict and ``mu = cbar``.
             check: validate ``tpm`` and ``z`` (disable only for inputs already validated).
             allow_failure: flag diverged trackers in ``IMMStep.failed`` (NaN outputs) instead of
-                raising ``numpy.linalg.LinAlgError`` (compiled engine only: the numpy
-                reference always raises).
+                raising ``numpy.linalg.LinAlgError``; the other trackers are unaffected (the
+                numpy reference then reruns the cycle tracker by tracker to find them).
 
         Returns:
             The posterior at k and the step outputs.
@@ -536,6 +536,19 @@ class IMM:
             tpm, z = self._checked(tpm, z, detected, N, M)
         if self.engine == "compiled":
             return self._step_compiled(state, tpm, z, detected, allow_failure)
+        try:
+            return self._step_numpy(state, tpm, z, detected)
+        except np.linalg.LinAlgError:
+            if not allow_failure:
+                raise
+            return self._step_numpy_rows(state, tpm, z, detected)
+
+    def _step_numpy(
+        self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None
+    ) -> tuple[IMMState, IMMStep]:
+        """The cycle composed of the tracker's own operations (the reference engine): mix,
+        predict, update, the mode probabilities' update, combine."""
+        N = state.x.shape[0]
         cbar, x0, P0 = mix(state.mu, state.x, state.P, tpm)
         x_pred, P_pred = self.predict(x0, P0)
         upd = self.filter.update(x_pred, P_pred, z[:, None, :], self.sensor)
@@ -557,6 +570,45 @@ class IMM:
             x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, np.zeros(N, dtype=bool)
         )
         return IMMState(x, P, mu), out
+
+    def _step_numpy_rows(
+        self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None
+    ) -> tuple[IMMState, IMMStep]:
+        """:meth:`_step_numpy` tracker by tracker, after the batch raised: a tracker whose cycle
+        raises ``LinAlgError`` is flagged in ``failed`` and its outputs are NaN, as the compiled
+        engine flags it; the others get their cycle's numbers."""
+        N = state.x.shape[0]
+        rows = []
+        for i in range(N):
+            one = _new_state(state.x[i:i + 1], state.P[i:i + 1], state.mu[i:i + 1])
+            tpm_i = tpm if np.ndim(tpm) == 2 else tpm[i:i + 1]
+            det_i = None if detected is None else detected[i:i + 1]
+            try:
+                rows.append(self._step_numpy(one, tpm_i, z[i:i + 1], det_i))
+            except np.linalg.LinAlgError:
+                rows.append(self._failed_row(one, True if det_i is None else bool(det_i[0])))
+        states, steps = zip(*rows, strict=True)
+        joined = {
+            name: np.concatenate([getattr(o, name) for o in steps])
+            for name in ("x", "P", "mode_probs", "cbar", "loglik", "model_nis", "innovation",
+                         "nis", "detected", "failed")
+        }
+        posterior = IMMState(*(np.concatenate([getattr(o, f) for o in states])
+                               for f in ("x", "P", "mu")))
+        return posterior, IMMStep(**joined)
+
+    def _failed_row(self, state: IMMState, detected: bool) -> tuple[IMMState, IMMStep]:
+        """One tracker's failed cycle: every output NaN, ``failed`` set."""
+        _, M, n = state.x.shape
+
+        def nan(*shape: int) -> Array:
+            return np.full((1, *shape), np.nan)
+
+        posterior = IMMState(nan(M, n), nan(M, n, n), nan(M))
+        return posterior, IMMStep(
+            nan(n), nan(n, n), nan(M), nan(M), nan(M), nan(M), nan(M, self.sensor.dim_z), nan(),
+            np.array([detected]), np.array([True]),
+        )
 
     def _checked(
         self, tpm: Array, z: Array, detected: BoolArray | None, N: int, M: int

@@ -65,6 +65,36 @@ def test_failed_tracker_leaves_the_block_unchanged() -> None:
             assert a.tobytes() == b.tobytes()
 
 
+@pytest.mark.parametrize("filt", ["ukf", "ekf"])
+@pytest.mark.parametrize("n", [1, 6])
+def test_numpy_engine_flags_a_failed_tracker_as_the_compiled_one(filt: str, n: int) -> None:
+    """With ``allow_failure`` the numpy reference flags the tracker whose cycle fails (NaN
+    outputs) and gives the others their own cycle's numbers, as the compiled engine does;
+    without it, it raises."""
+    batch = draw_batch(paper_scenario(), Sonar(), n, 3)
+    z, tpm = batch.measurements.z[:, 1], stay_tpm(3, 0.95)
+    detected = np.arange(n) % 4 != 1
+    steps = {}
+    for engine in ("numpy", "compiled"):
+        imm = IMM(paper_bank(), Sonar(), filter=filt, engine=engine)
+        state = imm.init(batch.x0, batch.P0)
+        P = state.P.copy()
+        P[n - 1] = np.nan
+        bad = IMMState(state.x, P, state.mu)
+        steps[engine] = imm.step(bad, tpm, z, detected, allow_failure=True)
+        with pytest.raises(np.linalg.LinAlgError):
+            imm.step(bad, tpm, z, detected)
+    (post, out), (post_c, out_c) = steps["numpy"], steps["compiled"]
+    assert out.failed.tolist() == out_c.failed.tolist() == [t == n - 1 for t in range(n)]
+    assert out.detected.tolist() == detected.tolist()
+    for a, b in ((post.x, post_c.x), (post.P, post_c.P), (post.mu, post_c.mu), (out.x, out_c.x),
+                 (out.P, out_c.P), (out.mode_probs, out_c.mode_probs), (out.nis, out_c.nis),
+                 (out.loglik, out_c.loglik), (out.innovation, out_c.innovation)):
+        assert a.shape == b.shape
+        assert np.isnan(a[n - 1]).all() and np.isnan(b[n - 1]).all()
+        np.testing.assert_allclose(a[: n - 1], b[: n - 1], rtol=1e-7, atol=1e-9)
+
+
 def test_one_tracker_alone_equals_its_lane_in_a_block() -> None:
     """The single-tracker path (``kernels.imm.imm_step_one``, which ``IMM.step`` takes at N = 1
     through ``checked_step_one``:
