@@ -306,6 +306,10 @@ def restore_streams(venv: Any, states: list[Any], file: Path) -> None:
     venv._reset_seeds()
 
 
+#: The per-parameter state of Adam (PPO's optimizer) that a checkpoint holds.
+ADAM_STATE = ("step", "exp_avg", "exp_avg_sq")
+
+
 def _optimizer_tensors(optimizer: Any) -> dict[str, Any]:
     """``optimizer/<parameter index>/<name>`` for each tensor of the optimizer's state."""
     return {
@@ -317,7 +321,8 @@ def _optimizer_tensors(optimizer: Any) -> dict[str, Any]:
 
 def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path) -> None:
     """Load the ``optimizer/...`` tensors into ``policy.optimizer`` (its hyperparameters are the
-    recorded ones, rebuilt; only the per-parameter state is loaded), checking every shape."""
+    recorded ones, rebuilt; only the per-parameter state is loaded), checking every name and
+    shape: each parameter's :data:`ADAM_STATE`, ``step`` a scalar."""
     optimizer = policy.optimizer
     params = [p for group in optimizer.param_groups for p in group["params"]]
     state: dict[int, dict[str, Any]] = {}
@@ -328,6 +333,12 @@ def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path) -> None:
         if len(parts) != 3 or not parts[1].isdigit() or int(parts[1]) >= len(params):
             raise ConfigError(f"{file}: {key!r} names no parameter of the optimizer")
         index = int(parts[1])
+        if parts[2] not in ADAM_STATE:
+            raise ConfigError(
+                f"{file}: {key!r} is no entry of Adam's state (one of {list(ADAM_STATE)})"
+            )
+        if parts[2] == "step" and value.dim():
+            raise ConfigError(f"{file}: {key!r} must be a scalar, got {tuple(value.shape)}")
         if value.dim() and value.shape != params[index].shape:
             raise ConfigError(
                 f"{file}: {key!r} is {tuple(value.shape)}, its parameter "
@@ -336,6 +347,12 @@ def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path) -> None:
         state.setdefault(index, {})[parts[2]] = value
     if state and sorted(state) != list(range(len(params))):
         raise ConfigError(f"{file}: optimizer state for {len(state)} of {len(params)} parameters")
+    for index, entries in state.items():
+        if sorted(entries) != sorted(ADAM_STATE):
+            raise ConfigError(
+                f"{file}: optimizer/{index} holds {sorted(entries)}, Adam's state is "
+                f"{sorted(ADAM_STATE)}"
+            )
     optimizer.load_state_dict(
         {"state": state, "param_groups": optimizer.state_dict()["param_groups"]}
     )

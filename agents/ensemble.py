@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from agents.policy import AGENT_FILE, LearnedPolicy, load_agent, read_manifest
 from agents.selector import StaySelector, is_selector, load_selector
+from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.mixture import POLICY_FIELDS
 from imm_gym.validation import ConfigError
 
@@ -58,11 +59,11 @@ class EnsemblePolicy:
         if not members:
             raise ConfigError(f"{source}: an ensemble needs at least one member")
         first = members[0]
+        # compared as the members act: a default spelled out is the default
+        acts = [EnvConfig.build(member.env_overrides) for member in members]
         for k, member in enumerate(members[1:], start=1):
             differ = [
-                f
-                for f in sorted(POLICY_FIELDS)
-                if member.env_overrides.get(f) != first.env_overrides.get(f)
+                f for f in sorted(POLICY_FIELDS) if getattr(acts[k], f) != getattr(acts[0], f)
             ]
             if differ or member.obs_size != first.obs_size:
                 what = ", ".join(differ) if differ else "the observation size"

@@ -175,7 +175,8 @@ def save_weights(policy: nn.Module, directory: Path) -> None:
 
 
 def load_weights(policy: nn.Module, directory: Path) -> None:
-    """Load ``directory/policy.safetensors`` into ``policy`` (every tensor, exact shapes).
+    """Load ``directory/policy.safetensors`` into ``policy`` (every tensor, exact shapes; an
+    integer buffer must equal the network's own).
 
     Raises:
         ConfigError: the file is unreadable, or its tensors do not fit the network.
@@ -195,5 +196,11 @@ def load_weights(policy: nn.Module, directory: Path) -> None:
             raise ConfigError(
                 f"{file}: tensor {name!r} is {tensor.dtype} {tuple(tensor.shape)}, the network "
                 f"of agent.json needs {expected[name].dtype} {tuple(expected[name].shape)}"
+            )
+        # an integer buffer (the actor's input index) is not learned: agent.json fixes it
+        if not tensor.is_floating_point() and not torch.equal(tensor, expected[name]):
+            raise ConfigError(
+                f"{file}: tensor {name!r} is not the one the network of agent.json defines "
+                "(it is set by the network's description, not learned)"
             )
     policy.load_state_dict(state)

@@ -208,6 +208,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
     """
     from agents.network import build_policy, load_weights
     from agents.schema import check_spec
+    from imm_gym.sim.env_config import EnvConfig
 
     path = Path(path)
     directory = path.parent if path.suffix in (".zip", ".pt", ".safetensors", ".json") else path
@@ -241,6 +242,15 @@ def load_agent(path: str | Path) -> LearnedPolicy:
     ):
         raise ConfigError(f"{where}: critic_dims/frame_stack differ from the agent's")
     env_overrides, frame, actions = read_env_file(directory / ENV_FILE, meta.get("env_id"))
+    if spec["class"] == "PerModelPolicy":  # the network's layout of a frame is the env's
+        acts = EnvConfig.build(env_overrides)
+        for key, value in (("obs_features", list(acts.obs_features)),
+                           ("dim_z", acts.sensor.dim_z)):
+            if spec[key] != value:
+                raise ConfigError(
+                    f"{where}.{key} is {spec[key]!r}, but the environment of "
+                    f"{directory / ENV_FILE} gives {value!r}"
+                )
     frame += critic_dims
     if spec["observation_size"] != frame_stack * frame or spec["action_size"] != actions:
         raise ConfigError(
@@ -314,9 +324,9 @@ def read_manifest(
 
 
 def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
-    """``agent.json`` checked: known keys; ``algo``, ``frame_stack``, ``critic_dims`` valid, each
-    tracker of ``trained_across`` a valid one (the ``policy`` entry is checked by
-    :func:`agents.schema.check_spec`)."""
+    """``agent.json`` checked: known keys; ``algo``, ``frame_stack``, ``critic_dims``, ``env_id``,
+    ``seed``, ``num_timesteps`` and ``swa`` valid, each tracker of ``trained_across`` a valid one
+    (the ``policy`` entry is checked by :func:`agents.schema.check_spec`)."""
     unknown = sorted(set(meta) - set(AGENT_KEYS))
     if unknown:
         raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(AGENT_KEYS)}")
@@ -330,6 +340,21 @@ def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise ConfigError(f"{file}: {key} must be an integer >= {low}, got {value!r}")
         out[key] = value
+    if "env_id" in meta and not isinstance(meta["env_id"], str):
+        raise ConfigError(f"{file}: env_id must be a string, got {meta['env_id']!r}")
+    for key in ("seed", "num_timesteps"):
+        value = meta.get(key, 0)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ConfigError(f"{file}: {key} must be an integer >= 0, got {value!r}")
+    swa = meta.get("swa", {})
+    if not isinstance(swa, dict) or not all(
+        key in ("swa_start", "snapshots") and isinstance(v, int) and not isinstance(v, bool)
+        and v >= 0
+        for key, v in swa.items()
+    ):
+        raise ConfigError(
+            f"{file}: swa must map swa_start and snapshots to integers >= 0, got {swa!r}"
+        )
     across = meta.get("trained_across", [])
     if not isinstance(across, list) or not all(isinstance(t, dict) for t in across):
         raise ConfigError(f"{file}: trained_across must be a list of trackers, got {across!r}")
@@ -341,20 +366,25 @@ def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
 
 
 def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
-    """``env.json``'s overrides (validated on the preset of ``env_id``), the size of one
-    observation and of an action in that environment."""
+    """The agent's overrides — ``env_id``'s preset with ``env.json``'s fields over it, validated
+    — and the size of one observation and of an action in that environment."""
     from imm_gym.envs import PRESETS
     from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
     from imm_gym.sim.features import bounds
 
-    overrides = read_json(file)
-    if env_id is not None and env_id not in PRESETS:
-        raise ConfigError(f"{file.parent / AGENT_FILE}: env_id must be one of {list(PRESETS)}")
+    recorded = read_json(file)
+    if env_id is not None and (not isinstance(env_id, str) or env_id not in PRESETS):
+        raise ConfigError(
+            f"{file.parent / AGENT_FILE}: env_id must be one of {list(PRESETS)}, got {env_id!r}"
+        )
+    # the agent acted in the preset of its env id with env.json's fields over it (as train.py
+    # builds its environment): those are its overrides
+    overrides = {**PRESETS.get(env_id, {}), **recorded}
     if "obs_features" in overrides and isinstance(overrides["obs_features"], list):
         overrides["obs_features"] = tuple(overrides["obs_features"])
     try:
-        config = EnvConfig.build({**PRESETS.get(env_id, {}), **overrides})
+        config = EnvConfig.build(overrides)
     except ConfigError as err:
         raise ConfigError(f"{file}: {err}") from None
     M = len(config.bank)
@@ -365,8 +395,9 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
 def _check_normalizer(
     file: Path, size: int
 ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, float, float]:
-    """``vecnormalize.json``'s mean, variance (``size`` entries each), clip and epsilon; no
-    normalizer (None, None, 10, 1e-8) when the file does not exist."""
+    """``vecnormalize.json``'s mean, variance (``size`` entries each), clip and epsilon (its
+    ``count`` checked, a positive number); no normalizer (None, None, 10, 1e-8) when the file
+    does not exist."""
     if not file.exists():
         return None, None, 10.0, 1e-8
     stats = read_json(file)
@@ -384,6 +415,9 @@ def _check_normalizer(
         arrays.append(array)
     if np.any(arrays[1] < 0):
         raise ConfigError(f"{file}: var must be >= 0")
+    count = stats["count"]
+    if isinstance(count, bool) or not isinstance(count, (int, float)) or not (0 < count < np.inf):
+        raise ConfigError(f"{file}: count must be a positive number, got {count!r}")
     scalars = []
     for key in ("clip_obs", "epsilon"):
         value = stats[key]

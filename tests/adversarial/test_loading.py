@@ -269,6 +269,18 @@ def _wide_weights(directory: Path) -> None:
     save_file(tensors, file)
 
 
+def _actor_index(shift: int) -> Callable[[Path], None]:
+    """The asymmetric actor's input index (an integer buffer of the weights file) moved."""
+
+    def damage(directory: Path) -> None:
+        file = directory / "policy.safetensors"
+        tensors = load_file(file)
+        tensors["mlp_extractor.index"] = tensors["mlp_extractor.index"] + shift
+        save_file(tensors, file)
+
+    return damage
+
+
 def _obs_features(directory: Path) -> None:
     _json("env.json", obs_features=["loglik", "innovation"])(directory)
 
@@ -282,7 +294,16 @@ def _obs_features(directory: Path) -> None:
             _wide_weights,
             r"policy\.safetensors: tensor 'action_net\.weight' is torch\.float32 \(9, 64\)",
         ),
+        (_actor_index(1), r"tensor 'mlp_extractor\.index' is not the one the network"),
+        (_actor_index(10**6), r"tensor 'mlp_extractor\.index' is not the one the network"),
         (lambda d: (d / "agent.json").write_text("{'algo': "), "agent.json: not valid JSON"),
+        (_json("agent.json", env_id=["imm_gym/TPMAdapt-v0"]), "agent.json: env_id must be a str"),
+        (_json("agent.json", env_id="imm_gym/Nope-v0"), "agent.json: env_id must be one of"),
+        (_json("agent.json", seed="zero"), "agent.json: seed must be an integer >= 0"),
+        (_json("agent.json", num_timesteps=-5), "agent.json: num_timesteps must be an integer"),
+        (_json("agent.json", swa={"start": "x"}), "agent.json: swa must map swa_start"),
+        (_json("vecnormalize.json", count=-1.0), "vecnormalize.json: count must be a positive"),
+        (_json("vecnormalize.json", count="many"), "vecnormalize.json: count must be a positive"),
         (lambda d: (d / "env.json").write_text("[1, 2"), "env.json: not valid JSON"),
         (lambda d: (d / "agent.json").write_text("[]"), "agent.json: must hold a JSON object"),
         (_json("agent.json", frame_stak=4), r"agent\.json: unknown keys \['frame_stak'\]"),

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from safetensors.torch import load_file, save_file
 from stable_baselines3 import PPO
 
 from agents.asymmetric import AsymmetricActorCriticPolicy
@@ -162,6 +163,31 @@ def test_a_damaged_checkpoint_is_refused_naming_the_file(saved, tmp_path, damage
     damage(directory)
     with pytest.raises(ConfigError, match=message):
         read_checkpoint(directory)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [("rename", "'optimizer/0/exp_avg_sq2' is no entry of Adam's state"),
+     ("drop", r"optimizer/0 holds \['exp_avg', 'step'\], Adam's state is"),
+     ("step", "'optimizer/0/step' must be a scalar")],
+)
+def test_an_incomplete_optimizer_state_is_refused_before_training(
+    saved, tmp_path, change, message
+) -> None:
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    file = directory / TENSORS_FILE
+    tensors = load_file(file)
+    if change == "rename":
+        tensors["optimizer/0/exp_avg_sq2"] = tensors.pop("optimizer/0/exp_avg_sq")
+    elif change == "drop":
+        del tensors["optimizer/0/exp_avg_sq"]
+    else:
+        tensors["optimizer/0/step"] = torch.ones(3)
+    save_file(tensors, file)
+    state = read_checkpoint(directory)
+    model, env = build(saved.params)
+    with pytest.raises(ConfigError, match=message):
+        restore(directory, state, model, env, WeightAverage(0))
 
 
 def test_streams_of_another_slot_count_are_refused(saved) -> None:

@@ -1,0 +1,77 @@
+"""What an agent's files say is what it acts in: its env id's preset under env.json, a
+per-model network's frame layout equal to the environment's, ensemble members compared as they
+act."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from helpers import shipped_agent
+
+from agents import PRETRAINED_PER_MODEL
+from agents.ensemble import write_ensemble
+from agents.policy import load_agent
+from imm_gym import EnvConfig
+from imm_gym.cli.evaluate import agent_overrides
+from imm_gym.evaluation.rollout import evaluation_config
+from imm_gym.validation import ConfigError
+
+
+def _copy(source: Path, target: Path, file: str = "", **changes: object) -> Path:
+    """A copy of an agent directory with ``changes`` written into ``file``."""
+    directory = Path(shutil.copytree(source, target))
+    if file:
+        data = json.loads((directory / file).read_text())
+        data.update(changes)
+        (directory / file).write_text(json.dumps(data))
+    return directory
+
+
+def test_an_agent_acts_in_its_env_ids_preset(tmp_path: Path) -> None:
+    """An agent trained on ``imm_gym/TPMAdaptParallel-v0`` (env.json: only the env_kwargs) is
+    evaluated with that preset's parallel bank and floor, as train.py built its env."""
+    agent = _copy(shipped_agent(), tmp_path / "a", "agent.json",
+                  env_id="imm_gym/TPMAdaptParallel-v0")
+    policy = load_agent(agent)
+    assert policy.env_overrides["parallel"] is True and policy.env_overrides["p_min"] == 0.05
+    base = EnvConfig.build({"scenario": "paper"})
+    kept, _ = agent_overrides(policy, policy.env_overrides, base)
+    config = evaluation_config(base, kept)
+    assert (config.parallel, config.p_min, config.scenario) == (True, 0.05, "paper")
+    # env.json's fields stay over the preset's
+    assert policy.env_overrides["obs_features"] == tuple(
+        json.loads((agent / "env.json").read_text())["obs_features"]
+    )
+
+
+@pytest.mark.parametrize("key", ["obs_features", "dim_z"])
+def test_a_per_model_network_reads_the_frame_its_environment_gives(
+    tmp_path: Path, key: str
+) -> None:
+    member = sorted(p for p in PRETRAINED_PER_MODEL.iterdir() if p.is_dir())[0]
+    agent = _copy(member, tmp_path / "a")
+    meta = json.loads((agent / "agent.json").read_text())
+    features = meta["policy"]["obs_features"]
+    if key == "obs_features":  # two features of one size swapped: the sizes still agree
+        i, j = features.index("loglik"), features.index("prob_ema")
+        features[i], features[j] = features[j], features[i]
+    else:
+        meta["policy"]["dim_z"] = 3
+    (agent / "agent.json").write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match=rf"agent\.json: policy\.{key} is .* but the environment"):
+        load_agent(agent)
+
+
+def test_ensemble_members_are_compared_as_they_act(tmp_path: Path) -> None:
+    """A member that spells out a default acts as one that leaves it out; a member whose env
+    id's preset sets another floor and bank does not."""
+    first = shipped_agent()
+    spelled = _copy(first, tmp_path / "spelled", "env.json", p_min=EnvConfig().p_min)
+    assert write_ensemble(tmp_path / "e1", [first, spelled]).is_file()
+    parallel = _copy(first, tmp_path / "parallel", "agent.json",
+                     env_id="imm_gym/TPMAdaptParallel-v0")
+    with pytest.raises(ConfigError, match="p_min, parallel differ"):
+        write_ensemble(tmp_path / "e2", [first, parallel])
