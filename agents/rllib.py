@@ -401,11 +401,18 @@ def normalizer_stats(algo: Any) -> dict[str, Any] | None:
     if not pieces:
         return None
     stat = pieces[0]._filters[None].running_stats
-    denominator = (stat.std + np.float32(FILTER_SMALL)).astype(np.float64)
+    return filter_as_normalizer(stat.mean, stat.std, stat.n)
+
+
+def filter_as_normalizer(mean: Any, std: Any, count: float) -> dict[str, Any]:
+    """RLlib's running mean and standard deviation (float32) as ``vecnormalize.json``:
+    ``var = (std + 1e-6)^2 - 1e-12``, floored at 0 (an entry that never varies, ``std = 0``,
+    would otherwise round to about -5e-21, which the loader refuses)."""
+    denominator = (np.asarray(std, dtype=np.float32) + np.float32(FILTER_SMALL)).astype(np.float64)
     return {
-        "mean": np.asarray(stat.mean, dtype=np.float64).tolist(),
-        "var": (denominator**2 - FILTER_SMALL**2).tolist(),
-        "count": float(stat.n),
+        "mean": np.asarray(mean, dtype=np.float64).tolist(),
+        "var": np.maximum(denominator**2 - FILTER_SMALL**2, 0.0).tolist(),
+        "count": float(count),
         "clip_obs": FILTER_CLIP,
         "epsilon": FILTER_SMALL**2,
     }

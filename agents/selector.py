@@ -41,8 +41,9 @@ from typing import Any
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 
+from agents.network import load_tensors
 from agents.policy import ENV_FILE, read_env_file, read_manifest
 from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.env_config import EnvConfig
@@ -116,8 +117,10 @@ class StaySelector:
         self.obs_size = obs_size
         self.source = source
         self.trained_across = tuple(dict(t) for t in trained_across)
-        config = EnvConfig.build({**self.env_overrides,
-                                  "obs_features": tuple(self.env_overrides["obs_features"])})
+        config = EnvConfig.build({
+            key: tuple(value) if key == "obs_features" else value
+            for key, value in self.env_overrides.items()
+        })
         #: ``(P, 2)`` each prior's stay and share, checked (:func:`check_priors`)
         self.priors = check_priors(source, priors, config)
         #: the bank's models ``M``: the belief is the observation's last ``M`` entries
@@ -245,11 +248,15 @@ def load_selector(path: str | Path) -> StaySelector:
                             trained_across)
     for member in members:
         net = network(obs_size, len(selector.priors), hidden)
+        if not (directory / member).is_file():
+            raise ConfigError(f"{file}: member {member!r} is not a file of the directory")
+        tensors = load_tensors(directory / member)  # safetensors only, every number finite
+        other = sorted(name for name, t in tensors.items() if t.dtype != torch.float32)
+        if other:
+            raise ConfigError(f"{file}: member {member!r}: tensors {other} are not float32")
         try:
-            net.load_state_dict(load_file(directory / member))
-        except FileNotFoundError:
-            raise ConfigError(f"{file}: member {member!r} is not there") from None
-        except Exception as err:  # safetensors' and torch's errors: a misshapen file
+            net.load_state_dict(tensors)
+        except Exception as err:  # torch's errors: a misshapen file
             raise ConfigError(f"{file}: member {member!r} does not fit an observation of "
                               f"{obs_size} entries and {len(selector.priors)} priors "
                               f"({err})") from None

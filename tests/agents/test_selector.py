@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from safetensors.torch import load_file, save_file
 
 from agents.ensemble import load_policy
 from agents.selector import (
@@ -149,7 +150,8 @@ def write_selector(tmp_path: Path, **changes: Any) -> Path:
     ({"hidden": 0}, "hidden must be a positive integer"),
     ({"members": []}, "members must be a non-empty list"),
     ({"members": ["../net_0.safetensors"]}, "members must be a non-empty list"),
-    ({"members": ["gone.safetensors"]}, "member 'gone.safetensors' is not there"),
+    ({"members": ["gone.safetensors"]}, "member 'gone.safetensors' is not a file of the dir"),
+    ({"members": [".."]}, "member '..' is not a file of the directory"),
     ({"hidden": 9}, "does not fit an observation"),
     ({"priors": [[0.2, 0.75], [0.9, 0.75]]}, "every stay must be in [1/3, 1)"),
     ({"priors": [[0.5, 0.25], [0.9, 0.25]]}, "every share must be the environment's"),
@@ -164,6 +166,33 @@ def test_malformed_selectors_are_refused_naming_the_file(
     with pytest.raises(ConfigError, match=r"selector\.json") as err:
         load_selector(directory)
     assert message in str(err.value)
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    (float("nan"), "tensor '0.bias' holds NaN or infinite values"),
+    (0.5, "member 'net_0.safetensors': tensors ['0.bias'] are not float32"),
+])
+def test_a_member_of_nan_or_other_dtype_is_refused(
+    tmp_path: Path, value: float, message: str
+) -> None:
+    directory = write_selector(tmp_path)
+    tensors = load_file(directory / "net_0.safetensors")
+    tensors["0.bias"] = torch.full(tensors["0.bias"].shape, value, dtype=torch.float64)
+    if value == value:  # finite: keep float64, the dtype is what is wrong
+        save_file(tensors, directory / "net_0.safetensors")
+    else:
+        save_file({**tensors, "0.bias": tensors["0.bias"].float()}, directory / "net_0.safetensors")
+    with pytest.raises(ConfigError) as err:
+        load_selector(directory)
+    assert message in str(err.value)
+
+
+def test_an_environment_without_features_is_refused_by_name(tmp_path: Path) -> None:
+    directory = write_selector(tmp_path)
+    env = {k: v for k, v in STAY_ENV.items() if k != "obs_features"}
+    (directory / "env.json").write_text(json.dumps(env))
+    with pytest.raises(ConfigError, match="must end with 'detector_belief'"):  # not a KeyError
+        load_selector(directory)
 
 
 def test_an_environment_without_the_belief_last_is_refused(tmp_path: Path) -> None:

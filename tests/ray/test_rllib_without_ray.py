@@ -119,3 +119,24 @@ def test_runner_env_trains_a_mixture_each_part_on_its_share():
             np.testing.assert_array_equal(out[k], np.concatenate([r[k] for r in ref]))
     with pytest.raises(ActionError):
         env.step(np.full((4, env.core.action_dim), np.nan, dtype=np.float32))
+
+
+def test_a_filter_entry_that_never_varies_exports_as_a_normalizer_the_loader_takes(tmp_path):
+    """``std = 0`` (a feature constant over training) gives ``var = 0``, not a rounding below
+    zero; the loader's ``(x - mean) / sqrt(var + epsilon)`` is RLlib's ``(x - mean) /
+    (std + 1e-6)``."""
+    import json
+
+    from agents.policy import _check_normalizer
+    from agents.rllib import filter_as_normalizer
+
+    mean = np.array([0.5, -2.0, 3.0], dtype=np.float32)
+    std = np.array([0.0, 1.5, 1e-3], dtype=np.float32)
+    stats = filter_as_normalizer(mean, std, 128)
+    assert min(stats["var"]) >= 0.0
+    file = tmp_path / "vecnormalize.json"
+    file.write_text(json.dumps(stats))
+    m, var, _, eps = _check_normalizer(file, 3)
+    x = np.array([1.0, 1.0, 1.0])
+    np.testing.assert_allclose((x - m) / np.sqrt(var + eps),
+                               (x - mean) / (std + np.float32(1e-6)), rtol=1e-6)
