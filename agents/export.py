@@ -6,12 +6,14 @@ acting files only).
     python train.py --seed 0 1 2 3 4 --no-eval --out runs/final
     python -m agents.export runs/final/ensemble       # the five agents as one policy
 
-Checks the policy by loading it (:func:`agents.ensemble.load_policy`), then copies
-``policy.safetensors`` (the network without optimizer state), ``agent.json``, ``env.json`` and
-``vecnormalize.json``: data only, everything the evaluation needs to act, about 340 KiB an agent.
-An ensemble's members are copied into ``seed_S/`` subdirectories (``member_K/`` when their seeds
-do not tell them apart) named by a new ``ensemble.json``. The target is replaced as a whole — it
-must be absent, empty or a policy exported before — so no file of the previous policy stays.
+Checks the policy by loading it, then copies ``policy.safetensors`` (the network without
+optimizer state), ``agent.json``, ``env.json`` and ``vecnormalize.json``: data only, everything
+the evaluation needs to act, about 340 KiB an agent. An ensemble's members are copied into
+``seed_S/`` subdirectories (``member_K/`` when their seeds do not tell them apart) named by a new
+``ensemble.json``; a stay selector's ``selector.json``, ``env.json`` and networks are copied as
+they are. A learned detector's network that ``env.json`` names is copied beside it. The target
+is replaced as a whole — it must be absent, empty or a policy exported before — so no file of
+the previous policy stays.
 
     python -m agents.export --from-pickle OLD_AGENT --to NEW_DIR
 
@@ -38,15 +40,19 @@ from agents.ensemble import (
     write_ensemble,
 )
 from agents.policy import AGENT_FILE, ENV_FILE, NORMALIZER_FILE, load_agent, read_json
+from agents.selector import SELECTOR_FILE, is_selector, load_selector
 from imm_gym.validation import ConfigError
 
 #: The acting files (``vecnormalize.json`` only if the agent was trained with a normalizer).
 FILES = ("policy.safetensors", AGENT_FILE, ENV_FILE, NORMALIZER_FILE)
+#: The name of a learned detector's network copied beside a policy that names one.
+DETECTOR_FILE = "detector.safetensors"
 
 
 def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
-    """Replace ``target`` by the acting files of ``source`` — an agent directory or an
-    ensemble's (:mod:`agents.ensemble`) — after checking that they load. Returns the files
+    """Replace ``target`` by the acting files of ``source`` — an agent directory, an
+    ensemble's (:mod:`agents.ensemble`) or a stay selector's (:mod:`agents.selector`) — after
+    checking that they load. Returns the files
     written.
 
     Raises:
@@ -57,7 +63,12 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     _check_replaceable(target)
     staging = target.with_name(target.name + ".export")
     shutil.rmtree(staging, ignore_errors=True)
-    if is_ensemble(source):
+    if is_selector(source):
+        selector = read_json(source / SELECTOR_FILE)
+        load_selector(source)
+        _copy_agent(source, staging, [SELECTOR_FILE, ENV_FILE, *selector["members"]])
+        load_selector(staging)
+    elif is_ensemble(source):
         load_ensemble(source)
         members = member_paths(source)
         names = _member_names(members)
@@ -72,12 +83,20 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     return sorted(p for p in target.rglob("*") if p.is_file())
 
 
-def _copy_agent(source: Path, target: Path) -> None:
-    """Copy the acting files of the agent directory ``source`` into ``target``."""
+def _copy_agent(source: Path, target: Path, files: Sequence[str] = FILES) -> None:
+    """Copy the acting files of the policy directory ``source`` into ``target``; a detector
+    file that ``env.json`` names goes beside them as :data:`DETECTOR_FILE`, named relative."""
     target.mkdir(parents=True)
-    for name in FILES:
+    for name in files:
         if (source / name).is_file():
             shutil.copy2(source / name, target / name)
+    env = read_json(source / ENV_FILE)
+    weights = env.get("detector_weights")
+    if isinstance(weights, str):
+        shutil.copy2(source / weights, target / DETECTOR_FILE)  # an absolute path stays one
+        (target / ENV_FILE).write_text(
+            json.dumps({**env, "detector_weights": DETECTOR_FILE}, indent=2) + "\n"
+        )
 
 
 def _member_names(members: Sequence[Path]) -> list[str]:
@@ -96,10 +115,11 @@ def _check_replaceable(target: Path) -> None:
         and any(target.iterdir())
         and not (target / AGENT_FILE).is_file()
         and not (target / ENSEMBLE_FILE).is_file()
+        and not (target / SELECTOR_FILE).is_file()
     ):
         raise ConfigError(
             f"{target}: the export replaces its target, which must be absent, empty or a policy "
-            f"exported before ({AGENT_FILE} or {ENSEMBLE_FILE} in it)"
+            f"exported before ({AGENT_FILE}, {ENSEMBLE_FILE} or {SELECTOR_FILE} in it)"
         )
 
 
@@ -144,7 +164,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument(
         "source", type=Path,
-        help="a trained agent's directory (OUT/seed_S/agent) or an ensemble's (OUT/ensemble)",
+        help="a trained agent's directory (OUT/seed_S/agent), an ensemble's (OUT/ensemble) or "
+        "a stay selector's",
     )
     parser.add_argument("--to", type=Path, default=PRETRAINED, help="target directory")
     parser.add_argument(

@@ -23,7 +23,7 @@ SB3's ``VecFrameStack(VecNormalize(env))``), so a model runs through
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -367,13 +367,18 @@ def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
 
 def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     """The agent's overrides — ``env_id``'s preset with ``env.json``'s fields over it, validated
-    — and the size of one observation and of an action in that environment."""
+    — and the size of one observation and of an action in that environment. A relative
+    ``detector_weights`` is taken from the directory of ``env.json``, as a configuration file's
+    is from its own (:func:`write_env_file`)."""
     from imm_gym.envs import PRESETS
     from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
     from imm_gym.sim.features import bounds
 
     recorded = read_json(file)
+    weights = recorded.get("detector_weights")
+    if isinstance(weights, str) and not Path(weights).is_absolute():
+        recorded["detector_weights"] = str(file.parent / weights)  # beside env.json
     if env_id is not None and (not isinstance(env_id, str) or env_id not in PRESETS):
         raise ConfigError(
             f"{file.parent / AGENT_FILE}: env_id must be one of {list(PRESETS)}, got {env_id!r}"
@@ -390,6 +395,17 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     M = len(config.bank)
     obs_size = bounds(config.obs_features, M, config.sensor.dim_z)[0].size
     return overrides, int(obs_size), action_size(config.action_mode, M)
+
+
+def write_env_file(directory: Path, overrides: Mapping[str, Any]) -> None:
+    """``directory/env.json``: the overrides an agent acts with, tuples as lists, a
+    ``detector_weights`` path made absolute, so that it reads the same from any working
+    directory (:mod:`agents.export` copies that file beside the policy and names it relative)."""
+
+    data = dict(overrides)  # JSON writes tuples as lists
+    if isinstance(data.get("detector_weights"), str):
+        data["detector_weights"] = str(Path(data["detector_weights"]).resolve())
+    (directory / ENV_FILE).write_text(json.dumps(data, indent=2) + "\n")
 
 
 def _check_normalizer(

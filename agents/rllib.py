@@ -434,6 +434,7 @@ def export_agent(
         env_id: the registered id; extra: more ``agent.json`` entries (seed, num_timesteps).
     """
     from agents.network import build_policy, policy_spec, save_weights
+    from agents.policy import write_env_file
     from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
     from imm_gym.sim.features import bounds
@@ -461,7 +462,7 @@ def export_agent(
     policy.load_state_dict(sb3_state(weights))
     directory.mkdir(parents=True, exist_ok=True)
     save_weights(policy, directory)
-    (directory / "env.json").write_text(json.dumps(env_kwargs, indent=2))
+    write_env_file(directory, env_kwargs)
     stats = normalizer_stats(algo)
     norm_file = directory / "vecnormalize.json"
     if stats is not None:

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from safetensors.torch import save_file
 
 from agents.network import load_tensors
-from agents.policy import ENV_FILE, read_env_file, read_manifest
+from agents.policy import ENV_FILE, read_env_file, read_manifest, write_env_file
 from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
@@ -286,8 +286,7 @@ def save_selector(
     members = [f"net_{k}.safetensors" for k in range(len(nets))]
     for net, member in zip(nets, members, strict=True):
         save_file(net.state_dict(), str(directory / member))
-    env = {k: list(v) if isinstance(v, tuple) else v for k, v in env_overrides.items()}
-    (directory / ENV_FILE).write_text(json.dumps(env, indent=2) + "\n")
+    write_env_file(directory, env_overrides)
     data: dict[str, Any] = {
         "format": FORMAT, "combine": COMBINE[0],
         "priors": np.asarray(priors, dtype=np.float64).tolist(), "hidden": hidden,

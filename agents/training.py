@@ -332,10 +332,11 @@ def save_agent(
     """Write the acting files of :mod:`agents.policy`: ``policy.safetensors``, ``agent.json``
     (with the network's description), ``env.json`` and ``vecnormalize.json``."""
     from agents.network import policy_spec, save_weights
+    from agents.policy import write_env_file
 
     directory.mkdir(parents=True, exist_ok=True)
     save_weights(model.policy, directory)
-    (directory / "env.json").write_text(json.dumps(jsonable(env_kwargs), indent=2))
+    write_env_file(directory, env_kwargs)
     norm = find_normalizer(env)
     if norm is not None:
         stats = {

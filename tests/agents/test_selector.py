@@ -5,6 +5,7 @@ evaluation takes it by path, and malformed directories are refused naming the fi
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -212,3 +213,30 @@ def test_a_tracker_of_its_training_files_is_read_whole(tmp_path: Path) -> None:
     (tracker,) = load_selector(directory).trained_across
     assert set(tracker) == {"sensor", "bank", "filter", "initial_stay", "sojourn"}
     assert tracker["sensor"]["sigma_r"] == 10.0
+
+
+def test_a_detector_named_relative_is_read_beside_env_json_and_exported_with_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A relative ``detector_weights`` in a policy's env.json is the file beside env.json from
+    any working directory, and the export copies it beside the exported policy."""
+    from agents.export import DETECTOR_FILE, export
+    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+
+    directory = write_selector(tmp_path)
+    shutil.copy2(DEFAULT_WEIGHTS, directory / "turn.safetensors")
+    env = json.loads((directory / "env.json").read_text())
+    (directory / "env.json").write_text(json.dumps({**env, "detector_weights": "turn.safetensors"}))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    loaded = load_selector(directory)
+    assert loaded.env_overrides["detector_weights"] == str(directory / "turn.safetensors")
+    target = tmp_path / "shipped"
+    export(directory, target)
+    assert json.loads((target / "env.json").read_text())["detector_weights"] == DETECTOR_FILE
+    shutil.rmtree(directory)
+    shipped = load_selector(target)
+    assert shipped.env_overrides["detector_weights"] == str(target / DETECTOR_FILE)
+    obs = np.random.default_rng(0).normal(size=(3, shipped.obs_size))
+    assert shipped.choose(obs).shape == (3,)
