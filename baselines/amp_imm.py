@@ -77,11 +77,15 @@ class AMPIMM(Baseline):
 
 
 def tpm_to_logits(tpm: NDArray[np.float64], logit_scale: float) -> NDArray[np.float64]:
-    """``set`` actions whose row softmax is ``tpm``: ``a = (log pi - c) / logit_scale``.
+    """``set`` actions whose row softmax is ``tpm``: ``a = 1 + (log pi - max_j log pi) /
+    logit_scale``.
 
-    Each row is centred (``c`` the midpoint of its log range) so the actions stay in [-1, 1]
-    whenever the row's largest/smallest ratio is below ``exp(2 logit_scale)``.
+    Each row is anchored at its largest entry (action 1), so the environment's clipping to
+    ``[-1, 1]`` can only raise entries below ``exp(-2 logit_scale)`` times the largest
+    (3.4e-4 at the default 4), which its floor ``p_min`` (1e-3) raises anyway: the row the
+    environment applies is ``tpm`` floored. (Centring each row on the midpoint of its log range
+    instead would clip its largest entry too once the ratio passed ``exp(2 logit_scale)``, and
+    move every other entry.)
     """
     logp = np.log(np.maximum(tpm, 1e-300))
-    centre = 0.5 * (logp.max(axis=-1, keepdims=True) + logp.min(axis=-1, keepdims=True))
-    return (logp - centre) / logit_scale
+    return 1.0 + (logp - logp.max(axis=-1, keepdims=True)) / logit_scale

@@ -18,7 +18,8 @@ class FixedTPM(Baseline):
     every model or one per model (:func:`imm_gym.tracking.tpm.stay_tpm`).
 
     The environment starts from this TPM (``initial_stay``; without ``stay``, the configured
-    initial TPM, sojourn-based if configured) and the policy's zero ``scale`` action keeps it.
+    initial TPM, sojourn-based if configured) and the policy's zero ``scale`` action keeps it:
+    ``p_min`` is set at or below its smallest entry (0 without ``stay``).
     """
 
     def __init__(
@@ -26,7 +27,8 @@ class FixedTPM(Baseline):
     ) -> None:
         super().__init__(n_models)
         self.stay = stay if stay is None or isinstance(stay, (int, float)) else tuple(stay)
-        self.env_overrides = {"action_mode": "scale"}
+        # without a stay, no floor: the configured TPM is kept whatever the base's p_min
+        self.env_overrides = {"action_mode": "scale", "p_min": 0.0}
         if stay is not None:
             stays = np.broadcast_to(np.asarray(stay, dtype=np.float64), (n_models,))
             smallest = float(min(stays.min(), ((1.0 - stays) / (n_models - 1)).min()))

@@ -60,7 +60,9 @@ class SlidingWindowTPM(Baseline):
         counts = np.zeros((N, self.window, M, M)) if state is None else state.copy()
         counts[episode_start] = 0.0
         counts = np.roll(counts, 1, axis=1)
-        counts[:, 0] = mu_prev[:, :, None] * mu_now[:, None, :]
+        # an episode's first observation follows no transition (mu(t-1) is mu(t) there)
+        seen = mu_prev[:, :, None] * mu_now[:, None, :]
+        counts[:, 0] = np.where(episode_start[:, None, None], 0.0, seen)
         tpm = self.kappa * self.prior + counts.sum(axis=1)
         tpm /= tpm.sum(axis=-1, keepdims=True)
         return tpm_to_logits(tpm, self.logit_scale).reshape(N, -1), counts

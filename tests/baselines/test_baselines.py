@@ -26,7 +26,7 @@ from baselines.amp_imm import tpm_to_logits
 from imm_gym import EnvConfig, TrackingCore
 from imm_gym.evaluation.rollout import evaluation_config, paired_bootstrap, rollout, score
 from imm_gym.tracking.tip import tip_factors
-from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.tracking.tpm import apply_floor, stay_tpm
 
 PAPER = EnvConfig(scenario="paper")
 #: The baselines built from the number of models alone.
@@ -203,6 +203,18 @@ def test_fixed_policy_is_classical_imm_with_zero_reward() -> None:
     assert total == 0.0  # the shadow tracker is the same classical IMM
 
 
+def test_the_fixed_policy_keeps_the_configured_tpm_over_a_higher_floor() -> None:
+    """On a base whose ``p_min`` (0.05) lies above the configured TPM's 0.0025, the classical
+    IMM still runs the configured TPM at every step."""
+    policy = FixedTPM()
+    base = EnvConfig.build({"scenario": "paper", "parallel": True, "p_min": 0.05})
+    core = TrackingCore(evaluation_config(base, policy.env_overrides), 1)
+    core.reset(np.array([0]), [2])
+    for _ in range(10):
+        result = core.step(policy.predict(core.observe())[0])
+        np.testing.assert_array_equal(result.info["tpm"][0], stay_tpm(3, 0.995))
+
+
 def test_tip_policy_applies_the_rule_through_the_env() -> None:
     policy = TIPIMM()
     cfg = EnvConfig.build({"scenario": "paper", **policy.env_overrides})
@@ -247,24 +259,35 @@ def test_tpm_to_logits_round_trips_through_set_mode() -> None:
     target = np.array([[[0.7, 0.2, 0.1], [0.05, 0.9, 0.05], [0.3, 0.3, 0.4]]])
     got = core.tpm_from_action(tpm_to_logits(target, cfg.logit_scale).reshape(1, -1))
     np.testing.assert_allclose(got, target, rtol=1e-12)
+    # a row whose largest/smallest ratio passes exp(2 logit_scale) (an AMP update after a
+    # strong likelihood ratio): the environment applies the row floored, its large entries
+    # as given (the actions stay in [-1, 1])
+    wide = np.array([[[0.997466, 2.5e-3, 3.39e-5], [0.05, 0.9, 0.05], [1e-6, 0.1, 0.899999]]])
+    actions = tpm_to_logits(wide, cfg.logit_scale)
+    np.testing.assert_array_equal(actions.max(axis=-1), 1.0)  # each row's largest entry
+    got = core.tpm_from_action(np.clip(actions, -1.0, 1.0).reshape(1, -1))
+    np.testing.assert_allclose(got, apply_floor(wide, cfg.p_min), rtol=1e-12)
 
 
 def test_window_estimate_by_hand_and_episode_reset() -> None:
     w = SlidingWindowTPM(window=2, kappa=1.0, prior_stay=0.8)
-    mu = [np.array([0.6, 0.3, 0.1]), np.array([0.5, 0.4, 0.1]), np.array([0.2, 0.7, 0.1])]
-    obs1 = np.concatenate([mu[1], mu[0]])[None]
-    obs2 = np.concatenate([mu[2], mu[1]])[None]
-    _, state = w.predict(obs1, None, np.array([True]))
-    actions, state = w.predict(obs2, state, np.array([False]))
-    counts = np.outer(mu[0], mu[1]) + np.outer(mu[1], mu[2])
-    expected = stay_tpm(3, 0.8) + counts
+    mu = [np.array([0.6, 0.3, 0.1]), np.array([0.5, 0.4, 0.1]), np.array([0.2, 0.7, 0.1]),
+          np.array([0.1, 0.1, 0.8])]
+    # an episode's first observation (mu(t) = mu(t-1) = mu0) follows no transition
+    start = np.concatenate([mu[0], mu[0]])[None]
+    obs = [np.concatenate([mu[k + 1], mu[k]])[None] for k in range(3)]
+    prior = stay_tpm(3, 0.8)
+    first, state = w.predict(start, None, np.array([True]))
+    np.testing.assert_allclose(first[0], tpm_to_logits(prior[None], 4.0)[0].ravel())
+    for k in range(3):
+        actions, state = w.predict(obs[k], state, np.array([False]))
+    # a window of 2: the transitions 1 -> 2 and 2 -> 3 (0 -> 1 has left it)
+    expected = prior + np.outer(mu[1], mu[2]) + np.outer(mu[2], mu[3])
     expected /= expected.sum(axis=-1, keepdims=True)
     np.testing.assert_allclose(actions[0], tpm_to_logits(expected[None], 4.0)[0].ravel())
     # a new episode forgets the window
-    fresh, _ = w.predict(obs2, state, np.array([True]))
-    only = stay_tpm(3, 0.8) + np.outer(mu[1], mu[2])
-    only /= only.sum(axis=-1, keepdims=True)
-    np.testing.assert_allclose(fresh[0], tpm_to_logits(only[None], 4.0)[0].ravel())
+    fresh, _ = w.predict(start, state, np.array([True]))
+    np.testing.assert_allclose(fresh[0], tpm_to_logits(prior[None], 4.0)[0].ravel())
 
 
 def test_paired_bootstrap_against_explicit_resampling() -> None:
