@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.config_file import tracker_of
-from imm_gym.validation import ConfigError
+from imm_gym.validation import ConfigError, unique_keys
 
 ALGOS = ("ppo", "recurrent-ppo")
 #: The files of an agent directory (``vecnormalize.json`` only when trained with a normalizer).
@@ -288,13 +288,14 @@ def read_json(file: Path) -> dict[str, Any]:
     """A JSON object from ``file``.
 
     Raises:
-        ConfigError: the file is missing, not valid JSON or not an object.
+        ConfigError: the file is missing, not valid JSON (a key given twice included) or not an
+            object.
     """
     try:
-        data = json.loads(file.read_text())
+        data = json.loads(file.read_text(), object_pairs_hook=unique_keys)
     except FileNotFoundError:
         raise ConfigError(f"{file}: missing") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+    except ValueError as err:  # not UTF-8, not JSON, or a key given twice
         raise ConfigError(f"{file}: not valid JSON ({err})") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{file}: must hold a JSON object, got {type(data).__name__}")

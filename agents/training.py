@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,7 +32,7 @@ from threadpoolctl import threadpool_limits
 
 from agents.schema import check_flag, check_number, check_policy_kwargs, check_size
 from imm_gym.sim.mixture import check_mixture
-from imm_gym.validation import ConfigError
+from imm_gym.validation import ConfigError, load_yaml
 
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
 TRAIN_SEED_BASE = 100_000_000
@@ -60,26 +59,15 @@ def set_threads(n: int = 1) -> None:
     torch.set_num_threads(n)
 
 
-class _Loader(yaml.SafeLoader):
-    """PyYAML's safe loader (plain data: no tags that build objects), reading ``1e-3`` and
-    ``4e6`` as numbers as YAML 1.2 does (YAML 1.1 wants a dot: ``1.0e-3``)."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)?\.?[0-9_]*[eE][-+]?[0-9]+$"),
-    list("-+0123456789."),
-)
-
-
 def read_yaml(file: Path) -> dict[str, Any]:
-    """A YAML mapping of plain data (mappings, lists, strings, numbers, booleans, null).
+    """A YAML mapping of plain data (mappings, lists, strings, numbers, booleans, null), read
+    as :func:`imm_gym.validation.load_yaml` reads it (YAML 1.2's scalars, no key twice).
 
     Raises:
         ConfigError: the file is not valid YAML or does not hold a mapping.
     """
     try:
-        data = yaml.load(file.read_text(), Loader=_Loader)
+        data = load_yaml(file.read_text())
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = "" if mark is None else f" at line {mark.line + 1}, column {mark.column + 1}"

@@ -188,21 +188,71 @@ _YAML12_FLOAT = re.compile(
 )
 
 
-def load_yaml(text: str) -> Any:
-    """Parse YAML ``text`` safely (no Python objects), with YAML 1.2's float rule.
+#: YAML 1.2's integer (core schema): decimal digits (a leading zero is still decimal), ``0o`` octal
+#: or ``0x`` hexadecimal; not YAML 1.1's ``010`` octal, ``2:30`` base 60 or ``1_000``.
+_YAML12_INT = re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$")
+#: YAML 1.2's booleans: not YAML 1.1's ``yes``, ``no``, ``on``, ``off``.
+_YAML12_BOOL = re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$")
+_YAML11_TAGS = ("tag:yaml.org,2002:float", "tag:yaml.org,2002:int", "tag:yaml.org,2002:bool")
 
-    PyYAML follows YAML 1.1, whose floats need a decimal point: ``1e-3`` is read as the string
-    ``"1e-3"``. Here a plain scalar that YAML 1.2 calls a float (``1e-3``, ``3.0e-4``, ``.5``)
-    is a float; an integer (``50``) stays an int and a quoted scalar stays a string.
+
+def load_yaml(text: str) -> Any:
+    """Parse YAML ``text`` safely (no Python objects) with YAML 1.2's scalars, refusing a key
+    given twice in one mapping.
+
+    PyYAML follows YAML 1.1: ``1e-3`` is the string ``"1e-3"``, ``010`` is 8, ``2:30`` is 150
+    and ``on`` is true. Here a plain scalar is typed as YAML 1.2's core schema types it: floats
+    such as ``1e-3``, ``3.0e-4``, ``.5``; integers ``50`` and ``010`` (ten); booleans ``true``
+    and ``false`` only. Anything else, and any quoted scalar, stays a string (which a numeric
+    field then refuses by name).
+
+    Raises:
+        yaml.YAMLError: the text is not YAML, or a mapping gives a key twice (with its line).
     """
     import yaml
 
     class Loader(yaml.SafeLoader):
-        """SafeLoader whose implicit float resolver is YAML 1.2's."""
+        """SafeLoader with YAML 1.2's implicit float, int and bool, and unique keys."""
+
+        def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
+            seen: set[Any] = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue  # '<<': keys merged in, which the mapping's own may override
+                key = self.construct_object(key_node, deep=True)
+                if not isinstance(key, (str, int, float)):
+                    continue  # an unhashable key: the mapping's own construction refuses it
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {key!r} given twice in one mapping", key_node.start_mark
+                    )
+                seen.add(key)
+            return super().construct_mapping(node, deep=deep)
+
+    def construct_int(loader: Any, node: Any) -> int:
+        text = loader.construct_scalar(node)
+        return int(text, 0) if text[:2] in ("0o", "0x") else int(text, 10)
 
     Loader.yaml_implicit_resolvers = {
-        first: [(tag, rx) for tag, rx in resolvers if tag != "tag:yaml.org,2002:float"]
+        first: [(tag, rx) for tag, rx in resolvers if tag not in _YAML11_TAGS]
         for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
     }
     Loader.add_implicit_resolver("tag:yaml.org,2002:float", _YAML12_FLOAT, list("-+.0123456789"))
+    Loader.add_implicit_resolver("tag:yaml.org,2002:int", _YAML12_INT, list("-+0123456789"))
+    Loader.add_implicit_resolver("tag:yaml.org,2002:bool", _YAML12_BOOL, list("tTfF"))
+    Loader.add_constructor("tag:yaml.org,2002:int", construct_int)
     return yaml.load(text, Loader=Loader)  # a SafeLoader: plain data only
+
+
+def unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``json.loads``' ``object_pairs_hook``: an object, refusing a key given twice.
+
+    Raises:
+        ValueError: a key is given twice (callers name the file).
+    """
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"key {key!r} given twice in one object")
+        out[key] = value
+    return out

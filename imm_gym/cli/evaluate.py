@@ -92,7 +92,7 @@ from imm_gym.sim.mixture import AGENT_FIELDS
 from imm_gym.sim.model_order import for_bank, model_roles
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.tpm import stay_tpm
-from imm_gym.validation import ConfigError, from_dict
+from imm_gym.validation import ConfigError, from_dict, unique_keys
 
 #: ``--bank``: environment overrides of each bank.
 BANKS = BANK_PRESETS
@@ -121,11 +121,11 @@ def load_source(name: str) -> str | Scenario:
         names = ", ".join(repr(n) for n in ("random", *SCENARIOS))
         raise ConfigError(f"--scenario must be {names} or a JSON file; {name!r} is neither")
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ConfigError(f"scenario file {name}: not valid JSON ({err})") from None
-    except (OSError, UnicodeDecodeError) as err:
+        data = json.loads(path.read_text(), object_pairs_hook=unique_keys)
+    except OSError as err:
         raise ConfigError(f"scenario file {name}: cannot read ({err})") from None
+    except ValueError as err:  # not UTF-8, not JSON, or a key given twice
+        raise ConfigError(f"scenario file {name}: not valid JSON ({err})") from None
     try:
         return from_dict(Scenario, data, "scenario")
     except ConfigError as err:

@@ -61,6 +61,7 @@ from imm_gym.validation import (
     check_sequence,
     from_dict,
     store,
+    unique_keys,
 )
 
 Array = NDArray[np.float64]
@@ -263,8 +264,8 @@ class TunedBank:
     @classmethod
     def load(cls, path: str | Path) -> TunedBank:
         try:
-            data = json.loads(Path(path).read_text())
-        except (OSError, json.JSONDecodeError) as err:
+            data = json.loads(Path(path).read_text(), object_pairs_hook=unique_keys)
+        except (OSError, ValueError) as err:  # unreadable, not JSON, a key given twice
             raise ConfigError(f"tuned bank {path}: cannot read ({err})") from None
         return from_dict(cls, data, f"tuned bank {path}")
 

@@ -23,7 +23,7 @@ from typing import Any
 
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.presets import BANK_PRESETS
-from imm_gym.validation import ConfigError, load_yaml
+from imm_gym.validation import ConfigError, load_yaml, unique_keys
 
 #: The fields that make the tracker (what a trained agent records as ``trained_on`` and the
 #: evaluation reports as ``evaluated_on``): the sensor, the bank, the filter and its TPM prior.
@@ -110,8 +110,8 @@ def read_env_config(path: str | Path) -> dict[str, Any]:
             raise ConfigError(f"{path}: not valid YAML ({' '.join(str(err).split())})") from None
     elif path.suffix == ".json":
         try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
+            data = json.loads(text, object_pairs_hook=unique_keys)
+        except ValueError as err:  # JSONDecodeError is one, as is a key given twice
             raise ConfigError(f"{path}: not valid JSON ({err})") from None
     else:
         raise ConfigError(f"{path}: a configuration file ends in .yaml, .yml or .json")

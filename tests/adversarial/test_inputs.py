@@ -33,6 +33,7 @@ from imm_gym import (
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.envs.tpm_adapt import TPMAdaptEnv
 from imm_gym.papers.tuning import TunerConfig
+from imm_gym.sim.config_file import read_env_config
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM
 from imm_gym.tracking.imm import run
 from imm_gym.validation import load_yaml
@@ -166,6 +167,35 @@ def test_yaml_floats_written_without_a_dot_are_floats() -> None:
     assert EnvConfig.build(data).p_min == 0.001
     with pytest.raises(ConfigError, match=r"p_min must be a real number.*'1e-3' \(str\)"):
         EnvConfig.build(load_yaml("p_min: '1e-3'"))
+
+
+def test_yaml_integers_and_booleans_are_yaml_12s() -> None:
+    """YAML 1.1's octal ``010``, base-60 ``2:30`` and ``on``/``yes`` booleans are not read as
+    numbers or booleans: ``010`` is ten, the others strings a typed field refuses by name."""
+    data = load_yaml("a: 010\nb: 0150\nc: 2:30\nd: on\ne: yes\nf: true\ng: 0x1f\nh: -4\n")
+    assert data == {"a": 10, "b": 150, "c": "2:30", "d": "on", "e": "yes", "f": True, "g": 31,
+                    "h": -4}
+    with pytest.raises(ConfigError, match="velocity_std must be a real number"):
+        EnvConfig.build(load_yaml("velocity_std: 2:30"))
+    with pytest.raises(ConfigError, match="parallel"):
+        EnvConfig.build(load_yaml("parallel: on"))
+
+
+@pytest.mark.parametrize(
+    ("suffix", "text"),
+    [(".yaml", "p_min: 0.01\ninitial_stay: 0.9\np_min: 0.2\n"),
+     (".json", '{"p_min": 0.01, "initial_stay": 0.9, "p_min": 0.2}'),
+     (".yaml", "sensor:\n  sigma_r: 20.0\n  sigma_r: 30.0\n")],
+)
+def test_a_key_given_twice_is_refused_naming_the_file(tmp_path, suffix: str, text: str) -> None:
+    path = tmp_path / f"tracker{suffix}"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=r"tracker\.(yaml|json): not valid .*given twice"):
+        read_env_config(path)
+
+
+def test_yaml_merge_keys_may_be_overridden() -> None:
+    assert load_yaml("x: &a {p: 1, q: 2}\ny:\n  <<: *a\n  q: 3\n")["y"] == {"p": 1, "q": 3}
 
 
 # --- configuration structure --------------------------------------------------------------------
