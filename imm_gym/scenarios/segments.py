@@ -122,9 +122,33 @@ class Scenario:
             value = check_sequence(f"scenario.{name}", getattr(self, name), 2)
             store(self, name, tuple(check_finite(f"scenario.{name}", v) for v in value))
         store(self, "T", check_range("scenario.T", self.T, 0.0, lo_open=True))
+        self._check_speeds()
         if self.truth_q is not None:
             q = check_sequence("scenario.truth_q (x, y, vx, vy)", self.truth_q, 4)
             store(self, "truth_q", tuple(check_range("scenario.truth_q", v, 0.0) for v in q))
+
+    def _check_speeds(self) -> None:
+        """An acceleration segment acts along the heading: it needs a moving target and must not
+        drive the speed below 0 (the speed after it is ``|v| + accel duration T``; turns keep
+        it)."""
+        speed = math.hypot(*self.velocity)
+        for i, seg in enumerate(self.segments):
+            if seg.accel == 0.0:
+                continue
+            where = f"scenario.segments[{i}].accel"
+            if speed <= 0.0:
+                raise ConfigError(
+                    f"{where}: the target is at rest when this segment starts, so it has no "
+                    "heading to accelerate along; give scenario.velocity or a segment before"
+                )
+            end = speed + seg.accel * seg.duration * self.T
+            if end < -1e-9 * max(speed, 1.0):
+                raise ConfigError(
+                    f"{where}: {seg.accel} m/s² for {seg.duration} steps of {self.T} s drives the "
+                    f"speed from {speed:.6g} m/s below 0 ({end:.6g} m/s); it may at most stop "
+                    f"the target (accel >= {-speed / (seg.duration * self.T):.6g})"
+                )
+            speed = max(end, 0.0)
 
     @property
     def horizon(self) -> int:

@@ -394,7 +394,14 @@ class EnvConfig:
         return stay_tpm(len(self.bank), self.shadow_stay)
 
     def replace(self, **changes: Any) -> EnvConfig:
-        """A copy with some fields changed (validated)."""
+        """A copy with some fields changed (validated; an unknown field is a
+        :class:`ConfigError` naming it, as in a mapping)."""
+        fields = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - fields)
+        if unknown:
+            raise ConfigError(
+                f"EnvConfig: unknown key(s) {unknown}; allowed keys are {sorted(fields)}"
+            )
         return dataclasses.replace(self, **changes)
 
     @classmethod

@@ -108,15 +108,15 @@ class Sonar(_Clutter):
     dim_z = 2
 
     def __post_init__(self) -> None:
-        store(self, "sigma_r", check_range("sonar.sigma_r", self.sigma_r, 0.0, lo_open=True))
+        store(self, "sigma_r", check_range("sensor.sigma_r", self.sigma_r, 0.0, lo_open=True))
         store(
             self,
             "sigma_theta_deg",
-            check_range("sonar.sigma_theta_deg", self.sigma_theta_deg, 0.0, 180.0, lo_open=True),
+            check_range("sensor.sigma_theta_deg", self.sigma_theta_deg, 0.0, 180.0, lo_open=True),
         )
-        position = check_sequence("sonar.position", self.position, 2)
-        store(self, "position", tuple(check_finite("sonar.position", v) for v in position))
-        self._check_clutter("sonar")
+        position = check_sequence("sensor.position", self.position, 2)
+        store(self, "position", tuple(check_finite("sensor.position", v) for v in position))
+        self._check_clutter("sensor")
 
     @property
     def sigma(self) -> Array:

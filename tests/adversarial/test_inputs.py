@@ -204,6 +204,11 @@ def test_yaml_merge_keys_may_be_overridden() -> None:
 def test_an_unknown_key_is_rejected_with_the_allowed_keys() -> None:
     with pytest.raises(ConfigError, match=r"EnvConfig: unknown key\(s\) \['p_mni'\]"):
         EnvConfig.build({"p_mni": 0.01})
+    # the same keyword on an EnvConfig (not a TypeError)
+    with pytest.raises(ConfigError, match=r"EnvConfig: unknown key\(s\) \['p_mni'\]"):
+        EnvConfig.build(EnvConfig(), p_mni=0.01)
+    with pytest.raises(ConfigError, match=r"EnvConfig: unknown key\(s\) \['p_mni'\]"):
+        EnvConfig().replace(p_mni=0.01)
 
 
 def test_an_unknown_nested_key_names_its_parent() -> None:

@@ -61,7 +61,7 @@ def test_scenario_flag_replaces_the_files_scenario(tmp_path) -> None:
     ("content", "words"),
     [
         ("sensor: {sigma_r: 10.0}\nbogus_key: 1\n", ["bogus_key"]),
-        ("sensor: {sigma_r: ten}\n", ["sonar.sigma_r"]),
+        ("sensor: {sigma_r: ten}\n", ["sensor.sigma_r"]),
         ('initial_stay: "0.9"\n', ["initial_stay", "'0.9'"]),
         ("bank: [{kind: cv}]\n", ["bank"]),
     ],

@@ -63,7 +63,7 @@ def test_a_bad_file_is_a_usage_error_before_training(tmp_path, capsys) -> None:
     assert exc.value.code == 2
     assert not (tmp_path / "out").exists()
     err = capsys.readouterr().err
-    assert str(file) in err and "sonar.sigma_r" in err
+    assert str(file) in err and "sensor.sigma_r" in err
 
 
 def test_a_resumed_run_is_evaluated_on_the_file_it_was_started_with(trained, tmp_path) -> None:

@@ -247,6 +247,23 @@ def test_segment_turn_and_accel() -> None:
         Segment(10, turn_rate_deg=1.0, accel=1.0)
 
 
+@pytest.mark.parametrize(
+    ("segments", "velocity", "message"),
+    [
+        ((Segment(10, accel=2.0),), (0.0, 0.0), r"segments\[0\]\.accel: the target is at rest"),
+        ((Segment(11, accel=-1.0),), (10.5, 0.0), r"segments\[0\]\.accel: .* below 0"),
+        ((Segment(5, accel=-2.0), Segment(3, 1.0), Segment(2, accel=1.0)), (10.0, 0.0),
+         r"segments\[2\]\.accel: the target is at rest"),
+    ],
+)
+def test_an_acceleration_the_target_cannot_fly_is_refused(segments, velocity, message) -> None:
+    """Speeding up from rest has no heading; slowing past zero would flip the velocity."""
+    with pytest.raises(ConfigError, match=message):
+        Scenario(segments, velocity=velocity)
+    # stopping exactly, then going straight, is a target
+    Scenario((Segment(5, accel=-2.0), Segment(3)), velocity=(10.0, 0.0))
+
+
 def test_segment_from_mapping() -> None:
     sc = Scenario(({"duration": 5, "turn_rate_deg": 1.0}, {"duration": 3}))  # type: ignore[arg-type]
     assert sc.segments == (Segment(5, 1.0), Segment(3))

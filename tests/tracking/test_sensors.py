@@ -244,14 +244,14 @@ def test_missed_detections_never_at_t0_even_if_rare() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "field"),
     [
-        ({"sigma_r": -1.0}, "sonar.sigma_r"),
-        ({"sigma_r": 0.0}, "sonar.sigma_r"),
-        ({"sigma_theta_deg": -0.05}, "sonar.sigma_theta_deg"),
-        ({"position": (0.0, 0.0, 0.0)}, "sonar.position"),
-        ({"position": (0.0, float("inf"))}, "sonar.position"),
-        ({"outlier_prob": 1.5}, "sonar.outlier_prob"),
-        ({"outlier_scale": 0.5}, "sonar.outlier_scale"),
-        ({"detection_prob": 0.0}, "sonar.detection_prob"),
+        ({"sigma_r": -1.0}, "sensor.sigma_r"),
+        ({"sigma_r": 0.0}, "sensor.sigma_r"),
+        ({"sigma_theta_deg": -0.05}, "sensor.sigma_theta_deg"),
+        ({"position": (0.0, 0.0, 0.0)}, "sensor.position"),
+        ({"position": (0.0, float("inf"))}, "sensor.position"),
+        ({"outlier_prob": 1.5}, "sensor.outlier_prob"),
+        ({"outlier_scale": 0.5}, "sensor.outlier_scale"),
+        ({"detection_prob": 0.0}, "sensor.detection_prob"),
     ],
 )
 def test_sonar_invalid_config(kwargs: dict, field: str) -> None:
