@@ -91,7 +91,7 @@ def test_a_number_given_as_a_string_is_rejected_with_the_field_and_range() -> No
 
 
 def test_a_boolean_is_not_a_number() -> None:
-    with pytest.raises(ConfigError, match=r"sonar\.sigma_r must be a real number.*True \(bool\)"):
+    with pytest.raises(ConfigError, match=r"sensor\.sigma_r must be a real number.*True \(bool\)"):
         Sonar(sigma_r=True)  # type: ignore[arg-type]
 
 
@@ -229,7 +229,7 @@ def test_a_string_where_a_list_is_expected_is_rejected() -> None:
 
 
 def test_a_list_of_the_wrong_length_is_rejected() -> None:
-    with pytest.raises(ConfigError, match=r"sonar\.position must have 2 entries, got 3"):
+    with pytest.raises(ConfigError, match=r"sensor\.position must have 2 entries, got 3"):
         Sonar(position=(1.0, 2.0, 3.0))  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match=r"model\.q \(a 'cv' model\) must have 4 entries"):
         MotionModel("cv", q=(1.0, 1.0))
@@ -242,7 +242,7 @@ def test_an_out_of_range_value_names_the_interval() -> None:
 
 @pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
 def test_a_non_finite_configuration_value_is_rejected(value: float) -> None:
-    with pytest.raises(ConfigError, match=r"sonar\.sigma_r must be in \(0\.0, inf\]"):
+    with pytest.raises(ConfigError, match=r"sensor\.sigma_r must be in \(0\.0, inf\]"):
         Sonar(sigma_r=value)
 
 
