@@ -68,7 +68,7 @@ def check_range(
     The interval is ``[lo, hi]``, open at ``lo`` with ``lo_open`` and at ``hi`` with ``hi_open``;
     NaN and infinities are outside it.
     """
-    interval = f"{'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}"
+    interval = _interval(lo, hi, lo_open, hi_open)
     v = _real(name, value, f"a real number in {interval}")
     bad_lo = v <= lo if lo_open else v < lo
     bad_hi = v >= hi if hi_open else v > hi
@@ -77,12 +77,20 @@ def check_range(
     return v
 
 
+def _interval(lo: float, hi: float, lo_open: bool, hi_open: bool) -> str:
+    """``[lo, hi]`` with its open ends as parentheses (an infinite end is always open: NaN and
+    infinities are refused)."""
+    left = "(" if lo_open or lo == -math.inf else "["
+    right = ")" if hi_open or hi == math.inf else "]"
+    return f"{left}{lo}, {hi}{right}"
+
+
 def check_int(name: str, value: int, lo: int, hi: float = math.inf) -> int:
     """Return ``value`` as int, or raise if it is not an integer in ``[lo, hi]``.
 
     An integral float (``50.0``) is the integer 50; ``50.5``, strings and booleans are rejected.
     """
-    interval = f"[{lo}, {hi}]"
+    interval = _interval(lo, hi, False, False)
     integral = isinstance(value, (int, np.integer)) or (
         isinstance(value, (float, np.floating)) and float(value).is_integer()
     )

@@ -122,6 +122,11 @@ class Variation:
             lo = check_range(f"vary.{name}[0]", lo, lo_limit, hi_limit, lo_open=positive)
             hi = check_range(f"vary.{name}[1]", hi, lo, hi_limit)
             store(self, name, (lo, hi))
+        if self.share != 1.0 and not self.active:
+            raise ConfigError(
+                f"vary.share ({self.share}) is the share of episodes that draw their conditions, "
+                f"but no range is given: give at least one of {list(DRAWS)}"
+            )
 
     @property
     def active(self) -> bool:

@@ -62,7 +62,7 @@ Array = NDArray[np.float64]
 
 def _bank_model(i: int, model: Any) -> Any:
     """Entry ``i`` of a linear bank: a mapping becomes a :class:`MotionModel`, whose errors are
-    prefixed with ``bank[i]`` (``bank[1]: model.intensity must be in (0.0, inf], got -1``)."""
+    prefixed with ``bank[i]`` (``bank[1]: model.intensity must be in (0.0, inf), got -1``)."""
     if not isinstance(model, Mapping):
         return model
     try:

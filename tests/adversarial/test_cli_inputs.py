@@ -141,7 +141,7 @@ def test_scenario_file_with_a_bad_duration(tmp_path, capsys, no_evaluation, dura
     content = {"segments": [{"duration": 10}, {"duration": duration}]}
     message, _ = scenario_error(tmp_path, content, capsys)
     assert (
-        f"scenario.segments[1]: segment.duration must be an integer in [1, inf], got {duration!r}"
+        f"scenario.segments[1]: segment.duration must be an integer in [1, inf), got {duration!r}"
         in message
     )
 

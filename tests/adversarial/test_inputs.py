@@ -126,7 +126,7 @@ def test_integral_floats_are_stored_as_ints_and_other_numbers_rejected() -> None
     assert all(type(n) is int for n in family.n_segments)
     for bad in (50.5, "50", True, math.nan, math.inf):
         with pytest.raises(
-            ConfigError, match=r"segment\.duration must be an integer in \[1, inf\]"
+            ConfigError, match=r"segment\.duration must be an integer in \[1, inf\)"
         ):
             Segment(duration=bad)  # type: ignore[arg-type]
 
@@ -242,7 +242,7 @@ def test_an_out_of_range_value_names_the_interval() -> None:
 
 @pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
 def test_a_non_finite_configuration_value_is_rejected(value: float) -> None:
-    with pytest.raises(ConfigError, match=r"sensor\.sigma_r must be in \(0\.0, inf\]"):
+    with pytest.raises(ConfigError, match=r"sensor\.sigma_r must be in \(0\.0, inf\)"):
         Sonar(sigma_r=value)
 
 

@@ -50,6 +50,7 @@ def broad_config(**changes: object) -> EnvConfig:
         ({"vary": {"outlier_prob": (0.0, 1.5)}}, "vary.outlier_prob[1] must be in [0.0, 1.0]"),
         ({"vary": {"sigma_r": "10-50"}}, "vary.sigma_r (low, high)"),
         ({"vary": {"sigmar": (1.0, 2.0)}}, "unknown key(s) ['sigmar']"),
+        ({"vary": {"share": 0.5}}, "vary.share (0.5) is the share of episodes that draw"),
         ({"vary": {"sigma_r": (10.0, 50.0)}, "engine": "numpy"}, "vary needs engine"),
         ({"vary": {"speed": (5.0, 50.0)}, "scenario": "atc"}, "vary.speed needs scenario"),
         ({"vary": {"q_scale": (0.0, 5.0)}}, "vary.q_scale[0] must be in (0.0"),
