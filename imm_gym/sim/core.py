@@ -338,7 +338,8 @@ class TrackingCore:
 
     def _start(self, indices: NDArray[np.int64], x0: Array, P0: Array) -> None:
         """Start the slots ``indices`` from the estimate ``x0 (n, 4)``, ``P0 (n, 4, 4)``: every
-        bank at it with uniform probabilities, the TPM at the fixed one, the features'
+        bank at it with the tracker's initial probabilities (uniform for a linear bank, a
+        heterogeneous bank's ``initial_probs``), the TPM at the fixed one, the features'
         quantities and memories at their start (copy-on-write: arrays handed out earlier, in
         infos, do not change under the caller)."""
         init = self.imm.init(x0, P0)
