@@ -46,7 +46,7 @@ States of models with different dimensions are stored zero-padded in one ``(N, M
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.typing import NDArray
@@ -473,7 +473,8 @@ class HeteroIMM:
             z: ``(N, m)`` measurements; detected: ``(N,)``, predict only where False.
             check: validate ``tpm`` and ``z``.
             allow_failure: flag trackers whose innovation covariance is not positive definite in
-                ``IMMStep.failed`` (NaN outputs) instead of raising.
+                ``IMMStep.failed`` (NaN outputs, and at every later step) instead of raising; the
+                other trackers get the numbers they get alone.
             q_scale: ``(N, M)`` per-tracker factors on the models' ``Q`` (times each model's own
                 ``q_scale``); r_scale: ``(N,)`` per-tracker factors on ``R``.
 
@@ -492,6 +493,49 @@ class HeteroIMM:
             z = used_measurements(z, det)
             _check_scales("q_scale", q_scale, (N, M))
             _check_scales("r_scale", r_scale, (N,))
+        if not allow_failure:
+            return self._cycle(state, tpm, z, det, False, q_scale, r_scale)
+        # failures are flagged, not warned about: a failed tracker's NaN numbers pass through
+        # the arithmetic of the steps after it
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            try:
+                return self._cycle(state, tpm, z, det, True, q_scale, r_scale)
+            except np.linalg.LinAlgError:
+                return self._cycle_rows(state, tpm, z, det, q_scale, r_scale)
+
+    def _cycle_rows(
+        self, state: IMMState, tpm: Array, z: Array, det: BoolArray,
+        q_scale: Array | None, r_scale: Array | None,
+    ) -> tuple[IMMState, IMMStep]:
+        """:meth:`_cycle` tracker by tracker, after a factorization failed that the pre-checks
+        had passed: the failing trackers flagged with NaN outputs, the others with their own
+        cycle's numbers."""
+        N = state.x.shape[0]
+        rows = []
+        for i in range(N):
+            part = slice(i, i + 1)
+            one = IMMState(state.x[part], state.P[part], state.mu[part])
+            try:
+                rows.append(self._cycle(
+                    one, tpm if np.ndim(tpm) == 2 else tpm[part], z[part], det[part], True,
+                    None if q_scale is None else np.asarray(q_scale)[part],
+                    None if r_scale is None else np.asarray(r_scale)[part],
+                ))
+            except np.linalg.LinAlgError:
+                rows.append(_failed_row(one, bool(det[i]), self.sensor.dim_z))
+        states, steps = zip(*rows, strict=True)
+        posterior = IMMState(*(np.concatenate([getattr(o, f) for o in states])
+                               for f in ("x", "P", "mu")))
+        return posterior, IMMStep(*(
+            np.concatenate([getattr(o, f.name) for o in steps]) for f in fields(IMMStep)
+        ))
+
+    def _cycle(
+        self, state: IMMState, tpm: Array, z: Array, det: BoolArray, allow_failure: bool,
+        q_scale: Array | None, r_scale: Array | None,
+    ) -> tuple[IMMState, IMMStep]:
+        """:meth:`step` on checked inputs (``det`` an ``(N,)`` array)."""
+        N, M, _ = state.x.shape
         R = self.sensor.R if r_scale is None else np.asarray(r_scale)[:, None, None] * self.sensor.R
         cbar, x0s, P0s = self.mix(state, tpm)
         x_new = np.zeros_like(state.x)
@@ -527,6 +571,15 @@ class HeteroIMM:
         posterior = IMMState(x_new, P_new, mu)
         x_hat, P_hat = self.combine(mu, posterior.x, posterior.P)
         z_mix, S_mix = measurement_mixture(self.sensor, cbar, z_pred, S)
+        # a tracker that failed before carries NaN probabilities: its mixture is NaN too
+        lost = ~(np.isfinite(S_mix).all(axis=(-1, -2)) & np.isfinite(z_mix).all(axis=-1))
+        if lost.any():
+            if not allow_failure:
+                raise np.linalg.LinAlgError(
+                    f"predicted measurement density not finite for {int(lost.sum())} tracker(s)"
+                )
+            failed |= lost
+            S_mix = np.where(lost[:, None, None], np.eye(m), S_mix)
         S_inv, _ = inv_logdet(S_mix)
         nu = self.sensor.residual(z, z_mix)
         nis = np.where(det & ~failed, mahalanobis(nu, S_inv), 0.0)
@@ -582,6 +635,19 @@ class HeteroIMM:
             x = np.where(bad[:, None], 0.0, x)
             P = np.where(bad[:, None, None], np.eye(x.shape[-1]), P)
         return self.filter.update(x, P, z, sensor), bad
+
+
+def _failed_row(state: IMMState, detected: bool, dim_z: int) -> tuple[IMMState, IMMStep]:
+    """One tracker's failed cycle: every output NaN, ``failed`` set."""
+    _, M, n = state.x.shape
+
+    def nan(*shape: int) -> Array:
+        return np.full((1, *shape), np.nan)
+
+    return IMMState(nan(M, n), nan(M, n, n), nan(M)), IMMStep(
+        nan(4), nan(4, 4), nan(M), nan(M), nan(M), nan(M), nan(M, dim_z), nan(),
+        np.array([detected]), np.array([True]), nan(dim_z),
+    )
 
 
 def _check_scales(name: str, scale: Array | None, shape: tuple[int, ...]) -> None:

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imm_gym import IMM, ConfigError, PositionSensor, paper_bank, stay_tpm
+from imm_gym import IMM, ConfigError, PositionSensor, Sonar, paper_bank, stay_tpm
 from imm_gym.tracking.conversions import (
     SPACES,
     conversion,
@@ -19,6 +19,7 @@ from imm_gym.tracking.conversions import (
     g_integrals,
 )
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, HeteroModel, LinearModel, linear_models
+from imm_gym.tracking.imm import IMMState, run
 
 finite = st.floats(-50.0, 50.0, allow_nan=False)
 speed = st.floats(0.5, 30.0)
@@ -238,6 +239,43 @@ def test_failed_tracker_is_flagged_not_raised() -> None:
     assert np.all(np.isfinite(out.x[0]))
     with pytest.raises(np.linalg.LinAlgError):
         imm.step(state, stay_tpm(3, 0.9), np.zeros((2, 4)))
+
+
+@pytest.mark.parametrize("sensor", [Sonar(), PositionSensor(sigma_pos=0.5, sigma_vel=0.5)])
+def test_a_failed_tracker_stays_flagged_and_the_others_run_on(sensor) -> None:
+    """Steps after a failure: the failed tracker's NaN probabilities do not stop the batch,
+    and the other tracker's numbers are those it gets alone."""
+    imm = HeteroIMM(HeteroBank(), sensor, T=1.0)
+    x0 = np.tile([3000.0, 4500.0, 20.0, 15.0], (2, 1))
+    state = imm.init(x0, np.diag([100.0, 100.0, 25.0, 25.0]))
+    alone = IMMState(state.x[:1], state.P[:1], state.mu[:1])
+    state.P[1] = np.nan
+    tpm = stay_tpm(3, 0.95)
+    for k in range(1, 4):
+        truth = x0[:1] + np.array([20.0 * k, 15.0 * k, 0.0, 0.0])
+        z = np.repeat(sensor.h(truth), 2, axis=0)
+        state, out = imm.step(state, tpm, z, allow_failure=True)
+        alone, out_alone = imm.step(alone, tpm, z[:1])
+        assert out.failed.tolist() == [False, True]
+        assert np.isnan(out.x[1]).all() and np.isnan(state.mu[1]).all()
+        np.testing.assert_allclose(out.x[0], out_alone.x[0], rtol=1e-12)
+
+
+def test_a_factorization_that_fails_past_the_checks_flags_its_tracker() -> None:
+    """A process noise so large that the update's factorization fails although the innovation
+    covariance passed the pre-check: that tracker is flagged, the run goes on."""
+    sensor = Sonar()
+    imm = HeteroIMM(HeteroBank(), sensor, T=1.0)
+    truth = np.array([3000.0, 4500.0, 20.0, 15.0])
+    K = 20
+    path = truth + np.arange(1, K + 1)[:, None] * np.array([20.0, 15.0, 0.0, 0.0])
+    z = np.broadcast_to(sensor.h(path), (2, K, 2)).copy()
+    q = np.ones((2, 3))
+    q[1] = 1e20
+    out = run(imm, z, stay_tpm(3, 0.95), np.broadcast_to(truth, (2, 4)),
+              np.diag([100.0, 100.0, 25.0, 25.0]), allow_failure=True, q_scale=q)
+    assert out.failed.tolist() == [False, True]
+    assert np.isfinite(out.x[0]).all()
 
 
 @settings(max_examples=40, deadline=None)
