@@ -48,6 +48,9 @@ AGENT_KEYS = (
     "swa",
     "trained_across",
 )
+#: The most frames an agent may stack (its network's input is that many observations) and the
+#: most ground-truth entries its critic may read per frame.
+MAX_FRAMES, MAX_CRITIC_DIMS = 64, 1024
 #: The keys of ``vecnormalize.json``.
 NORMALIZER_KEYS = ("mean", "var", "count", "clip_obs", "epsilon")
 
@@ -336,10 +339,13 @@ def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
     if meta.get("algo") not in ALGOS:
         raise ConfigError(f"{file}: algo must be one of {list(ALGOS)}, got {meta.get('algo')!r}")
     out = dict(meta)
-    for key, low, default in (("frame_stack", 1, None), ("critic_dims", 0, 0)):
+    for key, low, high, default in (("frame_stack", 1, MAX_FRAMES, None),
+                                    ("critic_dims", 0, MAX_CRITIC_DIMS, 0)):
         value = meta.get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise ConfigError(f"{file}: {key} must be an integer >= {low}, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ConfigError(
+                f"{file}: {key} must be an integer in [{low}, {high}], got {value!r}"
+            )
         out[key] = value
     if "env_id" in meta and not isinstance(meta["env_id"], str):
         raise ConfigError(f"{file}: env_id must be a string, got {meta['env_id']!r}")

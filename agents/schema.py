@@ -45,6 +45,34 @@ def check_size(where: str, value: Any) -> int:
     return value
 
 
+#: The widest layer and the deepest network a description may give: a layer of 4096 by 4096
+#: float32 weights is 64 MiB, so a description read from a file cannot make the loader
+#: allocate more than a few hundred MiB before its weights file is compared with it.
+MAX_WIDTH, MAX_LAYERS = 4096, 8
+#: The largest input a description may give (frames times entries of a frame).
+MAX_INPUT = 16384
+
+
+def check_width(where: str, value: Any) -> int:
+    """``value`` if it is a layer size: an integer in ``[1, MAX_WIDTH]``."""
+    return _bounded(where, value, MAX_WIDTH)
+
+
+def _depth(where: str, value: Any) -> int:
+    return _bounded(where, value, MAX_LAYERS)
+
+
+def _input_size(where: str, value: Any) -> int:
+    return _bounded(where, value, MAX_INPUT)
+
+
+def _bounded(where: str, value: Any, most: int) -> int:
+    size = check_size(where, value)
+    if size > most:
+        raise ConfigError(f"{where} must be at most {most}, got {size}")
+    return size
+
+
 def check_count(where: str, value: Any) -> int:
     """``value`` if it is an integer >= 0 (not a float, a boolean or a string)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
@@ -72,9 +100,11 @@ def _activation(where: str, value: Any) -> str:
 
 
 def _layers(where: str, value: Any) -> list[int]:
-    if not isinstance(value, list):
-        raise ConfigError(f"{where} must be a list of layer sizes, got {value!r}")
-    return [check_size(f"{where}[{i}]", n) for i, n in enumerate(value)]
+    if not isinstance(value, list) or len(value) > MAX_LAYERS:
+        raise ConfigError(
+            f"{where} must be a list of at most {MAX_LAYERS} layer sizes, got {value!r}"
+        )
+    return [check_width(f"{where}[{i}]", n) for i, n in enumerate(value)]
 
 
 def _names(where: str, value: Any) -> list[str]:
@@ -102,8 +132,8 @@ POLICY_KWARGS: dict[str, Callable[[str, Any], Any]] = {
     "use_expln": check_flag,
     "squash_output": check_flag,
     "share_features_extractor": check_flag,
-    "lstm_hidden_size": check_size,
-    "n_lstm_layers": check_size,
+    "lstm_hidden_size": check_width,
+    "n_lstm_layers": _depth,
     "shared_lstm": check_flag,
     "enable_critic_lstm": check_flag,
 }
@@ -114,7 +144,7 @@ SDE_KEYS = ("full_std", "use_expln", "squash_output")
 
 #: Entries of an agent's network description beyond :data:`POLICY_KWARGS`.
 SPEC_FIELDS: dict[str, Callable[[str, Any], Any]] = {
-    "observation_size": check_size,
+    "observation_size": _input_size,
     "action_size": check_size,
     "use_sde": check_flag,
     "critic_dims": check_count,

@@ -45,6 +45,7 @@ from safetensors.torch import save_file
 
 from agents.network import load_tensors
 from agents.policy import ENV_FILE, read_env_file, read_manifest, write_env_file
+from agents.schema import MAX_WIDTH
 from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
@@ -225,8 +226,10 @@ def load_selector(path: str | Path) -> StaySelector:
     file = directory / SELECTOR_FILE
     data = read_manifest(file, SELECTOR_KEYS, FORMAT, COMBINE)
     hidden = data.get("hidden")
-    if not isinstance(hidden, int) or isinstance(hidden, bool) or hidden < 1:
-        raise ConfigError(f"{file}: hidden must be a positive integer, got {hidden!r}")
+    if not isinstance(hidden, int) or isinstance(hidden, bool) or not 1 <= hidden <= MAX_WIDTH:
+        raise ConfigError(
+            f"{file}: hidden must be an integer in [1, {MAX_WIDTH}], got {hidden!r}"
+        )
     members = data.get("members")
     if (not isinstance(members, list) or not members
             or not all(isinstance(m, str) and m and "/" not in m for m in members)

@@ -329,6 +329,10 @@ def _obs_features(directory: Path) -> None:
         (_policy(net_arch={"pi": [64], "vf": [128, 128]}), r"missing \[.*policy_net\.2"),
         (_policy(lstm_hidden_size=64), "unknown keys \\['lstm_hidden_size'\\]"),
         (_policy(observation_size="168"), "policy.observation_size must be a positive integer"),
+        (_policy(net_arch={"pi": [10**6], "vf": [128]}), r"net_arch\.pi\[0\] must be at most"),
+        (_policy(net_arch={"pi": [8] * 9, "vf": [128]}), "must be a list of at most 8 layer"),
+        (_policy(observation_size=10**7), "policy.observation_size must be at most 16384"),
+        (_json("agent.json", frame_stack=10**6), r"frame_stack must be an integer in \[1, 64\]"),
     ],
 )
 def test_a_corrupt_or_mismatched_agent_is_one_line_naming_the_file(
