@@ -1,0 +1,59 @@
+"""The evaluation's figures: the mode probabilities named by the evaluated bank's models, the
+time axis in seconds at the tracker's sampling period (in steps when it is drawn per episode),
+no pyplot backend switched; the animation's first mode probabilities are the tracker's."""
+
+from __future__ import annotations
+
+import matplotlib
+import numpy as np
+
+from baselines import REGISTRY, BuildContext
+from imm_gym import EnvConfig
+from imm_gym.evaluation.animation import rollout_view, start_probs
+from imm_gym.evaluation.plots import figures
+from imm_gym.evaluation.rollout import evaluation_config, rollout
+from imm_gym.sim.episodes import draw_batch
+from imm_gym.sim.presets import BANK_PRESETS
+from imm_gym.sim.render import model_labels
+from imm_gym.tracking.hetero import HeteroBank
+
+META = {"scenario": "test", "runs": 2, "seeds": "0..1"}
+
+
+def _fixed_rollout(config: EnvConfig, runs: int = 2, seed: int = 0):
+    policy, _ = REGISTRY["fixed"].build(BuildContext(config, seed, 1, None))
+    return rollout(policy, evaluation_config(config, policy.env_overrides), runs, seed)
+
+
+def test_mode_probabilities_are_named_by_the_bank_and_time_is_in_seconds() -> None:
+    config = EnvConfig.build({"scenario": "paper", **BANK_PRESETS["hetero"]})
+    run = _fixed_rollout(config)
+    backend = matplotlib.get_backend()
+    figs = figures({"fixed": run}, META, model_labels(config.bank), period=2.0)
+    assert matplotlib.get_backend() == backend  # no pyplot backend switched
+    legend = figs["mode_probs"].axes[0].get_legend()
+    assert [text.get_text() for text in legend.get_texts()] == ["NCV", "CT", "CTRA"]
+    for name in ("mode_probs", "rmse"):
+        ax = figs[name].axes[-1]
+        assert ax.get_xlabel() == "time (s)"
+        K = run.truth.shape[1]
+        assert ax.get_lines()[0].get_xdata()[-1] == 2.0 * K
+
+
+def test_without_a_sampling_period_the_axis_counts_steps() -> None:
+    run = _fixed_rollout(EnvConfig(scenario="paper"))
+    figs = figures({"fixed": run}, META, ["CV", "CT(+4°/s)", "CT(-4°/s)"])
+    ax = figs["rmse"].axes[0]
+    assert ax.get_xlabel() == "step"
+    assert ax.get_lines()[0].get_xdata()[-1] == run.truth.shape[1]
+
+
+def test_the_animation_starts_from_the_trackers_mode_probabilities() -> None:
+    np.testing.assert_array_equal(start_probs(HeteroBank()), [0.90, 0.08, 0.02])
+    config = EnvConfig(scenario="paper")
+    np.testing.assert_array_equal(start_probs(config.bank), np.full(3, 1 / 3))
+    run = _fixed_rollout(config, runs=1)
+    batch = draw_batch(config.source, config.sensor, 1, 0, config.velocity_std)
+    view = rollout_view(run, batch, config.sensor, "fixed", 5, start=np.array([0.5, 0.3, 0.2]))
+    np.testing.assert_array_equal(view.mode_probs[0], [0.5, 0.3, 0.2])
+    np.testing.assert_array_equal(view.mode_probs[1:], run.mode_probs[0, :5])
