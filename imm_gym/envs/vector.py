@@ -57,7 +57,10 @@ class TPMAdaptVectorEnv(VectorEnv):
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         envs = range(num_envs) if render_envs is None else render_envs
-        if not all(isinstance(i, int) and 0 <= i < num_envs for i in envs):
+        if not all(
+            isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < num_envs
+            for i in envs
+        ):
             raise ValueError(f"render_envs must be indices in [0, {num_envs}), got {render_envs!r}")
         self.config = EnvConfig.build(config, **kwargs)
         self.num_envs = num_envs
@@ -70,7 +73,7 @@ class TPMAdaptVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self._autoreset = np.zeros(num_envs, dtype=bool)
         self.render_mode = render_mode
-        self.render_envs = tuple(envs)
+        self.render_envs = tuple(int(i) for i in envs)
         self._renderer = (
             None
             if render_mode is None

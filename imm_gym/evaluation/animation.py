@@ -10,7 +10,7 @@ drawn again from its seed (:func:`imm_gym.sim.episodes.draw_batch`: the draws ev
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +20,12 @@ from imm_gym.evaluation.rollout import Rollout
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import Batch, draw_batch
 from imm_gym.sim.render import RENDER_FPS, TrackFigure, TrackView, model_labels, scene_extent
+from imm_gym.tracking.hetero import HeteroBank
+from imm_gym.tracking.models import MotionModel
 from imm_gym.tracking.sensors import Sonar
 from imm_gym.validation import ConfigError
+
+Array = NDArray[np.float64]
 
 #: The file types :func:`write_animation` writes.
 FORMATS = (".gif", ".mp4")
@@ -46,12 +50,14 @@ def check_animation_path(path: Path) -> None:
 
 
 def rollout_view(
-    rollout: Rollout, batch: Batch, sensor: Sonar, title: str, t: int, run: int = 0
+    rollout: Rollout, batch: Batch, sensor: Sonar, title: str, t: int, run: int = 0,
+    start: Array | None = None,
 ) -> TrackView:
     """What run ``run`` of ``rollout`` shows at step ``t`` (1..K); ``batch`` holds the run's
     truth, measurements and track start as ``sensor`` made them (run ``run`` of both must be the
-    same episode)."""
+    same episode); ``start`` the tracker's mode probabilities at ``t = 0`` (uniform if None)."""
     M = rollout.mode_probs.shape[-1]
+    start = np.full(M, 1.0 / M) if start is None else np.asarray(start, dtype=np.float64)
     measurements = batch.measurements
     position = np.asarray(sensor.position, dtype=np.float64)
     return TrackView(
@@ -64,7 +70,7 @@ def rollout_view(
         measurements=sensor.initial_position(measurements.z[run, : t + 1])[0],
         detected=measurements.detected[run, : t + 1],
         outlier=measurements.outlier[run, : t + 1],
-        mode_probs=np.vstack([np.full(M, 1.0 / M), rollout.mode_probs[run, :t]]),
+        mode_probs=np.vstack([start, rollout.mode_probs[run, :t]]),
         true_model=np.concatenate([[-1], rollout.true_model[run, :t]]),
         tpm=rollout.tpm[run, t - 1],
         sensor=position,
@@ -105,13 +111,24 @@ def side_by_side_frames(
         if rollout.mode_probs.shape[-1] != len(labels):
             raise ValueError(f"the roll-out of {name!r} is not of the configured bank")
     figures = {name: TrackFigure(labels, scale) for name in rollouts}
+    start = start_probs(config.bank)
     for t in range(1, batch.horizon + 1):
         yield np.hstack(
             [
-                figures[name].frame(rollout_view(rollout, batch, config.sensor, name, t, run))
+                figures[name].frame(
+                    rollout_view(rollout, batch, config.sensor, name, t, run, start)
+                )
                 for name, rollout in rollouts.items()
             ]
         )
+
+
+def start_probs(bank: Sequence[MotionModel] | HeteroBank) -> Array:
+    """The mode probabilities a tracker of ``bank`` starts from: uniform, or a heterogeneous
+    bank's own (``HeteroBank.probs``)."""
+    if isinstance(bank, HeteroBank):
+        return np.asarray(bank.probs, dtype=np.float64)
+    return np.full(len(bank), 1.0 / len(bank))
 
 
 def write_animation(

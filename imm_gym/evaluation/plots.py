@@ -2,67 +2,84 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from imm_gym.evaluation.rollout import Rollout
 
 
-def write_figures(rollouts: dict[str, Rollout], out_dir: Path, meta: dict[str, Any]) -> list[Path]:
-    """Write ``trajectory.png``, ``mode_probs.png`` and ``rmse.png`` to ``out_dir``.
+def write_figures(
+    rollouts: dict[str, Rollout],
+    out_dir: Path,
+    meta: dict[str, Any],
+    labels: Sequence[str],
+    period: float | None = None,
+) -> list[Path]:
+    """Write :func:`figures` to ``out_dir`` as ``NAME.png``; returns the paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return [
+        _save(fig, out_dir / f"{name}.png")
+        for name, fig in figures(rollouts, meta, labels, period).items()
+    ]
+
+
+def figures(
+    rollouts: dict[str, Rollout],
+    meta: dict[str, Any],
+    labels: Sequence[str],
+    period: float | None = None,
+) -> dict[str, Figure]:
+    """``trajectory``, ``mode_probs`` and ``rmse``.
 
     The trajectory and model probabilities show run 0 (the first seed); the RMSE curves use all
-    runs, ``RMSE(t) = sqrt(mean_r ||p_hat - p||^2)``.
+    runs, ``RMSE(t) = sqrt(mean_r ||p_hat - p||^2)``. ``labels`` name the bank's models (the
+    mode probabilities' legend); the time axis is in seconds at the sampling period ``period``,
+    in steps without one (a sampling period drawn per episode).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
+    out: dict[str, Figure] = {}
     title = f"{meta['scenario']}, {meta['runs']} runs, seeds {meta['seeds']}"
     first = next(iter(rollouts.values()))
-    t = np.arange(1, first.truth.shape[1] + 1)
+    steps = np.arange(1, first.truth.shape[1] + 1)
+    t, t_label = (steps, "step") if period is None else (steps * period, "time (s)")
 
-    fig, ax = plt.subplots(figsize=(7, 6))
+    fig = Figure(figsize=(7, 6))
+    ax = fig.subplots()
     ax.plot(first.truth[0, :, 0], first.truth[0, :, 1], "k-", lw=2, label="truth")
     for name, r in rollouts.items():
         ax.plot(r.estimate[0, :, 0], r.estimate[0, :, 1], lw=1, label=name)
     ax.set(xlabel="x (m)", ylabel="y (m)", title=f"Trajectory, run 0 ({meta['scenario']})")
     ax.axis("equal")
     ax.legend()
-    paths.append(_save(fig, out_dir / "trajectory.png"))
+    out["trajectory"] = fig
 
-    labels = ["CV", "CT+", "CT-"] + [f"model {j}" for j in range(3, first.mode_probs.shape[-1])]
-    fig, axes = plt.subplots(
-        len(rollouts), 1, figsize=(8, 2.4 * len(rollouts)), sharex=True, squeeze=False
-    )
+    fig = Figure(figsize=(8, 2.4 * len(rollouts)))
+    axes = fig.subplots(len(rollouts), 1, sharex=True, squeeze=False)
     for ax, (name, r) in zip(axes[:, 0], rollouts.items(), strict=True):
         for j in range(r.mode_probs.shape[-1]):
             ax.plot(t, r.mode_probs[0, :, j], label=labels[j])
         ax.set(ylabel="probability", ylim=(-0.02, 1.02), title=name)
     axes[0, 0].legend(loc="upper right", ncol=3)
-    axes[-1, 0].set_xlabel("time (s)")
-    paths.append(_save(fig, out_dir / "mode_probs.png"))
+    axes[-1, 0].set_xlabel(t_label)
+    out["mode_probs"] = fig
 
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig = Figure(figsize=(8, 4))
+    ax = fig.subplots()
     for name, r in rollouts.items():
         ax.plot(t, np.sqrt(r.squared_position_error.mean(axis=0)), lw=1, label=name)
-    ax.set(xlabel="time (s)", ylabel="position RMSE (m)", title=f"RMSE over time ({title})")
+    ax.set(xlabel=t_label, ylabel="position RMSE (m)", title=f"RMSE over time ({title})")
     ax.legend()
-    paths.append(_save(fig, out_dir / "rmse.png"))
-    return paths
+    out["rmse"] = fig
+    return out
 
 
-def _save(fig: Any, path: Path) -> Path:
+def _save(fig: Figure, path: Path) -> Path:
+    """Write ``fig`` (a figure outside pyplot: no backend is switched, nothing to close)."""
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
     return path
 
 
@@ -82,12 +99,8 @@ def tradeoff_figure(
         fixed: the score of the classical IMM at each stay probability.
         path: the PNG written; meta: the evaluation's ``meta`` (scenario, runs, seeds).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 5.5))
+    fig = Figure(figsize=(8, 5.5))
+    ax = fig.subplots()
     stays = sorted(fixed)
     acc = [100.0 * fixed[s]["mode_accuracy"] for s in stays]
     err = [fixed[s]["armse_pos"] for s in stays]

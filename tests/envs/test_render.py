@@ -117,6 +117,11 @@ def test_bad_render_modes_and_render_before_reset() -> None:
         TPMAdaptVectorEnv(2, render_mode="human")
     with pytest.raises(ValueError, match="render_envs"):
         TPMAdaptVectorEnv(2, render_mode="rgb_array", render_envs=[2])
+    with pytest.raises(ValueError, match="render_envs"):
+        TPMAdaptVectorEnv(2, render_mode="rgb_array", render_envs=[True])
+    # numpy's integers are indices too
+    picked = TPMAdaptVectorEnv(2, render_mode="rgb_array", render_envs=np.array([1]))
+    assert picked.render_envs == (1,) and type(picked.render_envs[0]) is int
     with pytest.raises(RuntimeError, match="reset"):
         TPMAdaptEnv(render_mode="rgb_array").render()
 
