@@ -32,7 +32,8 @@ class TPMAdaptVectorEnv(VectorEnv):
     ``render_envs`` (default: all of them, as Gymnasium's vector envs do; ``render_envs=[0]``
     draws sub-env 0 only, a picture costs milliseconds), each the picture
     :class:`~imm_gym.envs.tpm_adapt.TPMAdaptEnv` draws. For a window, wrap the env in
-    ``gymnasium.wrappers.vector.HumanRendering`` or use the scalar env's ``"human"`` mode.
+    ``gymnasium.wrappers.vector.HumanRendering`` (which tiles a frame per sub-env: leave
+    ``render_envs`` at all of them) or use the scalar env's ``"human"`` mode.
     """
 
     metadata = {
