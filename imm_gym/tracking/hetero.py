@@ -46,7 +46,7 @@ States of models with different dimensions are stored zero-padded in one ``(N, M
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -67,6 +67,7 @@ from imm_gym.tracking.imm import (
     IMMStep,
     Tracker,
     combine,
+    cycles_by_tracker,
     measurement_mixture,
     mix,
     run,
@@ -508,27 +509,17 @@ class HeteroIMM:
         q_scale: Array | None, r_scale: Array | None,
     ) -> tuple[IMMState, IMMStep]:
         """:meth:`_cycle` tracker by tracker, after a factorization failed that the pre-checks
-        had passed: the failing trackers flagged with NaN outputs, the others with their own
-        cycle's numbers."""
-        N = state.x.shape[0]
-        rows = []
-        for i in range(N):
+        had passed (:func:`~imm_gym.tracking.imm.cycles_by_tracker`)."""
+
+        def cycle(i: int, one: IMMState) -> tuple[IMMState, IMMStep]:
             part = slice(i, i + 1)
-            one = IMMState(state.x[part], state.P[part], state.mu[part])
-            try:
-                rows.append(self._cycle(
-                    one, tpm if np.ndim(tpm) == 2 else tpm[part], z[part], det[part], True,
-                    None if q_scale is None else np.asarray(q_scale)[part],
-                    None if r_scale is None else np.asarray(r_scale)[part],
-                ))
-            except np.linalg.LinAlgError:
-                rows.append(_failed_row(one, bool(det[i]), self.sensor.dim_z))
-        states, steps = zip(*rows, strict=True)
-        posterior = IMMState(*(np.concatenate([getattr(o, f) for o in states])
-                               for f in ("x", "P", "mu")))
-        return posterior, IMMStep(*(
-            np.concatenate([getattr(o, f.name) for o in steps]) for f in fields(IMMStep)
-        ))
+            return self._cycle(
+                one, tpm if np.ndim(tpm) == 2 else tpm[part], z[part], det[part], True,
+                None if q_scale is None else np.asarray(q_scale)[part],
+                None if r_scale is None else np.asarray(r_scale)[part],
+            )
+
+        return cycles_by_tracker(state, det, self.sensor.dim_z, 4, cycle, z_pred=True)
 
     def _cycle(
         self, state: IMMState, tpm: Array, z: Array, det: BoolArray, allow_failure: bool,
@@ -635,19 +626,6 @@ class HeteroIMM:
             x = np.where(bad[:, None], 0.0, x)
             P = np.where(bad[:, None, None], np.eye(x.shape[-1]), P)
         return self.filter.update(x, P, z, sensor), bad
-
-
-def _failed_row(state: IMMState, detected: bool, dim_z: int) -> tuple[IMMState, IMMStep]:
-    """One tracker's failed cycle: every output NaN, ``failed`` set."""
-    _, M, n = state.x.shape
-
-    def nan(*shape: int) -> Array:
-        return np.full((1, *shape), np.nan)
-
-    return IMMState(nan(M, n), nan(M, n, n), nan(M)), IMMStep(
-        nan(4), nan(4, 4), nan(M), nan(M), nan(M), nan(M), nan(M, dim_z), nan(),
-        np.array([detected]), np.array([True]), nan(dim_z),
-    )
 
 
 def _check_scales(name: str, scale: Array | None, shape: tuple[int, ...]) -> None:

@@ -14,7 +14,7 @@ runs the cycle; :meth:`IMM.run` runs it over a recorded measurement sequence.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 from typing import Protocol
 
@@ -169,6 +169,50 @@ def _new_step(
     fields_["failed"] = failed
     fields_["z_pred"] = None
     return step
+
+
+def cycles_by_tracker(
+    state: IMMState,
+    detected: BoolArray,
+    dim_z: int,
+    dim_out: int,
+    cycle: Callable[[int, IMMState], tuple[IMMState, IMMStep]],
+    z_pred: bool = False,
+) -> tuple[IMMState, IMMStep]:
+    """A batch's cycle run tracker by tracker, after the batch's raised ``LinAlgError``: tracker
+    ``i``'s ``cycle(i, its state)``, or where that raises, its failed cycle — every output NaN,
+    ``failed`` set, as the compiled engine flags it — joined along the batch.
+
+    Args:
+        state: the batch's posterior at k-1; detected: ``(N,)`` whether each had a measurement.
+        dim_z, dim_out: the measurement's and the combined estimate's dimensions.
+        z_pred: whether the cycle's step has a predicted measurement (NaN where it failed).
+    """
+    rows = []
+    for i in range(state.x.shape[0]):
+        part = slice(i, i + 1)
+        one = IMMState(state.x[part], state.P[part], state.mu[part])
+        try:
+            rows.append(cycle(i, one))
+        except np.linalg.LinAlgError:
+            _, M, n = one.x.shape
+
+            def nan(*shape: int) -> Array:
+                return np.full((1, *shape), np.nan)
+
+            rows.append((IMMState(nan(M, n), nan(M, n, n), nan(M)), IMMStep(
+                nan(dim_out), nan(dim_out, dim_out), nan(M), nan(M), nan(M), nan(M),
+                nan(M, dim_z), nan(), detected[part].copy(), np.array([True]),
+                nan(dim_z) if z_pred else None,
+            )))
+    states, steps = zip(*rows, strict=True)
+    posterior = IMMState(*(np.concatenate([getattr(o, f) for o in states])
+                           for f in ("x", "P", "mu")))
+    return posterior, IMMStep(*(
+        None if getattr(steps[0], f.name) is None
+        else np.concatenate([getattr(o, f.name) for o in steps])
+        for f in fields(IMMStep)
+    ))
 
 
 def _refuse_extra_axes(tpm: Array, M: int) -> None:
@@ -574,41 +618,17 @@ class IMM:
     def _step_numpy_rows(
         self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None
     ) -> tuple[IMMState, IMMStep]:
-        """:meth:`_step_numpy` tracker by tracker, after the batch raised: a tracker whose cycle
-        raises ``LinAlgError`` is flagged in ``failed`` and its outputs are NaN, as the compiled
-        engine flags it; the others get their cycle's numbers."""
-        N = state.x.shape[0]
-        rows = []
-        for i in range(N):
-            one = _new_state(state.x[i:i + 1], state.P[i:i + 1], state.mu[i:i + 1])
-            tpm_i = tpm if np.ndim(tpm) == 2 else tpm[i:i + 1]
-            det_i = None if detected is None else detected[i:i + 1]
-            try:
-                rows.append(self._step_numpy(one, tpm_i, z[i:i + 1], det_i))
-            except np.linalg.LinAlgError:
-                rows.append(self._failed_row(one, True if det_i is None else bool(det_i[0])))
-        states, steps = zip(*rows, strict=True)
-        joined = {
-            name: np.concatenate([getattr(o, name) for o in steps])
-            for name in ("x", "P", "mode_probs", "cbar", "loglik", "model_nis", "innovation",
-                         "nis", "detected", "failed")
-        }
-        posterior = IMMState(*(np.concatenate([getattr(o, f) for o in states])
-                               for f in ("x", "P", "mu")))
-        return posterior, IMMStep(**joined)
+        """:meth:`_step_numpy` tracker by tracker, after the batch raised
+        (:func:`cycles_by_tracker`)."""
 
-    def _failed_row(self, state: IMMState, detected: bool) -> tuple[IMMState, IMMStep]:
-        """One tracker's failed cycle: every output NaN, ``failed`` set."""
-        _, M, n = state.x.shape
+        def cycle(i: int, one: IMMState) -> tuple[IMMState, IMMStep]:
+            part = slice(i, i + 1)
+            tpm_i = tpm if np.ndim(tpm) == 2 else tpm[part]
+            det_i = None if detected is None else detected[part]
+            return self._step_numpy(one, tpm_i, z[part], det_i)
 
-        def nan(*shape: int) -> Array:
-            return np.full((1, *shape), np.nan)
-
-        posterior = IMMState(nan(M, n), nan(M, n, n), nan(M))
-        return posterior, IMMStep(
-            nan(n), nan(n, n), nan(M), nan(M), nan(M), nan(M), nan(M, self.sensor.dim_z), nan(),
-            np.array([detected]), np.array([True]),
-        )
+        seen = np.ones(state.x.shape[0], dtype=bool) if detected is None else detected
+        return cycles_by_tracker(state, seen, self.sensor.dim_z, state.x.shape[-1], cycle)
 
     def _checked(
         self, tpm: Array, z: Array, detected: BoolArray | None, N: int, M: int
