@@ -52,8 +52,7 @@ DETECTOR_FILE = "detector.safetensors"
 def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     """Replace ``target`` by the acting files of ``source`` — an agent directory, an
     ensemble's (:mod:`agents.ensemble`) or a stay selector's (:mod:`agents.selector`) — after
-    checking that they load. Returns the files
-    written.
+    checking that they load. Returns the files written.
 
     Raises:
         FileNotFoundError: ``source`` is neither an agent nor an ensemble directory.

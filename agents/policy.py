@@ -408,7 +408,6 @@ def write_env_file(directory: Path, overrides: Mapping[str, Any]) -> None:
     """``directory/env.json``: the overrides an agent acts with, tuples as lists, a
     ``detector_weights`` path made absolute, so that it reads the same from any working
     directory (:mod:`agents.export` copies that file beside the policy and names it relative)."""
-
     data = dict(overrides)  # JSON writes tuples as lists
     if isinstance(data.get("detector_weights"), str):
         data["detector_weights"] = str(Path(data["detector_weights"]).resolve())
