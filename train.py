@@ -839,7 +839,10 @@ def evaluate_agent(
             results[f"vs_{rule.replace('-', '_')}"] = _paired(rollouts, "learned", rule)
         results["meta"]["scenario"] = scenario
         render_tables(results)
-        write_figures(rollouts, run_dir / "plots" / scenario, results["meta"])
+        write_figures(
+            rollouts, run_dir / "plots" / scenario, results["meta"],
+            evaluated_config(scenario, env_config),
+        )
         out[scenario] = results
     return out
 

@@ -870,12 +870,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     _record(results, args.json)
     if args.plots:
         from imm_gym.evaluation.plots import write_figures
-        from imm_gym.sim.render import model_labels
 
         base = evaluated_config(scenario, overrides)
-        period = None if base.vary.T is not None else base.source.T
-        labels = model_labels(base.bank)
-        for path in write_figures(rollouts, args.plots, results["meta"], labels, period):
+        for path in write_figures(rollouts, args.plots, results["meta"], base):
             print(f"wrote {path}")
     if args.animate:
         _write_animation(args, rollouts)

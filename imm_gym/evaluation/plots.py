@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -10,36 +9,34 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from imm_gym.evaluation.rollout import Rollout
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.render import model_labels
 
 
 def write_figures(
-    rollouts: dict[str, Rollout],
-    out_dir: Path,
-    meta: dict[str, Any],
-    labels: Sequence[str],
-    period: float | None = None,
+    rollouts: dict[str, Rollout], out_dir: Path, meta: dict[str, Any], config: EnvConfig
 ) -> list[Path]:
     """Write :func:`figures` to ``out_dir`` as ``NAME.png``; returns the paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     return [
         _save(fig, out_dir / f"{name}.png")
-        for name, fig in figures(rollouts, meta, labels, period).items()
+        for name, fig in figures(rollouts, meta, config).items()
     ]
 
 
 def figures(
-    rollouts: dict[str, Rollout],
-    meta: dict[str, Any],
-    labels: Sequence[str],
-    period: float | None = None,
+    rollouts: dict[str, Rollout], meta: dict[str, Any], config: EnvConfig
 ) -> dict[str, Figure]:
-    """``trajectory``, ``mode_probs`` and ``rmse``.
+    """``trajectory``, ``mode_probs`` and ``rmse`` of roll-outs on ``config`` (the evaluated
+    configuration).
 
     The trajectory and model probabilities show run 0 (the first seed); the RMSE curves use all
-    runs, ``RMSE(t) = sqrt(mean_r ||p_hat - p||^2)``. ``labels`` name the bank's models (the
-    mode probabilities' legend); the time axis is in seconds at the sampling period ``period``,
-    in steps without one (a sampling period drawn per episode).
+    runs, ``RMSE(t) = sqrt(mean_r ||p_hat - p||^2)``. The mode probabilities are named by the
+    bank's models; the time axis is in seconds at the scenario's sampling period, in steps where
+    the sampling period is drawn per episode (``vary.T``).
     """
+    labels = model_labels(config.bank)
+    period = None if config.vary.T is not None else config.source.T
     out: dict[str, Figure] = {}
     title = f"{meta['scenario']}, {meta['runs']} runs, seeds {meta['seeds']}"
     first = next(iter(rollouts.values()))

@@ -26,26 +26,31 @@ def _fixed_rollout(config: EnvConfig, runs: int = 2, seed: int = 0):
 
 
 def test_mode_probabilities_are_named_by_the_bank_and_time_is_in_seconds() -> None:
-    config = EnvConfig.build({"scenario": "paper", **BANK_PRESETS["hetero"]})
+    scenario = {"segments": [{"duration": 12}], "position": [3000.0, 4500.0],
+                "velocity": [20.0, 15.0], "T": 2.0}
+    config = EnvConfig.build({"scenario": scenario, **BANK_PRESETS["hetero"]})
     run = _fixed_rollout(config)
     backend = matplotlib.get_backend()
-    figs = figures({"fixed": run}, META, model_labels(config.bank), period=2.0)
+    figs = figures({"fixed": run}, META, config)
     assert matplotlib.get_backend() == backend  # no pyplot backend switched
     legend = figs["mode_probs"].axes[0].get_legend()
-    assert [text.get_text() for text in legend.get_texts()] == ["NCV", "CT", "CTRA"]
+    assert [text.get_text() for text in legend.get_texts()] == model_labels(config.bank)
+    assert model_labels(config.bank) == ["NCV", "CT", "CTRA"]
     for name in ("mode_probs", "rmse"):
         ax = figs[name].axes[-1]
         assert ax.get_xlabel() == "time (s)"
-        K = run.truth.shape[1]
-        assert ax.get_lines()[0].get_xdata()[-1] == 2.0 * K
+        assert ax.get_lines()[0].get_xdata()[-1] == 2.0 * 12
 
 
-def test_without_a_sampling_period_the_axis_counts_steps() -> None:
-    run = _fixed_rollout(EnvConfig(scenario="paper"))
-    figs = figures({"fixed": run}, META, ["CV", "CT(+4°/s)", "CT(-4°/s)"])
-    ax = figs["rmse"].axes[0]
+def test_a_sampling_period_drawn_per_episode_counts_steps() -> None:
+    config = EnvConfig.build({
+        **BANK_PRESETS["cv-ct-continuous"], "vary": {"T": (0.5, 2.0)},
+        "family": {"horizon": 20, "n_segments": (1, 2), "min_duration": 10},
+    })
+    run = _fixed_rollout(config)
+    ax = figures({"fixed": run}, META, config)["rmse"].axes[0]
     assert ax.get_xlabel() == "step"
-    assert ax.get_lines()[0].get_xdata()[-1] == run.truth.shape[1]
+    assert ax.get_lines()[0].get_xdata()[-1] == 20
 
 
 def test_the_animation_starts_from_the_trackers_mode_probabilities() -> None:
