@@ -76,8 +76,7 @@ from imm_gym.scenarios.segments import Scenario, true_model_index
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.sim.actions import action_size
 from imm_gym.sim.config_file import (
-    EVALUATION_FIELDS,
-    TARGET_FIELDS,
+    EVALUATED_FIELDS,
     TRACKER_FIELDS,
     expand_presets,
     plain,
@@ -319,8 +318,7 @@ def agent_overrides(
             entries, M in the stay modes) that ``base`` gives is not the size the agent's network
             reads or writes.
     """
-    dropped = (*TRACKER_FIELDS, *TARGET_FIELDS, *EVALUATION_FIELDS)
-    kept = {k: v for k, v in overrides.items() if k not in dropped}
+    kept = {k: v for k, v in overrides.items() if k not in EVALUATED_FIELDS}
     cfg = evaluation_config(base, kept)
     M = len(cfg.bank)
     obs_size = int(bounds(cfg.obs_features, M, cfg.sensor.dim_z)[0].size)

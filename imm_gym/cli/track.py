@@ -99,11 +99,12 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
     for name, group in groups.items():
         first = starts[name]
         z = np.array([
-            [_number(path, first + i, c, row[c]) for c in z_cols] for i, row in enumerate(group)
+            [_number(path, first + i, name, c, row[c]) for c in z_cols]
+            for i, row in enumerate(group)
         ])
         detected = (
             np.array([
-                _number(path, first + i, "detected", row["detected"]) == 1
+                _number(path, first + i, name, "detected", row["detected"]) == 1
                 for i, row in enumerate(group)
             ])
             if "detected" in header
@@ -149,17 +150,19 @@ def _velocity(
             )
     if cells[0][0] == "":
         return None
-    return np.array([_number(path, first, c, group[0][c]) for c in ("vx", "vy")])
+    return np.array([_number(path, first, name, c, group[0][c]) for c in ("vx", "vy")])
 
 
-def _number(path: Path, line: int, column: str, text: str | None) -> float:
-    """A CSV cell as a float (an empty cell is NaN)."""
+def _number(path: Path, line: int, name: str, column: str, text: str | None) -> float:
+    """A CSV cell of sequence ``name`` as a float (an empty cell is NaN)."""
     if text is None or text.strip() == "":
         return float("nan")
     try:
         return float(text)
     except ValueError:
-        raise ConfigError(f"{path}:{line}: column {column}: {text!r} is not a number") from None
+        raise ConfigError(
+            f"{path}:{line}: sequence {name!r}: column {column}: {text!r} is not a number"
+        ) from None
 
 
 def read_npz(path: Path) -> list[dict[str, Any]]:

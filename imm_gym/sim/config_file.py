@@ -35,6 +35,9 @@ TARGET_FIELDS = ("scenario", "family", "vary", "velocity_std")
 #: The fields of how an evaluation is run: when a track counts as diverged (and is capped) and
 #: which engine computes it. Every policy of an evaluation runs with the same.
 EVALUATION_FIELDS = ("divergence_error", "divergence_cov", "engine")
+#: What the evaluated configuration gives every policy — its tracker, its targets, how it is
+#: run: a trained agent records the ones it was trained with, and does not carry them over.
+EVALUATED_FIELDS = (*TRACKER_FIELDS, *TARGET_FIELDS, *EVALUATION_FIELDS)
 
 
 def plain(value: Any) -> Any:

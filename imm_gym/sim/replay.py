@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from imm_gym.sim.bank_step import BankStep
 from imm_gym.sim.conditions import Variation
+from imm_gym.sim.config_file import EVALUATED_FIELDS
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.model_order import for_bank
@@ -135,10 +136,10 @@ def run_policy(
         velocity: ``(N, 2)`` or ``(2,)`` initial velocity (m/s) with standard deviation
             ``config.velocity_std``; default zero with :data:`UNKNOWN_VELOCITY_STD`.
         overrides: the EnvConfig fields the policy needs, applied to ``config`` (default: its
-            ``env_overrides``, if any: action mode, observation features, a tuned bank...). A
-            trained agent records the tracker it was trained on among them; to track with
-            ``config``'s, pass them without the sensor, bank and filter (as
-            ``python -m imm_gym.track`` does).
+            ``env_overrides``, if any: action mode, observation features, a tuned bank...; for
+            a trained agent, ensemble or selector, without the tracker, targets and evaluation
+            settings it recorded, :data:`~imm_gym.sim.config_file.EVALUATED_FIELDS`: it tracks
+            with ``config``'s, as ``python -m imm_gym.track`` does).
 
     Returns:
         The :class:`TrackResult`, batched (``N = 1`` for a single sequence).
@@ -150,6 +151,8 @@ def run_policy(
     base = EnvConfig() if config is None else config
     if overrides is None:
         overrides = getattr(policy, "env_overrides", {})
+        if hasattr(policy, "trained_across"):  # a trained policy: it tracks with config's
+            overrides = {k: v for k, v in overrides.items() if k not in EVALUATED_FIELDS}
     cfg = base.replace(**overrides)
     policy = for_bank(policy, len(cfg.bank))
     z_in = np.asarray(z, dtype=np.float64)

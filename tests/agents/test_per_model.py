@@ -408,3 +408,23 @@ def test_the_python_api_rebuilds_the_agent_for_the_bank(per_model_agent) -> None
     np.testing.assert_array_equal(loaded.estimate, rebuilt.estimate)
     runs = [rollout(policy, config, 2, 0) for policy in (agent, agent.for_models(5))]
     np.testing.assert_array_equal(runs[0].estimate, runs[1].estimate)
+
+
+def test_run_policy_tracks_a_trained_policy_on_the_configured_tracker() -> None:
+    """Without ``overrides``, a trained policy keeps its own settings and tracks with the
+    configuration given — its bank and its sensor — not the tracker it was trained on."""
+    import imm_gym
+    from agents import PRETRAINED_PER_MODEL
+    from agents.ensemble import load_policy
+
+    policy = load_policy(PRETRAINED_PER_MODEL)
+    core = TrackingCore(EnvConfig.build({"bank": FIVE}), 1)
+    core.reset(np.arange(1), [3])
+    z = core.z[:, :30]
+    out = imm_gym.run_policy(z, policy, EnvConfig.build({"bank": FIVE}))
+    assert out.mode_probs.shape[-1] == 5
+    fine, coarse = (
+        imm_gym.run_policy(z, policy, EnvConfig.build({"bank": FIVE, "sensor": {"sigma_r": s}}))
+        for s in (20.0, 200.0)
+    )
+    assert not np.array_equal(fine.covariance, coarse.covariance)

@@ -166,7 +166,8 @@ def test_csv_sequences_come_back_in_the_input_order(tmp_path: Path) -> None:
     ("content", "extra", "message"),
     [
         ("z0,z1,range\n1,2,3\n", [], "columns must be z0, z1"),
-        ("z0,z1\n1000,0.1\n1000,abc\n", [], r"z.csv:3: column z1: 'abc' is not a number"),
+        ("z0,z1\n1000,0.1\n1000,abc\n", [],
+         r"z.csv:3: sequence '0': column z1: 'abc' is not a number"),
         ("sequence,z0,z1,vx,vy\na,1000,0,1,2\nb,1000,0,,2\nb,1000,0,,\n", [],
          r"z.csv:3: sequence 'b' gives only one of vx and vy"),
         ("sequence,z0,z1,vx,vy\na,1000,0,1,2\na,1000,0,1,2\na,1000,0,1,3\n", [],

@@ -16,6 +16,7 @@ from agents.ensemble import load_policy
 from baselines import make_baseline
 from imm_gym import ConfigError, EnvConfig, paper_scenario
 from imm_gym.envs.tpm_adapt import TPMAdaptEnv
+from imm_gym.sim.config_file import EVALUATED_FIELDS
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.sim.replay import UNKNOWN_VELOCITY_STD, ReplayCore, TrackResult, run_policy
 from imm_gym.tracking.initiation import initiate
@@ -33,7 +34,10 @@ def _episodes(name: str, config: EnvConfig) -> dict[str, np.ndarray]:
     records: dict[str, list[np.ndarray]] = {}
     for seed in SEEDS:
         policy = _policy(name)
-        env = TPMAdaptEnv(config.replace(**policy.env_overrides))
+        overrides = policy.env_overrides
+        if name == "pretrained":  # a trained agent tracks with the configured tracker
+            overrides = {k: v for k, v in overrides.items() if k not in EVALUATED_FIELDS}
+        env = TPMAdaptEnv(config.replace(**overrides))
         obs, _ = env.reset(seed=seed)
         core = env.core
         rows: dict[str, list[np.ndarray]] = {
