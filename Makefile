@@ -1,11 +1,16 @@
 # Two entry points: `make train` (the main job) and `make test`.
-# Both create .venv and install the CPU build of PyTorch first, so pip never pulls a CUDA build.
+# Both create .venv and install PyTorch first (TORCH, TORCH_FROM below), so that installing the
+# package does not pull another build.
 # `make install-ray` / `make test-ray`: a second venv, .venv-ray, with the `ray` optional group
 # (RLlib pins gymnasium 1.2.2); README, "Scaling out".
 PYTHON   ?= python3
 VENV     ?= .venv
 PY       := $(VENV)/bin/python
 TORCH    ?= torch==2.13.0
+# where pip finds it: this machine's wheel cache holds the CPU build; elsewhere give PyTorch's CPU
+# index (make test TORCH_FROM="--index-url https://download.pytorch.org/whl/cpu"), or PyPI's
+# default build of Linux, which is CUDA's, is installed
+TORCH_FROM ?=
 VENV_RAY ?= .venv-ray
 PY_RAY   := $(VENV_RAY)/bin/python
 
@@ -14,7 +19,7 @@ PY_RAY   := $(VENV_RAY)/bin/python
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet "$(TORCH)"
+	$(PY) -m pip install --quiet "$(TORCH)" $(TORCH_FROM)
 	$(PY) -m pip install --quiet -e ".[dev]"
 	touch $@
 
@@ -32,7 +37,7 @@ test: install
 $(VENV_RAY)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV_RAY)
 	$(PY_RAY) -m pip install --quiet --upgrade pip
-	$(PY_RAY) -m pip install --quiet "$(TORCH)"
+	$(PY_RAY) -m pip install --quiet "$(TORCH)" $(TORCH_FROM)
 	$(PY_RAY) -m pip install --quiet -e ".[dev,ray]"
 	touch $@
 
