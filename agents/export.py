@@ -135,15 +135,24 @@ def convert_pickled(source: Path, target: Path) -> list[Path]:
     from agents.policy import read_json
 
     meta = read_json(source / AGENT_FILE)
-    if meta.get("algo") == "recurrent-ppo":
-        from sb3_contrib import RecurrentPPO
+    recurrent = meta.get("algo") == "recurrent-ppo"
+    file = source / ("model.zip" if recurrent else "policy.pt")
+    if not file.is_file():
+        raise ConfigError(f"{file}: missing (an agent of the earlier pickled format holds it)")
+    try:
+        if recurrent:
+            from sb3_contrib import RecurrentPPO
 
-        policy = RecurrentPPO.load(source / "model.zip", device="cpu").policy
-    else:
-        from stable_baselines3.common.policies import ActorCriticPolicy
+            policy = RecurrentPPO.load(file, device="cpu").policy
+        else:
+            from stable_baselines3.common.policies import ActorCriticPolicy
 
-        cls = AsymmetricActorCriticPolicy if meta.get("critic_dims", 0) else ActorCriticPolicy
-        policy = cls.load(str(source / "policy.pt"), device="cpu")
+            cls = AsymmetricActorCriticPolicy if meta.get("critic_dims", 0) else ActorCriticPolicy
+            policy = cls.load(str(file), device="cpu")
+    except Exception as err:  # whatever the unpickler or SB3 raise on a file of another kind
+        raise ConfigError(
+            f"{file}: not an agent of the earlier pickled format ({type(err).__name__}: {err})"
+        ) from None
     target.mkdir(parents=True, exist_ok=True)
     save_weights(policy, target)
     meta["policy"] = policy_spec(policy)

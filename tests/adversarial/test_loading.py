@@ -349,3 +349,17 @@ def test_an_observation_of_the_wrong_size_is_named(agent) -> None:
     policy = load_agent(agent)
     with pytest.raises(ConfigError, match=f"agent '{agent}' reads observations of 44 entries"):
         policy.predict(np.zeros((2, 30)))
+
+
+def test_converting_a_file_that_is_no_pickled_agent_is_one_line(agent, tmp_path, capsys) -> None:
+    """``agents.export --from-pickle`` on a ``policy.pt`` of another kind: a usage error naming
+    the file, not a traceback."""
+    from agents.export import main as export_main
+
+    (agent / "policy.pt").write_bytes(b"not a pickle at all")
+    with pytest.raises(SystemExit) as exc:
+        export_main(["--from-pickle", str(agent), "--to", str(tmp_path / "new")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert f"{agent / 'policy.pt'}: not an agent of the earlier pickled format" in err
