@@ -441,14 +441,21 @@ class HeteroIMM:
         return state.x[:, j, :n], state.P[:, j, :n, :n]
 
     def mix(self, state: IMMState, tpm: Array) -> tuple[Array, list[Array], list[Array]]:
-        """Mixing with conversions: ``cbar (N, M)`` and per model ``x0_j (N, n_j)``, ``P0_j``."""
+        """Mixing with conversions: ``cbar (N, M)`` and per model ``x0_j (N, n_j)``, ``P0_j``.
+
+        Headings are averaged unwrapped around the heading of the model that weighs most in the
+        mix into ``j`` (the largest ``pi_ij mu_i``), so that a model of little weight on the far
+        side of ±pi does not pull the mean across."""
+        N = state.x.shape[0]
         parts = [self._model_state(state, i) for i in range(self.n_models)]
+        into = np.broadcast_to(tpm, (N, self.n_models, self.n_models)) * state.mu[:, :, None]
         cbar = None
         x0s, P0s = [], []
         for j, mj in enumerate(self.models):
             conv = [convert(x, P, self.models[i].space, mj.space) for i, (x, P) in enumerate(parts)]
-            own = conv[j][0]
-            xs = np.stack([wrap_heading(c[0], mj.space, own) for c in conv], axis=1)
+            states = np.stack([c[0] for c in conv], axis=1)
+            lead = states[np.arange(N), into[:, :, j].argmax(axis=1)]
+            xs = np.stack([wrap_heading(c[0], mj.space, lead) for c in conv], axis=1)
             Ps = np.stack([c[1] for c in conv], axis=1)
             cbar, x0, P0 = mix(state.mu, xs, Ps, tpm)
             x0s.append(wrap_heading(x0[:, j], mj.space))

@@ -413,3 +413,19 @@ def test_model_covariances_stay_symmetric_positive_definite(
             assert np.linalg.eigvalsh(P).min() > 0
         assert np.linalg.eigvalsh(out.P[0]).min() > 0
         assert out.mode_probs.sum() == pytest.approx(1.0)
+
+
+def test_headings_mix_around_the_model_that_weighs_most() -> None:
+    """A CT model of almost no weight whose heading (0°) is on the far side from the others
+    (±170°, i.e. both near 180°) does not pull the mixed heading across: it mixes to ≈ 180°."""
+    imm = HeteroIMM(HeteroBank(), PositionSensor(sigma_pos=0.5, sigma_vel=0.5), T=0.1)
+    v, rad = 10.0, np.deg2rad
+    x, P = np.zeros((1, 3, 6)), np.zeros((1, 3, 6, 6))
+    x[0, 0, :4] = [0.0, 0.0, v * np.cos(rad(170.0)), v * np.sin(rad(170.0))]  # NCV
+    x[0, 1, :5] = [0.0, 0.0, v, 0.0, 0.0]  # CT, heading 0
+    x[0, 2, :5] = [0.0, 0.0, v, rad(-170.0), 0.0]  # CTRA
+    P[0, 0, :4, :4], P[0, 1, :5, :5], P[0, 2] = np.eye(4), np.eye(5), np.eye(6)
+    state = IMMState(x, 0.1 * P, np.array([[0.5, 1e-6, 0.5 - 1e-6]]))
+    _, x0s, _ = imm.mix(state, stay_tpm(3, 0.9))
+    heading = np.rad2deg(x0s[1][0, 3])
+    assert abs(abs(heading) - 180.0) < 0.5, heading
