@@ -28,7 +28,7 @@ from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, paper_bank
 from imm_gym.tracking.sensors import Sonar
-from imm_gym.tracking.tpm import stay_tpm, tpm_from_sojourn
+from imm_gym.tracking.tpm import MAX_T_OVER_SOJOURN, stay_tpm, tpm_from_sojourn
 from imm_gym.validation import (
     ConfigError,
     check_choice,
@@ -261,6 +261,15 @@ class EnvConfig:
             store(self, "sojourn", tuple(
                 check_range(f"sojourn[{i}]", t, 0.0, lo_open=True) for i, t in enumerate(sojourn)
             ))
+            # exp(A T) at the longest sampling period an episode can have
+            longest = self.vary.T[1] if self.vary.T is not None else self.source.T
+            for i, t in enumerate(self.sojourn):
+                if longest / t > MAX_T_OVER_SOJOURN:
+                    raise ConfigError(
+                        f"sojourn[{i}] must be at least T / {MAX_T_OVER_SOJOURN:g} = "
+                        f"{longest / MAX_T_OVER_SOJOURN:g} s at the sampling period {longest:g} s, "
+                        f"got {t!r}"
+                    )
         store(self, "p_min", check_range("p_min", self.p_min, 0.0, 1.0 / M, hi_open=True))
         check_choice("action_mode", self.action_mode, ACTION_MODES)
         check_choice("model_order", self.model_order, MODEL_ORDERS)

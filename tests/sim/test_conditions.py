@@ -242,6 +242,10 @@ def test_a_sojourn_tpm_replaces_the_stay_and_is_checked() -> None:
         EnvConfig(sojourn=(60.0, -1.0, 20.0))
     with pytest.raises(ConfigError, match="sojourn"):
         EnvConfig(sojourn=(60.0, 20.0))
+    # a sojourn whose exp(A T) is out of range at the longest sampling period drawn: refused
+    # when the configuration is built, naming the field
+    with pytest.raises(ConfigError, match=r"sojourn\[2\] must be at least T / 1e\+12 = 5e-12 s"):
+        EnvConfig(bank=CONTINUOUS_BANK, sojourn=(60.0, 20.0, 2e-12), vary={"T": (0.5, 5.0)})
 
 
 def test_the_measurement_reward_scale_is_each_episode_accuracy() -> None:
