@@ -47,7 +47,7 @@ Run from the repository root::
 
     python benchmarks/bench_env.py                 # full run (~1.5 min; ~2 min under load)
     python benchmarks/bench_env.py --quick         # ~20 s: 3 repeats of one episode / cycle
-    python benchmarks/bench_env.py --repeats 9 --json bench_env.json
+    python benchmarks/bench_env.py --repeats 9 --json /tmp/bench_env.json
 """
 
 from __future__ import annotations

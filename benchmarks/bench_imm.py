@@ -33,7 +33,7 @@ Run from the repository root::
 
     python benchmarks/bench_imm.py                 # full run (~1 min)
     python benchmarks/bench_imm.py --quick         # 3 repeats of one episode each
-    python benchmarks/bench_imm.py --repeats 11 --json bench.json
+    python benchmarks/bench_imm.py --repeats 11 --json /tmp/bench.json
 """
 
 from __future__ import annotations

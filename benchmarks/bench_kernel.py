@@ -24,7 +24,7 @@ only makes the kernel faster must show 0 and "yes" against the revision it start
 Run from the repository root (the baseline compiles on the first run, ~1 min)::
 
     python benchmarks/bench_kernel.py
-    python benchmarks/bench_kernel.py --quick --json kernel.json
+    python benchmarks/bench_kernel.py --quick --json /tmp/kernel.json
 """
 
 from __future__ import annotations
@@ -60,13 +60,16 @@ CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "imm_gy
 def baseline_kernel(rev: str) -> ModuleType:
     """The kernel module of revision ``rev`` (imported from a cache directory; its numba cache
     lives there too)."""
-    sha = subprocess.run(
-        ["git", "rev-parse", "--short=12", rev],
+    found = subprocess.run(
+        ["git", "rev-parse", "--verify", "--short=12", f"{rev}^{{commit}}"],
         cwd=harness.REPO_ROOT,
-        check=True,
+        check=False,
         capture_output=True,
         text=True,
-    ).stdout.strip()
+    )
+    if found.returncode != 0:
+        raise SystemExit(f"--baseline {rev!r}: not a revision of this repository")
+    sha = found.stdout.strip()
     where = CACHE / f"kernel_{sha}"
     where.mkdir(parents=True, exist_ok=True)
     for path, name in (

@@ -111,12 +111,12 @@ def bench_env(params: dict[str, Any], steps: int) -> float:
 
 
 def main() -> None:
-    import ray
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--iterations", type=int, default=8, help="timed RLlib iterations")
     parser.add_argument("--sb3-steps", type=int, default=300_000, help="SB3 training steps")
     args = parser.parse_args()
+    import ray  # after the arguments: --help works without Ray
+
     set_threads(1)
     params, _ = load_hyperparams(DEFAULT_ENTRY)
     ray.init(include_dashboard=False, log_to_driver=False)

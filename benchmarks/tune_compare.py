@@ -21,7 +21,7 @@ from imm_gym.seeding import TRAIN_SEED_OFFSET
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--bank", default="seed003", choices=["seed002", "seed003"])
     parser.add_argument("--train-runs", type=int, default=10)
     parser.add_argument("--test-runs", type=int, default=50)

@@ -48,12 +48,14 @@ def detector_runs(
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--suite", default="benchmark")
     p.add_argument("--share", type=float, default=0.5, help="the detector's share v (0, 1]")
     args = p.parse_args()
+    if not 0.0 < args.share <= 1.0:
+        p.error(f"--share must be in (0, 1] (the detector's share of the prior), got {args.share}")
     shares = (0.0, args.share)
     print(f"runs {args.seed}..{args.seed + args.runs - 1}; position ARMSE (m) / mode accuracy / "
           f"TV per step; the shadow IMM at the tracker's TPM")

@@ -112,7 +112,7 @@ def score(
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--policy", action="append", default=[], help="as evaluate's (repeatable)")
     p.add_argument("--zero", action="append", default=[], metavar="DIR",
                    help="a trained agent whose zero action is scored too (repeatable)")
@@ -125,7 +125,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = p.parse_args(argv)
     if args.window < 0:
         p.error(f"--window must be a number of steps >= 1 (0: no time table), got {args.window}")
-    scenarios = args.scenario or list(suite_configs("benchmark"))
+    suite = list(suite_configs("benchmark"))
+    unknown = [s for s in args.scenario if s not in suite]
+    if unknown:
+        p.error(f"--scenario must be one of {suite}, got {unknown}")
+    scenarios = args.scenario or suite
     results = score(args.policy or ["best-fixed"], args.zero, scenarios, args.runs, args.seed,
                     args.window)
     print("| scenario | policy | ARMSE (m) | RMS error on each true model (m) "

@@ -349,7 +349,7 @@ def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace,
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--env-config", nargs="+", default=[], metavar="FILE",
                    help="training configurations (episodes spread evenly over them); unused "
                         "with --weights (a selector records its environment)")
