@@ -6,8 +6,7 @@ includes its search over 12 stay probabilities on 100 training runs), plus the c
 the median over ``--repeats`` repeats (each timing in turn, so that a change in the machine's
 speed hits them alike) with the smallest and largest. Import and the numba kernel's first load
 are timed once, apart. The aim of issue #19 (checked for the paper scenario at 100 runs): all
-five with the bound in at most 1 s. Run from
-the repository root::
+five with the bound in at most 1 s. Run from the repository root::
 
     python benchmarks/bench_evaluate.py [--runs 100] [--scenario paper] [--repeats 5]
 """
