@@ -99,7 +99,7 @@ class TPMAdaptVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != N:
                 raise ValueError(f"seed list must have {N} entries, got {len(seeds)}")
-        slots = np.arange(N) if options is None else _masked_slots(options, N)
+        slots = _masked_slots(options or {}, N)
         self.core.reset(slots, [seeds[i] for i in slots])
         self._autoreset[slots] = False
         if self._renderer is not None:

@@ -188,6 +188,11 @@ def cycles_by_tracker(
         dim_z, dim_out: the measurement's and the combined estimate's dimensions.
         z_pred: whether the cycle's step has a predicted measurement (NaN where it failed).
     """
+    _, M, n = state.x.shape
+
+    def nan(*shape: int) -> Array:
+        return np.full((1, *shape), np.nan)
+
     rows = []
     for i in range(state.x.shape[0]):
         part = slice(i, i + 1)
@@ -195,11 +200,6 @@ def cycles_by_tracker(
         try:
             rows.append(cycle(i, one))
         except np.linalg.LinAlgError:
-            _, M, n = one.x.shape
-
-            def nan(*shape: int) -> Array:
-                return np.full((1, *shape), np.nan)
-
             rows.append((IMMState(nan(M, n), nan(M, n, n), nan(M)), IMMStep(
                 nan(dim_out), nan(dim_out, dim_out), nan(M), nan(M), nan(M), nan(M),
                 nan(M, dim_z), nan(), detected[part].copy(), np.array([True]),
