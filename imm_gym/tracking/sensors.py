@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,11 +42,14 @@ class Measurements:
 
 @dataclass(frozen=True)
 class _Clutter:
-    """Outlier and missed-detection settings shared by the sensors."""
+    """Outlier and missed-detection settings shared by the sensors; ``noise_fields`` maps a
+    sensor's noise attributes to the names its errors give them."""
 
     outlier_prob: float = 0.0
     outlier_scale: float = 10.0
     detection_prob: float = 1.0
+
+    noise_fields: ClassVar[dict[str, str]] = {}
 
     def _check_clutter(self, prefix: str) -> None:
         for name, lo, hi, lo_open in (
@@ -106,6 +110,10 @@ class Sonar(_Clutter):
     position: tuple[float, float] = (0.0, 0.0)
 
     dim_z = 2
+    noise_fields: ClassVar[dict[str, str]] = {
+        "sigma_r": "sensor.sigma_r",
+        "sigma_theta_deg": "sensor.sigma_theta_deg",
+    }
 
     def __post_init__(self) -> None:
         store(self, "sigma_r", check_range("sensor.sigma_r", self.sigma_r, 0.0, lo_open=True))
@@ -200,6 +208,8 @@ class PositionSensor(_Clutter):
 
     sigma_pos: float = 10.0
     sigma_vel: float | None = None
+
+    noise_fields: ClassVar[dict[str, str]] = {"sigma_pos": "position_sensor.sigma_pos"}
 
     def __post_init__(self) -> None:
         sigma_pos = check_range("position_sensor.sigma_pos", self.sigma_pos, 0.0, lo_open=True)

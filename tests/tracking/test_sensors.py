@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from imm_gym import ConfigError, PositionSensor, Sonar
+from imm_gym import ConfigError, PositionSensor, Sonar, initiate
 
 PI = np.pi
 
@@ -301,3 +301,35 @@ def test_position_sensor_invalid() -> None:
         PositionSensor(sigma_pos=-1.0)
     with pytest.raises(ConfigError, match=r"position_sensor\.sigma_vel"):
         PositionSensor(sigma_vel=0.0)
+
+
+# --------------------------------------------------------------------------- track initiation
+
+
+@pytest.mark.parametrize(
+    ("sensor", "named"),
+    [
+        (Sonar(sigma_r=1e-12), "sensor.sigma_r = 1e-12"),
+        (Sonar(sigma_r=1e-100), "sensor.sigma_r = 1e-100"),
+        (Sonar(sigma_theta_deg=1e-12), "sensor.sigma_theta_deg = 1e-12"),
+    ],
+)
+def test_initiate_names_noise_float64_cannot_factor(sensor: object, named: str) -> None:
+    """A first-measurement covariance whose Cholesky factorization fails in float64 (standard
+    deviations 1e-12 m along range and 4 m across it) is refused naming the sensor's fields,
+    not later as an anonymous "P0 must be positive definite"."""
+    z0 = np.array([[5000.0, 0.3], [5000.0, 0.7]])
+    with pytest.raises(ConfigError, match=named.replace(".", r"\.")):
+        initiate(sensor, z0, np.zeros(2))
+
+
+@pytest.mark.parametrize("sensor", [Sonar(sigma_r=1e-6), Sonar(), PositionSensor(sigma_pos=1e-6)])
+def test_initiate_accepts_accurate_sensors(sensor: object) -> None:
+    x0, P0 = initiate(sensor, np.array([[5000.0, 0.3]]), np.array([1.0, 2.0]))
+    np.linalg.cholesky(P0)
+    np.testing.assert_array_equal(x0[0, 2:], [1.0, 2.0])
+
+
+def test_initiate_refuses_velocity_std_whose_variance_underflows() -> None:
+    with pytest.raises(ConfigError, match="velocity_std"):
+        initiate(Sonar(), np.array([[5000.0, 0.3]]), np.zeros(2), velocity_std=1e-160)
