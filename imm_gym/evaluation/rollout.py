@@ -41,7 +41,9 @@ class Rollout:
     Attributes:
         estimate: ``(R, K, 4)``; covariance: ``(R, K, 4, 4)``; truth: ``(R, K, 4)``.
         mode_probs: ``(R, K, M)``; tpm: ``(R, K, M, M)`` the TPM each step used.
-        nis: ``(R, K)``; detected: ``(R, K)``; true_model: ``(R, K)``.
+        nis: ``(R, K)``; detected: ``(R, K)`` the steps whose NIS counts: a detection by a run
+            not diverged at that step (False from the step a run diverges at, its NIS 0 there);
+            true_model: ``(R, K)``.
         diverged: ``(R,)`` runs whose tracker diverged.
     """
 
@@ -141,9 +143,10 @@ def rollout(
         start = np.zeros(R, dtype=bool)
         result = core.step(actions, active=alive)
         info = result.info
-        detected[:, k] = alive & info["detected"]
-        # a run diverged at this step records the capped error from this step on
+        # a run diverged at this step records the capped error from this step on, and its NIS
+        # counts up to the step before (the diverging step's is excluded, as every later one)
         alive &= ~result.terminated
+        detected[:, k] = alive & info["detected"]
         est[:, k] = np.where(alive[:, None], info["estimate"][:, :4], truth[:, k] + cap)
         cov[:, k] = np.where(alive[:, None, None], info["covariance"][:, :4, :4], np.eye(4))
         probs[:, k] = np.where(alive[:, None], info["mode_probs"], 1.0 / M)

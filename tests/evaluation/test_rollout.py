@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from baselines import FixedTPM
-from imm_gym.evaluation.rollout import evaluation_config, rollout
+from imm_gym.evaluation.rollout import Rollout, evaluation_config, rollout
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.tracking.tpm import stay_tpm
@@ -59,13 +59,26 @@ def test_reset_checks_the_initial_tpms() -> None:
         core.reset(np.arange(2), [0, 1], stay_tpm(3, 0.9)[None])
 
 
-def test_a_diverged_run_records_the_cap_from_the_step_it_diverges_at() -> None:
-    """With a divergence threshold of 40 m most runs diverge; no recorded error exceeds it (the
-    step at which a run diverges held its raw estimate before, 42-111 m here)."""
+@pytest.fixture(scope="module")
+def diverging() -> Rollout:
+    """20 paper runs with a divergence threshold of 40 m: most of them diverge."""
     policy = FixedTPM(3)
     config = evaluation_config(EnvConfig(scenario="paper", divergence_error=40.0),
                                policy.env_overrides)
-    run = rollout(policy, config, 20, 0)
+    return rollout(policy, config, 20, 0)
+
+
+def _divergence_steps(run: Rollout) -> dict[int, int]:
+    """Each diverged run's first step recorded at the cap (40 m)."""
+    error = np.sqrt(run.squared_position_error)
+    capped = np.isclose(error, 40.0)
+    return {int(r): int(np.argmax(capped[r])) for r in np.flatnonzero(run.diverged)}
+
+
+def test_a_diverged_run_records_the_cap_from_the_step_it_diverges_at(diverging: Rollout) -> None:
+    """With a divergence threshold of 40 m most runs diverge; no recorded error exceeds it (the
+    step at which a run diverges held its raw estimate before, 42-111 m here)."""
+    run = diverging
     assert run.diverged.sum() >= 5
     error = np.sqrt(run.squared_position_error)
     assert error.max() <= 40.0 + 1e-9
@@ -73,3 +86,17 @@ def test_a_diverged_run_records_the_cap_from_the_step_it_diverges_at() -> None:
         capped = np.flatnonzero(np.isclose(error[r], 40.0))
         assert capped.size and (capped == np.arange(capped[0], error.shape[1])).all()
         np.testing.assert_array_equal(run.mode_probs[r, capped], 1.0 / 3)
+
+
+def test_the_nis_of_a_diverged_run_counts_up_to_the_step_before_it_diverges(
+    diverging: Rollout,
+) -> None:
+    """The step a run diverges at is no detection of the NIS test (its NIS was counted as a 0
+    there, inside the bound), nor any later one; every step before it still counts."""
+    run = diverging
+    steps = _divergence_steps(run)
+    assert max(steps.values()) > 0
+    for r, d in steps.items():
+        assert run.detected[r, :d].all()  # the paper's sensor detects every step
+        assert not run.detected[r, d:].any()
+    assert not (run.detected & (run.nis == 0.0)).any()
