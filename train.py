@@ -47,10 +47,11 @@ Ctrl-C (or SIGTERM) never loses training: the signal only sets a flag, checked a
 environment step, upon which ``checkpoints/latest`` is saved and the job exits with status 130
 (143). ``--resume`` continues a checkpoint as the run it came from (:mod:`agents.checkpoint`): its
 hyperparameters, its seed (another ``--seed`` is refused), its step count, optimizer, normalizer
-and weight average, and each training slot's random streams where they stopped. Agents and
-checkpoints are data only (JSON and safetensors): nothing is unpickled. Without a progress bar
-(``--no-progress``, or output not to a terminal) a line per checkpoint and validation gives the
-step, steps/s, the validation ARMSE and the time left.
+and weight average, and each training slot's random streams where they stopped; it writes to
+that run's directory (``OUT`` of ``OUT/seed_S/checkpoints/NAME``) unless ``--out`` says
+otherwise. Agents and checkpoints are data only (JSON and safetensors): nothing is unpickled.
+Without a progress bar (``--no-progress``, or output not to a terminal) a line per checkpoint and
+validation gives the step, steps/s, the validation ARMSE and the time left.
 """
 
 from __future__ import annotations
@@ -75,6 +76,8 @@ BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
 DETECTOR_RULES = ("turn-rate-prior", "learned-prior")
 ALGOS = ("ppo", "recurrent-ppo")
 ENGINES = ("sb3", "rllib")
+#: Where a run is written without ``--out`` (and without ``--resume``: then the checkpoint's run).
+DEFAULT_OUT = Path("runs/default")
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -124,11 +127,17 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="W",
         help="with several --env-config files: each file's weight in the slots (default: equal)",
     )
-    p.add_argument("--out", type=Path, default=Path("runs/default"), help="output directory")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help=f"output directory (default: {DEFAULT_OUT}; with --resume, the run the checkpoint "
+        "belongs to: OUT of OUT/seed_S/checkpoints/NAME)",
+    )
     p.add_argument(
         "--resume",
         type=Path,
-        help="checkpoint directory to continue from (OUT/seed_S/checkpoints/latest or step_N)",
+        help="checkpoint directory to continue from (OUT/seed_S/checkpoints/latest or step_N); "
+        "the run is written back to OUT unless --out is given",
     )
     p.add_argument(
         "--checkpoint-every", type=int, default=250_000, help="steps between checkpoints"
@@ -209,6 +218,14 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
                     f"got {name} {shown} (leave {name} out to continue it)"
                 )
         args.env, args.algo, args.seed = resume["env_id"], resume["algo"], [resume["seed"]]
+        if args.out is None:
+            args.out = checkpoint_run(args.resume, resume["seed"])
+            if args.out is None:
+                parser.error(
+                    f"--resume {str(args.resume)!r} is not in a run directory "
+                    f"(OUT/seed_{resume['seed']}/checkpoints/NAME): give --out"
+                )
+    args.out = DEFAULT_OUT if args.out is None else args.out
     args.env = DEFAULT_ENTRY if args.env is None else args.env
     args.algo = "ppo" if args.algo is None else args.algo
     args.seed = [0] if args.seed is None else args.seed
@@ -275,6 +292,20 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
             {"env_kwargs": o, "share": w} for o, w in zip(overrides[1:], shares[1:], strict=True)
         ]
     return resume
+
+
+def checkpoint_run(checkpoint: Path, seed: int) -> Path | None:
+    """The run directory ``OUT`` a checkpoint ``OUT/seed_S/checkpoints/NAME`` of seed ``S``
+    belongs to (relative to the working directory where it lies below it), or None where the
+    checkpoint lies elsewhere."""
+    path = Path(os.path.abspath(checkpoint))
+    if path.parent.name != "checkpoints" or path.parent.parent.name != f"seed_{seed}":
+        return None
+    out = path.parents[2]
+    try:
+        return out.relative_to(Path.cwd())
+    except ValueError:
+        return out
 
 
 def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict[str, Any]:
@@ -598,7 +629,7 @@ def train_one(
         latest = ckpt_dir / "latest"
         stop.exit(
             f"interrupted: checkpoint saved to {latest} ({model.num_timesteps} steps); "
-            f"continue with: python train.py --resume {latest} --out {args.out}"
+            f"continue with: python train.py --resume {latest}"
         )
     agent_dir = run_dir / "agent"
     if args.validate_every:

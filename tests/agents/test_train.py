@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +87,31 @@ def test_resume_continues_the_step_count(trained) -> None:
     assert train.main(argv) == 0
     after = json.loads((out / "resumed" / "seed_0" / "agent" / "agent.json").read_text())
     assert after["num_timesteps"] >= before + 256
+
+
+def test_resume_without_out_writes_to_the_checkpoints_own_run(
+    trained, tmp_path, monkeypatch, capsys
+) -> None:
+    """``--resume RUN/seed_0/checkpoints/step_256`` alone continues RUN, not ./runs/default;
+    a checkpoint outside a run directory needs ``--out``."""
+    out, _ = trained
+    run = tmp_path / "run"
+    shutil.copytree(out / "seed_0" / "checkpoints" / "step_256", run / "seed_0" / "checkpoints"
+                    / "step_256")
+    monkeypatch.chdir(tmp_path)
+    argv = ["--timesteps", "512", "--no-eval", "--no-progress", "--validate-every", "0"]
+    assert train.main(["--resume", "run/seed_0/checkpoints/step_256", *argv]) == 0
+    assert not (tmp_path / "runs").exists()
+    assert json.loads((run / "seed_0" / "training.json").read_text())["timesteps"] == 512
+    assert (run / "seed_0" / "agent" / "agent.json").is_file() and (run / "summary.json").is_file()
+    assert "the run the checkpoint belongs to" in train.build_parser().format_help()
+    shutil.copytree(run / "seed_0" / "checkpoints" / "step_256", tmp_path / "loose")
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--resume", "loose", *argv])
+    assert exc.value.code == 2
+    assert "'loose' is not in a run directory (OUT/seed_0/checkpoints/NAME): give --out" in (
+        capsys.readouterr().err
+    )
 
 
 def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
