@@ -279,8 +279,19 @@ def evaluate(
         "bank": bank,
         "env_config": plain(dict(env_config)) if env_config else None,
         "versions": _versions(),
+        "divergence": divergence_meta(base),
     }
     return results, rollouts
+
+
+def divergence_meta(base: EnvConfig) -> dict[str, Any]:
+    """How a diverged run is scored (:func:`~imm_gym.evaluation.rollout.score`), for the JSON's
+    ``meta`` and the note under the table: ``error_m`` the cap and ``scored`` in words."""
+    return {
+        "error_m": base.divergence_error,
+        "scored": "a diverged run's position error is held at error_m from the step it diverges "
+        "at; NIS and NEES are over the steps before it (the runs are counted in 'diverged')",
+    }
 
 
 def evaluated_config(

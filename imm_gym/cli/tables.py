@@ -4,6 +4,7 @@ ARMSE, the paired differences, and the seed-system comparison."""
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterable
 from typing import Any
 
 from imm_gym.papers.tip_imm import PAPER_TABLE2
@@ -37,6 +38,14 @@ def policy_label(name: str, row: dict[str, Any]) -> str:
     if "stays" in row:
         return f"{name} (stays {'/'.join(f'{s:.3g}' for s in row['stays'])})"
     return name
+
+
+def divergence_note(meta: dict[str, Any], rows: Iterable[dict[str, Any]]) -> str | None:
+    """How the diverged runs are scored (``meta["divergence"]``), when a policy has one."""
+    divergence = meta.get("divergence")
+    if divergence is None or not any(row.get("diverged") for row in rows):
+        return None
+    return f"Diverged runs (error above {divergence['error_m']:g} m): {divergence['scored']}."
 
 
 def _cell(row: dict[str, Any], key: str, fmt: str) -> str:
@@ -83,6 +92,9 @@ def render_tables(results: dict[str, Any]) -> None:
         for name, r in PAPER_TABLE2.items():
             table.add_row(name, *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
     console.print(table)
+    note = divergence_note(meta, results["policies"].values())
+    if note:
+        console.print(note)
     behaviour = Table(
         title="IMM behaviour: mode-probability total variation ½·Σ|μ(k) − μ(k−1)| per step, "
         "mean of each run's peak position error, position RMSE over the 10 steps after each "
@@ -190,6 +202,9 @@ def render_suite_table(results: dict[str, Any]) -> None:
         for name, row in r["policies"].items():
             if row.get("models_differ"):
                 console.print(f"{scenario}: " + models_differ_note(name, row["models_differ"]))
+        note = divergence_note(r["meta"], r["policies"].values())
+        if note:
+            console.print(f"{scenario}: {note}")
     n = len(results["scenarios"])
     for name, cases in results.get("tally", {}).items():
         counts = ", ".join(f"{key} on {len(cases[key])}" for key in ("below", "level", "above"))

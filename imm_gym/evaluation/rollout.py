@@ -5,7 +5,8 @@
 all policies see the same targets and the same sensor noise (common random numbers) whatever
 environment settings they need. A run whose tracker diverges keeps an error of
 ``divergence_error`` and uniform mode probabilities from the step it diverges at to the end of its
-episode.
+episode; its NIS and NEES count up to the step before (:attr:`Rollout.live`), the divergence
+itself is counted apart (``diverged``).
 """
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ class Rollout:
             not diverged at that step (False from the step a run diverges at, its NIS 0 there);
             true_model: ``(R, K)``.
         diverged: ``(R,)`` runs whose tracker diverged.
+        live: ``(R, K)`` the steps recorded from the tracker itself: False from the step a run
+            diverges at (its estimate held at the cap there, its covariance a placeholder ``I``).
     """
 
     estimate: Array
@@ -56,6 +59,7 @@ class Rollout:
     detected: NDArray[np.bool_]
     true_model: NDArray[np.int64]
     diverged: NDArray[np.bool_]
+    live: NDArray[np.bool_]
 
     def groups(self, G: int) -> list[Rollout]:
         """The records of a roll-out from ``G`` starting TPMs (:func:`rollout`'s
@@ -131,6 +135,7 @@ def rollout(
     tpms = np.empty((R, K, M, M))
     nis = np.zeros((R, K))
     detected = np.zeros((R, K), dtype=bool)
+    live = np.zeros((R, K), dtype=bool)
     truth = core.truth[:, 1:].copy()
     true_model = core.true_model.copy()
     obs = core.observe()
@@ -146,6 +151,7 @@ def rollout(
         # a run diverged at this step records the capped error from this step on, and its NIS
         # counts up to the step before (the diverging step's is excluded, as every later one)
         alive &= ~result.terminated
+        live[:, k] = alive
         detected[:, k] = alive & info["detected"]
         est[:, k] = np.where(alive[:, None], info["estimate"][:, :4], truth[:, k] + cap)
         cov[:, k] = np.where(alive[:, None, None], info["covariance"][:, :4, :4], np.eye(4))
@@ -155,7 +161,7 @@ def rollout(
         obs = result.obs
         if progress is not None:
             progress(k + 1)
-    return Rollout(est, cov, truth, probs, tpms, nis, detected, true_model, ~alive)
+    return Rollout(est, cov, truth, probs, tpms, nis, detected, true_model, ~alive, live)
 
 
 def score(rollout: Rollout, dim_z: int = 2) -> dict[str, Any]:
@@ -163,10 +169,15 @@ def score(rollout: Rollout, dim_z: int = 2) -> dict[str, Any]:
     IMM behaviour: ``mode_prob_tv`` (:func:`~imm_gym.evaluation.metrics.mode_prob_tv`),
     ``peak_error`` (:func:`~imm_gym.evaluation.metrics.peak_error`) and ``maneuver_response``
     (:func:`~imm_gym.evaluation.metrics.maneuver_response`, 10 steps; None without maneuvers).
-    A diverged run counts with its held error and uniform mode probabilities (:func:`rollout`)."""
+    A diverged run counts in the errors with its held error and in the mode scores with uniform
+    mode probabilities (:func:`rollout`); NIS and NEES are over the live steps only
+    (:attr:`Rollout.live`: a held estimate has no covariance to test; scored against ``I`` its
+    NEES would be of the order of ``divergence_error²``); the divergences count in ``diverged``."""
     out: dict[str, Any] = tracking_errors(rollout.estimate, rollout.truth)
     out["nis"] = consistency(rollout.nis, dim_z, mask=rollout.detected)
-    out["nees"] = consistency(nees(rollout.estimate, rollout.covariance, rollout.truth), 4)
+    out["nees"] = consistency(
+        nees(rollout.estimate, rollout.covariance, rollout.truth), 4, mask=rollout.live
+    )
     out["mode_accuracy"] = mode_accuracy(rollout.mode_probs, rollout.true_model)
     out["diverged"] = int(rollout.diverged.sum())
     out["mode_prob_tv"] = mode_prob_tv(rollout.mode_probs)

@@ -235,3 +235,20 @@ def test_tuned_banks_apply_to_the_seed_systems_only(capsys) -> None:
     with pytest.raises(SystemExit):
         main(["--policy", "bbsca", "--tuned", "bbsca=t.json", "--scenario", "paper"])
     assert "--tuned applies to --scenario seed002|seed003" in capsys.readouterr().err
+
+
+def test_the_json_and_the_table_say_how_diverged_runs_are_scored(capsys) -> None:
+    """``meta.divergence``: the cap and what it does to the scores; said under the table when a
+    policy has a diverged run (a cap of 40 m: most paper runs diverge)."""
+    from imm_gym.cli.tables import render_tables
+
+    results, _ = evaluate(["fixed"], "paper", 4, 0, clairvoyant=False,
+                          env_config={"divergence_error": 40.0})
+    divergence = results["meta"]["divergence"]
+    assert divergence["error_m"] == 40.0 and "NIS and NEES are over the steps before" in (
+        divergence["scored"]
+    )
+    assert results["policies"]["fixed"]["diverged"] > 0
+    render_tables(results)
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "Diverged runs (error above 40 m): a diverged run's position error is held" in printed

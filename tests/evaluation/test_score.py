@@ -1,11 +1,14 @@
 """Tests of imm_gym.evaluation.rollout.score on a hand-made roll-out: the IMM behaviour beside the
-ARMSE (mode-probability total variation, peak error, maneuver response)."""
+ARMSE (mode-probability total variation, peak error, maneuver response), and a diverged run."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from imm_gym.evaluation.metrics import nees
 from imm_gym.evaluation.rollout import Rollout, score
 
 
@@ -28,6 +31,7 @@ def _rollout(true_model: np.ndarray, errors: np.ndarray, mode_probs: np.ndarray)
         detected=np.ones((R, K), dtype=bool),
         true_model=true_model,
         diverged=np.zeros(R, dtype=bool),
+        live=np.ones((R, K), dtype=bool),
     )
 
 
@@ -52,3 +56,35 @@ def test_score_reports_the_imm_behaviour() -> None:
     # the straight run alone has no maneuver
     straight = _rollout(true_model[1:], errors[1:], mode_probs[1:])
     assert score(straight)["maneuver_response"] is None
+
+
+def _diverged(cap: float = 5000.0) -> Rollout:
+    """Three runs of 10 steps, errors of 1-3 m; run 2 diverges at step 6: held at ``cap`` from
+    there (``rollout``'s record: the error on x and y, covariance ``I``, uniform probabilities)."""
+    true_model = np.zeros((3, 10), dtype=np.int64)
+    errors = np.tile(np.array([[1.0], [2.0], [3.0]]), (1, 10))
+    run = _rollout(true_model, errors, np.full((3, 10, 2), 0.5))
+    estimate = run.estimate.copy()
+    estimate[2, 6:, :2] = run.truth[2, 6:, :2] + cap / np.sqrt(2.0)
+    live = np.ones((3, 10), dtype=bool)
+    live[2, 6:] = False
+    detected = live.copy()
+    nis = np.where(live, 1.0, 0.0)
+    diverged = np.array([False, False, True])
+    return replace(run, estimate=estimate, live=live, detected=detected, nis=nis,
+                   diverged=diverged)
+
+
+def test_nees_counts_the_live_steps_only() -> None:
+    """A diverged run's held steps have no covariance to test: scored against ``I`` their NEES
+    is ``cap²`` (25e6 m² at the default cap) and the mean would be meaningless. The NEES test
+    is over the live steps, as the NIS test; the divergence is counted in ``diverged``."""
+    run = _diverged()
+    s = score(run)
+    values = nees(run.estimate, run.covariance, run.truth)
+    assert values[2, 6:] == pytest.approx(5000.0**2)
+    assert s["nees"]["mean"] == pytest.approx(values[run.live].mean())
+    assert s["nees"]["mean"] == pytest.approx((10 * 1.0 + 10 * 4.0 + 6 * 9.0) / 26)
+    assert s["nees"]["inside"] == 1.0  # 1, 4 and 9: inside chi2(4)'s 9.49, the held ones not
+    assert s["diverged"] == 1
+    assert s["armse_pos"] > 1000.0  # the position error keeps the cap
