@@ -117,21 +117,29 @@ MODE_SCORE_FLOOR = 1e-3
 
 def mode_score(mode_probs: Array, shadow_probs: Array, true_model: NDArray[np.int64]) -> Array:
     r"""``(N,)`` :math:`\ln(\mu_{j^*} + \epsilon) - \ln(\mu^s_{j^*} + \epsilon)` with ``j*`` the
-    true model of the step and ``epsilon = MODE_SCORE_FLOOR``; 0 where ``j* = -1``."""
+    true model of the step and ``epsilon = MODE_SCORE_FLOOR``; 0 where ``j* = -1``. A failed
+    tracker's probabilities (NaN) score as 0 on the true model, the lowest score."""
     rows = np.arange(mode_probs.shape[0])
     j = np.maximum(true_model, 0)
-    score = np.log(mode_probs[rows, j] + MODE_SCORE_FLOOR) - np.log(
-        shadow_probs[rows, j] + MODE_SCORE_FLOOR
+    score = np.log(_identified(mode_probs)[rows, j] + MODE_SCORE_FLOOR) - np.log(
+        _identified(shadow_probs)[rows, j] + MODE_SCORE_FLOOR
     )
     return np.where(true_model >= 0, score, 0.0)
+
+
+def _identified(mode_probs: Array) -> Array:
+    """``mode_probs`` with a failed tracker's row (NaN) at 0: it identifies no model."""
+    return np.nan_to_num(mode_probs, nan=0.0)
 
 
 def mode_hit(mode_probs: Array, shadow_probs: Array, true_model: NDArray[np.int64]) -> Array:
     r"""``(N,)`` :math:`[\arg\max_j \mu_j = j^*] - [\arg\max_j \mu^s_j = j^*]`, the step's
     mode identification (the argmax on the true model) beyond the shadow's; 0 where
-    ``j* = -1``."""
-    hit = np.argmax(mode_probs, axis=1) == true_model
-    shadow_hit = np.argmax(shadow_probs, axis=1) == true_model
+    ``j* = -1``; a failed tracker (NaN probabilities) identifies none."""
+    hit = (np.argmax(mode_probs, axis=1) == true_model) & np.isfinite(mode_probs).all(axis=1)
+    shadow_hit = (np.argmax(shadow_probs, axis=1) == true_model) & np.isfinite(
+        shadow_probs
+    ).all(axis=1)
     return np.where(true_model >= 0, hit.astype(np.float64) - shadow_hit, 0.0)
 
 

@@ -9,6 +9,7 @@ import pytest
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.rewards import MODE_SCORE_FLOOR, mode_hit, mode_score
+from imm_gym.tracking.imm import IMMState
 from imm_gym.validation import ConfigError
 
 
@@ -80,3 +81,37 @@ def test_the_tpm_change_cost_is_the_divergence_from_the_previous_tpm() -> None:
     assert np.all(change > 0.0)
     with pytest.raises(ConfigError, match="tpm_change_cost"):
         EnvConfig(tpm_change_cost=-0.1)
+
+
+def test_a_failed_trackers_probabilities_score_lowest_and_identify_nothing() -> None:
+    """A failed tracker's probabilities are NaN: the log score takes them as 0 on the true model
+    (the lowest score, finite) and the identification as no model, even where ``argmax`` of the
+    NaN row would point at the true model 0."""
+    nan = np.full(3, np.nan)
+    mu = np.array([nan, [0.7, 0.2, 0.1]])
+    mu_s = np.array([[0.5, 0.25, 0.25], nan])
+    true = np.array([0, 0])
+    eps = MODE_SCORE_FLOOR
+    expected = [np.log(eps) - np.log(0.5 + eps), np.log(0.7 + eps) - np.log(eps)]
+    np.testing.assert_allclose(mode_score(mu, mu_s, true), expected, rtol=1e-15)
+    np.testing.assert_array_equal(mode_hit(mu, mu_s, true), [-1.0, 1.0])
+
+
+@pytest.mark.parametrize("kind", ["log", "hit"])
+def test_a_failed_tracker_gets_a_finite_reward_with_the_mode_term(kind: str) -> None:
+    """A covariance that overflows the EKF's innovation covariance fails slot 0's tracker (NaN
+    outputs, terminated): its reward stays finite, the divergence penalty plus the mode term,
+    and the other slot's is untouched."""
+    plain = TrackingCore(EnvConfig(filter="ekf"), 2)
+    paid = TrackingCore(EnvConfig(filter="ekf", mode_reward=0.05, mode_score=kind), 2)
+    for core in (plain, paid):
+        core.reset(np.arange(2), [0, 1])
+        for _ in range(5):
+            core.step(np.zeros((2, 9)))
+        P = core.state_a.P.copy()
+        P[0] = 1e307 * np.eye(4)
+        core.state_a = IMMState(core.state_a.x, P, core.state_a.mu)
+    a, b = plain.step(np.zeros((2, 9))), paid.step(np.zeros((2, 9)))
+    assert b.terminated[0] and not b.terminated[1]
+    assert np.all(np.isfinite(b.reward))
+    assert b.reward[0] <= a.reward[0]
