@@ -289,8 +289,9 @@ def divergence_meta(base: EnvConfig) -> dict[str, Any]:
     ``meta`` and the note under the table: ``error_m`` the cap and ``scored`` in words."""
     return {
         "error_m": base.divergence_error,
-        "scored": "a diverged run's position error is held at error_m from the step it diverges "
-        "at; NIS and NEES are over the steps before it (the runs are counted in 'diverged')",
+        "scored": "a diverged run's position error is held at error_m, and its velocity error at "
+        "the one it diverged with, from the step it diverges at; NIS and NEES are over the steps "
+        "before it (the runs are counted in 'diverged')",
     }
 
 

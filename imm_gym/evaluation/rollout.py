@@ -3,9 +3,11 @@
 :func:`rollout` runs a policy (anything with SB3's ``predict``) on R episodes at once — one
 :class:`~imm_gym.sim.core.TrackingCore` with R slots, slot ``r`` reset with seed ``seed + r`` — so
 all policies see the same targets and the same sensor noise (common random numbers) whatever
-environment settings they need. A run whose tracker diverges keeps an error of
-``divergence_error`` and uniform mode probabilities from the step it diverges at to the end of its
-episode; its NIS and NEES count up to the step before (:attr:`Rollout.live`), the divergence
+environment settings they need. A run whose tracker diverges keeps a position error of
+``divergence_error`` (the cap: ``divergence_error / sqrt(2)`` on x and on y), the velocity error of
+its estimate at the step it diverges at (the error it was lost with; an entry that is not finite
+there, the error of a zero velocity) and uniform mode probabilities from that step to the end of
+its episode; its NIS and NEES count up to the step before (:attr:`Rollout.live`), the divergence
 itself is counted apart (``diverged``).
 """
 
@@ -27,7 +29,7 @@ from imm_gym.evaluation.metrics import (
     peak_error,
     tracking_errors,
 )
-from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.core import INFINITY_STAND_IN, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import FEATURES
 from imm_gym.sim.model_order import for_bank
@@ -143,17 +145,24 @@ def rollout(
     start = np.ones(R, dtype=bool)
     alive = np.ones(R, dtype=bool)
     cap = config.divergence_error / np.sqrt(2.0)
+    held_velocity_error = np.zeros((R, 2))
     for k in range(K):
         actions, state = policy.predict(obs, state=state, episode_start=start, deterministic=True)
         start = np.zeros(R, dtype=bool)
         result = core.step(actions, active=alive)
         info = result.info
-        # a run diverged at this step records the capped error from this step on, and its NIS
-        # counts up to the step before (the diverging step's is excluded, as every later one)
+        # a run diverged at this step records the capped position error and this step's velocity
+        # error from this step on, and its NIS counts up to the step before (the diverging step's
+        # is excluded, as every later one)
+        diverging = alive & result.terminated
         alive &= ~result.terminated
         live[:, k] = alive
         detected[:, k] = alive & info["detected"]
-        est[:, k] = np.where(alive[:, None], info["estimate"][:, :4], truth[:, k] + cap)
+        velocity = info["estimate"][diverging, 2:4]  # NaN is 0 here, an infinity its stand-in
+        velocity = np.where(np.abs(velocity) < INFINITY_STAND_IN, velocity, 0.0)
+        held_velocity_error[diverging] = velocity - truth[diverging, k, 2:4]
+        held = np.concatenate([truth[:, k, :2] + cap, truth[:, k, 2:4] + held_velocity_error], -1)
+        est[:, k] = np.where(alive[:, None], info["estimate"][:, :4], held)
         cov[:, k] = np.where(alive[:, None, None], info["covariance"][:, :4, :4], np.eye(4))
         probs[:, k] = np.where(alive[:, None], info["mode_probs"], 1.0 / M)
         tpms[:, k] = info["tpm"]

@@ -252,3 +252,4 @@ def test_the_json_and_the_table_say_how_diverged_runs_are_scored(capsys) -> None
     render_tables(results)
     printed = " ".join(capsys.readouterr().out.split())
     assert "Diverged runs (error above 40 m): a diverged run's position error is held" in printed
+    assert "its velocity error at the one it diverged with" in printed

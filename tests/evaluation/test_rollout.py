@@ -10,7 +10,7 @@ import pytest
 
 from baselines import FixedTPM
 from imm_gym.evaluation.rollout import Rollout, evaluation_config, rollout
-from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.core import INFINITY_STAND_IN, StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.tracking.tpm import stay_tpm
 from imm_gym.validation import ConfigError
@@ -100,3 +100,72 @@ def test_the_nis_of_a_diverged_run_counts_up_to_the_step_before_it_diverges(
         assert run.detected[r, :d].all()  # the paper's sensor detects every step
         assert not run.detected[r, d:].any()
     assert not (run.detected & (run.nis == 0.0)).any()
+
+
+def test_a_diverged_run_holds_the_velocity_error_it_diverged_with(diverging: Rollout) -> None:
+    """From the step a run diverges at, its velocity error is its tracker's at that step (the
+    position cap, 40/sqrt(2) m on each axis, was written into vx, vy: 28 m/s here, 3536 m/s at
+    the default cap). With a fixed TPM the tracker runs the same until it diverges, so a cap it
+    never reaches gives that error."""
+    policy = FixedTPM(3)
+    free = rollout(policy, evaluation_config(EnvConfig(scenario="paper"), policy.env_overrides),
+                   20, 0)
+    assert not free.diverged.any()
+    velocity_error = diverging.estimate[..., 2:4] - diverging.truth[..., 2:4]
+    free_error = free.estimate[..., 2:4] - free.truth[..., 2:4]
+    for r, d in _divergence_steps(diverging).items():
+        np.testing.assert_allclose(velocity_error[r, :d + 1], free_error[r, :d + 1], atol=1e-9)
+        np.testing.assert_allclose(velocity_error[r, d:], np.broadcast_to(free_error[r, d], (
+            velocity_error.shape[1] - d, 2)), atol=1e-9)
+
+
+class _FailingCore:
+    """Two slots, three steps of a target at (100, 0) m moving at (3, 4) m/s; slot 0's tracker
+    fails at step 1: its estimate is NaN in vx and infinite in vy (the core's API gives 0 and
+    ``INFINITY_STAND_IN`` for them), slot 1 tracks with a velocity error (0.5, -0.5) m/s."""
+
+    horizon, M = 3, 2
+
+    def __init__(self, config: EnvConfig, n: int) -> None:
+        self.truth = np.tile(np.array([100.0, 0.0, 3.0, 4.0]), (n, self.horizon + 1, 1))
+        self.true_model = np.zeros((n, self.horizon), dtype=np.int64)
+        self.k = 0
+
+    def reset(self, indices, seeds, initial_tpms=None) -> None:
+        self.k = 0
+
+    def observe(self) -> np.ndarray:
+        return np.zeros((2, 1), dtype=np.float32)
+
+    def step(self, actions, active=None) -> StepResult:
+        self.k += 1
+        estimate = self.truth[:, self.k] + np.array([1.0, 1.0, 0.5, -0.5])
+        failed = np.array([self.k >= 2, False])
+        if self.k == 2:
+            estimate[0] = [0.0, 0.0, 0.0, INFINITY_STAND_IN]
+        info = {
+            "estimate": estimate,
+            "covariance": np.tile(np.eye(4), (2, 1, 1)),
+            "mode_probs": np.full((2, 2), 0.5),
+            "tpm": np.tile(np.eye(2), (2, 1, 1)),
+            "nis": np.ones(2),
+            "detected": np.ones(2, dtype=bool),
+        }
+        return StepResult(self.observe(), np.zeros(2), failed, np.zeros(2, dtype=bool), info)
+
+
+class _Zero:
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return np.zeros((len(obs), 1)), state
+
+
+def test_a_failed_trackers_velocity_is_no_stand_in() -> None:
+    """A velocity entry that is not finite at the step a run diverges at holds the error of a
+    zero velocity (-3, -4 m/s here), not the API's stand-in for infinity."""
+    run = rollout(_Zero(), EnvConfig(), 2, 0, make_core=_FailingCore)
+    velocity_error = run.estimate[..., 2:4] - run.truth[..., 2:4]
+    np.testing.assert_array_equal(velocity_error[0, 1:], [[-3.0, -4.0], [-3.0, -4.0]])
+    np.testing.assert_array_equal(velocity_error[0, 0], [0.5, -0.5])
+    np.testing.assert_array_equal(velocity_error[1], np.tile([0.5, -0.5], (3, 1)))
+    assert run.diverged.tolist() == [True, False]
+    assert run.live.tolist() == [[True, False, False], [True, True, True]]
