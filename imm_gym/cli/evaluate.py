@@ -459,7 +459,8 @@ def evaluate_suite(
     harder to meet.
 
     Returns:
-        ``{"scenarios": {CASE: evaluate's results, with "skipped": {POLICY: reason}} and, with
+        ``{"scenarios": {CASE: evaluate's results (``meta.bank``: ``env-config`` where the case's
+        file gives a bank, as with ``--env-config``), with "skipped": {POLICY: reason}} and, with
         ``bar``, "bar": {"policy": NAME, "differences": {POLICY: paired difference}}},
         "tally": {POLICY: {"below", "level", "above", "skipped": [CASE, ...]}}, "meta": {...}}``;
         the tally sorts the cases by the paired difference against the bar, else the reference
@@ -507,6 +508,7 @@ def evaluate_suite(
             make_core=make_core,
         )
         results["meta"]["env_config"] = str(files[case])
+        results["meta"]["bank"] = "env-config" if "bank" in env_config else "paper"
         results["skipped"] = skipped[case]
         if bar:
             best = min(bar, key=lambda name: results["policies"][name]["armse_pos"])

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 import imm_gym.cli.evaluate as cli
-from imm_gym.cli.evaluate import evaluate, main
+from imm_gym.cli.evaluate import evaluate, evaluate_suite, main
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
 
@@ -404,3 +404,13 @@ def test_a_file_with_an_agent_s_settings_evaluates_every_policy_on_its_tracker()
                                  env_config=overrides)
     assert set(rollouts) == {"fixed", "best-fixed"}
     assert np.isfinite(results["policies"]["fixed"]["armse_pos"])
+
+
+def test_each_case_of_a_suite_names_its_bank(tmp_path) -> None:
+    """A case whose file gives a bank is labelled ``env-config`` in its meta, as
+    ``--env-config FILE`` is (it was always ``paper``: the benchmark's ``atc`` runs CV and
+    CT(±2°/s) with continuous noise); a case without one runs the paper's bank."""
+    folder = _directory_suite(tmp_path)
+    results = evaluate_suite(["fixed"], str(folder), 2, 0, clairvoyant=False)
+    assert results["scenarios"]["four"]["meta"]["bank"] == "env-config"
+    assert results["scenarios"]["fine"]["meta"]["bank"] == "paper"
