@@ -40,8 +40,8 @@ JSON gives its ``trained_on`` and ``evaluated_on`` trackers and ``tracker_differ
 differ, also said under the table), ``models_differ`` where the evaluated bank's models stand for
 others than the trained banks' (said too: the agent reads them as its own), and ``meta.env_config``
 the file (the overrides when called from Python; the paper's Table 2 rows are printed only without
-one); an agent whose observation or action size the evaluated configuration does not give is
-refused before any work.
+one, on the paper scenario with the paper's bank and filter); an agent whose observation or
+action size the evaluated configuration does not give is refused before any work.
 """
 
 from __future__ import annotations

@@ -8,6 +8,10 @@ from collections.abc import Iterable
 from typing import Any
 
 from imm_gym.papers.tip_imm import PAPER_TABLE2
+from imm_gym.sim.env_config import EnvConfig
+
+#: The filter of the paper's setting (EnvConfig's default: the SVD-UKF).
+PAPER_FILTER = EnvConfig.filter
 
 TABLE_COLUMNS = (
     ("armse_pos", "pos (m)"),
@@ -38,6 +42,18 @@ def policy_label(name: str, row: dict[str, Any]) -> str:
     if "stays" in row:
         return f"{name} (stays {'/'.join(f'{s:.3g}' for s in row['stays'])})"
     return name
+
+
+def paper_setting(meta: dict[str, Any]) -> bool:
+    """Whether the results are on the paper's setting, beside which its Table 2 is printed: the
+    paper scenario with the paper's bank and filter (EnvConfig's defaults), no configuration
+    file."""
+    return (
+        meta["scenario"] == "paper"
+        and not meta.get("env_config")
+        and meta.get("bank", "paper") == "paper"
+        and meta.get("filter") == PAPER_FILTER
+    )
 
 
 def divergence_note(meta: dict[str, Any], rows: Iterable[dict[str, Any]]) -> str | None:
@@ -88,7 +104,7 @@ def render_tables(results: dict[str, Any]) -> None:
             table.add_row(label, *(f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
         if c["role"] != "bound":
             table.caption = c["note"]
-    if meta["scenario"] == "paper" and not meta.get("env_config"):
+    if paper_setting(meta):
         for name, r in PAPER_TABLE2.items():
             table.add_row(name, *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
     console.print(table)

@@ -253,3 +253,20 @@ def test_the_json_and_the_table_say_how_diverged_runs_are_scored(capsys) -> None
     printed = " ".join(capsys.readouterr().out.split())
     assert "Diverged runs (error above 40 m): a diverged run's position error is held" in printed
     assert "its velocity error at the one it diverged with" in printed
+
+
+def test_the_papers_rows_only_beside_the_papers_setting(capsys) -> None:
+    """Table 2's rows are printed beside results on the paper scenario with the paper's bank and
+    filter only: ``--bank cv-ct-continuous`` (another noise model) gets none."""
+    from imm_gym.cli.tables import paper_setting
+
+    argv = ["--policy", "fixed", "--scenario", "paper", "--runs", "2", "--no-clairvoyant",
+            "--quiet"]
+    assert main([*argv, "--bank", "cv-ct-continuous"]) == 0
+    assert "paper: TIP-IMM" not in capsys.readouterr().out
+    assert main(argv) == 0
+    assert "paper: TIP-IMM" in capsys.readouterr().out
+    meta = {"scenario": "paper", "env_config": None, "bank": "paper", "filter": "ukf"}
+    assert paper_setting(meta)
+    assert not paper_setting({**meta, "filter": "ekf"})
+    assert not paper_setting({**meta, "bank": "hetero"})
