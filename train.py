@@ -131,7 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--out",
         type=Path,
         help=f"output directory (default: {DEFAULT_OUT}; with --resume, the run the checkpoint "
-        "belongs to: OUT of OUT/seed_S/checkpoints/NAME)",
+        "belongs to: OUT of OUT/seed_S/checkpoints/NAME); an OUT/seed_S/ of a seed to train is "
+        "refused, but for the resumed run's own",
     )
     p.add_argument(
         "--resume",
@@ -193,8 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, Any] | None:
     """Reject bad arguments (usage error, status 2) before any work; fill in ``--env``,
-    ``--algo`` and ``--seed`` (from the checkpoint with ``--resume``). Returns the checkpoint's
-    checked ``resume.json``, or None."""
+    ``--algo``, ``--seed`` and ``--out`` (from the checkpoint with ``--resume``). Returns the
+    checkpoint's checked ``resume.json``, or None."""
     from agents.checkpoint import read_checkpoint
     from imm_gym.envs import PRESETS
     from imm_gym.validation import ConfigError
@@ -291,7 +292,38 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
         args.env_mixture = [
             {"env_kwargs": o, "share": w} for o, w in zip(overrides[1:], shares[1:], strict=True)
         ]
+    check_out(parser, args)
     return resume
+
+
+def check_out(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse (usage error) an ``--out`` that is not a directory, or that holds ``seed_S/`` for a
+    seed to be trained — unless it is the run a ``--resume`` checkpoint belongs to: a new run
+    written there would pick up the earlier run's state (its ``best/`` validation record, which
+    would select its network as the new agent) and leave its files (``report.md``,
+    ``results.json``) beside the new agent."""
+    out = args.out
+    existing = next((p for p in (out, *out.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        parser.error(
+            f"--out {str(out)!r}: {str(existing)!r} is a file, not a directory; give a directory "
+            "(absent, or holding other runs)"
+        )
+    resumed = None if args.resume is None else Path(os.path.abspath(args.resume)).parent.parent
+    for seed in args.seed:
+        run = out / f"seed_{seed}"
+        if not run.exists() or (resumed is not None and run.resolve() == resumed.resolve()):
+            continue
+        latest = run / "checkpoints" / "latest"
+        resume = (
+            f"; to continue that run: python train.py --resume {latest}"
+            if (latest / "resume.json").is_file() and args.resume is None
+            else ""
+        )
+        parser.error(
+            f"--out {str(out)!r} already holds {run} (an earlier run; a new one would pick up its "
+            f"state): give another --out, or remove {run}{resume}"
+        )
 
 
 def checkpoint_run(checkpoint: Path, seed: int) -> Path | None:
@@ -533,8 +565,14 @@ def train_one(
     say(f"seed {seed}: training {args.algo} on {args.env} from step {done:,} to {total:,}")
     best_dir = run_dir / "best"
     best_file = best_dir / "validation.json"
-    best = json.loads(best_file.read_text()) if best_file.is_file() else {"armse_pos": None}
-    history: list[dict[str, float]] = best.get("history", [])
+    best: dict[str, Any] = {"armse_pos": None}
+    if resume is not None and best_file.is_file():  # the run's own, continued
+        best = json.loads(best_file.read_text())
+        if best.get("timesteps", 0) > done:  # kept after the checkpoint: not in this run's past
+            best = {"armse_pos": None, "history": best.get("history", [])}
+    history: list[dict[str, float]] = [
+        v for v in best.get("history", []) if v["timesteps"] <= done
+    ]
     progress_bar = not args.no_progress and sys.stderr.isatty()
 
     def validation_score() -> float:
@@ -977,7 +1015,15 @@ def run_seed(
         f"({stats['fps']:.0f} steps/s)"
     )
     entry: dict[str, Any] = {"training": stats}
-    if not args.no_eval:
+    if args.no_eval:  # a resumed run's earlier evaluation described the agent just replaced
+        stale = [run_dir / name for name in ("results.json", "report.md", "plots")]
+        for path in [p for p in stale if p.exists()]:
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+            say(f"seed {seed}: removed {path}: it evaluated the agent this run replaced")
+    else:
         results = evaluate_agent(agent_dir, args, run_dir, stop)
         entry.update(results)
         (run_dir / "results.json").write_text(json.dumps(results, indent=2))

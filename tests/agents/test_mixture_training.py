@@ -102,8 +102,9 @@ def test_bad_mixtures_on_the_command_line(extra, message, capsys) -> None:
 
 
 def _params(*argv: str) -> dict:
+    """The run's hyperparameters for ``argv`` (nothing trains: the --out given is never made)."""
     parser = train.build_parser()
-    args = parser.parse_args(list(argv))
+    args = parser.parse_args([*argv, "--out", "/nonexistent/out"])
     return train.hyperparams(args, train.check_args(parser, args))
 
 

@@ -114,6 +114,50 @@ def test_resume_without_out_writes_to_the_checkpoints_own_run(
     )
 
 
+def test_a_new_run_into_an_earlier_runs_directory_is_refused_before_training(tmp_path, capsys):
+    """A seed_S/ already in --out (an earlier run: its best/ would select its network as the new
+    agent) is a usage error before any seed trains, saying how to proceed; the earlier run is
+    left as it was. --out must be a directory."""
+    argv = ("--timesteps", "256", "--no-eval", "--validate-every", "128", "--validation-runs", "2")
+    assert train_small(tmp_path, *argv) == 0
+    files = {p: p.read_bytes() for p in (tmp_path / "seed_0").rglob("*") if p.is_file()}
+    with pytest.raises(SystemExit) as exc:
+        train_small(tmp_path, *argv, "--seed", "1", "0")
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    run = tmp_path / "seed_0"
+    assert f"already holds {run} (an earlier run" in err
+    assert f"give another --out, or remove {run}; to continue that run: python train.py " in err
+    assert not (tmp_path / "seed_1").exists()
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == files
+    (tmp_path / "afile").write_text("")
+    for out in (tmp_path / "afile", tmp_path / "afile" / "below"):
+        with pytest.raises(SystemExit) as exc:
+            train.main(["--out", str(out), "--no-eval"])
+        assert exc.value.code == 2
+        assert f"{str(tmp_path / 'afile')!r} is a file, not a directory" in capsys.readouterr().err
+
+
+def test_a_resumed_run_continues_its_own_directory_and_validation_record(trained, tmp_path):
+    """--resume into the checkpoint's own run is allowed: its validation record continues from
+    the checkpoint's step (what was kept after it is not this run's past) and an evaluation of
+    the agent it replaces is removed (--no-eval)."""
+    out, _ = trained
+    run = tmp_path / "seed_0"
+    shutil.copytree(out / "seed_0" / "checkpoints", run / "checkpoints")
+    (run / "best").mkdir()
+    history = [{"timesteps": 256, "armse_pos": 30.0}, {"timesteps": 512, "armse_pos": 1.0}]
+    record = {"armse_pos": 1.0, "timesteps": 512, "history": history}
+    (run / "best" / "validation.json").write_text(json.dumps(record))
+    (run / "report.md").write_text("the earlier agent's\n")
+    argv = ["--resume", str(run / "checkpoints" / "step_256"), "--timesteps", "512", "--no-eval"]
+    argv += ["--no-progress", "--validate-every", "256", "--validation-runs", "2"]
+    assert train.main(argv) == 0
+    stats = json.loads((run / "training.json").read_text())
+    assert [v["timesteps"] for v in stats["validation"]] == [256, 512, 512]
+    assert stats["validation"][0]["armse_pos"] == 30.0 and not (run / "report.md").exists()
+
+
 def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
     argv = ("--timesteps", "1024", "--validate-every", "256", "--validation-runs", "3")
     assert train_small(tmp_path, *argv, "--no-eval", extra="swa_start: null\n") == 0
