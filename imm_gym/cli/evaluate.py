@@ -53,6 +53,7 @@ import platform
 import sys
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -62,8 +63,18 @@ from numpy.typing import NDArray
 from baselines import REGISTRY, Baseline, BuildContext
 from imm_gym.cli.tables import render_tables
 from imm_gym.evaluation.clairvoyant import clairvoyant_filter, clairvoyant_role, unsupported
-from imm_gym.evaluation.metrics import maneuver_response, peak_error, tracking_errors
+from imm_gym.evaluation.metrics import (
+    IQM_LEVEL,
+    IQM_RESAMPLES,
+    IQM_SEED,
+    maneuver_response,
+    peak_error,
+    tracking_errors,
+)
 from imm_gym.evaluation.rollout import (
+    PAIRED_LEVEL,
+    PAIRED_RESAMPLES,
+    PAIRED_SEED,
     Rollout,
     evaluation_config,
     paired_bootstrap,
@@ -280,8 +291,32 @@ def evaluate(
         "env_config": plain(dict(env_config)) if env_config else None,
         "versions": _versions(),
         "divergence": divergence_meta(base),
+        "bootstrap": bootstrap_meta(),
     }
     return results, rollouts
+
+
+def bootstrap_meta() -> dict[str, dict[str, Any]]:
+    """The settings of the confidence intervals, for the JSON's ``meta``: the paired bootstrap
+    of the differences (:func:`~imm_gym.evaluation.rollout.paired_bootstrap`) and the
+    stratified bootstrap of the training seeds' IQM
+    (:func:`~imm_gym.evaluation.metrics.stratified_bootstrap_iqm`, ``--agent-seeds``)."""
+    return {
+        "paired": {
+            "resamples": PAIRED_RESAMPLES,
+            "seed": PAIRED_SEED,
+            "level": PAIRED_LEVEL,
+            "interval": "percentile",
+            "resampled": "runs, the same for both policies (paired)",
+        },
+        "seeds_iqm": {
+            "resamples": IQM_RESAMPLES,
+            "seed": IQM_SEED,
+            "level": IQM_LEVEL,
+            "interval": "percentile",
+            "resampled": "training seeds, within each scenario (stratified)",
+        },
+    }
 
 
 def divergence_meta(base: EnvConfig) -> dict[str, Any]:
@@ -532,6 +567,7 @@ def evaluate_suite(
         "seed": seed,
         "seeds": f"{seed}..{seed + runs - 1}",
         "versions": _versions(),
+        "bootstrap": bootstrap_meta(),
     }
     return out
 
@@ -654,19 +690,30 @@ def _progress_bar(total: int, enabled: bool) -> Any:
     return tqdm(total=total, desc="evaluating", unit="step", leave=False)
 
 
+#: Packages whose versions the results record where they are installed (read from their
+#: metadata: nothing is imported for it).
+OPTIONAL_PACKAGES = ("torch", "stable-baselines3", "sb3-contrib", "numba")
+
+
 def _versions() -> dict[str, str]:
     import gymnasium
     import scipy
 
     from imm_gym import __version__
 
-    return {
+    versions = {
         "imm_gym": __version__,
         "numpy": np.__version__,
         "scipy": scipy.__version__,
         "gymnasium": gymnasium.__version__,
         "python": platform.python_version(),
     }
+    for name in OPTIONAL_PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return versions
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -19,7 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from imm_gym.evaluation.metrics import stratified_bootstrap_iqm
+from imm_gym.evaluation.metrics import (
+    IQM_LEVEL,
+    IQM_RESAMPLES,
+    IQM_SEED,
+    stratified_bootstrap_iqm,
+)
 
 #: Per-scenario quantities aggregated over the seeds (keys of the JSON): a seed's position ARMSE
 #: and mode accuracy (its row), its relative paired difference against the reference.
@@ -100,3 +105,7 @@ def render_seeds(summary: Mapping[str, Any]) -> None:
         if summary.get("not_run"):
             table.caption += f"; not run on {', '.join(summary['not_run'])}"
     console.print(table)
+    console.print(
+        f"Stratified bootstrap: {IQM_RESAMPLES} resamples of the seeds within each scenario, "
+        f"seed {IQM_SEED}, {IQM_LEVEL:.0%} percentile interval."
+    )

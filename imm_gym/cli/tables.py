@@ -56,6 +56,17 @@ def paper_setting(meta: dict[str, Any]) -> bool:
     )
 
 
+def bootstrap_line(meta: dict[str, Any]) -> str | None:
+    """The paired bootstrap's settings (``meta["bootstrap"]["paired"]``) in one line."""
+    paired = meta.get("bootstrap", {}).get("paired")
+    if paired is None:
+        return None
+    return (
+        f"Paired bootstrap: {paired['resamples']} resamples of the runs (the same runs for both "
+        f"policies), seed {paired['seed']}, {paired['level']:.0%} percentile interval."
+    )
+
+
 def divergence_note(meta: dict[str, Any], rows: Iterable[dict[str, Any]]) -> str | None:
     """How the diverged runs are scored (``meta["divergence"]``), when a policy has one."""
     divergence = meta.get("divergence")
@@ -149,6 +160,9 @@ def render_tables(results: dict[str, Any]) -> None:
                 f"{100 * d['relative']:+.2f}%",
             )
         console.print(diff)
+        line = bootstrap_line(meta)
+        if line:
+            console.print(line)
 
 
 def render_suite_table(results: dict[str, Any]) -> None:
@@ -221,6 +235,9 @@ def render_suite_table(results: dict[str, Any]) -> None:
         note = divergence_note(r["meta"], r["policies"].values())
         if note:
             console.print(f"{scenario}: {note}")
+    line = bootstrap_line(meta)
+    if line:
+        console.print(line)
     n = len(results["scenarios"])
     for name, cases in results.get("tally", {}).items():
         counts = ", ".join(f"{key} on {len(cases[key])}" for key in ("below", "level", "above"))

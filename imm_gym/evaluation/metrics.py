@@ -16,6 +16,10 @@ from imm_gym.tracking.linalg import inv_logdet, mahalanobis
 
 Array = NDArray[np.float64]
 
+#: :func:`stratified_bootstrap_iqm`'s defaults, the evaluation's (recorded in its
+#: ``meta.bootstrap``): resamples, the resampling generator's seed, the confidence level.
+IQM_RESAMPLES, IQM_SEED, IQM_LEVEL = 10_000, 0, 0.95
+
 
 def rmse_over_time(error: Array) -> Array:
     """``RMSE(t) = sqrt(mean over runs of ||e_t||^2)``: ``(R, K, d) -> (K,)``."""
@@ -190,7 +194,7 @@ def interquartile_mean(scores: Array) -> float:
 
 
 def stratified_bootstrap_iqm(
-    scores: Array, n_boot: int = 10_000, seed: int = 0, level: float = 0.95
+    scores: Array, n_boot: int = IQM_RESAMPLES, seed: int = IQM_SEED, level: float = IQM_LEVEL
 ) -> dict[str, float]:
     """Interquartile mean of ``scores (tasks, seeds)`` with a stratified bootstrap CI.
 

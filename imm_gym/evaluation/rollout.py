@@ -36,6 +36,10 @@ from imm_gym.sim.model_order import for_bank
 
 Array = NDArray[np.float64]
 
+#: :func:`paired_bootstrap`'s defaults, the evaluation's (recorded in its ``meta.bootstrap``):
+#: resamples of the runs, the resampling generator's seed, the confidence level.
+PAIRED_RESAMPLES, PAIRED_SEED, PAIRED_LEVEL = 2000, 0, 0.95
+
 
 @dataclass(frozen=True)
 class Rollout:
@@ -203,7 +207,11 @@ def armse_from_squared(err2: Array) -> float:
 
 
 def paired_bootstrap(
-    err2_a: Array, err2_b: Array, n_boot: int = 2000, seed: int = 0, level: float = 0.95
+    err2_a: Array,
+    err2_b: Array,
+    n_boot: int = PAIRED_RESAMPLES,
+    seed: int = PAIRED_SEED,
+    level: float = PAIRED_LEVEL,
 ) -> dict[str, float]:
     """Difference of position ARMSE, policy A minus policy B, with a paired bootstrap CI.
 

@@ -414,3 +414,4 @@ def test_each_case_of_a_suite_names_its_bank(tmp_path) -> None:
     results = evaluate_suite(["fixed"], str(folder), 2, 0, clairvoyant=False)
     assert results["scenarios"]["four"]["meta"]["bank"] == "env-config"
     assert results["scenarios"]["fine"]["meta"]["bank"] == "paper"
+    assert results["meta"]["bootstrap"]["paired"]["resamples"] == 2000

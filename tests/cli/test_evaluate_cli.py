@@ -270,3 +270,29 @@ def test_the_papers_rows_only_beside_the_papers_setting(capsys) -> None:
     assert paper_setting(meta)
     assert not paper_setting({**meta, "filter": "ekf"})
     assert not paper_setting({**meta, "bank": "hetero"})
+
+
+def test_meta_records_the_learning_stack_and_the_bootstrap(tmp_path, capsys) -> None:
+    """``meta.versions`` adds torch, stable-baselines3, sb3-contrib and numba where installed
+    (their metadata: nothing imported for it), the existing keys kept; ``meta.bootstrap`` gives
+    the paired bootstrap's and the seeds' IQM's settings, and a line under the paired differences
+    says them."""
+    from importlib import metadata
+
+    out = tmp_path / "res.json"
+    argv = ["--policy", "fixed", "--policy", "tip-imm", "--runs", "2", "--no-clairvoyant"]
+    assert main([*argv, "--quiet", "--json", str(out)]) == 0
+    meta = json.loads(out.read_text())["meta"]
+    versions = meta["versions"]
+    assert {"imm_gym", "numpy", "scipy", "gymnasium", "python"} <= set(versions)
+    for name in ("torch", "stable-baselines3", "numba"):
+        assert versions[name] == metadata.version(name)
+    assert meta["bootstrap"]["paired"] == {
+        "resamples": 2000, "seed": 0, "level": 0.95, "interval": "percentile",
+        "resampled": "runs, the same for both policies (paired)",
+    }
+    iqm = meta["bootstrap"]["seeds_iqm"]
+    assert (iqm["resamples"], iqm["seed"], iqm["level"]) == (10_000, 0, 0.95)
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "Paired bootstrap: 2000 resamples of the runs" in printed
+    assert "seed 0, 95% percentile interval" in printed

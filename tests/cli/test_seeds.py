@@ -88,7 +88,10 @@ def test_the_command_adds_the_seeds_rows_and_their_aggregate(tmp_path, capsys) -
         data["paired"]["differences"][d]["relative"] for d in dirs
     ]
     assert summary["reference"] == "fixed"
-    assert "Over 2 training seeds" in capsys.readouterr().out
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "Over 2 training seeds" in printed
+    assert "Stratified bootstrap: 10000 resamples of the seeds within each scenario" in printed
+    assert data["meta"]["bootstrap"]["seeds_iqm"]["resamples"] == 10_000
 
 
 @pytest.mark.parametrize(
