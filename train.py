@@ -346,7 +346,8 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     may then change only the budget); ``--timesteps`` sets the budget.
 
     Raises:
-        ConfigError: a file is malformed, or ``--config`` changes a resumed run.
+        ConfigError: a file is malformed, ``--config`` changes a resumed run, or a resumed run's
+            budget is not above the checkpoint's step count.
     """
     from agents.training import check_hyperparams, check_policy, load_hyperparams, read_yaml
     from imm_gym.envs import PRESETS
@@ -354,6 +355,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     from imm_gym.sim.mixture import AGENT_FIELDS, check_parts
     from imm_gym.validation import ConfigError
 
+    budget_from = "the checkpoint"
     if resume is not None:
         params = dict(resume["hyperparams"])
     else:
@@ -366,6 +368,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
         )
         env_kwargs = {**params.get("env_kwargs", {}), **extra.pop("env_kwargs", {})}
         updated = {**params, **extra, "env_kwargs": env_kwargs}
+        budget_from = "--config" if "n_timesteps" in extra else budget_from
         if resume is not None:
             changed = sorted(
                 k
@@ -381,6 +384,17 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
         params = updated
     if args.timesteps is not None:
         params["n_timesteps"] = args.timesteps
+    if resume is not None and params["n_timesteps"] <= resume["num_timesteps"]:
+        given = (
+            f"--timesteps {args.timesteps}"
+            if args.timesteps is not None
+            else f"the budget {params['n_timesteps']} (n_timesteps of {budget_from})"
+        )
+        raise ConfigError(
+            f"{given} is not above the {resume['num_timesteps']} steps the checkpoint "
+            f"{args.resume} was trained for: --resume trains on to a larger budget (give "
+            f"--timesteps N with N > {resume['num_timesteps']})"
+        )
     if args.env_config and resume is None:
         # the files replace the entry's trackers and targets (and its mixture): only what the
         # agent is trained as stays from the entry

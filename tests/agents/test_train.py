@@ -158,6 +158,25 @@ def test_a_resumed_run_continues_its_own_directory_and_validation_record(trained
     assert stats["validation"][0]["armse_pos"] == 30.0 and not (run / "report.md").exists()
 
 
+@pytest.mark.parametrize(
+    ("argv", "given"),
+    [
+        (["--timesteps", "200"], "--timesteps 200"),
+        (["--timesteps", "512"], "--timesteps 512"),
+        ([], "the budget 512 (n_timesteps of the checkpoint)"),
+    ],
+)
+def test_resume_refuses_a_budget_the_checkpoint_has_reached(trained, argv, given, tmp_path, capsys):
+    out, _ = trained
+    ckpt = out / "seed_0" / "checkpoints" / "latest"  # 512 steps
+    with pytest.raises(SystemExit) as exc:
+        train.main(["--resume", str(ckpt), *argv, "--out", str(tmp_path / "r"), "--no-eval"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"{given} is not above the 512 steps the checkpoint {ckpt} was trained for" in err
+    assert "give --timesteps N with N > 512" in err and not (tmp_path / "r").exists()
+
+
 def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
     argv = ("--timesteps", "1024", "--validate-every", "256", "--validation-runs", "3")
     assert train_small(tmp_path, *argv, "--no-eval", extra="swa_start: null\n") == 0
