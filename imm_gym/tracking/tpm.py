@@ -237,11 +237,19 @@ def apply_floor(tpm: Array, p_min: float) -> Array:
     return t
 
 
+#: Floor of the reference's entries in :func:`row_divergence` (at most ``-ln 1e-12 = 27.6`` nats
+#: per unit of probability moved onto a zero entry).
+DIVERGENCE_FLOOR = 1e-12
+
+
 def row_divergence(tpm: Array, reference: Array) -> Array:
     """Mean Kullback-Leibler divergence of the rows of ``tpm`` from those of ``reference``:
-    ``D = (1/M) Σ_i Σ_j π_ij ln(π_ij / ρ_ij)`` (``0 ln 0 = 0``), over the leading axes of ``tpm``.
+    ``D = (1/M) Σ_i Σ_j π_ij ln(π_ij / max(ρ_ij, DIVERGENCE_FLOOR))`` (``0 ln 0 = 0``), over
+    the leading axes of ``tpm``.
 
-    Zero exactly when the two TPMs are equal; ``reference`` needs positive entries.
+    Zero exactly when the two TPMs are equal. The floor keeps ``D`` finite where the reference
+    has zero entries (a stay of 1, or ``p_min = 0``), which the exact divergence makes infinite;
+    elsewhere it changes nothing.
     """
     tpm = np.asarray(tpm, dtype=float)
-    return rel_entr(tpm, reference).sum(axis=-1).mean(axis=-1)
+    return rel_entr(tpm, np.maximum(reference, DIVERGENCE_FLOOR)).sum(axis=-1).mean(axis=-1)

@@ -12,7 +12,7 @@ from hypothesis.extra.numpy import arrays
 from imm_gym import ActionError, ConfigError, EnvConfig, TrackingCore
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
-from imm_gym.tracking.tpm import apply_floor, row_divergence, stay_tpm
+from imm_gym.tracking.tpm import DIVERGENCE_FLOOR, apply_floor, row_divergence, stay_tpm
 
 _CORES: dict[tuple, TrackingCore] = {}
 
@@ -366,6 +366,29 @@ def test_row_divergence_by_hand() -> None:
     np.testing.assert_allclose(row_divergence(stay_tpm(3, 0.6), stay_tpm(3, 1 / 3)), expected)
     zero_entry = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     np.testing.assert_allclose(row_divergence(zero_entry, stay_tpm(3, 1 / 3)), np.log(3.0))
+
+
+def test_row_divergence_from_a_reference_with_zero_entries_is_finite() -> None:
+    """A stay of 1 (or ``p_min = 0``) puts zeros in the reference: the probability moved onto
+    them costs ``ln(p / DIVERGENCE_FLOOR)`` instead of an infinite divergence."""
+    moved = stay_tpm(3, 0.99)
+    expected = 0.99 * np.log(0.99) + 2 * 0.005 * np.log(0.005 / DIVERGENCE_FLOOR)  # every row
+    np.testing.assert_allclose(row_divergence(moved, np.eye(3)), expected, rtol=1e-12)
+    assert row_divergence(np.eye(3), np.eye(3)) == 0.0
+
+
+@pytest.mark.parametrize(
+    ("settings", "cost"),
+    [({"initial_stay": 1.0}, "tpm_change_cost"), ({"shadow_stay": 1.0}, "tpm_cost")],
+)
+def test_a_cost_against_a_stay_of_one_gives_finite_rewards(settings: dict, cost: str) -> None:
+    """The reset TPM (``initial_stay: 1``) and the shadow's (``shadow_stay: 1``) have zero
+    entries that the floored TPM of every step moves probability onto."""
+    env = TPMAdaptEnv(scenario="random", **settings, **{cost: 0.05})
+    env.reset(seed=0)
+    for _ in range(3):
+        _, reward, *_ = env.step(np.zeros(9))
+        assert np.isfinite(reward)
 
 
 def test_tpm_cost_is_subtracted_from_the_reward() -> None:
