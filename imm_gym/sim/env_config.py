@@ -328,6 +328,17 @@ class EnvConfig:
         check_choice("reward", self.reward, tuple(REWARD_TERMS))
         if REWARD_TERMS[self.reward].needs_shadow and self.shadow == "none":
             raise ConfigError(f"reward {self.reward!r} needs shadow 'fixed'")
+        if (
+            REWARD_TERMS[self.reward].needs_stay_bank
+            and self.detector == "turn_rate"
+            and self.detector_share > 0.0
+        ):
+            raise ConfigError(
+                f"reward {self.reward!r} with detector 'turn_rate' and detector_share > 0 would "
+                "let the action move its baseline (the stay bank runs the detector's priors, and "
+                "the turn-rate detector reads the steered tracker's velocity): use detector "
+                "'shadow' or 'learned', or another reward"
+            )
         if isinstance(self.reward_scale, str):
             check_choice("reward_scale", self.reward_scale, REWARD_SCALES)
         else:

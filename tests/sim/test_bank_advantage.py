@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from helpers import stay_core
 
-from imm_gym import EnvConfig, TrackingCore
+from imm_gym import ConfigError, EnvConfig, TrackingCore
 from imm_gym.sim.features import EVIDENCE_STAYS
 from imm_gym.sim.stay_bank import STAY_BANK_FACTOR, STAY_BANK_FLOOR
 from imm_gym.tracking.hetero import make_tracker
@@ -50,8 +51,18 @@ def test_the_baseline_is_each_stay_s_imm_weighted_by_the_evidence_before_the_ste
     assert np.ptp(w[:, 1:]) > 0.1  # the weights moved away from uniform
 
 
-def test_no_action_moves_the_baseline() -> None:
-    cores = [stay_core(3, reward="bank_advantage") for _ in range(2)]
+@pytest.mark.parametrize(
+    "detector",
+    [
+        {},
+        {"detector": "shadow", "detector_share": 0.5},
+        {"detector": "learned", "detector_share": 0.5},
+    ],
+)
+def test_no_action_moves_the_baseline(detector: dict) -> None:
+    """Neither the stays' evidence nor a detector's priors the stay bank runs move with the
+    action (the turn-rate detector, which reads the steered tracker, is refused below)."""
+    cores = [stay_core(3, reward="bank_advantage", **detector) for _ in range(2)]
     rngs = [np.random.default_rng(s) for s in (0, 1)]
     differ = False
     for _ in range(40):
@@ -61,6 +72,14 @@ def test_no_action_moves_the_baseline() -> None:
         )
         differ |= not np.array_equal(steps[0]["position_error"], steps[1]["position_error"])
     assert differ  # the actions did move the tracker
+
+
+def test_a_baseline_the_turn_rate_detector_would_steer_is_refused() -> None:
+    with pytest.raises(ConfigError, match=r"bank_advantage.*turn_rate.*move its baseline"):
+        EnvConfig(
+            action_mode="stay", reward="bank_advantage", detector="turn_rate", detector_share=0.5
+        )
+    EnvConfig(action_mode="stay", reward="advantage", detector="turn_rate", detector_share=0.5)
 
 
 def test_the_reward_runs_the_stay_bank_without_a_shadow() -> None:
