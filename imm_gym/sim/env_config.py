@@ -155,7 +155,8 @@ class EnvConfig:
             estimate —, ``"squared_advantage"`` — ``(e_shadow² - e²) / reward_scale²``, the
             per-step terms of the mean squared error that the RMSE(t) of the ARMSE are made of —,
             ``"bank_advantage"`` — ``(e_bank - e) / reward_scale`` with ``e_bank`` the stay
-            bank's IMMs' errors weighted by their evidence (it runs the stay bank) — or
+            bank's IMMs' errors weighted by their evidence (it runs the stay bank; not with
+            the ``turn_rate`` detector's priors, which the action would move) — or
             ``"error"`` — ``-e / reward_scale``.
         reward_scale: metres per unit of reward, or ``"measurement"``: each episode's own scale,
             the RMS position accuracy of its first measurement ``sqrt(tr P0_pos / 2)`` (the
