@@ -6,9 +6,10 @@ ARMSE, the mode accuracy and the relative paired difference of the position ARMS
 reference policy, each with a stratified bootstrap 95 % CI
 (:func:`imm_gym.evaluation.metrics.stratified_bootstrap_iqm`, Agarwal et al. 2021) and, over the
 scenarios of a suite, the IQM of the relative differences (every scenario a task: seeds are
-resampled within each). With few seeds the IQM is a trimmed mean of the middle ones and its CI
-says how much the training seed moves the agent, not the Monte-Carlo noise (the paired CIs of
-each seed's row say that).
+resampled within each). The IQM of n values drops ``floor(n / 4)`` of them at each end and
+averages the others (:func:`~imm_gym.evaluation.metrics.interquartile_mean`: the middle 3 of 5
+seeds, all of 2 or 3); its CI says how much the training seed moves the agent, not the
+Monte-Carlo noise (the paired CIs of each seed's row say that).
 """
 
 from __future__ import annotations
@@ -32,7 +33,12 @@ QUANTITIES = ("armse_pos", "mode_accuracy", "relative_vs_reference")
 
 
 def _per_seed(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, list[float]]:
-    """Each quantity of :data:`QUANTITIES` for every seed of one scenario's result."""
+    """Each quantity of :data:`QUANTITIES` for every seed of one scenario's result.
+
+    Raises:
+        ValueError: a seed without a paired difference against the reference (the reference
+            itself, say: the command refuses it), which no value stands for.
+    """
     rows = result["policies"]
     paired = result["paired"]
     values: dict[str, list[float]] = {q: [] for q in QUANTITIES}
@@ -40,7 +46,12 @@ def _per_seed(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, list
         values["armse_pos"].append(float(rows[name]["armse_pos"]))
         values["mode_accuracy"].append(float(rows[name]["mode_accuracy"]))
         d = paired["differences"].get(name)
-        values["relative_vs_reference"].append(0.0 if d is None else float(d["relative"]))
+        if d is None:
+            raise ValueError(
+                f"seed {name} has no paired difference against the reference "
+                f"{paired['reference']!r}: the seeds are compared with a policy outside them"
+            )
+        values["relative_vs_reference"].append(float(d["relative"]))
     return values
 
 

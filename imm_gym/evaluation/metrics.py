@@ -188,8 +188,14 @@ def trajectory_metrics(estimate: Array, truth: Array, heading: Array) -> dict[st
 
 
 def interquartile_mean(scores: Array) -> float:
-    """Mean of the middle half of ``scores`` (all axes pooled): ``scipy.stats.trim_mean`` with 25 %
-    cut from each end, the aggregate of Agarwal et al. (2021) for a few training seeds."""
+    r"""The interquartile mean of ``scores`` (all axes pooled), as Agarwal et al. (2021) compute it
+    (rliable's ``aggregate_iqm``: ``scipy.stats.trim_mean(x, 0.25)``).
+
+    With the n scores sorted, ``x_(1) <= ... <= x_(n)``, and ``c = floor(n / 4)`` whole scores cut
+    at each end: ``IQM = 1 / (n - 2c) * sum_{i=c+1}^{n-c} x_(i)``. Whole scores only, no
+    fractional weights: for n = 5 the mean of the middle 3, for n = 8 of the middle 4, for
+    n <= 3 the plain mean (nothing cut).
+    """
     return float(stats.trim_mean(np.ravel(scores), 0.25))
 
 
@@ -199,8 +205,9 @@ def stratified_bootstrap_iqm(
     """Interquartile mean of ``scores (tasks, seeds)`` with a stratified bootstrap CI.
 
     Each resample draws, for every task (scenario) separately, its seeds with replacement, and
-    takes the IQM of all resampled scores; the interval is the percentile interval of the
-    resampled IQMs (Agarwal et al., "Deep RL at the edge of the statistical precipice", 2021).
+    takes the IQM (:func:`interquartile_mean`) of all resampled scores; the interval is the
+    percentile interval of the resampled IQMs (Agarwal et al., "Deep RL at the edge of the
+    statistical precipice", 2021).
 
     Args:
         scores: ``(tasks, seeds)`` one score per training seed and task (a 1-d array: one task).

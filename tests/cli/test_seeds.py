@@ -35,7 +35,7 @@ def test_per_scenario_the_seeds_values_and_their_iqm() -> None:
     seeds = ["s0", "s1", "s2", "s3", "s4"]
     out = across_seeds(_result(armse), seeds)
     assert out["armse_pos"]["per_seed"] == [18.0, 19.0, 30.0, 19.5, 18.5]
-    # the middle half of 18, 18.5, 19, 19.5, 30 (scipy's trim_mean cuts one from each end)
+    # the middle three of 18, 18.5, 19, 19.5, 30 (floor(5 / 4) = 1 cut from each end)
     assert out["armse_pos"]["iqm"] == pytest.approx(19.0)
     assert out["armse_pos"]["low"] <= 19.0 <= out["armse_pos"]["high"] < 30.0
     np.testing.assert_allclose(
@@ -43,6 +43,14 @@ def test_per_scenario_the_seeds_values_and_their_iqm() -> None:
     )
     assert out["relative_vs_reference"]["iqm"] == pytest.approx(-0.05)
     assert out["reference"] == "best-fixed" and out["seeds"] == seeds
+
+
+def test_a_seed_without_a_paired_difference_is_an_error() -> None:
+    """A seed missing from the paired differences (the reference itself) has no relative
+    difference: an error, not a zero in the seeds' IQM."""
+    armse = {"best-fixed": 20.0, "s0": 18.0, "s1": 19.0}
+    with pytest.raises(ValueError, match="seed best-fixed has no paired difference"):
+        across_seeds(_result(armse), ["s0", "s1", "best-fixed"])
 
 
 def test_over_a_suite_scenarios_are_the_strata() -> None:

@@ -12,6 +12,15 @@ def test_the_iqm_by_hand() -> None:
     assert interquartile_mean(np.array([[1.0, 2.0, 3.0, 4.0], [5.0, 6.0, 7.0, 8.0]])) == 4.5
 
 
+def test_the_iqm_cuts_whole_scores() -> None:
+    """floor(n / 4) whole scores cut at each end (rliable's aggregate_iqm), not the middle half
+    with fractional weights: 5 scores keep the middle 3, 3 scores keep all."""
+    x = np.array([0.0, 0.0, 10.0, 10.0, 10.0])
+    assert interquartile_mean(x) == np.mean([0.0, 10.0, 10.0])  # fractional weights: 7.0
+    assert interquartile_mean(np.array([1.0, 2.0, 30.0])) == 11.0
+    assert interquartile_mean(np.array([1.0, 2.0])) == 1.5
+
+
 def test_the_stratified_bootstrap() -> None:
     scores = np.array([[17.8, 17.9, 18.0, 18.1, 25.0], [16.6, 16.7, 16.7, 16.8, 16.9]])
     a = stratified_bootstrap_iqm(scores, n_boot=2000, seed=3)
