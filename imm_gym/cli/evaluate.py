@@ -777,7 +777,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --suite: on each case the better of these policies (the lower position ARMSE "
         "on its runs; added to --policy if absent) is the bar every other policy is tallied "
         "against, with paired 95%% CIs (JSON: \"bar\" per case, \"tally\"); e.g. --bar "
-        "tip-imm best-fixed",
+        "tip-imm best-fixed (--agent-seeds' relative differences stay against --reference)",
     )
     parser.add_argument("--json", type=Path, help="write the results to this JSON file")
     parser.add_argument("--plots", type=Path, help="write PNG figures to this directory")

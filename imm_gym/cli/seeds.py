@@ -68,7 +68,9 @@ def across_seeds(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, A
 def suite_across_seeds(results: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, Any]:
     """A suite: :func:`across_seeds` of every scenario the seeds ran on (``not_run``: those
     their network cannot read, a bank of another size) and the IQM over those scenarios and the
-    seeds of the relative difference against the reference, stratified by scenario."""
+    seeds of the relative difference against the reference (``reference``: ``--reference``'s
+    paired differences, also with ``--bar``, whose bar may be another policy on some cases),
+    stratified by scenario."""
     ran = {
         name: r
         for name, r in results["scenarios"].items()
@@ -78,6 +80,7 @@ def suite_across_seeds(results: Mapping[str, Any], seeds: Sequence[str]) -> dict
     relative = np.array([s["relative_vs_reference"]["per_seed"] for s in per_scenario.values()])
     return {
         "seeds": list(seeds),
+        "reference": next((s["reference"] for s in per_scenario.values()), None),
         "scenarios": per_scenario,
         "not_run": [name for name in results["scenarios"] if name not in ran],
         "relative_vs_reference": stratified_bootstrap_iqm(relative),
@@ -110,8 +113,8 @@ def render_seeds(summary: Mapping[str, Any]) -> None:
     pooled = summary.get("relative_vs_reference") if "scenarios" in summary else None
     if pooled is not None:
         table.caption = (
-            f"all scenarios, relative Δ vs reference: {100 * pooled['iqm']:+.2f}% "
-            f"[{100 * pooled['low']:+.2f}, {100 * pooled['high']:+.2f}]"
+            f"all scenarios, relative Δ vs the reference, {summary['reference']}: "
+            f"{100 * pooled['iqm']:+.2f}% [{100 * pooled['low']:+.2f}, {100 * pooled['high']:+.2f}]"
         )
         if summary.get("not_run"):
             table.caption += f"; not run on {', '.join(summary['not_run'])}"

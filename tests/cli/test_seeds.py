@@ -11,7 +11,7 @@ import pytest
 from helpers import shipped_agent
 
 from imm_gym.cli.evaluate import main
-from imm_gym.cli.seeds import across_seeds, suite_across_seeds
+from imm_gym.cli.seeds import across_seeds, render_seeds, suite_across_seeds
 from imm_gym.evaluation.metrics import stratified_bootstrap_iqm
 
 
@@ -53,7 +53,9 @@ def test_a_seed_without_a_paired_difference_is_an_error() -> None:
         across_seeds(_result(armse), ["s0", "s1", "best-fixed"])
 
 
-def test_over_a_suite_scenarios_are_the_strata() -> None:
+def test_over_a_suite_scenarios_are_the_strata(capsys) -> None:
+    """The relative differences are against the reference (``--reference``, also with
+    ``--bar``), which the JSON and the table name."""
     seeds = ["a", "b", "c"]
     results = {
         "scenarios": {
@@ -66,6 +68,10 @@ def test_over_a_suite_scenarios_are_the_strata() -> None:
     expected = stratified_bootstrap_iqm(relative)
     assert out["relative_vs_reference"] == pytest.approx(expected)
     assert set(out["scenarios"]) == {"easy", "hard"} and out["not_run"] == []
+    assert out["reference"] == "best-fixed"
+    render_seeds(out)
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "all scenarios, relative Δ vs the reference, best-fixed:" in printed
 
 
 def test_over_a_suite_the_cases_the_seeds_did_not_run_on_are_left_out() -> None:
