@@ -326,6 +326,14 @@ def check_out(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None
         )
 
 
+def _agent_fields(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The fields of ``kwargs`` that say what the agent is trained as
+    (:data:`imm_gym.sim.mixture.AGENT_FIELDS`)."""
+    from imm_gym.sim.mixture import AGENT_FIELDS
+
+    return {k: v for k, v in kwargs.items() if k in AGENT_FIELDS}
+
+
 def checkpoint_run(checkpoint: Path, seed: int) -> Path | None:
     """The run directory ``OUT`` a checkpoint ``OUT/seed_S/checkpoints/NAME`` of seed ``S``
     belongs to (relative to the working directory where it lies below it), or None where the
@@ -352,7 +360,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     from agents.training import check_hyperparams, check_policy, load_hyperparams, read_yaml
     from imm_gym.envs import PRESETS
     from imm_gym.sim.env_config import EnvConfig
-    from imm_gym.sim.mixture import AGENT_FIELDS, check_parts
+    from imm_gym.sim.mixture import check_parts
     from imm_gym.validation import ConfigError
 
     budget_from = "the checkpoint"
@@ -395,33 +403,45 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
             f"{args.resume} was trained for: --resume trains on to a larger budget (give "
             f"--timesteps N with N > {resume['num_timesteps']})"
         )
-    if args.env_config and resume is None:
-        # the files replace the entry's trackers and targets (and its mixture): only what the
-        # agent is trained as stays from the entry
-        kept = {k: v for k, v in params.get("env_kwargs", {}).items() if k in AGENT_FIELDS}
-        params = {k: v for k, v in params.items() if k != "env_mixture"}
-        params["env_kwargs"] = kept
     if args.env_config:
         from agents.training import jsonable
 
-        entry_kwargs = {} if resume is not None else params.get("env_kwargs", {})
-        env_kwargs = jsonable({**params.get("env_kwargs", {}), **args.env_overrides})
-        mixture = [
-            {"env_kwargs": jsonable({**entry_kwargs, **part["env_kwargs"]}), "share": part["share"]}
-            for part in args.env_mixture
-        ]
-        changed = env_kwargs != jsonable(params.get("env_kwargs", {})) or (
-            mixture and mixture != params.get("env_mixture")
-        )
-        if resume is not None and changed:
-            files = " ".join(map(str, args.env_config))
-            raise ConfigError(
-                f"--env-config {files} changes the environment of the resumed run; "
-                "--resume continues with the checkpoint's (leave --env-config out)"
-            )
-        params = {**params, "env_kwargs": env_kwargs}
-        if mixture:
-            params["env_mixture"] = mixture
+        files = [args.env_overrides, *(part["env_kwargs"] for part in args.env_mixture)]
+        shares = [part["share"] for part in args.env_mixture]
+        if resume is not None:
+            # a start with these files recorded each part as the agent settings it kept from the
+            # entry (those the file does not set) with the file's fields over them
+            recorded = [params.get("env_kwargs", {})]
+            recorded += [part["env_kwargs"] for part in params.get("env_mixture", [])]
+            differ = [
+                str(name)
+                for name, file, kwargs in zip(args.env_config, files, recorded, strict=False)
+                if jsonable({**_agent_fields(kwargs), **file}) != jsonable(kwargs)
+            ]
+            recorded_shares = [part["share"] for part in params.get("env_mixture", [])]
+            reasons = [f"{name} is not the configuration the run recorded" for name in differ]
+            if len(files) != len(recorded):
+                reasons.append(f"{len(files)} file(s) for its {len(recorded)} configuration(s)")
+            elif shares != recorded_shares:
+                reasons.append(f"shares {shares} of the further files, not {recorded_shares}")
+            if reasons:
+                raise ConfigError(
+                    f"--env-config {' '.join(map(str, args.env_config))} changes the environment "
+                    f"of the resumed run ({'; '.join(reasons)}); --resume continues with the "
+                    "checkpoint's (give the files and --env-shares it was started with, or leave "
+                    "--env-config out)"
+                )
+        else:
+            # the files replace the entry's trackers and targets (and its mixture): only what the
+            # agent is trained as stays from the entry
+            kept = _agent_fields(params.get("env_kwargs", {}))
+            params = {k: v for k, v in params.items() if k != "env_mixture"}
+            params["env_kwargs"] = jsonable({**kept, **files[0]})
+            if args.env_mixture:
+                params["env_mixture"] = [
+                    {"env_kwargs": jsonable({**kept, **file}), "share": share}
+                    for file, share in zip(files[1:], shares, strict=True)
+                ]
     parts = [("env_kwargs", params.get("env_kwargs", {}))] + [
         (f"env_mixture[{i}].env_kwargs", part["env_kwargs"])
         for i, part in enumerate(params.get("env_mixture", []))

@@ -59,6 +59,37 @@ def test_train_py_records_the_mixture_and_trains_on_it(tmp_path) -> None:
     assert "sojourn" not in env and env["stay_base"] == "evidence"  # the first file's
 
 
+def test_resume_takes_the_files_the_run_was_started_with_and_refuses_others(tmp_path, capsys):
+    """--resume with the same two --env-config files continues the run (the recorded parts hold
+    the entry's agent settings besides the files' fields); another file, a file fewer or other
+    shares are refused before training, naming what differs."""
+    files = {}
+    for name, speed in (("a", 10.0), ("b", 20.0), ("c", 30.0)):
+        files[name] = tmp_path / f"{name}.yaml"
+        files[name].write_text(json.dumps({**POLICY, "obs_features": list(POLICY["obs_features"]),
+                                           "velocity_std": speed}))
+    cfg = tmp_path / "small.yml"
+    cfg.write_text("n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n")
+    common = ["--no-eval", "--no-progress", "--validate-every", "0"]
+    argv = ["--config", str(cfg), "--out", str(tmp_path / "run"), "--timesteps", "256", *common]
+    assert train.main([*argv, "--env-config", str(files["a"]), str(files["b"])]) == 0
+    ckpt = tmp_path / "run" / "seed_0" / "checkpoints" / "latest"
+    resume = ["--resume", str(ckpt), "--timesteps", "512", *common]
+    for given, shares, message in (
+        (["a", "c"], [], f"{files['c']} is not the configuration the run recorded"),
+        (["a"], [], "1 file(s) for its 2 configuration(s)"),
+        (["a", "b"], ["--env-shares", "3", "1"], "shares [0.25] of the further files, not [0.5]"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            train.main([*resume, "--env-config", *(str(files[f]) for f in given), *shares])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert "changes the environment of the resumed run" in err and message in err
+    assert train.main([*resume, "--env-config", str(files["a"]), str(files["b"])]) == 0
+    stats = json.loads((tmp_path / "run" / "seed_0" / "training.json").read_text())
+    assert stats["timesteps"] == 512
+
+
 def test_train_py_evaluates_an_agent_of_a_configuration_file_against_every_rule(tmp_path) -> None:
     """The evaluation after training meets the file's tracker and targets; the file's training
     settings (here the evidence's base, which a rule's action mode does not admit) stay the
