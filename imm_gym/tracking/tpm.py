@@ -209,7 +209,9 @@ def apply_floor(tpm: Array, p_min: float) -> Array:
     Entries below ``p_min`` are raised to it and the other entries of the row shrink
     proportionally to pay for it, repeated until no entry is below (at most M passes). A row that
     already satisfies the floor is only normalized, so a valid TPM passes unchanged. With
-    ``p_min < 1/M`` the largest entry is at most ``1 - (M-1) p_min <= 1 - p_min``.
+    ``p_min < 1/M`` the largest entry is at most ``1 - (M-1) p_min <= 1 - p_min``. This is SPEC
+    §6's "clip, then renormalize" made exact: dividing a clipped row by its sum would pull the
+    clipped entries back below ``p_min`` (by about ``p_min^2``), which §5's bound forbids.
 
     Args:
         tpm: ``(..., M, M)`` non-negative, finite, with positive row sums.
