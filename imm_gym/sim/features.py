@@ -533,7 +533,8 @@ register(Feature(
 register(Feature(
     "stay_bank_evidence", "the exact evidence of one classical IMM per stay 1/M, 0.6, 0.8, 0.9,"
     " 0.95, 0.98, 0.995 (the stay bank): discounted sums (λ = 0.99) of each IMM's measurement"
-    " log-likelihood minus the best's, each step's floored at −10 nats, tanh(· / 4)",
+    " log-likelihood minus the best's, each step's floored at −10 nats, tanh(· / 4); with"
+    " stay_grid 'pairs' these seven, the best taken over the pairs too",
     lambda M, m: 1 + len(EVIDENCE_STAYS), -1.0, 0.0,
     lambda v: np.tanh(v.stay_bank_evidence / EVIDENCE_SCALE),
     size_label=str(1 + len(EVIDENCE_STAYS)), needs_stay_bank=True,
