@@ -68,7 +68,7 @@ from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any, NoReturn
 
-from agents.training import DEFAULT_ENTRY, set_threads
+from agents.training import DEFAULT_ENTRY, MAX_SEED, set_threads
 
 BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
 #: The strongest rules, compared too where the tracker admits them (a linear bank; the learned
@@ -102,7 +102,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--algo", choices=ALGOS, help="algorithm (ppo; with --resume the checkpoint's)")
     p.add_argument("--timesteps", type=int, help="training steps (default: the YAML entry's)")
     p.add_argument(
-        "--seed", type=int, nargs="+", help="training seed(s) (0; with --resume the checkpoint's)"
+        "--seed",
+        type=int,
+        nargs="+",
+        help=f"training seed(s), each in [0, {MAX_SEED}] (0; with --resume the checkpoint's)",
     )
     p.add_argument(
         "--config",
@@ -237,8 +240,11 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
         parser.error(f"--env {args.env!r} is not registered; available: {ids}")
     if args.timesteps is not None and args.timesteps < 1:
         parser.error(f"--timesteps must be >= 1, got {args.timesteps}")
-    if any(s < 0 for s in args.seed) or len(set(args.seed)) != len(args.seed):
-        parser.error(f"--seed values must be distinct non-negative integers, got {args.seed}")
+    if not all(0 <= s <= MAX_SEED for s in args.seed) or len(set(args.seed)) != len(args.seed):
+        parser.error(
+            f"--seed values must be distinct integers in [0, {MAX_SEED}] (2**32 - 1: numpy's "
+            f"global generator is seeded with each), got {' '.join(map(str, args.seed))}"
+        )
     if args.jobs < 1:
         parser.error(f"--jobs must be >= 1, got {args.jobs}")
     if args.jobs > 1 and args.engine == "rllib":

@@ -37,6 +37,13 @@ from imm_gym.validation import ConfigError, load_yaml
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
 TRAIN_SEED_BASE = 100_000_000
 VALIDATION_SEED_BASE = 50_000_000
+#: The largest run seed ``s``: the algorithm seeds numpy's global generator with it
+#: (``np.random.seed`` takes 0 to 2**32 - 1; RLlib's too). The seeds derived from it — the
+#: training slots' ``TRAIN_SEED_BASE + 10_000 s + i`` (below 2**46, under
+#: :data:`imm_gym.seeding.DETECTOR_SEED_BASE`), the constructor's ``s + i`` and RLlib's
+#: :func:`imm_gym.seeding.rllib_seed` — go through ``numpy.random.SeedSequence``, which takes any
+#: non-negative integer; the validation seeds do not depend on ``s``.
+MAX_SEED = 2**32 - 1
 ALGO_FILES = {"ppo": "ppo.yml", "recurrent-ppo": "recurrent_ppo.yml"}
 #: The entry used for an environment id that has none in the hyperparameter file.
 DEFAULT_ENTRY = "imm_gym/TPMAdapt-v0"

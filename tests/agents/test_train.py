@@ -285,6 +285,7 @@ def test_bad_swa_start_is_rejected(value, tmp_path, capsys) -> None:
         (["--timesteps", "0"], "--timesteps must be >= 1"),
         (["--seed", "-1"], "--seed values"),
         (["--seed", "1", "1"], "--seed values"),
+        (["--seed", "0", str(2**32)], f"--seed values must be distinct integers in [0, {2**32-1}]"),
         (["--env", "imm_gym/Nope-v0"], "is not registered"),
         (["--resume", "does/not/exist"], "is not a checkpoint"),
         (["--config", "missing.yml"], "does not exist"),
@@ -298,6 +299,15 @@ def test_bad_arguments(argv, message, capsys) -> None:
         train.main(argv)
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_the_largest_seed_allowed_trains_and_validates(tmp_path) -> None:
+    """Seed 2**32 - 1: every seed derived from it (the training slots' 100,000,000 + 10,000 s + i,
+    the constructor's s + i) is one the streams take; 2**32 is refused (test_bad_arguments)."""
+    argv = ("--seed", "4294967295", "--timesteps", "256", "--validate-every", "256")
+    assert train_small(tmp_path, *argv, "--validation-runs", "2", "--no-eval") == 0
+    stats = json.loads((tmp_path / "seed_4294967295" / "training.json").read_text())
+    assert stats["timesteps"] == 256 and np.isfinite(stats["validation"][0]["armse_pos"])
 
 
 def test_recurrent_variant_trains_and_evaluates(tmp_path) -> None:
