@@ -702,6 +702,7 @@ def train_one(
         tb_log_name=f"{args.algo}_seed{seed}",
     )
     seconds = time.perf_counter() - start
+    trained = int(model.num_timesteps) - done  # whole rollouts: at least the steps asked for
     checkpoint("latest")
     if stop.requested:
         latest = ckpt_dir / "latest"
@@ -725,9 +726,9 @@ def train_one(
         selected = {"timesteps": int(model.num_timesteps)}
     stats = {
         "timesteps": int(model.num_timesteps),
-        "trained_this_call": remaining,
+        "trained_this_call": trained,
         "seconds": seconds,
-        "fps": remaining / seconds if seconds > 0 else 0.0,
+        "fps": trained / seconds if seconds > 0 else 0.0,
         "selected": selected,
         "validation": history,
     }
@@ -1050,10 +1051,7 @@ def run_seed(
         agent_dir, stats = train_one_rllib(args, params, seed, run_dir, stop)
     else:
         agent_dir, stats = train_one(args, params, seed, run_dir, resume, stop)
-    say(
-        f"seed {seed}: {stats['timesteps']} steps in {stats['seconds']:.0f} s "
-        f"({stats['fps']:.0f} steps/s)"
-    )
+    say(f"seed {seed}: {training_line(stats)}")
     entry: dict[str, Any] = {"training": stats}
     if args.no_eval:  # a resumed run's earlier evaluation described the agent just replaced
         stale = [run_dir / name for name in ("results.json", "report.md", "plots")]
@@ -1073,13 +1071,24 @@ def run_seed(
             [
                 f"# {args.algo.upper()} on {args.env}, seed {seed}",
                 "",
-                f"Command: `{command}`. Training: {stats['timesteps']} steps in "
-                f"{stats['seconds']:.0f} s ({stats['fps']:.0f} steps/s, {_engine(args)}).",
+                f"Command: `{command}`. Training: {training_line(stats, _engine(args))}.",
                 f"Agent: {_describe_selection(stats['selected'])}.",
                 f"Versions: {versions}.",
             ],
         )
     return agent_dir, entry
+
+
+def training_line(stats: dict[str, Any], engine: str | None = None) -> str:
+    """``256 steps in 3 s (85 steps/s, ENGINE); 768 steps in all, resumed at step 512``: the
+    steps this call trained in its seconds, and the run's total where it resumed a checkpoint
+    (``stats``: ``training.json``'s)."""
+    trained, total = stats["trained_this_call"], stats["timesteps"]
+    rate = f"{stats['fps']:,.0f} steps/s" + ("" if engine is None else f", {engine}")
+    line = f"{trained:,} steps in {stats['seconds']:.0f} s ({rate})"
+    if trained != total:
+        line += f"; {total:,} steps in all, resumed at step {total - trained:,}"
+    return line
 
 
 #: In a worker process of ``--jobs``: the parent's stop request (see :class:`StopRequest`).

@@ -177,6 +177,32 @@ def test_resume_refuses_a_budget_the_checkpoint_has_reached(trained, argv, given
     assert "give --timesteps N with N > 512" in err and not (tmp_path / "r").exists()
 
 
+def test_training_json_counts_the_steps_trained_in_whole_rollouts(tmp_path) -> None:
+    """--timesteps 100 with rollouts of 8 x 32 steps trains 256: training.json says 256 and
+    rates them."""
+    assert train_small(tmp_path, "--timesteps", "100", "--no-eval", "--validate-every", "0") == 0
+    stats = json.loads((tmp_path / "seed_0" / "training.json").read_text())
+    assert stats["timesteps"] == stats["trained_this_call"] == 256
+    assert stats["fps"] == pytest.approx(256 / stats["seconds"])
+
+
+def test_a_resumed_runs_report_gives_this_calls_steps_in_its_seconds_and_the_total(
+    trained, tmp_path
+) -> None:
+    out, _ = trained
+    argv = ["--resume", str(out / "seed_0" / "checkpoints" / "latest"), "--timesteps", "768"]
+    argv += ["--out", str(tmp_path), "--paper-runs", "2", "--random-runs", "2", "--no-progress"]
+    assert train.main([*argv, "--validate-every", "0"]) == 0
+    stats = json.loads((tmp_path / "seed_0" / "training.json").read_text())
+    assert stats["trained_this_call"] == 256 and stats["timesteps"] == 768
+    seconds, fps = f"{stats['seconds']:.0f}", f"{stats['fps']:,.0f}"
+    report = (tmp_path / "seed_0" / "report.md").read_text()
+    assert (
+        f"Training: 256 steps in {seconds} s ({fps} steps/s, SB3 on 1 thread); 768 steps in all, "
+        "resumed at step 512." in report
+    )
+
+
 def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
     argv = ("--timesteps", "1024", "--validate-every", "256", "--validation-runs", "3")
     assert train_small(tmp_path, *argv, "--no-eval", extra="swa_start: null\n") == 0
