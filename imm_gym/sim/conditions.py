@@ -83,8 +83,8 @@ class Variation:
         q_scale: factor on every model's process noise (its ``q`` or ``intensity``,
             :meth:`~imm_gym.tracking.models.MotionModel.scaled`), log-uniform: trackers tuned
             tighter or looser than the configured bank.
-        q_maneuver: a further factor on the process noise of every model but the first (the
-            maneuver models of the built-in banks, whose first is CV), log-uniform: banks whose
+        q_maneuver: a further factor on the process noise of the maneuver models (every model
+            but the CV one: CT and CA; needs a CV model), log-uniform: banks whose
             maneuver models are tuned looser or tighter against straight flight than the
             configured one (the CT models of ``atc`` and ``vsmm-s1..s3`` carry 10-20 times the
             CV model's noise intensity, the paper's half of it).
@@ -174,8 +174,8 @@ class Conditions:
         speed: ``(R,)`` target speeds (m/s; NaN for a run that keeps the source's range), or
             None where no run varies it.
         q_scale: ``(R,)`` factors on the bank's process noise (1 where not varied).
-        q_maneuver: ``(R,)`` further factors on the process noise of every model but the first
-            (1 where not varied).
+        q_maneuver: ``(R,)`` further factors on the process noise of the maneuver models, every
+            model but the CV one (1 where not varied).
         velocity_std: ``(R,)`` prior standard deviations of the first velocity estimate
             (m/s; the configured one where not varied).
     """
@@ -235,7 +235,7 @@ def bank_constants(
 ) -> tuple[Array, Array]:
     """Per-run transition matrices and process noise of a linear bank, ``F (R, M, n, n)`` and
     ``Q (R, M, n, n)``: ``F_j(T_r)`` and the noise ``Q_j(T_r)`` of model ``j`` scaled by
-    ``q_scale[r]``, and every model's but the first by ``q_maneuver[r]`` too
+    ``q_scale[r]``, and every model's but the CV model's by ``q_maneuver[r]`` too
     (:meth:`MotionModel.transition_matrix`, :meth:`MotionModel.noise_covariance`,
     :meth:`MotionModel.scaled`)."""
     n = bank_dim(models)
@@ -251,10 +251,18 @@ def bank_noise(
     return np.stack([
         np.stack([
             (m if f == 1.0 else m.scaled(f)).noise_covariance(n, t)
-            for m, f in zip(models, [s] + [s * a] * (len(models) - 1), strict=True)
+            for m, f in zip(models, maneuver_factors(models, s, a), strict=True)
         ])
         for t, s, a in zip(T, q_scale, q_maneuver, strict=True)
     ])
+
+
+def maneuver_factors(
+    models: Sequence[MotionModel], q_scale: float, q_maneuver: float
+) -> list[float]:
+    """Each model's process-noise factor: ``q_scale`` for a CV model, ``q_scale * q_maneuver``
+    for the maneuver models (CT, CA), wherever the bank lists them."""
+    return [q_scale if m.kind == "cv" else q_scale * q_maneuver for m in models]
 
 
 def turn_design(
@@ -291,6 +299,11 @@ def check_variation(variation: Variation, scenario: object, bank: object, sensor
         raise ConfigError(
             f"vary ({', '.join(variation.varied)}) needs a linear bank: the heterogeneous bank's "
             "engine runs every run at one T, one sensor and one track-start prior"
+        )
+    if variation.q_maneuver is not None and not any(m.kind == "cv" for m in bank):
+        raise ConfigError(
+            "vary.q_maneuver needs a bank with a CV model (the one whose noise it leaves, the "
+            f"maneuver models' it scales), got {[m.label for m in bank]}"
         )
     if variation.speed is not None and scenario != "random":
         raise ConfigError(f"vary.speed needs scenario 'random', got {scenario!r}")

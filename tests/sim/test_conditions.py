@@ -12,7 +12,7 @@ import pytest
 import imm_gym  # noqa: F401  (registers the envs)
 from imm_gym.scenarios.segments import RandomFamily
 from imm_gym.seeding import streams
-from imm_gym.sim.conditions import Variation, draw_conditions
+from imm_gym.sim.conditions import Variation, bank_noise, draw_conditions
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
@@ -155,7 +155,7 @@ def test_each_slot_tracks_as_an_imm_built_for_its_own_conditions() -> None:
         np.testing.assert_allclose(estimates[i], run.x, rtol=1e-9, atol=1e-9)
 
 
-def test_a_maneuver_noise_factor_scales_every_model_but_the_first() -> None:
+def test_a_maneuver_noise_factor_scales_every_model_but_the_cv_one() -> None:
     """``vary.q_maneuver``: slot i = the numpy reference IMM whose CV model carries slot i's
     ``q_scale`` and whose CT models carry ``q_scale * q_maneuver``; the other conditions are
     those drawn without it, bit for bit (it is drawn after them)."""
@@ -189,6 +189,24 @@ def test_a_maneuver_noise_factor_scales_every_model_but_the_first() -> None:
             detected=core.detected[i, 1 : K + 1],
         )
         np.testing.assert_allclose(estimates[i], run.x, rtol=1e-9, atol=1e-9)
+
+
+def test_the_maneuver_factor_follows_the_models_kind_not_their_place() -> None:
+    """A bank listing CT(+), CV, CT(-) (the same tracker as the suite's order) scales the CT
+    models' noise by ``q_maneuver``, not the first model's."""
+    cv, ct_plus, ct_minus = CONTINUOUS_BANK
+    T, s, a = np.array([1.0]), np.array([2.0]), np.array([4.0])
+    Q = bank_noise((ct_plus, cv, ct_minus), T, s, a)[0]
+    n = Q.shape[-1]
+    expected = [ct_plus.scaled(8.0), cv.scaled(2.0), ct_minus.scaled(8.0)]
+    for j, m in enumerate(expected):
+        np.testing.assert_array_equal(Q[j], m.noise_covariance(n, 1.0))
+
+
+def test_a_maneuver_factor_without_a_cv_model_is_refused() -> None:
+    _, ct_plus, ct_minus = CONTINUOUS_BANK
+    with pytest.raises(ConfigError, match="q_maneuver needs a bank with a CV model"):
+        EnvConfig(bank=(ct_plus, ct_minus), vary={"q_maneuver": (0.5, 5.0)})
 
 
 def test_the_heading_rate_feature_uses_each_slot_period() -> None:
