@@ -37,6 +37,12 @@ hyperparameters (a resumed run continues with it); the files must agree on what 
 and writes (:data:`imm_gym.sim.mixture.POLICY_FIELDS`), and the first file's configuration is the
 agent's ``env.json``, its validation and its evaluation.
 
+``--env ID`` of an id without a hyperparameter entry of its own (every one but the default's)
+trains on that id's preset: the default entry's hyperparameters and what it trains the agent as
+(its ``AGENT_FIELDS``), the preset's fields over them and its observation features after the
+entry's; the entry's trackers, targets and ``env_mixture`` are left out, as for ``--env-config``,
+and the evaluation runs on the preset's tracker.
+
 ``--engine rllib`` trains with Ray RLlib's PPO instead (:mod:`agents.rllib`: ``--env-runners K``
 runners each stepping the native vector env, on a local Ray instance or the cluster at
 ``--ray-address``); the agent is exported to the same data files, validated and evaluated
@@ -97,7 +103,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--env",
-        help=f"registered imm_gym environment id ({DEFAULT_ENTRY}; with --resume the checkpoint's)",
+        help=f"registered imm_gym environment id ({DEFAULT_ENTRY}; with --resume the "
+        "checkpoint's); an id without a hyperparameter entry of its own trains on its preset with "
+        "the default "
+        "entry's hyperparameters and agent settings (not its trackers, targets and mixture)",
     )
     p.add_argument("--algo", choices=ALGOS, help="algorithm (ppo; with --resume the checkpoint's)")
     p.add_argument("--timesteps", type=int, help="training steps (default: the YAML entry's)")
@@ -332,6 +341,29 @@ def check_out(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None
         )
 
 
+def on_preset(params: dict[str, Any], env_id: str) -> dict[str, Any]:
+    """Another id's hyperparameter entry ``params`` for ``env_id``, which has none: its trackers,
+    targets and mixture (written for its own id's environment) give way to ``env_id``'s preset,
+    applied over what the entry trains the agent as (its
+    :data:`~imm_gym.sim.mixture.AGENT_FIELDS`), the preset's observation features after the
+    entry's — so that the run trains on the environment it names (``TPMAdaptPaper-v0``: the
+    paper scenario; ``TPMAdaptParallel-v0``: the parallel bank, observed too; ``TPMAdaptHetero-v0``:
+    the heterogeneous bank)."""
+    from agents.training import jsonable
+    from imm_gym.envs import PRESETS
+
+    kept = _agent_fields(params.get("env_kwargs", {}))
+    preset = jsonable(PRESETS[env_id])
+    env_kwargs = {**kept, **preset}
+    if "obs_features" in kept and "obs_features" in preset:
+        features = list(kept["obs_features"])
+        env_kwargs["obs_features"] = features + [
+            f for f in preset["obs_features"] if f not in features
+        ]
+    params = {k: v for k, v in params.items() if k != "env_mixture"}
+    return {**params, "env_kwargs": env_kwargs}
+
+
 def _agent_fields(kwargs: dict[str, Any]) -> dict[str, Any]:
     """The fields of ``kwargs`` that say what the agent is trained as
     (:data:`imm_gym.sim.mixture.AGENT_FIELDS`)."""
@@ -363,7 +395,13 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
         ConfigError: a file is malformed, ``--config`` changes a resumed run, or a resumed run's
             budget is not above the checkpoint's step count.
     """
-    from agents.training import check_hyperparams, check_policy, load_hyperparams, read_yaml
+    from agents.training import (
+        check_hyperparams,
+        check_policy,
+        jsonable,
+        load_hyperparams,
+        read_yaml,
+    )
     from imm_gym.envs import PRESETS
     from imm_gym.sim.env_config import EnvConfig
     from imm_gym.sim.mixture import check_parts
@@ -375,7 +413,16 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     else:
         params, entry = load_hyperparams(args.env, args.algo)
         if entry != args.env:
-            print(f"no hyperparameter entry for {args.env}: using the {entry} entry", flush=True)
+            params = on_preset(params, args.env)
+            if not args.env_config:  # the evaluation after training runs on the preset's tracker
+                args.env_overrides = jsonable(PRESETS[args.env])
+            print(
+                f"no hyperparameter entry for {args.env}: using the {entry} entry on its "
+                f"preset ({', '.join(PRESETS[args.env])}; the entry's trackers, targets and "
+                "mixture left out, what it trains the agent as kept, the preset's observation "
+                "features added to the entry's)",
+                flush=True,
+            )
     if args.config is not None:
         extra = check_hyperparams(
             str(args.config), read_yaml(args.config), args.algo, complete=False
@@ -410,8 +457,6 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
             f"--timesteps N with N > {resume['num_timesteps']})"
         )
     if args.env_config:
-        from agents.training import jsonable
-
         files = [args.env_overrides, *(part["env_kwargs"] for part in args.env_mixture)]
         shares = [part["share"] for part in args.env_mixture]
         if resume is not None:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import train
+from imm_gym.envs import PRESETS
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.mixture import AGENT_FIELDS, MixtureCore
@@ -153,3 +154,32 @@ def test_an_env_config_replaces_the_entrys_trackers_and_keeps_what_the_agent_is(
     assert kwargs["scenario"] == "paper" and kwargs["sensor"] == {"sigma_r": 30.0}
     kept = {k: v for k, v in default["env_kwargs"].items() if k in AGENT_FIELDS}
     assert {k: kwargs[k] for k in kept} == kept and kwargs["action_mode"] == "stay"
+
+
+@pytest.mark.parametrize(
+    "env_id", [f"imm_gym/TPMAdapt{name}-v0" for name in ("Paper", "Parallel", "Hetero")]
+)
+def test_an_id_without_an_entry_trains_on_its_preset(env_id) -> None:
+    """--env ID without an entry of its own: the default entry's hyperparameters and what it
+    trains the agent as, on ID's preset (not the entry's trackers, targets and mixture, which
+    overrode it: TPMAdaptPaper-v0 trained on the random family), the preset's features after the
+    entry's; the evaluation runs on the preset's tracker."""
+    default = _params()
+    parser = train.build_parser()
+    args = parser.parse_args(["--env", env_id, "--out", "/nonexistent/out"])
+    params = train.hyperparams(args, train.check_args(parser, args))
+    assert "env_mixture" not in params
+    config = EnvConfig.build({**PRESETS[env_id], **params["env_kwargs"]})
+    preset = EnvConfig.build(PRESETS[env_id])
+    for field in set(PRESETS[env_id]) - {"obs_features"}:
+        assert getattr(config, field) == getattr(preset, field), field
+    features = default["env_kwargs"]["obs_features"]
+    assert list(config.obs_features) == [
+        *features, *(f for f in PRESETS[env_id].get("obs_features", ()) if f not in features)
+    ]
+    agent = {k: v for k, v in default["env_kwargs"].items() if k in AGENT_FIELDS}
+    assert {k: params["env_kwargs"][k] for k in agent if k != "obs_features"} == {
+        k: v for k, v in agent.items() if k != "obs_features"
+    }
+    assert args.env_overrides == json.loads(json.dumps(PRESETS[env_id]))
+
