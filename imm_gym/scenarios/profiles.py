@@ -109,6 +109,13 @@ def _check_ranges(family: object, names: tuple[str, ...]) -> None:
         store(family, name, (lo, check_range(f"family.{name}[1]", hi, lo)))
 
 
+#: The driving profile's segment durations (s), :meth:`DrivingFamily.segments`.
+DRIVING_DURATIONS = (8.0, 4.0, 5.0, 5.0, 3.0, 4.0, 3.0, 4.0, 4.0, 4.0, 5.0, 4.0, 4.0, 4.0, 6.0)
+
+#: Seed 003's segment durations (s): 0-10, 10-14, 14-34, 34-38 and 38-43 s.
+MANEUVER_DURATIONS = (10.0, 4.0, 20.0, 4.0, 5.0)
+
+
 @dataclass(frozen=True)
 class DrivingFamily:
     """Seed-002-like trajectories (T = 0.1 s, 67 s): straight, gentle S-curve, two sharp 90° turns.
@@ -133,6 +140,7 @@ class DrivingFamily:
     def __post_init__(self) -> None:
         _check_ranges(self, ("cruise", "curve", "turn", "s_rate"))
         store(self, "T", check_range("family.T", self.T, 0.0, 0.5, lo_open=True))
+        check_divides("family.T", self.T, DRIVING_DURATIONS)
 
     def segments(self, rng: np.random.Generator) -> tuple[list[tuple[float, float, float]], float]:
         """``[(duration s, omega, accel)]`` and the initial speed of one draw."""
@@ -140,23 +148,24 @@ class DrivingFamily:
         s = rng.uniform(*self.s_rate)
         signs = rng.choice([-1.0, 1.0], size=2)
         quarter = math.pi / 2 / 4.0
-        return [
-            (8.0, 0.0, 0.0),
-            (4.0, 0.0, (curve - cruise) / 4.0),
-            (5.0, s, 0.0),
-            (5.0, -s, 0.0),
-            (3.0, 0.0, 0.0),
-            (4.0, 0.0, (cruise - curve) / 4.0),
-            (3.0, 0.0, 0.0),
-            (4.0, 0.0, (turn - cruise) / 4.0),
-            (4.0, signs[0] * quarter, 0.0),
-            (4.0, 0.0, (cruise - turn) / 4.0),
-            (5.0, 0.0, 0.0),
-            (4.0, 0.0, (turn - cruise) / 4.0),
-            (4.0, signs[1] * quarter, 0.0),
-            (4.0, 0.0, (cruise - turn) / 4.0),
-            (6.0, 0.0, 0.0),
-        ], cruise
+        rates = [
+            (0.0, 0.0),
+            (0.0, (curve - cruise) / 4.0),
+            (s, 0.0),
+            (-s, 0.0),
+            (0.0, 0.0),
+            (0.0, (cruise - curve) / 4.0),
+            (0.0, 0.0),
+            (0.0, (turn - cruise) / 4.0),
+            (signs[0] * quarter, 0.0),
+            (0.0, (cruise - turn) / 4.0),
+            (0.0, 0.0),
+            (0.0, (turn - cruise) / 4.0),
+            (signs[1] * quarter, 0.0),
+            (0.0, (cruise - turn) / 4.0),
+            (0.0, 0.0),
+        ]
+        return [(d, w, a) for d, (w, a) in zip(DRIVING_DURATIONS, rates, strict=True)], cruise
 
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""
@@ -181,7 +190,20 @@ class DrivingFamily:
         )
 
 
+def check_divides(name: str, T: float, durations: Sequence[float]) -> None:
+    """Raise :class:`ConfigError` naming ``name`` unless every duration (s) is a whole number of
+    sampling periods ``T``: a profile's turns and accelerations are timed in seconds."""
+    for d in durations:
+        if not math.isclose(round(d / T) * T, d):
+            raise ConfigError(
+                f"{name} must divide every segment's duration ({sorted(set(durations))} s); "
+                f"{d} s is not a multiple of {T} s"
+            )
+
+
 def _expand(segments: list[tuple[float, float, float]], T: float) -> tuple[Array, Array]:
+    """Per-step turn rates and accelerations of ``[(duration s, omega, accel)]`` at ``T``
+    (durations multiples of ``T``, :func:`check_divides`)."""
     steps = [round(d / T) for d, _, _ in segments]
     w = np.concatenate([np.full(n, s[1]) for n, s in zip(steps, segments, strict=True)])
     a = np.concatenate([np.full(n, s[2]) for n, s in zip(steps, segments, strict=True)])
@@ -226,16 +248,18 @@ def maneuver_profile(T: float = 0.1) -> ManeuverProfile:
         position, speed, heading.
     """
     check_range("T", T, 0.0, 1.0, lo_open=True)
+    check_divides("T", T, MANEUVER_DURATIONS)
     heading0 = -math.pi / 2  # v = (0, -5): heading south
     speed0 = 5.0
     v14 = math.hypot(1.0, -1.0)  # |(1, -1)|, the speed of the uniform turn
-    segs = [
-        (10.0, 0.0, 0.0),
-        (4.0, 0.0, 0.0),  # constant Cartesian acceleration, below
-        (20.0, MANEUVER_TURN_RATE, 0.0),
-        (4.0, 0.0, (8.0 - v14) / 4.0),
-        (5.0, 0.0, 0.0),
+    rates = [
+        (0.0, 0.0),
+        (0.0, 0.0),  # constant Cartesian acceleration, below
+        (MANEUVER_TURN_RATE, 0.0),
+        (0.0, (8.0 - v14) / 4.0),
+        (0.0, 0.0),
     ]
+    segs = [(d, w, a) for d, (w, a) in zip(MANEUVER_DURATIONS, rates, strict=True)]
     w, a = _expand(segs, T)
     cart = np.zeros((w.size, 2))
     k10, k14 = round(10.0 / T), round(14.0 / T)
@@ -277,6 +301,7 @@ class ManeuverFamily:
     def __post_init__(self) -> None:
         _check_ranges(self, ("rate_scale", "accel_scale", "speed"))
         store(self, "T", check_range("family.T", self.T, 0.0, 1.0, lo_open=True))
+        check_divides("family.T", self.T, MANEUVER_DURATIONS)
 
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""

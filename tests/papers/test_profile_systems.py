@@ -12,6 +12,7 @@ from imm_gym.evaluation.metrics import trajectory_metrics
 from imm_gym.papers.systems import draw, hetero_ekf_evaluation, hetero_ekf_sensor
 from imm_gym.scenarios.profiles import (
     DrivingFamily,
+    ManeuverFamily,
     maneuver_profile,
     maneuver_truth,
     profile_truth,
@@ -177,3 +178,27 @@ def test_hetero_ekf_evaluation_takes_a_bank() -> None:
     a = hetero_ekf_evaluation(runs=1, seed=4)["metrics"]
     b = hetero_ekf_evaluation(runs=1, seed=4, bank=HeteroBank(q_scale=(0.1, 0.1, 0.1)))["metrics"]
     assert a["pos_rmse"] != b["pos_rmse"]
+
+
+@pytest.mark.parametrize(
+    ("build", "name"),
+    [
+        (lambda: DrivingFamily(T=0.3), "family.T"),
+        (lambda: ManeuverFamily(T=0.3), "family.T"),
+        (lambda: maneuver_profile(T=0.7), "T"),
+    ],
+)
+def test_a_period_that_does_not_divide_the_segments_is_refused(build, name: str) -> None:
+    """The profiles' turns and accelerations are timed in seconds: at T = 0.3 s the driving
+    family's 90° turns came out 87.75° and the run 66.6 s long, and at 0.7 s seed 003's final
+    velocity missed (0, 8) m/s; both are refused when built, naming the field."""
+    with pytest.raises(ConfigError, match=rf"^{name} must divide every segment's duration"):
+        build()
+
+
+@pytest.mark.parametrize("T", [0.05, 0.1, 0.25, 0.5])
+def test_periods_that_divide_the_segments_are_accepted(T: float) -> None:
+    family = DrivingFamily(T=T)
+    truth = family.truth([np.random.default_rng(0)])
+    assert truth.states.shape[1] == round(67.0 / T) + 1
+    ManeuverFamily(T=T)
