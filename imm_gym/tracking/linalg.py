@@ -280,6 +280,11 @@ def _mark_converged(
     return count
 
 
+#: Below this, :func:`_rotation`'s ``sqrt(d^2 + 4 a_pq^2)`` is taken by ``hypot``, which does not
+#: underflow (the squares of entries below about 1e-154 do); above, the plain form keeps its bits.
+_UNDERFLOW_ROOT = 1e-140
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _rotation(
     a: Array, p: int, q: int, lanes: int, converged: NDArray[np.bool_], k: int, c: Array, s: Array
@@ -294,6 +299,8 @@ def _rotation(
         skip = converged[lane] | (apq == 0.0)
         d = aqq - app
         root = np.sqrt(d * d + 4.0 * apq * apq)
+        if root < _UNDERFLOW_ROOT:  # d^2 or apq^2 may have underflowed (root 0: t = inf)
+            root = np.hypot(d, 2.0 * apq)
         t = 2.0 * apq / (d + root if d >= 0.0 else d - root)
         t = 0.0 if skip else t
         cos = 1.0 / np.sqrt(1.0 + t * t)

@@ -143,6 +143,19 @@ def test_sym_eig_degenerate_eigenvalues() -> None:
     _check_eig(Qm @ P @ Qm.T)
 
 
+@pytest.mark.parametrize("tiny", [1e-150, 1e-200, 1e-296, 5e-324])
+def test_sym_eig_of_equal_diagonals_and_a_tiny_coupling(tiny: float) -> None:
+    """Equal diagonal entries and an off-diagonal entry whose square underflows: the rotation's
+    ``sqrt(d^2 + 4 a_pq^2)`` was 0 and its tangent ``2 a_pq / 0`` infinite, so every eigenvalue
+    came out NaN; the eigenvalues are ``2600.3 ± tiny`` and the others'."""
+    P = np.diag([2600.3, 2600.3, 25.24, 25.24])
+    P[0, 2] = P[2, 0] = P[1, 3] = P[3, 1] = 50.12
+    P[0, 1] = P[1, 0] = tiny
+    _check_eig(P)
+    s, _ = sym_eig(P)
+    np.testing.assert_allclose(np.sort(s), np.linalg.eigvalsh(P), rtol=1e-12)
+
+
 def test_sym_eig_indefinite() -> None:
     P = np.array(
         [
