@@ -12,14 +12,19 @@ source of every module of the package that imports numba and of the package modu
 (at the top of the file), and compares the digest with the one recorded beside the caches when
 they were last refreshed. If the two differ, every numba cache file of the package (``*.nbi``,
 ``*.nbc`` under its ``__pycache__`` directories) is deleted: numba compiles again at the first call
-(``python -m imm_gym.precompile`` does it in parallel). Where the package directory is
-read-only numba keeps its caches elsewhere (``NUMBA_CACHE_DIR``) and nothing is done here.
+(``python -m imm_gym.precompile`` does it in parallel). With ``NUMBA_CACHE_DIR`` set numba keeps
+the caches there instead, one folder per source directory named ``<directory>_<SHA-1 of its
+absolute path>`` (``numba.core.caching``); those folders are refreshed the same way, against a
+digest recorded beside them. Where the package directory is read-only and no ``NUMBA_CACHE_DIR``
+is set, numba caches in the user's cache directory and nothing is done here.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent
@@ -64,22 +69,51 @@ def source_digest(root: Path = PACKAGE) -> str:
     return digest.hexdigest()
 
 
-def refresh(root: Path = PACKAGE) -> bool:
+def numba_folder(directory: Path) -> str:
+    """The folder under ``NUMBA_CACHE_DIR`` where numba caches the functions of the source files
+    in ``directory``: its name and the SHA-1 of its absolute path (``numba.core.caching``'s
+    ``UserProvidedCacheLocator``)."""
+    path = os.path.abspath(directory)
+    return f"{os.path.basename(path)}_{hashlib.sha1(path.encode()).hexdigest()}"
+
+
+def cache_locations(root: Path, cache_dir: str | None) -> Iterator[tuple[list[Path], Path]]:
+    """Each place numba may keep the package's caches, as its folders and the digest file
+    recorded for them: the package's ``__pycache__`` directories, and with ``cache_dir``
+    (``NUMBA_CACHE_DIR``) numba's folders there."""
+    directories = sorted({p.parent for p in root.rglob("*.py")})
+    yield [d / "__pycache__" for d in directories], root / DIGEST_FILE
+    if cache_dir:
+        base = Path(cache_dir)
+        yield [base / numba_folder(d) for d in directories], base / (
+            numba_folder(root) + ".sha256"
+        )
+
+
+def refresh(root: Path = PACKAGE, cache_dir: str | None = None) -> bool:
     """Delete the package's numba caches if the compiled sources changed since they were last
-    refreshed (or were never recorded), and record the current digest; True if it was new."""
-    stamp = root / DIGEST_FILE
-    try:
-        current = source_digest(root)
-        if stamp.is_file() and stamp.read_text() == current:
-            return False
-        for path in root.rglob("*"):
-            if path.suffix in CACHE_SUFFIXES and path.parent.name == "__pycache__":
-                path.unlink(missing_ok=True)
-        stamp.parent.mkdir(exist_ok=True)
-        stamp.write_text(current)
-    except OSError:  # a read-only installation: numba caches elsewhere
-        return False
-    return True
+    refreshed (or were never recorded), and record the current digest, in every place of
+    :func:`cache_locations` (``cache_dir`` by default ``NUMBA_CACHE_DIR``); True if the digest
+    was new to one of them."""
+    if cache_dir is None:
+        cache_dir = os.environ.get("NUMBA_CACHE_DIR")
+    current = source_digest(root)
+    refreshed = False
+    for folders, stamp in cache_locations(root, cache_dir):
+        try:
+            if stamp.is_file() and stamp.read_text() == current:
+                continue
+            for folder in folders:
+                if folder.is_dir():
+                    for path in folder.iterdir():
+                        if path.suffix in CACHE_SUFFIXES:
+                            path.unlink(missing_ok=True)
+            stamp.parent.mkdir(parents=True, exist_ok=True)
+            stamp.write_text(current)
+        except OSError:  # a read-only place: numba does not cache there
+            continue
+        refreshed = True
+    return refreshed
 
 
 refresh()

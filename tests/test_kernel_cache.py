@@ -81,3 +81,35 @@ def test_an_unwritable_package_is_left_alone(package: Path, monkeypatch) -> None
 def test_the_installed_package_has_its_digest_recorded() -> None:
     stamp = kernel_cache.PACKAGE / DIGEST_FILE
     assert stamp.read_text() == kernel_cache.source_digest()
+
+
+def test_caches_under_numba_cache_dir_are_refreshed_too(package: Path, tmp_path: Path) -> None:
+    """With ``NUMBA_CACHE_DIR`` numba caches in a folder per source directory there; a changed
+    constant left those caches in place and the edited kernel ran stale, without an error."""
+    cache_dir = tmp_path / "numba-cache"
+    folders = [cache_dir / kernel_cache.numba_folder(d) for d in (package, package / "sub")]
+    made = []
+    for folder in folders:
+        folder.mkdir(parents=True)
+        for name in ("kernels.run-10.py311.nbi", "kernels.run-10.py311.nbc", "notes.txt"):
+            (folder / name).write_text("machine code")
+            made.append(folder / name)
+    assert refresh(package, str(cache_dir))
+    assert [p.name for p in made if p.exists()] == ["notes.txt", "notes.txt"]
+    stamp = cache_dir / (kernel_cache.numba_folder(package) + ".sha256")
+    assert stamp.read_text() == kernel_cache.source_digest(package)
+    (folders[0] / "kernels.run-10.py311.nbi").write_text("machine code")
+    assert not refresh(package, str(cache_dir))
+    assert (folders[0] / "kernels.run-10.py311.nbi").exists()
+    (package / "constants.py").write_text("LIMIT = 2.0\n")
+    assert refresh(package, str(cache_dir))
+    assert not (folders[0] / "kernels.run-10.py311.nbi").exists()
+
+
+def test_the_folder_is_the_one_numba_uses(package: Path) -> None:
+    """:func:`numba_folder` names the folder as the installed numba's locator does."""
+    from numba.core.caching import UserProvidedCacheLocator
+
+    source = package / "sub" / "body.py"
+    expected = UserProvidedCacheLocator.get_suitable_cache_subpath(str(source))
+    assert kernel_cache.numba_folder(source.parent) == expected
