@@ -68,6 +68,7 @@ import os
 import platform
 import shutil
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -1019,10 +1020,17 @@ def admitted_rules(base: Any) -> tuple[str, ...]:
     return tuple(admitted)
 
 
-def _paired(rollouts: dict[str, Any], a: str, b: str) -> dict[str, float]:
-    from imm_gym.evaluation.rollout import paired_bootstrap
+def _paired(rollouts: dict[str, Any], a: str, b: str) -> dict[str, float | None]:
+    """``a``'s position ARMSE minus ``b``'s with its paired bootstrap CI, as the evaluation's
+    differences (``low`` and ``high`` None for one run, where it is undefined)."""
+    from imm_gym.cli.evaluate import paired_difference
 
-    return paired_bootstrap(rollouts[a].squared_position_error, rollouts[b].squared_position_error)
+    return paired_difference(rollouts[a].squared_position_error, rollouts[b].squared_position_error)
+
+
+def _ci(d: dict[str, Any]) -> str:
+    """A paired difference's 95 % CI, ``[low, high]`` in m, or ``undefined (1 run)``."""
+    return "undefined (1 run)" if d["low"] is None else f"[{d['low']:+.3f}, {d['high']:+.3f}]"
 
 
 def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None:
@@ -1053,16 +1061,13 @@ def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None
         lines += ["", "Paired differences of position ARMSE (95 % bootstrap CI):", ""]
         for name, d in r["paired"]["differences"].items():
             lines.append(
-                f"- {name} − best-fixed: {d['diff']:+.3f} m [{d['low']:+.3f}, "
-                f"{d['high']:+.3f}] ({100 * d['relative']:+.2f} %)"
+                f"- {name} − best-fixed: {d['diff']:+.3f} m {_ci(d)} ({100 * d['relative']:+.2f} %)"
             )
         for rule in ("tip-imm", *DETECTOR_RULES):
             d = r.get(f"vs_{rule.replace('-', '_')}")
             if d is not None:
-                lines.append(
-                    f"- learned − {rule}: {d['diff']:+.3f} m [{d['low']:+.3f}, "
-                    f"{d['high']:+.3f}] ({100 * d['relative']:+.2f} %)"
-                )
+                relative = f"{100 * d['relative']:+.2f} %"
+                lines.append(f"- learned − {rule}: {d['diff']:+.3f} m {_ci(d)} ({relative})")
         lines.append("")
     path.write_text("\n".join(lines) + "\n")
 
@@ -1229,7 +1234,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(err))
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
-    versions = _versions(args.engine)
+    versions = _versions(args.engine, args.algo)
     with StopRequest() as stop:
         try:
             if args.jobs > 1 and len(args.seed) > 1:
@@ -1291,7 +1296,7 @@ def _across_seeds(seeds: dict[str, Any]) -> dict[str, Any]:
         vs_tip = [s[scenario]["vs_tip_imm"]["relative"] for s in seeds.values()]
         out[scenario] = {
             "armse_pos_mean": float(np.mean(learned)),
-            "armse_pos_std": float(np.std(learned, ddof=1)) if len(learned) > 1 else 0.0,
+            "armse_pos_std": float(np.std(learned, ddof=1)) if len(learned) > 1 else None,
             "relative_vs_best_fixed_mean": float(np.mean(vs_best)),
             "relative_vs_tip_imm_mean": float(np.mean(vs_tip)),
             "per_seed_armse_pos": learned,
@@ -1302,13 +1307,13 @@ def _across_seeds(seeds: dict[str, Any]) -> dict[str, Any]:
 def _write_summary_report(path: Path, summary: dict[str, Any]) -> None:
     lines = ["# Training summary", "", f"Command: `{summary['command']}`", ""]
     for scenario, s in summary["across_seeds"].items():
+        spread = "one seed" if s["armse_pos_std"] is None else f"± {s['armse_pos_std']:.3f} m"
         lines += [
             f"## {scenario}",
             "",
-            f"Learned position ARMSE over seeds: {s['armse_pos_mean']:.3f} ± "
-            f"{s['armse_pos_std']:.3f} m (per seed: "
-            f"{', '.join(f'{v:.3f}' for v in s['per_seed_armse_pos'])}); mean relative difference "
-            f"vs best fixed {100 * s['relative_vs_best_fixed_mean']:+.2f} %, vs TIP-IMM "
+            f"Learned position ARMSE over seeds: {s['armse_pos_mean']:.3f} m, {spread} (per "
+            f"seed: {', '.join(f'{v:.3f}' for v in s['per_seed_armse_pos'])}); mean relative "
+            f"difference vs best fixed {100 * s['relative_vs_best_fixed_mean']:+.2f} %, vs TIP-IMM "
             f"{100 * s['relative_vs_tip_imm_mean']:+.2f} %.",
             "",
         ]
@@ -1322,24 +1327,56 @@ def _engine(args: argparse.Namespace) -> str:
     return "SB3 on 1 thread"
 
 
-def _versions(engine: str = "sb3") -> dict[str, str]:
+def _versions(engine: str = "sb3", algo: str = "ppo") -> dict[str, str]:
+    """The versions a run's results depend on: imm_gym's (and the commit checked out, where the
+    package lies in a git work tree), Python's and the libraries' (sb3-contrib's for
+    ``recurrent-ppo``, Ray's for ``--engine rllib``)."""
     import gymnasium
     import numpy
     import stable_baselines3
     import torch
 
-    versions = {
+    import imm_gym
+
+    versions = {"imm_gym": imm_gym.__version__}
+    commit = _git_commit(Path(imm_gym.__file__).resolve().parent)
+    if commit is not None:
+        versions["git_commit"] = commit
+    versions |= {
         "python": platform.python_version(),
         "numpy": numpy.__version__,
         "gymnasium": gymnasium.__version__,
         "stable_baselines3": stable_baselines3.__version__,
         "torch": torch.__version__,
     }
+    if algo == "recurrent-ppo":
+        import sb3_contrib
+
+        versions["sb3_contrib"] = sb3_contrib.__version__
     if engine == "rllib":
         import ray
 
         versions["ray"] = ray.__version__
     return versions
+
+
+def _git_commit(directory: Path) -> str | None:
+    """``git rev-parse HEAD`` in ``directory`` if it lies in a git work tree; None otherwise, and
+    where git is missing or fails (the versions are a record, never a reason to stop)."""
+    if not any((d / ".git").exists() for d in (directory, *directory.parents)):
+        return None
+    try:
+        done = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=directory,
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() or None
 
 
 if __name__ == "__main__":

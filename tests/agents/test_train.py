@@ -374,6 +374,36 @@ def test_main_job_writes_results_and_reports(tmp_path) -> None:
     assert "across_seeds" in summary and (tmp_path / "report.md").is_file()
 
 
+def test_one_run_and_one_seed_are_reported_without_an_interval_or_a_spread(tmp_path) -> None:
+    """--paper-runs 1 --random-runs 1: the paired CIs are undefined (the report says so, as the
+    evaluation's table does, and summary.json is written); one seed has no spread."""
+    args = ("--timesteps", "256", "--paper-runs", "1", "--random-runs", "1", "--validate-every")
+    assert train_small(tmp_path, *args, "0") == 0
+    results = json.loads((tmp_path / "seed_0" / "results.json").read_text())
+    assert results["paper"]["vs_tip_imm"]["low"] is None
+    report = (tmp_path / "seed_0" / "report.md").read_text()
+    assert "learned − tip-imm: " in report and "None" not in report
+    lines = [line for line in report.splitlines() if line.startswith("- ")]
+    assert lines and all("m undefined (1 run) (" in line for line in lines)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["across_seeds"]["paper"]["armse_pos_std"] is None
+    overall = (tmp_path / "report.md").read_text()
+    assert overall.count(" m, one seed (per seed: ") == 2 and "±" not in overall
+
+
+def test_the_versions_name_the_package_its_commit_and_the_algorithms_library() -> None:
+    import sb3_contrib
+
+    import imm_gym
+
+    versions = train._versions("sb3", "recurrent-ppo")
+    assert versions["imm_gym"] == imm_gym.__version__
+    assert versions["sb3_contrib"] == sb3_contrib.__version__
+    assert "sb3_contrib" not in train._versions("sb3", "ppo")
+    if (Path(train.__file__).parent / ".git").exists():
+        assert re.fullmatch(r"[0-9a-f]{40}", versions["git_commit"])
+
+
 def test_export_copies_the_acting_files(trained, tmp_path) -> None:
     from agents.export import FILES, export
 
