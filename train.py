@@ -1,12 +1,15 @@
 """The main job: train PPO to adapt the IMM's TPM, then evaluate it against the baselines.
 
-    python train.py                      # defaults: imm_gym/TPMAdapt-v0, seed 0, ~14 min on 2 cores
+    python train.py                      # defaults: imm_gym/TPMAdapt-v0, seed 0 (minutes: below)
     python train.py --seed 0 1 2         # several training seeds: each reported, then mean ± std
     python train.py --seed 0 1 2 3 4 --jobs 2 --no-eval   # two seeds at a time: the shipped policy
     python train.py --timesteps 200000 --out runs/quick
     python train.py --resume runs/default/seed_0/checkpoints/latest
     python train.py --env-config examples/my_tracker.yaml --timesteps 200000
     python train.py --engine rllib --env-runners 2 --timesteps 200000   # Ray RLlib (pip .[ray])
+
+How long the default run takes depends on the machine and on what else runs on it: the README's
+"Learning a TPM policy" gives the times measured.
 
 Each seed writes ``OUT/seed_S/``: ``agent/`` (network, normalizer, env overrides), ``best/``,
 ``checkpoints/``, ``tb/`` (TensorBoard), ``training.json``, ``results.json``, ``report.md`` and
@@ -165,13 +168,28 @@ def build_parser() -> argparse.ArgumentParser:
         "--validate-every",
         type=int,
         default=500_000,
-        help="steps between validations that keep the best checkpoint (0: keep the last)",
+        help="steps between validations, the best validated policy kept in best/ (0: none). "
+        "With --engine sb3 the agent is the weight average when the hyperparameters set "
+        "swa_start (the default entry does); otherwise the best validated policy (with 0: the "
+        "last)",
     )
     p.add_argument(
         "--validation-runs", type=int, default=200, help="runs per validation (seeds 50,000,000+)"
     )
-    p.add_argument("--paper-runs", type=int, default=100)
-    p.add_argument("--random-runs", type=int, default=1000)
+    p.add_argument(
+        "--paper-runs",
+        type=int,
+        default=100,
+        help="runs of the paper scenario in the evaluation after training (seeds 0..N-1; one "
+        "run gives no confidence intervals)",
+    )
+    p.add_argument(
+        "--random-runs",
+        type=int,
+        default=1000,
+        help="held-out runs of the randomized family (the first --env-config file's) in the "
+        "evaluation after training (seeds 0..R-1; training uses seeds from 100,000,000 on)",
+    )
     p.add_argument(
         "--jobs",
         type=int,

@@ -336,6 +336,15 @@ def test_the_largest_seed_allowed_trains_and_validates(tmp_path) -> None:
     assert stats["timesteps"] == 256 and np.isfinite(stats["validation"][0]["armse_pos"])
 
 
+def test_every_option_says_what_it_does() -> None:
+    """--help gives every option a text; --validate-every's says what the agent is with a weight
+    average (swa_start), validations or none."""
+    actions = {a.option_strings[-1]: a.help for a in train.build_parser()._actions}
+    assert all(actions.values()), [name for name, text in actions.items() if not text]
+    validate_every = actions["--validate-every"]
+    assert "the weight average when the hyperparameters set swa_start" in validate_every
+
+
 def test_recurrent_variant_trains_and_evaluates(tmp_path) -> None:
     assert train_small(tmp_path, "--algo", "recurrent-ppo", "--timesteps", "256", "--no-eval") == 0
     agent = tmp_path / "seed_0" / "agent"
