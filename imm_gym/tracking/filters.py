@@ -202,15 +202,21 @@ class UnscentedKalmanFilter:
 
     def sigma_offsets(self, P: Array) -> Array:
         """``(..., 2n+1, n)`` offsets ``0, +gamma a_i, -gamma a_i``; the sigma points are ``x``
-        plus these. ``a_i``: the columns of ``U sqrt(|S|)`` from the SVD ``P = U S U^T``
-        (``"svd"``), or of ``L`` with ``(P + P^T) / 2 = L L^T`` (``"cholesky"``)."""
+        plus these. ``a_i``: the columns of the symmetric square root ``U sqrt(|S|) U^T`` from the
+        SVD ``P = U S U^T`` (``"svd"``), or of ``L`` with ``(P + P^T) / 2 = L L^T``
+        (``"cholesky"``).
+
+        The symmetric root is unique and continuous in ``P``; the columns of ``U sqrt(|S|)`` are
+        not where eigenvalues repeat (the start's velocity block ``25 I``): there ``U`` is any
+        basis of the eigenspace, a rounding of ``P`` turned the sigma points within it, and on a
+        target near the sonar one IMM step's estimate moved by metres."""
         n = P.shape[-1]
         _, _, gamma = self.weights(n)
         if self.square_root == "cholesky":
             D = np.swapaxes(cholesky_psd(symmetrize(P)) * gamma, -1, -2)  # rows = a_i
         else:
             s, U = sym_eig(P)
-            D = np.swapaxes(U * (gamma * np.sqrt(np.abs(s)))[..., None, :], -1, -2)
+            D = (U * (gamma * np.sqrt(np.abs(s)))[..., None, :]) @ np.swapaxes(U, -1, -2)
         O = np.empty((*P.shape[:-2], 2 * n + 1, n))
         O[..., 0, :] = 0.0
         O[..., 1 : n + 1, :] = D

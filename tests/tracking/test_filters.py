@@ -275,6 +275,32 @@ def test_sigma_points_degenerate_covariance() -> None:
     np.testing.assert_allclose((X - x)[:, 1], 0.0, atol=1e-12)
 
 
+def test_svd_sigma_points_are_the_symmetric_square_root() -> None:
+    """``a_i`` are the columns of ``U sqrt(S) U^T``: symmetric, squaring to ``P``."""
+    rng = np.random.default_rng(5)
+    _, P = _random_problem(rng)
+    ukf = UnscentedKalmanFilter()
+    _, _, gamma = ukf.weights(4)
+    A = ukf.sigma_offsets(P)[1:5] / gamma  # rows a_i
+    np.testing.assert_allclose(A, A.T, atol=1e-12 * np.abs(A).max())
+    np.testing.assert_allclose(A @ A, P, rtol=1e-10, atol=1e-10 * np.abs(P).max())
+
+
+def test_svd_ukf_is_continuous_where_eigenvalues_repeat() -> None:
+    """The track start's ``P`` has the velocity block ``25 I`` (and here the position block
+    ``400 I``): a rounding-level change of ``P`` made the columns of ``U sqrt(S)`` any basis of
+    those eigenspaces, and on a target 63 m from the sonar the update moved by 3.1 m. The
+    symmetric root moves it by about the change itself."""
+    x, z = np.array([60.0, 20.0, 10.0, -5.0]), np.array([55.0, 0.4])
+    P = np.diag([400.0, 400.0, 25.0, 25.0])
+    E = np.random.default_rng(0).normal(size=(4, 4))
+    ukf = UnscentedKalmanFilter()
+    base = ukf.update(x, P, z, Sonar())
+    moved = ukf.update(x, P + 4e-12 * (E + E.T), z, Sonar())
+    assert np.abs(moved.x - base.x).max() < 1e-9
+    assert abs(moved.loglik - base.loglik) < 1e-9
+
+
 # --------------------------------------------------------------------------- (8) robustness
 
 

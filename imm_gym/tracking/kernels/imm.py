@@ -458,8 +458,8 @@ def _cycle(
                 for k in range(n):
                     for i in range(lanes):
                         eig[k, k, i] = 1.0
-            _ukf_moments(Xp, eig, U, lanes, sensor_kind, sensor_params, wm, wc, gamma, zp, S, C,
-                         O, Z)
+            _ukf_moments(Xp, eig, U, filter_kind == UKF, lanes, sensor_kind, sensor_params, wm,
+                         wc, gamma, zp, S, C, O, Z)
         _add_noise(S, Rl, M, nb)
         _inverse(S, lanes, Si, Lc, logdet, ok)
         _innovation(z, t0, nb, M, sensor_kind, zp, nu)
@@ -609,15 +609,18 @@ def _predict(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _ukf_moments(
-    xp: Array, s: Array, U: Array, lanes: int, kind: int, params: Array, wm: Array, wc: Array,
-    gamma: float, zp: Array, S: Array, C: Array, O: Array, Z: Array,
+    xp: Array, s: Array, U: Array, symmetric: bool, lanes: int, kind: int, params: Array,
+    wm: Array, wc: Array, gamma: float, zp: Array, S: Array, C: Array, O: Array, Z: Array,
 ) -> None:  # pragma: no cover
     """SVD-UKF predicted measurements ``zp[:, l]``, spreads of the predicted measurement
     ``S[:, :, l]`` (the innovation covariance without ``R``, added by :func:`_add_noise`) and
     cross covariances ``C[:, :, l]`` of the lanes ``l < lanes``.
 
-    Sigma offsets ``O_0 = 0``, ``O_{1+i} = -O_{1+n+i} = gamma sqrt|s_i| U_{:, i}`` from the
-    eigendecomposition ``Pp = U diag(s) U^T`` of the predicted covariance (``s`` on the diagonal
+    Sigma offsets ``O_0 = 0``, ``O_{1+i} = -O_{1+n+i} = gamma (U diag(sqrt|s|) U^T)_{:, i}``,
+    the columns of the symmetric square root (``symmetric``; continuous in ``Pp`` where
+    eigenvalues repeat: :meth:`~imm_gym.tracking.filters.UnscentedKalmanFilter.sigma_offsets`),
+    or ``gamma sqrt|s_i| U_{:, i}`` (the Cholesky factor's columns, ``U = L`` and ``s = 1``), from
+    the eigendecomposition ``Pp = U diag(s) U^T`` of the predicted covariance (``s`` on the diagonal
     of :func:`jacobi_eig_lanes`'s output; ``xp`` the predicted state), ``Z_k = h(xp + O_k) -
     h(xp)`` (bearing wrapped: averaged as residuals about the centre point),
     ``zp = h(xp) + sum_k wm_k Z_k``, ``S = sum_k wc_k dZ_k dZ_k^T``,
@@ -630,16 +633,32 @@ def _ukf_moments(
     for c in range(n):
         for i in range(lanes):
             O[0, c, i] = 0.0
+    if symmetric:
+        for k in range(n):
+            for c in range(n):
+                for i in range(lanes):
+                    O[1 + k, c, i] = 0.0
+        for j in range(n):
+            # gamma sqrt|s_j| once per lane, kept in Z's row 0 until Z is computed
+            for i in range(lanes):
+                Z[0, 0, i] = gamma * np.sqrt(abs(s[j, j, i]))
+            for k in range(n):
+                for c in range(n):
+                    for i in range(lanes):
+                        O[1 + k, c, i] += U[k, j, i] * Z[0, 0, i] * U[c, j, i]
+    else:
+        for k in range(n):
+            # gamma sqrt|s_k| once per lane (the same product as gamma * sqrt|s_k| * U_ck, left
+            # to right), kept in Z's row 0 until Z is computed
+            for i in range(lanes):
+                Z[0, 0, i] = gamma * np.sqrt(abs(s[k, k, i]))
+            for c in range(n):
+                for i in range(lanes):
+                    O[1 + k, c, i] = Z[0, 0, i] * U[c, k, i]
     for k in range(n):
-        # gamma sqrt|s_k| once per lane (the same product as gamma * sqrt|s_k| * U_ck, left to
-        # right), kept in Z's row 0 until Z is computed
-        for i in range(lanes):
-            Z[0, 0, i] = gamma * np.sqrt(abs(s[k, k, i]))
         for c in range(n):
             for i in range(lanes):
-                o = Z[0, 0, i] * U[c, k, i]
-                O[1 + k, c, i] = o
-                O[1 + n + k, c, i] = -o
+                O[1 + n + k, c, i] = -O[1 + k, c, i]
     # Z holds h(sigma point) minus h(centre), bearing wrapped
     px, py = params[0], params[1]
     for k in range(L):
