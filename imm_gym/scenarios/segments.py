@@ -488,7 +488,8 @@ def true_model_index(truth: Truth, models: Sequence[MotionModel] | HeteroBank) -
     """The bank model that matches the true motion of each step, ``(R, K)``; -1 if none.
 
     Straight -> the first CV model; turn -> the CT model turning the same way whose rate is
-    closest; tangential acceleration -> the first CA model. For a heterogeneous bank
+    closest; acceleration -> the first CA model, turning or not (a constant Cartesian
+    acceleration records a turn rate too), else the turn's CT model. For a heterogeneous bank
     (:class:`~imm_gym.tracking.hetero.HeteroBank`): straight -> NCV, turn -> CT (turn rate
     estimated), acceleration -> CTRA.
     """
@@ -516,13 +517,15 @@ def _model_index(
     kinds = [m.kind for m in models]
     if "cv" in kinds:
         idx[(omega == 0) & (accel == 0)] = kinds.index("cv")
+    accelerating = np.zeros(omega.shape, dtype=bool)
     if "ca" in kinds:
-        idx[accel != 0] = kinds.index("ca")
+        accelerating = accel != 0  # the CA model's, turning or not
+        idx[accelerating] = kinds.index("ca")
     for sign in (1.0, -1.0):
         cts = [(i, m.omega) for i, m in enumerate(models) if m.kind == "ct" and m.omega * sign > 0]
         if not cts:
             continue
-        turning = omega * sign > 0
+        turning = (omega * sign > 0) & ~accelerating
         rates = np.array([w for _, w in cts])
         nearest = np.argmin(np.abs(omega[..., None] - rates), axis=-1)
         idx[turning] = np.array([i for i, _ in cts])[nearest[turning]]

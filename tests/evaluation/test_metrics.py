@@ -19,6 +19,7 @@ from imm_gym.evaluation.metrics import (
     rmse_over_time,
     tracking_errors,
 )
+from imm_gym.scenarios.profiles import maneuver_truth
 from imm_gym.scenarios.segments import true_model_index
 
 
@@ -145,6 +146,20 @@ def test_true_model_index_nearest_rate_and_ca() -> None:
     # no CT turning right and no CA: -1
     idx = true_model_index(generate_truth([sc]), bank[:3])
     np.testing.assert_array_equal(idx[0], [1, 1, 0, 0, 2, 2, -1, -1, -1, -1])
+
+
+def test_an_accelerating_turn_is_the_ca_models() -> None:
+    """Seed 003's constant Cartesian acceleration (10-14 s, steps 100-139 at T = 0.1 s) records
+    a turn rate beside its acceleration: its steps are the CA model's when the bank has one, as
+    the docstring says (they were labelled CT), and the turn's CT model without one."""
+    truth = maneuver_truth(1)
+    cartesian = slice(100, 140)
+    assert np.all(truth.turn_rate[0, cartesian] > 0) and np.all(truth.accel[0, cartesian] != 0)
+    bank = (MotionModel("cv"), MotionModel("ca", q=(0.1,) * 6), MotionModel("ct", 3.0))
+    np.testing.assert_array_equal(true_model_index(truth, bank)[0, cartesian], 1)
+    no_ca = (bank[0], bank[2])
+    np.testing.assert_array_equal(true_model_index(truth, no_ca)[0, cartesian], 1)
+    assert true_model_index(truth, bank)[0, 99] == 0  # straight before it
 
 
 def test_mode_accuracy() -> None:
