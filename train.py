@@ -109,8 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--env",
         help=f"registered imm_gym environment id ({DEFAULT_ENTRY}; with --resume the "
         "checkpoint's); an id without a hyperparameter entry of its own trains on its preset with "
-        "the default "
-        "entry's hyperparameters and agent settings (not its trackers, targets and mixture)",
+        "the default entry's hyperparameters and agent settings (not its trackers, targets and "
+        "mixture)",
     )
     p.add_argument("--algo", choices=ALGOS, help="algorithm (ppo; with --resume the checkpoint's)")
     p.add_argument("--timesteps", type=int, help="training steps (default: the YAML entry's)")

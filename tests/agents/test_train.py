@@ -186,20 +186,28 @@ def test_training_json_counts_the_steps_trained_in_whole_rollouts(tmp_path) -> N
     assert stats["fps"] == pytest.approx(256 / stats["seconds"])
 
 
-def test_a_resumed_runs_report_gives_this_calls_steps_in_its_seconds_and_the_total(
-    trained, tmp_path
-) -> None:
+@pytest.fixture(scope="module")
+def resumed_and_evaluated(trained, tmp_path_factory):
+    """``trained``'s 512-step checkpoint resumed to 768 steps and evaluated on one run of each
+    scenario."""
     out, _ = trained
+    resumed = tmp_path_factory.mktemp("resumed")
     argv = ["--resume", str(out / "seed_0" / "checkpoints" / "latest"), "--timesteps", "768"]
-    argv += ["--out", str(tmp_path), "--paper-runs", "2", "--random-runs", "2", "--no-progress"]
+    argv += ["--out", str(resumed), "--paper-runs", "1", "--random-runs", "1", "--no-progress"]
     assert train.main([*argv, "--validate-every", "0"]) == 0
-    stats = json.loads((tmp_path / "seed_0" / "training.json").read_text())
+    return resumed
+
+
+def test_a_resumed_runs_report_gives_this_calls_steps_in_its_seconds_and_the_total(
+    resumed_and_evaluated,
+) -> None:
+    run = resumed_and_evaluated / "seed_0"
+    stats = json.loads((run / "training.json").read_text())
     assert stats["trained_this_call"] == 256 and stats["timesteps"] == 768
     seconds, fps = f"{stats['seconds']:.0f}", f"{stats['fps']:,.0f}"
-    report = (tmp_path / "seed_0" / "report.md").read_text()
     assert (
         f"Training: 256 steps in {seconds} s ({fps} steps/s, SB3 on 1 thread); 768 steps in all, "
-        "resumed at step 512." in report
+        "resumed at step 512." in (run / "report.md").read_text()
     )
 
 
@@ -383,20 +391,21 @@ def test_main_job_writes_results_and_reports(tmp_path) -> None:
     assert "across_seeds" in summary and (tmp_path / "report.md").is_file()
 
 
-def test_one_run_and_one_seed_are_reported_without_an_interval_or_a_spread(tmp_path) -> None:
+def test_one_run_and_one_seed_are_reported_without_an_interval_or_a_spread(
+    resumed_and_evaluated,
+) -> None:
     """--paper-runs 1 --random-runs 1: the paired CIs are undefined (the report says so, as the
     evaluation's table does, and summary.json is written); one seed has no spread."""
-    args = ("--timesteps", "256", "--paper-runs", "1", "--random-runs", "1", "--validate-every")
-    assert train_small(tmp_path, *args, "0") == 0
-    results = json.loads((tmp_path / "seed_0" / "results.json").read_text())
+    out = resumed_and_evaluated
+    results = json.loads((out / "seed_0" / "results.json").read_text())
     assert results["paper"]["vs_tip_imm"]["low"] is None
-    report = (tmp_path / "seed_0" / "report.md").read_text()
+    report = (out / "seed_0" / "report.md").read_text()
     assert "learned − tip-imm: " in report and "None" not in report
     lines = [line for line in report.splitlines() if line.startswith("- ")]
     assert lines and all("m undefined (1 run) (" in line for line in lines)
-    summary = json.loads((tmp_path / "summary.json").read_text())
+    summary = json.loads((out / "summary.json").read_text())
     assert summary["across_seeds"]["paper"]["armse_pos_std"] is None
-    overall = (tmp_path / "report.md").read_text()
+    overall = (out / "report.md").read_text()
     assert overall.count(" m, one seed (per seed: ") == 2 and "±" not in overall
 
 
