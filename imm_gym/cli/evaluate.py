@@ -400,8 +400,11 @@ def agent_overrides(
         "tracker_differs": differs[closest],
     }
     roles = model_roles(cfg.bank, cfg.model_order)
-    trained = [model_roles(EnvConfig.build({"bank": t["bank"]}).bank, cfg.model_order)
-               for t in trackers]
+    trained = [
+        model_roles(EnvConfig.build({"bank": t["bank"], "filter": t["filter"]}).bank,
+                    cfg.model_order)
+        for t in trackers
+    ]
     if roles not in trained and not getattr(policy, "shares_models", False):
         notes["models_differ"] = {"trained": list(trained[closest]), "evaluated": list(roles)}
     if len(trackers) > 1:

@@ -17,6 +17,8 @@ from agents.policy import load_agent
 from imm_gym import EnvConfig
 from imm_gym.cli.evaluate import agent_overrides
 from imm_gym.evaluation.rollout import evaluation_config
+from imm_gym.sim.config_file import tracker_of
+from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.validation import ConfigError
 
 
@@ -75,3 +77,17 @@ def test_ensemble_members_are_compared_as_they_act(tmp_path: Path) -> None:
                      env_id="imm_gym/TPMAdaptParallel-v0")
     with pytest.raises(ConfigError, match="p_min, parallel differ"):
         write_ensemble(tmp_path / "e2", [first, parallel])
+
+
+def test_an_agent_trained_across_a_heterogeneous_bank_is_evaluated(tmp_path: Path) -> None:
+    """A tracker of the heterogeneous bank among those an agent was trained across (its filter
+    the EKF it needs): the notes rebuild each trained bank with its own filter (they built it
+    with the default UKF, which that bank refuses, and the evaluation stopped)."""
+    member = sorted(p for p in PRETRAINED_PER_MODEL.iterdir() if p.is_dir())[0]
+    policy = load_agent(member)
+    hetero = tracker_of(BANK_PRESETS["hetero"])
+    assert hetero["filter"] == "ekf"
+    policy.trained_across = (*policy.trained_across, hetero)
+    base = EnvConfig.build({"scenario": "paper"})
+    _, notes = agent_overrides(policy, policy.env_overrides, base)
+    assert hetero in notes["trained_across"]
