@@ -68,10 +68,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -79,6 +77,7 @@ from types import FrameType, TracebackType
 from typing import Any, NoReturn
 
 from agents.training import DEFAULT_ENTRY, MAX_SEED, set_threads
+from imm_gym.cli.provenance import versions
 
 BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
 #: The strongest rules, compared too where the tracker admits them (a linear bank; the learned
@@ -1346,55 +1345,14 @@ def _engine(args: argparse.Namespace) -> str:
 
 
 def _versions(engine: str = "sb3", algo: str = "ppo") -> dict[str, str]:
-    """The versions a run's results depend on: imm_gym's (and the commit checked out, where the
-    package lies in a git work tree), Python's and the libraries' (sb3-contrib's for
-    ``recurrent-ppo``, Ray's for ``--engine rllib``)."""
-    import gymnasium
-    import numpy
-    import stable_baselines3
-    import torch
-
-    import imm_gym
-
-    versions = {"imm_gym": imm_gym.__version__}
-    commit = _git_commit(Path(imm_gym.__file__).resolve().parent)
-    if commit is not None:
-        versions["git_commit"] = commit
-    versions |= {
-        "python": platform.python_version(),
-        "numpy": numpy.__version__,
-        "gymnasium": gymnasium.__version__,
-        "stable_baselines3": stable_baselines3.__version__,
-        "torch": torch.__version__,
-    }
+    """The versions a run's results depend on (:func:`imm_gym.cli.provenance.versions`): the
+    training libraries', sb3-contrib's for ``recurrent-ppo`` and Ray's for ``--engine rllib``."""
+    libraries = ["stable-baselines3", "torch", "numba"]
     if algo == "recurrent-ppo":
-        import sb3_contrib
-
-        versions["sb3_contrib"] = sb3_contrib.__version__
+        libraries.append("sb3-contrib")
     if engine == "rllib":
-        import ray
-
-        versions["ray"] = ray.__version__
-    return versions
-
-
-def _git_commit(directory: Path) -> str | None:
-    """``git rev-parse HEAD`` in ``directory`` if it lies in a git work tree; None otherwise, and
-    where git is missing or fails (the versions are a record, never a reason to stop)."""
-    if not any((d / ".git").exists() for d in (directory, *directory.parents)):
-        return None
-    try:
-        done = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=directory,
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return done.stdout.strip() or None
+        libraries.append("ray")
+    return versions(*libraries)
 
 
 if __name__ == "__main__":

@@ -49,11 +49,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +59,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from baselines import REGISTRY, Baseline, BuildContext
+from imm_gym.cli.provenance import versions
 from imm_gym.cli.tables import render_tables
 from imm_gym.evaluation.clairvoyant import clairvoyant_filter, clairvoyant_role, unsupported
 from imm_gym.evaluation.metrics import (
@@ -289,7 +288,7 @@ def evaluate(
         "filter": base.filter,
         "bank": bank,
         "env_config": plain(dict(env_config)) if env_config else None,
-        "versions": _versions(),
+        "versions": versions(*OPTIONAL_PACKAGES),
         "divergence": divergence_meta(base),
         "bootstrap": bootstrap_meta(),
     }
@@ -569,7 +568,7 @@ def evaluate_suite(
         "runs": runs,
         "seed": seed,
         "seeds": f"{seed}..{seed + runs - 1}",
-        "versions": _versions(),
+        "versions": versions(*OPTIONAL_PACKAGES),
         "bootstrap": bootstrap_meta(),
     }
     return out
@@ -693,30 +692,8 @@ def _progress_bar(total: int, enabled: bool) -> Any:
     return tqdm(total=total, desc="evaluating", unit="step", leave=False)
 
 
-#: Packages whose versions the results record where they are installed (read from their
-#: metadata: nothing is imported for it).
+#: Packages whose versions the results record where they are installed, beside the core's.
 OPTIONAL_PACKAGES = ("torch", "stable-baselines3", "sb3-contrib", "numba")
-
-
-def _versions() -> dict[str, str]:
-    import gymnasium
-    import scipy
-
-    from imm_gym import __version__
-
-    versions = {
-        "imm_gym": __version__,
-        "numpy": np.__version__,
-        "scipy": scipy.__version__,
-        "gymnasium": gymnasium.__version__,
-        "python": platform.python_version(),
-    }
-    for name in OPTIONAL_PACKAGES:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            continue
-    return versions
 
 
 def build_parser() -> argparse.ArgumentParser:

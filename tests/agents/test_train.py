@@ -416,8 +416,8 @@ def test_the_versions_name_the_package_its_commit_and_the_algorithms_library() -
 
     versions = train._versions("sb3", "recurrent-ppo")
     assert versions["imm_gym"] == imm_gym.__version__
-    assert versions["sb3_contrib"] == sb3_contrib.__version__
-    assert "sb3_contrib" not in train._versions("sb3", "ppo")
+    assert versions["sb3-contrib"] == sb3_contrib.__version__
+    assert "sb3-contrib" not in train._versions("sb3", "ppo")
     if (Path(train.__file__).parent / ".git").exists():
         assert re.fullmatch(r"[0-9a-f]{40}", versions["git_commit"])
 

@@ -1,0 +1,56 @@
+"""What a run's results depend on: the package's version and commit, Python's and the libraries'.
+
+Every command that writes results (``train.py``, ``python -m imm_gym.evaluate``) records
+:func:`versions` beside them, so that anyone can redo the run with the same code.
+"""
+
+from __future__ import annotations
+
+import platform
+import subprocess
+from importlib import metadata
+from pathlib import Path
+
+#: Distributions recorded wherever a run is made (read from their metadata: nothing is imported).
+CORE_PACKAGES = ("numpy", "scipy", "gymnasium")
+
+
+def versions(*optional: str) -> dict[str, str]:
+    """``{"imm_gym": ..., "git_commit": ..., "python": ..., "numpy": ..., ...}``.
+
+    ``git_commit`` is the commit checked out where the package lies in a git work tree (absent
+    otherwise); each distribution of ``optional`` (by its distribution name, e.g.
+    ``"stable-baselines3"``) is recorded where it is installed and left out where it is not.
+    """
+    import imm_gym
+
+    record = {"imm_gym": imm_gym.__version__}
+    commit = git_commit(Path(imm_gym.__file__).resolve().parent)
+    if commit is not None:
+        record["git_commit"] = commit
+    record["python"] = platform.python_version()
+    for name in (*CORE_PACKAGES, *optional):
+        try:
+            record[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return record
+
+
+def git_commit(directory: Path) -> str | None:
+    """``git rev-parse HEAD`` in ``directory`` if it lies in a git work tree; None otherwise, and
+    where git is missing or fails (the versions are a record, never a reason to stop)."""
+    if not any((d / ".git").exists() for d in (directory, *directory.parents)):
+        return None
+    try:
+        done = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=directory,
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() or None
