@@ -86,7 +86,10 @@ def tune_classical(
     """Tune ``base``'s bank on ``train_runs`` runs seeded ``seed + r``; the policy and notes."""
     config = config or TunerConfig()
     check_tunable(base)
-    batch = draw_batch(base.source, base.sensor, train_runs, seed, base.velocity_std)
+    # the environment's reset draws with the linear bank too (a designed family needs it)
+    batch = draw_batch(
+        base.source, base.sensor, train_runs, seed, base.velocity_std, bank=base.linear_bank
+    )
     models = base.bank if isinstance(base.bank, HeteroBank) else linear_models(base.bank)
     imm = HeteroIMM(models, base.sensor, T=base.source.T)
     tpm = base.initial_tpm(base.source.T)

@@ -162,3 +162,17 @@ def test_tuned_banks_beat_the_untuned_bank_on_held_out_runs() -> None:
     for method in ("bbsca", "sca"):
         tuned, _ = tune(imm, train, tpm, sensor.sigma, TunerConfig(method, 6, 6, seed=0))
         assert held_out(tuned.theta[None])[0] < 0.99 * untuned
+
+
+def test_bbsca_tunes_on_a_family_designed_for_its_bank() -> None:
+    """A random family with ``designed_share > 0`` draws its targets for the tracker's bank:
+    the tuner's training runs are drawn with it, as the environment's are."""
+    from baselines import REGISTRY
+    from baselines.bbsca import tune_classical
+    from imm_gym import EnvConfig
+
+    base = EnvConfig.build({"scenario": "random", "family": {"designed_share": 0.5}})
+    REGISTRY["bbsca"].check(base)
+    policy, notes = tune_classical(base, 2, 1_000_000, TunerConfig(particles=2, generations=1))
+    assert np.isfinite(notes["train_objective"])
+    assert len(policy.q_scale) == len(base.bank)
