@@ -6,17 +6,19 @@ on each model's process noise ``Q_j`` and one on the measurement noise ``R`` the
 box ``[lo, hi]^D``.
 
 **Objective** (seed 003: "the actual mean square error of the innovation"): over a training set
-of S runs and K steps,
+of S runs and K steps, the steps ``D`` where the sensor detected the target (all S K of them at
+detection probability 1),
 
 .. math::
-    J(\theta) = \frac{1}{S K m} \sum_{s,k} \lVert \Sigma^{-1/2}(z_{s,k} - \hat z_{s,k|k-1})
+    J(\theta) = \frac{1}{|D| m} \sum_{(s,k) \in D} \lVert \Sigma^{-1/2}(z_{s,k} - \hat z_{s,k|k-1})
     \rVert^2,
 
 with ``\hat z_{k|k-1} = \sum_j \bar c_j h_j(x_j^-)`` the IMM's predicted measurement and
 ``\Sigma = diag(\sigma^2)`` the *sensor's* nominal noise (fixed: it only makes position and velocity
 commensurate, so inflating the filter's ``R`` cannot lower ``J``). ``J`` is the one-step
 prediction error: the measurement noise alone contributes 1 (a predictor that knew the true state
-would score ``J = 1`` in expectation), the state's prediction error the rest.
+would score ``J = 1`` in expectation), the state's prediction error the rest. A missed detection
+has no innovation: the filter never sees that step's measurement, so it is not scored.
 
 **Why offline and batched.** Seed 003 re-runs the optimizer at every time step on the data seen so
 far. That is 10 particles x 100 generations of filtering per step, and the tuned values chase the
@@ -166,16 +168,25 @@ def optimize(objective: Callable[[Array], Array], dim: int, config: TunerConfig)
     return OptimResult(best, best_f, history, P * (G + 1))
 
 
-def innovation_mse(residual: Array, sigma: Array, failed: Array) -> Array:
-    """Per-tracker ``J``: ``mean_{k, i} (nu / sigma)^2``; ``inf`` for a failed tracker.
+def innovation_mse(
+    residual: Array, sigma: Array, failed: Array, detected: NDArray[np.bool_] | None = None
+) -> Array:
+    """Per-tracker ``J``: ``mean_{k, i} (nu / sigma)^2`` over the detected steps ``k``; ``inf``
+    for a failed tracker, NaN for one without a detected step.
 
     Args:
         residual: ``(N, K, m)`` innovations ``z - z_hat`` (bearings wrapped); sigma: ``(m,)``;
-        failed: ``(N,)``.
+        failed: ``(N,)``; detected: ``(N, K)``, the steps whose measurement the filter received
+            (``None``: every step). A missed step's ``z`` is a measurement the filter never saw.
     """
     e = residual / sigma
-    out = np.mean(e * e, axis=(1, 2))
-    return np.where(failed | ~np.isfinite(out), np.inf, out)
+    sq = np.sum(e * e, axis=2)
+    if detected is None:
+        detected = np.ones(sq.shape, dtype=bool)
+    n = detected.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(detected, sq, 0.0).sum(axis=1) / (n * residual.shape[2])
+    return np.where(failed | ((n > 0) & ~np.isfinite(out)), np.inf, out)
 
 
 def bank_objective(
@@ -194,6 +205,10 @@ def bank_objective(
         raise ConfigError("the tuning set is empty: it needs at least one run")
     M, S = imm.n_models, batch.n_runs
     z = batch.measurements.z[:, 1:]
+    detected = batch.measurements.detected[:, 1:]
+    n = detected.sum(axis=1)
+    if not n.any():
+        raise ConfigError("the tuning set has no detected measurement: no innovation to score")
     sigma = np.asarray(sigma, dtype=np.float64)
 
     def objective(theta: Array) -> Array:
@@ -209,8 +224,11 @@ def bank_objective(
         r_scale = scales[:, M] if tune_r else None
         run = run_bank(imm, batch, tpm, q_scale=scales[:, :M], r_scale=r_scale, repeat=P)
         residual = imm.sensor.residual(np.tile(z, (P, 1, 1)), run.z_pred)
-        per = innovation_mse(residual, sigma, run.failed)
-        return per.reshape(P, S).mean(axis=1)
+        per = innovation_mse(residual, sigma, run.failed, np.tile(detected, (P, 1)))
+        # pooled over the runs' detected steps (the runs' mean where every step is detected)
+        per = np.where(np.tile(n, P) > 0, per, 0.0).reshape(P, S)
+        pooled = (per * n).sum(axis=1) / n.sum()
+        return np.where(run.failed.reshape(P, S).any(axis=1), np.inf, pooled)
 
     return objective
 

@@ -176,3 +176,29 @@ def test_bbsca_tunes_on_a_family_designed_for_its_bank() -> None:
     policy, notes = tune_classical(base, 2, 1_000_000, TunerConfig(particles=2, generations=1))
     assert np.isfinite(notes["train_objective"])
     assert len(policy.q_scale) == len(base.bank)
+
+
+def test_the_objective_scores_only_the_detected_steps() -> None:
+    """A missed detection's ``z`` is a measurement the filter never saw: moving it leaves ``J``
+    alone, and ``J`` is the mean over the detected steps of all runs."""
+    import dataclasses
+
+    from imm_gym.tracking.sensors import PositionSensor
+
+    sensor = PositionSensor(sigma_pos=1.0, sigma_vel=0.5, detection_prob=0.7)
+    imm = bbsca_imm(sensor)
+    batch = draw(ManeuverFamily(), sensor, 3, 11)
+    tpm = stay_tpm(3, 0.9)
+    detected = batch.measurements.detected[:, 1:]
+    assert 0 < (~detected).sum() < detected.size
+    theta = np.array([[0.0, 0.0, 0.0, 0.0], [0.3, -0.5, 0.2, 0.1]])
+    J = bank_objective(imm, batch, tpm, sensor.sigma)(theta)
+    plain = run_bank(imm, batch, tpm)
+    e = (batch.measurements.z[:, 1:] - plain.z_pred) / sensor.sigma
+    assert J[0] == pytest.approx(np.mean((e * e)[detected]), rel=1e-12)
+    z = batch.measurements.z.copy()
+    z[~batch.measurements.detected] += 500.0
+    moved = dataclasses.replace(
+        batch, measurements=dataclasses.replace(batch.measurements, z=z)
+    )
+    np.testing.assert_allclose(bank_objective(imm, moved, tpm, sensor.sigma)(theta), J, rtol=0)
