@@ -31,8 +31,9 @@ def evaluate_system(
     """Classical IMM (``fixed``) and its BBSCA- / SCA-tuned versions on a seed scenario.
 
     A tuned policy loads its :class:`~imm_gym.papers.tuning.TunedBank` from ``tuned[policy]`` if
-    given, else tunes on ``train_runs`` training runs (seeds ``seed + TRAIN_SEED_OFFSET + r``) with
-    10 particles and ``generations`` generations. All policies are scored on the same runs (seeds
+    given (its ``bank`` must be ``name``: a file tuned for another system is refused), else tunes
+    on ``train_runs`` training runs (seeds ``seed + TRAIN_SEED_OFFSET + r``) with 10 particles
+    and ``generations`` generations. All policies are scored on the same runs (seeds
     ``seed .. seed + runs - 1``), with the held-out innovation objective ``J`` beside seed 002's
     metrics.
     """
@@ -54,6 +55,11 @@ def evaluate_system(
             bank = TunedBank(name, (1.0,) * imm.n_models, 1.0, method="none")
         elif tuned and p in tuned:
             bank = TunedBank.load(tuned[p])
+            if bank.bank != name:
+                raise ConfigError(
+                    f"tuned bank {tuned[p]}: its field bank is {bank.bank!r}, the factors of "
+                    f"another system; scenario {name!r} needs a bank tuned for {name!r}"
+                )
             notes["tuned_file"] = tuned[p]
         else:
             train = draw(family, sensor, train_runs, seed + TRAIN_SEED_OFFSET)

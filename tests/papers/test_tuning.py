@@ -202,3 +202,18 @@ def test_the_objective_scores_only_the_detected_steps() -> None:
         batch, measurements=dataclasses.replace(batch.measurements, z=z)
     )
     np.testing.assert_allclose(bank_objective(imm, moved, tpm, sensor.sigma)(theta), J, rtol=0)
+
+
+def test_a_bank_tuned_for_another_system_is_refused(tmp_path, capsys) -> None:
+    """A TunedBank file records the system it was tuned for (``bank``); one of seed 002's three
+    factors fits seed 003's three models but is refused there, naming the field."""
+    from imm_gym.papers.tuned_comparison import evaluate_system
+
+    path = tmp_path / "seed002.json"
+    TunedBank("seed002", (3.0, 0.2, 5.0), 0.5).save(path)
+    with pytest.raises(ConfigError, match=r"field bank is 'seed002'.*'seed003'"):
+        evaluate_system("seed003", ["bbsca"], runs=1, seed=0, tuned={"bbsca": str(path)})
+    argv = ["--scenario", "seed003", "--policy", "bbsca", "--runs", "1"]
+    with pytest.raises(SystemExit):
+        evaluate_main([*argv, "--tuned", f"bbsca={path}"])
+    assert "field bank is 'seed002'" in capsys.readouterr().err
