@@ -4,6 +4,8 @@ A policy maps a batch of observations to a batch of actions:
 ``predict(obs, state=None, episode_start=None, deterministic=True) -> (actions, state)``, the
 signature of SB3's ``BasePolicy.predict``, so one evaluation path runs every policy. Rule memory
 (a window of past probabilities, say) lives in ``state``, reset where ``episode_start`` is True.
+``episode_start=None`` means no episode starts, as for sb3-contrib's recurrent policies, unless
+``state`` is None too (the first call: every slot starts).
 
 A baseline also declares the environment settings it needs (``env_overrides``: the action mode,
 observation features, the parallel bank...). The evaluation applies them to the common
@@ -56,12 +58,18 @@ class Baseline:
         episode_start: NDArray[np.bool_] | None = None,
         deterministic: bool = True,
     ) -> tuple[NDArray[np.float64], Any]:
-        """SB3's signature; a single observation ``(d,)`` gives a single action ``(M*M,)``."""
+        """SB3's signature; a single observation ``(d,)`` gives a single action ``(M*M,)``.
+
+        ``episode_start``: ``(N,)``, True where an episode starts (the rule's memory is reset
+        there). ``None`` is sb3-contrib's convention for recurrent policies: no episode starts
+        (the memory in ``state`` carries on), except on a first call, ``state=None``, where every
+        slot starts.
+        """
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1
         obs = obs[None] if single else obs
         start = (
-            np.ones(obs.shape[0], dtype=bool)
+            np.full(obs.shape[0], state is None)
             if episode_start is None
             else np.asarray(episode_start, dtype=bool).reshape(obs.shape[0])
         )

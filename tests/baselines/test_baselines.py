@@ -290,6 +290,29 @@ def test_window_estimate_by_hand_and_episode_reset() -> None:
     np.testing.assert_allclose(fresh[0], tpm_to_logits(prior[None], 4.0)[0].ravel())
 
 
+def test_episode_start_none_continues_the_episode_as_in_sb3_contrib() -> None:
+    """``episode_start=None`` is no episode start (sb3-contrib's recurrent ``predict``), except on
+    the first call (``state=None``), where every slot starts."""
+    w = SlidingWindowTPM(window=5, kappa=1.0, prior_stay=0.8)
+    mu0 = np.full((2, 3), 1 / 3)
+    seq = [
+        np.array([[0.8, 0.1, 0.1], [0.1, 0.8, 0.1]]),
+        np.array([[0.1, 0.8, 0.1], [0.1, 0.1, 0.8]]),
+    ]
+    first_none, s_none = w.predict(np.hstack([mu0, mu0]))
+    first, s_explicit = w.predict(np.hstack([mu0, mu0]), None, np.ones(2, bool))
+    np.testing.assert_array_equal(first_none, first)
+    prev = mu0
+    for mu in seq:
+        obs = np.hstack([mu, prev])
+        a_none, s_none = w.predict(obs, s_none)
+        a_false, s_explicit = w.predict(obs, s_explicit, np.zeros(2, bool))
+        np.testing.assert_array_equal(a_none, a_false)
+        prev = mu
+    prior = tpm_to_logits(stay_tpm(3, 0.8)[None], 4.0)[0].ravel()
+    assert not np.allclose(a_none[0], prior)  # the window counted the transitions
+
+
 def test_paired_bootstrap_against_explicit_resampling() -> None:
     rng = np.random.default_rng(1)
     a = rng.gamma(2.0, 100.0, (40, 30))
