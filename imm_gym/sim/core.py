@@ -632,7 +632,8 @@ class TrackingCore:
         per slot, the combined estimate's error ``x̂ - x`` (position / 50 m, velocity / 5 m/s),
         the same for the reward's baseline — the stay bank's IMMs' estimates weighted by their
         evidence under the ``bank_advantage`` reward, else the shadow's estimate (zeros without
-        a shadow) —, and the true model of the coming step, one-hot; clipped to
+        a shadow) —, and the true model of the coming step, one-hot (all zeros where no model
+        of the bank matches the motion: ``true_model`` -1); clipped to
         ``[-CRITIC_CLIP, CRITIC_CLIP]``.
 
         The return of a step depends on how far each tracker is off the target now and on the
@@ -655,7 +656,8 @@ class TrackingCore:
         else:
             blocks.append(np.zeros((self.n_envs, 4)))
         coming = self.true_model[rows, np.minimum(self.k, self.horizon - 1)]
-        blocks.append(np.eye(self.M)[coming])
+        # one-hot; a row of zeros where no bank model matches the motion (true model -1)
+        blocks.append((coming[:, None] == np.arange(self.M)).astype(np.float64))
         out = np.clip(np.concatenate(blocks, axis=-1), -CRITIC_CLIP, CRITIC_CLIP)
         if self.model_order is not None:
             out = out[:, self._critic_index]

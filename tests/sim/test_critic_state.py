@@ -36,5 +36,34 @@ def test_the_critic_sees_the_errors_of_the_tracker_and_the_shadow(bank) -> None:
         np.testing.assert_allclose(
             state[:, 4 * block:4 * block + 4], (estimate - truth) / SCALE, rtol=1e-4, atol=1e-5
         )
-    coming = core.true_model[rows, core.k]
-    np.testing.assert_array_equal(state[:, 8:], np.eye(len(config.bank))[coming])
+    np.testing.assert_array_equal(
+        state[:, 8:], _one_hot(core.true_model[rows, core.k], len(config.bank))
+    )
+
+
+def _one_hot(models: np.ndarray, n_models: int) -> np.ndarray:
+    """A row per slot, a 1 at its model, zeros where none matches (-1)."""
+    out = np.zeros((models.size, n_models))
+    for i, j in enumerate(models.tolist()):
+        if j >= 0:
+            out[i, j] = 1.0
+    return out
+
+
+def test_the_critic_sees_no_model_where_none_of_the_bank_matches() -> None:
+    # a CT(+4°/s) bank without CT(-4°/s): a right turn is no model's (true model -1); its
+    # one-hot is all zeros, not the last model's
+    config = EnvConfig.build({"bank": CV_CA_CT, "action_mode": "stay"})
+    core = TrackingCore(config, 8)
+    core.reset(np.arange(8), list(range(8)))
+    rows = np.arange(8)
+    seen = False
+    while not core.done.any():
+        coming = core.true_model[rows, core.k]
+        state = core.critic_state()
+        np.testing.assert_array_equal(state[:, 8:], _one_hot(coming, 3))
+        seen |= bool((coming == -1).any())
+        if seen:
+            break
+        core.step(np.zeros((8, 3)))
+    assert seen, "no right turn in these episodes: choose others"
