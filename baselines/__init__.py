@@ -41,6 +41,7 @@ def make_baseline(name: str, n_models: int = 3, **kwargs: Any) -> Baseline:
     Raises:
         ValueError: ``name`` is unknown, or is tuned on training runs (build it from a
             :class:`BuildContext` with ``REGISTRY[name].build``).
+        ConfigError: a keyword argument outside its range (the message names it and the range).
     """
     if name not in REGISTRY:
         raise ValueError(f"unknown baseline {name!r}; available: {sorted(REGISTRY)}")

@@ -23,6 +23,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.validation import check_range
+
 from .base import Baseline
 from .registry import register
 
@@ -33,8 +35,13 @@ class AMPIMM(Baseline):
 
     Args:
         n_models: M.
-        guard: minimum diagonal entry of an accepted TPM (seed 003: 0.6).
-        loglik_clip, logit_scale: must match the environment's (defaults 20 and 4).
+        guard: an adapted TPM is accepted only if every diagonal entry exceeds ``guard`` (seed
+            003: 0.6), in ``[0, 1)``: a diagonal entry is at most 1, so a guard of 1 or more
+            would refuse every adaptation.
+        loglik_clip, logit_scale: must match the environment's (defaults 20 and 4; > 0).
+
+    Raises:
+        ConfigError: a parameter outside its range, named with the range.
     """
 
     def __init__(
@@ -45,13 +52,13 @@ class AMPIMM(Baseline):
         logit_scale: float = 4.0,
     ) -> None:
         super().__init__(n_models)
-        self.guard = guard
-        self.loglik_clip = loglik_clip
-        self.logit_scale = logit_scale
+        self.guard = check_range("guard", guard, 0.0, 1.0, hi_open=True)
+        self.loglik_clip = check_range("loglik_clip", loglik_clip, 0.0, lo_open=True)
+        self.logit_scale = check_range("logit_scale", logit_scale, 0.0, lo_open=True)
         self.env_overrides = {
             "action_mode": "set",
-            "logit_scale": logit_scale,
-            "loglik_clip": loglik_clip,
+            "logit_scale": self.logit_scale,
+            "loglik_clip": self.loglik_clip,
             "obs_features": ("tpm", "loglik"),
         }
 

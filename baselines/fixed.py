@@ -8,6 +8,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.tracking.tpm import stay_tpm
+
 from .base import Baseline
 from .registry import register
 
@@ -30,6 +32,7 @@ class FixedTPM(Baseline):
         # without a stay, no floor: the configured TPM is kept whatever the base's p_min
         self.env_overrides = {"action_mode": "scale", "p_min": 0.0}
         if stay is not None:
+            stay_tpm(n_models, stay)  # refuses a stay outside [0, 1], or not one per model
             stays = np.broadcast_to(np.asarray(stay, dtype=np.float64), (n_models,))
             smallest = float(min(stays.min(), ((1.0 - stays) / (n_models - 1)).min()))
             self.env_overrides.update(

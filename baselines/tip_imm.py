@@ -7,7 +7,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.tracking.tip import tip_factors
+from imm_gym.tracking.tip import READINGS, tip_factors
+from imm_gym.validation import ConfigError, check_choice, check_range
 
 from .base import Baseline
 from .registry import register
@@ -24,11 +25,16 @@ class TIPIMM(Baseline):
 
     Args:
         n_models: M.
-        alpha, beta: growth and shrink factors (SPEC §6: 1.1, 0.9).
+        alpha, beta: growth and shrink factors (SPEC §6: 1.1, 0.9): ``alpha > 1``,
+            ``0 < beta < 1``.
         reading: ``"literal"`` (default) or ``"intent"`` for the ambiguous case.
-        floor: the TPM floor (0.05; 0 reproduces the paper's rule as printed, which fails).
+        floor: the TPM floor (0.05; 0 reproduces the paper's rule as printed, which fails), in
+            ``[0, 1/M)``.
         parallel: run the parallel bank with entropy fusion.
-        max_factor: the environment's ``scale`` range (must exceed ``alpha`` and ``1/beta``).
+        max_factor: the environment's ``scale`` range (> 1, at least ``alpha`` and ``1/beta``).
+
+    Raises:
+        ConfigError: a parameter outside its range, named with the range.
     """
 
     def __init__(
@@ -42,8 +48,16 @@ class TIPIMM(Baseline):
         max_factor: float = 2.0,
     ) -> None:
         super().__init__(n_models)
+        alpha = check_range("alpha", alpha, 1.0, lo_open=True)
+        beta = check_range("beta", beta, 0.0, 1.0, lo_open=True, hi_open=True)
+        reading = check_choice("reading", reading, READINGS)
+        floor = check_range("floor", floor, 0.0, 1.0 / n_models, hi_open=True)
+        max_factor = check_range("max_factor", max_factor, 1.0, lo_open=True)
         if not (alpha <= max_factor and 1.0 / beta <= max_factor):
-            raise ValueError(f"max_factor={max_factor} cannot express alpha={alpha}, beta={beta}")
+            raise ConfigError(
+                f"max_factor must be at least alpha and 1/beta ({max(alpha, 1.0 / beta)!r}) to "
+                f"express them, got {max_factor!r}"
+            )
         self.alpha, self.beta, self.reading = alpha, beta, reading
         self.max_factor = max_factor
         self.env_overrides = {

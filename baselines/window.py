@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import check_int, check_range
 
 from .amp_imm import tpm_to_logits
 from .base import Baseline
@@ -30,10 +31,13 @@ class SlidingWindowTPM(Baseline):
 
     Args:
         n_models: M.
-        window: number of recent transitions counted.
-        kappa: prior strength in pseudo-counts (per row).
-        prior_stay: diagonal of the prior TPM.
-        logit_scale: must match the environment's ``logit_scale``.
+        window: number of recent transitions counted (an integer >= 1).
+        kappa: prior strength in pseudo-counts (per row, > 0).
+        prior_stay: diagonal of the prior TPM, in ``[0, 1]``.
+        logit_scale: must match the environment's ``logit_scale`` (> 0).
+
+    Raises:
+        ConfigError: a parameter outside its range, named with the range.
     """
 
     def __init__(
@@ -45,10 +49,10 @@ class SlidingWindowTPM(Baseline):
         logit_scale: float = 4.0,
     ) -> None:
         super().__init__(n_models)
-        if window < 1 or kappa <= 0:
-            raise ValueError(f"window must be >= 1 and kappa > 0, got {window}, {kappa}")
-        self.window, self.kappa = window, kappa
-        self.prior = stay_tpm(n_models, prior_stay)
+        self.window = check_int("window", window, 1)
+        self.kappa = check_range("kappa", kappa, 0.0, lo_open=True)
+        self.prior = stay_tpm(n_models, check_range("prior_stay", prior_stay, 0.0, 1.0))
+        logit_scale = check_range("logit_scale", logit_scale, 0.0, lo_open=True)
         self.logit_scale = logit_scale
         self.env_overrides = {"action_mode": "set", "logit_scale": logit_scale}
 

@@ -23,7 +23,7 @@ from baselines import (
     stay_grid,
 )
 from baselines.amp_imm import tpm_to_logits
-from imm_gym import EnvConfig, TrackingCore
+from imm_gym import ConfigError, EnvConfig, TrackingCore
 from imm_gym.evaluation.rollout import evaluation_config, paired_bootstrap, rollout, score
 from imm_gym.tracking.tip import tip_factors
 from imm_gym.tracking.tpm import apply_floor, stay_tpm
@@ -311,6 +311,35 @@ def test_episode_start_none_continues_the_episode_as_in_sb3_contrib() -> None:
         prev = mu
     prior = tpm_to_logits(stay_tpm(3, 0.8)[None], 4.0)[0].ravel()
     assert not np.allclose(a_none[0], prior)  # the window counted the transitions
+
+
+@pytest.mark.parametrize(
+    ("name", "kwargs", "message"),
+    [
+        ("tip-imm", {"beta": 0.0}, r"beta must be in \(0.0, 1.0\), got 0.0"),
+        ("tip-imm", {"beta": -0.5}, r"beta must be in \(0.0, 1.0\)"),
+        ("tip-imm", {"alpha": 0.5}, r"alpha must be in \(1.0, inf\)"),
+        ("tip-imm", {"reading": "intnet"}, r"reading must be one of \['literal', 'intent'\]"),
+        ("tip-imm", {"floor": 0.5}, r"floor must be in \[0.0, 0.333"),
+        ("tip-imm", {"max_factor": 1.05}, r"max_factor must be at least alpha and 1/beta"),
+        ("window", {"window": 2.5}, r"window must be an integer in \[1, inf\), got 2.5"),
+        ("window", {"kappa": 0.0}, r"kappa must be in \(0.0, inf\)"),
+        ("window", {"prior_stay": 1.5}, r"prior_stay must be in \[0.0, 1.0\], got 1.5"),
+        ("amp-imm", {"guard": 1.5}, r"guard must be in \[0.0, 1.0\), got 1.5"),
+        ("amp-imm", {"guard": 1.0}, r"guard must be in \[0.0, 1.0\)"),
+        ("amp-imm", {"loglik_clip": 0.0}, r"loglik_clip must be in \(0.0, inf\)"),
+        ("fixed", {"stay": 1.5}, r"stay must be in \[0.0, 1.0\], got 1.5"),
+        ("fixed", {"stay": (0.9, 0.8)}, r"stay must have 3 entries"),
+    ],
+)
+def test_bad_parameters_are_refused_at_construction_naming_them(
+    name: str, kwargs: dict, message: str
+) -> None:
+    """A baseline's parameter outside its range is refused when the baseline is built, as a
+    ConfigError naming the parameter and its range (the command line's usage error), not at the
+    first ``predict`` or never (a guard above 1 silently stopped AMP-IMM's adaptation)."""
+    with pytest.raises(ConfigError, match=message):
+        make_baseline(name, **kwargs)
 
 
 def test_paired_bootstrap_against_explicit_resampling() -> None:
