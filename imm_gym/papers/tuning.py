@@ -257,7 +257,10 @@ class TunedBank:
         store(
             self,
             "q_scale",
-            tuple(check_range("tuned.q_scale[i]", s, 0.0, lo_open=True) for s in q_scale),
+            tuple(
+                check_range(f"tuned.q_scale[{i}]", s, 0.0, lo_open=True)
+                for i, s in enumerate(q_scale)
+            ),
         )
         store(self, "r_scale", check_range("tuned.r_scale", self.r_scale, 0.0, lo_open=True))
         check_choice("tuned.method", self.method, (*OPTIMIZERS, "none"))

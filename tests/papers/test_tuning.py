@@ -136,7 +136,7 @@ def test_malformed_tuning_inputs_name_the_field(tmp_path, capsys) -> None:
         objective(np.zeros((1, 3)))
     bad = tmp_path / "neg.json"
     bad.write_text('{"bank": "seed003", "q_scale": [1, -1, 1]}')
-    with pytest.raises(ConfigError, match=r"tuned.q_scale\[i\] must be in \(0.0, inf\)"):
+    with pytest.raises(ConfigError, match=r"tuned.q_scale\[1\] must be in \(0.0, inf\)"):
         TunedBank.load(bad)
     argv = ["--scenario", "seed003", "--policy", "bbsca", "--runs", "1"]
     with pytest.raises(SystemExit):
