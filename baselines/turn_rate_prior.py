@@ -1,11 +1,14 @@
 """A fixed switching prior whose jumps lean toward the estimated turn rate (``turn-rate-prior``).
 
-Each row keeps its model with the stay ``s`` and otherwise redraws it from
-``q = (1 - v) / M + v b``, ``b`` the ``turn_rate`` detector's belief: the smoothed heading rate of
-the tracker's own estimate interpolated between the models' turn rates
-(:mod:`imm_gym.sim.detectors`, :func:`imm_gym.sim.stay_bank.detector_tpm_rows`). A turn slower
-than the bank's CT models is a blend of CV and the turn of its sign; a nearly uniform fixed
-prior mixes them at every step blindly, this one aims the mixing at the blend. The stay and the
+Each row keeps its model with probability ``r = (s - 1/M) / (1 - 1/M)`` and otherwise redraws it
+from ``q = (1 - v) / M + v b``, ``b`` the ``turn_rate`` detector's belief (the smoothed heading
+rate of the tracker's own estimate interpolated between the models' turn rates,
+:mod:`imm_gym.sim.detectors`): ``Pi = r I + (1 - r) 1 q^T``
+(:func:`imm_gym.sim.stay_bank.detector_tpm_rows`). With ``q`` uniform (``v = 0``, or a uniform
+belief) that is the stay TPM of ``s``, ``s`` on the diagonal; the share ``v`` moves the redraws
+toward the belief. A turn slower than the bank's CT models is a blend of CV and the turn of its
+sign; a nearly uniform fixed prior mixes them at every step blindly, this one aims the mixing at
+the blend. The stay and the
 share are searched like ``best-fixed``'s stay, on the training runs.
 
 ``learned-prior`` is the same rule led by the ``learned`` detector: a network's belief of the
