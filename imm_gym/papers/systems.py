@@ -14,9 +14,15 @@ r"""Seed 002's and seed 003's evaluations: their banks, sensors, scenarios and m
   ``q_acc = 1e-2``, ``Q_CA = diag(1e-3, 1e-3, 1e-2, 1e-2, 1e-1, 1e-1)``, ``Q_CT = Q_CV``,
   ``sigma_p = 1`` m, ``sigma_v = 0.5`` m/s, TPM 0.90 / 0.05, uniform ``mu_0``.
 
-Track initiation (both): position and velocity from the first measurement, ``P_0 = R``; the first
-measurement only initiates, the K following steps are scored. Run ``r`` of a batch seeded ``s``
-draws its trajectory and its noise from :func:`imm_gym.seeding.streams` with seed ``s + r``.
+Track initiation (both): position and velocity from the first measurement, ``P_0 = R`` (converted
+into each model's space; what the measurement lacks, turn rate and accelerations, starts at 0 with
+variances 0.2 and 1.0); the first measurement only initiates, the K following steps are scored.
+**Not seed 002's initialization** (its §III-B): its filters start at the first ground-truth point
+with ``P_0,NCV = diag(0.5, 0.5, 1.0, 1.0)``, ``P_0,CT = diag(0.5, 0.5, 1.0, 0.1, 0.2)``,
+``P_0,CTRA = diag(0.5, 0.5, 1.0, 0.1, 0.2, 1.0)``; ours starts from what a tracker has, so the
+seed-002 figures include the start from a noisy measurement (seed 003 does not state its own).
+Run ``r`` of a batch seeded ``s`` draws its trajectory and its noise from
+:func:`imm_gym.seeding.streams` with seed ``s + r``.
 """
 
 from __future__ import annotations
