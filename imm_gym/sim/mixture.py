@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.sim.actions import validate_action
 from imm_gym.sim.core import StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.validation import ConfigError
@@ -184,7 +185,9 @@ class MixtureCore:
                 core.reset(indices[mine] - self.starts[p], chosen)
 
     def validate_action(self, action: NDArray[Any]) -> NDArray[Any]:
-        """Each part's :meth:`TrackingCore.validate_action` on its slots' actions."""
+        """``action`` checked as a whole (shape ``(N, action_dim)``, finite), then each part's
+        :meth:`TrackingCore.validate_action` on its slots' actions."""
+        action = validate_action(action, self.n_envs, self.action_dim)
         parts = [
             core.validate_action(action[self.starts[p] : self.starts[p + 1]])
             for p, core in enumerate(self.cores)
@@ -195,7 +198,19 @@ class MixtureCore:
         """Every part's step on its slots' actions; the results concatenated in slot order (the
         info keys every part gives, each cut to the leading block every part has: a bank with a
         CA model estimates a 6-d state, whose first four entries — position and velocity — are
-        those of a bank without one)."""
+        those of a bank without one). The whole step is checked before any part steps: a
+        rejected action (``ActionError``) or an ended episode among the active slots
+        (``RuntimeError``) leaves every slot as it was."""
+        action = np.asarray(action)
+        self.validate_action(action)
+        done = np.concatenate([core.done for core in self.cores])
+        if active is not None:
+            done &= np.asarray(active, dtype=bool)
+        if np.count_nonzero(done):
+            raise RuntimeError(
+                f"episodes in slots {np.flatnonzero(done).tolist()} have ended; call reset "
+                "before step"
+            )
         results = []
         for p, core in enumerate(self.cores):
             part = slice(self.starts[p], self.starts[p + 1])

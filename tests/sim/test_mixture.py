@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from imm_gym import EnvConfig, TrackingCore
+from imm_gym.sim.actions import ActionError
 from imm_gym.sim.mixture import MixtureCore, check_mixture, slot_counts
 from imm_gym.sim.presets import CONTINUOUS_BANK
 from imm_gym.validation import ConfigError
@@ -110,6 +111,35 @@ def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
     two = EnvConfig(**POLICY, bank=CONTINUOUS_BANK[:2])
     with pytest.raises(ConfigError, match="bank size"):
         MixtureCore([PAPER, two], [0.5, 0.5], 4)
+
+
+def test_a_rejected_step_leaves_every_part_as_it_was() -> None:
+    # the whole step is checked before the first part steps: a NaN in the last part's slots,
+    # a row too many, an ended episode in the last part
+    mixture = MixtureCore([PAPER, SCALED], [0.5, 0.5], 4)
+    mixture.reset(np.arange(4), [1, 2, 3, 4])
+    mixture.step(np.zeros((4, 3)))
+
+    def state() -> list[np.ndarray]:
+        return [a.copy() for core in mixture.cores for a in (core.k, core.mu, core.state_a.x)]
+
+    before = state()
+    nan = np.zeros((4, 3))
+    nan[3, 0] = np.nan
+    ended = mixture.cores[1].done.copy()
+    ended[1] = True  # slot 3's episode ended
+    for action, done, error, message in [
+        (nan, None, ActionError, "finite"),
+        (np.zeros((5, 3)), None, ActionError, "shape"),
+        (np.zeros((4, 3)), ended, RuntimeError, r"slots \[3\] have ended"),
+    ]:
+        if done is not None:
+            mixture.cores[1].done = done
+        with pytest.raises(error, match=message):
+            mixture.step(action)
+        for got, want in zip(state(), before, strict=True):
+            np.testing.assert_array_equal(got, want)
+    mixture.step(np.zeros((4, 3)), active=np.array([True, True, True, False]))  # 3 not active
 
 
 @pytest.mark.parametrize(
