@@ -275,11 +275,15 @@ class TrackingCore:
             twin = np.arange(indices.size)
         drawn = np.flatnonzero(twin == np.arange(indices.size))
         rows = np.searchsorted(drawn, twin)
+        # every seed checked (its streams built) before a slot's streams are replaced: a
+        # rejected seed leaves every slot's streams as they were
+        rngs = list(self._rngs)
         for i, seed in zip(indices[drawn].tolist(), [seeds[p] for p in drawn], strict=True):
             if seed is not None:
-                self._rngs[i] = streams(seed)
-            elif self._rngs[i] is None:
-                self._rngs[i] = streams(int(np.random.SeedSequence().generate_state(1)[0]))
+                rngs[i] = streams(seed)
+            elif rngs[i] is None:
+                rngs[i] = streams(int(np.random.SeedSequence().generate_state(1)[0]))
+        self._rngs = rngs
         scen_rngs = [self._rngs[i][0] for i in indices[drawn]]  # type: ignore[index]
         noise_rngs = [self._rngs[i][1] for i in indices[drawn]]  # type: ignore[index]
         cfg = self.config

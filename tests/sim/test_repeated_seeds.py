@@ -66,6 +66,21 @@ def test_seeds_are_still_checked_and_counted() -> None:
         core.reset(np.arange(3), [1, 1])
 
 
+def test_a_rejected_seed_replaces_no_slot_s_streams() -> None:
+    # a bad seed after good ones: the earlier slots' streams are kept (their next episodes
+    # continue the seed-0 sequence), not replaced by the good seeds' before the refusal
+    core, untouched = TrackingCore(EnvConfig(), 2), TrackingCore(EnvConfig(), 2)
+    core.reset(np.arange(2), [0, 1])
+    untouched.reset(np.arange(2), [0, 1])
+    for bad in ([5, -1], [5, 1.5]):
+        with pytest.raises(ValueError, match="non-negative integer"):
+            core.reset(np.arange(2), bad)
+    core.reset(np.arange(2), [None, None])
+    untouched.reset(np.arange(2), [None, None])
+    np.testing.assert_array_equal(core.truth, untouched.truth)
+    np.testing.assert_array_equal(core.z, untouched.z)
+
+
 def test_a_clone_draws_the_same_numbers_independently() -> None:
     scenario, _ = streams(5)
     scenario.random(3)
