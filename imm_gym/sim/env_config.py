@@ -56,6 +56,9 @@ SHADOW_FEATURES = shadow_features()
 TIP_READINGS = ("literal", "intent")
 #: The per-episode reward scales ``reward_scale`` may name instead of a number of metres.
 REWARD_SCALES = ("measurement",)
+#: The least number of metres ``reward_scale`` may be (a micrometre): far below any tracker's
+#: accuracy, far enough above the floats' underflow that ``reward_scale²`` is never 0.
+MIN_REWARD_SCALE = 1e-6
 
 Array = NDArray[np.float64]
 
@@ -158,10 +161,10 @@ class EnvConfig:
             bank's IMMs' errors weighted by their evidence (it runs the stay bank; not with
             the ``turn_rate`` detector's priors, which the action would move) — or
             ``"error"`` — ``-e / reward_scale``.
-        reward_scale: metres per unit of reward, or ``"measurement"``: each episode's own scale,
-            the RMS position accuracy of its first measurement ``sqrt(tr P0_pos / 2)`` (the
-            sensor's accuracy at the target's range), so that trackers of every accuracy weigh
-            alike in training across trackers.
+        reward_scale: metres per unit of reward (at least ``MIN_REWARD_SCALE``, 1e-6 m), or
+            ``"measurement"``: each episode's own scale, the RMS position accuracy of its first
+            measurement ``sqrt(tr P0_pos / 2)`` (the sensor's accuracy at the target's range),
+            so that trackers of every accuracy weigh alike in training across trackers.
         tpm_cost: weight of the TPM's divergence from the shadow's,
             :func:`imm_gym.tracking.tpm.row_divergence` (nats), subtracted from the reward each
             step: the policy leaves the shadow's TPM only where that pays (0: no cost; needs the
@@ -346,7 +349,7 @@ class EnvConfig:
             store(
                 self,
                 "reward_scale",
-                check_range("reward_scale", self.reward_scale, 0.0, lo_open=True),
+                check_range("reward_scale", self.reward_scale, MIN_REWARD_SCALE),
             )
         store(self, "tpm_cost", check_range("tpm_cost", self.tpm_cost, 0.0))
         if self.tpm_cost > 0.0 and self.shadow == "none":

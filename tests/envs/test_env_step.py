@@ -316,6 +316,19 @@ def test_reward_is_the_configured_term(reward: str) -> None:
         assert info["reward_error"] == -info["position_error"] / 10.0
 
 
+def test_the_least_reward_scale_gives_finite_rewards() -> None:
+    # 1e-6 m, the least reward_scale (a smaller one whose square underflowed gave NaN rewards)
+    for env in (TPMAdaptEnv(reward="squared_advantage", reward_scale=1e-6),
+                TPMAdaptVectorEnv(2, reward="squared_advantage", reward_scale=1e-6)):
+        env.reset(seed=0)
+        rng = np.random.default_rng(0)
+        for k in range(4):  # the shadow's TPM (e = e_shadow), then others
+            *_, info = env.step(rng.uniform(-1, 1, env.action_space.shape) * (k > 0))
+            for key in ("reward_error", "reward_advantage", "reward_squared_advantage"):
+                assert np.isfinite(info[key]).all(), key
+        assert (np.asarray(info["reward_squared_advantage"]) != 0.0).all()
+
+
 def test_paper_env_truncates_after_exactly_150_steps() -> None:
     env = gym.make(PAPER)
     env.reset(seed=0)

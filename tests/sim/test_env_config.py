@@ -33,6 +33,9 @@ BAD = [
     ({"p_min": 0.25, "bank": FOUR_MODELS}, "p_min"),
     ({"reward_scale": -1.0}, "reward_scale"),
     ({"reward_scale": 0.0}, "reward_scale"),
+    # its square would underflow to 0: NaN and infinite rewards
+    ({"reward_scale": 1e-170}, r"reward_scale must be in \[1e-06, inf\)"),
+    ({"reward_scale": 9e-7}, "reward_scale"),
     ({"max_factor": 1.0}, "max_factor"),
     ({"max_factor": 0.5}, "max_factor"),
     ({"max_factor": float("inf")}, "max_factor"),
