@@ -31,7 +31,13 @@ from typing import Any
 import numpy as np
 
 from agents.policy import ALGOS, load_agent, read_json
-from agents.training import WeightAverage, check_hyperparams, find_normalizer, save_agent
+from agents.training import (
+    MAX_SEED,
+    WeightAverage,
+    check_hyperparams,
+    find_normalizer,
+    save_agent,
+)
 from imm_gym.validation import ConfigError
 
 RESUME_FILE = "resume.json"
@@ -138,6 +144,8 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
             message names the file.
     """
     from agents.network import load_tensors
+    from imm_gym.envs import PRESETS
+    from imm_gym.sim.env_config import EnvConfig
 
     file = directory / RESUME_FILE
     if not file.is_file():
@@ -161,9 +169,15 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
         raise ConfigError(f"{file}: format {state['format']!r} is not {FORMAT}")
     if state["algo"] not in ALGOS:
         raise ConfigError(f"{file}: algo must be one of {list(ALGOS)}, got {state['algo']!r}")
+    if not isinstance(state["env_id"], str) or state["env_id"] not in PRESETS:
+        raise ConfigError(
+            f"{file}: env_id must be one of {sorted(PRESETS)}, got {state['env_id']!r}"
+        )
     for key in ("seed", "num_timesteps", "n_updates", "episode_num"):
         if not _is_count(state[key]):
             raise ConfigError(f"{file}: {key} must be a non-negative integer, got {state[key]!r}")
+    if state["seed"] > MAX_SEED:
+        raise ConfigError(f"{file}: seed must be at most {MAX_SEED}, got {state['seed']}")
     state["hyperparams"] = check_hyperparams(
         f"{file}: hyperparams", state["hyperparams"], state["algo"]
     )
@@ -180,6 +194,11 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
     if evaluation is not None and not isinstance(evaluation, dict):
         raise ConfigError(f"{file}: evaluation_config must be null or an object of EnvConfig "
                           f"fields, got {evaluation!r}")
+    if evaluation is not None:  # the final evaluation's: checked before the budget is trained
+        try:
+            EnvConfig.build(evaluation)
+        except ConfigError as err:
+            raise ConfigError(f"{file}: evaluation_config: {err}") from None
     load_agent(directory)
     load_tensors(directory / TENSORS_FILE)
     return state

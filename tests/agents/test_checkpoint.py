@@ -249,3 +249,25 @@ def test_the_initial_weights_enter_no_average() -> None:
     model.learn(128)
     swa.update(model)
     assert swa.snapshots == 1
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda d: _edit(d, env_id=5), "resume.json: env_id must be one of"),
+        (lambda d: _edit(d, env_id=[ENV]), "resume.json: env_id must be one of"),
+        (lambda d: _edit(d, env_id="imm_gym/Nope-v0"), "resume.json: env_id must be one of"),
+        (lambda d: _edit(d, seed=2**40), r"resume.json: seed must be at most 4294967295"),
+        (lambda d: _edit(d, evaluation_config={"bogus": 1}),
+         r"resume.json: evaluation_config: EnvConfig: unknown key\(s\) \['bogus'\]"),
+        (lambda d: _edit(d, evaluation_config={"sensor": 5}),
+         "resume.json: evaluation_config: sensor must be"),
+    ],
+)
+def test_the_run_a_checkpoint_records_is_checked_before_training(saved, tmp_path, change, message):
+    """An env id of another type stopped train.py with an AttributeError; an evaluation
+    configuration with an unknown key was found out after the whole budget was trained."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    change(directory)
+    with pytest.raises(ConfigError, match=message):
+        read_checkpoint(directory)
