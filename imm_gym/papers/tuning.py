@@ -37,8 +37,10 @@ the K steps evaluates the whole swarm. The tuned bank is then a fixed configurat
 ``\lambda = 4``: the extraction lost the constant); (ii) per component, with probability 1/2
 (``r_5 < 0.5``) the sine-cosine step above, otherwise the Gaussian bare-bones step toward the best,
 ``Y_{ij} \sim N((b_j + X_{kj}) / 2, |b_j - X_{kj}|)`` with ``k`` a randomly chosen particle;
-(iii) greedy selection, ``X_i <- Y_i`` only if ``J(Y_i) < J(X_i)``. Both spend P evaluations per
-generation, so equal budgets are equal generation counts.
+(iii) greedy selection, ``X_i <- Y_i`` if ``J(Y_i) \le J(X_i)`` (the extraction lost the sign, of
+which §3.2.2 says it "reduces the possibility of search stagnation": ``\le``, which lets a
+particle move along a plateau of equal fitness, where ``<`` would hold it still). Both spend P
+evaluations per generation, so equal budgets are equal generation counts.
 """
 
 from __future__ import annotations
@@ -156,9 +158,7 @@ def optimize(objective: Callable[[Array], Array], dim: int, config: TunerConfig)
         fy = np.asarray(objective(Y), dtype=np.float64)
         fy = np.where(np.isfinite(fy), fy, np.inf)
         if config.method == "bbsca":
-            better = fy < f
-            X = np.where(better[:, None], Y, X)
-            f = np.where(better, fy, f)
+            X, f = greedy_select(X, f, Y, fy)
         else:
             X, f = Y, fy
         b = int(np.argmin(fy))
@@ -166,6 +166,13 @@ def optimize(objective: Callable[[Array], Array], dim: int, config: TunerConfig)
             best, best_f = Y[b].copy(), float(fy[b])
         history.append(best_f)
     return OptimResult(best, best_f, history, P * (G + 1))
+
+
+def greedy_select(X: Array, f: Array, Y: Array, fy: Array) -> tuple[Array, Array]:
+    """BBSCA's greedy selection: particle ``i`` moves to ``Y_i`` where ``fy_i <= f_i`` (a tie
+    moves it too, against stagnation), else stays; the swarm ``(P, D)`` and its values ``(P,)``."""
+    move = fy <= f
+    return np.where(move[:, None], Y, X), np.where(move, fy, f)
 
 
 def innovation_mse(

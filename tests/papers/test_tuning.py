@@ -14,7 +14,14 @@ from imm_gym.papers.systems import (
     draw,
     run_bank,
 )
-from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, optimize, tune
+from imm_gym.papers.tuning import (
+    TunedBank,
+    TunerConfig,
+    bank_objective,
+    greedy_select,
+    optimize,
+    tune,
+)
 from imm_gym.sim.episodes import Batch
 from imm_gym.tracking.tpm import stay_tpm
 
@@ -30,6 +37,18 @@ def test_optimizers_descend_and_keep_the_best(method: str) -> None:
     assert res.value < 0.5 * res.history[0]
     assert res.value == pytest.approx(float(sphere(res.best)[0]))
     assert res.evaluations == 10 * 41
+
+
+def test_bbsca_greedy_selection_moves_on_ties() -> None:
+    """Seed 003 §3.2.2: greedy selection with the sign that "reduces the possibility of search
+    stagnation", ``fit(Y) <= fit(X)``: a proposal as good as its particle replaces it."""
+    X = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])
+    f = np.array([1.0, 1.0, 1.0, np.inf])
+    Y = X + 0.5
+    fy = np.array([0.5, 1.0, 2.0, np.inf])  # better, tied, worse, both failed
+    new_X, new_f = greedy_select(X, f, Y, fy)
+    np.testing.assert_array_equal(new_X, [Y[0], Y[1], X[2], Y[3]])
+    np.testing.assert_array_equal(new_f, [0.5, 1.0, 1.0, np.inf])
 
 
 def test_bbsca_beats_sca_at_equal_budget_on_a_quadratic() -> None:
