@@ -506,7 +506,8 @@ class TrackingCore:
             self._restore(before, ~np.asarray(active, dtype=bool))
         if np.count_nonzero(diverged):  # only a diverged slot can carry NaN/inf
             info = {key: _finite(value) for key, value in info.items()}
-        return StepResult(self.observe(), reward, diverged, truncated, info)
+        # terminated a copy: a front that rewrites it (an autoreset row) must not move the info
+        return StepResult(self.observe(), reward, diverged.copy(), truncated, info)
 
     def _advance_banks(
         self, action: Array, z: Array, detected: NDArray[np.bool_], truth: Array

@@ -176,6 +176,17 @@ def test_vector_env_returns_fresh_arrays() -> None:
     np.testing.assert_array_equal(n1[1], n2[1])
 
 
+def test_terminated_is_not_the_info_s_diverged() -> None:
+    # a wrapper that rewrites terminations must not rewrite info["diverged"]
+    venv = TPMAdaptVectorEnv(2, divergence_error=30.0)
+    venv.reset(seed=0)
+    _, _, terminated, _, info = venv.step(np.ones((2, 9)))
+    assert terminated.all() and info["diverged"].all()
+    assert not np.shares_memory(terminated, info["diverged"])
+    terminated[:] = False
+    assert info["diverged"].all()
+
+
 @pytest.mark.parametrize(
     "key",
     ["mode_probs", "tpm", "step", "loglik", "model_nis"],
