@@ -190,6 +190,9 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
         raise ConfigError(
             f"{file}: swa must be null or {{snapshots, last_update[, start]}}, got {swa!r}"
         )
+    if swa is not None and state["hyperparams"].get("swa_start") is None:
+        raise ConfigError(f"{file}: swa records a weight average, the hyperparameters keep none "
+                          "(no swa_start)")
     evaluation = state.setdefault("evaluation_config", None)
     if evaluation is not None and not isinstance(evaluation, dict):
         raise ConfigError(f"{file}: evaluation_config must be null or an object of EnvConfig "
@@ -199,8 +202,8 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
             EnvConfig.build(evaluation)
         except ConfigError as err:
             raise ConfigError(f"{file}: evaluation_config: {err}") from None
-    load_agent(directory)
-    load_tensors(directory / TENSORS_FILE)
+    network = load_agent(directory).model
+    check_tensors(directory / TENSORS_FILE, load_tensors(directory / TENSORS_FILE), network, swa)
     return state
 
 
@@ -223,6 +226,7 @@ def restore(
     file = directory / RESUME_FILE
     load_weights(model.policy, directory)
     tensors = load_tensors(directory / TENSORS_FILE)
+    check_tensors(directory / TENSORS_FILE, tensors, model.policy, state["swa"])
     _load_optimizer(model.policy, tensors, directory / TENSORS_FILE)
     model.num_timesteps = state["num_timesteps"]
     model._n_updates = state["n_updates"]
@@ -256,6 +260,53 @@ def restore(
         raise ConfigError(
             f"{directory / TENSORS_FILE}: no torch generator state ({err!r})"
         ) from None
+
+
+def check_tensors(file: Path, tensors: dict[str, Any], policy: Any, swa: Any) -> None:
+    """The tensors of ``resume.safetensors`` checked against the network ``policy`` (the one of
+    ``agent.json``, or the model's being resumed): only ``optimizer/...``, ``rng/torch`` and
+    ``swa/...`` names; the optimizer's state fitting the policy's parameters
+    (:func:`_optimizer_state`); the weight average (present exactly when ``resume.json``'s
+    ``swa`` records one) the network's state dict, name for name, each tensor of its shape and
+    dtype, an integer buffer equal to the network's.
+
+    Raises:
+        ConfigError: a tensor does not fit; the message names ``file``.
+    """
+    import torch
+
+    unknown = sorted(
+        name for name in tensors
+        if name != "rng/torch" and name.split("/")[0] not in ("optimizer", "swa")
+    )
+    if unknown:
+        raise ConfigError(f"{file}: {unknown[0]!r} is no tensor of a checkpoint (optimizer/..., "
+                          "rng/torch, swa/...)")
+    _optimizer_state(policy.optimizer, tensors, file)
+    average = {name[4:]: value for name, value in tensors.items() if name.startswith("swa/")}
+    if swa is None:
+        if average:
+            raise ConfigError(f"{file}: holds a weight average (swa/...), but {RESUME_FILE}'s "
+                              "swa is null")
+        return
+    expected = policy.state_dict()
+    missing = sorted(f"swa/{name}" for name in set(expected) - set(average))
+    unexpected = sorted(f"swa/{name}" for name in set(average) - set(expected))
+    if missing or unexpected:
+        raise ConfigError(
+            f"{file}: the weight average (swa/...) of {swa['snapshots']} snapshots is not the "
+            f"network's of agent.json: missing {missing}, unexpected {unexpected}"
+        )
+    for name in sorted(average):
+        value, own = average[name], expected[name]
+        if value.shape != own.shape or value.dtype != own.dtype:
+            raise ConfigError(
+                f"{file}: tensor 'swa/{name}' is {value.dtype} {tuple(value.shape)}, the network "
+                f"of agent.json needs {own.dtype} {tuple(own.shape)}"
+            )
+        if not value.is_floating_point() and not torch.equal(value, own):
+            raise ConfigError(f"{file}: tensor 'swa/{name}' is not the network's (an integer "
+                              "buffer its description sets, not averaged)")
 
 
 def _is_count(value: Any) -> bool:
@@ -340,9 +391,19 @@ def _optimizer_tensors(optimizer: Any) -> dict[str, Any]:
 
 def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path) -> None:
     """Load the ``optimizer/...`` tensors into ``policy.optimizer`` (its hyperparameters are the
-    recorded ones, rebuilt; only the per-parameter state is loaded), checking every name and
-    shape: each parameter's :data:`ADAM_STATE`, ``step`` a scalar."""
+    recorded ones, rebuilt; only the per-parameter state is loaded), checked
+    (:func:`_optimizer_state`)."""
     optimizer = policy.optimizer
+    state = _optimizer_state(optimizer, tensors, file)
+    optimizer.load_state_dict(
+        {"state": state, "param_groups": optimizer.state_dict()["param_groups"]}
+    )
+
+
+def _optimizer_state(optimizer: Any, tensors: dict[str, Any], file: Path) -> dict[int, Any]:
+    """The per-parameter state of the ``optimizer/...`` tensors, every name and shape checked
+    against ``optimizer``'s parameters: each parameter's :data:`ADAM_STATE`, ``step`` a
+    scalar."""
     params = [p for group in optimizer.param_groups for p in group["params"]]
     state: dict[int, dict[str, Any]] = {}
     for key, value in tensors.items():
@@ -372,6 +433,4 @@ def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path) -> None:
                 f"{file}: optimizer/{index} holds {sorted(entries)}, Adam's state is "
                 f"{sorted(ADAM_STATE)}"
             )
-    optimizer.load_state_dict(
-        {"state": state, "param_groups": optimizer.state_dict()["param_groups"]}
-    )
+    return state

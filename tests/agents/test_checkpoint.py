@@ -184,7 +184,9 @@ def test_an_incomplete_optimizer_state_is_refused_before_training(
     else:
         tensors["optimizer/0/step"] = torch.ones(3)
     save_file(tensors, file)
-    state = read_checkpoint(directory)
+    with pytest.raises(ConfigError, match=message):  # train.py's check of its arguments
+        read_checkpoint(directory)
+    state = read_checkpoint(saved.directory)
     model, env = build(saved.params)
     with pytest.raises(ConfigError, match=message):
         restore(directory, state, model, env, WeightAverage(0))
@@ -270,4 +272,60 @@ def test_the_run_a_checkpoint_records_is_checked_before_training(saved, tmp_path
     directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
     change(directory)
     with pytest.raises(ConfigError, match=message):
+        read_checkpoint(directory)
+
+
+def _tensors(directory: Path, change) -> None:
+    """``resume.safetensors`` of ``directory`` rewritten by ``change(tensors)``."""
+    file = directory / TENSORS_FILE
+    tensors = load_file(file)
+    change(tensors)
+    save_file(tensors, file)
+
+
+def _drop_average(tensors: dict) -> None:
+    for name in [k for k in tensors if k.startswith("swa/")]:
+        del tensors[name]
+
+
+def _half_average(tensors: dict) -> None:
+    for name in [k for k in tensors if k.startswith("swa/") and tensors[k].is_floating_point()]:
+        tensors[name] = tensors[name].half()
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (_drop_average, r"weight average .*swa/.* missing"),
+        (lambda t: t.__setitem__("swa/action_net.weight", torch.zeros(1)),
+         r"'swa/action_net\.weight' is torch\.float32 \(1,\), the network"),
+        (lambda t: t.__setitem__("swa/bogus", torch.zeros(2)), r"unexpected \['swa/bogus'\]"),
+        (_half_average, r"'swa/action_net\.bias' is torch\.float16"),
+        (lambda t: t.__setitem__("swa/mlp_extractor.index", t["swa/mlp_extractor.index"] + 1),
+         r"'swa/mlp_extractor\.index' is not the network's"),
+        (lambda t: t.__setitem__("bogus", torch.zeros(2)), r"'bogus' is no tensor of a checkpoint"),
+    ],
+)
+def test_a_damaged_weight_average_is_refused_before_training(saved, tmp_path, change, message):
+    """The weight average's tensors are the network's, name for name, shape, dtype: a checkpoint
+    that lost them (while its snapshot count goes on) would resume a different mean; a tensor of
+    another shape stopped the run at its end."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _tensors(directory, change)
+    with pytest.raises(ConfigError, match=f"{TENSORS_FILE}: .*{message}"):
+        read_checkpoint(directory)
+
+
+def test_weight_average_tensors_without_a_recorded_average_are_refused(saved, tmp_path) -> None:
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _edit(directory, swa=None)
+    with pytest.raises(ConfigError, match=f"{TENSORS_FILE}: .*weight average .*swa is null"):
+        read_checkpoint(directory)
+
+
+def test_a_weight_average_the_hyperparameters_keep_none_of_is_refused(saved, tmp_path) -> None:
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    hyperparams = json.loads((directory / "resume.json").read_text())["hyperparams"]
+    _edit(directory, hyperparams={k: v for k, v in hyperparams.items() if k != "swa_start"})
+    with pytest.raises(ConfigError, match=r"resume\.json: swa records a weight average"):
         read_checkpoint(directory)
