@@ -313,19 +313,28 @@ def _is_count(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
+def _is_finite(value: Any) -> bool:
+    """Whether ``value`` is an int or float (not a boolean) within the finite floats."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return bool(np.isfinite(float(value)))
+    except OverflowError:  # an integer beyond the floats
+        return False
+
+
 def _reward_normalizer(file: Path, value: Any) -> dict[str, float] | None:
     """``reward_normalizer``: null, or the return's running ``mean``, ``var`` (>= 0) and
-    ``count`` as finite numbers."""
+    ``count`` (> 0, as ``vecnormalize.json``'s: the running mean divides by it) as finite
+    numbers."""
     if value is None:
         return None
     keys = ("mean", "var", "count")
     numbers = isinstance(value, dict) and sorted(value) == sorted(keys)
-    numbers = numbers and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-        for v in value.values()
-    )
-    if not numbers or value["var"] < 0:
-        raise ConfigError(f"{file}: reward_normalizer must be null or finite {list(keys)}")
+    numbers = numbers and all(_is_finite(v) for v in value.values())
+    if not numbers or value["var"] < 0 or value["count"] <= 0:
+        raise ConfigError(f"{file}: reward_normalizer must be null or finite {list(keys)} "
+                          f"(var >= 0, count > 0), got {value!r}")
     return {k: float(value[k]) for k in keys}
 
 
@@ -402,11 +411,15 @@ def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path) -> None:
 
 def _optimizer_state(optimizer: Any, tensors: dict[str, Any], file: Path) -> dict[int, Any]:
     """The per-parameter state of the ``optimizer/...`` tensors, every name and shape checked
-    against ``optimizer``'s parameters: each parameter's :data:`ADAM_STATE`, ``step`` a
-    scalar."""
+    against ``optimizer``'s parameters: each parameter's :data:`ADAM_STATE` in float32,
+    ``step`` a scalar count >= 0, ``exp_avg_sq`` >= 0 (Adam divides by ``1 - beta ** step``
+    and takes the square root of the second moment: a negative step or moment is NaN or a
+    division by zero in the first update)."""
+    import torch
+
     params = [p for group in optimizer.param_groups for p in group["params"]]
     state: dict[int, dict[str, Any]] = {}
-    for key, value in tensors.items():
+    for key, value in sorted(tensors.items()):
         parts = key.split("/")
         if parts[0] != "optimizer":
             continue
@@ -423,6 +436,16 @@ def _optimizer_state(optimizer: Any, tensors: dict[str, Any], file: Path) -> dic
             raise ConfigError(
                 f"{file}: {key!r} is {tuple(value.shape)}, its parameter "
                 f"{tuple(params[index].shape)}"
+            )
+        if value.dtype != torch.float32:
+            raise ConfigError(f"{file}: {key!r} is {value.dtype}, not torch.float32")
+        if parts[2] == "step" and not 0.0 <= float(value) < np.inf:
+            raise ConfigError(
+                f"{file}: {key!r} must be a finite count >= 0, got {float(value)!r}"
+            )
+        if parts[2] == "exp_avg_sq" and bool((value < 0).any()):
+            raise ConfigError(
+                f"{file}: {key!r} holds negative values (Adam's second moments are >= 0)"
             )
         state.setdefault(index, {})[parts[2]] = value
     if state and sorted(state) != list(range(len(params))):

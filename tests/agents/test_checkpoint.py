@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -328,4 +329,47 @@ def test_a_weight_average_the_hyperparameters_keep_none_of_is_refused(saved, tmp
     hyperparams = json.loads((directory / "resume.json").read_text())["hyperparams"]
     _edit(directory, hyperparams={k: v for k, v in hyperparams.items() if k != "swa_start"})
     with pytest.raises(ConfigError, match=r"resume\.json: swa records a weight average"):
+        read_checkpoint(directory)
+
+
+def _optimizer(name: str, value) -> Callable[[dict], None]:
+    """Every ``optimizer/<i>/<name>`` tensor replaced by ``value(tensor)``."""
+
+    def change(tensors: dict) -> None:
+        for key in [k for k in tensors if k.startswith("optimizer/") and k.endswith(f"/{name}")]:
+            tensors[key] = value(tensors[key])
+
+    return change
+
+
+def _reward(**changes: object) -> Callable[[Path], None]:
+    def damage(directory: Path) -> None:
+        recorded = json.loads((directory / "resume.json").read_text())["reward_normalizer"]
+        _edit(directory, reward_normalizer={**recorded, **changes})
+
+    return damage
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (_reward(count=-4.0), "resume.json: reward_normalizer must be null or finite"),
+        (_reward(count=0.0), "resume.json: reward_normalizer must be null or finite"),
+        (_reward(mean=10**400), "resume.json: reward_normalizer must be null or finite"),
+        (lambda d: _tensors(d, _optimizer("step", lambda t: torch.tensor(-3.0))),
+         r"'optimizer/0/step' must be a finite count >= 0, got -3\.0"),
+        (lambda d: _tensors(d, _optimizer("step", lambda t: torch.tensor(-1.0))),
+         r"'optimizer/0/step' must be a finite count >= 0, got -1\.0"),
+        (lambda d: _tensors(d, _optimizer("exp_avg_sq", lambda t: -t - 1.0)),
+         r"'optimizer/0/exp_avg_sq' holds negative values"),
+        (lambda d: _tensors(d, _optimizer("exp_avg", lambda t: t.double())),
+         r"'optimizer/0/exp_avg' is torch\.float64, not torch\.float32"),
+    ],
+)
+def test_a_checkpoint_whose_numbers_break_training_is_refused(saved, tmp_path, damage, message):
+    """A reward normalizer of count <= 0 or Adam's state with a negative step or second moment
+    divided by zero or took square roots of negatives (NaN) once training resumed."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    damage(directory)
+    with pytest.raises(ConfigError, match=message):
         read_checkpoint(directory)
