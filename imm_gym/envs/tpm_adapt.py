@@ -103,7 +103,8 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ``true_state``, ``true_model`` (bank index of the true motion, −1 if none), ``estimate``,
     ``covariance``, ``position_error``, ``shadow_position_error``, ``mode_probs``, ``loglik``,
     ``model_nis``, ``nis``, ``detected``, ``tpm``, ``step``, ``diverged``, ``reward_*``.
-    Numbers are Python ``float``, ``int`` and ``bool``; arrays are new at every step.
+    Numbers are Python ``float``, ``int`` and ``bool``; arrays are new at every step. ``reset``'s
+    info: ``true_state`` (the episode's first true state) and ``tpm`` (the TPM it starts from).
 
     ## Rendering
     ``render_mode="rgb_array"``: ``render()`` returns the picture of the current step, an

@@ -26,7 +26,12 @@ class TPMAdaptVectorEnv(VectorEnv):
     ``s + i`` (or ``seed[i]`` for a list), so it replays a scalar ``TPMAdaptEnv`` reset with that
     seed, including the later episodes of its autoresets. Autoreset mode ``NEXT_STEP``: the step
     after an episode ends resets that sub-env and returns its first observation with reward 0
-    (its action is ignored). Infos are dicts of arrays with ``_key`` masks.
+    (its action is ignored). Infos are dicts of arrays with ``_key`` masks, as Gymnasium's
+    ``SyncVectorEnv`` over :class:`TPMAdaptEnv` gives them: ``reset`` gives the scalar env's
+    reset info (``true_state``, ``tpm``) of the sub-envs it resets; ``step`` the scalar env's
+    step info of the sub-envs that stepped, and for a sub-env that autoresets its new
+    episode's reset info (``true_state``, ``tpm``), its other keys masked False (a key is absent
+    where no sub-env gives it). Entries whose mask is False are meaningless.
 
     ``render_mode="rgb_array"``: ``render()`` returns a tuple of frames, one per sub-env of
     ``render_envs`` (default: all of them, as Gymnasium's vector envs do; ``render_envs=[0]``
@@ -104,7 +109,9 @@ class TPMAdaptVectorEnv(VectorEnv):
         self._autoreset[slots] = False
         if self._renderer is not None:
             self._renderer.start(slots)
-        return self.core.observe(), {}
+        info: dict[str, Any] = {}
+        self._add_reset_info(info, slots, *self._reset_info(slots))
+        return self.core.observe(), info
 
     def step(
         self, actions: NDArray[Any]
@@ -121,9 +128,11 @@ class TPMAdaptVectorEnv(VectorEnv):
                 f"actions must have shape ({self.num_envs}, {self.core.action_dim}), got {a.shape}"
             )
         restart = self._autoreset
-        if restart.any():
+        restarted = np.flatnonzero(restart)
+        if restarted.size:
             self.core.validate_action(a)  # a rejected action must not consume the autoresets
-            self.core.reset(np.flatnonzero(restart), [None] * int(restart.sum()))
+            self.core.reset(restarted, [None] * restarted.size)
+            first = self._reset_info(restarted)
         result = self.core.step(a, active=~restart)
         if self._renderer is not None:
             self._renderer.start(np.flatnonzero(restart))
@@ -136,11 +145,38 @@ class TPMAdaptVectorEnv(VectorEnv):
             truncated[restart] = False
         info: dict[str, Any] = {}
         stepped = ~restart
-        for key, value in result.info.items():
-            info[key] = value
-            info[f"_{key}"] = stepped.copy()
+        if restarted.size < self.num_envs:  # a key only where some sub-env gives it
+            for key, value in result.info.items():
+                info[key] = value
+                info[f"_{key}"] = stepped.copy()
+        if restarted.size:  # the new episodes' reset info, as the scalar env's reset gives it
+            self._add_reset_info(info, restarted, *first)
         self._autoreset = terminated | truncated
         return obs, reward, terminated, truncated, info
+
+    def _reset_info(self, slots: NDArray[np.int64]) -> tuple[NDArray[Any], ...]:
+        """The reset info of the sub-envs ``slots`` just reset, as :meth:`TPMAdaptEnv.reset
+        <imm_gym.envs.tpm_adapt.TPMAdaptEnv.reset>` gives it: the first true state and the TPM
+        (new arrays)."""
+        return self.core.truth[slots, 0], self.core.tpm[slots]
+
+    def _add_reset_info(
+        self,
+        info: dict[str, Any],
+        slots: NDArray[np.int64],
+        true_state: NDArray[np.float64],
+        tpm: NDArray[np.float64],
+    ) -> None:
+        """Put the reset info of the sub-envs ``slots`` into ``info`` (rows ``slots`` of
+        ``true_state`` and ``tpm``, their masks set), as Gymnasium's ``SyncVectorEnv`` adds a
+        sub-env's info: arrays of zeros where a key is new."""
+        N = self.num_envs
+        for key, value in (("true_state", true_state), ("tpm", tpm)):
+            if key not in info:
+                info[key] = np.zeros((N, *value.shape[1:]), dtype=value.dtype)
+                info[f"_{key}"] = np.zeros(N, dtype=bool)
+            info[key][slots] = value
+            info[f"_{key}"][slots] = True
 
     def render(self) -> tuple[NDArray[np.uint8], ...] | None:
         """The pictures of the sub-envs ``render_envs`` (all by default, as Gymnasium's

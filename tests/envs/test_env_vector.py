@@ -22,18 +22,25 @@ INFO_COMPARED = ("true_state", "estimate", "mode_probs", "tpm", "position_error"
 
 
 def lockstep(config: dict, N: int = 4, steps: int = 70, seed: int = 11, low: float = -1.5):
-    """Step a vector env and N scalar envs (seeds seed + i) with the same random actions and
-    compare everything exactly; the scalar env is reset without a seed where the vector env
-    autoresets. Returns the number of autoresets seen."""
+    """Step a vector env, N scalar envs (seeds seed + i) and Gymnasium's SyncVectorEnv over the
+    scalar env with the same random actions and compare everything exactly, infos and their
+    masks included; the scalar env is reset without a seed where the vector env autoresets.
+    Returns the number of autoresets seen."""
     rng = np.random.default_rng(seed)
     actions = rng.uniform(low, -low, (steps, N, 9)).astype(np.float32)
     venv = TPMAdaptVectorEnv(N, config=config)
     envs = [TPMAdaptEnv(config=config) for _ in range(N)]
+    sync = gym.vector.SyncVectorEnv(
+        [lambda: TPMAdaptEnv(config=config)] * N, autoreset_mode=AutoresetMode.NEXT_STEP
+    )
     obs, info = venv.reset(seed=seed)
-    assert info == {}
+    assert_same_info(info, sync.reset(seed=seed)[1])
     for i, env in enumerate(envs):
-        o, _ = env.reset(seed=seed + i)
+        o, inf = env.reset(seed=seed + i)
         np.testing.assert_array_equal(obs[i], o)
+        assert set(inf) == {"true_state", "tpm"}
+        for key in inf:
+            assert info[f"_{key}"][i] and np.array_equal(info[key][i], inf[key])
     done = np.zeros(N, dtype=bool)
     autoresets = 0
     for t in range(steps):
@@ -41,13 +48,16 @@ def lockstep(config: dict, N: int = 4, steps: int = 70, seed: int = 11, low: flo
         assert venv.observation_space.contains(obs)
         assert reward.shape == terminated.shape == truncated.shape == (N,)
         assert terminated.dtype == truncated.dtype == np.bool_
+        assert_same_info(info, sync.step(actions[t])[4])
         for i, env in enumerate(envs):
             if done[i]:
-                o, _ = env.reset()
+                o, inf = env.reset()
                 r, te, tr = 0.0, False, False
                 autoresets += 1
-                for key in INFO_COMPARED:
-                    assert not info[f"_{key}"][i]
+                for key in INFO_COMPARED:  # the new episode's reset info, the step's masked
+                    assert info.get(f"_{key}", np.zeros(N, bool))[i] == (key in inf), key
+                    if key in inf:
+                        assert np.array_equal(info[key][i], inf[key]), (t, i, key)
             else:
                 o, r, te, tr, inf = env.step(actions[t, i])
                 for key in INFO_COMPARED:
@@ -58,6 +68,16 @@ def lockstep(config: dict, N: int = 4, steps: int = 70, seed: int = 11, low: flo
             assert (bool(terminated[i]), bool(truncated[i])) == (te, tr), (t, i)
             done[i] = te or tr
     return autoresets
+
+
+def assert_same_info(info: dict, expected: dict) -> None:
+    """The same keys and masks, and the same entries where a mask is set."""
+    assert set(info) == set(expected)
+    for key in (k for k in expected if not k.startswith("_")):
+        mask = expected[f"_{key}"]
+        np.testing.assert_array_equal(info[f"_{key}"], mask, err_msg=key)
+        assert info[f"_{key}"].dtype == np.bool_
+        np.testing.assert_array_equal(info[key][mask], expected[key][mask], err_msg=key)
 
 
 LOCKSTEP_CONFIGS = {
@@ -115,9 +135,14 @@ def test_vector_reset_mask_resets_only_the_masked_sub_envs() -> None:
         masked.step(actions[t])
         plain.step(actions[t])
     mask = np.array([False, True, False, True])
-    obs, _ = masked.reset(seed=[None, 40, None, 41], options={"reset_mask": mask})
-    fresh, _ = TPMAdaptVectorEnv(N, config=SHORT).reset(seed=[0, 40, 0, 41])
+    obs, info = masked.reset(seed=[None, 40, None, 41], options={"reset_mask": mask})
+    fresh, fresh_info = TPMAdaptVectorEnv(N, config=SHORT).reset(seed=[0, 40, 0, 41])
     np.testing.assert_array_equal(obs[mask], fresh[mask])
+    assert set(info) == {"true_state", "_true_state", "tpm", "_tpm"}
+    for key in ("true_state", "tpm"):  # the reset sub-envs' reset info only
+        np.testing.assert_array_equal(info[f"_{key}"], mask)
+        np.testing.assert_array_equal(info[key][mask], fresh_info[key][mask])
+        assert not info[key][~mask].any()  # zeros, as SyncVectorEnv leaves them
     for t in range(steps, 2 * steps):
         obs, *_ = masked.step(actions[t])
         expected, *_ = plain.step(actions[t])
@@ -133,6 +158,7 @@ def test_vector_reset_mask_resets_only_the_masked_sub_envs() -> None:
 
 
 def test_vector_info_masks_are_false_for_autoreset_sub_envs() -> None:
+    # except for the reset info (true_state, tpm): an autoreset sub-env gives its new episode's
     N = 5
     venv = TPMAdaptVectorEnv(N, config={**SHORT, "divergence_error": 50.0})
     venv.reset(seed=3)
@@ -146,8 +172,11 @@ def test_vector_info_masks_are_false_for_autoreset_sub_envs() -> None:
         for key in data_keys:
             mask = info[f"_{key}"]
             assert mask.dtype == np.bool_ and mask.shape == (N,)
-            np.testing.assert_array_equal(mask, ~pending)
+            reset_key = key in ("true_state", "tpm")
+            np.testing.assert_array_equal(mask, np.ones(N, bool) if reset_key else ~pending)
             assert len(info[key]) == N
+        np.testing.assert_array_equal(info["true_state"][pending], venv.core.truth[pending, 0])
+        np.testing.assert_array_equal(info["tpm"][pending], venv.core.fixed_tpms[pending])
         assert not np.any(reward[pending]) and not np.any((terminated | truncated)[pending])
         # an autoreset sub-env returns its first observation: uniform probabilities
         np.testing.assert_allclose(obs[pending, :6], 1 / 3, rtol=1e-6)
