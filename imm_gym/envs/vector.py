@@ -23,8 +23,11 @@ class TPMAdaptVectorEnv(VectorEnv):
     """N TPM-adaptation episodes in one batched core (see :class:`TPMAdaptEnv` for the MDP).
 
     Sub-env ``i`` owns its random streams: ``reset(seed=s)`` gives sub-env ``i`` the seed
-    ``s + i`` (or ``seed[i]`` for a list), so it replays a scalar ``TPMAdaptEnv`` reset with that
-    seed, including the later episodes of its autoresets. Autoreset mode ``NEXT_STEP``: the step
+    ``s + i`` (or ``seed[i]`` for a sequence of ``num_envs`` seeds, each None or a non-negative
+    integer; None: it continues its streams), so it replays a scalar ``TPMAdaptEnv`` reset with
+    that seed, including the later episodes of its autoresets. Any other seed (a float, a
+    string, a bool, a negative integer, a sequence of another length) raises ``ValueError``
+    naming ``seed`` before any sub-env is reset. Autoreset mode ``NEXT_STEP``: the step
     after an episode ends resets that sub-env and returns its first observation with reward 0
     (its action is ignored). Infos are dicts of arrays with ``_key`` masks, as Gymnasium's
     ``SyncVectorEnv`` over :class:`TPMAdaptEnv` gives them: ``reset`` gives the scalar env's
@@ -94,16 +97,9 @@ class TPMAdaptVectorEnv(VectorEnv):
         seed: int | Sequence[int | None] | None = None,
         options: dict[str, Any] | None = None,
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        super().reset(seed=seed if isinstance(seed, int) or seed is None else None)
+        seeds = _sub_env_seeds(seed, self.num_envs)
+        super().reset(seed=seeds[0] if _is_seed(seed) else None)
         N = self.num_envs
-        if seed is None:
-            seeds: list[int | None] = [None] * N
-        elif isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(N)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != N:
-                raise ValueError(f"seed list must have {N} entries, got {len(seeds)}")
         slots = _masked_slots(options or {}, N)
         self.core.reset(slots, [seeds[i] for i in slots])
         self._autoreset[slots] = False
@@ -195,6 +191,41 @@ class TPMAdaptVectorEnv(VectorEnv):
         renderer = getattr(self, "_renderer", None)
         if renderer is not None:
             renderer.close()
+
+
+def _is_seed(value: Any) -> bool:
+    """An integer seed (a bool is not one); its sign is checked where it is used."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def _sub_env_seeds(seed: Any, num_envs: int) -> list[int | None]:
+    """Each sub-env's seed: None for every one, ``seed + i`` for an integer, or the entries of a
+    sequence of ``num_envs`` seeds (each None or a non-negative integer).
+
+    Raises:
+        ValueError: naming ``seed`` and what it may be.
+    """
+    allowed = (
+        f"None, a non-negative integer (sub-env i gets seed + i) or a sequence of {num_envs} "
+        "seeds, one per sub-env, each None or a non-negative integer"
+    )
+    if seed is None:
+        return [None] * num_envs
+    if _is_seed(seed):
+        if seed < 0:
+            raise ValueError(f"seed must be {allowed}; got {seed!r}")
+        return [int(seed) + i for i in range(num_envs)]
+    if isinstance(seed, (str, bytes)) or not (
+        isinstance(seed, Sequence) or (isinstance(seed, np.ndarray) and seed.ndim == 1)
+    ):
+        raise ValueError(f"seed must be {allowed}; got {seed!r}")
+    seeds = list(seed)
+    if len(seeds) != num_envs:
+        raise ValueError(f"seed must be {allowed}; got a sequence of {len(seeds)} entries")
+    for i, s in enumerate(seeds):
+        if s is not None and not (_is_seed(s) and s >= 0):
+            raise ValueError(f"seed[{i}] must be None or a non-negative integer, got {s!r}")
+    return [None if s is None else int(s) for s in seeds]
 
 
 def _masked_slots(options: Mapping[str, Any], num_envs: int) -> NDArray[np.int64]:

@@ -117,8 +117,20 @@ def test_vector_env_metadata_and_reset_seeds() -> None:
     venv.reset(seed=[9, None, 7])
     np.testing.assert_array_equal(venv.core.truth[0], truth_int[2])
     np.testing.assert_array_equal(venv.core.truth[2], truth_int[0])
-    with pytest.raises(ValueError, match="3 entries"):
+    venv.reset(seed=np.array([9, 8, 7]))  # an array of seeds, numpy integers
+    np.testing.assert_array_equal(venv.core.truth[2], truth_int[0])
+    venv.reset(seed=np.int64(7))
+    np.testing.assert_array_equal(venv.core.truth, truth_int)
+    with pytest.raises(ValueError, match=r"sequence of 3 seeds.*got a sequence of 2 entries"):
         venv.reset(seed=[1, 2])
+    allowed = r"seed must be None, a non-negative integer .* or a sequence of 3 seeds"
+    for bad in (1.5, "abc", True, -1, {1: 2, 3: 4, 5: 6}, np.array(7.0)):
+        with pytest.raises(ValueError, match=allowed):
+            venv.reset(seed=bad)
+    for bad in ([1, 2.0, 3], [1, True, 3], [1, -2, 3], (1, "2", 3)):
+        with pytest.raises(ValueError, match=r"seed\[1\] must be None or a non-negative integer"):
+            venv.reset(seed=bad)
+    np.testing.assert_array_equal(venv.core.truth, truth_int)  # the refused resets did nothing
     with pytest.raises(ValueError, match="num_envs"):
         TPMAdaptVectorEnv(0, config=SHORT)
 
