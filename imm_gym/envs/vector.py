@@ -28,8 +28,11 @@ class TPMAdaptVectorEnv(VectorEnv):
     that seed, including the later episodes of its autoresets. Any other seed (a float, a
     string, a bool, a negative integer, a sequence of another length) raises ``ValueError``
     naming ``seed`` before any sub-env is reset. Autoreset mode ``NEXT_STEP``: the step
-    after an episode ends resets that sub-env and returns its first observation with reward 0
-    (its action is ignored). Infos are dicts of arrays with ``_key`` masks, as Gymnasium's
+    after an episode ends resets that sub-env and returns its first observation with reward 0.
+    Its row of ``actions`` is not applied, whatever finite values it holds, but it is checked
+    with the others (where Gymnasium's ``SyncVectorEnv`` does not look at it): a NaN or inf
+    there raises ``ActionError`` as anywhere, and then no sub-env steps or resets (the autoreset
+    is still due at the next step). Infos are dicts of arrays with ``_key`` masks, as Gymnasium's
     ``SyncVectorEnv`` over :class:`TPMAdaptEnv` gives them: ``reset`` gives the scalar env's
     reset info (``true_state``, ``tpm``) of the sub-envs it resets; ``step`` the scalar env's
     step info of the sub-envs that stepped, and for a sub-env that autoresets its new

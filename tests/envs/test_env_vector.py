@@ -11,6 +11,7 @@ from gymnasium.vector import AutoresetMode
 from imm_gym import EnvConfig
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
+from imm_gym.sim.actions import ActionError
 from imm_gym.sim.env_config import OBS_FEATURES
 
 SHORT = {
@@ -195,6 +196,39 @@ def test_vector_info_masks_are_false_for_autoreset_sub_envs() -> None:
         seen_partial |= bool(pending.any() and not pending.all())
         pending = terminated | truncated
     assert seen_partial
+
+
+def test_an_autoreset_sub_env_s_action_is_checked_not_applied() -> None:
+    # sub-env 0 autoresets at the step, sub-env 1 steps: any finite row 0 gives the same step;
+    # a NaN there is refused and nothing steps or resets
+    config = {**SHORT, "divergence_error": 1.0}  # every episode ends at its first step
+
+    def ready() -> TPMAdaptVectorEnv:
+        venv = TPMAdaptVectorEnv(2, config=config)
+        venv.reset(seed=0)
+        venv.step(np.zeros((2, 9)))
+        venv.reset(seed=[None, 5], options={"reset_mask": np.array([False, True])})
+        return venv
+
+    def step(venv: TPMAdaptVectorEnv, row: np.ndarray) -> tuple:
+        return venv.step(np.stack([row, np.full(9, 0.3)]))
+
+    reference = step(ready(), np.zeros(9))
+    assert not reference[4]["_step"][0] and reference[4]["_step"][1]
+    for row in (np.full(9, 1e6), np.random.default_rng(0).uniform(-1, 1, 9)):
+        got = step(ready(), row)
+        for a, b in zip(got[:4], reference[:4], strict=True):
+            np.testing.assert_array_equal(a, b)
+        assert_same_info(got[4], reference[4])
+    venv = ready()
+    k = venv.core.k.copy()
+    with pytest.raises(ActionError, match="finite"):
+        step(venv, np.full(9, np.nan))
+    np.testing.assert_array_equal(venv.core.k, k)
+    got = step(venv, np.zeros(9))  # the autoreset still due, as if no step had been refused
+    for a, b in zip(got[:4], reference[:4], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert_same_info(got[4], reference[4])
 
 
 def test_vector_env_returns_fresh_arrays() -> None:
