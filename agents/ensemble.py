@@ -140,7 +140,12 @@ def member_paths(path: str | Path) -> list[Path]:
         or not all(isinstance(m, str) and m for m in members)
     ):
         raise ConfigError(f"{file}: members must be a non-empty list of agent directories")
-    paths = [(directory / m).resolve() for m in members]
+    paths = []
+    for m in members:
+        try:
+            paths.append((directory / m).resolve())
+        except (OSError, ValueError, RuntimeError) as err:  # a NUL byte, a loop of symlinks
+            raise ConfigError(f"{file}: member {m!r} is not a path ({err})") from None
     if len(set(paths)) != len(paths):
         raise ConfigError(f"{file}: a member is listed twice: {members}")
     return paths

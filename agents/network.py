@@ -151,11 +151,29 @@ def save_tensors(file: Path, tensors: Mapping[str, torch.Tensor], **metadata: st
     )
 
 
+#: The dtypes a tensor file may hold (each reader then asks for its own): the usual floats and
+#: integers, not the float8 or complex ones, whose numbers cannot be checked.
+TENSOR_DTYPES = (
+    torch.float16,
+    torch.bfloat16,
+    torch.float32,
+    torch.float64,
+    torch.uint8,
+    torch.int8,
+    torch.int16,
+    torch.int32,
+    torch.int64,
+    torch.bool,
+)
+
+
 def load_tensors(file: Path) -> dict[str, torch.Tensor]:
-    """Named tensors from a safetensors ``file``, every floating one finite.
+    """Named tensors from a safetensors ``file``, each of :data:`TENSOR_DTYPES`, every floating
+    one finite.
 
     Raises:
-        ConfigError: the file is missing, truncated or not safetensors, or holds NaN/inf.
+        ConfigError: the file is missing, truncated or not safetensors, holds a tensor of
+            another dtype, or NaN/inf.
     """
     if not file.is_file():
         raise ConfigError(f"{file}: missing")
@@ -164,6 +182,11 @@ def load_tensors(file: Path) -> dict[str, torch.Tensor]:
     except (SafetensorError, OSError, ValueError) as err:
         raise ConfigError(f"{file}: not a readable safetensors file ({err})") from None
     for name, tensor in tensors.items():
+        if tensor.dtype not in TENSOR_DTYPES:
+            raise ConfigError(
+                f"{file}: tensor {name!r} is {tensor.dtype}, not one of "
+                f"{[str(dtype) for dtype in TENSOR_DTYPES]}"
+            )
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
             raise ConfigError(f"{file}: tensor {name!r} holds NaN or infinite values")
     return tensors

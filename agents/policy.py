@@ -291,15 +291,19 @@ def read_json(file: Path) -> dict[str, Any]:
     """A JSON object from ``file``.
 
     Raises:
-        ConfigError: the file is missing, not valid JSON (a key given twice included) or not an
-            object.
+        ConfigError: the file is missing or unreadable (a directory, say), not valid JSON (a
+            key given twice included, or nested too deeply to parse) or not an object.
     """
     try:
         data = json.loads(file.read_text(), object_pairs_hook=unique_keys)
     except FileNotFoundError:
         raise ConfigError(f"{file}: missing") from None
+    except OSError as err:  # a directory, a file it may not read...
+        raise ConfigError(f"{file}: cannot be read ({err.strerror or err})") from None
     except ValueError as err:  # not UTF-8, not JSON, or a key given twice
         raise ConfigError(f"{file}: not valid JSON ({err})") from None
+    except RecursionError:
+        raise ConfigError(f"{file}: not valid JSON (nested too deeply)") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{file}: must hold a JSON object, got {type(data).__name__}")
     return data
@@ -428,23 +432,29 @@ def _check_normalizer(
     arrays = []
     for key in ("mean", "var"):
         value = stats[key]
-        ok = isinstance(value, list) and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
-        )
-        array = np.array(value, dtype=np.float64) if ok else np.empty(0)
-        if not ok or array.shape != (size,) or not np.all(np.isfinite(array)):
+        ok = isinstance(value, list) and all(_finite(v) is not None for v in value)
+        array = np.array([_finite(v) for v in value], dtype=np.float64) if ok else np.empty(0)
+        if not ok or array.shape != (size,):
             raise ConfigError(f"{file}: {key} must be {size} finite numbers")
         arrays.append(array)
     if np.any(arrays[1] < 0):
         raise ConfigError(f"{file}: var must be >= 0")
-    count = stats["count"]
-    if isinstance(count, bool) or not isinstance(count, (int, float)) or not (0 < count < np.inf):
-        raise ConfigError(f"{file}: count must be a positive number, got {count!r}")
     scalars = []
-    for key in ("clip_obs", "epsilon"):
-        value = stats[key]
-        number = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if not number or not (0 < value < np.inf):
-            raise ConfigError(f"{file}: {key} must be a positive number, got {value!r}")
-        scalars.append(float(value))
-    return arrays[0], arrays[1], scalars[0], scalars[1]
+    for key in ("count", "clip_obs", "epsilon"):
+        number = _finite(stats[key])
+        if number is None or number <= 0:
+            raise ConfigError(f"{file}: {key} must be a positive number, got {stats[key]!r}")
+        scalars.append(number)
+    return arrays[0], arrays[1], scalars[1], scalars[2]
+
+
+def _finite(value: Any) -> float | None:
+    """``value`` as a float if it is an int or float (not a boolean) within the finite floats
+    (an integer such as ``10**400`` is beyond them), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if np.isfinite(number) else None

@@ -181,7 +181,7 @@ def check_priors(where: str, priors: Any, config: EnvConfig) -> Array:
     M = len(config.bank)
     try:
         array = np.array(priors, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond floats
         array = np.empty(0)
     if array.ndim != 2 or array.shape[1:] != (2,) or len(array) < 2:
         raise ConfigError(f"{where}: priors must be a list of at least two [stay, share] pairs")

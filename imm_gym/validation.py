@@ -43,7 +43,11 @@ def _real(name: str, value: Any, expected: str) -> float:
         value = value[()]
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise ConfigError(f"{name} must be {expected}, got {value!r} ({type(value).__name__})")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:  # an integer such as 10**400, beyond the floats
+        raise ConfigError(f"{name} must be {expected}, got an integer beyond the floats "
+                          f"({len(str(abs(int(value))))} digits)") from None
 
 
 def check_finite(name: str, value: float) -> float:

@@ -46,6 +46,8 @@ Array = NDArray[np.float64]
 WINDOW = 20
 #: The ``format`` entry of a detector file's header.
 FORMAT = "imm_gym-turn-detector"
+#: The dtypes (safetensors' names) a detector file's tensors may have.
+FLOATS = ("F16", "F32", "F64")
 #: The shipped detector (``EnvConfig.detector_weights=None``).
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "data" / "turn_detector.safetensors"
 #: Entries of a record below this in magnitude are 0 (:func:`step_features`).
@@ -129,7 +131,15 @@ class DetectorNetwork:
         try:
             with safe_open(str(path), framework="np") as f:
                 header = f.metadata() or {}
+                # numpy reads neither bfloat16 nor the float8 types: refused before reading
+                dtypes = {name: f.get_slice(name).get_dtype() for name in f.keys()}
+                other = sorted(name for name, dtype in dtypes.items() if dtype not in FLOATS)
+                if other:
+                    raise ConfigError(f"{where}: tensor {other[0]!r} is {dtypes[other[0]]}, "
+                                      f"not one of {list(FLOATS)}")
                 tensors = {name: f.get_tensor(name) for name in f.keys()}
+        except ConfigError:
+            raise
         except (SafetensorError, OSError, ValueError) as error:
             raise ConfigError(f"{where}: not a safetensors file ({error})") from error
         if header.get("format") != FORMAT:

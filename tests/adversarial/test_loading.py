@@ -285,6 +285,37 @@ def _obs_features(directory: Path) -> None:
     _json("env.json", obs_features=["loglik", "innovation"])(directory)
 
 
+def _float8_weights(directory: Path) -> None:
+    file = directory / "policy.safetensors"
+    tensors = load_file(file)
+    save_file({k: v.to(torch.float8_e4m3fn) if v.is_floating_point() else v
+               for k, v in tensors.items()}, file)
+
+
+def _directory_for(name: str) -> Callable[[Path], None]:
+    def damage(directory: Path) -> None:
+        (directory / name).unlink()
+        (directory / name).mkdir()
+
+    return damage
+
+
+def _detector(dtype: torch.dtype) -> Callable[[Path], None]:
+    """env.json names a detector file (beside it) whose tensors are of ``dtype``."""
+    from safetensors import safe_open
+
+    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+
+    def damage(directory: Path) -> None:
+        with safe_open(str(DEFAULT_WEIGHTS), "pt") as f:
+            tensors = {k: f.get_tensor(k).to(dtype) for k in f.keys()}
+            save_file(tensors, directory / "det.safetensors", metadata=f.metadata())
+        _json("env.json", detector="learned", detector_share=0.5,
+              detector_weights="det.safetensors")(directory)
+
+    return damage
+
+
 @pytest.mark.parametrize(
     ("damage", "message"),
     [
@@ -333,6 +364,19 @@ def _obs_features(directory: Path) -> None:
         (_policy(net_arch={"pi": [8] * 9, "vf": [128]}), "must be a list of at most 8 layer"),
         (_policy(observation_size=10**7), "policy.observation_size must be at most 16384"),
         (_json("agent.json", frame_stack=10**6), r"frame_stack must be an integer in \[1, 64\]"),
+        # refused by name, not with a traceback (OverflowError, NotImplementedError, TypeError,
+        # RecursionError, IsADirectoryError)
+        (_json("env.json", logit_scale=10**400), "env.json: logit_scale must be a real number"),
+        (_json("vecnormalize.json", clip_obs=10**400), "clip_obs must be a positive number"),
+        (_json("vecnormalize.json", count=10**400), "count must be a positive number"),
+        (_json("vecnormalize.json", mean=[10**400] * 55), "vecnormalize.json: mean must be 55"),
+        (_float8_weights, r"policy\.safetensors: tensor '.*' is torch\.float8_e4m3fn, not one"),
+        (_detector(torch.bfloat16), r"env\.json: .*det\.safetensors'.*is BF16, not one of"),
+        (_detector(torch.float8_e5m2), r"env\.json: .*det\.safetensors'.*is F8_E5M2, not one"),
+        (lambda d: (d / "agent.json").write_text("[" * 100_000 + "]" * 100_000),
+         r"agent\.json: not valid JSON \(nested too deeply\)"),
+        (_directory_for("env.json"), r"env\.json: cannot be read \(Is a directory\)"),
+        (_directory_for("vecnormalize.json"), r"vecnormalize\.json: cannot be read"),
     ],
 )
 def test_a_corrupt_or_mismatched_agent_is_one_line_naming_the_file(

@@ -147,6 +147,10 @@ def _edit(directory: Path, **changes: object) -> None:
     [
         (_truncate, f"{TENSORS_FILE}: not a readable safetensors file"),
         (lambda d: (d / "resume.json").write_text("{"), "resume.json: not valid JSON"),
+        (lambda d: (d / "resume.json").write_text("[" * 100_000 + "]" * 100_000),
+         r"resume.json: not valid JSON \(nested too deeply\)"),
+        (lambda d: _tensors(d, lambda t: t.__setitem__("rng/torch", torch.zeros(2).to(
+            torch.float8_e5m2))), f"{TENSORS_FILE}: tensor 'rng/torch' is torch.float8_e5m2"),
         (lambda d: _edit(d, seed=-1), "seed must be a non-negative integer"),
         (lambda d: _edit(d, format=2), "format 2 is not 1"),
         (lambda d: _edit(d, surprise=1), "resume.json: keys must be"),

@@ -93,13 +93,26 @@ def test_the_evaluation_takes_an_ensemble_as_a_policy(members, tmp_path) -> None
         ({"format": "imm_gym-ensemble", "members": ["a"], "weights": [1]}, "unknown keys"),
         ({"format": "imm_gym-ensemble", "members": ["nowhere"]},
          "member 'nowhere': no trained agent there"),
+        ({"format": "imm_gym-ensemble", "members": ["se\u0000ed"]},
+         "member 'se\\x00ed' is not a path (embedded null byte)"),
+        ({"format": "imm_gym-ensemble", "members": ["a"]}, "member 'a' is not a path"),
     ],
 )
 def test_a_malformed_ensemble_is_refused_naming_the_file(data, message, tmp_path) -> None:
     directory = write(tmp_path / "e", data)
+    (directory / "a").symlink_to("b")  # a loop of symbolic links
+    (directory / "b").symlink_to("a")
     with pytest.raises(ConfigError) as err:
         load_ensemble(directory)
     assert message in str(err.value) and ENSEMBLE_FILE in str(err.value)
+
+
+def test_an_ensemble_file_nested_too_deeply_is_refused_naming_it(tmp_path) -> None:
+    directory = tmp_path / "e"
+    directory.mkdir()
+    (directory / ENSEMBLE_FILE).write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ConfigError, match=r"ensemble\.json: not valid JSON \(nested too deep"):
+        load_policy(directory)
 
 
 def test_members_must_read_and_write_alike(members, tmp_path) -> None:

@@ -159,6 +159,7 @@ def write_selector(tmp_path: Path, **changes: Any) -> Path:
     ({"priors": [[0.5, 0.25], [0.9, 0.25]]}, "every share must be the environment's"),
     ({"priors": [[0.5, 1.5], [0.9, 0.75]]}, "every share must be in [0, 1]"),
     ({"priors": [[0.5, 0.75]]}, "at least two [stay, share] pairs"),
+    ({"priors": [[10**400, 0.75], [0.9, 0.75]]}, "at least two [stay, share] pairs"),
     ({"trained_across": [{"bank": [{"kind": "spiral"}]}]}, "trained_across: bank[0]"),
 ])
 def test_malformed_selectors_are_refused_naming_the_file(
@@ -187,6 +188,15 @@ def test_a_member_of_nan_or_other_dtype_is_refused(
     with pytest.raises(ConfigError) as err:
         load_selector(directory)
     assert message in str(err.value)
+
+
+def test_a_member_of_float8_is_refused_naming_it(tmp_path: Path) -> None:
+    """torch checks no float8 number for NaN (NotImplementedError): refused by its dtype."""
+    directory = write_selector(tmp_path)
+    file = directory / "net_0.safetensors"
+    save_file({k: v.to(torch.float8_e4m3fn) for k, v in load_file(file).items()}, file)
+    with pytest.raises(ConfigError, match=r"net_0\.safetensors: tensor .* is torch\.float8"):
+        load_selector(directory)
 
 
 def test_an_environment_without_features_is_refused_by_name(tmp_path: Path) -> None:
