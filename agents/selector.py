@@ -176,15 +176,23 @@ def combine(selectors: Sequence[StaySelector]) -> StaySelector:
 
 def check_priors(where: str, priors: Any, config: EnvConfig) -> Array:
     """``priors`` as a ``(P, 2)`` array after checking it against the environment ``config``:
-    stays in ``[1/M, 1)``, shares in ``[0, 1]``; in ``stay`` mode at ``stay_base: uniform``,
-    every share the environment's ``detector_share``."""
+    numbers (a string such as ``"0.6"`` or a boolean is refused, not read as one), stays in
+    ``[1/M, 1)``, shares in ``[0, 1]``; in ``stay`` mode at ``stay_base: uniform``, every share
+    the environment's ``detector_share``."""
     M = len(config.bank)
+    rows = priors.tolist() if isinstance(priors, np.ndarray) else priors
+    numbers = isinstance(rows, (list, tuple)) and all(
+        isinstance(row, (list, tuple))
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+        for row in rows
+    )
     try:
-        array = np.array(priors, dtype=np.float64)
+        array = np.array(rows, dtype=np.float64) if numbers else np.empty(0)
     except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond floats
         array = np.empty(0)
     if array.ndim != 2 or array.shape[1:] != (2,) or len(array) < 2:
-        raise ConfigError(f"{where}: priors must be a list of at least two [stay, share] pairs")
+        raise ConfigError(f"{where}: priors must be a list of at least two [stay, share] pairs "
+                          f"of numbers, got {priors!r:.200}")
     s, v = array.T
     if not (np.all(s >= 1.0 / M - 1e-12) and np.all(s < 1.0)):
         raise ConfigError(f"{where}: every stay must be in [1/{M}, 1), got {s.tolist()}")

@@ -160,6 +160,8 @@ def write_selector(tmp_path: Path, **changes: Any) -> Path:
     ({"priors": [[0.5, 1.5], [0.9, 0.75]]}, "every share must be in [0, 1]"),
     ({"priors": [[0.5, 0.75]]}, "at least two [stay, share] pairs"),
     ({"priors": [[10**400, 0.75], [0.9, 0.75]]}, "at least two [stay, share] pairs"),
+    ({"priors": [["0.6", "0.75"], ["0.9", "0.75"]]}, "[stay, share] pairs of numbers"),
+    ({"priors": [[0.6, 0.75], [True, 0.75]]}, "[stay, share] pairs of numbers"),
     ({"trained_across": [{"bank": [{"kind": "spiral"}]}]}, "trained_across: bank[0]"),
 ])
 def test_malformed_selectors_are_refused_naming_the_file(
