@@ -199,7 +199,8 @@ def check_spec(where: str, spec: Any) -> dict[str, Any]:
     """An agent's network description (``agent.json``'s ``"policy"``), checked.
 
     Raises:
-        ConfigError: not a mapping, an unknown class or key, a missing size, a wrong kind.
+        ConfigError: not a mapping, an unknown class or key, a missing size or activation, a
+            wrong kind.
     """
     if not isinstance(spec, Mapping):
         raise ConfigError(f"{where} must be a mapping, got {spec!r}")
@@ -209,7 +210,9 @@ def check_spec(where: str, spec: Any) -> dict[str, Any]:
     unknown = sorted(set(spec) - {"class", *_COMMON_KEYS, *_CLASS_KEYS[name]})
     if unknown:
         raise ConfigError(f"{where}: unknown keys {unknown} for a {name}")
-    missing = [k for k in ("observation_size", "action_size", *_CLASS_KEYS[name]) if k not in spec]
+    # the activation too: SB3's default (tanh) is not necessarily the one it was trained with
+    required = ("observation_size", "action_size", "activation_fn", *_CLASS_KEYS[name])
+    missing = [k for k in required if k not in spec]
     if missing:
         raise ConfigError(f"{where}: missing {missing}")
     checks = {**POLICY_KWARGS, **SPEC_FIELDS}

@@ -250,6 +250,14 @@ def _policy(**changes: object) -> Callable[[Path], None]:
     return damage
 
 
+def _without_activation(directory: Path) -> None:
+    """agent.json's network description without its activation (SB3's default is tanh)."""
+    path = directory / "agent.json"
+    data = json.loads(path.read_text())
+    del data["policy"]["activation_fn"]
+    path.write_text(json.dumps(data))
+
+
 def _truncate(directory: Path) -> None:
     file = directory / "policy.safetensors"
     file.write_bytes(file.read_bytes()[: file.stat().st_size // 2])
@@ -356,6 +364,7 @@ def _detector(dtype: torch.dtype) -> Callable[[Path], None]:
         (_json("vecnormalize.json", var=[-1.0] * 55), "vecnormalize.json: var must be >= 0"),
         (_json("vecnormalize.json", epsilon=None), "vecnormalize.json: keys must be"),
         (_policy(activation_fn="os.system"), r"policy.activation_fn must be one of \['tanh'"),
+        (_without_activation, r"agent\.json: policy: missing \['activation_fn'\]"),
         (_policy(**{"class": "builtins.eval"}), "policy.class must be one of"),
         (_policy(net_arch={"pi": [64], "vf": [128, 128]}), r"missing \[.*policy_net\.2"),
         (_policy(lstm_hidden_size=64), "unknown keys \\['lstm_hidden_size'\\]"),
