@@ -23,6 +23,7 @@ SB3's ``VecFrameStack(VecNormalize(env))``), so a model runs through
 from __future__ import annotations
 
 import json
+import stat
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -53,6 +54,9 @@ AGENT_KEYS = (
 MAX_FRAMES, MAX_CRITIC_DIMS = 64, 1024
 #: The keys of ``vecnormalize.json``.
 NORMALIZER_KEYS = ("mean", "var", "count", "clip_obs", "epsilon")
+#: The largest JSON file of an agent, ensemble, selector or checkpoint read (a checkpoint's
+#: ``resume.json`` holds some 10 KiB and 350 bytes a training slot).
+MAX_JSON_BYTES = 16 * 2**20
 
 
 class LearnedPolicy:
@@ -291,15 +295,30 @@ def read_json(file: Path) -> dict[str, Any]:
     """A JSON object from ``file``.
 
     Raises:
-        ConfigError: the file is missing or unreadable (a directory, say), not valid JSON (a
-            key given twice included, or nested too deeply to parse) or not an object.
+        ConfigError: the file is missing, unreadable, not a regular file (a directory, a
+            device such as ``/dev/zero``, a FIFO: read without end or waiting for a writer),
+            larger than :data:`MAX_JSON_BYTES`, not valid JSON (a key given twice included, or
+            nested too deeply to parse) or not an object.
     """
     try:
-        data = json.loads(file.read_text(), object_pairs_hook=unique_keys)
+        info = file.stat()  # before opening it: opening a FIFO waits for a writer
+        if not stat.S_ISREG(info.st_mode):
+            raise ConfigError(f"{file}: not a regular file")
+        if info.st_size > MAX_JSON_BYTES:
+            raise ConfigError(f"{file}: {info.st_size} bytes, more than the {MAX_JSON_BYTES} a "
+                              "data file of an agent may hold")
+        with file.open("rb") as stream:
+            raw = stream.read(MAX_JSON_BYTES + 1)  # whatever it grew to since
+        if len(raw) > MAX_JSON_BYTES:
+            raise ConfigError(f"{file}: more than the {MAX_JSON_BYTES} bytes a data file of an "
+                              "agent may hold")
+        data = json.loads(raw.decode("utf-8"), object_pairs_hook=unique_keys)
     except FileNotFoundError:
         raise ConfigError(f"{file}: missing") from None
-    except OSError as err:  # a directory, a file it may not read...
+    except OSError as err:  # a loop of symlinks, a file it may not read...
         raise ConfigError(f"{file}: cannot be read ({err.strerror or err})") from None
+    except ConfigError:
+        raise
     except ValueError as err:  # not UTF-8, not JSON, or a key given twice
         raise ConfigError(f"{file}: not valid JSON ({err})") from None
     except RecursionError:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import os
 import pickle
 import shutil
 import zipfile
@@ -308,6 +309,22 @@ def _directory_for(name: str) -> Callable[[Path], None]:
     return damage
 
 
+def _link_to(name: str, target: str) -> Callable[[Path], None]:
+    def damage(directory: Path) -> None:
+        (directory / name).unlink()
+        (directory / name).symlink_to(target)
+
+    return damage
+
+
+def _fifo_for(name: str) -> Callable[[Path], None]:
+    def damage(directory: Path) -> None:
+        (directory / name).unlink()
+        os.mkfifo(directory / name)
+
+    return damage
+
+
 def _detector(dtype: torch.dtype) -> Callable[[Path], None]:
     """env.json names a detector file (beside it) whose tensors are of ``dtype``."""
     from safetensors import safe_open
@@ -384,8 +401,13 @@ def _detector(dtype: torch.dtype) -> Callable[[Path], None]:
         (_detector(torch.float8_e5m2), r"env\.json: .*det\.safetensors'.*is F8_E5M2, not one"),
         (lambda d: (d / "agent.json").write_text("[" * 100_000 + "]" * 100_000),
          r"agent\.json: not valid JSON \(nested too deeply\)"),
-        (_directory_for("env.json"), r"env\.json: cannot be read \(Is a directory\)"),
-        (_directory_for("vecnormalize.json"), r"vecnormalize\.json: cannot be read"),
+        (_directory_for("env.json"), r"env\.json: not a regular file"),
+        (_directory_for("vecnormalize.json"), r"vecnormalize\.json: not a regular file"),
+        # read without end, or waiting for a writer
+        (_link_to("vecnormalize.json", "/dev/zero"), r"vecnormalize\.json: not a regular file"),
+        (_fifo_for("env.json"), r"env\.json: not a regular file"),
+        (_json("env.json", logit_scale=3.0, padding=" " * (16 * 2**20)),
+         r"env\.json: \d+ bytes, more than the 16777216"),
     ],
 )
 def test_a_corrupt_or_mismatched_agent_is_one_line_naming_the_file(
