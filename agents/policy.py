@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.sim.config_file import tracker_of
+from imm_gym.sim.config_file import TRACKER_FIELDS, tracker_of
 from imm_gym.validation import ConfigError, unique_keys
 
 ALGOS = ("ppo", "recurrent-ppo")
@@ -77,6 +77,7 @@ class LearnedPolicy:
             ``env_overrides``.
         spec: the network's description (:func:`agents.network.policy_spec`), which
             :meth:`for_models` rebuilds a network shared by the models from.
+        directory: the agent's directory, if it was loaded from one (messages name its files).
     """
 
     name = "learned"
@@ -95,8 +96,10 @@ class LearnedPolicy:
         source: str = "the agent",
         trained_across: Sequence[dict[str, Any]] = (),
         spec: dict[str, Any] | None = None,
+        directory: Path | None = None,
     ) -> None:
         self.model = model
+        self.directory = directory
         self.spec = spec
         self.env_overrides = env_overrides
         self.obs_mean, self.obs_var = obs_mean, obs_var
@@ -140,9 +143,15 @@ class LearnedPolicy:
         model.load_state_dict(refit_state(self.model.state_dict(), model.state_dict()))
         mean, var = self.obs_mean, self.obs_var
         if mean is not None and var is not None:
-            mean, var = refit_normalizer(
-                mean, var, features, dim_z, trained, n_models, bool(self.critic_dims)
-            )
+            try:
+                mean, var = refit_normalizer(
+                    mean, var, features, dim_z, trained, n_models, bool(self.critic_dims)
+                )
+            except ConfigError as err:
+                where = self.source if self.directory is None else self.directory / NORMALIZER_FILE
+                raise ConfigError(
+                    f"{where}: {err}, so the agent cannot act on a bank of {n_models} models"
+                ) from None
         return LearnedPolicy(
             model,
             self.env_overrides,
@@ -155,6 +164,7 @@ class LearnedPolicy:
             source=f"{self.source} (for {n_models} models)",
             trained_across=self.trained_across,
             spec=spec,
+            directory=self.directory,
         )
 
     def normalize(self, obs: NDArray[Any]) -> NDArray[np.float32]:
@@ -278,6 +288,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
         source=f"agent {str(directory)!r}",
         trained_across=meta.get("trained_across", ()),
         spec=spec,
+        directory=directory,
     )
 
 
@@ -385,14 +396,25 @@ def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(
             f"{file}: swa must map swa_start and snapshots to integers >= 0, got {swa!r}"
         )
-    across = meta.get("trained_across", [])
+    out["trained_across"] = read_trackers(file, meta.get("trained_across", []))
+    return out
+
+
+def read_trackers(file: Path, across: Any) -> list[dict[str, Any]]:
+    """``trained_across`` of ``file``: a list of trackers, each a mapping of
+    :data:`~imm_gym.sim.config_file.TRACKER_FIELDS` (another key, a misspelt ``filtr`` say, is
+    refused: the tracker's default would be recorded in its place), read whole."""
     if not isinstance(across, list) or not all(isinstance(t, dict) for t in across):
         raise ConfigError(f"{file}: trained_across must be a list of trackers, got {across!r}")
+    for i, tracker in enumerate(across):
+        unknown = sorted(set(tracker) - set(TRACKER_FIELDS))
+        if unknown:
+            raise ConfigError(f"{file}: trained_across[{i}]: unknown keys {unknown}; a tracker "
+                              f"has {list(TRACKER_FIELDS)}")
     try:
-        out["trained_across"] = [tracker_of(t) for t in across]
+        return [tracker_of(t) for t in across]
     except ConfigError as err:
         raise ConfigError(f"{file}: trained_across: {err}") from None
-    return out
 
 
 def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:

@@ -44,9 +44,8 @@ from numpy.typing import NDArray
 from safetensors.torch import save_file
 
 from agents.network import load_tensors
-from agents.policy import ENV_FILE, read_env_file, read_manifest, write_env_file
+from agents.policy import ENV_FILE, read_env_file, read_manifest, read_trackers, write_env_file
 from agents.schema import MAX_WIDTH
-from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows
 from imm_gym.tracking.tpm import apply_floor
@@ -244,15 +243,7 @@ def load_selector(path: str | Path) -> StaySelector:
             or len(set(members)) != len(members)):
         raise ConfigError(f"{file}: members must be a non-empty list of distinct file names "
                           f"in the selector's directory")
-    trained_across = data.get("trained_across", [])
-    if not isinstance(trained_across, list) or not all(
-        isinstance(t, dict) for t in trained_across
-    ):
-        raise ConfigError(f"{file}: trained_across must be a list of trackers (objects)")
-    try:
-        trained_across = [tracker_of(t) for t in trained_across]
-    except ConfigError as err:
-        raise ConfigError(f"{file}: trained_across: {err}") from None
+    trained_across = read_trackers(file, data.get("trained_across", []))
     env, obs_size, _ = read_env_file(directory / ENV_FILE, None)
     # the priors and the environment checked first, the members' tensors loaded into it
     selector = StaySelector([], data.get("priors"), env, obs_size, f"selector {str(file)!r}",
@@ -268,9 +259,10 @@ def load_selector(path: str | Path) -> StaySelector:
         try:
             net.load_state_dict(tensors)
         except Exception as err:  # torch's errors: a misshapen file
+            detail = " ".join(str(err).split())  # torch's message is several lines
             raise ConfigError(f"{file}: member {member!r} does not fit an observation of "
                               f"{obs_size} entries and {len(selector.priors)} priors "
-                              f"({err})") from None
+                              f"({detail})") from None
         selector.nets.append(net.eval())
     return selector
 

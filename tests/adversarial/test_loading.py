@@ -369,6 +369,10 @@ def _detector(dtype: torch.dtype) -> Callable[[Path], None]:
             _json("agent.json", trained_across=[{"filter": "pf"}]),
             "agent.json: trained_across: .*filter",
         ),
+        (
+            _json("agent.json", trained_across=[{"filtr": "ekf"}]),
+            r"agent\.json: trained_across\[0\]: unknown keys \['filtr'\]",
+        ),
         (_json("agent.json", frame_stack=2), "critic_dims/frame_stack differ from the agent's"),
         (_json("agent.json", critic_dims=0), r"needs one of \['MlpPolicy', 'PerModelPolicy'\]"),
         (_json("env.json", sigma_r=50.0), r"env\.json: EnvConfig: unknown key\(s\) \['sigma_r'\]"),

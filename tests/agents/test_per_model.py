@@ -5,6 +5,7 @@ bank of any size, and its normalizer's statistics are those of the models' poole
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -211,6 +212,27 @@ def test_the_normalizer_keeps_the_models_pooled_statistics() -> None:
     untied[per_model[0, 0]] += 1.0
     with pytest.raises(ConfigError, match="not shared by the models"):
         refit_normalizer(untied, rms.var, FEATURES_READ, DIM_Z, M, 2, critic=True)
+
+
+def test_untied_statistics_are_refused_naming_the_agent_s_normalizer(tmp_path) -> None:
+    """An agent of the shipped per-model policy whose normalizer's statistics differ between
+    the models cannot be carried to another bank: the message names its vecnormalize.json."""
+    import shutil
+
+    from agents import PRETRAINED_PER_MODEL
+    from agents.ensemble import member_paths
+
+    agent = shutil.copytree(member_paths(PRETRAINED_PER_MODEL)[0], tmp_path / "agent")
+    meta = json.loads((agent / "agent.json").read_text())
+    spec = meta["policy"]
+    per_model, _ = frame_groups(spec["obs_features"], 3, spec["dim_z"], bool(meta["critic_dims"]))
+    stats = json.loads((agent / "vecnormalize.json").read_text())
+    stats["mean"][int(per_model[0, 0])] += 1.0
+    (agent / "vecnormalize.json").write_text(json.dumps(stats))
+    policy = load_agent(agent)
+    message = f"{agent / 'vecnormalize.json'}: the normalizer's statistics are not shared"
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        policy.for_models(5)
 
 
 def test_a_description_without_its_layout_is_refused() -> None:

@@ -163,6 +163,7 @@ def write_selector(tmp_path: Path, **changes: Any) -> Path:
     ({"priors": [["0.6", "0.75"], ["0.9", "0.75"]]}, "[stay, share] pairs of numbers"),
     ({"priors": [[0.6, 0.75], [True, 0.75]]}, "[stay, share] pairs of numbers"),
     ({"trained_across": [{"bank": [{"kind": "spiral"}]}]}, "trained_across: bank[0]"),
+    ({"trained_across": [{"snsor": {}}]}, "trained_across[0]: unknown keys ['snsor']"),
 ])
 def test_malformed_selectors_are_refused_naming_the_file(
     tmp_path: Path, changes: dict[str, Any], message: str
@@ -171,6 +172,7 @@ def test_malformed_selectors_are_refused_naming_the_file(
     with pytest.raises(ConfigError, match=r"selector\.json") as err:
         load_selector(directory)
     assert message in str(err.value)
+    assert "\n" not in str(err.value)  # one line (torch's own messages are several)
 
 
 @pytest.mark.parametrize(("value", "message"), [
