@@ -91,33 +91,35 @@ def render_seeds(summary: Mapping[str, Any]) -> None:
     """Print the aggregate of :func:`across_seeds` (one scenario, ``{"scenarios": ...}`` absent)
     or :func:`suite_across_seeds` as a table with rich."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     scenarios = summary.get("scenarios") or {"": summary}
     n = len(summary["seeds"])
     console = Console(width=None if sys.stdout.isatty() else 150)
+    # text in square brackets is rich markup: escaped, or '[stratified ...]' (a tag) is dropped
     table = Table(
-        title=f"Over {n} training seeds: interquartile mean [stratified bootstrap 95% CI]"
+        title=escape(f"Over {n} training seeds: interquartile mean [stratified bootstrap 95% CI]")
     )
     for col in ("scenario", "pos ARMSE (m)", "mode acc.", "Δ vs reference"):
         table.add_column(col, justify="left" if col == "scenario" else "right")
     for name, s in scenarios.items():
         a, m, r = s["armse_pos"], s["mode_accuracy"], s["relative_vs_reference"]
         table.add_row(
-            name or "—",
+            escape(name or "—"),
             f"{a['iqm']:.2f} [{a['low']:.2f}, {a['high']:.2f}]",
             f"{100 * m['iqm']:.1f}% [{100 * m['low']:.1f}, {100 * m['high']:.1f}]",
             f"{100 * r['iqm']:+.2f}% [{100 * r['low']:+.2f}, {100 * r['high']:+.2f}] "
-            f"({s['reference']})",
+            f"({escape(s['reference'])})",
         )
     pooled = summary.get("relative_vs_reference") if "scenarios" in summary else None
     if pooled is not None:
         table.caption = (
-            f"all scenarios, relative Δ vs the reference, {summary['reference']}: "
+            f"all scenarios, relative Δ vs the reference, {escape(summary['reference'])}: "
             f"{100 * pooled['iqm']:+.2f}% [{100 * pooled['low']:+.2f}, {100 * pooled['high']:+.2f}]"
         )
         if summary.get("not_run"):
-            table.caption += f"; not run on {', '.join(summary['not_run'])}"
+            table.caption += f"; not run on {escape(', '.join(summary['not_run']))}"
     console.print(table)
     console.print(
         f"Stratified bootstrap: {IQM_RESAMPLES} resamples of the seeds within each scenario, "

@@ -138,3 +138,19 @@ def test_the_seeds_are_not_their_own_reference(tmp_path, capsys, extra, message)
     with pytest.raises(SystemExit):
         main([*argv, "--scenario", "paper", "--runs", "2"])
     assert message in capsys.readouterr().err
+
+
+def test_the_table_prints_its_bracketed_text(capsys) -> None:
+    """Square brackets are rich markup: the title's '[stratified bootstrap 95% CI]' and a
+    scenario or reference name in brackets are printed, not read as tags and dropped."""
+    results = {
+        "scenarios": {
+            "[odd]": _result({"[ref]": 10.0, "a": 9.0, "b": 9.5}, ref="[ref]"),
+            "hard": _result({"[ref]": 50.0, "a": 55.0, "b": 60.0}, ref="[ref]"),
+        }
+    }
+    render_seeds(suite_across_seeds(results, ["a", "b"]))
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "Over 2 training seeds: interquartile mean [stratified bootstrap 95% CI]" in printed
+    assert "[odd]" in printed and "([ref])" in printed
+    assert "relative Δ vs the reference, [ref]:" in printed
