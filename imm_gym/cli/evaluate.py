@@ -234,6 +234,8 @@ def evaluate(
     base = evaluated_config(scenario, env_config, bank)
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {list(policies)}")
+    if reference is not None and reference not in [*(extra or {}), *policies]:
+        raise ConfigError(f"--reference {reference!r} is not among the evaluated policies")
     agents = {
         name: (for_bank(p, len(base.bank)), o, {}) for name, (p, o) in (extra or {}).items()
     }
@@ -267,8 +269,6 @@ def evaluate(
         results["policies"][name] = {**score(rollouts[name]), **notes}
     bar.close()
     ref = reference or ("fixed" if "fixed" in rollouts else next(iter(rollouts)))
-    if ref not in rollouts:
-        raise ConfigError(f"--reference {ref!r} is not among the evaluated policies")
     results["paired"] = {
         "reference": ref,
         "differences": {

@@ -11,6 +11,7 @@ from baselines import REGISTRY, BuildContext, FixedTPM, register
 from imm_gym.cli.evaluate import evaluate, main
 from imm_gym.evaluation.rollout import evaluation_config, rollout, score
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.validation import ConfigError
 
 
 def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:
@@ -147,6 +148,19 @@ def test_cli_rejects_bad_arguments(argv, message, capsys) -> None:
         main([*argv, "--quiet"])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_reference_not_evaluated_is_refused_before_any_work(monkeypatch) -> None:
+    """A --reference that is not among the policies is refused before a policy is tuned or
+    rolled out (it was refused after every roll-out)."""
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work done before the reference was checked")
+
+    monkeypatch.setattr("imm_gym.cli.evaluate.make_policy", no_work)
+    monkeypatch.setattr("imm_gym.cli.evaluate.rollout", no_work)
+    with pytest.raises(ConfigError, match="--reference 'tip-imm' is not among the evaluated"):
+        evaluate(["fixed", "best-fixed"], "paper", 200, 0, reference="tip-imm")
 
 
 @pytest.fixture
