@@ -174,7 +174,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         core.reset(np.array([0]), [seed])
         if self._solo is not None:
             self._solo.load(core)
-        info = {"true_state": core.truth[0, 0].copy(), "tpm": core.tpm[0].copy()}
+        info = {key: value[0] for key, value in core.reset_info(np.array([0])).items()}
         if self._renderer is not None:
             self._renderer.start(np.array([0]))
             if self.render_mode == "human":

@@ -109,7 +109,7 @@ class TPMAdaptVectorEnv(VectorEnv):
         if self._renderer is not None:
             self._renderer.start(slots)
         info: dict[str, Any] = {}
-        self._add_reset_info(info, slots, *self._reset_info(slots))
+        self._add_reset_info(info, slots, self.core.reset_info(slots))
         return self.core.observe(), info
 
     def step(
@@ -131,7 +131,7 @@ class TPMAdaptVectorEnv(VectorEnv):
         if restarted.size:
             self.core.validate_action(a)  # a rejected action must not consume the autoresets
             self.core.reset(restarted, [None] * restarted.size)
-            first = self._reset_info(restarted)
+            first = self.core.reset_info(restarted)
         result = self.core.step(a, active=~restart)
         if self._renderer is not None:
             self._renderer.start(np.flatnonzero(restart))
@@ -149,28 +149,20 @@ class TPMAdaptVectorEnv(VectorEnv):
                 info[key] = value
                 info[f"_{key}"] = stepped.copy()
         if restarted.size:  # the new episodes' reset info, as the scalar env's reset gives it
-            self._add_reset_info(info, restarted, *first)
+            self._add_reset_info(info, restarted, first)
         self._autoreset = terminated | truncated
         return obs, reward, terminated, truncated, info
 
-    def _reset_info(self, slots: NDArray[np.int64]) -> tuple[NDArray[Any], ...]:
-        """The reset info of the sub-envs ``slots`` just reset, as :meth:`TPMAdaptEnv.reset
-        <imm_gym.envs.tpm_adapt.TPMAdaptEnv.reset>` gives it: the first true state and the TPM
-        (new arrays)."""
-        return self.core.truth[slots, 0], self.core.tpm[slots]
-
     def _add_reset_info(
-        self,
-        info: dict[str, Any],
-        slots: NDArray[np.int64],
-        true_state: NDArray[np.float64],
-        tpm: NDArray[np.float64],
+        self, info: dict[str, Any], slots: NDArray[np.int64], first: dict[str, NDArray[Any]]
     ) -> None:
-        """Put the reset info of the sub-envs ``slots`` into ``info`` (rows ``slots`` of
-        ``true_state`` and ``tpm``, their masks set), as Gymnasium's ``SyncVectorEnv`` adds a
-        sub-env's info: arrays of zeros where a key is new."""
+        """Put the reset info ``first`` of the sub-envs ``slots`` (the core's
+        :meth:`~imm_gym.sim.core.TrackingCore.reset_info`, what :meth:`TPMAdaptEnv.reset
+        <imm_gym.envs.tpm_adapt.TPMAdaptEnv.reset>` gives) into ``info``, their masks set, as
+        Gymnasium's ``SyncVectorEnv`` adds a sub-env's info: arrays of zeros where a key is
+        new."""
         N = self.num_envs
-        for key, value in (("true_state", true_state), ("tpm", tpm)):
+        for key, value in first.items():
             if key not in info:
                 info[key] = np.zeros((N, *value.shape[1:]), dtype=value.dtype)
                 info[f"_{key}"] = np.zeros(N, dtype=bool)

@@ -326,6 +326,12 @@ class TrackingCore:
                 self._configured_tpms[i] = self.config.initial_tpm(T)
                 self.shadow_tpms[i] = self.config.shadow_tpm(T)
 
+    def reset_info(self, indices: NDArray[np.int64]) -> dict[str, Array]:
+        """The reset info of the slots ``indices`` (new arrays, a row per slot): ``true_state``,
+        each episode's first true state, and ``tpm``, the TPM it starts from."""
+        indices = np.asarray(indices, dtype=np.int64)
+        return {"true_state": self.truth[indices, 0], "tpm": self.tpm[indices]}
+
     def streams(self) -> list[tuple[np.random.Generator, np.random.Generator] | None]:
         """Each slot's ``(scenario, noise)`` generators (None for a slot never reset): the
         sequence of episodes a slot reset without a seed continues (what a checkpoint records)."""

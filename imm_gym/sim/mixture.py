@@ -184,6 +184,18 @@ class MixtureCore:
                 chosen = [s for s, m in zip(seeds, mine, strict=True) if m]
                 core.reset(indices[mine] - self.starts[p], chosen)
 
+    def reset_info(self, indices: NDArray[np.int64]) -> dict[str, NDArray[Any]]:
+        """:meth:`TrackingCore.reset_info` of the slots ``indices``, each row by its part."""
+        indices = np.asarray(indices, dtype=np.int64)
+        info: dict[str, NDArray[Any]] = {}
+        for p, (core, mine) in enumerate(self._parts(indices)):
+            if np.count_nonzero(mine):
+                for key, value in core.reset_info(indices[mine] - self.starts[p]).items():
+                    if key not in info:
+                        info[key] = np.zeros((indices.size, *value.shape[1:]), value.dtype)
+                    info[key][mine] = value
+        return info
+
     def validate_action(self, action: NDArray[Any]) -> NDArray[Any]:
         """``action`` checked as a whole (shape ``(N, action_dim)``, finite), then each part's
         :meth:`TrackingCore.validate_action` on its slots' actions."""

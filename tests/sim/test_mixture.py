@@ -113,6 +113,21 @@ def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
         MixtureCore([PAPER, two], [0.5, 0.5], 4)
 
 
+def test_the_reset_info_is_each_slot_s_by_its_part() -> None:
+    # what the vector env's reset and autoreset give (a runner's env may hold a mixture)
+    mixture = MixtureCore([PAPER, SCALED], [0.4, 0.6], 5)
+    alone = [TrackingCore(PAPER, 2), TrackingCore(SCALED, 3)]
+    mixture.reset(np.arange(5), [11, 12, 13, 14, 15])
+    alone[0].reset(np.arange(2), [11, 12])
+    alone[1].reset(np.arange(3), [13, 14, 15])
+    indices = np.array([4, 0, 2])
+    got = mixture.reset_info(indices)
+    expected = [alone[1].reset_info([2]), alone[0].reset_info([0]), alone[1].reset_info([0])]
+    assert set(got) == {"true_state", "tpm"}
+    for key in got:
+        np.testing.assert_array_equal(got[key], np.concatenate([e[key] for e in expected]))
+
+
 def test_a_rejected_step_leaves_every_part_as_it_was() -> None:
     # the whole step is checked before the first part steps: a NaN in the last part's slots,
     # a row too many, an ended episode in the last part
