@@ -14,9 +14,12 @@ probabilities and the TPM used. ``--policy`` is a baseline's name, ``pretrained`
 simulated runs of the configuration, seeds from ``--seed``).
 ``--env-config FILE`` (YAML or JSON, :mod:`imm_gym.sim.config_file`) is a mapping of
 EnvConfig fields: the sensor (whose components ``z`` are), the bank, the filter, the TPM settings,
-the scenario (its sampling period). A trained agent keeps its own settings (action mode,
-features) and tracks with this tracker; an agent whose observation or action size it does not
-give is refused, one trained on another tracker is said on stderr.
+the scenario (its sampling period); what it says an agent is trained as
+(:data:`~imm_gym.sim.mixture.AGENT_FIELDS`: action mode, features, reward) is dropped, a detector
+network it names kept, as ``python -m imm_gym.evaluate`` does (every policy's own settings apply:
+a training file runs the rules too). A trained agent keeps its own settings and tracks with this
+tracker; an agent whose observation or action size it does not give is refused, one trained on
+another tracker is said on stderr.
 
 Input, by the file's suffix:
 
@@ -55,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from baselines import REGISTRY
-from imm_gym.cli.evaluate import agent_overrides, make_policy
+from imm_gym.cli.evaluate import agent_overrides, evaluated_config, make_policy
 from imm_gym.cli.tables import models_differ_note
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
@@ -298,9 +301,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if path.suffix not in (".csv", ".npz"):
             parser.error(f"{name} must end in .csv or .npz, got {path}")
     try:
-        config = EnvConfig.build(
-            None if args.env_config is None else read_env_config(args.env_config)
-        )
+        # as evaluate's: what the file says an agent is trained as is each policy's own
+        overrides = {} if args.env_config is None else read_env_config(args.env_config)
+        config = evaluated_config(overrides.pop("scenario", "random"), overrides)
         if not args.measurements.is_file():
             raise ConfigError(f"{args.measurements}: no such file")
         sequences = (

@@ -242,3 +242,27 @@ def test_an_agent_tracks_with_the_configured_tracker(
         main([*out, "--env-config", str(tmp_path / "two.yaml")])
     assert "cannot be evaluated on this configuration" in capsys.readouterr().err
     assert not (tmp_path / "out.npz").exists()
+
+
+def test_a_files_agent_fields_are_each_policys_own(tmp_path: Path) -> None:
+    """The configuration is built as the evaluation builds it: what the file says an agent is
+    trained as (AGENT_FIELDS: action mode, stay base, detector share...) is dropped. A rule runs
+    on a training file (it was refused: its action mode is not the file's) and the agent's
+    estimates do not move with the file's detector_share."""
+    core = TrackingCore(EnvConfig(), n_envs=1)
+    core.reset(np.arange(1), SEEDS[:1])
+    np.savez(tmp_path / "z.npz", z=core.z[0, :31])
+    (tmp_path / "plain.yaml").write_text("scenario: paper\n")
+    (tmp_path / "agent.yaml").write_text(
+        "scenario: paper\naction_mode: stay\nstay_base: evidence\ndetector_share: 0.8\n"
+        "detector: turn_rate\n"
+    )
+    for policy in ("fixed", "pretrained"):
+        for name in ("plain", "agent"):
+            assert main(["--measurements", str(tmp_path / "z.npz"), "--policy", policy,
+                         "--env-config", str(tmp_path / f"{name}.yaml"),
+                         "--out", str(tmp_path / f"{policy}_{name}.npz")]) == 0
+        with np.load(tmp_path / f"{policy}_plain.npz") as plain, \
+                np.load(tmp_path / f"{policy}_agent.npz") as agent:
+            for key in ("estimate", "covariance", "mode_probs", "tpm"):
+                np.testing.assert_array_equal(agent[key], plain[key], err_msg=f"{policy} {key}")
