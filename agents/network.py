@@ -10,20 +10,21 @@ code). :func:`policy_spec` writes the description of a live policy.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from gymnasium import spaces
-from safetensors import SafetensorError
+from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file, save_file
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
 from agents.asymmetric import AsymmetricActorCriticPolicy
-from agents.per_model import PerModelActorCriticPolicy
+from agents.per_model import PerModelActorCriticPolicy, stacked_index
 from agents.schema import ACTIVATIONS, SDE_KEYS
 from imm_gym.validation import ConfigError
 
@@ -134,6 +135,87 @@ def build_policy(spec: dict[str, Any], where: str) -> ActorCriticPolicy:
         return POLICY_CLASSES[spec["class"]]()(obs, act, _no_schedule, **sb3_policy_kwargs(kwargs))
     except (AssertionError, TypeError, ValueError, RuntimeError) as err:
         raise ConfigError(f"{where}: SB3 cannot build this network ({err})") from None
+
+
+def parameter_count(spec: dict[str, Any]) -> int:
+    """The numbers (float32 parameters) of the network :func:`build_policy` builds from the
+    checked description ``spec``, computed without building it (its weights file holds at
+    least four bytes each).
+
+    Linear layers ``n_in -> n_out`` hold ``(n_in + 1) n_out``; an LSTM layer of ``H`` units
+    over ``n_in`` inputs ``4 H (n_in + H) + 8 H``; SB3's heads an action layer, a value layer
+    and the log standard deviations (``latent x actions`` with gSDE's ``full_std``).
+    """
+    obs, actions = spec["observation_size"], spec["action_size"]
+    arch = spec.get("net_arch", {"pi": [64, 64], "vf": [64, 64]})
+    pi, vf = (arch["pi"], arch["vf"]) if isinstance(arch, dict) else (arch, arch)
+    name = spec["class"]
+
+    def mlp(sizes: list[int]) -> int:
+        return sum((n_in + 1) * n_out for n_in, n_out in pairwise(sizes))
+
+    def lstm(n_in: int, hidden: int, layers: int) -> int:
+        return sum(4 * hidden * (n + hidden) + 8 * hidden for n in [n_in, *[hidden] * (layers - 1)])
+
+    features = obs
+    count = 0
+    if name == "MlpLstmPolicy":
+        hidden, layers = spec.get("lstm_hidden_size", 256), spec.get("n_lstm_layers", 1)
+        count += lstm(obs, hidden, layers)
+        if spec.get("enable_critic_lstm", True):
+            count += lstm(obs, hidden, layers)
+        elif not spec.get("shared_lstm", False):
+            count += mlp([obs, hidden])
+        features = hidden
+    actor_in = features
+    if name == "AsymmetricMlpPolicy":
+        actor_in = obs - spec["frame_stack"] * spec["critic_dims"]
+    latent_pi = pi[-1] if pi else actor_in
+    latent_vf = vf[-1] if vf else features
+    count += mlp([features, *vf]) + mlp([latent_vf, 1])
+    if name == "PerModelPolicy":
+        # phi reads a model's entries with the shared ones, psi each model's embedding with
+        # their mean; one action layer and one log std for every model
+        try:
+            tokens, shared = stacked_index(
+                spec["obs_features"], actions, spec["dim_z"], spec["frame_stack"],
+                spec["critic_dims"],
+            )
+            token = tokens.shape[1] + shared.size
+        except (KeyError, ValueError):  # a layout build_policy refuses
+            token = 1
+        return count + mlp([token, pi[0]]) + mlp([2 * pi[0], *pi[1:]]) + mlp([latent_pi, 1]) + 1
+    count += mlp([actor_in, *pi]) + mlp([latent_pi, actions])
+    if spec.get("use_sde", False):
+        return count + latent_pi * (actions if spec.get("full_std", True) else 1)
+    return count + actions
+
+
+def check_weights_size(spec: dict[str, Any], directory: Path) -> None:
+    """Refuse, before the network is built, a ``directory/policy.safetensors`` that is not a
+    safetensors file (its header read, not its tensors) or holds fewer bytes than the
+    :func:`parameter_count` float32 numbers of the described network: building a network the
+    file cannot hold would allocate what no file asked for (a description within the bounds of
+    :mod:`agents.schema` may describe gigabytes).
+
+    Raises:
+        ConfigError: the file is missing, not safetensors, or too small; the message names it.
+    """
+    file = directory / WEIGHTS
+    if not file.is_file():
+        raise ConfigError(f"{file}: missing")
+    try:
+        with safe_open(str(file), framework="pt"):
+            pass
+    except (SafetensorError, OSError, ValueError) as err:
+        raise ConfigError(f"{file}: not a readable safetensors file ({err})") from None
+    count = parameter_count(spec)
+    size = file.stat().st_size
+    if size < 4 * count:
+        raise ConfigError(
+            f"{file}: {size} bytes, fewer than the {4 * count} of the {count} float32 "
+            "parameters of the network agent.json describes"
+        )
 
 
 def _no_schedule(progress_remaining: float) -> float:

@@ -223,7 +223,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
             ``env.json`` does not give), or the agent is in the pickled format of earlier
             versions; the message names the file.
     """
-    from agents.network import build_policy, load_weights
+    from agents.network import build_policy, check_weights_size, load_weights
     from agents.schema import check_spec
     from imm_gym.sim.env_config import EnvConfig
 
@@ -276,6 +276,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
             f"{frame_stack} frames of {frame} entries and takes {actions}"
         )
     norm = _check_normalizer(directory / NORMALIZER_FILE, frame)
+    check_weights_size(spec, directory)  # before the network is allocated
     model = build_policy(spec, where)
     load_weights(model, directory)
     return LearnedPolicy(

@@ -45,9 +45,12 @@ def check_size(where: str, value: Any) -> int:
     return value
 
 
-#: The widest layer and the deepest network a description may give: a layer of 4096 by 4096
-#: float32 weights is 64 MiB, so a description read from a file cannot make the loader
-#: allocate more than a few hundred MiB before its weights file is compared with it.
+#: The widest layer and the deepest network a description may give. Within them a network can
+#: still be gigabytes (eight LSTM layers of 4096 units for the actor and as many for the critic
+#: are 2.1 G numbers, 8 GiB): the loader computes the network's size from its description and
+#: refuses a weights file too small to hold it before building it
+#: (:func:`agents.network.check_weights_size`), so a description read from a file makes it
+#: allocate no more than that file holds.
 MAX_WIDTH, MAX_LAYERS = 4096, 8
 #: The largest input a description may give (frames times entries of a frame).
 MAX_INPUT = 16384

@@ -297,8 +297,8 @@ def _obs_features(directory: Path) -> None:
 def _float8_weights(directory: Path) -> None:
     file = directory / "policy.safetensors"
     tensors = load_file(file)
-    save_file({k: v.to(torch.float8_e4m3fn) if v.is_floating_point() else v
-               for k, v in tensors.items()}, file)
+    tensors["log_std"] = tensors["log_std"].to(torch.float8_e4m3fn)
+    save_file(tensors, file)
 
 
 def _directory_for(name: str) -> Callable[[Path], None]:
@@ -400,7 +400,7 @@ def _detector(dtype: torch.dtype) -> Callable[[Path], None]:
         (_json("vecnormalize.json", clip_obs=10**400), "clip_obs must be a positive number"),
         (_json("vecnormalize.json", count=10**400), "count must be a positive number"),
         (_json("vecnormalize.json", mean=[10**400] * 55), "vecnormalize.json: mean must be 55"),
-        (_float8_weights, r"policy\.safetensors: tensor '.*' is torch\.float8_e4m3fn, not one"),
+        (_float8_weights, r"policy\.safetensors: tensor 'log_std' is torch\.float8_e4m3fn, not"),
         (_detector(torch.bfloat16), r"env\.json: .*det\.safetensors'.*is BF16, not one of"),
         (_detector(torch.float8_e5m2), r"env\.json: .*det\.safetensors'.*is F8_E5M2, not one"),
         (lambda d: (d / "agent.json").write_text("[" * 100_000 + "]" * 100_000),
@@ -422,6 +422,70 @@ def test_a_corrupt_or_mismatched_agent_is_one_line_naming_the_file(
         load_agent(agent)
     line = refused_by_evaluate(agent, capsys)
     assert str(agent) in line
+
+
+HUGE_LSTM = {
+    "class": "MlpLstmPolicy", "observation_size": 64 * 44, "action_size": 3,
+    "net_arch": {"pi": [4096] * 8, "vf": [4096] * 8}, "activation_fn": "tanh",
+    "lstm_hidden_size": 4096, "n_lstm_layers": 8, "shared_lstm": False,
+    "enable_critic_lstm": True,
+}
+
+
+def test_a_description_larger_than_its_weights_file_is_refused_before_it_is_built(
+    agent, monkeypatch, capsys
+) -> None:
+    """A description within every bound of agents.schema (width 4096, 8 layers, 64 frames) may
+    describe 2.4 G numbers: with a weights file that holds a few, the loader refuses it without
+    building the network (9 GB)."""
+    import agents.network
+
+    def build_policy(*args: object) -> None:
+        pytest.fail("the network was built")
+
+    monkeypatch.setattr(agents.network, "build_policy", build_policy)
+    meta = json.loads((agent / "agent.json").read_text())
+    meta.update(algo="recurrent-ppo", frame_stack=64, critic_dims=0, policy=HUGE_LSTM)
+    (agent / "agent.json").write_text(json.dumps(meta))
+    save_file({"junk": torch.zeros(4)}, agent / "policy.safetensors")
+    (agent / "vecnormalize.json").unlink()  # of frames with the critic's entries
+    message = r"policy\.safetensors: \d+ bytes, fewer than the 9498329116 of the 2374582279"
+    with pytest.raises(ConfigError, match=message):
+        load_agent(agent)
+    assert str(agent) in refused_by_evaluate(agent, capsys)
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        {"class": "MlpPolicy", "observation_size": 7, "action_size": 3},
+        {"class": "MlpPolicy", "observation_size": 7, "action_size": 3, "net_arch": [5, 4],
+         "use_sde": True, "full_std": False},
+        {"class": "MlpPolicy", "observation_size": 7, "action_size": 2,
+         "net_arch": {"pi": [], "vf": [6]}, "use_sde": True},
+        {"class": "AsymmetricMlpPolicy", "observation_size": 12, "action_size": 3,
+         "net_arch": {"pi": [5], "vf": [4, 4]}, "critic_dims": 2, "frame_stack": 3},
+        {"class": "PerModelPolicy", "observation_size": 2 * 16, "action_size": 3,
+         "net_arch": {"pi": [6, 5], "vf": [4]}, "critic_dims": 0, "frame_stack": 2,
+         "obs_features": ["loglik", "innovation", "speed"], "dim_z": 2},
+        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+         "lstm_hidden_size": 5, "n_lstm_layers": 3, "net_arch": [4], "shared_lstm": False,
+         "enable_critic_lstm": True},
+        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+         "lstm_hidden_size": 5, "n_lstm_layers": 1, "shared_lstm": False,
+         "enable_critic_lstm": False},
+        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+         "lstm_hidden_size": 5, "n_lstm_layers": 2, "shared_lstm": True,
+         "enable_critic_lstm": False},
+    ],
+)
+def test_the_size_computed_from_a_description_is_the_built_network_s(spec) -> None:
+    from agents.network import build_policy, parameter_count
+    from agents.schema import check_spec
+
+    spec = check_spec("test", {"activation_fn": "tanh", **spec})
+    built = build_policy(spec, "test").state_dict().values()
+    assert parameter_count(spec) == sum(t.numel() for t in built if t.is_floating_point())
 
 
 def test_an_observation_of_the_wrong_size_is_named(agent) -> None:
