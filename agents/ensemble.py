@@ -22,6 +22,7 @@ Build one with ``python -m agents.ensemble OUT MEMBER [MEMBER ...]`` and evaluat
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 from collections.abc import Sequence
@@ -63,7 +64,9 @@ class EnsemblePolicy:
         acts = [EnvConfig.build(member.env_overrides) for member in members]
         for k, member in enumerate(members[1:], start=1):
             differ = [
-                f for f in sorted(POLICY_FIELDS) if getattr(acts[k], f) != getattr(acts[0], f)
+                f for f in sorted(POLICY_FIELDS)
+                if getattr(acts[k], f) != getattr(acts[0], f)
+                and not (f == "detector_weights" and same_detector(acts[k], acts[0]))
             ]
             if differ or member.obs_size != first.obs_size:
                 what = ", ".join(differ) if differ else "the observation size"
@@ -113,6 +116,22 @@ class EnsemblePolicy:
             actions.append(action)
             new_states.append(member_state)
         return np.mean(actions, axis=0), tuple(new_states)
+
+
+def same_detector(a: EnvConfig, b: EnvConfig) -> bool:
+    """Whether the learned detectors of ``a`` and ``b`` are one network: their files (the
+    shipped one for None) hold the same bytes, wherever each is (an export copies a member's
+    detector beside it)."""
+    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+
+    def digest(weights: str | None) -> str:
+        file = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+        try:
+            return hashlib.sha256(file.read_bytes()).hexdigest()
+        except OSError as err:
+            raise ConfigError(f"detector_weights {str(file)!r}: cannot be read ({err})") from None
+
+    return digest(a.detector_weights) == digest(b.detector_weights)
 
 
 def is_ensemble(path: str | Path) -> bool:

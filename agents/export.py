@@ -62,21 +62,25 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     _check_replaceable(target)
     staging = target.with_name(target.name + ".export")
     shutil.rmtree(staging, ignore_errors=True)
-    if is_selector(source):
-        selector = read_json(source / SELECTOR_FILE)
-        load_selector(source)
-        _copy_agent(source, staging, [SELECTOR_FILE, ENV_FILE, *selector["members"]])
-        load_selector(staging)
-    elif is_ensemble(source):
-        load_ensemble(source)
-        members = member_paths(source)
-        names = _member_names(members)
-        for member, name in zip(members, names, strict=True):
-            _copy_agent(member, staging / name)
-        write_ensemble(staging, [staging / name for name in names])
-    else:
-        load_agent(source)
-        _copy_agent(source, staging)
+    try:
+        if is_selector(source):
+            selector = read_json(source / SELECTOR_FILE)
+            load_selector(source)
+            _copy_agent(source, staging, [SELECTOR_FILE, ENV_FILE, *selector["members"]])
+            load_selector(staging)
+        elif is_ensemble(source):
+            load_ensemble(source)
+            members = member_paths(source)
+            names = _member_names(members)
+            for member, name in zip(members, names, strict=True):
+                _copy_agent(member, staging / name)
+            write_ensemble(staging, [staging / name for name in names])
+        else:
+            load_agent(source)
+            _copy_agent(source, staging)
+    except BaseException:  # nothing left beside the target
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
     shutil.rmtree(target, ignore_errors=True)
     staging.rename(target)
     return sorted(p for p in target.rglob("*") if p.is_file())

@@ -422,7 +422,7 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     """The agent's overrides — ``env_id``'s preset with ``env.json``'s fields over it, validated
     — and the size of one observation and of an action in that environment. A relative
     ``detector_weights`` is taken from the directory of ``env.json``, as a configuration file's
-    is from its own (:func:`write_env_file`)."""
+    is from its own (:func:`write_env_file`), and made absolute (``..`` and links resolved)."""
     from imm_gym.envs import PRESETS
     from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
@@ -430,8 +430,13 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
 
     recorded = read_json(file)
     weights = recorded.get("detector_weights")
-    if isinstance(weights, str) and not Path(weights).is_absolute():
-        recorded["detector_weights"] = str(file.parent / weights)  # beside env.json
+    if isinstance(weights, str):  # a relative one from beside env.json, "..", links resolved
+        try:
+            recorded["detector_weights"] = str((file.parent / weights).resolve())
+        except (OSError, ValueError, RuntimeError) as err:  # a NUL byte, a loop of links
+            raise ConfigError(
+                f"{file}: detector_weights {weights!r} is not a path ({err})"
+            ) from None
     if env_id is not None and (not isinstance(env_id, str) or env_id not in PRESETS):
         raise ConfigError(
             f"{file.parent / AGENT_FILE}: env_id must be one of {list(PRESETS)}, got {env_id!r}"

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers import shipped_agent
+from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 from agents.ensemble import ENSEMBLE_FILE, EnsemblePolicy, load_ensemble, load_policy
@@ -127,3 +128,65 @@ def test_members_must_read_and_write_alike(members, tmp_path) -> None:
     twice = {"format": "imm_gym-ensemble", "members": [str(shipped_agent())] * 2}
     with pytest.raises(ConfigError, match="listed twice"):
         load_ensemble(write(tmp_path / "t", twice))
+
+
+def detector_ensemble(tmp_path: Path, weights: list[str]) -> Path:
+    """Two shipped agents acting with the learned detector of ``weights[k]`` (as env.json names
+    it), in an ensemble beside the shipped detector's copy ``turn.safetensors``."""
+    from agents import PRETRAINED
+    from agents.ensemble import member_paths
+    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+
+    directory = tmp_path / "e"
+    directory.mkdir()
+    shutil.copy2(DEFAULT_WEIGHTS, directory / "turn.safetensors")
+    for k, source in enumerate(member_paths(PRETRAINED)[:2]):
+        member = Path(shutil.copytree(source, directory / f"seed_{k}"))
+        env = json.loads((member / "env.json").read_text())
+        env.update(detector="learned", detector_share=0.5, detector_weights=weights[k])
+        (member / "env.json").write_text(json.dumps(env))
+    return write(directory, {"format": "imm_gym-ensemble", "members": ["seed_0", "seed_1"]})
+
+
+def test_members_of_one_detector_named_relative_load_and_export(tmp_path) -> None:
+    """Members that name one detector file (relative to their env.json, through ..) act alike,
+    and so do their exported copies, each with the detector beside it."""
+    from agents.export import DETECTOR_FILE, export
+
+    source = detector_ensemble(tmp_path, ["../turn.safetensors", "../turn.safetensors"])
+    ensemble = load_ensemble(source)
+    assert {m.env_overrides["detector_weights"] for m in ensemble.members} == {
+        str(source / "turn.safetensors")
+    }
+    export(source, tmp_path / "shipped")
+    exported = load_ensemble(tmp_path / "shipped")
+    assert [m.env_overrides["detector_weights"] for m in exported.members] == [
+        str(tmp_path / "shipped" / name / DETECTOR_FILE) for name in ("seed_0", "seed_1")
+    ]
+    frames = observations(exported.members[0])
+    np.testing.assert_array_equal(roll(exported, frames), roll(ensemble, frames))
+
+
+def test_members_of_other_detectors_are_refused(tmp_path) -> None:
+    source = detector_ensemble(tmp_path, ["../turn.safetensors", "../other.safetensors"])
+    tensors = load_file(source / "turn.safetensors")
+    with safe_open(source / "turn.safetensors", "pt") as f:
+        metadata = f.metadata()
+    tensors["layer0.bias"] = tensors["layer0.bias"] + 0.1
+    save_file(tensors, source / "other.safetensors", metadata=metadata)
+    with pytest.raises(ConfigError, match="detector_weights differ"):
+        load_ensemble(source)
+
+
+def test_a_failed_export_leaves_nothing_beside_its_target(members, tmp_path, monkeypatch):
+    import agents.export
+
+    def refuse(*args: object) -> None:
+        raise ConfigError("refused")
+
+    monkeypatch.setattr(agents.export, "write_ensemble", refuse)
+    data = {"format": "imm_gym-ensemble", "members": [str(m) for m in members]}
+    source = write(tmp_path / "e", data)
+    with pytest.raises(ConfigError, match="refused"):
+        agents.export.export(source, tmp_path / "shipped")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e", "other"]
