@@ -25,11 +25,13 @@ Input, by the file's suffix:
 
 * ``.csv``: a header and one row per step; columns ``z0 .. z{m-1}`` (the sensor's components in
   its order: the sonar's range in m and bearing in rad), optionally ``sequence`` (rows of a
-  sequence are consecutive; default: one sequence), ``detected`` (0/1; default: 1 where every
-  ``z`` cell is a number, an empty cell is a missed detection) and ``vx``, ``vy`` (the initial
+  sequence are consecutive, none empty; default: one sequence), ``detected`` (0/1; default: 1
+  where every ``z`` cell is a number, 0 where every one is empty) and ``vx``, ``vy`` (the initial
   velocity in m/s, from a sequence's first row: both empty, none given; later rows leave them
   empty or repeat them). The first row of a sequence initiates the track (a detection); each
-  later row is one filter step.
+  later row is one filter step, at least one. A ``z`` cell is a finite number or empty; a row
+  with more or fewer cells than the header, or a bad cell, is refused naming the file, the line
+  and the sequence.
 * ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected``, ``velocity (N, 2)``, or
   ``x0 (N, 4)`` and ``P0 (N, 4, 4)``.
 
@@ -71,10 +73,16 @@ OPTIONAL_COLUMNS = ("sequence", "detected", "vx", "vy")
 
 def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
     """The sequences of a measurement CSV: per sequence ``name``, ``z (K+1, m)``, ``detected``
-    and ``velocity`` (None where not given)."""
+    and ``velocity`` (None where not given).
+
+    Every row has the header's cells; a ``z`` cell is a finite number or empty, a missed
+    detection leaving every ``z`` cell of its row empty (or ``detected`` 0, its ``z`` cells then
+    unused); ``detected`` is 0 or 1; a ``sequence`` cell is not empty; a sequence has two rows
+    or more (the track's start and a step). Anything else is refused naming the file, the line
+    and the sequence."""
     with path.open(newline="") as handle:
-        reader = csv.DictReader(handle)
-        header = reader.fieldnames or []
+        reader = csv.reader(handle)
+        header = next(reader, [])
         z_cols = [f"z{i}" for i in range(dim_z)]
         unknown = [c for c in header if c not in z_cols and c not in OPTIONAL_COLUMNS]
         if [c for c in z_cols if c not in header] or unknown:
@@ -82,33 +90,53 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
                 f"{path}: columns must be {', '.join(z_cols)} and optionally "
                 f"{', '.join(OPTIONAL_COLUMNS)}; got {', '.join(header)}"
             )
+        twice = sorted({c for c in header if header.count(c) > 1})
+        if twice:
+            raise ConfigError(f"{path}: column(s) {', '.join(twice)} given more than once")
         if ("vx" in header) != ("vy" in header):
             raise ConfigError(
                 f"{path}: the initial velocity needs both columns vx and vy; got only "
                 f"{'vx' if 'vx' in header else 'vy'}"
             )
-        rows = list(reader)
+        # (file line, cells) of each row; a blank line is skipped, as csv.DictReader does
+        rows = [(reader.line_num, cells) for cells in reader if cells]
+    column = {c: i for i, c in enumerate(header)}
     groups: dict[str, list[dict[str, str]]] = {}
-    starts: dict[str, int] = {}  # the file line of each sequence's first row
+    lines: dict[str, list[int]] = {}  # the file line of each row of each sequence
     previous = None
-    for line, row in enumerate(rows, start=2):
-        name = row.get("sequence") or "0"
+    for line, cells in rows:
+        if len(cells) != len(header):
+            where = f"{path}:{line}"  # and the sequence, where the row says it
+            if "sequence" not in column:
+                where += ": sequence '0'"
+            elif column["sequence"] < len(cells):
+                where += f": sequence {cells[column['sequence']]!r}"
+            raise ConfigError(
+                f"{where}: {len(cells)} cell(s) where the header has {len(header)} "
+                f"({', '.join(header)})"
+            )
+        name = cells[column["sequence"]] if "sequence" in column else "0"
+        if name.strip() == "":
+            raise ConfigError(
+                f"{path}:{line}: the sequence cell is empty: with a column sequence, every row "
+                "names its sequence"
+            )
         if name in groups and name != previous:
             raise ConfigError(f"{path}:{line}: the rows of sequence {name!r} are not consecutive")
-        groups.setdefault(name, []).append(row)
-        starts.setdefault(name, line)
+        groups.setdefault(name, []).append(dict(zip(header, cells, strict=True)))
+        lines.setdefault(name, []).append(line)
         previous = name
     sequences = []
     for name, group in groups.items():
-        first = starts[name]
+        at = lines[name]
         z = np.array([
-            [_number(path, first + i, name, c, row[c]) for c in z_cols]
-            for i, row in enumerate(group)
+            [_number(path, line, name, c, row[c]) for c in z_cols]
+            for line, row in zip(at, group, strict=True)
         ])
         detected = (
             np.array([
-                _number(path, first + i, name, "detected", row["detected"]) == 1
-                for i, row in enumerate(group)
+                _flag(path, line, name, row["detected"])
+                for line, row in zip(at, group, strict=True)
             ])
             if "detected" in header
             else None
@@ -117,55 +145,84 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
         seen = finite if detected is None else detected
         if not (seen[0] and finite[0]):
             raise ConfigError(
-                f"{path}:{first}: the first row of sequence {name!r} initiates the track: it "
+                f"{path}:{at[0]}: the first row of sequence {name!r} initiates the track: it "
                 "needs a number in every z cell" + ("" if detected is None else " and detected 1")
             )
-        if np.any(seen & ~finite):
-            line = first + int(np.flatnonzero(seen & ~finite)[0])
+        partial = ~finite & ~np.all(np.isnan(z), axis=1)
+        if detected is None and np.any(partial):
             raise ConfigError(
-                f"{path}:{line}: sequence {name!r}: a detection (detected 1) needs a number in "
-                "every z cell"
+                f"{path}:{at[int(np.flatnonzero(partial)[0])]}: sequence {name!r}: some z cells "
+                "are empty and some not; a missed detection leaves every z cell empty (or give "
+                "a column detected)"
             )
-        velocity = _velocity(path, first, name, group) if "vx" in header else None
+        if np.any(seen & ~finite):
+            raise ConfigError(
+                f"{path}:{at[int(np.flatnonzero(seen & ~finite)[0])]}: sequence {name!r}: a "
+                "detection (detected 1) needs a number in every z cell"
+            )
+        velocity = _velocity(path, at, name, group) if "vx" in header else None
         sequences.append({"name": name, "z": z, "detected": detected, "velocity": velocity})
+    for name, at in lines.items():  # after every cell is read: a bad cell is said first
+        if len(at) < 2:
+            raise ConfigError(
+                f"{path}:{at[0]}: sequence {name!r} has one row, the track's start: it needs a "
+                "second row (a filter step) or more"
+            )
     return sequences
 
 
 def _velocity(
-    path: Path, first: int, name: str, group: list[dict[str, str]]
+    path: Path, lines: list[int], name: str, group: list[dict[str, str]]
 ) -> np.ndarray | None:
     """A sequence's initial velocity: its first row's ``vx, vy`` (both empty: none given).
     Later rows leave them empty or repeat them; a row that gives another velocity is refused,
     since only the first row's is used."""
-    cells = tuple([(row[c] or "").strip() for row in group] for c in ("vx", "vy"))
+    cells = tuple([row[c].strip() for row in group] for c in ("vx", "vy"))
     if (cells[0][0] == "") != (cells[1][0] == ""):
         raise ConfigError(
-            f"{path}:{first}: sequence {name!r} gives only one of vx and vy in its first row "
+            f"{path}:{lines[0]}: sequence {name!r} gives only one of vx and vy in its first row "
             "(both or neither)"
         )
     for i in range(1, len(group)):
         later = (cells[0][i], cells[1][i])
         if later != ("", "") and later != (cells[0][0], cells[1][0]):
             raise ConfigError(
-                f"{path}:{first + i}: vx, vy are the initial velocity, read from sequence "
+                f"{path}:{lines[i]}: vx, vy are the initial velocity, read from sequence "
                 f"{name!r}'s first row ({cells[0][0]}, {cells[1][0]}); later rows leave them "
                 f"empty or repeat them, got ({later[0]}, {later[1]})"
             )
     if cells[0][0] == "":
         return None
-    return np.array([_number(path, first, name, c, group[0][c]) for c in ("vx", "vy")])
+    return np.array([_number(path, lines[0], name, c, group[0][c]) for c in ("vx", "vy")])
 
 
-def _number(path: Path, line: int, name: str, column: str, text: str | None) -> float:
-    """A CSV cell of sequence ``name`` as a float (an empty cell is NaN)."""
-    if text is None or text.strip() == "":
+def _number(path: Path, line: int, name: str, column: str, text: str) -> float:
+    """A CSV cell of sequence ``name`` as a finite float (an empty cell is NaN)."""
+    if text.strip() == "":
         return float("nan")
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
+        value = None
+    if value is None or not np.isfinite(value):
         raise ConfigError(
-            f"{path}:{line}: sequence {name!r}: column {column}: {text!r} is not a number"
-        ) from None
+            f"{path}:{line}: sequence {name!r}: column {column}: {text!r} is not a "
+            + ("number" if value is None else "finite number")
+        )
+    return value
+
+
+def _flag(path: Path, line: int, name: str, text: str) -> bool:
+    """A ``detected`` cell: 1 (a detection) or 0 (a missed one)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value not in (0.0, 1.0):
+        raise ConfigError(
+            f"{path}:{line}: sequence {name!r}: column detected: {text!r} is not 0 or 1"
+        )
+    return value == 1.0
 
 
 def read_npz(path: Path) -> list[dict[str, Any]]:

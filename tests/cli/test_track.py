@@ -177,6 +177,30 @@ def test_csv_sequences_come_back_in_the_input_order(tmp_path: Path) -> None:
         ("sequence,z0,z1,detected\na,1000,0,1\na,,0,1\n", [],
          r"z.csv:3: sequence 'a': a detection \(detected 1\) needs a number"),
         ("sequence,z0,z1\na,1000,0\nb,1000,0\na,1000,0\n", [], "sequence 'a' are not consecut"),
+        # a row of too few or too many cells, a z cell not finite, some z cells empty without
+        # detected, detected not 0/1, an empty sequence cell, a sequence of one row: refused
+        # naming the file, line and sequence (they were missed detections, ignored or merged)
+        ("z0,z1\n1000,0.1\n1010\n1020,0.1\n", [],
+         r"z.csv:3: sequence '0': 1 cell\(s\) where the header has 2 \(z0, z1\)"),
+        ("sequence,z0,z1\na,1000,0.1\na,1010,0.1,7\n", [],
+         r"z.csv:3: sequence 'a': 4 cell\(s\) where the header has 3"),
+        ("z0,z1\n1000,0.1\ninf,0.1\n", [], r"z.csv:3: sequence '0': column z0: 'inf' is not a fin"),
+        ("z0,z1,detected\n1000,0.1,1\n1010,nan,0\n", [],
+         r"z.csv:3: sequence '0': column z1: 'nan' is not a finite number"),
+        ("z0,z1\n1000,0.1\n1010,\n1020,0.1\n", [],
+         r"z.csv:3: sequence '0': some z cells are empty and some not"),
+        ("z0,z1,detected\n1000,0.1,1\n1010,0.1,2\n", [],
+         r"z.csv:3: sequence '0': column detected: '2' is not 0 or 1"),
+        ("z0,z1,detected\n1000,0.1,1\n1010,0.1,0.5\n", [], r"detected: '0.5' is not 0 or 1"),
+        ("z0,z1,detected\n1000,0.1,1\n1010,0.1,\n", [], r"z.csv:3: .*detected: '' is not 0 or 1"),
+        ("sequence,z0,z1\n0,1000,0\n0,1010,0\n,1000,0\n,1010,0\n", [],
+         r"z.csv:4: the sequence cell is empty"),
+        ("sequence,z0,z1\na,1000,0\nb,1000,0\nb,1010,0\n", [],
+         r"z.csv:2: sequence 'a' has one row, the track's start"),
+        ("z0,z1,vx,vy\n1000,0.1,inf,0\n1010,0.1,,\n", [],
+         r"z.csv:2: sequence '0': column vx: 'inf' is not a finite number"),
+        ("z0,z1\n1000,0.1\n\n1010,abc\n", [], r"z.csv:4: sequence '0': column z1: 'abc'"),
+        ("z0,z1,z1\n1000,0.1,0.2\n1010,0.1,0.2\n", [], r"z.csv: column\(s\) z1 given more than"),
         ("z0,z1,vx\n1000,0.1,99\n1010,0.1,\n", [], "needs both columns vx and vy; got only vx"),
         ("z0,z1\n1000,0.1\n1010,0.1\n", ["--env-config", "{cfg}"],
          r"tracker.yaml: .*sensor.*sigma_rr"),
@@ -266,3 +290,29 @@ def test_a_files_agent_fields_are_each_policys_own(tmp_path: Path) -> None:
                 np.load(tmp_path / f"{policy}_agent.npz") as agent:
             for key in ("estimate", "covariance", "mode_probs", "tpm"):
                 np.testing.assert_array_equal(agent[key], plain[key], err_msg=f"{policy} {key}")
+
+
+def test_a_missed_detection_is_empty_z_cells_or_detected_0(tmp_path: Path) -> None:
+    """Every z cell of a row empty (no column detected) and detected 0 (its z cells, numbers or
+    empty, unused) are the same missed detection."""
+    core = TrackingCore(EnvConfig(), n_envs=1)
+    core.reset(np.arange(1), SEEDS[:1])
+    z = core.z[0, :21].tolist()
+    missed = {4, 9, 10}
+    files = {
+        "empty": ["z0,z1"] + [
+            "," if k in missed else f"{z[k][0]!r},{z[k][1]!r}" for k in range(len(z))
+        ],
+        "flag": ["z0,z1,detected"] + [
+            f"{z[k][0]!r},{z[k][1]!r},{int(k not in missed)}" for k in range(len(z))
+        ],
+    }
+    for name, lines in files.items():
+        (tmp_path / f"{name}.csv").write_text("\n".join(lines) + "\n")
+        assert main(["--measurements", str(tmp_path / f"{name}.csv"), "--policy", "fixed",
+                     "--out", str(tmp_path / f"{name}_out.csv")]) == 0
+    detected = np.array([k not in missed for k in range(len(z))])
+    expected = imm_gym.run_policy(np.array(z), make_baseline("fixed"), detected=detected)
+    for name in files:
+        _, table = _read_csv(tmp_path / f"{name}_out.csv")
+        np.testing.assert_array_equal(table[:, 1:5], expected.estimate[0], err_msg=name)
