@@ -33,13 +33,15 @@ Input, by the file's suffix:
   with more or fewer cells than the header, or a bad cell, is refused naming the file, the line
   and the sequence.
 * ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected``, ``velocity (N, 2)``, or
-  ``x0 (N, 4)`` and ``P0 (N, 4, 4)``.
+  ``x0 (N, 4)`` and ``P0 (N, 4, 4)`` (read without unpickling).
+
+A CSV is UTF-8 (a byte order mark is dropped); a file that cannot be read is refused naming it.
 
 Without a velocity the track starts at zero velocity with standard deviation
 :data:`~imm_gym.sim.replay.UNKNOWN_VELOCITY_STD`; ``--velocity VX VY`` gives one for every
 sequence that has none. Sequences of different lengths run in batches of equal length.
 
-Output, by the suffix of ``--out``:
+Output, by the suffix of ``--out`` (checked before any work, its missing directories made):
 
 * ``.csv``: one row per filtered step, the sequences in the input's order: ``sequence, step``
   (1..K), ``x, y, vx, vy``, ``P00 .. P33`` (the covariance, row-major), ``mu0 .. mu{M-1}``,
@@ -53,6 +55,7 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
+import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -60,7 +63,12 @@ from typing import Any
 import numpy as np
 
 from baselines import REGISTRY
-from imm_gym.cli.evaluate import agent_overrides, evaluated_config, make_policy
+from imm_gym.cli.evaluate import (
+    agent_overrides,
+    evaluated_config,
+    make_policy,
+    output_problem,
+)
 from imm_gym.cli.tables import models_differ_note
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
@@ -80,26 +88,22 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
     unused); ``detected`` is 0 or 1; a ``sequence`` cell is not empty; a sequence has two rows
     or more (the track's start and a step). Anything else is refused naming the file, the line
     and the sequence."""
-    with path.open(newline="") as handle:
-        reader = csv.reader(handle)
-        header = next(reader, [])
-        z_cols = [f"z{i}" for i in range(dim_z)]
-        unknown = [c for c in header if c not in z_cols and c not in OPTIONAL_COLUMNS]
-        if [c for c in z_cols if c not in header] or unknown:
-            raise ConfigError(
-                f"{path}: columns must be {', '.join(z_cols)} and optionally "
-                f"{', '.join(OPTIONAL_COLUMNS)}; got {', '.join(header)}"
-            )
-        twice = sorted({c for c in header if header.count(c) > 1})
-        if twice:
-            raise ConfigError(f"{path}: column(s) {', '.join(twice)} given more than once")
-        if ("vx" in header) != ("vy" in header):
-            raise ConfigError(
-                f"{path}: the initial velocity needs both columns vx and vy; got only "
-                f"{'vx' if 'vx' in header else 'vy'}"
-            )
-        # (file line, cells) of each row; a blank line is skipped, as csv.DictReader does
-        rows = [(reader.line_num, cells) for cells in reader if cells]
+    header, rows = _csv_rows(path)
+    z_cols = [f"z{i}" for i in range(dim_z)]
+    unknown = [c for c in header if c not in z_cols and c not in OPTIONAL_COLUMNS]
+    if [c for c in z_cols if c not in header] or unknown:
+        raise ConfigError(
+            f"{path}: columns must be {', '.join(z_cols)} and optionally "
+            f"{', '.join(OPTIONAL_COLUMNS)}; got {', '.join(header)}"
+        )
+    twice = sorted({c for c in header if header.count(c) > 1})
+    if twice:
+        raise ConfigError(f"{path}: column(s) {', '.join(twice)} given more than once")
+    if ("vx" in header) != ("vy" in header):
+        raise ConfigError(
+            f"{path}: the initial velocity needs both columns vx and vy; got only "
+            f"{'vx' if 'vx' in header else 'vy'}"
+        )
     column = {c: i for i, c in enumerate(header)}
     groups: dict[str, list[dict[str, str]]] = {}
     lines: dict[str, list[int]] = {}  # the file line of each row of each sequence
@@ -171,6 +175,28 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
     return sequences
 
 
+def _csv_rows(path: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
+    """A CSV file's header and its rows as ``(file line, cells)``, a blank line skipped (as
+    :class:`csv.DictReader` does); UTF-8, a byte order mark (a spreadsheet's) dropped.
+
+    Raises:
+        ConfigError: the file cannot be read, is not UTF-8 text or not CSV, naming it.
+    """
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as handle:
+            reader = csv.reader(handle)
+            header = next(reader, [])
+            return header, [(reader.line_num, cells) for cells in reader if cells]
+    except UnicodeDecodeError as err:
+        raise ConfigError(
+            f"{path}: not UTF-8 text (byte {err.start}: {err.reason}); save it as UTF-8"
+        ) from None
+    except csv.Error as err:
+        raise ConfigError(f"{path}: not a CSV file ({err})") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read ({err.strerror or err})") from None
+
+
 def _velocity(
     path: Path, lines: list[int], name: str, group: list[dict[str, str]]
 ) -> np.ndarray | None:
@@ -227,8 +253,25 @@ def _flag(path: Path, line: int, name: str, text: str) -> bool:
 
 def read_npz(path: Path) -> list[dict[str, Any]]:
     """The sequences of a measurement NPZ (see the module docstring)."""
-    with np.load(path, allow_pickle=False) as data:
-        arrays = {key: data[key] for key in data.files}
+    try:  # no pickles: a file that is not an NPZ archive must not run code
+        loaded = np.load(path, allow_pickle=False)
+    except (ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise ConfigError(
+            f"{path}: not an NPZ archive of arrays, as numpy.savez writes ({err})"
+            if "pickle" not in str(err)
+            else f"{path}: not an NPZ archive of arrays, as numpy.savez writes"
+        ) from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read ({err.strerror or err})") from None
+    if not isinstance(loaded, np.lib.npyio.NpzFile):
+        raise ConfigError(
+            f"{path}: one .npy array, not an NPZ archive of named arrays (numpy.savez)"
+        )
+    with loaded as data:
+        try:
+            arrays = {key: data[key] for key in data.files}
+        except (ValueError, EOFError, OSError, zipfile.BadZipFile) as err:
+            raise ConfigError(f"{path}: cannot read its arrays ({err})") from None
     if "z" not in arrays:
         raise ConfigError(f"{path}: needs an array 'z' (N, K+1, m)")
     unknown = set(arrays) - {"z", "detected", "velocity", "x0", "P0"}
@@ -300,7 +343,9 @@ def write(
     path: Path, results: list[tuple[list[str], TrackResult]], order: Sequence[str]
 ) -> None:
     """Write the results as CSV or NPZ (see the module docstring); a CSV lists the sequences in
-    ``order`` (the input's), whatever batches of equal length they ran in."""
+    ``order`` (the input's), whatever batches of equal length they ran in; missing parent
+    directories are made."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".npz":
         if len(results) != 1:
             raise ConfigError(f"{path}: an NPZ output holds sequences of one length only")
@@ -357,12 +402,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name, path in (("--measurements", args.measurements), ("--out", args.out)):
         if path.suffix not in (".csv", ".npz"):
             parser.error(f"{name} must end in .csv or .npz, got {path}")
+    problem = output_problem(args.out, "file")  # before any work, as evaluate's outputs
+    if problem:
+        parser.error(f"--out {str(args.out)!r}: {problem}")
     try:
         # as evaluate's: what the file says an agent is trained as is each policy's own
         overrides = {} if args.env_config is None else read_env_config(args.env_config)
         config = evaluated_config(overrides.pop("scenario", "random"), overrides)
         if not args.measurements.is_file():
-            raise ConfigError(f"{args.measurements}: no such file")
+            what = "is a directory" if args.measurements.is_dir() else "no such file"
+            raise ConfigError(f"{args.measurements}: {what}")
         sequences = (
             read_csv(args.measurements, config.sensor.dim_z)
             if args.measurements.suffix == ".csv"
@@ -379,7 +428,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             if "models_differ" in notes:
                 print(models_differ_note(args.policy, notes["models_differ"]), file=sys.stderr)
         results = run(sequences, policy, config, args.velocity, overrides)
-        write(args.out, results, [s["name"] for s in sequences])
+        try:
+            write(args.out, results, [s["name"] for s in sequences])
+        except OSError as err:  # checked up front; a full disk, say
+            raise ConfigError(f"--out {str(args.out)!r}: cannot write ({err})") from None
     except ConfigError as err:
         parser.error(str(err))
     n = sum(len(names) for names, _ in results)

@@ -316,3 +316,45 @@ def test_a_missed_detection_is_empty_z_cells_or_detected_0(tmp_path: Path) -> No
     for name in files:
         _, table = _read_csv(tmp_path / f"{name}_out.csv")
         np.testing.assert_array_equal(table[:, 1:5], expected.estimate[0], err_msg=name)
+
+
+def test_unusable_outputs_and_unreadable_inputs_are_usage_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An --out that is a directory is refused before any work, one in a missing directory made;
+    a CSV that is not UTF-8 and an .npz that is no NPZ archive (not unpickled) are refused
+    naming the file (they were tracebacks, the output's after all the tracking)."""
+    (tmp_path / "z.csv").write_text("z0,z1\n1000,0.1\n1010,0.1\n")
+    (tmp_path / "dir.csv").mkdir()
+    (tmp_path / "latin1.csv").write_bytes(b"sequence,z0,z1\ncaf\xe9,1000,0.1\ncaf\xe9,1010,0.1\n")
+    (tmp_path / "bad.npz").write_text("not a zip\n")
+    np.save(tmp_path / "array.npy", np.zeros((3, 2)))
+    (tmp_path / "array.npy").rename(tmp_path / "array.npz")
+    refused = {
+        ("z.csv", "dir.csv"): r"--out '.*dir.csv': is a directory; give a file name",
+        ("latin1.csv", "o.csv"): r"latin1.csv: not UTF-8 text",
+        ("bad.npz", "o.csv"): r"bad.npz: not an NPZ archive of arrays",
+        ("array.npz", "o.csv"): r"array.npz: one .npy array, not an NPZ archive",
+    }
+    real_make_policy = imm_gym.cli.track.make_policy
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("a policy was made before the input and output were checked")
+
+    monkeypatch.setattr("imm_gym.cli.track.make_policy", no_work)
+    for (source, out), message in refused.items():
+        with pytest.raises(SystemExit) as exit_info:
+            main(["--measurements", str(tmp_path / source), "--policy", "fixed",
+                  "--out", str(tmp_path / out)])
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert re.search(message, err) and "Traceback" not in err, err
+    monkeypatch.setattr("imm_gym.cli.track.make_policy", real_make_policy)
+    # a byte order mark (a spreadsheet's UTF-8) is no part of the first column's name
+    (tmp_path / "bom.csv").write_bytes(b"\xef\xbb\xbf" + (tmp_path / "z.csv").read_bytes())
+    for source in ("z.csv", "bom.csv"):
+        out = tmp_path / "new" / "dirs" / f"{source}.out.csv"
+        assert main(["--measurements", str(tmp_path / source), "--policy", "fixed",
+                     "--out", str(out)]) == 0
+    assert (tmp_path / "new/dirs/z.csv.out.csv").read_text() == (
+        tmp_path / "new/dirs/bom.csv.out.csv").read_text()
