@@ -47,7 +47,8 @@ Output, by the suffix of ``--out`` (checked before any work, its missing directo
   (1..K), ``x, y, vx, vy``, ``P00 .. P33`` (the covariance, row-major), ``mu0 .. mu{M-1}``,
   ``tpm00 .. tpm{M-1}{M-1}`` (row-major);
 * ``.npz``: ``estimate (N, K, 4)``, ``covariance (N, K, 4, 4)``, ``mode_probs (N, K, M)``,
-  ``tpm (N, K, M, M)``, ``x0``, ``P0``, ``diverged (N,)`` (one sequence length only).
+  ``tpm (N, K, M, M)``, ``x0``, ``P0``, ``diverged (N,)``, the sequences in the input's order
+  (one sequence length only: sequences of several are refused before any work).
 """
 
 from __future__ import annotations
@@ -346,20 +347,21 @@ def write(
     ``order`` (the input's), whatever batches of equal length they ran in; missing parent
     directories are made."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    where = {name: (r, n) for names, r in results for n, name in enumerate(names)}
     if path.suffix == ".npz":
-        if len(results) != 1:
+        lengths = sorted({r.estimate.shape[1] for _, r in results})
+        if len(lengths) != 1:  # main checks it before the tracking
             raise ConfigError(f"{path}: an NPZ output holds sequences of one length only")
-        r = results[0][1]
-        np.savez(
-            path, estimate=r.estimate, covariance=r.covariance, mode_probs=r.mode_probs,
-            tpm=r.tpm, x0=r.x0, P0=r.P0, diverged=r.diverged,
-        )
+        # the batches (with and without a velocity) merged back in the input's order
+        np.savez(path, **{
+            key: np.stack([getattr(r, key)[n] for r, n in (where[name] for name in order)])
+            for key in ("estimate", "covariance", "mode_probs", "tpm", "x0", "P0", "diverged")
+        })
         return
     M = results[0][1].mode_probs.shape[-1]
     header = ["sequence", "step", "x", "y", "vx", "vy"]
     header += [f"P{i}{j}" for i in range(4) for j in range(4)]
     header += [f"mu{i}" for i in range(M)] + [f"tpm{i}{j}" for i in range(M) for j in range(M)]
-    where = {name: (r, n) for names, r in results for n, name in enumerate(names)}
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(header)
@@ -417,6 +419,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.measurements.suffix == ".csv"
             else read_npz(args.measurements)
         )
+        lengths = sorted({s["z"].shape[0] - 1 for s in sequences})
+        if args.out.suffix == ".npz" and len(lengths) > 1:
+            raise ConfigError(
+                f"--out {str(args.out)!r}: an NPZ output holds sequences of one length (its arrays "
+                f"are (N, K, ...)); the input's have {', '.join(map(str, lengths))} steps: write "
+                "a CSV"
+            )
         policy, overrides, _ = make_policy(args.policy, config, args.seed)
         if args.policy not in REGISTRY:  # a trained agent: sizes checked, tracker config's
             overrides, notes = agent_overrides(policy, overrides, config)

@@ -358,3 +358,44 @@ def test_unusable_outputs_and_unreadable_inputs_are_usage_errors(
                      "--out", str(out)]) == 0
     assert (tmp_path / "new/dirs/z.csv.out.csv").read_text() == (
         tmp_path / "new/dirs/bom.csv.out.csv").read_text()
+
+
+def test_an_npz_output_merges_the_starts_in_the_input_order(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Sequences of one length, some with a velocity and some without, run in two batches and
+    come back in one NPZ in the input's order (it was refused as 'of one length only' after the
+    tracking); sequences of several lengths are refused before any work."""
+    core = TrackingCore(EnvConfig(), n_envs=3)
+    core.reset(np.arange(3), [5, 6, 7])
+    velocities = (("", ""), ("3", "-4"), ("", ""))
+    with (tmp_path / "z.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["sequence", "z0", "z1", "vx", "vy"])
+        for n, name in enumerate("cab"):
+            for k in range(21):
+                z0, z1 = (repr(float(v)) for v in core.z[n, k])
+                writer.writerow([name, z0, z1, *(velocities[n] if k == 0 else ("", ""))])
+    assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                 "--out", str(tmp_path / "out.npz")]) == 0
+    with np.load(tmp_path / "out.npz") as out:
+        assert out["estimate"].shape == (3, 20, 4)
+        for n in range(3):
+            velocity = None if velocities[n][0] == "" else [3.0, -4.0]
+            alone = imm_gym.run_policy(core.z[n, :21], make_baseline("fixed"), velocity=velocity)
+            for key in ("estimate", "covariance", "mode_probs", "tpm", "x0", "P0", "diverged"):
+                np.testing.assert_array_equal(out[key][n], getattr(alone, key)[0], err_msg=key)
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("a policy was made before the output was checked")
+
+    monkeypatch.setattr("imm_gym.cli.track.make_policy", no_work)
+    with (tmp_path / "z.csv").open("a", newline="") as handle:
+        csv.writer(handle).writerow(["d", *(repr(float(v)) for v in core.z[0, 0]), "", ""])
+        csv.writer(handle).writerow(["d", *(repr(float(v)) for v in core.z[0, 1]), "", ""])
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+              "--out", str(tmp_path / "two.npz")])
+    assert exit_info.value.code == 2
+    assert "holds sequences of one length (its arrays are (N, K, ...)); the input's have 1, 20 " \
+        "steps: write a CSV" in " ".join(capsys.readouterr().err.split())
