@@ -252,8 +252,10 @@ def _flag(path: Path, line: int, name: str, text: str) -> bool:
     return value == 1.0
 
 
-def read_npz(path: Path) -> list[dict[str, Any]]:
-    """The sequences of a measurement NPZ (see the module docstring)."""
+def read_npz(path: Path, dim_z: int) -> list[dict[str, Any]]:
+    """The sequences of a measurement NPZ (see the module docstring): its arrays numbers of the
+    shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection), the rest
+    finite, a velocity or ``x0`` and ``P0``; anything else refused naming the file."""
     try:  # no pickles: a file that is not an NPZ archive must not run code
         loaded = np.load(path, allow_pickle=False)
     except (ValueError, EOFError, zipfile.BadZipFile) as err:
@@ -278,15 +280,56 @@ def read_npz(path: Path) -> list[dict[str, Any]]:
     unknown = set(arrays) - {"z", "detected", "velocity", "x0", "P0"}
     if unknown:
         raise ConfigError(f"{path}: unknown arrays {sorted(unknown)}")
-    z = arrays.pop("z")
+    for key, value in arrays.items():
+        if value.dtype.kind not in "biuf":
+            raise ConfigError(f"{path}: {key} must hold numbers, got dtype {value.dtype}")
+    z = arrays.pop("z").astype(np.float64)
+    given = z.shape
     single = z.ndim == 2
     z = z[None] if single else z
-    if z.ndim != 3:
-        raise ConfigError(f"{path}: z must be (N, K+1, m) or (K+1, m), got {z.shape}")
-    extra = {k: (v[None] if single else v) for k, v in arrays.items()}
+    if z.ndim != 3 or z.shape[2] != dim_z or z.shape[1] < 2:
+        raise ConfigError(
+            f"{path}: z must be (N, K+1, {dim_z}) or (K+1, {dim_z}) with K >= 1 (the track's "
+            f"start and a step or more), got {given}"
+        )
+    N, K1 = z.shape[:2]
+    if ("x0" in arrays) != ("P0" in arrays) or ("x0" in arrays and "velocity" in arrays):
+        raise ConfigError(
+            f"{path}: a track starts from velocity, or from x0 and P0 together, got "
+            f"{', '.join(k for k in ('velocity', 'x0', 'P0') if k in arrays)}"
+        )
+    shapes = {"detected": (K1,), "velocity": (2,), "x0": (4,), "P0": (4, 4)}
+    extra = {}
+    for key, value in arrays.items():
+        want = shapes[key] if single else (N, *shapes[key])
+        if value.shape != want:
+            raise ConfigError(f"{path}: {key} must be {want} for z of shape {given}, got "
+                              f"{value.shape}")
+        if key == "detected":
+            if not np.all((value == 0) | (value == 1)):
+                raise ConfigError(f"{path}: detected must be 0 or 1 (or booleans)")
+            value = value.astype(bool)
+        elif not np.all(np.isfinite(value)):
+            raise ConfigError(f"{path}: {key} must be finite")
+        extra[key] = value[None] if single else value
+    if np.any(np.isinf(z)):
+        where = tuple(int(i) for i in np.argwhere(np.isinf(z))[0][1 if single else 0:])
+        raise ConfigError(f"{path}: z{list(where)} is infinite (NaN is a missed detection)")
+    finite = np.all(np.isfinite(z), axis=2)
+    detected = extra.get("detected", finite)
+    for i in range(N):
+        name = "" if single else f"sequence {i}: "
+        if not (detected[i, 0] and finite[i, 0]):
+            raise ConfigError(
+                f"{path}: {name}z's first row initiates the track: it must be a finite "
+                "detection"
+            )
+        if np.any(detected[i] & ~finite[i]):
+            k = int(np.flatnonzero(detected[i] & ~finite[i])[0])
+            raise ConfigError(f"{path}: {name}z's row {k} is a detection and not finite")
     return [
         {"name": str(i), "z": z[i], **{k: v[i] for k, v in extra.items()}}
-        for i in range(z.shape[0])
+        for i in range(N)
     ]
 
 
@@ -417,7 +460,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sequences = (
             read_csv(args.measurements, config.sensor.dim_z)
             if args.measurements.suffix == ".csv"
-            else read_npz(args.measurements)
+            else read_npz(args.measurements, config.sensor.dim_z)
         )
         lengths = sorted({s["z"].shape[0] - 1 for s in sequences})
         if args.out.suffix == ".npz" and len(lengths) > 1:

@@ -399,3 +399,39 @@ def test_an_npz_output_merges_the_starts_in_the_input_order(
     assert exit_info.value.code == 2
     assert "holds sequences of one length (its arrays are (N, K, ...)); the input's have 1, 20 " \
         "steps: write a CSV" in " ".join(capsys.readouterr().err.split())
+
+
+_Z = np.array([[1000.0, 0.1], [1010.0, 0.1], [1020.0, 0.1]])
+
+
+@pytest.mark.parametrize(
+    ("arrays", "message"),
+    [
+        ({"z": np.array([["a", "b"], ["c", "d"]])}, r"z must hold numbers, got dtype <U1"),
+        ({"z": _Z[:, 0]}, r"z must be \(N, K\+1, 2\) or \(K\+1, 2\) with K >= 1.*got \(3,\)"),
+        ({"z": _Z[:1]}, r"z must be .*got \(1, 2\)"),
+        ({"z": np.stack([_Z, _Z]), "velocity": np.array([3.0, -4.0])},
+         r"velocity must be \(2, 2\) for z of shape \(2, 3, 2\), got \(2,\)"),
+        ({"z": _Z, "velocity": np.array([np.nan, 0.0])}, r"velocity must be finite"),
+        ({"z": _Z, "detected": np.array([1, 2, 1])}, r"detected must be 0 or 1"),
+        ({"z": _Z, "x0": np.zeros(4)}, r"a track starts from velocity, or .*, got x0"),
+        ({"z": np.where([[False], [True], [False]], np.inf, _Z)}, r"z\[1, 0\] is infinite"),
+        ({"z": np.stack([_Z, np.where([[True], [False], [False]], np.nan, _Z)])},
+         r"sequence 1: z's first row initiates the track"),
+        ({"z": np.where([[False], [True], [False]], np.nan, _Z), "detected": np.ones(3)},
+         r"z's row 1 is a detection and not finite"),
+    ],
+)
+def test_bad_npz_arrays_are_usage_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture, arrays: dict[str, np.ndarray], message: str
+) -> None:
+    """An NPZ's arrays are checked naming the file (strings were a traceback; a velocity (2,)
+    for two sequences was read as one number each, detected 2 as 1, z inf as a missed
+    detection)."""
+    np.savez(tmp_path / "z.npz", **arrays)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--measurements", str(tmp_path / "z.npz"), "--policy", "fixed",
+              "--out", str(tmp_path / "out.npz")])
+    assert exit_info.value.code == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert re.search(f"z.npz: {message}", err), err
