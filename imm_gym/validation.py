@@ -219,7 +219,8 @@ def load_yaml(text: str) -> Any:
     field then refuses by name).
 
     Raises:
-        yaml.YAMLError: the text is not YAML, or a mapping gives a key twice (with its line).
+        yaml.YAMLError: the text is not YAML, a mapping gives a key twice (with its line), or
+            the text nests deeper than Python's recursion limit lets it be built.
     """
     import yaml
 
@@ -253,7 +254,10 @@ def load_yaml(text: str) -> Any:
     Loader.add_implicit_resolver("tag:yaml.org,2002:int", _YAML12_INT, list("-+0123456789"))
     Loader.add_implicit_resolver("tag:yaml.org,2002:bool", _YAML12_BOOL, list("tTfF"))
     Loader.add_constructor("tag:yaml.org,2002:int", construct_int)
-    return yaml.load(text, Loader=Loader)  # a SafeLoader: plain data only
+    try:
+        return yaml.load(text, Loader=Loader)  # a SafeLoader: plain data only
+    except RecursionError:
+        raise yaml.YAMLError("nested too deeply") from None
 
 
 def unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:

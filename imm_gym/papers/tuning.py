@@ -295,6 +295,8 @@ class TunedBank:
             data = json.loads(Path(path).read_text(), object_pairs_hook=unique_keys)
         except (OSError, ValueError) as err:  # unreadable, not JSON, a key given twice
             raise ConfigError(f"tuned bank {path}: cannot read ({err})") from None
+        except RecursionError:
+            raise ConfigError(f"tuned bank {path}: cannot read (nested too deeply)") from None
         return from_dict(cls, data, f"tuned bank {path}")
 
 

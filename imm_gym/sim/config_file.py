@@ -116,6 +116,8 @@ def read_env_config(path: str | Path) -> dict[str, Any]:
             data = json.loads(text, object_pairs_hook=unique_keys)
         except ValueError as err:  # JSONDecodeError is one, as is a key given twice
             raise ConfigError(f"{path}: not valid JSON ({err})") from None
+        except RecursionError:
+            raise ConfigError(f"{path}: not valid JSON (nested too deeply)") from None
     else:
         raise ConfigError(f"{path}: a configuration file ends in .yaml, .yml or .json")
     if isinstance(data, Mapping) and isinstance(data.get("detector_weights"), str):

@@ -109,6 +109,9 @@ def test_bad_tuning_input_is_rejected(tmp_path) -> None:
     bad.write_text('{"bank": "seed003", "q_scale": [1, 1, 1], "typo": 1}')
     with pytest.raises(ConfigError, match="typo"):
         TunedBank.load(bad)
+    bad.write_text("[" * 5000 + "]" * 5000)
+    with pytest.raises(ConfigError, match=r"bad\.json: cannot read \(nested too deeply\)"):
+        TunedBank.load(bad)
 
 
 def test_evaluation_tool_reports_tuned_banks(tmp_path, capsys) -> None:

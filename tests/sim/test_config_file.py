@@ -99,6 +99,8 @@ BAD = [
     ("m.yaml", "- 1\n- 2\n", ["m.yaml", "mapping"]),
     ("y.yaml", "sensor: {sigma_r: [1\n", ["y.yaml", "YAML"]),
     ("j.json", "{", ["j.json", "JSON"]),
+    ("d.json", "[" * 5000 + "]" * 5000, ["d.json", "not valid JSON (nested too deeply)"]),
+    ("d.yaml", "a: " + "[" * 5000 + "]" * 5000, ["d.yaml", "not valid YAML (nested too deeply)"]),
     ("c.toml", "p_min = 0.01\n", ["c.toml", ".yaml"]),
 ]
 
