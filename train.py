@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import signal
@@ -670,7 +671,7 @@ def train_one(
     best_file = best_dir / "validation.json"
     best: dict[str, Any] = {"armse_pos": None}
     if resume is not None and best_file.is_file():  # the run's own, continued
-        best = json.loads(best_file.read_text())
+        best = read_validation(best_file)
         if best.get("timesteps", 0) > done:  # kept after the checkpoint: not in this run's past
             best = {"armse_pos": None, "history": best.get("history", [])}
     history: list[dict[str, float]] = [
@@ -1335,6 +1336,55 @@ def _write_summary_report(path: Path, summary: dict[str, Any]) -> None:
             "",
         ]
     path.write_text("\n".join(lines))
+
+
+def read_validation(file: Path) -> dict[str, Any]:
+    """A run's ``best/validation.json``, which a resumed run continues: ``armse_pos`` (the best
+    validation ARMSE, or null before any), the ``timesteps`` it was reached at and the
+    ``history`` of ``{"timesteps", "armse_pos"}`` validations.
+
+    Raises:
+        ConfigError: the file is not such a record (naming it and what is wrong).
+    """
+    from imm_gym.validation import ConfigError, unique_keys
+
+    def refuse(problem: str) -> NoReturn:
+        raise ConfigError(f"{file}: {problem}")
+
+    def count(value: Any) -> bool:
+        return type(value) is int and value >= 0
+
+    def score(value: Any) -> bool:
+        return type(value) in (int, float) and math.isfinite(value) and value >= 0
+
+    try:
+        data = json.loads(file.read_bytes().decode("utf-8"), object_pairs_hook=unique_keys)
+    except (OSError, ValueError, RecursionError) as err:
+        refuse(f"not valid JSON ({' '.join(str(err).split()) or type(err).__name__})")
+    if not isinstance(data, dict):
+        refuse(f"must hold an object, got {type(data).__name__}")
+    unknown = sorted(set(data) - {"armse_pos", "timesteps", "history"})
+    if unknown:
+        refuse(f"unknown keys {unknown}")
+    if "armse_pos" not in data or not (data["armse_pos"] is None or score(data["armse_pos"])):
+        refuse(f"armse_pos must be null or a finite number >= 0, got {data.get('armse_pos')!r}")
+    if "timesteps" in data and not count(data["timesteps"]):
+        refuse(f"timesteps must be an integer >= 0, got {data['timesteps']!r}")
+    history = data.get("history", [])
+    if not isinstance(history, list):
+        refuse(f"history must be a list, got {type(history).__name__}")
+    for i, entry in enumerate(history):
+        if not (
+            isinstance(entry, dict)
+            and set(entry) == {"timesteps", "armse_pos"}
+            and count(entry["timesteps"])
+            and score(entry["armse_pos"])
+        ):
+            refuse(
+                f"history[{i}] must be {{\"timesteps\": an integer >= 0, \"armse_pos\": a finite "
+                f"number >= 0}}, got {entry!r}"
+            )
+    return data
 
 
 def _engine(args: argparse.Namespace) -> str:

@@ -36,6 +36,9 @@ from imm_gym.validation import ConfigError, load_yaml
 
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
 TRAIN_SEED_BASE = 100_000_000
+#: The training slots a run seed may have: run seed ``s``'s slot ``i`` is seeded with
+#: ``TRAIN_SEED_BASE + SLOTS_PER_SEED s + i``, so that no two run seeds share a slot's streams.
+SLOTS_PER_SEED = 10_000
 VALIDATION_SEED_BASE = 50_000_000
 #: The largest run seed ``s``: the algorithm seeds numpy's global generator with it
 #: (``np.random.seed`` takes 0 to 2**32 - 1; RLlib's too). The seeds derived from it — the
@@ -152,6 +155,18 @@ def _swa_start(where: str, value: Any) -> float | None:
     return value
 
 
+def _n_envs(where: str, value: Any) -> int:
+    """A count of training slots, at most :data:`SLOTS_PER_SEED` (a run seed's share of the
+    training seeds)."""
+    size = check_size(where, value)
+    if size > SLOTS_PER_SEED:
+        raise ConfigError(
+            f"{where} must be in [1, {SLOTS_PER_SEED}] (a run seed's slots are seeded from "
+            f"{SLOTS_PER_SEED} training seeds of its own), got {value!r}"
+        )
+    return size
+
+
 def _mapping(where: str, value: Any) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise ConfigError(f"{where} must be a mapping, got {value!r}")
@@ -160,7 +175,7 @@ def _mapping(where: str, value: Any) -> dict[str, Any]:
 
 #: Keys of a hyperparameter entry that configure the environment stack, with their checks.
 STACK_KEYS: dict[str, Callable[[str, Any], Any]] = {
-    "n_envs": check_size,
+    "n_envs": _n_envs,
     "n_timesteps": _timesteps,
     "policy": lambda where, value: value,  # checked against the algorithm below
     "normalize": check_flag,
@@ -250,7 +265,7 @@ def seed_training_env(env: Any, seed: int) -> None:
     ``TRAIN_SEED_BASE + 10_000 seed + i`` (a VecEnv or a wrapper of one); again once the
     algorithm is built (:func:`build_algorithm`): SB3's constructor seeds the environment with
     its own seed, ``seed + i``, the held-out evaluation runs."""
-    env.seed(TRAIN_SEED_BASE + 10_000 * seed)
+    env.seed(TRAIN_SEED_BASE + SLOTS_PER_SEED * seed)
 
 
 def build_algorithm(algo_cls: type, policy: Any, env: Any, seed: int, **kwargs: Any) -> Any:

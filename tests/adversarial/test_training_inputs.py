@@ -39,6 +39,7 @@ def usage_error(argv: list[str], tmp_path: Path, capsys) -> str:
         ("policy_kwargs: {ortho_init: 'no'}", "policy_kwargs.ortho_init must be true or false"),
         ("n_steps: '32'", "n_steps must be a positive integer, got '32'"),
         ("n_envs: true", "n_envs must be a positive integer, got True"),
+        ("n_envs: 10001", "n_envs must be in [1, 10000]"),
         ("n_timesteps: 1.5", "n_timesteps must be a whole number >= 1"),
         ("gamma: 1.5", "gamma must be in (0, 1]"),
         ("gae_lambda: '0.9'", "gae_lambda must be a finite number"),
@@ -52,6 +53,7 @@ def usage_error(argv: list[str], tmp_path: Path, capsys) -> str:
         ("env_kwargs: {p_min: '0.01'}", "p_min must be a real number"),
         ("[1, 2]", "must hold a mapping, got list"),
         ("n_envs: [", "not valid YAML"),
+        ("n_envs: " + "[" * 5000 + "]" * 5000, "not valid YAML (nested too deeply)"),
     ],
 )
 def test_a_bad_hyperparameter_is_a_usage_error_naming_it(yaml, message, tmp_path, capsys) -> None:
@@ -135,3 +137,42 @@ def test_resume_refuses_other_hyperparameters_but_takes_a_new_budget(
     assert train.main([*argv, "--no-eval", "--no-progress", "--validate-every", "0"]) == 0
     stats = json.loads((tmp_path / "r" / "seed_3" / "training.json").read_text())
     assert stats["timesteps"] >= 512 and stats["trained_this_call"] == 512 - 256
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("{", "not valid JSON"),
+        ("[" * 5000 + "]" * 5000, "not valid JSON"),
+        ("[1]", "must hold an object, got list"),
+        ('{"armse_pos": 1.0, "step": 3}', "unknown keys ['step']"),
+        ('{"timesteps": 3}', "armse_pos must be null or a finite number >= 0"),
+        ('{"armse_pos": "17"}', "armse_pos must be null or a finite number >= 0, got '17'"),
+        ('{"armse_pos": 1.0, "timesteps": -1}', "timesteps must be an integer >= 0, got -1"),
+        ('{"armse_pos": 1.0, "history": {}}', "history must be a list, got dict"),
+        ('{"armse_pos": 1.0, "history": [{"timesteps": 5}]}', "history[0] must be"),
+        ('{"armse_pos": null, "history": [{"timesteps": 5, "armse_pos": NaN}]}', "history[0]"),
+    ],
+)
+def test_a_damaged_validation_record_is_refused_naming_it(content, message, tmp_path) -> None:
+    from imm_gym.validation import ConfigError
+
+    file = tmp_path / "validation.json"
+    file.write_text(content)
+    with pytest.raises(ConfigError) as err:
+        train.read_validation(file)
+    assert str(err.value).startswith(f"{file}: ") and message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_a_validation_record_as_training_writes_it_is_read_back(tmp_path) -> None:
+    record = {
+        "armse_pos": 17.5,
+        "timesteps": 1000,
+        "history": [{"timesteps": 500, "armse_pos": 18.0}, {"timesteps": 1000, "armse_pos": 17.5}],
+    }
+    file = tmp_path / "validation.json"
+    file.write_text(json.dumps(record, indent=2))
+    assert train.read_validation(file) == record
+    file.write_text(json.dumps({"armse_pos": None}))
+    assert train.read_validation(file) == {"armse_pos": None}
