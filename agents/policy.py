@@ -180,6 +180,10 @@ class LearnedPolicy:
         episode_start: NDArray[np.bool_] | None = None,
         deterministic: bool = True,
     ) -> tuple[NDArray[Any], Any]:
+        """SB3's ``predict`` for ``observation`` ``(N, obs_size)`` (or one ``(obs_size,)``):
+        actions in ``[-1, 1]`` and the state to pass next, the frame stack (and the LSTM's
+        state). ``episode_start`` ``(N,)`` clears a slot's frames where True; None means no
+        episode starts (sb3-contrib's convention), but on a first call (``state`` None)."""
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1
         obs = obs[None] if single else obs
@@ -192,7 +196,10 @@ class LearnedPolicy:
         if self.critic_dims:
             obs = np.concatenate([obs, np.zeros((obs.shape[0], self.critic_dims))], axis=-1)
         N, d = obs.shape
-        start = np.ones(N, bool) if episode_start is None else np.asarray(episode_start, bool)
+        # episode_start None: no episode starts (sb3-contrib's convention), but on a first call
+        start = (
+            np.full(N, state is None) if episode_start is None else np.asarray(episode_start, bool)
+        )
         stack, lstm = (None, None) if state is None else state
         x = self.normalize(obs)
         if stack is None:

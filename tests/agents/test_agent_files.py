@@ -91,3 +91,25 @@ def test_an_agent_trained_across_a_heterogeneous_bank_is_evaluated(tmp_path: Pat
     base = EnvConfig.build({"scenario": "paper"})
     _, notes = agent_overrides(policy, policy.env_overrides, base)
     assert hetero in notes["trained_across"]
+
+
+def test_episode_start_none_continues_the_frame_stack_as_in_sb3_contrib() -> None:
+    """Without ``episode_start`` an agent's frames go on (only a first call starts them), as the
+    rules' ``predict`` and sb3-contrib's recurrent policies read None."""
+    import numpy as np
+
+    from agents import PRETRAINED
+
+    policy = load_agent(sorted(p for p in PRETRAINED.iterdir() if p.is_dir())[0])
+    assert policy.frame_stack > 1
+    obs = np.random.default_rng(0).uniform(-1.0, 1.0, (5, 3, policy.obs_size))
+    first, state = policy.predict(obs[0])
+    state_on = state
+    for t in range(1, 5):
+        omitted, state = policy.predict(obs[t], state)
+        given, state_on = policy.predict(obs[t], state_on, np.zeros(3, bool))
+        np.testing.assert_array_equal(omitted, given)
+    fresh, _ = policy.predict(obs[4])
+    assert not np.array_equal(fresh, omitted)
+    again, _ = policy.predict(obs[0])
+    np.testing.assert_array_equal(again, first)
