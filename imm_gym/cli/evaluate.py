@@ -135,6 +135,8 @@ def load_source(name: str) -> str | Scenario:
         raise ConfigError(f"scenario file {name}: cannot read ({err})") from None
     except ValueError as err:  # not UTF-8, not JSON, or a key given twice
         raise ConfigError(f"scenario file {name}: not valid JSON ({err})") from None
+    except RecursionError:
+        raise ConfigError(f"scenario file {name}: not valid JSON (nested too deeply)") from None
     try:
         return from_dict(Scenario, data, "scenario")
     except ConfigError as err:

@@ -156,6 +156,11 @@ def test_scenario_file_that_is_not_json(tmp_path, capsys, no_evaluation) -> None
     assert "not valid JSON" in message
 
 
+def test_scenario_file_nested_too_deeply(tmp_path, capsys, no_evaluation) -> None:
+    message, _ = scenario_error(tmp_path, "[" * 5000 + "]" * 5000, capsys)
+    assert "not valid JSON (nested too deeply)" in message
+
+
 def test_scenario_file_with_integral_float_durations_is_evaluated(tmp_path) -> None:
     path = tmp_path / "scen.json"
     path.write_text(json.dumps({"segments": [{"duration": 30.0}, {"duration": 20}]}))
