@@ -81,19 +81,32 @@ class Rollout:
         return np.sum(d * d, axis=-1)
 
 
-def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
-    """``base`` with a policy's overrides; the shadow tracker is turned off (it only shapes
-    rewards) unless the policy observes a feature computed from it
-    (:attr:`imm_gym.sim.features.Feature.needs_shadow`) or its TPM follows it
-    (``detector_share`` with the ``shadow`` detector)."""
-    features = overrides.get("obs_features", ())
-    observed = any(FEATURES[f].needs_shadow for f in features if f in FEATURES)
-    detector = (
-        overrides.get("detector_share", base.detector_share) > 0.0
-        and overrides.get("detector", base.detector) == "shadow"
+#: The reward fields a roll-out sets whatever the policy was trained with: it reads no reward,
+#: so every term is off (none then needs the shadow IMM or the stay bank).
+NO_REWARD: dict[str, Any] = {
+    "reward": "error", "tpm_cost": 0.0, "tpm_change_cost": 0.0, "mode_reward": 0.0,
+}
+
+
+def needs_shadow(config: EnvConfig) -> bool:
+    """Whether what a policy of ``config`` observes or acts with is computed from the shadow
+    IMM: an observed feature that needs it (:attr:`imm_gym.sim.features.Feature.needs_shadow`),
+    or the ``shadow`` detector's belief, placing ``detector_share`` of the jumps or observed
+    (``detector_belief``)."""
+    features = config.obs_features
+    return any(FEATURES[f].needs_shadow for f in features) or (
+        config.detector == "shadow"
+        and (config.detector_share > 0.0 or "detector_belief" in features)
     )
-    defaults = {} if observed or detector else {"shadow": "none", "reward": "error"}
-    return base.replace(**{**defaults, **overrides})
+
+
+def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
+    """``base`` with a policy's overrides and the reward off (:data:`NO_REWARD`: a roll-out
+    reads no reward, so an agent trained with a reward or cost that needs the shadow IMM is
+    taken); the shadow IMM runs only where :func:`needs_shadow` (it is ``"none"`` otherwise,
+    which changes no observation: nothing else observed is computed from it)."""
+    config = base.replace(**{**overrides, **NO_REWARD, "shadow": "fixed"})
+    return config if needs_shadow(config) else config.replace(shadow="none")
 
 
 def rollout(
