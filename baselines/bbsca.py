@@ -5,7 +5,9 @@ Seed 003 tunes ``Q`` and ``R`` by the bare-bones sine-cosine algorithm
 the filter's ``R``, so here only the models' ``Q`` factors are tuned (one per model): BBSCA
 minimizes the innovation mean-square error of the classical IMM (fixed TPM ``initial_stay``) on
 training runs, and the policy is that IMM with the tuned bank (``env_overrides["bank"]``), acting
-with the zero action like :class:`~baselines.fixed.FixedTPM`.
+with the zero action like :class:`~baselines.fixed.FixedTPM`. Evaluated, it tracks the targets
+drawn for the untuned bank, those every other policy meets (a designed family's turns follow the
+CT models' ``Q``: :func:`~imm_gym.evaluation.rollout.evaluation_config`).
 
 The tuner runs the engine of :mod:`imm_gym.tracking.hetero` (an EKF for the sonar) on the bank; the
 environment then runs the tuned bank with its own filter (the SVD-UKF by default), whose

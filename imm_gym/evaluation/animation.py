@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.evaluation.rollout import Rollout
+from imm_gym.sim.core import design_bank
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import Batch, draw_batch
 from imm_gym.sim.render import RENDER_FPS, TrackFigure, TrackView, model_labels, scene_extent
@@ -102,7 +103,7 @@ def side_by_side_frames(
     """
     batch = draw_batch(
         config.source, config.sensor, run + 1, seed, config.velocity_std, config.vary,
-        config.linear_bank,
+        design_bank(config),
     )
     labels = model_labels(config.bank)
     for name, rollout in rollouts.items():

@@ -3,17 +3,19 @@
 :func:`rollout` runs a policy (anything with SB3's ``predict``) on R episodes at once — one
 :class:`~imm_gym.sim.core.TrackingCore` with R slots, slot ``r`` reset with seed ``seed + r`` — so
 all policies see the same targets and the same sensor noise (common random numbers) whatever
-environment settings they need. A run whose tracker diverges keeps a position error of
-``divergence_error`` (the cap: ``divergence_error / sqrt(2)`` on x and on y), the velocity error of
-its estimate at the step it diverges at (the error it was lost with; an entry that is not finite
-there, the error of a zero velocity) and uniform mode probabilities from that step to the end of
-its episode; its NIS and NEES count up to the step before (:attr:`Rollout.live`), the divergence
-itself is counted apart (``diverged``).
+environment settings they need (a designed family's targets are drawn for the evaluated bank
+whatever bank a policy brings, :func:`evaluation_config`; :func:`check_paired` holds roll-outs to
+the same targets before their errors are paired). A run whose tracker diverges keeps a position
+error of ``divergence_error`` (the cap: ``divergence_error / sqrt(2)`` on x and on y), the
+velocity error of its estimate at the step it diverges at (the error it was lost with; an entry
+that is not finite there, the error of a zero velocity) and uniform mode probabilities from that
+step to the end of its episode; its NIS and NEES count up to the step before
+(:attr:`Rollout.live`), the divergence itself is counted apart (``diverged``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -29,7 +31,7 @@ from imm_gym.evaluation.metrics import (
     peak_error,
     tracking_errors,
 )
-from imm_gym.sim.core import INFINITY_STAND_IN, TrackingCore
+from imm_gym.sim.core import INFINITY_STAND_IN, PairedConfig, TrackingCore, design_bank
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import FEATURES
 from imm_gym.sim.model_order import for_bank
@@ -104,9 +106,45 @@ def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
     """``base`` with a policy's overrides and the reward off (:data:`NO_REWARD`: a roll-out
     reads no reward, so an agent trained with a reward or cost that needs the shadow IMM is
     taken); the shadow IMM runs only where :func:`needs_shadow` (it is ``"none"`` otherwise,
-    which changes no observation: nothing else observed is computed from it)."""
+    which changes no observation: nothing else observed is computed from it). A policy's own
+    bank (``bbsca``'s tuned ``Q``) tracks the episodes drawn for ``base``'s: a
+    :class:`~imm_gym.sim.core.PairedConfig` whose ``design_bank`` is ``base``'s, so that a
+    designed family (``family.designed_share > 0``, whose turns follow the CT models' noise)
+    gives it the targets every other policy meets."""
     config = base.replace(**{**overrides, **NO_REWARD, "shadow": "fixed"})
-    return config if needs_shadow(config) else config.replace(shadow="none")
+    if not needs_shadow(config):
+        config = config.replace(shadow="none")
+    drawn_for = design_bank(base)
+    if drawn_for is not None and config.bank != drawn_for:
+        kept = {f.name: getattr(config, f.name) for f in fields(EnvConfig)}
+        config = PairedConfig(**kept, design_bank=drawn_for)
+    return config
+
+
+def check_paired(rollouts: Mapping[str, Rollout]) -> None:
+    """Raise :class:`ValueError` naming the first of ``rollouts`` whose runs are not the first
+    one's — another number of runs or steps, or other targets (``truth`` not bit for bit the
+    same) —: a paired difference (:func:`paired_bootstrap`) holds only between roll-outs of the
+    same runs (common random numbers). Cheap beside the roll-outs: one comparison of the
+    ``(R, K, 4)`` truths per policy."""
+    items = iter(rollouts.items())
+    first = next(items, None)
+    if first is None:
+        return
+    ref_name, ref = first
+    for name, other in items:
+        if other.truth.shape != ref.truth.shape:
+            raise ValueError(
+                f"{name!r} ran {other.truth.shape[0]} runs of {other.truth.shape[1]} steps and "
+                f"{ref_name!r} {ref.truth.shape[0]} of {ref.truth.shape[1]}: they cannot be paired"
+            )
+        if not np.array_equal(other.truth, ref.truth):
+            runs = np.flatnonzero(np.any(other.truth != ref.truth, axis=(1, 2)))
+            raise ValueError(
+                f"{name!r} was rolled out on other targets than {ref_name!r} (runs "
+                f"{runs[:5].tolist()}{' ...' if runs.size > 5 else ''} differ): their errors "
+                "cannot be paired (common random numbers)"
+            )
 
 
 def rollout(

@@ -43,9 +43,9 @@ from imm_gym.sim.rewards import REWARD_TERMS, Reward
 from imm_gym.sim.stay_bank import StayBank, detector_tpm_rows
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
-from imm_gym.tracking.models import velocity_noise
+from imm_gym.tracking.models import MotionModel, velocity_noise
 from imm_gym.tracking.tpm import stay_tpm_rows, validate_tpm
-from imm_gym.validation import ConfigError
+from imm_gym.validation import ConfigError, check_sequence, store
 
 Array = NDArray[np.float64]
 
@@ -60,6 +60,44 @@ CRITIC_CLIP = 10.0
 def critic_state_size(n_models: int) -> int:
     """Length of :meth:`TrackingCore.critic_state`: two 4-d errors and a one-hot model."""
     return 8 + n_models
+
+
+@dataclass(frozen=True)
+class PairedConfig(EnvConfig):
+    """An :class:`EnvConfig` whose tracker runs on another configuration's episodes: a
+    randomized family with ``designed_share > 0`` draws its targets for ``design_bank`` (the
+    evaluated configuration's bank), not for its own ``bank`` — a policy that brings its own bank
+    (``bbsca``'s tuned ``Q``, whose CT models' noise sets the designed turn bands) meets the
+    targets every other policy meets, as their pairing assumes
+    (:func:`~imm_gym.evaluation.rollout.evaluation_config` builds it).
+
+    Attributes:
+        design_bank: a linear bank, the models the episodes are drawn for; None: ``bank``.
+    """
+
+    design_bank: tuple[MotionModel, ...] | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.design_bank is not None:
+            bank = check_sequence("design_bank", self.design_bank)
+            if not all(isinstance(m, MotionModel) for m in bank):
+                raise ConfigError("design_bank must hold MotionModel entries (a linear bank)")
+            designed = self.scenario == "random" and self.family.designed_share > 0.0
+            if designed and not any(m.kind == "ct" for m in bank):
+                raise ConfigError(
+                    "family.designed_share needs a design_bank with a CT model (the turns its "
+                    "targets are drawn for)"
+                )
+            store(self, "design_bank", bank)
+
+
+def design_bank(config: EnvConfig) -> tuple[MotionModel, ...] | None:
+    """The models ``config``'s episodes are drawn for (a designed family's turns): a
+    :class:`PairedConfig`'s ``design_bank``, else the linear bank (None: a heterogeneous one)."""
+    if isinstance(config, PairedConfig) and config.design_bank is not None:
+        return config.design_bank
+    return config.linear_bank
 
 
 @dataclass
@@ -146,6 +184,8 @@ class TrackingCore:
             DetectorNetwork.load(config.detector_weights or DEFAULT_WEIGHTS),
         ) if config.detector == "learned" else None
         self.horizon = config.source.horizon
+        #: the models a designed family draws the episodes' targets for (:func:`design_bank`)
+        self.design_bank = design_bank(config)
         #: entries of one slot's action: ``M * M``, or ``M`` in the stay modes
         self.action_dim = action_size(config.action_mode, M)
         self.obs_low, self.obs_high = bounds(config.obs_features, M, config.sensor.dim_z)
@@ -289,7 +329,7 @@ class TrackingCore:
         cfg = self.config
         batch = draw_episodes(
             cfg.source, cfg.sensor, scen_rngs, noise_rngs, cfg.velocity_std, cfg.vary,
-            cfg.linear_bank,
+            self.design_bank,
         )
         for p in np.flatnonzero(twin != np.arange(indices.size)).tolist():
             scenario, noise = self._rngs[indices[twin[p]]]  # type: ignore[misc]
