@@ -29,7 +29,10 @@ mode accuracy: picked on the evaluation's own runs, so each row is its detector'
     python examples/detector_headroom.py --env-config examples/broad.yaml   # your own tracker
 
 The priors run through :mod:`imm_gym.evaluation.priors` (``set``-mode logits, exact above the
-floor).
+floor ``P_MIN`` = 1e-4). At share 1 a belief on one model (the true turn rate on a model's own)
+or two (a rate between them) leaves exact zeros in the prior's rows; those entries run at the
+floor, the rest of the row shrunk to pay for them, as the ``turn-rate-prior`` baseline runs its
+prior (its ``p_min`` is 1e-4 too): the share-1 rows printed are the floored prior's.
 """
 
 from __future__ import annotations

@@ -4,8 +4,16 @@ A study of TPM rules (``examples/detector_prior.py``, ``examples/detector_headro
 ``P`` priors on the same ``R`` runs: one core of ``P * R`` slots, prior-major (slot
 ``p * R + r`` is prior ``p`` on run ``r``, seed ``seed + r``), in ``set`` mode with each step's
 rows handed over as logits :math:`\log \pi / L`. The ``set`` action's softmax per row gives the
-rows back exactly wherever every entry is above :math:`e^{-L}` (:data:`LOGIT` :math:`L = 10`:
-4.5e-5), and the floor ``p_min`` (:data:`P_MIN`) is below the entries of any prior studied.
+rows back exactly wherever every entry is at least the floor ``p_min`` (:data:`P_MIN`, 1e-4,
+above the logits' reach :math:`e^{-L}`, :data:`LOGIT` :math:`L = 10`: 4.5e-5). A row with a
+smaller entry runs floored: that entry raised to ``P_MIN`` and the row's others shrunk to pay
+for it (:func:`~imm_gym.tracking.tpm.apply_floor`), as the environment runs such a prior at that
+``p_min`` (the ``turn-rate-prior`` baseline's). Some priors studied have such rows: at share 1
+(``examples/detector_headroom.py``'s largest) a belief on some of the models leaves exact zeros
+on the others (the true turn rate on a model's own, the interpolation of a rate between two
+models) and a network's or the shadow's belief entries below ``P_MIN``; those rows, and the
+figures of docs/experiments.md from them, are the floored priors'. Below share 0.96 every entry
+of a prior of stay at most 0.995 is at least ``P_MIN`` (``(1 - r)(1 - v) / M``, M = 3).
 """
 
 from __future__ import annotations
@@ -26,7 +34,8 @@ Array = NDArray[np.float64]
 
 #: ``set`` mode's logit per unit action: ``log pi`` of every row stays inside [-1, 1] · LOGIT.
 LOGIT = 10.0
-#: The TPM's floor while the priors run.
+#: The TPM's floor while the priors run: an entry of a prior below it runs at it (module
+#: docstring).
 P_MIN = 1e-4
 
 

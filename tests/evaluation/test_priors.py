@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pytest
 
 from baselines.fixed import FixedTPM
 from imm_gym import EnvConfig
@@ -43,3 +44,31 @@ def test_fixed_rows_are_the_evaluations_fixed_tpm_and_the_slots_prior_major() ->
                                    atol=0.005)
         np.testing.assert_allclose(tv, mode_prob_tv(run.mode_probs), atol=0.005)
     assert result.scores(0)[0] != result.scores(1)[0]
+
+
+def test_a_prior_runs_exactly_at_the_floor_and_above_and_floored_below() -> None:
+    """The module docstring's account: a row whose entries are all at least ``P_MIN`` is the TPM
+    the tracker runs (to rounding); share 1 with a one-hot belief (detector_headroom's true
+    turn rate on a model's own) has exact zeros, which run at ``P_MIN``."""
+    from imm_gym.evaluation.priors import P_MIN
+    from imm_gym.sim.stay_bank import detector_tpm_rows
+    from imm_gym.tracking.tpm import apply_floor
+
+    one_hot = np.tile([1.0, 0.0, 0.0], (4, 1))
+    stays, shares = np.array([0.995, 0.995, 0.9, 1 / 3]), np.array([0.95, 1.0, 1.0, 0.5])
+    asked = np.repeat(detector_tpm_rows(stays, one_hot, shares), RUNS, axis=0)
+    core = prior_core({"scenario": "paper"}, len(stays), RUNS, SEED)
+    used: list[np.ndarray] = []
+
+    def rows(k: int, info: dict[str, Any] | None) -> np.ndarray:
+        if info is not None:
+            used.append(info["tpm"].copy())
+        return asked
+
+    run_priors(core, len(stays), rows)
+    ran = used[-1]
+    exact = asked.min(axis=(1, 2)) >= P_MIN
+    assert exact.reshape(4, RUNS)[:, 0].tolist() == [True, False, False, True]
+    np.testing.assert_allclose(ran[exact], asked[exact], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(ran[~exact], apply_floor(asked[~exact], P_MIN), rtol=1e-12)
+    assert ran[~exact].min() == pytest.approx(P_MIN) and asked[~exact].min() == 0.0
