@@ -75,6 +75,7 @@ from imm_gym.evaluation.rollout import (
     PAIRED_RESAMPLES,
     PAIRED_SEED,
     Rollout,
+    check_paired,
     evaluation_config,
     paired_bootstrap,
     rollout,
@@ -270,6 +271,7 @@ def evaluate(
         rollouts[name] = rollout(policy, cfg, runs, seed, progress=tick, make_core=make_core)
         results["policies"][name] = {**score(rollouts[name]), **notes}
     bar.close()
+    check_paired(rollouts)  # the differences below, and a suite's against its bar, are paired
     ref = reference or ("fixed" if "fixed" in rollouts else next(iter(rollouts)))
     results["paired"] = {
         "reference": ref,

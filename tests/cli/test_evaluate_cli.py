@@ -69,6 +69,28 @@ def test_common_random_numbers_across_policies() -> None:
         np.testing.assert_array_equal(d, dets[0])
 
 
+def test_roll_outs_of_other_targets_are_not_paired(monkeypatch) -> None:
+    """The evaluation checks that every policy met the same targets before it pairs them."""
+    import dataclasses
+
+    import imm_gym.cli.evaluate as cli
+
+    calls = []
+
+    def moved(policy, config, runs, seed, **kwargs):
+        out = rollout(policy, config, runs, seed, **kwargs)
+        calls.append(out)
+        if len(calls) == 2:  # the second policy's targets, one run moved by a metre
+            truth = out.truth.copy()
+            truth[1, :, 0] += 1.0
+            out = dataclasses.replace(out, truth=truth)
+        return out
+
+    monkeypatch.setattr(cli, "rollout", moved)
+    with pytest.raises(ValueError, match=r"'window' was rolled out on other targets .*\[1\]"):
+        evaluate(["fixed", "window"], "random", 3, 0, clairvoyant=False)
+
+
 def test_scenario_file(tmp_path) -> None:
     path = tmp_path / "scen.json"
     path.write_text(
