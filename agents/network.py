@@ -24,7 +24,7 @@ from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
 
 from agents.asymmetric import AsymmetricActorCriticPolicy
-from agents.per_model import PerModelActorCriticPolicy, stacked_index
+from agents.per_model import PerModelActorCriticPolicy, check_actor_layers, stacked_index
 from agents.schema import ACTIVATIONS, SDE_KEYS
 from imm_gym.validation import ConfigError
 
@@ -174,6 +174,7 @@ def parameter_count(spec: dict[str, Any]) -> int:
     latent_vf = vf[-1] if vf else features
     count += mlp([features, *vf]) + mlp([latent_vf, 1])
     if name == "PerModelPolicy":
+        check_actor_layers(pi)
         # phi reads a model's entries with the shared ones, psi each model's embedding with
         # their mean; one action layer and one log std for every model
         try:

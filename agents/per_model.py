@@ -78,6 +78,12 @@ def stacked_index(
     return tokens, (offsets[:, None] + shared[None]).ravel()
 
 
+def check_actor_layers(pi: Sequence[int]) -> None:
+    """Refuse an actor of fewer than two layers: ``phi``'s and at least one of ``psi``'s."""
+    if len(pi) < 2:
+        raise ConfigError(f"net_arch.pi of a PerModelPolicy needs two layers or more, got {pi}")
+
+
 class PerModelExtractor(nn.Module):
     """SB3's ``MlpExtractor`` contract: the actor's latent is ``(N, M, pi[-1])``, one row per
     model (:math:`h_j` of the module docstring); the critic's an MLP over all the features."""
@@ -92,8 +98,7 @@ class PerModelExtractor(nn.Module):
         activation_fn: type[nn.Module],
     ) -> None:
         super().__init__()
-        if len(pi) < 2:
-            raise ConfigError(f"net_arch.pi of a PerModelPolicy needs two layers or more, got {pi}")
+        check_actor_layers(pi)
         self.register_buffer("tokens", torch.as_tensor(tokens, dtype=torch.long), persistent=False)
         self.register_buffer("shared", torch.as_tensor(shared, dtype=torch.long), persistent=False)
         self.phi = mlp([tokens.shape[1] + shared.size, pi[0]], activation_fn)

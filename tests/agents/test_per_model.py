@@ -450,3 +450,22 @@ def test_run_policy_tracks_a_trained_policy_on_the_configured_tracker() -> None:
         for s in (20.0, 200.0)
     )
     assert not np.array_equal(fine.covariance, coarse.covariance)
+
+
+@pytest.mark.parametrize("pi", [[], [128]])
+def test_a_per_model_actor_of_fewer_than_two_layers_is_refused_before_it_is_sized(
+    pi, tmp_path
+) -> None:
+    """The weights file's size check reads the layers too: a description the network refuses
+    is that refusal (a ConfigError), never an IndexError."""
+    import shutil
+
+    from agents import PRETRAINED_PER_MODEL
+
+    agent = tmp_path / "agent"
+    shutil.copytree(PRETRAINED_PER_MODEL / "seed_0", agent)
+    meta = json.loads((agent / "agent.json").read_text())
+    meta["policy"]["net_arch"]["pi"] = pi
+    (agent / "agent.json").write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match=r"needs two layers or more"):
+        load_agent(agent)
