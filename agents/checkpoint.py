@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from agents.policy import ALGOS, load_agent, read_json
+from agents.schema import finite_number
 from agents.training import (
     MAX_SEED,
     WeightAverage,
@@ -313,16 +314,6 @@ def _is_count(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
-def _is_finite(value: Any) -> bool:
-    """Whether ``value`` is an int or float (not a boolean) within the finite floats."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return False
-    try:
-        return bool(np.isfinite(float(value)))
-    except OverflowError:  # an integer beyond the floats
-        return False
-
-
 def _reward_normalizer(file: Path, value: Any) -> dict[str, float] | None:
     """``reward_normalizer``: null, or the return's running ``mean``, ``var`` (>= 0) and
     ``count`` (> 0, as ``vecnormalize.json``'s: the running mean divides by it) as finite
@@ -331,7 +322,7 @@ def _reward_normalizer(file: Path, value: Any) -> dict[str, float] | None:
         return None
     keys = ("mean", "var", "count")
     numbers = isinstance(value, dict) and sorted(value) == sorted(keys)
-    numbers = numbers and all(_is_finite(v) for v in value.values())
+    numbers = numbers and all(finite_number(v) is not None for v in value.values())
     if not numbers or value["var"] < 0 or value["count"] <= 0:
         raise ConfigError(f"{file}: reward_normalizer must be null or finite {list(keys)} "
                           f"(var >= 0, count > 0), got {value!r}")

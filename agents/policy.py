@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from agents.schema import finite_number
 from imm_gym.sim.config_file import TRACKER_FIELDS, tracker_of
 from imm_gym.validation import ConfigError, unique_keys
 
@@ -486,8 +487,8 @@ def _check_normalizer(
     arrays = []
     for key in ("mean", "var"):
         value = stats[key]
-        ok = isinstance(value, list) and all(_finite(v) is not None for v in value)
-        array = np.array([_finite(v) for v in value], dtype=np.float64) if ok else np.empty(0)
+        ok = isinstance(value, list) and all(finite_number(v) is not None for v in value)
+        array = np.array([finite_number(v) for v in value], dtype=np.float64) if ok else np.empty(0)
         if not ok or array.shape != (size,):
             raise ConfigError(f"{file}: {key} must be {size} finite numbers")
         arrays.append(array)
@@ -495,20 +496,8 @@ def _check_normalizer(
         raise ConfigError(f"{file}: var must be >= 0")
     scalars = []
     for key in ("count", "clip_obs", "epsilon"):
-        number = _finite(stats[key])
+        number = finite_number(stats[key])
         if number is None or number <= 0:
             raise ConfigError(f"{file}: {key} must be a positive number, got {stats[key]!r}")
         scalars.append(number)
     return arrays[0], arrays[1], scalars[1], scalars[2]
-
-
-def _finite(value: Any) -> float | None:
-    """``value`` as a float if it is an int or float (not a boolean) within the finite floats
-    (an integer such as ``10**400`` is beyond them), else None."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    try:
-        number = float(value)
-    except OverflowError:
-        return None
-    return number if np.isfinite(number) else None

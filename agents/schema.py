@@ -83,15 +83,22 @@ def check_count(where: str, value: Any) -> int:
     return value
 
 
+def finite_number(value: Any) -> float | None:
+    """``value`` as a float if it is an int or float (not a boolean or a string) within the
+    finite floats (an integer such as ``10**400`` is beyond them), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
+
+
 def check_number(where: str, value: Any) -> float:
     """``value`` as a float if it is a finite int or float (not a boolean or a string)."""
-    number = math.nan
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        try:
-            number = float(value)
-        except OverflowError:  # an integer beyond the floats
-            number = math.inf
-    if not math.isfinite(number):
+    number = finite_number(value)
+    if number is None:
         raise ConfigError(f"{where} must be a finite number, got {value!r}")
     return number
 
