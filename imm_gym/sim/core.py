@@ -71,6 +71,10 @@ class PairedConfig(EnvConfig):
     targets every other policy meets, as their pairing assumes
     (:func:`~imm_gym.evaluation.rollout.evaluation_config` builds it).
 
+    It lives in a roll-out only: no file holds one (``design_bank`` is no key of a
+    configuration file, so :func:`~imm_gym.sim.config_file.env_config_dict` of it does not build
+    again).
+
     Attributes:
         design_bank: a linear bank, the models the episodes are drawn for; None: ``bank``.
     """
