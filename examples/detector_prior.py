@@ -12,8 +12,10 @@ probability total variation per step, and the best stay of each share::
 
     python examples/detector_prior.py --runs 100 --seed 0
 
-The priors run through :mod:`imm_gym.evaluation.priors` (``set``-mode logits, exact above the
-floor).
+The priors run through :mod:`imm_gym.evaluation.priors` (``set``-mode logits): a row whose
+entries are all at least the floor ``P_MIN`` runs exactly, as the documented shares' do; an entry
+below it (shares from about 0.96 with a confident belief) is raised to the floor and the rest of
+its row shrinks.
 """
 
 from __future__ import annotations
