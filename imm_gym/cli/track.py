@@ -62,6 +62,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from baselines import REGISTRY
 from imm_gym.cli.evaluate import (
@@ -147,8 +148,8 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
             else None
         )
         finite = np.all(np.isfinite(z), axis=1)
-        seen = finite if detected is None else detected
-        if not (seen[0] and finite[0]):
+        bad = unusable_row(z, finite if detected is None else detected)
+        if bad == 0:
             raise ConfigError(
                 f"{path}:{at[0]}: the first row of sequence {name!r} initiates the track: it "
                 "needs a number in every z cell" + ("" if detected is None else " and detected 1")
@@ -160,10 +161,10 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
                 "are empty and some not; a missed detection leaves every z cell empty (or give "
                 "a column detected)"
             )
-        if np.any(seen & ~finite):
+        if bad is not None:
             raise ConfigError(
-                f"{path}:{at[int(np.flatnonzero(seen & ~finite)[0])]}: sequence {name!r}: a "
-                "detection (detected 1) needs a number in every z cell"
+                f"{path}:{at[bad]}: sequence {name!r}: a detection (detected 1) needs a number "
+                "in every z cell"
             )
         velocity = _velocity(path, at, name, group) if "vx" in header else None
         sequences.append({"name": name, "z": z, "detected": detected, "velocity": velocity})
@@ -252,6 +253,17 @@ def _flag(path: Path, line: int, name: str, text: str) -> bool:
     return value == 1.0
 
 
+def unusable_row(z: NDArray[np.float64], detected: NDArray[np.bool_]) -> int | None:
+    """The first row of one sequence's ``z`` ``(K + 1, dim_z)`` the tracker cannot take: row 0
+    unless it is a detection with a number in every cell (it initiates the track), else the
+    first detection with a cell that is not a number; None if there is none."""
+    finite = np.all(np.isfinite(z), axis=1)
+    if not (detected[0] and finite[0]):
+        return 0
+    rows = np.flatnonzero(detected & ~finite)
+    return int(rows[0]) if rows.size else None
+
+
 def read_npz(path: Path, dim_z: int) -> list[dict[str, Any]]:
     """The sequences of a measurement NPZ (see the module docstring): its arrays numbers of the
     shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection), the rest
@@ -315,18 +327,17 @@ def read_npz(path: Path, dim_z: int) -> list[dict[str, Any]]:
     if np.any(np.isinf(z)):
         where = tuple(int(i) for i in np.argwhere(np.isinf(z))[0][1 if single else 0:])
         raise ConfigError(f"{path}: z{list(where)} is infinite (NaN is a missed detection)")
-    finite = np.all(np.isfinite(z), axis=2)
-    detected = extra.get("detected", finite)
+    detected = extra.get("detected", np.all(np.isfinite(z), axis=2))
     for i in range(N):
         name = "" if single else f"sequence {i}: "
-        if not (detected[i, 0] and finite[i, 0]):
+        bad = unusable_row(z[i], detected[i])
+        if bad == 0:
             raise ConfigError(
                 f"{path}: {name}z's first row initiates the track: it must be a finite "
                 "detection"
             )
-        if np.any(detected[i] & ~finite[i]):
-            k = int(np.flatnonzero(detected[i] & ~finite[i])[0])
-            raise ConfigError(f"{path}: {name}z's row {k} is a detection and not finite")
+        if bad is not None:
+            raise ConfigError(f"{path}: {name}z's row {bad} is a detection and not finite")
     return [
         {"name": str(i), "z": z[i], **{k: v[i] for k, v in extra.items()}}
         for i in range(N)
