@@ -11,6 +11,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from imm_gym.scenarios.segments import Scenario, Segment, TruthSource, paper_scenario
+from imm_gym.validation import check_finite, check_range
 
 #: Every named scenario's factory, in declaration order.
 SCENARIOS: dict[str, Callable[[], TruthSource]] = {}
@@ -39,11 +40,12 @@ def timed_scenario(
         T: sampling period (s).
 
     Raises:
-        ValueError: a duration is not a multiple of ``T``.
+        ValueError: ``T`` is not positive, a duration is not finite, or not a multiple of ``T``.
     """
+    check_range("T", T, 0.0, lo_open=True)
     segments = []
-    for duration_s, turn_rate_deg in table:
-        steps = round(duration_s / T)
+    for i, (duration_s, turn_rate_deg) in enumerate(table):
+        steps = round(check_finite(f"table[{i}] duration_s", duration_s) / T)
         if steps < 1 or not math.isclose(steps * T, duration_s):
             raise ValueError(f"segment of {duration_s} s is not a multiple of T = {T} s")
         segments.append(Segment(steps, turn_rate_deg))

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from imm_gym import ConfigError
 from imm_gym.scenarios.catalog import SCENARIOS, SUITES, timed_scenario
 
 #: name: (T, start position, start speed, start heading (deg), [(seconds, turn rate (deg/s))])
@@ -99,3 +100,18 @@ def test_a_duration_that_is_not_a_multiple_of_T_is_refused() -> None:
     with pytest.raises(ValueError, match="not a multiple"):
         timed_scenario([(12, 0.0)], (0.0, 0.0), (1.0, 0.0), 5.0)
     assert timed_scenario([(10, 1.0)], (0.0, 0.0), (1.0, 0.0), 5.0).segments[0].duration == 2
+
+
+@pytest.mark.parametrize(
+    ("table", "T", "message"),
+    [
+        ([(10, 0.0)], 0.0, r"^T must be in \(0.0, inf\), got 0.0"),
+        ([(10, 0.0)], -1.0, r"^T must be in"),
+        ([(math.nan, 0.0)], 1.0, r"^table\[0\] duration_s must be finite"),
+        ([(math.inf, 0.0)], 1.0, r"^table\[0\] duration_s must be finite"),
+    ],
+)
+def test_a_period_or_duration_out_of_range_is_refused_by_name(table, T, message) -> None:
+    """Division by zero, and NaN or infinite durations, were Python's errors naming nothing."""
+    with pytest.raises(ConfigError, match=message):
+        timed_scenario(table, (0.0, 0.0), (1.0, 0.0), T)
