@@ -167,6 +167,11 @@ class DrivingFamily:
         ]
         return [(d, w, a) for d, (w, a) in zip(DRIVING_DURATIONS, rates, strict=True)], cruise
 
+    @property
+    def horizon(self) -> int:
+        """Steps K of a run: the profile's duration over ``T``."""
+        return round(sum(DRIVING_DURATIONS) / self.T)
+
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""
         if not rngs:
@@ -302,6 +307,11 @@ class ManeuverFamily:
         _check_ranges(self, ("rate_scale", "accel_scale", "speed"))
         store(self, "T", check_range("family.T", self.T, 0.0, 1.0, lo_open=True))
         check_divides("family.T", self.T, MANEUVER_DURATIONS)
+
+    @property
+    def horizon(self) -> int:
+        """Steps K of a run: the profile's duration over ``T``."""
+        return round(sum(MANEUVER_DURATIONS) / self.T)
 
     def truth(self, rngs: Sequence[np.random.Generator]) -> Truth:
         """The truth of one run per generator (:class:`~imm_gym.scenarios.segments.TruthSource`)."""

@@ -202,3 +202,11 @@ def test_periods_that_divide_the_segments_are_accepted(T: float) -> None:
     truth = family.truth([np.random.default_rng(0)])
     assert truth.states.shape[1] == round(67.0 / T) + 1
     ManeuverFamily(T=T)
+
+
+@pytest.mark.parametrize("family", [DrivingFamily(T=0.25), ManeuverFamily(T=0.05)])
+def test_the_families_are_truth_sources_of_their_horizon(family) -> None:
+    """Both families are truth sources (:class:`~imm_gym.scenarios.segments.TruthSource`):
+    ``horizon`` is the steps their truth has after its start (they had no ``horizon``)."""
+    truth = family.truth([np.random.default_rng(1), np.random.default_rng(2)])
+    assert truth.states.shape[:2] == (2, family.horizon + 1)
