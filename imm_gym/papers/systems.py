@@ -8,8 +8,9 @@ r"""Seed 002's and seed 003's evaluations: their banks, sensors, scenarios and m
   and yaw RMSE) and NIS / NEES (dof 4) with the share inside the 95 % χ² bound and the mean.
 * **seed 003** — a CV / CA / CT(+6.75°/s, the profile's turn rate) linear bank on
   ``[x, y, vx, vy, ax, ay]`` (Kalman filters in the same engine), position+velocity measurements
-  at ``T = 0.1`` s, the 43 s trajectory of §4 (:func:`~imm_gym.scenarios.profiles.maneuver_profile`)
-  and a family around it for training and held-out evaluation (:class:`ManeuverFamily`). The
+  at ``T = 0.1`` s, a family around the 43 s trajectory of §4
+  (:func:`~imm_gym.scenarios.profiles.maneuver_profile`) for training and held-out evaluation
+  (:class:`ManeuverFamily`; the runs draw from it, not the trajectory itself). The
   noise values the extraction lost are filled: ``Q_CV = diag(1e-3, 1e-3, 1e-2, 1e-2)`` with
   ``q_acc = 1e-2``, ``Q_CA = diag(1e-3, 1e-3, 1e-2, 1e-2, 1e-1, 1e-1)``, ``Q_CT = Q_CV``,
   ``sigma_p = 1`` m, ``sigma_v = 0.5`` m/s, TPM 0.90 / 0.05, uniform ``mu_0``.
