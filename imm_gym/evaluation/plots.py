@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from imm_gym.evaluation.animation import diverged_at, tracker_records
 from imm_gym.evaluation.rollout import Rollout
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.render import model_labels
@@ -33,7 +34,10 @@ def figures(
     The trajectory and model probabilities show run 0 (the first seed); the RMSE curves use all
     runs, ``RMSE(t) = sqrt(mean_r ||p_hat - p||^2)``. The mode probabilities are named by the
     bank's models; the time axis is in seconds at the scenario's sampling period, in steps where
-    the sampling period is drawn per episode (``vary.T``).
+    the sampling period is drawn per episode (``vary.T``). The estimates and mode probabilities
+    drawn are the tracker's (:func:`~imm_gym.evaluation.animation.tracker_records`): a run 0 that
+    diverged stops at the step it diverged at, which the trajectory's title and the policy's mode
+    probability panel name (the RMSE counts its capped error, as the scores do).
     """
     labels = model_labels(config.bank)
     period = None if config.vary.T is not None else config.source.T
@@ -43,22 +47,37 @@ def figures(
     steps = np.arange(1, first.truth.shape[1] + 1)
     t, t_label = (steps, "step") if period is None else (steps * period, "time (s)")
 
+    lost = {name: diverged_at(r) for name, r in rollouts.items()}
+    shown = {name: tracker_records(r) for name, r in rollouts.items()}
+
     fig = Figure(figsize=(7, 6))
     ax = fig.subplots()
     ax.plot(first.truth[0, :, 0], first.truth[0, :, 1], "k-", lw=2, label="truth")
-    for name, r in rollouts.items():
-        ax.plot(r.estimate[0, :, 0], r.estimate[0, :, 1], lw=1, label=name)
-    ax.set(xlabel="x (m)", ylabel="y (m)", title=f"Trajectory, run 0 ({meta['scenario']})")
+    for name, (estimate, _, _) in shown.items():
+        ax.plot(estimate[:, 0], estimate[:, 1], lw=1, label=name)
+    ax.set(
+        xlabel="x (m)",
+        ylabel="y (m)",
+        title="\n".join(
+            [f"Trajectory, run 0 ({meta['scenario']})"]
+            + [f"{name} diverged at step {k}" for name, k in lost.items() if k is not None]
+        ),
+    )
     ax.axis("equal")
     ax.legend()
     out["trajectory"] = fig
 
     fig = Figure(figsize=(8, 2.4 * len(rollouts)))
     axes = fig.subplots(len(rollouts), 1, sharex=True, squeeze=False)
-    for ax, (name, r) in zip(axes[:, 0], rollouts.items(), strict=True):
-        for j in range(r.mode_probs.shape[-1]):
-            ax.plot(t, r.mode_probs[0, :, j], label=labels[j])
-        ax.set(ylabel="probability", ylim=(-0.02, 1.02), title=name)
+    for ax, (name, (_, mode_probs, _)) in zip(axes[:, 0], shown.items(), strict=True):
+        for j in range(mode_probs.shape[-1]):
+            ax.plot(t, mode_probs[:, j], label=labels[j])
+        k = lost[name]
+        ax.set(
+            ylabel="probability",
+            ylim=(-0.02, 1.02),
+            title=name if k is None else f"{name}, diverged at step {k}",
+        )
     axes[0, 0].legend(loc="upper right", ncol=3)
     axes[-1, 0].set_xlabel(t_label)
     out["mode_probs"] = fig

@@ -61,12 +61,14 @@ class TrackView:
         title: the panel's title (a policy's name, say).
         step: ``k``; horizon: ``K``, the episode's last step.
         truth: ``(k+1, 2)`` true positions.
-        estimate: ``(k+1, 2)`` combined estimates' positions.
-        covariance: ``(2, 2)`` position block of the current combined covariance.
+        estimate: ``(k+1, 2)`` combined estimates' positions; a NaN row is not drawn (no
+            estimate: a diverged run's).
+        covariance: ``(2, 2)`` position block of the current combined covariance; no ellipse
+            where it or the current estimate is NaN.
         measurements: ``(k+1, 2)`` measured positions (the sensor's inverse, e.g. polar to
             Cartesian); a missed detection's entry is not drawn.
         detected: ``(k+1,)`` False for a missed detection; outlier: ``(k+1,)`` True for an outlier.
-        mode_probs: ``(k+1, M)`` mode probabilities.
+        mode_probs: ``(k+1, M)`` mode probabilities (a NaN row is not drawn).
         true_model: ``(k+1,)`` bank index of the true motion of each step, −1 if none (entry 0,
             the initiation, is not drawn).
         tpm: ``(M, M)`` the TPM the last step used.
@@ -274,13 +276,16 @@ class TrackFigure:
         half = self.zoom
         self.box.set_bounds(p[0] - half, p[1] - half, 2 * half, 2 * half)
 
-        width, height, angle = ellipse_axes(view.covariance)
+        estimated = bool(np.isfinite(x).all())
         self.now.set_data([x[0] - p[0]], [x[1] - p[1]])
-        self.ellipse.set_center((x[0] - p[0], x[1] - p[1]))
-        self.ellipse.set_width(width)
-        self.ellipse.set_height(height)
-        self.ellipse.set_angle(angle)
-        self.error.set_text(f"error {np.hypot(*(x - p)):.0f} m")
+        self.ellipse.set_visible(estimated and bool(np.isfinite(view.covariance).all()))
+        if self.ellipse.get_visible():
+            width, height, angle = ellipse_axes(view.covariance)
+            self.ellipse.set_center((x[0] - p[0], x[1] - p[1]))
+            self.ellipse.set_width(width)
+            self.ellipse.set_height(height)
+            self.ellipse.set_angle(angle)
+        self.error.set_text(f"error {np.hypot(*(x - p)):.0f} m" if estimated else "")
 
         self.heat.set_data(view.tpm)
         for i, stay in enumerate(self.stays):

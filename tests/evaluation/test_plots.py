@@ -1,8 +1,11 @@
 """The evaluation's figures: the mode probabilities named by the evaluated bank's models, the
 time axis in seconds at the tracker's sampling period (in steps when it is drawn per episode),
-no pyplot backend switched; the animation's first mode probabilities are the tracker's."""
+no pyplot backend switched; the animation's first mode probabilities are the tracker's; a
+diverged run is drawn up to its divergence and named so."""
 
 from __future__ import annotations
+
+from dataclasses import fields
 
 import matplotlib
 import numpy as np
@@ -11,10 +14,10 @@ from baselines import REGISTRY, BuildContext
 from imm_gym import EnvConfig
 from imm_gym.evaluation.animation import rollout_view, start_probs
 from imm_gym.evaluation.plots import figures
-from imm_gym.evaluation.rollout import evaluation_config, rollout
+from imm_gym.evaluation.rollout import Rollout, evaluation_config, rollout
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.sim.presets import BANK_PRESETS
-from imm_gym.sim.render import model_labels
+from imm_gym.sim.render import TrackFigure, model_labels
 from imm_gym.tracking.hetero import HeteroBank
 
 META = {"scenario": "test", "runs": 2, "seeds": "0..1"}
@@ -62,3 +65,32 @@ def test_the_animation_starts_from_the_trackers_mode_probabilities() -> None:
     view = rollout_view(run, batch, config.sensor, "fixed", 5, start=np.array([0.5, 0.3, 0.2]))
     np.testing.assert_array_equal(view.mode_probs[0], [0.5, 0.3, 0.2])
     np.testing.assert_array_equal(view.mode_probs[1:], run.mode_probs[0, :5])
+
+
+def test_a_diverged_run_is_drawn_up_to_its_divergence_and_titled_so() -> None:
+    """The roll-out holds a diverged run's estimate at the capped error, its mode probabilities
+    uniform and its covariance I (the scoring's stand-ins): the pictures draw none of them."""
+    config = EnvConfig.build({"scenario": "paper", "divergence_error": 60.0})
+    run = _fixed_rollout(config, runs=3)
+    np.testing.assert_array_equal(run.diverged, [True, False, True])
+    assert np.flatnonzero(~run.live[2])[0] == 76  # run 2 diverges at step 77 (steps 1..K)
+    batch = draw_batch(config.source, config.sensor, 3, 0, config.velocity_std)
+    before = rollout_view(run, batch, config.sensor, "fixed", 76, 2)
+    assert before.title == "fixed" and np.isfinite(before.estimate).all()
+    view = rollout_view(run, batch, config.sensor, "fixed", 100, 2)
+    assert view.title == "fixed, diverged at step 77"
+    assert np.isfinite(view.estimate[:77]).all() and np.isnan(view.estimate[77:]).all()
+    assert np.isfinite(view.mode_probs[:77]).all() and np.isnan(view.mode_probs[77:]).all()
+    assert np.isnan(view.covariance).all()
+    picture = TrackFigure(model_labels(config.bank))
+    assert picture.frame(view).shape == (400, 640, 3)
+    assert picture.error.get_text() == "" and not picture.ellipse.get_visible()
+
+    shifted = Rollout(*(getattr(run, f.name)[2:] for f in fields(Rollout)))  # run 2 as run 0
+    figs = figures({"fixed": shifted}, META, config)
+    assert figs["mode_probs"].axes[0].get_title() == "fixed, diverged at step 77"
+    assert "fixed diverged at step 77" in figs["trajectory"].axes[0].get_title()
+    estimate = figs["trajectory"].axes[0].get_lines()[1].get_xydata()
+    assert np.isfinite(estimate[:76]).all() and np.isnan(estimate[76:]).all()
+    for line in figs["mode_probs"].axes[0].get_lines():
+        assert np.isfinite(line.get_ydata()[:76]).all() and np.isnan(line.get_ydata()[76:]).all()
