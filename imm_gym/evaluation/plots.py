@@ -78,7 +78,7 @@ def figures(
             ylim=(-0.02, 1.02),
             title=name if k is None else f"{name}, diverged at step {k}",
         )
-    axes[0, 0].legend(loc="upper right", ncol=3)
+    axes[0, 0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the curves
     axes[-1, 0].set_xlabel(t_label)
     out["mode_probs"] = fig
 
