@@ -10,6 +10,7 @@ drawn again from its seed (:func:`imm_gym.sim.episodes.draw_batch`: the draws ev
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
@@ -219,7 +220,7 @@ def _write_gif(frames: Iterator[NDArray[np.uint8]], path: Path, fps: float) -> i
 
 def _write_mp4(frames: Iterator[NDArray[np.uint8]], path: Path, fps: float) -> int:
     """An H.264 MP4 through matplotlib's ``FFMpegWriter``: each frame shown pixel for pixel by a
-    figure image of the frame's size."""
+    figure image of the frame's size, and written before the next is drawn."""
     from matplotlib.animation import FFMpegWriter
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -232,7 +233,7 @@ def _write_mp4(frames: Iterator[NDArray[np.uint8]], path: Path, fps: float) -> i
     writer = FFMpegWriter(fps=fps)
     count = 0
     with writer.saving(fig, str(path), dpi=100):
-        for frame in (first, *frames):
+        for frame in itertools.chain([first], frames):  # one frame drawn at a time
             image.set_data(frame)
             writer.grab_frame()
             count += 1

@@ -1,17 +1,19 @@
 """The evaluation's figures: the mode probabilities named by the evaluated bank's models, the
 time axis in seconds at the tracker's sampling period (in steps when it is drawn per episode),
 no pyplot backend switched; the animation's first mode probabilities are the tracker's; a
-diverged run is drawn up to its divergence and named so."""
+diverged run is drawn up to its divergence and named so; an MP4's frames stream."""
 
 from __future__ import annotations
 
 from dataclasses import fields
+from pathlib import Path
 
 import matplotlib
 import numpy as np
 
 from baselines import REGISTRY, BuildContext
 from imm_gym import EnvConfig
+from imm_gym.evaluation import animation
 from imm_gym.evaluation.animation import rollout_view, start_probs
 from imm_gym.evaluation.plots import figures
 from imm_gym.evaluation.rollout import Rollout, evaluation_config, rollout
@@ -94,3 +96,34 @@ def test_a_diverged_run_is_drawn_up_to_its_divergence_and_titled_so() -> None:
     assert np.isfinite(estimate[:76]).all() and np.isnan(estimate[76:]).all()
     for line in figs["mode_probs"].axes[0].get_lines():
         assert np.isfinite(line.get_ydata()[:76]).all() and np.isnan(line.get_ydata()[76:]).all()
+
+
+def test_the_mp4_writer_writes_each_frame_before_the_next_is_drawn(monkeypatch) -> None:
+    """The frames stream to ffmpeg (a fake writer here): a 150-step episode of two panels is
+    176 MB of RGB frames held at once otherwise."""
+    import contextlib
+
+    import matplotlib.animation
+
+    drawn: list[int] = []
+    written: list[int] = []
+
+    def frames():
+        for i in range(5):
+            drawn.append(i)
+            yield np.full((20, 30, 3), i, dtype=np.uint8)
+
+    class Writer:
+        def __init__(self, fps: float) -> None:
+            pass
+
+        @contextlib.contextmanager
+        def saving(self, fig, path, dpi):
+            yield
+
+        def grab_frame(self) -> None:
+            written.append(len(drawn))
+
+    monkeypatch.setattr(matplotlib.animation, "FFMpegWriter", Writer)
+    assert animation._write_mp4(frames(), Path("unused.mp4"), 10) == 5
+    assert written == [1, 2, 3, 4, 5]  # frame i written when i + 1 frames were drawn
