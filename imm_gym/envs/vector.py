@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -17,6 +17,7 @@ from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.render import RENDER_FPS
+from imm_gym.validation import ConfigError
 
 
 class TPMAdaptVectorEnv(VectorEnv):
@@ -40,11 +41,11 @@ class TPMAdaptVectorEnv(VectorEnv):
     where no sub-env gives it). Entries whose mask is False are meaningless.
 
     ``render_mode="rgb_array"``: ``render()`` returns a tuple of frames, one per sub-env of
-    ``render_envs`` (default: all of them, as Gymnasium's vector envs do; ``render_envs=[0]``
-    draws sub-env 0 only, a picture costs milliseconds), each the picture
-    :class:`~imm_gym.envs.tpm_adapt.TPMAdaptEnv` draws. For a window, wrap the env in
-    ``gymnasium.wrappers.vector.HumanRendering`` (which tiles a frame per sub-env: leave
-    ``render_envs`` at all of them) or use the scalar env's ``"human"`` mode.
+    ``render_envs`` (indices, read once from any iterable, at least one; default: all of them,
+    as Gymnasium's vector envs do; ``render_envs=[0]`` draws sub-env 0 only, a picture costs
+    milliseconds), each the picture :class:`~imm_gym.envs.tpm_adapt.TPMAdaptEnv` draws. For a
+    window, wrap the env in ``gymnasium.wrappers.vector.HumanRendering`` (which tiles a frame per
+    sub-env: leave ``render_envs`` at all of them) or use the scalar env's ``"human"`` mode.
     """
 
     metadata = {
@@ -58,7 +59,7 @@ class TPMAdaptVectorEnv(VectorEnv):
         num_envs: int = 1,
         config: EnvConfig | Mapping[str, Any] | None = None,
         render_mode: str | None = None,
-        render_envs: Sequence[int] | None = None,
+        render_envs: Iterable[int] | None = None,
         **kwargs: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -68,12 +69,7 @@ class TPMAdaptVectorEnv(VectorEnv):
             )
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        envs = range(num_envs) if render_envs is None else render_envs
-        if not all(
-            isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < num_envs
-            for i in envs
-        ):
-            raise ValueError(f"render_envs must be indices in [0, {num_envs}), got {render_envs!r}")
+        envs = _render_envs(render_envs, num_envs)
         self.config = EnvConfig.build(config, **kwargs)
         self.num_envs = num_envs
         self.core = TrackingCore(self.config, n_envs=num_envs)
@@ -85,7 +81,7 @@ class TPMAdaptVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self._autoreset = np.zeros(num_envs, dtype=bool)
         self.render_mode = render_mode
-        self.render_envs = tuple(int(i) for i in envs)
+        self.render_envs = envs
         self._renderer = (
             None
             if render_mode is None
@@ -221,6 +217,31 @@ def _sub_env_seeds(seed: Any, num_envs: int) -> list[int | None]:
         if s is not None and not (_is_seed(s) and s >= 0):
             raise ValueError(f"seed[{i}] must be None or a non-negative integer, got {s!r}")
     return [None if s is None else int(s) for s in seeds]
+
+
+def _render_envs(render_envs: Any, num_envs: int) -> tuple[int, ...]:
+    """The sub-envs ``render_envs`` selects, read once (a generator is one): all of them for
+    None, else its indices in ``[0, num_envs)`` (integers, numpy's too, not bools).
+
+    Raises:
+        ConfigError: naming ``render_envs``, for a selection of no sub-env or an entry that is no
+            such index.
+    """
+    if render_envs is None:
+        return tuple(range(num_envs))
+    allowed = f"indices in [0, {num_envs})"
+    try:
+        envs = tuple(render_envs)
+    except TypeError:
+        raise ConfigError(f"render_envs must be {allowed}, got {render_envs!r}") from None
+    if not envs:
+        raise ConfigError("render_envs must select at least one sub-env (None: all), got none")
+    if not all(
+        isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < num_envs
+        for i in envs
+    ):
+        raise ConfigError(f"render_envs must be {allowed}, got {envs!r}")
+    return tuple(int(i) for i in envs)
 
 
 def _masked_slots(options: Mapping[str, Any], num_envs: int) -> NDArray[np.int64]:

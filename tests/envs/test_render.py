@@ -20,6 +20,7 @@ import imm_gym.envs.vector as vector
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.sim.render import CHI2_2_95, ellipse_axes
+from imm_gym.validation import ConfigError
 
 PAPER = "imm_gym/TPMAdaptPaper-v0"
 #: a short episode with outliers and missed detections
@@ -124,6 +125,22 @@ def test_bad_render_modes_and_render_before_reset() -> None:
     assert picked.render_envs == (1,) and type(picked.render_envs[0]) is int
     with pytest.raises(RuntimeError, match="reset"):
         TPMAdaptEnv(render_mode="rgb_array").render()
+
+
+def test_render_envs_is_read_once_from_any_iterable_and_selects_a_sub_env() -> None:
+    """A generator is read once: its indices are the ones checked and rendered (the check
+    consumed it and no sub-env was drawn); a selection of none is refused by name."""
+    venv = TPMAdaptVectorEnv(3, render_mode="rgb_array", render_envs=(i for i in [1, 2]))
+    assert venv.render_envs == (1, 2)
+    venv.reset(seed=0)
+    assert len(venv.render()) == 2
+    with pytest.raises(ValueError, match="render_envs"):
+        TPMAdaptVectorEnv(3, render_mode="rgb_array", render_envs=iter([1, 3]))
+    for none in ([], iter([]), np.array([], dtype=int)):
+        with pytest.raises(ConfigError, match="render_envs must select at least one sub-env"):
+            TPMAdaptVectorEnv(3, render_mode="rgb_array", render_envs=none)
+    with pytest.raises(ConfigError, match="render_envs"):
+        TPMAdaptVectorEnv(3, render_mode="rgb_array", render_envs=1)
 
 
 def test_render_without_a_mode_warns_and_returns_none() -> None:
