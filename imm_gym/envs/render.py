@@ -4,7 +4,8 @@ The core keeps each slot's whole truth, measurements, detection and outlier flag
 current TPM; :class:`CoreRenderer` keeps the rest of a picture's history — the combined estimates'
 positions and the mode probabilities of every step so far, and the current position covariance —
 and only exists when a render mode is set, so an environment without one records nothing. The
-drawing is :class:`imm_gym.sim.render.TrackFigure`'s.
+drawing is :class:`imm_gym.sim.render.TrackFigure`'s, one figure per slot drawn: each keeps the
+background of its own slot's scene, so a slot's frames after its first only redraw what moves.
 """
 
 from __future__ import annotations
@@ -46,7 +47,10 @@ class CoreRenderer:
         self.extent = [(0.0, 1.0, 0.0, 1.0)] * N
         self.started = np.zeros(N, dtype=bool)
         self.sensor = np.asarray(core.config.sensor.position, dtype=np.float64)
-        self.figure = TrackFigure(model_labels(core.models), window=window)
+        self.window = window
+        self.labels = model_labels(core.models)
+        #: each drawn slot's figure, built at its first picture
+        self.figures: dict[int, TrackFigure] = {}
 
     def start(self, indices: NDArray[np.int64]) -> None:
         """Begin the histories of the slots ``indices``, just reset by the core."""
@@ -98,14 +102,22 @@ class CoreRenderer:
             extent=self.extent[slot],
         )
 
+    def figure(self, slot: int) -> TrackFigure:
+        """Slot ``slot``'s figure (built at its first call): a figure drawing several slots
+        would draw its whole background again at every frame, the scenes' extents differing."""
+        if slot not in self.figures:
+            self.figures[slot] = TrackFigure(self.labels, window=self.window)
+        return self.figures[slot]
+
     def frame(self, slot: int = 0) -> NDArray[np.uint8]:
         """Slot ``slot``'s picture, ``(H, W, 3)`` ``uint8``."""
-        return self.figure.frame(self.view(slot))
+        return self.figure(slot).frame(self.view(slot))
 
     def show(self, slot: int = 0) -> None:
         """Show slot ``slot``'s picture in the window (``"human"``)."""
-        self.figure.show(self.view(slot))
+        self.figure(slot).show(self.view(slot))
 
     def close(self) -> None:
-        """Release the figure."""
-        self.figure.close()
+        """Release the figures."""
+        for figure in self.figures.values():
+            figure.close()

@@ -19,7 +19,7 @@ import imm_gym.envs.tpm_adapt as tpm_adapt
 import imm_gym.envs.vector as vector
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.sim.episodes import draw_batch
-from imm_gym.sim.render import CHI2_2_95, ellipse_axes
+from imm_gym.sim.render import CHI2_2_95, TrackFigure, ellipse_axes
 from imm_gym.validation import ConfigError
 
 PAPER = "imm_gym/TPMAdaptPaper-v0"
@@ -216,6 +216,35 @@ def test_vector_env_frames_are_the_sub_envs_pictures_through_autoresets() -> Non
     assert all(f.shape == (400, 640, 3) and f.dtype == np.uint8 for f in frames)
     assert np.any(frames[0] != frames[1])
     assert len(TPMAdaptVectorEnv(2, render_mode="rgb_array").render_envs) == 2  # default: all
+
+
+def test_vector_env_frames_after_a_slots_first_only_redraw_what_moves(monkeypatch) -> None:
+    """Each sub-env keeps the background of its own scene: over steps that move no axis limit a
+    frame blits, and it is the picture a fresh figure draws in full (one figure for every
+    sub-env drew its whole background again at every frame, each scene's extent differing)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    full = []
+    draw = FigureCanvasAgg.draw
+
+    def counted(canvas: FigureCanvasAgg) -> None:
+        full.append(canvas)
+        draw(canvas)
+
+    monkeypatch.setattr(FigureCanvasAgg, "draw", counted)
+    venv = TPMAdaptVectorEnv(3, render_mode="rgb_array")  # render_envs None: all three
+    venv.reset(seed=0)
+    assert len({view.extent for view in map(venv._renderer.view, range(3))}) == 3
+    action = np.zeros((3, 9), dtype=np.float32)
+    counts = []
+    for _ in range(6):
+        venv.step(action)
+        frames = venv.render()
+        counts.append(len(full))
+    assert counts == [3] * 6  # a full draw at each sub-env's first frame, blitting after it
+    fresh = TrackFigure(venv._renderer.labels)
+    for i, frame in enumerate(frames):
+        np.testing.assert_array_equal(frame, fresh.frame(venv._renderer.view(i)))
 
 
 def test_the_picture_marks_misses_and_outliers_of_the_episode() -> None:
