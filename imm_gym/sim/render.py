@@ -16,7 +16,9 @@ The picture:
   the current estimate and its 95 % position covariance ellipse
   ``{p : (p - x̂)ᵀ P⁻¹ (p - x̂) ≤ χ²₂(0.95)}``, half-axes ``√(χ²₂(0.95) λ_i)`` along the
   eigenvectors of the position block ``P``;
-* top middle, the whole scene: the same tracks, the sensor and the window of the left panel;
+* top middle, the whole scene: the same tracks, the sensor and the window of the left panel, in
+  a square around the scene's extent (the panel's size the same in every episode) with at most
+  four ticks on an axis (their labels apart, whatever the scene's size);
 * top right, the TPM the step used, a heatmap on a log scale, ``tpm[i, j] = P(model j at k |
   model i at k−1)``;
 * bottom right, the mode probabilities ``μ_j(t)`` of the recent steps, with a bar on top
@@ -157,6 +159,7 @@ class TrackFigure:
     ) -> None:
         from matplotlib import colors
         from matplotlib.patches import Ellipse, Rectangle
+        from matplotlib.ticker import MaxNLocator
 
         #: what builds this figure again in a copy (:meth:`__getstate__`)
         self._arguments = (list(labels), scale, window_steps, zoom, window)
@@ -177,6 +180,10 @@ class TrackFigure:
         for ax in (scene, near, heat, mu):
             ax.tick_params(labelsize=6, length=2, pad=1)
         scene.set_aspect("equal", adjustable="box")
+        for axis in (scene.xaxis, scene.yaxis):  # labels of at most 6 characters, 4 to an axis
+            axis.set_major_locator(MaxNLocator(nbins=3))
+            axis.get_offset_text().set_fontsize(6)
+        scene.ticklabel_format(style="sci", scilimits=(-4, 5))  # 100 km and beyond: x 1e5
         scene.set_title("scene (m)", fontsize=7, pad=2)
         near.set(xlim=(-zoom, zoom), ylim=(-zoom, zoom), aspect="equal")
         near.set_title("around the true target (m)", fontsize=7, pad=2)
@@ -269,8 +276,11 @@ class TrackFigure:
                 line.set_data(xy[:, 0] - origin[0], xy[:, 1] - origin[1])
         if view.extent != self._extent:  # a new scene: the background is drawn again
             self._extent = view.extent
-            self.ax_scene.set_xlim(view.extent[0], view.extent[1])
-            self.ax_scene.set_ylim(view.extent[2], view.extent[3])
+            x_min, x_max, y_min, y_max = view.extent
+            half = max(x_max - x_min, y_max - y_min) / 2.0
+            centre_x, centre_y = (x_min + x_max) / 2.0, (y_min + y_max) / 2.0
+            self.ax_scene.set_xlim(centre_x - half, centre_x + half)
+            self.ax_scene.set_ylim(centre_y - half, centre_y + half)
             self._background = None
         self.sensor.set_data([view.sensor[0]], [view.sensor[1]])
         half = self.zoom
@@ -383,9 +393,3 @@ def _short(label: str) -> str:
     """A model's tick label: ``CT(+4°/s)`` -> ``CT+``, ``CV`` -> ``CV``."""
     name, _, rest = label.partition("(")
     return name + ("+" if rest.startswith("+") else "−" if rest.startswith("-") else "")
-
-
-def _locator() -> Any:
-    from matplotlib.ticker import MaxNLocator
-
-    return MaxNLocator(nbins=3)
