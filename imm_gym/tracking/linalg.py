@@ -366,5 +366,11 @@ def inv_logdet(S: Array) -> tuple[Array, Array]:
 
 
 def mahalanobis(nu: Array, S_inv: Array) -> Array:
-    """Quadratic form ``nu^T S^-1 nu``: ``(..., m), (..., m, m) -> (...)``."""
-    return np.einsum("...i,...ij,...j->...", nu, S_inv, nu)
+    """Quadratic form ``nu^T S^-1 nu``: ``(..., m), (..., m, m) -> (...)``.
+
+    ``S^-1 nu`` as one matrix-vector product per block, then the sum of ``nu * S^-1 nu`` over
+    its last axis (as the filters' NIS): each block's value is the same bit for bit whatever
+    the leading axes hold (a three-operand ``einsum`` rounded a batch of one otherwise than a
+    larger batch, so a run's NIS depended on how many runs shared its core).
+    """
+    return np.sum(nu * (S_inv @ nu[..., None])[..., 0], axis=-1)

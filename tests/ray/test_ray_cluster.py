@@ -73,6 +73,26 @@ def test_evaluation_split_across_both_nodes_is_bit_identical(cluster):
             assert a.dtype == b.dtype and np.array_equal(a, b), (name, field.name)
 
 
+def test_hetero_bank_evaluation_with_a_one_run_chunk_is_bit_identical(cluster):
+    """3 runs on two shards: chunks of 2 and 1; the heterogeneous bank's mixture NIS of the run
+    alone in its core equals its NIS among the others."""
+    from imm_gym.cli.evaluate import evaluate
+    from imm_gym.evaluation.distributed import ShardPool
+
+    pool = ShardPool()
+    single, single_runs = evaluate(["fixed"], "paper", 3, 4, bank="hetero", clairvoyant=False)
+    try:
+        split, split_runs = evaluate(
+            ["fixed"], "paper", 3, 4, bank="hetero", clairvoyant=False, make_core=pool.core
+        )
+    finally:
+        pool.close()
+    assert json.dumps(single, sort_keys=True) == json.dumps(split, sort_keys=True)
+    for field in dataclasses.fields(single_runs["fixed"]):
+        a, b = getattr(single_runs["fixed"], field.name), getattr(split_runs["fixed"], field.name)
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), field.name
+
+
 def test_rllib_training_runners_on_both_nodes_with_distinct_seeds(cluster, tmp_path: Path):
     import train
     from agents.policy import load_agent

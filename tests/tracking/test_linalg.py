@@ -1,5 +1,5 @@
 """Tests of imm_gym.tracking.linalg: angle wrapping, the Jacobi eigendecomposition, the
-Cholesky factor, inverse/log-det."""
+Cholesky factor, inverse/log-det, the Mahalanobis quadratic form."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from imm_gym.tracking.linalg import (
     cholesky_lanes,
     cholesky_psd,
     inv_logdet,
+    mahalanobis,
     sym_eig,
     wrap_angle,
 )
@@ -358,6 +359,31 @@ def test_inv_logdet_rejects_non_pd_2x2(S: np.ndarray) -> None:
 def test_inv_logdet_rejects_non_pd_4x4() -> None:
     with pytest.raises(np.linalg.LinAlgError):
         inv_logdet(np.diag([1.0, 2.0, -1.0, 3.0]))
+
+
+# --------------------------------------------------------------------------- mahalanobis
+
+
+@pytest.mark.parametrize("m", [2, 3, 4])
+@pytest.mark.parametrize("inner", [(), (3,)], ids=["rows", "rows-of-models"])
+def test_mahalanobis_of_a_row_does_not_depend_on_the_batch(m: int, inner: tuple[int, ...]) -> None:
+    """Each row's ``nu^T S^-1 nu`` is the same bit for bit in a batch of 1..5 rows as in the
+    batch of 5 (a run's NIS in a core of its own, a shard's chunk, equals its NIS among others),
+    and is the quadratic form."""
+    rng = np.random.default_rng(m)
+    for _ in range(50):
+        nu = rng.standard_normal((5, *inner, m)) * 10.0 ** rng.uniform(-3, 3)
+        A = rng.standard_normal((5, *inner, m, m))
+        S_inv = np.linalg.inv(A @ np.swapaxes(A, -1, -2) + np.eye(m))
+        full = mahalanobis(nu, S_inv)
+        for n in range(1, 6):
+            for start in range(6 - n):
+                rows = slice(start, start + n)
+                np.testing.assert_array_equal(mahalanobis(nu[rows], S_inv[rows]), full[rows])
+        for i in range(5):
+            np.testing.assert_array_equal(mahalanobis(nu[i], S_inv[i]), full[i])
+        expected = np.einsum("...i,...i->...", nu, np.einsum("...ij,...j->...i", S_inv, nu))
+        np.testing.assert_allclose(full, expected, rtol=1e-12)
 
 
 def test_kernel_wrap_equals_wrap_angle() -> None:
