@@ -51,26 +51,6 @@ def check_animation_path(path: Path) -> None:
             )
 
 
-def diverged_at(rollout: Rollout, run: int = 0) -> int | None:
-    """The step (1..K, as :func:`~imm_gym.evaluation.rollout.rollout` counts them) at which run
-    ``run``'s tracker diverged, None if it did not: the first step not :attr:`Rollout.live`."""
-    lost = np.flatnonzero(~rollout.live[run])
-    return int(lost[0]) + 1 if lost.size else None
-
-
-def tracker_records(rollout: Rollout, run: int = 0) -> tuple[Array, Array, Array]:
-    """Run ``run``'s estimates ``(K, 4)``, mode probabilities ``(K, M)`` and covariances
-    ``(K, 4, 4)`` as its tracker gave them: NaN (nothing drawn) from the step it diverged at,
-    where the roll-out holds the scoring's stand-ins (the estimate at the capped error, uniform
-    mode probabilities, the covariance ``I``)."""
-    live = rollout.live[run]
-    return (
-        np.where(live[:, None], rollout.estimate[run], np.nan),
-        np.where(live[:, None], rollout.mode_probs[run], np.nan),
-        np.where(live[:, None, None], rollout.covariance[run], np.nan),
-    )
-
-
 def rollout_view(
     rollout: Rollout, batch: Batch, sensor: Sonar, title: str, t: int, run: int = 0,
     start: Array | None = None,
@@ -79,15 +59,15 @@ def rollout_view(
     truth, measurements and track start as ``sensor`` made them (run ``run`` of both must be the
     same episode); ``start`` the tracker's mode probabilities at ``t = 0`` (uniform if None).
 
-    The estimates, mode probabilities and ellipse are the tracker's (:func:`tracker_records`):
-    none from the step the run diverged at, and from that step the title says
-    ``"diverged at step k"``."""
+    The estimates, mode probabilities and ellipse are the tracker's
+    (:meth:`Rollout.tracker_records`): none from the step the run diverged at, and from that step
+    the title says ``"diverged at step k"``."""
     M = rollout.mode_probs.shape[-1]
     start = np.full(M, 1.0 / M) if start is None else np.asarray(start, dtype=np.float64)
     measurements = batch.measurements
     position = np.asarray(sensor.position, dtype=np.float64)
-    estimate, mode_probs, covariance = tracker_records(rollout, run)
-    lost = diverged_at(rollout, run)
+    estimate, mode_probs, covariance = rollout.tracker_records(run)
+    lost = rollout.diverged_at(run)
     return TrackView(
         title=title if lost is None or t < lost else f"{title}, diverged at step {lost}",
         step=t,

@@ -8,7 +8,6 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from imm_gym.evaluation.animation import diverged_at, tracker_records
 from imm_gym.evaluation.rollout import Rollout
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.render import model_labels
@@ -35,9 +34,9 @@ def figures(
     runs, ``RMSE(t) = sqrt(mean_r ||p_hat - p||^2)``. The mode probabilities are named by the
     bank's models; the time axis is in seconds at the scenario's sampling period, in steps where
     the sampling period is drawn per episode (``vary.T``). The estimates and mode probabilities
-    drawn are the tracker's (:func:`~imm_gym.evaluation.animation.tracker_records`): a run 0 that
-    diverged stops at the step it diverged at, which the trajectory's title and the policy's mode
-    probability panel name (the RMSE counts its capped error, as the scores do).
+    drawn are the tracker's (:meth:`~imm_gym.evaluation.rollout.Rollout.tracker_records`): a run
+    0 that diverged stops at the step it diverged at, which the trajectory's title and the
+    policy's mode probability panel name (the RMSE counts its capped error, as the scores do).
     """
     labels = model_labels(config.bank)
     period = None if config.vary.T is not None else config.source.T
@@ -47,8 +46,8 @@ def figures(
     steps = np.arange(1, first.truth.shape[1] + 1)
     t, t_label = (steps, "step") if period is None else (steps * period, "time (s)")
 
-    lost = {name: diverged_at(r) for name, r in rollouts.items()}
-    shown = {name: tracker_records(r) for name, r in rollouts.items()}
+    lost = {name: r.diverged_at() for name, r in rollouts.items()}
+    shown = {name: r.tracker_records() for name, r in rollouts.items()}
 
     fig = Figure(figsize=(7, 6))
     ax = fig.subplots()

@@ -76,6 +76,24 @@ class Rollout:
         parts = [getattr(self, f.name) for f in fields(self)]
         return [Rollout(*(a[g * R : (g + 1) * R] for a in parts)) for g in range(G)]
 
+    def diverged_at(self, run: int = 0) -> int | None:
+        """The step (1..K, as :func:`rollout` counts them) at which run ``run``'s tracker
+        diverged, None if it did not: the first step not :attr:`live`."""
+        lost = np.flatnonzero(~self.live[run])
+        return int(lost[0]) + 1 if lost.size else None
+
+    def tracker_records(self, run: int = 0) -> tuple[Array, Array, Array]:
+        """Run ``run``'s estimates ``(K, 4)``, mode probabilities ``(K, M)`` and covariances
+        ``(K, 4, 4)`` as its tracker gave them: NaN (nothing drawn) from the step it diverged at,
+        where the roll-out holds the scoring's stand-ins (the estimate at the capped error,
+        uniform mode probabilities, the covariance ``I``)."""
+        live = self.live[run]
+        return (
+            np.where(live[:, None], self.estimate[run], np.nan),
+            np.where(live[:, None], self.mode_probs[run], np.nan),
+            np.where(live[:, None, None], self.covariance[run], np.nan),
+        )
+
     @property
     def squared_position_error(self) -> Array:
         """``(R, K)`` squared position errors, the unit of the paired bootstrap."""
