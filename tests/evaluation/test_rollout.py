@@ -169,3 +169,41 @@ def test_a_failed_trackers_velocity_is_no_stand_in() -> None:
     np.testing.assert_array_equal(velocity_error[1], np.tile([0.5, -0.5], (3, 1)))
     assert run.diverged.tolist() == [True, False]
     assert run.live.tolist() == [[True, False, False], [True, True, True]]
+
+
+def _replay(policy, config: EnvConfig, runs: int, seed: int) -> list[dict]:
+    """What :func:`rollout` does by hand: a core of ``runs`` slots reset with seeds ``seed + r``,
+    stepped with the policy's actions (only the runs not diverged), each step's info kept with
+    which runs were still live after it."""
+    core = TrackingCore(config, runs)
+    core.reset(np.arange(runs), [seed + r for r in range(runs)])
+    obs, state, alive = core.observe(), None, np.ones(runs, dtype=bool)
+    steps = []
+    for k in range(core.horizon):
+        actions, state = policy.predict(
+            obs, state=state, episode_start=np.full(runs, k == 0), deterministic=True
+        )
+        result = core.step(actions, active=alive.copy())
+        alive = alive & ~result.terminated
+        steps.append({**result.info, "live": alive.copy()})
+        obs = result.obs
+    return steps
+
+
+def test_the_nis_counts_the_steps_the_sensor_detected_on() -> None:
+    """With a detection probability of 0.8 a live run misses detections: ``detected`` is the
+    sensor's detection flag of each step (``info["detected"]``) on a live run, not ``live``
+    (a missed detection's NIS of 0 would count in the NIS test)."""
+    policy = FixedTPM(3)
+    base = EnvConfig.build({"scenario": "random", "sensor": {"detection_prob": 0.8}})
+    config = evaluation_config(base, policy.env_overrides)
+    run = rollout(policy, config, 4, 7)
+    steps = _replay(policy, config, 4, 7)
+    assert len(steps) == run.detected.shape[1]
+    for k, info in enumerate(steps):
+        np.testing.assert_array_equal(run.live[:, k], info["live"], f"step {k}")
+        np.testing.assert_array_equal(run.detected[:, k], info["live"] & info["detected"],
+                                      f"step {k}")
+    missed = run.live & ~run.detected
+    assert 0.1 < missed.sum() / run.live.sum() < 0.3  # about 1 - 0.8 of the live steps
+    assert (run.nis[missed] == 0.0).all() and (run.nis[run.detected] > 0.0).all()

@@ -88,3 +88,21 @@ def test_nees_counts_the_live_steps_only() -> None:
     assert s["nees"]["inside"] == 1.0  # 1, 4 and 9: inside chi2(4)'s 9.49, the held ones not
     assert s["diverged"] == 1
     assert s["armse_pos"] > 1000.0  # the position error keeps the cap
+
+
+def test_nis_counts_the_detections_only_against_chi2_of_the_measurement_dimension() -> None:
+    """A missed detection of a live run (``detected`` False, ``live`` True) has no innovation:
+    its NIS of 0 is not a value of the test. Counting it (the mask dropped) lowers the mean and
+    raises the inside share; a NIS of a 2-d measurement is tested against chi2(2), not chi2(4)
+    (whose bound 9.49 would take in the 7 and 8 that chi2(2)'s 5.99 leaves out)."""
+    run = _rollout(np.zeros((2, 4), dtype=np.int64), np.ones((2, 4)), np.full((2, 4, 2), 0.5))
+    nis = np.array([[1.0, 0.0, 7.0, 3.0], [0.5, 8.0, 0.0, 2.5]])
+    detected = np.array([[True, False, True, True], [True, True, False, True]])
+    s = score(replace(run, nis=nis, detected=detected))
+    assert run.live.all()
+    counted = [1.0, 7.0, 3.0, 0.5, 8.0, 2.5]
+    bound = -2.0 * np.log(0.05)  # chi2(2)'s 95 % quantile: its CDF is 1 - exp(-x / 2)
+    assert s["nis"]["dof"] == 2
+    assert s["nis"]["bound"] == pytest.approx(bound, rel=1e-12)
+    assert s["nis"]["mean"] == pytest.approx(sum(counted) / 6, rel=1e-12)
+    assert s["nis"]["inside"] == pytest.approx(4 / 6, rel=1e-12)  # 1, 3, 0.5, 2.5
