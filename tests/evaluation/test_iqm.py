@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
+from scipy import stats
 
 from imm_gym.evaluation.metrics import interquartile_mean, stratified_bootstrap_iqm
 
@@ -32,3 +34,24 @@ def test_the_stratified_bootstrap() -> None:
     # resampling never mixes tasks: each resample keeps every task's own share of scores
     wide = stratified_bootstrap_iqm(np.array([[0.0] * 4, [10.0] * 4]), n_boot=500)
     assert wide["low"] == wide["high"] == 5.0
+
+
+def test_the_stratified_bootstrap_against_explicit_resampling() -> None:
+    """The interval is the 2.5 % and 97.5 % quantiles of the IQMs of resamples drawing each task's
+    own seeds with replacement, with the generator seeded ``seed``: redrawn here a resample and a
+    task at a time. A 90 % interval (alpha = 1 - level) or one set of picks for every task would
+    give other bounds."""
+    rng = np.random.default_rng(11)
+    scores = rng.normal([[10.0], [20.0], [30.0]], [[1.0], [4.0], [0.5]], (3, 6))
+    scores[1, 2] = 60.0  # an outlier the IQM trims
+    out = stratified_bootstrap_iqm(scores, n_boot=1500, seed=5)
+    assert out["iqm"] == stats.trim_mean(scores.ravel(), 0.25)
+    draws = np.random.default_rng(5)
+    picks = draws.integers(0, 6, size=(1500, 3, 6))
+    boot = []
+    for b in range(1500):
+        resample = [scores[t, picks[b, t, s]] for t in range(3) for s in range(6)]
+        boot.append(stats.trim_mean(resample, 0.25))
+    assert out["low"] == pytest.approx(np.quantile(boot, 0.025), rel=0, abs=1e-12)
+    assert out["high"] == pytest.approx(np.quantile(boot, 0.975), rel=0, abs=1e-12)
+    assert out["high"] - out["low"] > 1.0  # wide enough for the checks above to tell
