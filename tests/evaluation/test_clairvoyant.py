@@ -56,3 +56,80 @@ def test_unsupported_names_acceleration_and_missing_models() -> None:
     assert "right-turn CT" in str(unsupported(straight_turn, no_right))
     hetero = HeteroBank(**SONAR_HETERO_BANK)
     assert "NCV/CT/CTRA" in str(unsupported(straight_turn, hetero))
+
+
+def _ct_by_hand(omega: float, T: float) -> np.ndarray:
+    """The exact transition of a turn at ``omega`` rad/s over ``T`` (CV at 0)."""
+    if omega == 0.0:
+        return np.array([[1, 0, T, 0], [0, 1, 0, T], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+    s, c = np.sin(omega * T), np.cos(omega * T)
+    return np.array(
+        [
+            [1, 0, s / omega, -(1 - c) / omega],
+            [0, 1, (1 - c) / omega, s / omega],
+            [0, 0, c, -s],
+            [0, 0, s, c],
+        ]
+    )
+
+
+def test_the_clairvoyant_filter_predicts_each_step_with_its_own_true_motion() -> None:
+    """Step k is predicted with the exact transition at that step's true turn rate (the one that
+    moved the truth into measurement k) and the ``Q`` of the bank's model of that motion: the
+    CV model's on straight steps, the left-turn CT model's on left turns, the right-turn one's on
+    right turns (three different ``Q`` here); checked against a hand-written EKF loop. The turn
+    rate of the step before, or the CV model's ``Q`` on turns, gives other estimates."""
+    T = 2.0
+    scenarios = [
+        Scenario((Segment(4), Segment(4, 3.0), Segment(4, -2.0)), (3000.0, 4000.0), (10.0, 5.0),
+                 T=T),
+        Scenario((Segment(3, -2.5), Segment(5), Segment(4, 1.5)), (-2000.0, 3500.0), (8.0, -6.0),
+                 T=T),
+    ]
+    truth = generate_truth(scenarios)
+    R, K = truth.turn_rate.shape
+    assert (R, K) == (2, 12)
+    # the truth's convention: turn_rate[:, k] moves states[:, k] to states[:, k + 1]
+    for r in range(R):
+        for k in range(K):
+            moved = _ct_by_hand(truth.turn_rate[r, k], T) @ truth.states[r, k]
+            np.testing.assert_allclose(truth.states[r, k + 1], moved, rtol=1e-12, atol=1e-9)
+    q = {0: (9.0, 9.0, 1.0, 1.0), 1: (2.0, 3.0, 0.3, 0.4), -1: (4.0, 1.0, 0.6, 0.2)}
+    bank = (MotionModel("cv", q=q[0]), MotionModel("ct", 4.0, q[1]), MotionModel("ct", -4.0, q[-1]))
+    sonar = Sonar(position=(500.0, -300.0))
+    sigma = np.array([sonar.sigma_r, np.radians(sonar.sigma_theta_deg)])
+    rng = np.random.default_rng(4)
+
+    def h(x: np.ndarray) -> np.ndarray:
+        dx, dy = x[0] - 500.0, x[1] + 300.0
+        return np.array([np.hypot(dx, dy), np.arctan2(dy, dx)])
+
+    z = np.array([[h(s) for s in run[1:]] for run in truth.states])
+    z += rng.normal(size=z.shape) * sigma
+    detected = np.ones((R, K), dtype=bool)
+    detected[1, 6] = False  # a step predicted only
+    x0 = truth.states[:, 0] + np.array([30.0, -20.0, 1.0, -1.0])
+    P0 = np.broadcast_to(np.diag([100.0**2, 100.0**2, 5.0**2, 5.0**2]), (R, 4, 4)).copy()
+    xs, Ps = clairvoyant_filter(truth, z, sonar, bank, x0, P0, filter="ekf", detected=detected)
+    Rz = np.diag(sigma**2)
+    for r in range(R):
+        x, P = x0[r].copy(), P0[r].copy()
+        for k in range(K):
+            omega = truth.turn_rate[r, k]
+            F = _ct_by_hand(omega, T)
+            x, P = F @ x, F @ P @ F.T + np.diag(q[int(np.sign(omega))])
+            if detected[r, k]:
+                dx, dy = x[0] - 500.0, x[1] + 300.0
+                r2 = dx * dx + dy * dy
+                r1 = np.sqrt(r2)
+                H = np.array([[dx / r1, dy / r1, 0, 0], [-dy / r2, dx / r2, 0, 0]])
+                nu = z[r, k] - h(x)
+                nu[1] = (nu[1] + np.pi) % (2 * np.pi) - np.pi
+                S = H @ P @ H.T + Rz
+                G = P @ H.T @ np.linalg.inv(S)
+                x = x + G @ nu
+                P = (np.eye(4) - G @ H) @ P @ (np.eye(4) - G @ H).T + G @ Rz @ G.T
+            np.testing.assert_allclose(xs[r, k], x, rtol=1e-9, atol=1e-9, err_msg=f"{r}, {k}")
+            np.testing.assert_allclose(Ps[r, k], P, rtol=1e-9, atol=1e-9, err_msg=f"{r}, {k}")
+    # the motion of each kind is there to be told apart
+    assert {int(np.sign(w)) for w in truth.turn_rate[0]} == {-1, 0, 1}
