@@ -8,7 +8,7 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from baselines import FixedTPM
+from baselines import TIPIMM, FixedTPM
 from imm_gym.evaluation.rollout import Rollout, evaluation_config, rollout
 from imm_gym.sim.core import INFINITY_STAND_IN, StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
@@ -207,3 +207,18 @@ def test_the_nis_counts_the_steps_the_sensor_detected_on() -> None:
     missed = run.live & ~run.detected
     assert 0.1 < missed.sum() / run.live.sum() < 0.3  # about 1 - 0.8 of the live steps
     assert (run.nis[missed] == 0.0).all() and (run.nis[run.detected] > 0.0).all()
+
+
+def test_an_adapting_policy_records_the_tpm_each_step_used() -> None:
+    """TIP-IMM changes the TPM at every step: ``tpm[:, k]`` is the TPM step k ran with (the core's
+    ``info["tpm"]`` at that step, replayed with the same actions), not the one of the step
+    before."""
+    policy = TIPIMM(3)
+    config = evaluation_config(EnvConfig(scenario="paper"), policy.env_overrides)
+    run = rollout(policy, config, 3, 11)
+    steps = _replay(policy, config, 3, 11)
+    assert not run.diverged.any() and len(steps) == run.tpm.shape[1]
+    for k, info in enumerate(steps):
+        np.testing.assert_array_equal(run.tpm[:, k], info["tpm"], f"step {k}")
+    changed = np.any(run.tpm[:, 1:] != run.tpm[:, :-1], axis=(2, 3))
+    assert changed.mean() > 0.5  # a TPM one step late would differ on these steps
