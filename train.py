@@ -883,7 +883,7 @@ def train_one_rllib(
     start = time.perf_counter()
     next_validation = args.validate_every
     while steps < total and not stop.requested:
-        steps = rllib.env_steps(algo.train())
+        steps = rllib.env_steps(algo.train(), steps)
         armse = None
         if args.validate_every and steps >= next_validation:
             next_validation += args.validate_every

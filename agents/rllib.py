@@ -314,6 +314,9 @@ def ppo_config(
             num_cpus_per_env_runner=1,
             episode_lookback_horizon=max(frames, 1),
             env_to_module_connector=env_to_module,
+            # no timeout: a runner's first sample compiles the numba kernels (one to three
+            # minutes where they are not cached), past which RLlib's 60 s would drop the samples
+            sample_timeout_s=None,
         )
         .training(
             train_batch_size_per_learner=n_steps * n_envs * max(env_runners, 1),
@@ -480,8 +483,10 @@ def export_agent(
     (directory / "agent.json").write_text(json.dumps(meta, indent=2))
 
 
-def env_steps(result: dict[str, Any]) -> int:
-    """Environment steps sampled so far, from a ``train()`` result."""
+def env_steps(result: dict[str, Any], previous: int = 0) -> int:
+    """Environment steps sampled so far, from a ``train()`` result; ``previous`` (the count
+    before the iteration) where the result holds none, as after an iteration that sampled
+    nothing (every remote runner failed: RLlib then reports no env runner metrics)."""
     from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME
 
-    return int(result[ENV_RUNNER_RESULTS].get(NUM_ENV_STEPS_SAMPLED_LIFETIME, 0))
+    return int(result.get(ENV_RUNNER_RESULTS, {}).get(NUM_ENV_STEPS_SAMPLED_LIFETIME, previous))

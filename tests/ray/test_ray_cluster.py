@@ -145,6 +145,23 @@ def test_rllib_training_runners_on_both_nodes_with_distinct_seeds(cluster, tmp_p
     assert actions.shape == (3, size) and np.all(np.abs(actions) <= 1.0)
 
 
+def test_an_iteration_without_samples_keeps_the_step_count_and_sampling_has_no_timeout():
+    """A ``train()`` result without env runner metrics (RLlib's after an iteration that sampled
+    nothing) leaves the step count where it was; and a runner's samples are waited for however
+    long they take (the first compiles the numba kernels: minutes where they are not cached,
+    past RLlib's default 60 s timeout, which returned such a result)."""
+    from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME
+
+    from agents import rllib
+    from agents.training import load_hyperparams
+
+    assert rllib.env_steps({"timers": {}}, 512) == 512
+    sampled = {ENV_RUNNER_RESULTS: {NUM_ENV_STEPS_SAMPLED_LIFETIME: 640}}
+    assert rllib.env_steps(sampled, 512) == 640
+    params, _ = load_hyperparams(ENV_ID)
+    assert rllib.ppo_config({**params, **SMALL}, ENV_ID, 0, 2, "ledger").sample_timeout_s is None
+
+
 def _stacks(frames: int, obs: np.ndarray) -> np.ndarray:
     """The stacked inputs ``LearnedPolicy`` feeds its network over one episode (no normalizer)."""
     from agents.policy import LearnedPolicy
