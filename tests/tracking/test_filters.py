@@ -195,10 +195,31 @@ def test_bearing_residual_wrapped(filter_name: str, y: float) -> None:
     assert abs(float(u.nu[0])) < 1.0
     # predicted bearing: close to +-pi, the innovation covariance stays small
     assert abs(math.remainder(float(u.z_pred[1]) - PI, 2 * PI)) < 1e-3
+    # and a bearing itself, wrapped to (-pi, pi] (the UKF's mean of the sigma points' residuals
+    # about the centre one can step past pi)
+    assert -PI < float(u.z_pred[1]) <= PI
     assert float(u.S[1, 1]) < 1e-3  # R + H P H^T ~ 1.8e-4; an unwrapped spread would be ~pi^2
     # the estimate moves by metres, not kilometres
     assert np.linalg.norm(u.x[:2] - x[:2]) < 15.0
     assert float(u.nis) < 10.0
+
+
+@pytest.mark.parametrize("filter_name", ["ukf", "ukf-cholesky"])
+def test_ukf_predicted_bearing_past_pi_is_wrapped(filter_name: str) -> None:
+    """A target on the -x axis (bearing pi) with x and y correlated: the sigma points' bearings
+    average to pi + Pxy * d2(atan2)/dxdy = pi - Pxy / r^2 (second order; 9e-5 rad here), past the
+    cut. The predicted measurement is a bearing, -pi + 9e-5; left unwrapped it is pi + 9e-5
+    (the innovation is still wrapped, so nothing else shows it)."""
+    sonar = Sonar(sigma_theta_deg=0.5)
+    x = np.array([-5000.0, 0.0, -10.0, 3.0])
+    P = np.diag([50.0**2, 50.0**2, 5.0**2, 5.0**2])
+    P[0, 1] = P[1, 0] = -0.9 * 50.0**2
+    u = make_filter(filter_name).update(x, P, np.array([5000.0, -PI + 0.001]), sonar)
+    bias = -P[0, 1] / 5000.0**2
+    assert bias == pytest.approx(9e-5)
+    assert -PI < float(u.z_pred[1]) <= PI
+    assert float(u.z_pred[1]) == pytest.approx(-PI + bias, abs=1e-7)
+    assert float(u.nu[1]) == pytest.approx(0.001 - bias, abs=1e-7)
 
 
 # --------------------------------------------------------------------------- (6) predict
