@@ -812,6 +812,23 @@ def trained_across(params: dict[str, Any]) -> dict[str, Any]:
     return {"trained_across": [jsonable(tracker_of(part["env_kwargs"])) for part in parts]}
 
 
+def connect_ray(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--engine rllib``: join the Ray cluster at ``--ray-address`` (default: start a local
+    instance) before any run directory is made; nothing if this process is connected already.
+    An address Ray cannot connect to is a usage error naming it."""
+    import ray
+
+    if ray.is_initialized():
+        return
+    try:
+        ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False)
+    except (ConnectionError, ValueError, RuntimeError) as err:
+        reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        if args.ray_address is None:
+            parser.error(f"cannot start a local Ray instance ({reason}); give --ray-address")
+        parser.error(f"--ray-address {args.ray_address!r}: cannot connect to Ray ({reason})")
+
+
 def train_one_rllib(
     args: argparse.Namespace,
     params: dict[str, Any],
@@ -834,11 +851,8 @@ def train_one_rllib(
     from imm_gym.evaluation.rollout import evaluation_config, rollout, score
     from imm_gym.sim.env_config import EnvConfig
 
-    rllib.check_params(params)
     for key, instead in rllib.not_ported(params).items():
         print(f"--engine rllib: {key} not ported: {instead}", flush=True)
-    if not ray.is_initialized():
-        ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False)
     ledger, ledger_name = rllib.start_ledger(seed)
     algo = rllib.ppo_config(params, args.env, seed, args.env_runners, ledger_name).build_algo()
     log_std = params.get("policy_kwargs", {}).get("log_std_init")
@@ -1248,8 +1262,14 @@ def main(argv: list[str] | None = None) -> int:
     set_threads(1)
     try:
         params = hyperparams(args, resume)
+        if args.engine == "rllib":
+            from agents.rllib import check_params
+
+            check_params(params, args.env_runners)
     except ConfigError as err:
         parser.error(str(err))
+    if args.engine == "rllib":
+        connect_ray(parser, args)
     args.out.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
     versions = _versions(args.engine, args.algo)

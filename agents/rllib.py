@@ -226,14 +226,35 @@ def _frame_stack_connector(frames: int, learner: bool) -> Any:
     return FrameStack()
 
 
-def check_params(params: dict[str, Any]) -> None:
-    """Refuse the hyperparameters RLlib's PPO has no equivalent for, before any work.
+def iteration_samples(params: dict[str, Any], env_runners: int) -> int:
+    """The samples of one PPO iteration (RLlib's ``train_batch_size_per_learner``): ``n_steps *
+    n_envs`` from each sampling runner (the driver where ``env_runners`` is 0)."""
+    return int(params.get("n_steps", 2048)) * int(params["n_envs"]) * max(env_runners, 1)
+
+
+def check_params(params: dict[str, Any], env_runners: int) -> None:
+    """Refuse the hyperparameters RLlib's PPO has no equivalent for, or that its configuration
+    check refuses, before any work (a pure function: no Ray).
+
+    Args:
+        params: the hyperparameter entry.
+        env_runners: remote env runners (``--env-runners``; 0: the driver samples).
 
     Raises:
         ConfigError: a ``lin_`` clip range, ``clip_range_vf``, ``target_kl``, gSDE, no advantage
             normalization, different actor and critic sizes, an activation RLlib lacks, a policy
-            other than ``MlpPolicy``.
+            other than ``MlpPolicy``; a minibatch (``batch_size``) larger than an iteration's
+            samples (``n_steps * n_envs * max(env_runners, 1)``, RLlib's
+            ``train_batch_size_per_learner``).
     """
+    batch, minibatch = iteration_samples(params, env_runners), int(params.get("batch_size", 64))
+    if minibatch > batch:
+        raise ConfigError(
+            f"--engine rllib: batch_size {minibatch} (the minibatch) is above the {batch} samples "
+            f"of an iteration (n_steps {params.get('n_steps', 2048)} x n_envs {params['n_envs']} "
+            f"x {max(env_runners, 1)} sampling runner(s), --env-runners {env_runners}): lower "
+            "batch_size, or raise n_steps, n_envs or --env-runners"
+        )
     refused = {
         "clip_range": isinstance(params.get("clip_range"), str),
         "clip_range_vf": params.get("clip_range_vf") is not None,
@@ -270,9 +291,10 @@ def ppo_config(
         ledger: the name of the run's :class:`SeedLedger`.
 
     Raises:
-        ConfigError: a setting RLlib's PPO has no equivalent for (:func:`check_params`).
+        ConfigError: a setting RLlib's PPO has no equivalent for or refuses
+            (:func:`check_params`).
     """
-    check_params(params)
+    check_params(params, env_runners)
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.rllib.connectors.env_to_module.mean_std_filter import MeanStdFilter
     from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
@@ -319,7 +341,7 @@ def ppo_config(
             sample_timeout_s=None,
         )
         .training(
-            train_batch_size_per_learner=n_steps * n_envs * max(env_runners, 1),
+            train_batch_size_per_learner=iteration_samples(params, env_runners),
             minibatch_size=int(params.get("batch_size", 64)),
             num_epochs=int(params.get("n_epochs", 10)),
             gamma=float(params.get("gamma", 0.99)),

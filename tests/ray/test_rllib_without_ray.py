@@ -79,6 +79,8 @@ def test_runner_env_seeds_its_sub_envs_once_and_returns_no_infos():
         ({"policy_kwargs": {"net_arch": {"pi": [64], "vf": [128]}}}, "net_arch"),
         ({"policy_kwargs": {"activation_fn": "gelu"}}, "activation_fn"),
         ({"policy": "PerModelPolicy"}, "PerModelPolicy"),
+        # a minibatch above an iteration's 16 x 8 samples (RLlib's configuration check)
+        ({"n_envs": 8, "n_steps": 16, "batch_size": 256}, "batch_size 256"),
     ],
 )
 def test_rllib_refuses_what_it_has_no_equivalent_for(change, named):
@@ -87,9 +89,26 @@ def test_rllib_refuses_what_it_has_no_equivalent_for(change, named):
     from imm_gym.validation import ConfigError
 
     params, _ = load_hyperparams(ENV_ID)
-    check_params(params)  # the default entry trains (with what is not ported said)
+    check_params(params, 1)  # the default entry trains (with what is not ported said)
     with pytest.raises(ConfigError, match=named):
-        check_params({**params, **change})
+        check_params({**params, **change}, 1)
+
+
+def test_rllib_minibatch_may_take_every_runners_samples():
+    """An iteration holds ``n_steps * n_envs`` samples of each runner (of the driver with none):
+    the minibatch may be up to that, and no more."""
+    from agents.rllib import check_params, iteration_samples
+    from agents.training import load_hyperparams
+    from imm_gym.validation import ConfigError
+
+    params, _ = load_hyperparams(ENV_ID)
+    params = {**params, "n_envs": 8, "n_steps": 16, "batch_size": 256}
+    assert [iteration_samples(params, k) for k in (0, 1, 2, 3)] == [128, 128, 256, 384]
+    check_params(params, 2)
+    check_params(params, 3)
+    for runners in (0, 1):
+        with pytest.raises(ConfigError, match=f"--env-runners {runners}"):
+            check_params(params, runners)
 
 
 def test_runner_env_trains_a_mixture_each_part_on_its_share():
