@@ -218,7 +218,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=1,
         metavar="K",
-        help="--engine rllib: env runners sampling in parallel (0: the driver samples)",
+        help="--engine rllib: env runners sampling in parallel, one CPU each (0: the driver "
+        "samples; at most the Ray cluster's CPUs)",
     )
     return p
 
@@ -814,19 +815,27 @@ def trained_across(params: dict[str, Any]) -> dict[str, Any]:
 
 def connect_ray(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """``--engine rllib``: join the Ray cluster at ``--ray-address`` (default: start a local
-    instance) before any run directory is made; nothing if this process is connected already.
-    An address Ray cannot connect to is a usage error naming it."""
+    instance; nothing if this process is connected already) before any run directory is made.
+    Usage errors: an address Ray cannot connect to, and more ``--env-runners`` than the cluster
+    has CPUs (each runner is an actor of one CPU; the learner runs in this process and takes
+    none of them), for which RLlib would wait forever."""
     import ray
 
-    if ray.is_initialized():
-        return
-    try:
-        ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False)
-    except (ConnectionError, ValueError, RuntimeError) as err:
-        reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
-        if args.ray_address is None:
-            parser.error(f"cannot start a local Ray instance ({reason}); give --ray-address")
-        parser.error(f"--ray-address {args.ray_address!r}: cannot connect to Ray ({reason})")
+    if not ray.is_initialized():
+        try:
+            ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False)
+        except (ConnectionError, ValueError, RuntimeError) as err:
+            reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+            if args.ray_address is None:
+                parser.error(f"cannot start a local Ray instance ({reason}); give --ray-address")
+            parser.error(f"--ray-address {args.ray_address!r}: cannot connect to Ray ({reason})")
+    cpus = int(ray.cluster_resources().get("CPU", 0))
+    if args.env_runners > cpus:
+        parser.error(
+            f"--env-runners {args.env_runners}: each env runner takes one of the Ray cluster's "
+            f"{cpus} CPU(s) (the learner runs in this process); give --env-runners in "
+            f"[0, {cpus}]"
+        )
 
 
 def train_one_rllib(

@@ -73,6 +73,27 @@ def test_evaluation_split_across_both_nodes_is_bit_identical(cluster):
             assert a.dtype == b.dtype and np.array_equal(a, b), (name, field.name)
 
 
+def test_more_env_runners_than_the_cluster_has_cpus_are_refused(
+    cluster, tmp_path: Path, capsys, monkeypatch
+):
+    """Three runners on the two CPUs: refused after connecting, before any run directory (RLlib
+    would wait forever for the third runner's CPU: here training is not reached)."""
+    import train
+
+    def reached(*args, **kwargs):
+        raise AssertionError("training started: RLlib would wait forever for a third CPU")
+
+    monkeypatch.setattr(train, "train_one_rllib", reached)
+    config = tmp_path / "small.yml"
+    config.write_text("".join(f"{k}: {v}\n" for k, v in SMALL.items()))
+    argv = ["--engine", "rllib", "--ray-address", cluster.address, "--config", str(config)]
+    with pytest.raises(SystemExit) as exc:
+        train.main([*argv, "--env-runners", "3", "--no-eval", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "--env-runners 3" in err and "[0, 2]" in err
+    assert not (tmp_path / "run").exists()
+
+
 def test_hetero_bank_evaluation_with_a_one_run_chunk_is_bit_identical(cluster):
     """3 runs on two shards: chunks of 2 and 1; the heterogeneous bank's mixture NIS of the run
     alone in its core equals its NIS among the others."""
