@@ -86,18 +86,36 @@ class ShardPool:
 
     Args:
         shards: the number of actors (one CPU each, so at most the cluster's CPUs), default the
-            cluster's CPUs; they are spread over the nodes.
+            cluster's free CPUs (at least 1: CPUs other work holds are left to it); they are
+            spread over the nodes.
+        start_timeout: seconds to wait for every actor to start.
+
+    Raises:
+        ValueError: ``shards`` outside ``[1, the cluster's CPUs]``.
+        TimeoutError: an actor did not start within ``start_timeout`` (other work holds the
+            CPUs it needs); the pool's actors are ended.
     """
 
-    def __init__(self, shards: int | None = None) -> None:
+    def __init__(self, shards: int | None = None, start_timeout: float = 60.0) -> None:
         import ray
 
         cpus = int(ray.cluster_resources().get("CPU", 0))
-        n = cpus if shards is None else shards
+        free = int(ray.available_resources().get("CPU", 0))
+        n = max(free, 1) if shards is None else shards
         if not 1 <= n <= cpus:
             raise ValueError(f"shards must be in [1, {cpus}] (the cluster's CPUs), got {n}")
         actor = ray.remote(num_cpus=1)(Shard).options(scheduling_strategy="SPREAD")
         self.actors = [actor.remote() for _ in range(n)]
+        started, _ = ray.wait(
+            [a.node.remote() for a in self.actors], num_returns=n, timeout=start_timeout
+        )
+        if len(started) < n:
+            self.close()
+            raise TimeoutError(
+                f"{n - len(started)} of {n} evaluation shard(s) (one CPU each) did not start "
+                f"within {start_timeout:g} s: other work holds the Ray cluster's CPUs ({free} of "
+                f"{cpus} free when the shards were asked for)"
+            )
 
     def core(self, config: EnvConfig, n_envs: int) -> ShardedCore:
         """A :class:`ShardedCore` of ``n_envs`` slots over the pool (the ``make_core`` of

@@ -73,6 +73,43 @@ def test_evaluation_split_across_both_nodes_is_bit_identical(cluster):
             assert a.dtype == b.dtype and np.array_equal(a, b), (name, field.name)
 
 
+def test_shard_pool_leaves_the_cpus_other_work_holds(cluster):
+    """Another job's actor holds one of the two CPUs: the pool takes the free one (a shard on the
+    held CPU would never start, and the first roll-out would wait forever), and a pool asked for
+    both CPUs fails after its start timeout."""
+    import time
+
+    from imm_gym.evaluation.distributed import ShardPool
+    from imm_gym.sim.core import TrackingCore
+    from imm_gym.sim.env_config import EnvConfig
+
+    @ray.remote(num_cpus=1)
+    class Busy:
+        def ping(self) -> int:
+            return 1
+
+    busy = Busy.remote()
+    ray.get(busy.ping.remote())
+    try:
+        pool = ShardPool()
+        try:
+            assert len(pool.actors) == 1
+            config = EnvConfig()
+            sharded, local = pool.core(config, 3), TrackingCore(config, n_envs=3)
+            for core in (sharded, local):
+                core.reset(np.arange(3), [5, 6, 7])
+            np.testing.assert_array_equal(sharded.observe(), local.observe())
+        finally:
+            pool.close()
+        with pytest.raises(TimeoutError, match="1 of 2 evaluation shard"):
+            ShardPool(2, start_timeout=5)
+    finally:
+        ray.kill(busy)
+    deadline = time.monotonic() + 60  # the next tests have both CPUs again
+    while ray.available_resources().get("CPU", 0) < 2 and time.monotonic() < deadline:
+        time.sleep(0.5)
+
+
 def test_more_env_runners_than_the_cluster_has_cpus_are_refused(
     cluster, tmp_path: Path, capsys, monkeypatch
 ):
