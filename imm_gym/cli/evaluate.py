@@ -957,16 +957,31 @@ def _tradeoff(
 
 def _cores(parser: argparse.ArgumentParser, address: str | None) -> Callable[[EnvConfig, int], Any]:
     """The roll-outs' core: in this process, or with ``--ray`` a pool of shards on the cluster
-    at ``address`` ("" for Ray's default) (:mod:`imm_gym.evaluation.distributed`)."""
+    at ``address`` ("" for Ray's default) (:mod:`imm_gym.evaluation.distributed`), joined and
+    started when the first roll-out builds its core: after every check of the arguments, the
+    configuration and the policies. Ray not installed is a usage error here; a cluster that
+    cannot be joined, or whose shards do not start, a ConfigError naming ``--ray`` then."""
     if address is None:
         return TrackingCore
     try:
-        from imm_gym.evaluation.distributed import ShardPool, connect
-
-        connect(address or None)
+        from ray import init  # noqa: F401  (installed; importing it starts nothing)
     except ImportError:
         parser.error("--ray needs Ray: pip install -e '.[ray]' (make install-ray)")
-    return ShardPool().core
+    from imm_gym.evaluation.distributed import ShardPool, connect
+
+    pools: list[ShardPool] = []
+
+    def make_core(config: EnvConfig, n_envs: int) -> Any:
+        if not pools:
+            try:
+                connect(address or None)
+                pools.append(ShardPool())
+            except (ConnectionError, TimeoutError, RuntimeError, ValueError) as err:
+                reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+                raise ConfigError(f"--ray {address or '(Ray default)'}: {reason}") from None
+        return pools[0].core(config, n_envs)
+
+    return make_core
 
 
 def _run_config(args: argparse.Namespace) -> dict[str, Any]:

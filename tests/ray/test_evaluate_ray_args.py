@@ -1,0 +1,58 @@
+"""``python -m imm_gym.evaluate --ray`` checks its arguments, configuration and policies before it
+joins Ray: a refused command starts no Ray and no shard actor.
+
+The joining (``imm_gym.evaluation.distributed.connect``) is replaced by a recorder: these tests
+start no Ray.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+# ray.rllib, not ray: with tests/ on the path this very directory imports as a namespace "ray"
+pytest.importorskip("ray.rllib")
+
+from imm_gym.cli.evaluate import main
+from imm_gym.evaluation import distributed
+
+pytestmark = pytest.mark.ray
+
+
+@pytest.fixture
+def joins(monkeypatch: pytest.MonkeyPatch) -> list[str | None]:
+    """The addresses ``--ray`` joins (each raises the ConnectionError of an address with no
+    Ray)."""
+    calls: list[str | None] = []
+
+    def connect(address: str | None) -> None:
+        calls.append(address)
+        raise ConnectionError("Could not find any running Ray instance.")
+
+    monkeypatch.setattr(distributed, "connect", connect)
+    return calls
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["--policy", "no-such-policy"], "unknown policy 'no-such-policy'"),
+        (["--policy", "fixed", "--bank", "no-such-bank"], "--bank must be one of"),
+        (["--policy", "fixed", "--reference", "tip-imm"], "--reference 'tip-imm'"),
+        (["--policy", "fixed", "--suite", "no-such-suite"], "no-such-suite"),
+    ],
+    ids=["policy", "bank", "reference", "suite"],
+)
+def test_a_refused_command_does_not_join_ray(argv, named, joins, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--runs", "2", "--quiet", "--ray", "auto"])
+    assert exc.value.code == 2 and named in capsys.readouterr().err
+    assert joins == []
+
+
+def test_a_cluster_that_cannot_be_joined_is_a_usage_error_naming_ray(joins, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray", "auto"])
+    assert exc.value.code == 2 and "--ray auto: Could not find any running Ray instance" in (
+        capsys.readouterr().err
+    )
+    assert joins == ["auto"]
