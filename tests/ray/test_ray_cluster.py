@@ -319,13 +319,32 @@ def test_exported_agent_acts_as_the_rllib_module(cluster, tmp_path: Path):
         algo.stop()
 
 
-def test_evaluate_command_with_ray_writes_the_same_json(cluster, tmp_path: Path):
-    """Last in the file: the command's shard actors live until this process lets them go."""
+def test_evaluate_command_with_ray_writes_the_same_json(cluster, tmp_path: Path, monkeypatch):
+    """Last in the file: the command's shard actors live until this process lets them go. With
+    ``--ray`` each roll-out (one a policy) steps a core of shards, without it none does."""
     from imm_gym.cli.evaluate import main
+    from imm_gym.evaluation.distributed import ShardedCore
 
+    sharded: list[dict[str, int]] = []  # per core: its shards and the steps it took
+    init, step = ShardedCore.__init__, ShardedCore.step
+
+    def counted_init(self, actors, config, n_envs) -> None:
+        init(self, actors, config, n_envs)
+        self.counts = {"shards": len(self.actors), "steps": 0}
+        sharded.append(self.counts)
+
+    def counted_step(self, action, active=None):
+        self.counts["steps"] += 1
+        return step(self, action, active)
+
+    monkeypatch.setattr(ShardedCore, "__init__", counted_init)
+    monkeypatch.setattr(ShardedCore, "step", counted_step)
     args = ["--policy", "fixed", "--policy", "tip-imm", "--runs", "6", "--seed", "3", "--quiet"]
     main([*args, "--json", str(tmp_path / "one.json")])
+    assert sharded == []
     main([*args, "--json", str(tmp_path / "ray.json"), "--ray", cluster.address])
+    assert len(sharded) == 2, "one sharded core per policy's roll-out"
+    assert all(c["shards"] >= 1 and c["steps"] >= 150 for c in sharded), sharded
     one, split = (json.loads((tmp_path / f).read_text()) for f in ("one.json", "ray.json"))
     del one["meta"]["command"], split["meta"]["command"]
     assert one == split
