@@ -1013,9 +1013,10 @@ def evaluate_agent(
     from imm_gym.evaluation.plots import write_figures
 
     policy = load_agent(agent_dir)
-    env_config = {k: v for k, v in args.env_overrides.items() if k != "scenario"}
+    configs = evaluated_scenarios(args.env_overrides)
     out: dict[str, Any] = {}
     for scenario, runs in (("paper", args.paper_runs), ("random", args.random_runs)):
+        env_config = configs[scenario]
         if stop.requested:
             stop.exit(
                 f"interrupted before evaluating on the {scenario} scenario; the trained agent "
@@ -1035,6 +1036,9 @@ def evaluate_agent(
         for rule in rules:
             results[f"vs_{rule.replace('-', '_')}"] = _paired(rollouts, "learned", rule)
         results["meta"]["scenario"] = scenario
+        dropped = sorted(set(args.env_overrides) - set(env_config) - {"scenario"})
+        if dropped:
+            results["meta"]["not_applied"] = dropped
         render_tables(results)
         write_figures(
             rollouts, run_dir / "plots" / scenario, results["meta"],
@@ -1042,6 +1046,16 @@ def evaluate_agent(
         )
         out[scenario] = results
     return out
+
+
+def evaluated_scenarios(env_overrides: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The configuration the agent and the baselines run on in each scenario of
+    :func:`evaluate_agent`: the first ``--env-config`` file's (its ``scenario`` aside) on the
+    randomized family, and the same without ``vary`` on the paper scenario, whose targets fly at
+    its own sampling period and speeds (the conditions a file draws per episode apply to the
+    family's targets; the file's sensor and bank apply to both)."""
+    family = {k: v for k, v in env_overrides.items() if k != "scenario"}
+    return {"paper": {k: v for k, v in family.items() if k != "vary"}, "random": family}
 
 
 def admitted_rules(base: Any) -> tuple[str, ...]:

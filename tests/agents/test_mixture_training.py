@@ -118,6 +118,30 @@ def test_train_py_evaluates_an_agent_of_a_configuration_file_against_every_rule(
     assert train.admitted_rules(hetero) == ()
 
 
+def test_a_file_that_draws_conditions_is_evaluated_on_the_paper_scenario_without_them(
+    tmp_path,
+) -> None:
+    """A file with ``vary`` (the shipped across-trackers files draw the speed, broad.yaml the
+    sampling period) is trained and then evaluated: on the randomized family with its drawn
+    conditions, on the paper scenario (which refuses them) with its sensor and bank only, the
+    results saying what was not applied there. The evaluation refused the file after training
+    (exit 2, no results.json)."""
+    file = tmp_path / "a.yaml"
+    file.write_text(json.dumps({"sensor": {"sigma_r": 40.0}, "vary": {"speed": [10.0, 30.0]}}))
+    cfg = tmp_path / "small.yml"
+    cfg.write_text("n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n")
+    argv = ["--config", str(cfg), "--out", str(tmp_path / "run"), "--no-progress",
+            "--timesteps", "256", "--env-config", str(file), "--paper-runs", "2",
+            "--random-runs", "2"]
+    assert train.main(argv) == 0
+    results = json.loads((tmp_path / "run" / "seed_0" / "results.json").read_text())
+    assert results["paper"]["meta"]["not_applied"] == ["vary"]
+    assert "not_applied" not in results["random"]["meta"]
+    for scenario in ("paper", "random"):
+        learned = results[scenario]["policies"]["learned"]
+        assert learned["evaluated_on"]["sensor"]["sigma_r"] == 40.0
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
