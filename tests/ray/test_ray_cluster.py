@@ -151,11 +151,31 @@ def test_hetero_bank_evaluation_with_a_one_run_chunk_is_bit_identical(cluster):
         assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), field.name
 
 
-def test_rllib_training_runners_on_both_nodes_with_distinct_seeds(cluster, tmp_path: Path):
+def test_rllib_training_runners_on_both_nodes_with_distinct_seeds(
+    cluster, tmp_path: Path, monkeypatch
+):
     import train
+    from agents import rllib
     from agents.policy import load_agent
+    from agents.training import load_hyperparams
+    from imm_gym.envs import PRESETS
     from imm_gym.seeding import RLLIB_SEED_BASE, rllib_seed
+    from imm_gym.sim.env_config import EnvConfig
 
+    parts: list = []  # each remote runner's env: its core's class, the parts' configs and slots
+    export = rllib.export_agent
+
+    def export_and_look(algo, *args, **kwargs):
+        def look(runner):
+            core = runner.env.unwrapped.core
+            cores = getattr(core, "cores", [core])
+            return type(core).__name__, [c.config for c in cores], [c.n_envs for c in cores]
+
+        if not parts:  # at the first validation, while the runners run
+            parts.extend(algo.env_runner_group.foreach_env_runner(look, local_env_runner=False))
+        return export(algo, *args, **kwargs)
+
+    monkeypatch.setattr(rllib, "export_agent", export_and_look)
     config = tmp_path / "small.yml"
     config.write_text("".join(f"{k}: {v}\n" for k, v in SMALL.items()))
     out = tmp_path / "run"
@@ -195,8 +215,17 @@ def test_rllib_training_runners_on_both_nodes_with_distinct_seeds(cluster, tmp_p
     # the exported agent loads through the project's loader and acts
     policy = load_agent(out / "seed_0" / "agent")
     assert policy.frame_stack == 4 and policy.obs_mean is not None
-    # the default entry's mixture is trained, not left out: its second tracker is recorded
-    assert len(policy.trained_across) == 1 and "env_mixture" not in stats["not_ported"]
+    # the default entry's mixture is trained, not left out: every runner's sub-envs are split
+    # between its two trackers, and the agent records the second
+    params, _ = load_hyperparams(ENV_ID)
+    expected = [
+        EnvConfig.build({**PRESETS[ENV_ID], **kwargs})
+        for kwargs in (params["env_kwargs"], params["env_mixture"][0]["env_kwargs"])
+    ]
+    assert len(parts) == 2
+    for name, configs, slots in parts:
+        assert name == "MixtureCore" and configs == expected and slots == [4, 4]
+    assert len(policy.trained_across) == 1
     obs = np.zeros((3, policy.obs_size))
     actions, _ = policy.predict(obs)
     size = int(policy.model.action_space.shape[0])  # the default entry's action
