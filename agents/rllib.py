@@ -24,9 +24,11 @@ for actor and critic), the activation and ``log_std_init``; ``normalize`` is RLl
 (the env-to-module and the learner pipelines; oldest frame first, zeros before an episode's
 first frame, as SB3's ``VecFrameStack``). Not ported (:data:`NOT_PORTED`, said when training and
 recorded in ``training.json``): the asymmetric critic (``critic_state``), the weight average
-(``swa_start``) and the reward normalization of ``VecNormalize``; refused: settings RLlib's
-PPO has no equivalent for (:func:`ppo_config`). A mixture of trackers (``env_mixture``) trains as
-with SB3: every runner's sub-envs are split among the parts by their shares.
+(``swa_start``), the reward normalization of ``VecNormalize``, the advantages' normalization per
+minibatch (RLlib normalizes over the iteration's batch) and SB3's orthogonal initialization
+(``ortho_init``, on by default); refused: settings RLlib's PPO has no equivalent for
+(:func:`ppo_config`). A mixture of trackers (``env_mixture``) trains as with SB3: every runner's
+sub-envs are split among the parts by their shares.
 
 :func:`export_agent` writes the trained policy in the project's agent format (``agent.json``,
 ``policy.safetensors``, ``env.json``, ``vecnormalize.json``: data, no pickles) as the SB3
@@ -60,6 +62,10 @@ NOT_PORTED = {
     "critic_state": "the critic sees the actor's observation (no asymmetric critic)",
     "swa_start": "no weight average: the agent is the validated best (or the last) policy",
     "normalize": "observations only: rewards are not normalized (VecNormalize's norm_reward)",
+    "normalize_advantage": "over each iteration's whole batch (RLlib's advantage estimation), "
+    "not over each minibatch as SB3",
+    "ortho_init": "the layers start from PyTorch's default initialization, not SB3's orthogonal "
+    "one (gains sqrt(2), 0.01 for the action head, 1 for the value head)",
 }
 #: SB3 activation names (:data:`agents.schema.ACTIVATIONS`) RLlib's default module has too.
 ACTIVATIONS = {"tanh": "tanh", "relu": "relu", "elu": "elu", "silu": "silu"}
@@ -390,6 +396,8 @@ def not_ported(params: dict[str, Any]) -> dict[str, str]:
         "critic_state": bool(params.get("critic_state")),
         "swa_start": params.get("swa_start") is not None,
         "normalize": bool(params.get("normalize")),
+        "normalize_advantage": bool(params.get("normalize_advantage", True)),  # SB3's default
+        "ortho_init": bool(params.get("policy_kwargs", {}).get("ortho_init", True)),
     }
     return {k: v for k, v in NOT_PORTED.items() if set_[k]}
 

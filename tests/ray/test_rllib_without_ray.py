@@ -94,6 +94,21 @@ def test_rllib_refuses_what_it_has_no_equivalent_for(change, named):
         check_params({**params, **change}, 1)
 
 
+def test_rllib_says_what_it_trains_otherwise_than_sb3():
+    """RLlib normalizes the advantages over an iteration's whole batch (SB3 over each minibatch)
+    and starts from PyTorch's initialization (SB3's ``ortho_init``, on by default, is
+    orthogonal): both are said for the default entry; ``ortho_init: false`` is SB3's start too."""
+    from agents.rllib import NOT_PORTED, not_ported
+    from agents.training import load_hyperparams
+
+    params, _ = load_hyperparams(ENV_ID)
+    said = not_ported(params)
+    assert {"normalize_advantage", "ortho_init"} <= set(said)
+    assert said["normalize_advantage"] == NOT_PORTED["normalize_advantage"]
+    kwargs = {**params.get("policy_kwargs", {}), "ortho_init": False}
+    assert "ortho_init" not in not_ported({**params, "policy_kwargs": kwargs})
+
+
 def test_rllib_minibatch_may_take_every_runners_samples():
     """An iteration holds ``n_steps * n_envs`` samples of each runner (of the driver with none):
     the minibatch may be up to that, and no more."""
