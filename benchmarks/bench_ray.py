@@ -1,6 +1,6 @@
 """Training throughput: RLlib PPO with 1 and 2 env runners beside SB3 ``train.py``.
 
-    .venv-ray/bin/python benchmarks/bench_ray.py                 # ~4 minutes on 2 cores
+    .venv-ray/bin/python benchmarks/bench_ray.py                 # ~1.5 minutes on 2 cores
     .venv-ray/bin/python benchmarks/bench_ray.py --iterations 4 --sb3-steps 100000
 
 Every row trains the default entry of ``agents/hyperparams/ppo.yml`` (64 sub-envs per runner,
@@ -9,8 +9,9 @@ the PPO update), after one warm-up iteration. For RLlib, the share of an iterati
 sampling (``timers/env_runner_sampling_timer``) and updating (``timers/learner_update_timer``);
 "with infos" steps the env that returns the per-step info dicts of
 :class:`~imm_gym.envs.vector.TPMAdaptVectorEnv`, as a plain vector env would. The last row steps
-the vector env alone with random actions: the ceiling of one process. Output: a Markdown table
-(README, "Scaling out").
+the vector env alone with random actions: the ceiling of one process. Every row's env is the one
+RLlib's runners build from the entry (:func:`agents.rllib.ppo_config`'s ``env_config``: its
+``env_mixture`` too). Output: a Markdown table (README, "Scaling out").
 """
 
 from __future__ import annotations
@@ -39,8 +40,14 @@ class WithInfos(rllib.RLlibVectorEnv):
 
 
 def make_with_infos(config: dict[str, Any]) -> WithInfos:
-    """The env creator of the "with infos" rows."""
-    return WithInfos(int(config["num_envs"]), config["env_id"], config.get("env_kwargs"))
+    """The env creator of the "with infos" rows (:func:`agents.rllib.make_env`'s env, infos
+    kept)."""
+    return WithInfos(
+        int(config["num_envs"]),
+        config["env_id"],
+        config.get("env_kwargs"),
+        config.get("env_mixture", ()),
+    )
 
 
 def bench_rllib(params: dict[str, Any], runners: int, infos: bool, iterations: int) -> dict:
@@ -97,8 +104,10 @@ def bench_sb3(steps: int) -> float:
 
 
 def bench_env(params: dict[str, Any], steps: int) -> float:
-    """env-steps/s of the vector env alone (``n_envs`` sub-envs, random actions)."""
-    env = rllib.RLlibVectorEnv(int(params["n_envs"]), DEFAULT_ENTRY, params.get("env_kwargs"))
+    """env-steps/s of the vector env alone (a runner's env: ``n_envs`` sub-envs, random
+    actions)."""
+    env_config = rllib.ppo_config(params, DEFAULT_ENTRY, 0, 1, "unused").env_config
+    env = rllib.make_env({**env_config, "num_envs": int(params["n_envs"])})
     env.assign_seeds(list(range(env.num_envs)))
     env.reset()
     rng = np.random.default_rng(0)
@@ -115,6 +124,10 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=8, help="timed RLlib iterations")
     parser.add_argument("--sb3-steps", type=int, default=300_000, help="SB3 training steps")
     args = parser.parse_args()
+    if args.iterations < 1 or args.sb3_steps < 1:
+        parser.error(
+            f"--iterations and --sb3-steps must be >= 1, got {args.iterations} and {args.sb3_steps}"
+        )
     import ray  # after the arguments: --help works without Ray
 
     set_threads(1)
