@@ -907,7 +907,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from imm_gym.cli.seeds import across_seeds, render_seeds
 
         results["across_seeds"] = across_seeds(results, args.agent_seeds)
-        render_seeds(results["across_seeds"])
+        render_seeds(results["across_seeds"], results["meta"]["scenario"])
     if args.tradeoff:
         results["tradeoff"] = _tradeoff(args, scenario, overrides, results, make_core)
     _record(results, args.json)

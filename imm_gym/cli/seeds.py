@@ -87,14 +87,14 @@ def suite_across_seeds(results: Mapping[str, Any], seeds: Sequence[str]) -> dict
     }
 
 
-def render_seeds(summary: Mapping[str, Any]) -> None:
-    """Print the aggregate of :func:`across_seeds` (one scenario, ``{"scenarios": ...}`` absent)
-    or :func:`suite_across_seeds` as a table with rich."""
+def render_seeds(summary: Mapping[str, Any], scenario: str = "") -> None:
+    """Print the aggregate of :func:`across_seeds` (one scenario, named ``scenario``;
+    ``{"scenarios": ...}`` absent) or :func:`suite_across_seeds` as a table with rich."""
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
-    scenarios = summary.get("scenarios") or {"": summary}
+    scenarios = summary.get("scenarios") or {scenario: summary}
     n = len(summary["seeds"])
     console = Console(width=None if sys.stdout.isatty() else 150)
     # text in square brackets is rich markup: escaped, or '[stratified ...]' (a tag) is dropped

@@ -162,3 +162,11 @@ def test_the_table_prints_its_bracketed_text(capsys) -> None:
     assert "Over 2 training seeds: interquartile mean [stratified bootstrap 95% CI]" in printed
     assert "[odd]" in printed and "([ref])" in printed
     assert "relative Δ vs the reference, [ref]:" in printed
+
+
+def test_one_scenarios_table_names_the_scenario(capsys) -> None:
+    """The table of one scenario's seeds names it in its scenario column (it printed '—')."""
+    armse = {"best-fixed": 20.0, "s0": 18.0, "s1": 19.0}
+    render_seeds(across_seeds(_result(armse), ["s0", "s1"]), "vsmm-s2")
+    printed = capsys.readouterr().out
+    assert "vsmm-s2" in printed and "—" not in printed
