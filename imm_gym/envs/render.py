@@ -118,6 +118,7 @@ class CoreRenderer:
         self.figure(slot).show(self.view(slot))
 
     def close(self) -> None:
-        """Release the figures."""
+        """Release the figures (a slot drawn again gets a new one)."""
         for figure in self.figures.values():
             figure.close()
+        self.figures.clear()

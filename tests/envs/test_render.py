@@ -334,3 +334,16 @@ def test_an_env_whose_constructor_failed_closes_quietly(make) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         env.close()
+
+
+def test_closing_the_vector_env_releases_every_slots_figure() -> None:
+    """Each drawn slot has its figure (several megabytes); ``close`` lets them go (the renderer
+    kept every figure until the env itself was collected), and a later frame draws anew."""
+    env = TPMAdaptVectorEnv(3, render_mode="rgb_array")
+    env.reset(seed=0)
+    first = env.render()
+    renderer = env._renderer
+    assert len(renderer.figures) == 3
+    env.close()
+    assert renderer.figures == {}
+    np.testing.assert_array_equal(renderer.frame(0), first[0])
