@@ -905,8 +905,16 @@ def train_one_rllib(
     )
     start = time.perf_counter()
     next_validation = args.validate_every
+    idle = 0  # iterations in a row that sampled nothing (every remote runner failed)
     while steps < total and not stop.requested:
-        steps = rllib.env_steps(algo.train(), steps)
+        before, steps = steps, rllib.env_steps(algo.train(), steps)
+        idle = idle + 1 if steps == before else 0
+        if idle == rllib.IDLE_ITERATIONS:
+            algo.stop()
+            raise RuntimeError(
+                f"seed {seed}: {idle} RLlib iterations in a row sampled no environment step "
+                f"(at {steps:,} steps): the env runners keep failing; their logs are Ray's"
+            )
         armse = None
         if args.validate_every and steps >= next_validation:
             next_validation += args.validate_every

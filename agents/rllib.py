@@ -513,6 +513,12 @@ def export_agent(
     (directory / "agent.json").write_text(json.dumps(meta, indent=2))
 
 
+#: Iterations in a row that sample nothing after which training stops (RLlib waits for samples
+#: without a timeout: a slow first step compiles the kernels, but runners that keep failing
+#: would otherwise train forever).
+IDLE_ITERATIONS = 10
+
+
 def env_steps(result: dict[str, Any], previous: int = 0) -> int:
     """Environment steps sampled so far, from a ``train()`` result; ``previous`` (the count
     before the iteration) where the result holds none, as after an iteration that sampled

@@ -67,7 +67,7 @@ def bench_rllib(params: dict[str, Any], runners: int, infos: bool, iterations: i
             sample += result["timers"]["env_runner_sampling_timer"]
             learn += result["timers"]["learner_update_timer"]
         seconds = time.perf_counter() - start
-        done = rllib.env_steps(result) - steps
+        done = rllib.env_steps(result, steps) - steps
     finally:
         algo.stop()
     return {

@@ -249,6 +249,39 @@ def test_an_iteration_without_samples_keeps_the_step_count_and_sampling_has_no_t
     assert rllib.ppo_config({**params, **SMALL}, ENV_ID, 0, 2, "ledger").sample_timeout_s is None
 
 
+def test_training_stops_when_iterations_keep_sampling_nothing(cluster, tmp_path: Path, monkeypatch):
+    """With no sample timeout, runners that keep failing (iterations without env runner
+    metrics) would train forever: after ``IDLE_ITERATIONS`` such iterations in a row training
+    stops with an error."""
+    import train
+    from agents import rllib
+
+    class Idle:
+        iterations = 0
+
+        def train(self) -> dict:
+            Idle.iterations += 1
+            assert Idle.iterations <= rllib.IDLE_ITERATIONS, "training went on sampling nothing"
+            return {}
+
+        def stop(self) -> None:
+            pass
+
+    class Config:
+        def build_algo(self) -> Idle:
+            return Idle()
+
+    monkeypatch.setattr(rllib, "ppo_config", lambda *args, **kwargs: Config())
+    monkeypatch.setattr(rllib, "set_log_std", lambda algo, value: None)
+    config = tmp_path / "small.yml"
+    config.write_text("".join(f"{k}: {v}\n" for k, v in SMALL.items()))
+    argv = ["--engine", "rllib", "--ray-address", cluster.address, "--config", str(config),
+            "--timesteps", "600", "--validate-every", "0", "--no-eval", "--no-progress"]
+    with pytest.raises(RuntimeError, match="iterations in a row sampled no environment step"):
+        train.main([*argv, "--out", str(tmp_path / "run")])
+    assert Idle.iterations == rllib.IDLE_ITERATIONS
+
+
 def _stacks(frames: int, obs: np.ndarray) -> np.ndarray:
     """The stacked inputs ``LearnedPolicy`` feeds its network over one episode (no normalizer)."""
     from agents.policy import LearnedPolicy
