@@ -93,7 +93,7 @@ class ShardPool:
     Raises:
         ValueError: ``shards`` outside ``[1, the cluster's CPUs]``.
         TimeoutError: an actor did not start within ``start_timeout`` (other work holds the
-            CPUs it needs); the pool's actors are ended.
+            CPUs it needs, or its node is slow to start a worker); the pool's actors are ended.
     """
 
     def __init__(self, shards: int | None = None, start_timeout: float = 60.0) -> None:
@@ -114,7 +114,8 @@ class ShardPool:
             raise TimeoutError(
                 f"{n - len(started)} of {n} evaluation shard(s) (one CPU each) did not start "
                 f"within {start_timeout:g} s: other work holds the Ray cluster's CPUs ({free} of "
-                f"{cpus} free when the shards were asked for)"
+                f"{cpus} free when the shards were asked for), or a node is slow to start a worker "
+                f"(its log under Ray's session directory says which)"
             )
 
     def core(self, config: EnvConfig, n_envs: int) -> ShardedCore:
