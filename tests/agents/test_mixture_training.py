@@ -91,20 +91,29 @@ def test_resume_takes_the_files_the_run_was_started_with_and_refuses_others(tmp_
     assert stats["timesteps"] == 512
 
 
-def test_train_py_evaluates_an_agent_of_a_configuration_file_against_every_rule(tmp_path) -> None:
-    """The evaluation after training meets the file's tracker and targets; the file's training
-    settings (here the evidence's base, which a rule's action mode does not admit) stay the
-    agent's. The detector rules are compared where the tracker admits them."""
+def _train_and_evaluate(tmp_path, fields: dict) -> dict:
+    """``results.json`` of a 256-step ``train.py --env-config`` run on a file of ``fields``,
+    evaluated on two runs of each scenario."""
     file = tmp_path / "a.yaml"
-    file.write_text(json.dumps({**POLICY, "obs_features": list(POLICY["obs_features"]),
-                                "sensor": {"sigma_r": 50.0}, "mode_reward": 0.05}))
+    file.write_text(json.dumps(fields))
     cfg = tmp_path / "small.yml"
     cfg.write_text("n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n")
     argv = ["--config", str(cfg), "--out", str(tmp_path / "run"), "--no-progress",
             "--timesteps", "256", "--env-config", str(file), "--paper-runs", "2",
             "--random-runs", "2"]
     assert train.main(argv) == 0
-    results = json.loads((tmp_path / "run" / "seed_0" / "results.json").read_text())
+    return json.loads((tmp_path / "run" / "seed_0" / "results.json").read_text())
+
+
+def test_train_py_evaluates_an_agent_of_a_configuration_file_against_every_rule(tmp_path) -> None:
+    """The evaluation after training meets the file's tracker and targets; the file's training
+    settings (here the evidence's base, which a rule's action mode does not admit) stay the
+    agent's. The detector rules are compared where the tracker admits them."""
+    results = _train_and_evaluate(
+        tmp_path,
+        {**POLICY, "obs_features": list(POLICY["obs_features"]), "sensor": {"sigma_r": 50.0},
+         "mode_reward": 0.05},
+    )
     for scenario in ("paper", "random"):
         assert {"learned", "fixed", "tip-imm", "best-fixed", "turn-rate-prior",
                 "learned-prior"} <= set(results[scenario]["policies"])
@@ -126,15 +135,9 @@ def test_a_file_that_draws_conditions_is_evaluated_on_the_paper_scenario_without
     conditions, on the paper scenario (which refuses them) with its sensor and bank only, the
     results saying what was not applied there. The evaluation refused the file after training
     (exit 2, no results.json)."""
-    file = tmp_path / "a.yaml"
-    file.write_text(json.dumps({"sensor": {"sigma_r": 40.0}, "vary": {"speed": [10.0, 30.0]}}))
-    cfg = tmp_path / "small.yml"
-    cfg.write_text("n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n")
-    argv = ["--config", str(cfg), "--out", str(tmp_path / "run"), "--no-progress",
-            "--timesteps", "256", "--env-config", str(file), "--paper-runs", "2",
-            "--random-runs", "2"]
-    assert train.main(argv) == 0
-    results = json.loads((tmp_path / "run" / "seed_0" / "results.json").read_text())
+    results = _train_and_evaluate(
+        tmp_path, {"sensor": {"sigma_r": 40.0}, "vary": {"speed": [10.0, 30.0]}}
+    )
     assert results["paper"]["meta"]["not_applied"] == ["vary"]
     assert "not_applied" not in results["random"]["meta"]
     for scenario in ("paper", "random"):
