@@ -113,8 +113,8 @@ CONFIG_SUFFIXES = (".yaml", ".yml", ".json")
 
 class UnreadableTracker(ConfigError):
     """A trained agent's network cannot read or write the evaluated tracker: its observation or
-    action is of another size (a bank of another number of models, say). ``reason`` says so in
-    a few words, for a suite's table."""
+    action is of another size (a bank of another number of models, say), or a feature it reads
+    is not given by that tracker. ``reason`` says so in a few words, for a suite's table."""
 
     def __init__(self, message: str, reason: str) -> None:
         super().__init__(message)
@@ -364,15 +364,21 @@ def agent_overrides(
     ``trained_across`` lists them all.
 
     Raises:
-        UnreadableTracker: the observation (one frame, ``policy.obs_size``) or the action (M²
-            entries, M in the stay modes) that ``base`` gives is not the size the agent's network
-            reads or writes.
+        UnreadableTracker: the agent's settings do not fit ``base``'s tracker (features it
+            cannot give: a linear bank's on a heterogeneous one), or the observation (one frame,
+            ``policy.obs_size``) or the action (M² entries, M in the stay modes) that ``base``
+            gives is not the size the agent's network reads or writes.
     """
     kept = {k: v for k, v in overrides.items() if k not in EVALUATED_FIELDS}
-    cfg = evaluation_config(base, kept)
+    source = getattr(policy, "source", "the agent")
+    try:
+        cfg = evaluation_config(base, kept)
+    except ConfigError as err:  # base is valid: the agent's settings do not fit its tracker
+        raise UnreadableTracker(
+            f"{source} cannot be evaluated on this configuration: {err}", str(err)
+        ) from None
     M = len(cfg.bank)
     obs_size = int(bounds(cfg.obs_features, M, cfg.sensor.dim_z)[0].size)
-    source = getattr(policy, "source", "the agent")
     if hasattr(policy, "obs_size") and obs_size != policy.obs_size:
         raise UnreadableTracker(
             f"{source} reads observations of {policy.obs_size} entries, but the evaluated "

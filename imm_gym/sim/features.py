@@ -233,19 +233,15 @@ def bank_turn_rate(bank: Any) -> float:
 
 
 def model_turn_rates(bank: Any) -> Array:
-    """``(M,)`` each model's turn rate in units of :func:`bank_turn_rate` (CT models; 0 for CV,
-    CA and every model of a heterogeneous bank): which model a per-model entry belongs to."""
-    if not isinstance(bank, tuple):
-        return np.zeros(len(bank.models))
+    """``(M,)`` each model's turn rate in units of :func:`bank_turn_rate` (CT models; 0 for CV
+    and CA): which model a per-model entry belongs to (a linear bank's)."""
     rates = [m.omega if getattr(m, "kind", None) == "ct" else 0.0 for m in bank]
     return np.asarray(rates, dtype=float) / bank_turn_rate(bank)
 
 
 def model_kinds(bank: Any) -> Array:
-    """``(2 M,)`` which kind each model is, factor-major: ``[is CA per model, is CT per model]``
-    (CV models and every model of a heterogeneous bank are 0 in both)."""
-    if not isinstance(bank, tuple):
-        return np.zeros(2 * len(bank.models))
+    """``(2 M,)`` which kind each model of a linear bank is, factor-major: ``[is CA per model,
+    is CT per model]`` (CV models are 0 in both)."""
     kinds = [getattr(m, "kind", None) for m in bank]
     return np.array([[k == "ca" for k in kinds], [k == "ct" for k in kinds]], float).ravel()
 
@@ -469,14 +465,14 @@ register(Feature(
     " models): which model a per-model entry is, for a network shared by the models",
     lambda M, m: M, -1.0, 1.0,
     lambda v: np.broadcast_to(model_turn_rates(v.config.bank), (v.n_envs, len(v.config.bank))),
-    size_label="M", models="M",
+    size_label="M", models="M", needs_linear_bank=True,
 ))
 register(Feature(
     "model_kind", "whether each model is a CA model, then whether it is a CT model (factor-"
     "major; CV models are 0 in both): with model_turn_rate, which model a per-model entry is",
     lambda M, m: 2 * M, 0.0, 1.0,
     lambda v: np.broadcast_to(model_kinds(v.config.bank), (v.n_envs, 2 * len(v.config.bank))),
-    size_label="2M", models="kM",
+    size_label="2M", models="kM", needs_linear_bank=True,
 ))
 register(Feature(
     "shadow_turn_rate_bank", "the same for the shadow IMM's estimate", lambda M, m: 1, -1.0, 1.0,

@@ -31,11 +31,12 @@ from agents.training import (
     read_yaml,
 )
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.cli.evaluate import evaluate
+from imm_gym.cli.evaluate import cannot_run, evaluate
 from imm_gym.cli.track import main as track_main
 from imm_gym.sim.core import critic_state_size
 from imm_gym.sim.features import FEATURES, model_kinds, model_turn_rates
 from imm_gym.sim.model_order import frame_layout
+from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.models import MotionModel
 from imm_gym.validation import ConfigError
 
@@ -469,3 +470,21 @@ def test_a_per_model_actor_of_fewer_than_two_layers_is_refused_before_it_is_size
     (agent / "agent.json").write_text(json.dumps(meta))
     with pytest.raises(ConfigError, match=r"needs two layers or more"):
         load_agent(agent)
+
+
+@pytest.mark.parametrize("feature", ["model_turn_rate", "model_kind"])
+def test_which_model_an_entry_is_needs_a_linear_bank(feature: str) -> None:
+    """The heterogeneous bank's models (NCV, CT, CTRA) have no kind or fixed turn rate these
+    features read: refused, naming the feature (every model's entries were 0, a CT and a CTRA
+    model read as CV ones)."""
+    with pytest.raises(ConfigError, match=rf"'{feature}' needs a linear bank"):
+        EnvConfig.build({**BANK_PRESETS["hetero"], "obs_features": ("loglik", feature)})
+
+
+def test_the_shipped_per_model_policy_is_not_run_on_a_heterogeneous_bank() -> None:
+    """A suite leaves the shipped per-model policy out of a heterogeneous bank's case, saying
+    why (it ran there reading every model as a CV one)."""
+    base = EnvConfig.build({"scenario": "random", **BANK_PRESETS["hetero"]})
+    reason = cannot_run("pretrained-per-model", base, 0)
+    assert reason is not None and "needs a linear bank" in reason
+    assert cannot_run("pretrained-per-model", EnvConfig.build({"scenario": "random"}), 0) is None
