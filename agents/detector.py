@@ -31,15 +31,23 @@ from imm_gym.seeding import DETECTOR_SEED_BASE
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.detectors import TurnRateBelief, model_turn_rates, true_turn_rates
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.learned_detector import WINDOW, DetectorNetwork, LearnedDetector
+from imm_gym.sim.learned_detector import (
+    MAX_LAYERS,
+    MAX_WIDTH,
+    WINDOW,
+    DetectorNetwork,
+    LearnedDetector,
+)
 from imm_gym.validation import ConfigError, check_int
 
 Array = NDArray[np.float64]
 
 #: Episodes per batch of the collection.
 BATCH_RUNS = 500
-#: Seeds of the held-out episodes the file's score is measured on (after the training seeds).
-HELD_OUT_OFFSET = 1_000_000_000
+#: Seeds of the held-out episodes the file's score is measured on: ``DETECTOR_SEED_BASE +
+#: HELD_OUT_OFFSET + 10**6 seed + r``, a block of their own (every seed's training runs stay
+#: below ``DETECTOR_SEED_BASE + 10**15 + 10**6``).
+HELD_OUT_OFFSET = 1 << 60
 
 
 @dataclass(frozen=True)
@@ -166,7 +174,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     check_int("seed", args.seed, 0, 10**9)
     check_int("epochs", args.epochs, 1, 1000)
     for width in args.hidden:
-        check_int("hidden", width, 1, 4096)
+        check_int("hidden", width, 1, MAX_WIDTH)
+    if len(args.hidden) + 1 > MAX_LAYERS:
+        raise ConfigError(f"hidden: {len(args.hidden)} hidden layers and the output are "
+                          f"{len(args.hidden) + 1} layers, above the {MAX_LAYERS} a detector "
+                          "file may hold")
     return args
 
 
@@ -183,7 +195,8 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     first = DETECTOR_SEED_BASE + 1_000_000 * args.seed
     train = collect_runs(configs, args.runs, first)
-    held_out = collect_runs(configs, args.held_out_runs, first + HELD_OUT_OFFSET)
+    held_out_first = first + HELD_OUT_OFFSET
+    held_out = collect_runs(configs, args.held_out_runs, held_out_first)
     network = fit(train, args.hidden, args.epochs, args.seed)
     score = cross_entropy(network(held_out.inputs.astype(np.float64)), held_out.targets)
     constant = cross_entropy(np.broadcast_to(train.targets.mean(axis=0), held_out.targets.shape),
@@ -191,7 +204,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     notes = {
         "env_config": [str(f) for f in args.env_config],
         "runs": args.runs, "seeds": [first, first + args.runs - 1],
-        "held_out_runs": args.held_out_runs, "epochs": args.epochs, "hidden": args.hidden,
+        "held_out_runs": args.held_out_runs,
+        "held_out_seeds": [held_out_first, held_out_first + args.held_out_runs - 1],
+        "epochs": args.epochs, "hidden": args.hidden,
         "samples": len(train.inputs), "held_out_cross_entropy": score,
         "constant_cross_entropy": constant,
         "versions": {"python": platform.python_version(), "numpy": np.__version__,

@@ -54,6 +54,8 @@ DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "data" / "turn_detector.safe
 TINY = 1e-12
 #: A network's largest layer count and width (a file beyond them is refused).
 MAX_LAYERS, MAX_WIDTH = 8, 4096
+#: The largest magnitude of a weight or bias a file may hold (float32's largest number).
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def features_per_step(n_models: int) -> int:
@@ -168,12 +170,17 @@ class DetectorNetwork:
             ):
                 raise ConfigError(f"{where}: layer{i} has weight {W.shape} {W.dtype} and bias "
                                   f"{c.shape} {c.dtype}: the layers' float shapes must chain")
-            if not (np.isfinite(W).all() and np.isfinite(c).all()):
-                raise ConfigError(f"{where}: layer{i} holds non-finite numbers")
+            if not (np.abs(W) <= FLOAT32_MAX).all() or not (np.abs(c) <= FLOAT32_MAX).all():
+                raise ConfigError(f"{where}: layer{i} holds numbers that are not finite or "
+                                  f"beyond float32's range (|x| <= {FLOAT32_MAX:.3g}; beyond it "
+                                  "the beliefs overflow to NaN)")
             weights.append(W.astype(np.float64))
             biases.append(c.astype(np.float64))
         M = weights[-1].shape[0]
-        if M < 2 or weights[0].shape[1] != window * features_per_step(M):
+        if M < 2:
+            raise ConfigError(f"{where}: the last layer must give beliefs of at least 2 models, "
+                              f"got {M}")
+        if weights[0].shape[1] != window * features_per_step(M):
             raise ConfigError(f"{where}: the input must be window * (2 M + 2) = "
                               f"{window * features_per_step(M)} for {M} models, got "
                               f"{weights[0].shape[1]}")

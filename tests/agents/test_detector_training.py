@@ -83,6 +83,9 @@ def test_the_command_writes_a_file_the_env_loads(tmp_path, capsys) -> None:
     with safe_open(str(out), framework="np") as f:
         notes = json.loads(f.metadata()["notes"])
     assert notes["runs"] == 12 and notes["samples"] == 12 * 30 and notes["hidden"] == [8]
+    # the held-out episodes are a block of their own, no seed's training episodes
+    assert notes["held_out_seeds"][0] == notes["seeds"][0] + 2**60
+    assert notes["held_out_seeds"][1] - notes["held_out_seeds"][0] == 3
     core = TrackingCore(EnvConfig(action_mode="stay", detector="learned", detector_share=0.5,
                                   detector_weights=str(out)), 1)
     core.reset(np.array([0]), [0])
@@ -104,5 +107,7 @@ def test_bad_arguments_fail_before_any_work(tmp_path) -> None:
     out = str(tmp_path / "d.safetensors")
     with pytest.raises(ConfigError, match="runs must be"):
         main(["--env-config", str(config), "--runs", "0", "--out", out])
+    with pytest.raises(ConfigError, match=r"hidden: 8 hidden layers and the output are 9 layers"):
+        main(["--env-config", str(config), "--hidden", *["8"] * 8, "--out", out])
     with pytest.raises(ConfigError, match="needs a linear bank"):
         main(["--env-config", str(config), "--runs", "5", "--out", out])

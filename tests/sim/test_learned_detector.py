@@ -96,7 +96,9 @@ def test_a_bad_file_is_refused_naming_what_is_wrong(tmp_path) -> None:
         (good, {"format": FORMAT, "window": "3"}, r"input must be window \* \(2 M \+ 2\) = 24"),
         ({"layer0.weight": good["layer0.weight"]}, header, "tensors must be layer0.weight"),
         ({**good, "layer0.bias": np.zeros(M + 1)}, header, "shapes must chain"),
-        ({**good, "layer0.bias": np.full(M, np.nan)}, header, "non-finite"),
+        ({**good, "layer0.bias": np.full(M, np.nan)}, header, "not finite or beyond float32"),
+        ({"layer0.weight": np.zeros((1, 2 * features_per_step(1))), "layer0.bias": np.zeros(1)},
+         header, "beliefs of at least 2 models, got 1"),
         ({"layer0.weight": np.zeros((4, 16)), "layer0.bias": np.zeros(4),
           "layer1.weight": np.zeros((M, 5)), "layer1.bias": np.zeros(M)}, header, "must chain"),
     ]
@@ -104,6 +106,11 @@ def test_a_bad_file_is_refused_naming_what_is_wrong(tmp_path) -> None:
         path = _write(tmp_path / f"bad{i}", tensors, head)
         with pytest.raises(ConfigError, match=message):
             DetectorNetwork.load(path)
+    huge = {"layer0.weight": np.full((M, 2 * features_per_step(M)), 1e308),
+            "layer0.bias": np.zeros(M)}  # float64, finite: the belief overflowed to NaN
+    save_file(huge, str(tmp_path / "huge"), metadata=header)
+    with pytest.raises(ConfigError, match=r"layer0 holds numbers that are not finite or beyond"):
+        DetectorNetwork.load(tmp_path / "huge")
     with pytest.raises(ConfigError, match="no such file"):
         DetectorNetwork.load(tmp_path / "missing")
     pickle = tmp_path / "net.pkl"
