@@ -45,7 +45,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
       IMM's mode probabilities, with ``detector="turn_rate"`` the estimated turn rate between
       the models' (:mod:`imm_gym.sim.detectors`), with ``detector="learned"`` a network's belief
       of the coming turn rate (:mod:`imm_gym.sim.learned_detector`). ``"stay_step"``: from the
-      current TPM's stays (:mod:`imm_gym.sim.actions`).
+      current TPM's stays (:mod:`imm_gym.sim.actions`). In the stay modes a stay is kept at or
+      above ``min(1/M, π⁰_ii)`` (the stays below it would make switching likelier than staying,
+      ``π⁰`` the tracker's own TPM) and at most ``1 − (M − 1) p_min``: the actions past those
+      bounds change nothing.
 
     Then rows are normalized and every entry kept in ``[p_min, 1 − p_min]``. Out-of-range
     actions are clipped; a wrong shape or a NaN/inf entry raises ``ActionError``. Float64 actions

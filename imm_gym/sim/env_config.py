@@ -111,7 +111,8 @@ class EnvConfig:
             ``"set"`` (row logits ``logit_scale * a``, softmax per row), ``"stay"`` (``M``
             entries: each row's stay probability ``logit_scale * a`` logits from the initial
             TPM's, the row's switching structure kept) or ``"stay_step"`` (the same, each step
-            from the current TPM's stays; :mod:`imm_gym.sim.actions`).
+            from the current TPM's stays; :mod:`imm_gym.sim.actions`); in both stay modes a
+            stay is kept in ``[min(1/M, initial stay), 1 - (M - 1) p_min]``.
         stay_base: the TPM the ``stay`` mode moves from: ``"tracker"`` (the tracker's own,
             bank B's) or ``"evidence"`` (each step, the stay the measurements support so far:
             the evidence-weighted stay of the stay bank, one classical IMM per stay,
