@@ -821,9 +821,11 @@ def connect_ray(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
     none of them), for which RLlib would wait forever."""
     import ray
 
+    from imm_gym.evaluation.distributed import connect
+
     if not ray.is_initialized():
         try:
-            ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False)
+            connect(args.ray_address)
         except (ConnectionError, ValueError, RuntimeError) as err:
             reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
             if args.ray_address is None:

@@ -18,6 +18,7 @@ without it.
 
 from __future__ import annotations
 
+import socket
 from typing import Any
 
 import numpy as np
@@ -26,14 +27,42 @@ from numpy.typing import NDArray
 from imm_gym.sim.core import StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 
+CONNECT_TIMEOUT = 5.0
+"""Seconds :func:`connect` waits for a ``HOST:PORT`` to accept a connection."""
+
+
+def unreachable(address: str | None, timeout: float = CONNECT_TIMEOUT) -> str | None:
+    """Why nothing accepts a TCP connection at a ``HOST:PORT`` or ``ray://HOST:PORT`` address
+    within ``timeout`` seconds, or None when something does or the address names no port
+    (None, ``auto``, ``local``: Ray finds the cluster itself). Ray retries an address without a
+    cluster for minutes before it gives up; this answers in seconds."""
+    if address is None:
+        return None
+    hostport = address.removeprefix("ray://")
+    if "://" in hostport or ":" not in hostport:
+        return None
+    host, _, port = hostport.rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if not host or not port.isascii() or not port.isdigit() or not 1 <= int(port) <= 65535:
+        return f"not HOST:PORT with a port in [1, 65535]: {address!r}"
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout):
+            return None
+    except OSError as err:
+        return f"nothing answers at {host}:{port} within {timeout:g} s ({err})"
+
 
 def connect(address: str | None) -> None:
     """Join the Ray cluster at ``address`` (``auto``, ``HOST:PORT``), or with None Ray's default
     (``RAY_ADDRESS``, a running local cluster, else a new local instance); nothing if this
-    process is connected already."""
+    process is connected already. Raises ConnectionError at once if nothing answers at a
+    ``HOST:PORT`` (:func:`unreachable`)."""
     import ray
 
     if not ray.is_initialized():
+        reason = unreachable(address)
+        if reason is not None:
+            raise ConnectionError(reason)
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
 
 

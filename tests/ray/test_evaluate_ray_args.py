@@ -7,6 +7,8 @@ start no Ray.
 
 from __future__ import annotations
 
+import socket
+
 import pytest
 
 # ray.rllib, not ray: with tests/ on the path this very directory imports as a namespace "ray"
@@ -56,3 +58,22 @@ def test_a_cluster_that_cannot_be_joined_is_a_usage_error_naming_ray(joins, caps
         capsys.readouterr().err
     )
     assert joins == ["auto"]
+
+
+def test_an_address_where_nothing_listens_is_refused_in_seconds_without_asking_ray(
+    monkeypatch, capsys
+):
+    import ray
+
+    inits: list[dict] = []
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", lambda **kwargs: inits.append(kwargs))
+    with socket.socket() as s:  # a port nothing listens on: Ray would retry it for minutes
+        s.bind(("127.0.0.1", 0))
+        address = f"127.0.0.1:{s.getsockname()[1]}"
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray",
+              address])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"--ray {address}: nothing answers at {address}" in err
+    assert inits == []

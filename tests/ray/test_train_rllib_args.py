@@ -6,6 +6,7 @@ Ray's ``init`` is replaced by a recorder: these tests start no Ray.
 
 from __future__ import annotations
 
+import socket
 from pathlib import Path
 
 import pytest
@@ -84,3 +85,17 @@ def test_an_address_ray_cannot_connect_to_is_a_usage_error_before_any_directory(
     assert exc.value.code == 2 and "--ray-address 'auto': cannot connect to Ray" in err
     assert ray_init == [{"address": "auto", "include_dashboard": False, "log_to_driver": False}]
     assert not (tmp_path / "run").exists()
+
+
+def test_an_address_where_nothing_listens_is_refused_in_seconds_without_asking_ray(
+    tmp_path, ray_init, capsys
+):
+    with socket.socket() as s:  # a port nothing listens on: Ray would retry it for minutes
+        s.bind(("127.0.0.1", 0))
+        address = f"127.0.0.1:{s.getsockname()[1]}"
+    with pytest.raises(SystemExit) as exc:
+        run(tmp_path, "n_envs: 8\nn_steps: 16\nbatch_size: 64\n", "--ray-address", address)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"--ray-address {address!r}: cannot connect to Ray" in err
+    assert f"nothing answers at {address} within 5 s" in err
+    assert ray_init == [] and not (tmp_path / "run").exists()

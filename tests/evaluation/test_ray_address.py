@@ -1,0 +1,48 @@
+"""``distributed.unreachable``: an address with nothing listening is told in seconds (Ray itself
+retries it for minutes), one with a listener or without a port is left to Ray."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+
+from imm_gym.evaluation.distributed import unreachable
+
+
+def closed_port() -> int:
+    """A local port nothing listens on (bound, then released)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_listening_port_is_reachable_in_each_form() -> None:
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        port = server.getsockname()[1]
+        assert unreachable(f"127.0.0.1:{port}") is None
+        assert unreachable(f"ray://127.0.0.1:{port}") is None
+        assert unreachable(f"localhost:{port}") is None
+
+
+def test_a_port_nothing_listens_on_is_told_at_once() -> None:
+    port = closed_port()
+    start = time.monotonic()
+    reason = unreachable(f"127.0.0.1:{port}", timeout=2.0)
+    assert reason is not None and f"nothing answers at 127.0.0.1:{port} within 2 s" in reason
+    assert time.monotonic() - start < 2.5
+    assert unreachable(f"ray://127.0.0.1:{port}") is not None
+
+
+@pytest.mark.parametrize("address", [None, "auto", "local", "http://127.0.0.1:8265"])
+def test_an_address_without_a_port_of_its_own_is_left_to_ray(address) -> None:
+    assert unreachable(address) is None
+
+
+@pytest.mark.parametrize("address", ["127.0.0.1:0", "127.0.0.1:65536", "host:port", ":6379",
+                                     "127.0.0.1:+80", "127.0.0.1:"])
+def test_a_malformed_port_is_named(address) -> None:
+    assert unreachable(address) == (
+        f"not HOST:PORT with a port in [1, 65535]: {address!r}"
+    )
