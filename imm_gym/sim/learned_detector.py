@@ -147,10 +147,9 @@ class DetectorNetwork:
         if header.get("format") != FORMAT:
             raise ConfigError(f"{where}: header format must be {FORMAT!r}, got "
                               f"{header.get('format')!r}")
-        try:
-            window = int(header.get("window", ""))
-        except ValueError:
-            window = 0
+        # decimal digits only: int() would also take " 8", "+8" and "1_0"
+        text = header.get("window", "")
+        window = int(text) if text.isascii() and text.isdigit() else 0
         if not 1 <= window <= 1000:
             raise ConfigError(f"{where}: header window must be an integer in [1, 1000], got "
                               f"{header.get('window')!r}")

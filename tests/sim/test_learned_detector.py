@@ -93,6 +93,8 @@ def test_a_bad_file_is_refused_naming_what_is_wrong(tmp_path) -> None:
     cases = [
         (good, {"window": "2"}, "header format must be"),
         (good, {"format": FORMAT, "window": "two"}, "header window must be an integer"),
+        *((good, {"format": FORMAT, "window": text}, "header window must be an integer")
+          for text in (" 2", "+2", "0_2", "2.0", "")),
         (good, {"format": FORMAT, "window": "3"}, r"input must be window \* \(2 M \+ 2\) = 24"),
         ({"layer0.weight": good["layer0.weight"]}, header, "tensors must be layer0.weight"),
         ({**good, "layer0.bias": np.zeros(M + 1)}, header, "shapes must chain"),
