@@ -194,10 +194,11 @@ def collect(
     overrides: Mapping[str, Any], episodes: int, first_seed: int, rng: np.random.Generator,
     gamma: float, horizon: int, stride: int, shares: Sequence[float] | None = None,
     branch: bool = False, behaviour: StaySelector | None = None,
-) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Observations and targets (:func:`future_error`) of ``episodes`` episodes of one
-    configuration (rounded up to whole batches of :data:`BATCH`), seeds ``first_seed ...``,
-    every ``stride``-th step; episodes whose tracker diverged are left out.
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]:
+    """Observations, targets (:func:`future_error`) and each sample's episode (its seed) of
+    ``episodes`` episodes of one configuration (rounded up to whole batches of :data:`BATCH`),
+    seeds ``first_seed ...``, every ``stride``-th step; episodes whose tracker diverged are left
+    out.
 
     With ``shares`` (``overrides`` in the ``set`` action mode) the priors are every stay of the
     grid at every share, share-major, and each slot runs a random one of them; their errors
@@ -223,10 +224,11 @@ def collect(
         raise ConfigError(f"{behaviour.source} chooses among other priors than the collection's")
     others = [bank for bank in banks if bank is not core]
     zero = np.zeros((n, M))  # the other cores' action: their banks run unsteered
-    X, Y = [], []
+    X, Y, E = [], [], []
     for start in range(0, episodes, n):
+        seeds = np.arange(first_seed + start, first_seed + start + n, dtype=np.int64)
         for one in (core, *others):
-            one.reset(np.arange(n), [first_seed + start + i for i in range(n)])
+            one.reset(np.arange(n), [int(seed) for seed in seeds])
         obs = core.observe()
         K = core.horizon
         pick = rng.integers(0, len(priors), n)
@@ -275,17 +277,29 @@ def collect(
             y = future_error(errors[ok], gamma, horizon)[:, ::stride]
         X.append(seen[ok][:, ::stride].reshape(-1, seen.shape[-1]))
         Y.append(y.reshape(-1, len(priors)).astype(np.float32))
-    return np.concatenate(X), np.concatenate(Y)
+        E.append(np.repeat(seeds[ok], y.shape[1]))  # the samples episode-major
+    return np.concatenate(X), np.concatenate(Y), np.concatenate(E)
 
 
-def fit(X: NDArray[np.float32], Y: NDArray[np.float32], epochs: int, seed: int
-        ) -> tuple[torch.nn.Sequential, dict[str, float]]:
+def held_out_episodes(episode: NDArray[np.int64], seed: int) -> NDArray[np.bool_]:
+    """Which samples are held out: those of a random twentieth of the episodes (at least one
+    while two or more, none of one), whole, so that no held-out sample has a neighbouring step
+    of its own episode among the training samples. ``episode``: each sample's episode."""
+    names = np.unique(episode)
+    count = max(1, len(names) // 20) if len(names) > 1 else 0
+    held = np.random.default_rng(seed).permutation(names)[:count]
+    return np.isin(episode, held)
+
+
+def fit(X: NDArray[np.float32], Y: NDArray[np.float32], episode: NDArray[np.int64], epochs: int,
+        seed: int) -> tuple[torch.nn.Sequential, dict[str, float]]:
     """The network fitted by mean squared error (Adam, batches of 4096; ``torch.manual_seed``),
-    with its held-out score on a twentieth of the samples: the error, the targets' variance, and
-    the regret of choosing the predicted best stay (nats of future squared error)."""
+    with its held-out score on the samples of a twentieth of the episodes
+    (:func:`held_out_episodes`; ``episode``: each sample's): the error, the targets' variance,
+    and the regret of choosing the predicted best stay (nats of future squared error)."""
     torch.manual_seed(seed)
-    order = np.random.default_rng(seed).permutation(len(X))
-    held, used = order[: len(X) // 20], order[len(X) // 20:]
+    mask = held_out_episodes(episode, seed)
+    held, used = np.flatnonzero(mask), np.flatnonzero(~mask)
     x, y = torch.from_numpy(X[used]), torch.from_numpy(Y[used])
     net = network(X.shape[1], Y.shape[1])
     optimizer = torch.optim.Adam(net.parameters(), 1e-3)
@@ -338,10 +352,11 @@ def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace,
     parts = [collect(o, args.episodes // len(files), first + j * 10**9, rng, args.gamma,
                      args.horizon, args.stride, args.shares, args.targets == "branch",
                      behaviour) for j, o in enumerate(files)]
-    X = np.concatenate([x for x, _ in parts])
-    Y = np.concatenate([y for _, y in parts])
+    X = np.concatenate([x for x, _, _ in parts])
+    Y = np.concatenate([y for _, y, _ in parts])
+    episode = np.concatenate([e for _, _, e in parts])  # seeds: distinct across the files
     collected = time.perf_counter() - start
-    net, held_out = fit(X, Y, args.epochs, args.fit_seed)
+    net, held_out = fit(X, Y, episode, args.epochs, args.fit_seed)
     print(f"{len(X)} samples ({collected:.0f} s), fitted in "
           f"{time.perf_counter() - start - collected:.0f} s; held-out: "
           + ", ".join(f"{k} {v:.4f}" for k, v in held_out.items()))

@@ -44,13 +44,15 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
     example = load_example("stay_selector")
     overrides = example.selector_overrides(read_env_config(FILE), 0.75, None, None)
     rng = np.random.default_rng(0)
-    X, Y = example.collect(overrides, 8, example.SELECTOR_SEED_BASE, rng, 1.0, 30, 10)
+    X, Y, episode = example.collect(overrides, 8, example.SELECTOR_SEED_BASE, rng, 1.0, 30, 10)
     assert X.shape[0] == Y.shape[0] == 8 * 15 and Y.shape[1] == 7
+    # each sample's episode is its seed, the samples episode-major
+    np.testing.assert_array_equal(episode, example.SELECTOR_SEED_BASE + np.arange(8).repeat(15))
     np.testing.assert_allclose(Y.mean(axis=1), 0.0, atol=1e-5)  # relative to the stays' mean
     again = example.collect(overrides, 8, example.SELECTOR_SEED_BASE,
                             np.random.default_rng(0), 1.0, 30, 10)
     np.testing.assert_array_equal(again[0], X)  # seeded: the same numbers
-    net, held_out = example.fit(X, Y, 1, 0)
+    net, held_out = example.fit(X, Y, episode, 1, 0)
     assert np.isfinite(list(held_out.values())).all()
     core = selector_core(example, 5, 0.75)
     grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
@@ -64,6 +66,26 @@ def test_the_fitted_selector_picks_stays_of_the_grid() -> None:
     np.testing.assert_allclose(
         result.info["tpm"], detector_tpm_rows(stays, belief, 0.75), atol=1e-3  # p_min floor
     )
+
+
+def test_the_held_out_score_is_on_whole_episodes_the_fit_never_saw() -> None:
+    """Samples of one episode are neighbouring steps: a network that knows an episode from its
+    training samples would score well on that episode's held-out ones. Here each episode's
+    observations name it and its targets are its own random draw, the same at every step: only
+    a split by episode leaves nothing to learn for the held-out samples."""
+    example = load_example("stay_selector")
+    rng = np.random.default_rng(0)
+    episodes, per = 60, 50
+    names = rng.normal(size=(episodes, 8)).astype(np.float32)
+    targets = rng.normal(size=(episodes, 7)).astype(np.float32)
+    episode = np.arange(episodes).repeat(per) + 10**6
+    X, Y = names.repeat(per, axis=0), targets.repeat(per, axis=0)
+    held = example.held_out_episodes(episode, 0)
+    assert held.sum() == 3 * per  # a twentieth of the episodes, whole
+    assert not np.isin(episode[held], episode[~held]).any()
+    _, score = example.fit(X, Y, episode, 300, 0)
+    assert score["mse"] > 0.5 * score["variance"]  # a split of samples: 4e-12 (memorized)
+    assert example.held_out_episodes(np.zeros(10, np.int64), 0).sum() == 0  # one episode: none
 
 
 @pytest.mark.parametrize(("option", "message"), [
@@ -91,9 +113,9 @@ def test_the_shares_cores_replay_the_episodes_each_share_alone_gives() -> None:
     single = example.selector_overrides(base, 0.75, None, None)
     pairs = example.selector_overrides(base, 0.75, None, None, "set")
     assert pairs["action_mode"] == "set" and pairs["detector_share"] == 0.0
-    _, Y1 = example.collect(single, 8, example.SELECTOR_SEED_BASE,
-                            np.random.default_rng(0), 1.0, 30, 10)
-    X2, Y2 = example.collect(pairs, 8, example.SELECTOR_SEED_BASE,
+    _, Y1, _ = example.collect(single, 8, example.SELECTOR_SEED_BASE,
+                               np.random.default_rng(0), 1.0, 30, 10)
+    X2, Y2, _ = example.collect(pairs, 8, example.SELECTOR_SEED_BASE,
                              np.random.default_rng(0), 1.0, 30, 10, [0.0, 0.75])
     assert Y2.shape == (8 * 15, 14) and X2.shape[0] == Y1.shape[0]
     # the bank errors do not depend on the action: share 0.75's block, re-centred, is the
@@ -134,9 +156,11 @@ def test_a_branch_is_the_stay_banks_imm_where_the_tracker_ran_its_prior() -> Non
                     for b in points], axis=1)
     np.testing.assert_allclose(y[np.arange(n), :, pick], own, rtol=1e-6)
     overrides = example.selector_overrides(read_env_config(FILE), 0.75, None, None)
-    X, Y = example.collect(overrides, 8, example.SELECTOR_SEED_BASE, np.random.default_rng(0),
-                           1.0, horizon, stride, None, True)
+    X, Y, episode = example.collect(overrides, 8, example.SELECTOR_SEED_BASE,
+                                    np.random.default_rng(0), 1.0, horizon, stride, None, True)
     assert X.shape[0] == Y.shape[0] == 8 * len(points) and Y.shape[1] == len(grid)
+    np.testing.assert_array_equal(episode, example.SELECTOR_SEED_BASE
+                                  + np.arange(8).repeat(len(points)))
     np.testing.assert_allclose(Y.mean(axis=1), 0.0, atol=1e-5)
     # another stay's branch is not its bank IMM's once the histories differ
     other = (pick + 3) % len(grid)
@@ -158,8 +182,8 @@ def test_half_of_the_slots_follow_a_behaviour_selector() -> None:
         net[-1].bias.copy_(torch.tensor([0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0]))
     third = StaySelector([net], priors, overrides, core.observe().shape[1])
     args = (overrides, 4, example.SELECTOR_SEED_BASE)
-    X, _ = example.collect(*args, np.random.default_rng(0), 1.0, 30, 10)
-    Xb, _ = example.collect(*args, np.random.default_rng(0), 1.0, 30, 10, behaviour=third)
+    X, _, _ = example.collect(*args, np.random.default_rng(0), 1.0, 30, 10)
+    Xb, _, _ = example.collect(*args, np.random.default_rng(0), 1.0, 30, 10, behaviour=third)
     per_slot = X.shape[0] // 4
     X, Xb = X.reshape(4, per_slot, -1), Xb.reshape(4, per_slot, -1)
     np.testing.assert_array_equal(Xb[1::2], X[1::2])
