@@ -73,7 +73,7 @@ from agents.selector import (
     stay_action,
 )
 from agents.training import set_threads
-from imm_gym.cli.evaluate import evaluate, suite_configs
+from imm_gym.cli.evaluate import evaluate, evaluated_config, suite_configs
 from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
 from imm_gym.evaluation.rollout import armse_from_squared, paired_bootstrap
 from imm_gym.sim.config_file import read_env_config, tracker_of
@@ -421,13 +421,20 @@ def main(argv: Sequence[str] | None = None) -> None:
         p.error(f"--episodes must be at least one per file ({len(args.env_config)})")
     if not 0.0 < args.gamma <= 1.0:
         p.error(f"--gamma must be in (0, 1], got {args.gamma}")
-    for name in ("horizon", "stride", "epochs"):
+    for name in ("horizon", "stride", "epochs", "runs"):
         if getattr(args, name) < 1:
             p.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     suite = suite_configs("benchmark")
     unknown = sorted(set(args.scenario) - set(suite))
     if unknown:
         p.error(f"--scenario {unknown[0]!r} is not in the benchmark suite ({', '.join(suite)})")
+    off_suite = {}
+    for f in args.off_suite:  # read and checked before collecting and fitting
+        try:
+            off_suite[f] = read_env_config(f)
+            evaluated_config(off_suite[f].get("scenario", "random"), off_suite[f])
+        except ConfigError as err:
+            p.error(f"--off-suite: {err}")
     set_threads(1)  # one BLAS and torch thread: jobs beside it do not wait on each other
     if args.weights:
         try:
@@ -465,7 +472,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(f"wrote {args.save} ({len(selector.nets)} network"
               f"{'s' * (len(selector.nets) > 1)})")
     configs = {k: v for k, v in suite.items() if not args.scenario or k in args.scenario}
-    configs.update({f: read_env_config(f) for f in args.off_suite})
+    configs.update(off_suite)
     score(selector, configs, args.runs, args.seed)
 
 

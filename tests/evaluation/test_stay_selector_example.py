@@ -107,6 +107,24 @@ def test_bad_options_are_refused_before_any_work(
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("option", "message"), [
+    (["--runs", "0"], "--runs must be at least 1, got 0"),
+    (["--off-suite", "no/such/file.yaml"], "--off-suite: no/such/file.yaml: cannot read"),
+    (["--off-suite", "examples/broad.yaml", "README.md"], "--off-suite: README.md: a "
+     "configuration file ends in"),
+])
+def test_the_scoring_options_are_refused_before_collecting(
+    option: list[str], message: str, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """They were checked after collecting and fitting (about ten minutes by default)."""
+    example = load_example("stay_selector")
+    monkeypatch.setattr(example, "collect", lambda *a, **k: pytest.fail("collected"))
+    with pytest.raises(SystemExit) as exit_:
+        example.main(["--env-config", FILE, "--episodes", "1", *option])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
 def test_the_shares_cores_replay_the_episodes_each_share_alone_gives() -> None:
     example = load_example("stay_selector")
     base = read_env_config(FILE)
