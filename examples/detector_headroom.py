@@ -160,7 +160,7 @@ def first(state: IMMState, runs: int) -> IMMState:
     return IMMState(state.x[:runs], state.P[:runs], state.mu[:runs])
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
@@ -169,22 +169,25 @@ def main() -> None:
                    "of them, unless --env-config is given)")
     p.add_argument("--env-config", type=Path, action="append", default=[], metavar="FILE",
                    help="a configuration file (YAML or JSON of EnvConfig fields): a column of its "
-                   "own")
+                   "own, headed by the path as given")
     p.add_argument("--delay", type=int, action="append",
                    help="steps the true turn rate is known late (default: 0 1 3 5 8)")
     p.add_argument("--yaw-noise", type=float, default=0.01,
                    help="the CT-omega EKF's yaw acceleration noise (rad/s²)")
     p.add_argument("--detector-weights", type=Path, metavar="FILE",
                    help="the learned detector's network (default: the shipped one)")
-    args = p.parse_args()
+    args = p.parse_args(argv)
     delays = args.delay or [0, 1, 3, 5, 8]
     suite = suite_configs(args.suite)
     chosen = args.scenario or ([] if args.env_config else list(suite))
     unknown = sorted(set(chosen) - set(suite))
     if unknown:
         p.error(f"--scenario must be among {list(suite)}, got {unknown}")
+    if len({str(path) for path in args.env_config}) < len(args.env_config):
+        p.error(f"--env-config given a file twice: {[str(path) for path in args.env_config]}")
     configs = {name: suite[name] for name in chosen}
-    configs.update({path.name: read_env_config(path) for path in args.env_config})
+    # keyed by the path as given: two files of one name in other folders are two columns
+    configs.update({str(path): read_env_config(path) for path in args.env_config})
     print(f"runs {args.seed}..{args.seed + args.runs - 1}; position ARMSE (m) / mode accuracy "
           f"(stay, share) of each detector's best prior on these runs")
     table: dict[str, list[str]] = {}

@@ -5,8 +5,10 @@ conditions too); the turn rate known sooner leads the prior better."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 from helpers import load_example
 
 from baselines.turn_rate_prior import TurnRatePrior
@@ -14,6 +16,8 @@ from imm_gym import EnvConfig
 from imm_gym.evaluation.metrics import mode_accuracy
 from imm_gym.evaluation.rollout import armse_from_squared, evaluation_config, rollout
 from imm_gym.sim.config_file import read_env_config
+
+EXAMPLES = Path(__file__).parents[2] / "examples"
 
 
 def test_the_trackers_rows_are_the_baselines_and_a_sooner_rate_leads_better() -> None:
@@ -37,7 +41,7 @@ def test_the_trackers_rows_are_the_baselines_and_a_sooner_rate_leads_better() ->
 
 def test_varied_conditions_take_each_runs_sampling_period_and_leave_out_the_ekf() -> None:
     example = load_example("detector_headroom")
-    overrides = read_env_config(Path(__file__).parents[2] / "examples" / "broad.yaml")
+    overrides = read_env_config(EXAMPLES / "broad.yaml")
     scores = example.detector_runs(overrides, (0,), 6, 2)
     assert {d for d, _, _ in scores} == {"true, 0 late", "tracker (env)", "learned (env)"}
     policy = TurnRatePrior(3, 0.6, 0.5)
@@ -62,3 +66,32 @@ def test_the_learned_rows_are_the_learned_prior_baseline_s() -> None:
         np.testing.assert_allclose(scores[("learned (env)", stay, share)][0],
                                    armse_from_squared(run.squared_position_error), rtol=1e-6)
     assert scores[("learned (env)", 1 / 3, 1.0)] != scores[("tracker (env)", 1 / 3, 1.0)]
+
+
+def by_horizon(overrides: dict[str, Any], delays: Any, runs: int, seed: int, *rest: Any
+               ) -> dict[tuple[str, float, float], tuple[float, float]]:
+    """A stand-in for :func:`detector_runs` whose scores tell the configurations apart."""
+    horizon = overrides.get("family", {}).get("horizon", 0)
+    return {("tracker (env)", 0.5, 1.0): (float(horizon), 0.5)}
+
+
+def test_files_of_one_name_in_other_folders_are_two_columns(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The columns were keyed by the file's name: the second ``t.yaml`` replaced the first."""
+    example = load_example("detector_headroom")
+    monkeypatch.setattr(example, "detector_runs", by_horizon)
+    monkeypatch.setattr(example, "STAYS", (0.5,))
+    monkeypatch.setattr(example, "SHARES", (1.0,))
+    for folder, source in (("a", "my_tracker.yaml"), ("b", "broad.yaml")):  # horizons 75, 150
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "t.yaml").write_text((EXAMPLES / source).read_text())
+    a, b = str(tmp_path / "a" / "t.yaml"), str(tmp_path / "b" / "t.yaml")
+    example.main(["--runs", "1", "--env-config", a, "--env-config", b])
+    out = capsys.readouterr().out
+    assert f"| detector | {a} | {b} |" in out
+    assert "| tracker (env) | 75.00 / 50 % (0.5, 1) | 150.00 / 50 % (0.5, 1) |" in out
+    with pytest.raises(SystemExit) as exit_:
+        example.main(["--env-config", a, "--env-config", a])
+    assert exit_.value.code == 2
+    assert "--env-config given a file twice" in capsys.readouterr().err
