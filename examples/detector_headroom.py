@@ -178,6 +178,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="the learned detector's network (default: the shipped one)")
     args = p.parse_args(argv)
     delays = args.delay or [0, 1, 3, 5, 8]
+    if min(delays) < 0:
+        p.error(f"--delay must be >= 0 (steps late; below 0 the detector sees the future), got "
+                f"{min(delays)}")
     suite = suite_configs(args.suite)
     chosen = args.scenario or ([] if args.env_config else list(suite))
     unknown = sorted(set(chosen) - set(suite))

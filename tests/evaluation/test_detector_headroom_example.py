@@ -95,3 +95,18 @@ def test_files_of_one_name_in_other_folders_are_two_columns(
         example.main(["--env-config", a, "--env-config", a])
     assert exit_.value.code == 2
     assert "--env-config given a file twice" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    (["--delay", "3", "--delay", "-1"], "--delay must be >= 0 (steps late; below 0 the detector "
+     "sees the future), got -1"),
+])
+def test_bad_options_are_refused_before_any_work(
+    option: list[str], message: str, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    example = load_example("detector_headroom")
+    monkeypatch.setattr(example, "detector_runs", lambda *a, **k: pytest.fail("ran"))
+    with pytest.raises(SystemExit) as exit_:
+        example.main(["--scenario", "paper", *option])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
