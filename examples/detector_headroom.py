@@ -38,6 +38,7 @@ prior (its ``p_min`` is 1e-4 too): the share-1 rows printed are the floored prio
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,7 @@ from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, DetectorNetwork, Learn
 from imm_gym.sim.stay_bank import detector_tpm_rows
 from imm_gym.tracking.hetero import HeteroIMM, HeteroModel
 from imm_gym.tracking.imm import IMMState
+from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
 
@@ -177,11 +179,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--detector-weights", type=Path, metavar="FILE",
                    help="the learned detector's network (default: the shipped one)")
     args = p.parse_args(argv)
+    if args.runs < 1:
+        p.error(f"--runs must be >= 1, got {args.runs}")
+    if args.seed < 0:
+        p.error(f"--seed must be >= 0, got {args.seed}")
     delays = args.delay or [0, 1, 3, 5, 8]
     if min(delays) < 0:
         p.error(f"--delay must be >= 0 (steps late; below 0 the detector sees the future), got "
                 f"{min(delays)}")
-    suite = suite_configs(args.suite)
+    if not 0.0 <= args.yaw_noise < math.inf:
+        p.error(f"--yaw-noise must be a finite number >= 0 (rad/s²), got {args.yaw_noise}")
+    try:
+        suite = suite_configs(args.suite)
+    except ConfigError as err:
+        p.error(str(err))
     chosen = args.scenario or ([] if args.env_config else list(suite))
     unknown = sorted(set(chosen) - set(suite))
     if unknown:
@@ -189,8 +200,22 @@ def main(argv: Sequence[str] | None = None) -> None:
     if len({str(path) for path in args.env_config}) < len(args.env_config):
         p.error(f"--env-config given a file twice: {[str(path) for path in args.env_config]}")
     configs = {name: suite[name] for name in chosen}
-    # keyed by the path as given: two files of one name in other folders are two columns
-    configs.update({str(path): read_env_config(path) for path in args.env_config})
+    for path in args.env_config:
+        try:  # keyed by the path as given: files of one name in other folders are two columns
+            configs[str(path)] = read_env_config(path)
+        except ConfigError as err:
+            p.error(f"--env-config: {err}")
+    try:
+        DetectorNetwork.load(args.detector_weights or DEFAULT_WEIGHTS)
+    except ConfigError as err:
+        p.error(f"--detector-weights: {err}")
+    for name, overrides in configs.items():  # every column's, before the first one's runs
+        try:
+            bank = EnvConfig.build(dict(overrides)).bank
+        except ConfigError as err:
+            p.error(f"{name}: {err}")
+        if model_turn_rates(bank) is None:
+            p.error(f"{name}: the turn-rate prior needs a linear bank (CV and CT models)")
     print(f"runs {args.seed}..{args.seed + args.runs - 1}; position ARMSE (m) / mode accuracy "
           f"(stay, share) of each detector's best prior on these runs")
     table: dict[str, list[str]] = {}

@@ -100,6 +100,15 @@ def test_files_of_one_name_in_other_folders_are_two_columns(
 @pytest.mark.parametrize(("option", "message"), [
     (["--delay", "3", "--delay", "-1"], "--delay must be >= 0 (steps late; below 0 the detector "
      "sees the future), got -1"),
+    (["--runs", "0"], "--runs must be >= 1, got 0"),
+    (["--seed", "-1"], "--seed must be >= 0, got -1"),
+    (["--yaw-noise", "-1"], "--yaw-noise must be a finite number >= 0 (rad/s²), got -1.0"),
+    (["--yaw-noise", "nan"], "--yaw-noise must be a finite number >= 0"),
+    (["--suite", "nowhere"], "--suite must be one of"),
+    (["--env-config", "no/such.yaml"], "--env-config: no/such.yaml: cannot read"),
+    (["--detector-weights", "no/such.safetensors"], "--detector-weights: "),
+    (["--env-config", str(EXAMPLES / "probes" / "hetero.yaml")],
+     "hetero.yaml: the turn-rate prior needs a linear bank"),
 ])
 def test_bad_options_are_refused_before_any_work(
     option: list[str], message: str, capsys: pytest.CaptureFixture[str],
