@@ -21,6 +21,7 @@ its row shrinks.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -28,6 +29,7 @@ import numpy as np
 from imm_gym.cli.evaluate import suite_configs
 from imm_gym.evaluation.priors import prior_core, run_priors
 from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.validation import ConfigError
 
 STAYS = (1 / 3, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995)
 
@@ -49,21 +51,29 @@ def detector_runs(
     return {combo: result.scores(c) for c, combo in enumerate(combos)}
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--suite", default="benchmark")
     p.add_argument("--share", type=float, default=0.5, help="the detector's share v (0, 1]")
-    args = p.parse_args()
+    args = p.parse_args(argv)
+    if args.runs < 1:
+        p.error(f"--runs must be >= 1, got {args.runs}")
+    if args.seed < 0:
+        p.error(f"--seed must be >= 0, got {args.seed}")
     if not 0.0 < args.share <= 1.0:
         p.error(f"--share must be in (0, 1] (the detector's share of the prior), got {args.share}")
+    try:
+        suite = suite_configs(args.suite)
+    except ConfigError as err:
+        p.error(str(err))
     shares = (0.0, args.share)
     print(f"runs {args.seed}..{args.seed + args.runs - 1}; position ARMSE (m) / mode accuracy / "
           f"TV per step; the shadow IMM at the tracker's TPM")
     print("| scenario | share | " + " | ".join(f"stay {s:.3g}" for s in STAYS) + " | best |")
     print("|---|---|" + "---|" * (len(STAYS) + 1))
-    for name, overrides in suite_configs(args.suite).items():
+    for name, overrides in suite.items():
         scores = detector_runs(overrides, shares, args.runs, args.seed)
         for v in shares:
             row = [scores[(s, v)] for s in STAYS]

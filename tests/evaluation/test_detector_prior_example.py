@@ -4,6 +4,7 @@ classical IMMs, run for run; with it, a nearly uniform prior identifies the mane
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from helpers import load_example
 
 from baselines.fixed import FixedTPM
@@ -27,3 +28,21 @@ def test_no_share_is_the_evaluations_classical_imm_and_a_share_identifies_the_mo
     # the uniform prior's mode probabilities are one step's likelihoods: near chance; leaning
     # half of its jumps toward the shadow's belief makes them follow the maneuvers
     assert scores[(example.STAYS[0], 0.0)][1] < 0.4 < 0.6 < scores[(example.STAYS[0], 0.5)][1]
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    (["--runs", "0"], "--runs must be >= 1, got 0"),
+    (["--runs", "-3"], "--runs must be >= 1, got -3"),  # it said n_envs ... got -42
+    (["--seed", "-1"], "--seed must be >= 0, got -1"),
+    (["--suite", "nowhere"], "--suite must be one of"),
+    (["--share", "0"], "--share must be in (0, 1]"),
+])
+def test_bad_options_are_refused_before_any_work(
+    option: list[str], message: str, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    example = load_example("detector_prior")
+    monkeypatch.setattr(example, "detector_runs", lambda *a, **k: pytest.fail("ran"))
+    with pytest.raises(SystemExit) as exit_:
+        example.main(option)
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
