@@ -21,6 +21,7 @@ episode is worth, and so how much a policy must gain inside an episode to beat t
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -30,6 +31,7 @@ from imm_gym import EnvConfig, TrackingCore, stay_tpm
 from imm_gym.cli.evaluate import suite_configs
 from imm_gym.evaluation.rollout import armse_from_squared
 from imm_gym.tracking.imm import measurement_loglik
+from imm_gym.validation import ConfigError
 
 #: Per-step evidence below the best IMM's is floored here (nats): one outlier moves it at most
 #: this much.
@@ -86,17 +88,25 @@ def choose(
     return select, average
 
 
-def main() -> None:
+def main(argv: Sequence[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--suite", default="benchmark")
-    args = p.parse_args()
+    args = p.parse_args(argv)
+    if args.runs < 1:
+        p.error(f"--runs must be >= 1, got {args.runs}")
+    if args.seed < 0:
+        p.error(f"--seed must be >= 0, got {args.seed}")
+    try:
+        suite = suite_configs(args.suite)
+    except ConfigError as err:
+        p.error(str(err))
     print(f"runs {args.seed}..{args.seed + args.runs - 1}; position ARMSE (m)")
     print("| scenario | best fixed (stay) | select, λ = 1 | average, λ = 1 | select, λ = 0.99 "
           "| average, λ = 0.99 |")
     print("|---|---|---|---|---|---|")
-    for name, overrides in suite_configs(args.suite).items():
+    for name, overrides in suite.items():
         grid, err2, pos, truth, evidence = stay_runs(overrides, args.runs, args.seed)
         fixed = [armse_from_squared(e) for e in err2]
         best = int(np.argmin(fixed))

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from helpers import load_example
 
 from baselines.best_fixed import STAY_GRID, stay_grid
@@ -53,3 +54,19 @@ def test_select_follows_the_evidence_and_average_weighs_by_it() -> None:
     # equal evidence: the average is the plain mean of the estimates
     _, flat = example.choose(pos, truth, np.zeros((S, R, K)), 1.0)
     np.testing.assert_allclose(flat, np.sum((pos.mean(axis=0) - truth) ** 2, axis=-1))
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    (["--runs", "0"], "--runs must be >= 1, got 0"),
+    (["--seed", "-1"], "--seed must be >= 0, got -1"),
+    (["--suite", "nowhere"], "--suite must be one of"),
+])
+def test_bad_options_are_refused_before_any_work(
+    option: list[str], message: str, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    example = load_example("stay_selection")
+    monkeypatch.setattr(example, "stay_runs", lambda *a, **k: pytest.fail("ran"))
+    with pytest.raises(SystemExit) as exit_:
+        example.main(option)
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
