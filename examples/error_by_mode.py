@@ -28,12 +28,13 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.cli.evaluate import evaluate, load_trained, suite_configs
+from imm_gym.cli.evaluate import REGISTRY, evaluate, load_trained, make_policy, suite_configs
 from imm_gym.evaluation.rollout import Rollout, armse_from_squared
 
 
@@ -123,6 +124,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--window", type=int, default=0, metavar="N",
                    help="also the ARMSE and the first model's stay over windows of N steps")
     args = p.parse_args(argv)
+    if args.runs < 1:
+        p.error(f"--runs must be >= 1, got {args.runs}")
+    if args.seed < 0:
+        p.error(f"--seed must be >= 0, got {args.seed}")
     if args.window < 0:
         p.error(f"--window must be a number of steps >= 1 (0: no time table), got {args.window}")
     suite = list(suite_configs("benchmark"))
@@ -130,8 +135,22 @@ def main(argv: Sequence[str] | None = None) -> None:
     if unknown:
         p.error(f"--scenario must be one of {suite}, got {unknown}")
     scenarios = args.scenario or suite
-    results = score(args.policy or ["best-fixed"], args.zero, scenarios, args.runs, args.seed,
-                    args.window)
+    policies = args.policy or ["best-fixed"]
+    if len(set(policies)) != len(policies):
+        p.error(f"--policy given twice: {policies}")
+    base = EnvConfig.build({})
+    for name in policies:  # a rule is built on each scenario's runs; an agent is loaded here
+        if name not in REGISTRY:
+            try:
+                make_policy(name, base, args.seed)
+            except ValueError as err:  # ConfigError among them
+                p.error(f"--policy: {err}")
+    for path in args.zero:
+        try:
+            load_trained(Path(path), base)
+        except ValueError as err:
+            p.error(f"--zero: {err}")
+    results = score(policies, args.zero, scenarios, args.runs, args.seed, args.window)
     print("| scenario | policy | ARMSE (m) | RMS error on each true model (m) "
           "| median stays (row 1..M) on each true model |")
     print("|---|---|---|---|---|")

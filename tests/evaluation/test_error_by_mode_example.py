@@ -68,3 +68,21 @@ def test_a_window_below_one_step_is_refused(capsys: pytest.CaptureFixture[str]) 
     with pytest.raises(SystemExit):
         example.main(["--window", "-1"])
     assert "--window must be" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    (["--runs", "0"], "--runs must be >= 1, got 0"),
+    (["--seed", "-1"], "--seed must be >= 0, got -1"),
+    (["--policy", "nosuch"], "--policy: unknown policy 'nosuch'"),
+    (["--policy", "fixed", "--policy", "fixed"], "--policy given twice"),
+    (["--zero", "examples"], "--zero: no trained agent at 'examples'"),
+])
+def test_bad_options_are_refused_before_any_work(
+    option: list[str], message: str, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    example = load_example("error_by_mode")
+    monkeypatch.setattr(example, "evaluate", lambda *a, **k: pytest.fail("ran"))
+    with pytest.raises(SystemExit) as exit_:
+        example.main(["--scenario", "paper", *option])
+    assert exit_.value.code == 2 and message in capsys.readouterr().err
