@@ -29,9 +29,10 @@ Input, by the file's suffix:
   where every ``z`` cell is a number, 0 where every one is empty) and ``vx``, ``vy`` (the initial
   velocity in m/s, from a sequence's first row: both empty, none given; later rows leave them
   empty or repeat them). The first row of a sequence initiates the track (a detection); each
-  later row is one filter step, at least one. A ``z`` cell is a finite number or empty; a row
-  with more or fewer cells than the header, or a bad cell, is refused naming the file, the line
-  and the sequence.
+  later row is one filter step, at least one. A ``z`` cell is a finite number or empty, a
+  detection in the sensor's units (a range >= 0 m, a bearing in rad: ``|bearing| <= 2 pi``); a
+  row with more or fewer cells than the header, or a bad cell, is refused naming the file, the
+  line and the sequence.
 * ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected``, ``velocity (N, 2)``, or
   ``x0 (N, 4)`` and ``P0 (N, 4, 4)`` (read without unpickling).
 
@@ -39,13 +40,20 @@ A CSV is UTF-8 (a byte order mark is dropped); a file that cannot be read is ref
 
 Without a velocity the track starts at zero velocity with standard deviation
 :data:`~imm_gym.sim.replay.UNKNOWN_VELOCITY_STD`; ``--velocity VX VY`` gives one for every
-sequence that has none. Sequences of different lengths run in batches of equal length.
+sequence that has none. The sequences run as one batch (one per kind of start: ``x0``/``P0``,
+a velocity, none), the shorter ones padded with missed detections and cut back. A network
+policy's matrix products round by the batch's shape, so a sequence tracked beside others can
+differ from itself tracked alone in the last bits (about 1e-7 m); the rules do not.
+A configuration file that names a scenario other than ``random`` tracks at that scenario's
+sampling period, said on stderr (``family`` beside it is refused: it would be ignored).
 
 Output, by the suffix of ``--out`` (checked before any work, its missing directories made):
 
 * ``.csv``: one row per filtered step, the sequences in the input's order: ``sequence, step``
   (1..K), ``x, y, vx, vy``, ``P00 .. P33`` (the covariance, row-major), ``mu0 .. mu{M-1}``,
-  ``tpm00 .. tpm{M-1}{M-1}`` (row-major);
+  ``tpm00 .. tpm{M-1}{M-1}`` (row-major; ``tpm{i}_{j}`` for more than ten models),
+  ``diverged`` (1 from the step the track diverged at: its estimate not finite or its position
+  variance above ``divergence_cov``; such tracks are also named on stderr);
 * ``.npz``: ``estimate (N, K, 4)``, ``covariance (N, K, 4, 4)``, ``mode_probs (N, K, M)``,
   ``tpm (N, K, M, M)``, ``x0``, ``P0``, ``diverged (N,)``, the sequences in the input's order
   (one sequence length only: sequences of several are refused before any work).
@@ -74,24 +82,26 @@ from imm_gym.cli.evaluate import (
 from imm_gym.cli.tables import models_differ_note
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.replay import TrackResult, run_policy
+from imm_gym.sim.replay import TrackResult, run_policy, start_problem
+from imm_gym.tracking.sensors import Sonar
 from imm_gym.validation import ConfigError
 
 #: Optional input columns of a CSV file besides ``z0 .. z{m-1}``.
 OPTIONAL_COLUMNS = ("sequence", "detected", "vx", "vy")
 
 
-def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
+def read_csv(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
     """The sequences of a measurement CSV: per sequence ``name``, ``z (K+1, m)``, ``detected``
     and ``velocity`` (None where not given).
 
     Every row has the header's cells; a ``z`` cell is a finite number or empty, a missed
     detection leaving every ``z`` cell of its row empty (or ``detected`` 0, its ``z`` cells then
-    unused); ``detected`` is 0 or 1; a ``sequence`` cell is not empty; a sequence has two rows
-    or more (the track's start and a step). Anything else is refused naming the file, the line
-    and the sequence."""
+    unused); a detection is in the sensor's units (``sensor.invalid``: the sonar's range >= 0,
+    its bearing in rad); ``detected`` is 0 or 1; a ``sequence`` cell is not empty; a sequence
+    has two rows or more (the track's start and a step). Anything else is refused naming the
+    file, the line and the sequence."""
     header, rows = _csv_rows(path)
-    z_cols = [f"z{i}" for i in range(dim_z)]
+    z_cols = [f"z{i}" for i in range(sensor.dim_z)]
     unknown = [c for c in header if c not in z_cols and c not in OPTIONAL_COLUMNS]
     if [c for c in z_cols if c not in header] or unknown:
         raise ConfigError(
@@ -166,6 +176,14 @@ def read_csv(path: Path, dim_z: int) -> list[dict[str, Any]]:
                 f"{path}:{at[bad]}: sequence {name!r}: a detection (detected 1) needs a number "
                 "in every z cell"
             )
+        det = finite if detected is None else detected
+        outside = np.flatnonzero(det & sensor.invalid(np.where(det[:, None], z, 0.0)))
+        if outside.size:
+            row = int(outside[0])
+            raise ConfigError(
+                f"{path}:{at[row]}: sequence {name!r}: z {z[row].tolist()} is no measurement "
+                f"of the sensor: it takes {sensor.measurement_units}"
+            )
         velocity = _velocity(path, at, name, group) if "vx" in header else None
         sequences.append({"name": name, "z": z, "detected": detected, "velocity": velocity})
     for name, at in lines.items():  # after every cell is read: a bad cell is said first
@@ -211,17 +229,19 @@ def _velocity(
             f"{path}:{lines[0]}: sequence {name!r} gives only one of vx and vy in its first row "
             "(both or neither)"
         )
+    first = [_number(path, lines[0], name, c, group[0][c]) for c in ("vx", "vy")]
     for i in range(1, len(group)):
         later = (cells[0][i], cells[1][i])
-        if later != ("", "") and later != (cells[0][0], cells[1][0]):
+        if later == ("", ""):
+            continue
+        values = [_number(path, lines[i], name, c, group[i][c]) for c in ("vx", "vy")]
+        if not np.array_equal(values, first, equal_nan=True):  # 3 and 3.0 are the same
             raise ConfigError(
                 f"{path}:{lines[i]}: vx, vy are the initial velocity, read from sequence "
                 f"{name!r}'s first row ({cells[0][0]}, {cells[1][0]}); later rows leave them "
                 f"empty or repeat them, got ({later[0]}, {later[1]})"
             )
-    if cells[0][0] == "":
-        return None
-    return np.array([_number(path, lines[0], name, c, group[0][c]) for c in ("vx", "vy")])
+    return None if cells[0][0] == "" else np.array(first)
 
 
 def _number(path: Path, line: int, name: str, column: str, text: str) -> float:
@@ -264,10 +284,12 @@ def unusable_row(z: NDArray[np.float64], detected: NDArray[np.bool_]) -> int | N
     return int(rows[0]) if rows.size else None
 
 
-def read_npz(path: Path, dim_z: int) -> list[dict[str, Any]]:
+def read_npz(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
     """The sequences of a measurement NPZ (see the module docstring): its arrays numbers of the
-    shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection), the rest
-    finite, a velocity or ``x0`` and ``P0``; anything else refused naming the file."""
+    shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection) and a
+    detection in the sensor's units, the rest finite, a velocity or ``x0`` and ``P0`` (``P0``
+    symmetric positive definite); anything else refused naming the file."""
+    dim_z = sensor.dim_z
     try:  # no pickles: a file that is not an NPZ archive must not run code
         loaded = np.load(path, allow_pickle=False)
     except (ValueError, EOFError, zipfile.BadZipFile) as err:
@@ -338,6 +360,18 @@ def read_npz(path: Path, dim_z: int) -> list[dict[str, Any]]:
             )
         if bad is not None:
             raise ConfigError(f"{path}: {name}z's row {bad} is a detection and not finite")
+        outside = np.flatnonzero(
+            detected[i] & sensor.invalid(np.where(detected[i][:, None], z[i], 0.0))
+        )
+        if outside.size:
+            raise ConfigError(f"{path}: {name}z's row {int(outside[0])} "
+                              f"{z[i, outside[0]].tolist()} is no measurement of the sensor: "
+                              f"it takes {sensor.measurement_units}")
+    if "x0" in extra:
+        problem = start_problem(extra["x0"], extra["P0"])
+        if problem is not None:
+            said = problem.removeprefix("sequence 0: ") if single else problem
+            raise ConfigError(f"{path}: {said}")
     return [
         {"name": str(i), "z": z[i], **{k: v[i] for k, v in extra.items()}}
         for i in range(N)
@@ -350,33 +384,45 @@ def run(
     config: EnvConfig,
     velocity: Sequence[float] | None,
     overrides: Mapping[str, Any],
-) -> list[tuple[list[str], TrackResult]]:
-    """:func:`run_policy` on the sequences, batched by length: ``(names, result)`` per batch."""
+) -> list[tuple[str, TrackResult]]:
+    """:func:`run_policy` on the sequences: ``(name, result)`` per sequence (``N = 1``), in the
+    input's order. Sequences that start alike (from ``x0``/``P0``, a velocity, or none) run as
+    one batch, the shorter ones padded with missed detections to the longest and cut back to
+    their own length (a step depends on none after it); a sequence's ``diverged_at`` counts its
+    own steps only."""
     if not sequences:
         raise ConfigError("no measurements")
-    by_length: dict[int, list[dict[str, Any]]] = {}
-    for seq in sequences:
-        seq = dict(seq)
-        if seq.get("velocity") is None and velocity is not None and "x0" not in seq:
-            seq["velocity"] = np.asarray(velocity, dtype=np.float64)
-        by_length.setdefault(seq["z"].shape[0], []).append(seq)
-    out = []
-    for batch in by_length.values():
-        # sequences with and without a velocity start differently: batch them apart
-        for kind in ("x0", "velocity", None):
-            group = [s for s in batch if _start_kind(s) == kind]
-            if not group:
-                continue
-            args: dict[str, Any] = {"detected": _stack(group, "detected")}
-            if kind == "x0":
-                args["x0"], args["P0"] = _stack(group, "x0"), _stack(group, "P0")
-            elif kind == "velocity":
-                args["velocity"] = _stack(group, "velocity")
-            result = run_policy(
-                np.stack([s["z"] for s in group]), policy, config, overrides=overrides, **args
+    results: dict[int, tuple[str, TrackResult]] = {}
+    for kind in ("x0", "velocity", None):
+        group = []
+        for i, seq in enumerate(sequences):
+            seq = dict(seq)
+            if seq.get("velocity") is None and velocity is not None and "x0" not in seq:
+                seq["velocity"] = np.asarray(velocity, dtype=np.float64)
+            if _start_kind(seq) == kind:
+                group.append((i, seq))
+        if not group:
+            continue
+        longest = max(seq["z"].shape[0] for _, seq in group)
+        z = np.full((len(group), longest, config.sensor.dim_z), np.nan)
+        detected = np.zeros((len(group), longest), dtype=bool)
+        for row, (_, seq) in enumerate(group):
+            n = seq["z"].shape[0]
+            z[row, :n] = seq["z"]
+            detected[row, :n] = (
+                np.all(np.isfinite(seq["z"]), axis=1) if seq.get("detected") is None
+                else seq["detected"]
             )
-            out.append(([s["name"] for s in group], result))
-    return out
+        args: dict[str, Any] = {}
+        if kind == "x0":
+            args["x0"] = np.stack([seq["x0"] for _, seq in group])
+            args["P0"] = np.stack([seq["P0"] for _, seq in group])
+        elif kind == "velocity":
+            args["velocity"] = np.stack([seq["velocity"] for _, seq in group])
+        result = run_policy(z, policy, config, detected=detected, overrides=overrides, **args)
+        for row, (i, seq) in enumerate(group):
+            results[i] = (seq["name"], _cut(result, row, seq["z"].shape[0] - 1))
+    return [results[i] for i in range(len(sequences))]
 
 
 def _start_kind(seq: dict[str, Any]) -> str | None:
@@ -385,48 +431,52 @@ def _start_kind(seq: dict[str, Any]) -> str | None:
     return "velocity" if seq.get("velocity") is not None else None
 
 
-def _stack(group: list[dict[str, Any]], key: str) -> Any:
-    values = [s.get(key) for s in group]
-    if all(v is None for v in values):
-        return None
-    if any(v is None for v in values):
-        raise ConfigError(f"'{key}' is given for some sequences and not for others")
-    return np.stack(values)
+def _cut(result: TrackResult, row: int, steps: int) -> TrackResult:
+    """Sequence ``row`` of a batch's result, its first ``steps`` steps (``N = 1``)."""
+    return TrackResult(
+        result.estimate[row : row + 1, :steps], result.covariance[row : row + 1, :steps],
+        result.mode_probs[row : row + 1, :steps], result.tpm[row : row + 1, :steps],
+        result.x0[row : row + 1], result.P0[row : row + 1],
+        np.minimum(result.diverged_at[row : row + 1], steps),
+    )
 
 
-def write(
-    path: Path, results: list[tuple[list[str], TrackResult]], order: Sequence[str]
-) -> None:
-    """Write the results as CSV or NPZ (see the module docstring); a CSV lists the sequences in
-    ``order`` (the input's), whatever batches of equal length they ran in; missing parent
-    directories are made."""
+def tpm_columns(M: int) -> list[str]:
+    """The TPM's CSV columns, row-major: ``tpm{i}{j}``, or ``tpm{i}_{j}`` for banks of more
+    than ten models (where ``tpm110`` would name both entry (1, 10) and (11, 0))."""
+    sep = "_" if M > 10 else ""
+    return [f"tpm{i}{sep}{j}" for i in range(M) for j in range(M)]
+
+
+def write(path: Path, results: list[tuple[str, TrackResult]]) -> None:
+    """Write the results as CSV or NPZ (see the module docstring), the sequences in the order
+    given; missing parent directories are made."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    where = {name: (r, n) for names, r in results for n, name in enumerate(names)}
     if path.suffix == ".npz":
         lengths = sorted({r.estimate.shape[1] for _, r in results})
         if len(lengths) != 1:  # main checks it before the tracking
             raise ConfigError(f"{path}: an NPZ output holds sequences of one length only")
-        # the batches (with and without a velocity) merged back in the input's order
-        np.savez(path, **{
-            key: np.stack([getattr(r, key)[n] for r, n in (where[name] for name in order)])
+        arrays = {
+            key: np.concatenate([getattr(r, key) for _, r in results])
             for key in ("estimate", "covariance", "mode_probs", "tpm", "x0", "P0", "diverged")
-        })
+        }
+        np.savez(path, **arrays)
         return
     M = results[0][1].mode_probs.shape[-1]
     header = ["sequence", "step", "x", "y", "vx", "vy"]
     header += [f"P{i}{j}" for i in range(4) for j in range(4)]
-    header += [f"mu{i}" for i in range(M)] + [f"tpm{i}{j}" for i in range(M) for j in range(M)]
+    header += [f"mu{i}" for i in range(M)] + tpm_columns(M) + ["diverged"]
     with path.open("w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(header)
-        for name in order:
-            r, n = where[name]
+        for name, r in results:
             for k in range(r.estimate.shape[1]):
                 values = np.concatenate([
-                    r.estimate[n, k], r.covariance[n, k].ravel(), r.mode_probs[n, k],
-                    r.tpm[n, k].ravel(),
+                    r.estimate[0, k], r.covariance[0, k].ravel(), r.mode_probs[0, k],
+                    r.tpm[0, k].ravel(),
                 ])
-                writer.writerow([name, k + 1, *(repr(float(v)) for v in values)])
+                writer.writerow([name, k + 1, *(repr(float(v)) for v in values),
+                                 int(k >= r.diverged_at[0])])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -461,18 +511,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     problem = output_problem(args.out, "file")  # before any work, as evaluate's outputs
     if problem:
         parser.error(f"--out {str(args.out)!r}: {problem}")
+    if args.out.resolve() == args.measurements.resolve():
+        parser.error(f"--out {str(args.out)!r} is the --measurements file: it would be "
+                     "overwritten; give another output file")
+    if args.velocity is not None and not np.all(np.isfinite(args.velocity)):
+        parser.error(f"--velocity must be two finite numbers (m/s), got {args.velocity}")
     try:
         # as evaluate's: what the file says an agent is trained as is each policy's own
         overrides = {} if args.env_config is None else read_env_config(args.env_config)
-        config = evaluated_config(overrides.pop("scenario", "random"), overrides)
+        scenario = overrides.pop("scenario", "random")
+        if "family" in overrides and scenario != "random":
+            raise ConfigError(
+                f"{args.env_config}: family applies to scenario 'random' only, and the "
+                f"scenario ({_scenario_name(scenario)}) gives the sampling period: give one of "
+                "them"
+            )
+        config = evaluated_config(scenario, overrides)
         if not args.measurements.is_file():
             what = "is a directory" if args.measurements.is_dir() else "no such file"
             raise ConfigError(f"{args.measurements}: {what}")
         sequences = (
-            read_csv(args.measurements, config.sensor.dim_z)
+            read_csv(args.measurements, config.sensor)
             if args.measurements.suffix == ".csv"
-            else read_npz(args.measurements, config.sensor.dim_z)
+            else read_npz(args.measurements, config.sensor)
         )
+        if not sequences:
+            raise ConfigError(f"{args.measurements}: no measurements (no sequence)")
         lengths = sorted({s["z"].shape[0] - 1 for s in sequences})
         if args.out.suffix == ".npz" and len(lengths) > 1:
             raise ConfigError(
@@ -490,13 +554,26 @@ def main(argv: Sequence[str] | None = None) -> int:
                       f"{verb}): it tracks with the configured one", file=sys.stderr)
             if "models_differ" in notes:
                 print(models_differ_note(args.policy, notes["models_differ"]), file=sys.stderr)
+        print(f"tracking at T = {config.source.T:g} s, the sampling period of the scenario "
+              f"({_scenario_name(config.scenario)})", file=sys.stderr)
         results = run(sequences, policy, config, args.velocity, overrides)
         try:
-            write(args.out, results, [s["name"] for s in sequences])
+            write(args.out, results)
         except OSError as err:  # checked up front; a full disk, say
             raise ConfigError(f"--out {str(args.out)!r}: cannot write ({err})") from None
     except ConfigError as err:
         parser.error(str(err))
-    n = sum(len(names) for names, _ in results)
-    print(f"{args.policy}: {n} sequence(s) tracked -> {args.out}")
+    diverged = [(name, int(r.diverged_at[0]) + 1) for name, r in results if r.diverged[0]]
+    if diverged:
+        listed = ", ".join(f"{name!r} at step {k}" for name, k in diverged[:10])
+        more = f" and {len(diverged) - 10} more" if len(diverged) > 10 else ""
+        print(f"warning: {len(diverged)} track(s) diverged (estimate not finite or position "
+              f"variance above divergence_cov, {config.divergence_cov:g} m²; column diverged "
+              f"1 from then on): {listed}{more}", file=sys.stderr)
+    print(f"{args.policy}: {len(results)} sequence(s) tracked -> {args.out}")
     return 0
+
+
+def _scenario_name(scenario: Any) -> str:
+    """A scenario as a user names it: ``'paper'``, or one a file gives in full."""
+    return repr(scenario) if isinstance(scenario, str) else "the file's own"

@@ -51,8 +51,9 @@ class TrackResult:
         mode_probs: ``(N, K, M)`` the mode probabilities (the fused ``U`` with ``parallel``).
         tpm: ``(N, K, M, M)`` the TPM bank A used at each step (the policy's).
         x0, P0: ``(N, 4)``, ``(N, 4, 4)`` the initial estimate from ``z[:, 0]``.
-        diverged: ``(N,)`` sequences whose estimate became non-finite or whose position variance
-            ``P_xx + P_yy`` exceeded the configuration's ``divergence_cov`` at some step.
+        diverged_at: ``(N,)`` the first step index ``k`` (0-based, of the K) at which the
+            estimate is not finite or the position variance ``P_xx + P_yy`` exceeds the
+            configuration's ``divergence_cov``; ``K`` where there is none.
     """
 
     estimate: Array
@@ -61,7 +62,12 @@ class TrackResult:
     tpm: Array
     x0: Array
     P0: Array
-    diverged: NDArray[np.bool_]
+    diverged_at: NDArray[np.int64]
+
+    @property
+    def diverged(self) -> NDArray[np.bool_]:
+        """``(N,)`` the sequences that diverged at some step."""
+        return self.diverged_at < self.estimate.shape[1]
 
 
 class ReplayCore(TrackingCore):
@@ -108,6 +114,54 @@ def _as_batch(name: str, value: Any, ndim: int, single: bool) -> Array:
     return array
 
 
+def _detections(z: Array, detected: Any, single: bool) -> NDArray[np.bool_]:
+    """The ``(N, K+1)`` detection flags of ``z (N, K+1, m)``: ``detected`` checked (booleans,
+    or numbers 0 and 1; a detection's ``z`` finite), or without it the rows of ``z`` without
+    NaN (a row all NaN a missed detection). Infinite ``z`` and rows only partly NaN are
+    refused."""
+    N, K1, _ = z.shape
+    if np.isinf(z).any():
+        n, k = (int(i) for i in np.argwhere(np.isinf(z))[0][:2])
+        raise ConfigError(f"z[{n}, {k}] is infinite (NaN is a missed detection)")
+    finite = np.all(np.isfinite(z), axis=-1)
+    if detected is None:
+        partial = ~finite & ~np.all(np.isnan(z), axis=-1)
+        if partial.any():
+            n, k = (int(i) for i in np.argwhere(partial)[0])
+            raise ConfigError(f"z[{n}, {k}] is partly NaN: a missed detection is a row of NaN "
+                              "(or give detected)")
+        return finite
+    flags = np.asarray(detected)
+    flags = flags[None] if single else flags
+    if flags.shape != (N, K1):
+        raise ConfigError(f"detected must have shape {(N, K1)[1 if single else 0:]}, "
+                          f"got {np.shape(detected)}")
+    if flags.dtype != bool and not (
+        flags.dtype.kind in "iuf" and np.all((flags == 0) | (flags == 1))
+    ):
+        raise ConfigError("detected must be booleans or the numbers 0 and 1")
+    det = flags.astype(bool)
+    if not np.all(finite | ~det):
+        raise ConfigError("a detected measurement is not finite")
+    return det
+
+
+def start_problem(x0: Array, P0: Array) -> str | None:
+    """What is wrong with initial estimates ``x0 (N, 4)`` and covariances ``P0 (N, 4, 4)``
+    (not finite, ``P0`` not symmetric positive definite), naming the first sequence; None if
+    nothing is."""
+    for n in range(x0.shape[0]):
+        if not (np.all(np.isfinite(x0[n])) and np.all(np.isfinite(P0[n]))):
+            return f"sequence {n}: x0 and P0 must be finite"
+        if not np.allclose(P0[n], P0[n].T, rtol=1e-9, atol=0.0):
+            return f"sequence {n}: P0 must be symmetric"
+        try:
+            np.linalg.cholesky(P0[n])
+        except np.linalg.LinAlgError:
+            return f"sequence {n}: P0 must be positive definite"
+    return None
+
+
 def run_policy(
     z: Any,
     policy: Any,
@@ -145,8 +199,11 @@ def run_policy(
         The :class:`TrackResult`, batched (``N = 1`` for a single sequence).
 
     Raises:
-        ConfigError: inconsistent shapes, a detected non-finite measurement, or ``P0`` without
-            ``x0``.
+        ConfigError: inconsistent shapes; an infinite ``z``, a row only partly NaN without
+            ``detected``, a detected non-finite measurement or one outside the sensor's units
+            (``sensor.invalid``: a negative range, a bearing beyond ``2 pi``); ``detected`` not
+            booleans or 0/1; a velocity, ``x0`` or ``P0`` not finite, ``P0`` not symmetric
+            positive definite, or ``P0`` without ``x0``.
     """
     base = EnvConfig() if config is None else config
     if overrides is None:
@@ -161,19 +218,14 @@ def run_policy(
     N, K1, m = z_all.shape
     if m != cfg.sensor.dim_z or K1 < 2:
         raise ConfigError(f"z must be (N, K+1, {cfg.sensor.dim_z}) with K >= 1, got {z_in.shape}")
-    finite = np.all(np.isfinite(z_all), axis=-1)
-    if detected is None:
-        det = finite
-    else:
-        det = np.asarray(detected, dtype=bool)
-        det = det[None] if single else det
-        if det.shape != (N, K1):
-            raise ConfigError(f"detected must have shape {(N, K1)[1 if single else 0:]}, "
-                              f"got {np.shape(detected)}")
-        if not np.all(finite | ~det):
-            raise ConfigError("a detected measurement is not finite")
+    det = _detections(z_all, detected, single)
     if not det[:, 0].all():
         raise ConfigError("z[:, 0] initiates the track: it must be a finite detection")
+    bad = det & cfg.sensor.invalid(np.where(det[..., None], z_all, 0.0))
+    if bad.any():
+        n, k = (int(i) for i in np.argwhere(bad)[0])
+        raise ConfigError(f"z[{n}, {k}] = {z_all[n, k].tolist()} is no measurement of the "
+                          f"sensor: it takes {cfg.sensor.measurement_units}")
     # step-major and contiguous: each step's (N, m) slice is what the engine takes
     z_steps = np.ascontiguousarray(np.where(det[..., None], z_all, 0.0).transpose(1, 0, 2))
     det_steps = np.ascontiguousarray(det.T)
@@ -183,7 +235,11 @@ def run_policy(
         if velocity is None:
             start, cov = initiate(cfg.sensor, z_steps[0], np.zeros(2), UNKNOWN_VELOCITY_STD)
         else:
-            start, cov = initiate(cfg.sensor, z_steps[0], velocity, cfg.velocity_std)
+            v = np.asarray(velocity, dtype=np.float64)
+            if v.shape not in ((2,), (N, 2)) or not np.all(np.isfinite(v)):
+                raise ConfigError(f"velocity must be finite, of shape (2,) or ({N}, 2), got "
+                                  f"{v.tolist()} of shape {v.shape}")
+            start, cov = initiate(cfg.sensor, z_steps[0], v, cfg.velocity_std)
     else:
         start = _as_batch("x0", x0, 2, single)
         cov = _as_batch("P0", P0, 3, single) if P0 is not None else None
@@ -191,6 +247,9 @@ def run_policy(
             raise ConfigError("x0 needs P0")
         if start.shape != (N, 4) or cov.shape != (N, 4, 4):
             raise ConfigError(f"x0 and P0 must be ({N}, 4) and ({N}, 4, 4)")
+        problem = start_problem(start, cov)
+        if problem is not None:
+            raise ConfigError(problem)
     core = ReplayCore(cfg, n_envs=N)
     core.start(start, cov)
     K, M = K1 - 1, core.M
@@ -210,7 +269,6 @@ def run_policy(
         tpms[:, k] = out.tpm
         obs = core.observe()
     position_var = covariance[..., 0, 0] + covariance[..., 1, 1]
-    diverged = ~np.all(np.isfinite(estimate), axis=(1, 2)) | ~np.all(
-        position_var <= cfg.divergence_cov, axis=1
-    )
-    return TrackResult(estimate, covariance, probs, tpms, start, cov, diverged)
+    bad = ~np.all(np.isfinite(estimate), axis=2) | ~(position_var <= cfg.divergence_cov)
+    diverged_at = np.where(bad.any(axis=1), bad.argmax(axis=1), K).astype(np.int64)
+    return TrackResult(estimate, covariance, probs, tpms, start, cov, diverged_at)

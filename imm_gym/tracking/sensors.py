@@ -174,6 +174,14 @@ class Sonar(_Clutter):
         """The sonar is nonlinear: no constant ``H``."""
         return None
 
+    #: What a recorded sonar measurement must be (:meth:`invalid`).
+    measurement_units: ClassVar[str] = "a range >= 0 m and a bearing in rad, |bearing| <= 2 pi"
+
+    def invalid(self, z: Array) -> NDArray[np.bool_]:
+        """The rows of ``z (..., 2)`` that are no sonar measurement in its units (a negative
+        range, or a bearing beyond ``2 pi`` in magnitude: likely degrees); NaN rows are not."""
+        return (z[..., 0] < 0.0) | (np.abs(z[..., 1]) > 2.0 * math.pi)
+
     def initial_position(self, z: Array) -> tuple[Array, Array]:
         r"""Position from a measurement (polar to Cartesian) and its covariance ``J R J^T``.
 

@@ -74,14 +74,16 @@ def test_csv_in_csv_out_is_the_env_episode(tmp_path: Path, capsys: pytest.Captur
     header, table = _read_csv(tmp_path / "out.csv")
     K, M = core.horizon, core.M
     assert header[:6] == ["sequence", "step", "x", "y", "vx", "vy"]
-    assert header[-1] == f"tpm{M - 1}{M - 1}" and len(header) == 2 + 4 + 16 + M + M * M
+    assert header[-2:] == [f"tpm{M - 1}{M - 1}", "diverged"]
+    assert len(header) == 2 + 4 + 16 + M + M * M + 1
     assert table.shape == (len(SEEDS) * K, len(header) - 1)
+    assert not table[:, -1].any()
     steps = table.reshape(len(SEEDS), K, -1)
     np.testing.assert_array_equal(steps[..., 0], np.tile(np.arange(1, K + 1), (2, 1)))
     np.testing.assert_array_equal(steps[..., 1:5], env["estimate"])
     np.testing.assert_array_equal(steps[..., 5:21], env["covariance"].reshape(2, K, 16))
     np.testing.assert_array_equal(steps[..., 21:21 + M], env["mode_probs"])
-    np.testing.assert_array_equal(steps[..., 21 + M:], env["tpm"].reshape(2, K, M * M))
+    np.testing.assert_array_equal(steps[..., 21 + M:-1], env["tpm"].reshape(2, K, M * M))
 
 
 def test_npz_through_python_m_with_the_agent_and_a_config_file(tmp_path: Path) -> None:
@@ -435,3 +437,141 @@ def test_bad_npz_arrays_are_usage_errors(
     assert exit_info.value.code == 2
     err = " ".join(capsys.readouterr().err.split())
     assert re.search(f"z.npz: {message}", err), err
+
+
+def test_a_diverged_track_is_flagged_in_the_csv_and_on_stderr(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A finite but absurd range sends the track to NaN: the rows say so from that step on
+    (column diverged) and stderr names the sequence (it was written as NaN rows, silently)."""
+    rows = ["sequence,z0,z1", "a,1000,0.1", "a,1010,0.1", "a,1e300,0.1", "a,1030,0.1",
+            "b,1000,0.1", "b,1010,0.1", "b,1020,0.1", "b,1030,0.1"]
+    (tmp_path / "z.csv").write_text("\n".join(rows) + "\n")
+    assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                 "--out", str(tmp_path / "out.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: 1 track(s) diverged" in err and "'a' at step 2" in err
+    header, table = _read_csv(tmp_path / "out.csv")
+    assert header[-1] == "diverged"
+    np.testing.assert_array_equal(table[:, -1], [0, 1, 1, 0, 0, 0])
+
+
+def test_shorter_sequences_are_padded_into_one_batch_and_cut_back(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Sequences of different lengths run as one batch (one run_policy call per kind of
+    start: they ran one batch per length, 12x slower on real recordings); the padding's
+    prediction-only steps do not count toward a short sequence's divergence."""
+    core = TrackingCore(EnvConfig(), n_envs=2)
+    core.reset(np.arange(2), SEEDS)
+    with (tmp_path / "z.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["z0", "z1", "sequence"])
+        for n, length in enumerate((5, 60)):
+            for k in range(length + 1):
+                writer.writerow([repr(float(core.z[n, k, 0])), repr(float(core.z[n, k, 1])), n])
+    # a divergence cap that 55 steps of prediction alone exceed, and 5 filtered steps do not
+    (tmp_path / "tracker.yaml").write_text("divergence_cov: 2.0e5\n")
+    import imm_gym.cli.track as track
+
+    calls: list[tuple[int, ...]] = []
+
+    def counted(z, *args, **kwargs):
+        calls.append(np.shape(z))
+        return imm_gym.run_policy(z, *args, **kwargs)
+
+    monkeypatch.setattr(track, "run_policy", counted)
+    assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                 "--env-config", str(tmp_path / "tracker.yaml"),
+                 "--out", str(tmp_path / "out.csv")]) == 0
+    assert calls == [(2, 61, 2)]
+    _, table = _read_csv(tmp_path / "out.csv")
+    config = EnvConfig(divergence_cov=2.0e5)
+    padded = imm_gym.run_policy(np.concatenate([core.z[0, :6], np.full((55, 2), np.nan)]),
+                                make_baseline("fixed"), config)
+    assert padded.diverged[0]  # the padding alone would have flagged it
+    for first, n, length in ((0, 0, 5), (5, 1, 60)):
+        alone = imm_gym.run_policy(core.z[n, : length + 1], make_baseline("fixed"), config)
+        rows = table[first:first + length]
+        np.testing.assert_array_equal(rows[:, 1:5], alone.estimate[0])
+        np.testing.assert_array_equal(rows[:, -1], np.arange(length) >= alone.diverged_at[0])
+    assert not table[:5, -1].any()
+
+
+def test_inputs_refused_before_the_policy_is_built(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """No measurements, a --velocity not finite, a P0 not positive definite, an output that is
+    the input, family beside a named scenario: refused before the policy (a tuned baseline's
+    search took 16-18 s first) and before anything is written."""
+    import imm_gym.cli.track as track
+
+    def no_policy(*args, **kwargs):
+        raise AssertionError("the policy was built")
+
+    monkeypatch.setattr(track, "make_policy", no_policy)
+    (tmp_path / "empty.csv").write_text("z0,z1\n")
+    (tmp_path / "z.csv").write_text("z0,z1\n1000,0.1\n1010,0.1\n")
+    np.savez(tmp_path / "z.npz", z=np.ones((1, 3, 2)) * [1000.0, 0.1], x0=np.zeros((1, 4)),
+             P0=-np.eye(4)[None])
+    (tmp_path / "t5.yaml").write_text("scenario: paper\nfamily:\n  T: 5.0\n")
+    cases = [
+        (["--measurements", str(tmp_path / "empty.csv")], r"empty.csv: no measurements"),
+        (["--measurements", str(tmp_path / "z.csv"), "--velocity", "nan", "0"],
+         r"--velocity must be two finite numbers"),
+        (["--measurements", str(tmp_path / "z.npz")],
+         r"z.npz: sequence 0: P0 must be positive definite"),
+        (["--measurements", str(tmp_path / "z.csv"), "--env-config",
+          str(tmp_path / "t5.yaml")],
+         r"t5.yaml: family applies to scenario 'random' only, and the scenario \('paper'\)"),
+    ]
+    for argv, message in cases:
+        with pytest.raises(SystemExit) as exit_info:
+            main([*argv, "--policy", "bbsca", "--out", str(tmp_path / "out.csv")])
+        assert exit_info.value.code == 2
+        assert re.search(message, capsys.readouterr().err), message
+        assert not (tmp_path / "out.csv").exists()
+    before = (tmp_path / "z.csv").read_text()
+    with pytest.raises(SystemExit):
+        main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+              "--out", str(tmp_path / ".." / tmp_path.name / "z.csv")])
+    assert "is the --measurements file" in capsys.readouterr().err
+    assert (tmp_path / "z.csv").read_text() == before
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("z0,z1\n1000,0.1\n-5,0.1\n", r"z.csv:3: sequence '0': z \[-5.0, 0.1\] is no "
+         r"measurement of the sensor: it takes a range >= 0 m and a bearing in rad"),
+        ("z0,z1\n1000,5.7\n1010,45\n", r"z.csv:3: sequence '0': z \[1010.0, 45.0\] is no "),
+    ],
+    ids=["negative-range", "degrees"],
+)
+def test_measurements_outside_the_sensors_units_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture, content: str, message: str
+) -> None:
+    (tmp_path / "z.csv").write_text(content)
+    with pytest.raises(SystemExit):
+        main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+              "--out", str(tmp_path / "out.csv")])
+    assert re.search(message, capsys.readouterr().err)
+
+
+def test_a_repeated_velocity_is_compared_as_a_number_and_the_period_is_said(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    (tmp_path / "z.csv").write_text("z0,z1,vx,vy\n1000,0.1,3,4\n1010,0.1,3.0,4.00\n")
+    assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                 "--out", str(tmp_path / "out.csv")]) == 0
+    assert "tracking at T = 1 s, the sampling period of the scenario ('random')" in (
+        capsys.readouterr().err
+    )
+
+
+def test_tpm_columns_of_a_bank_of_more_than_ten_models_are_distinct() -> None:
+    from imm_gym.cli.track import tpm_columns
+
+    assert tpm_columns(3) == [f"tpm{i}{j}" for i in range(3) for j in range(3)]
+    many = tpm_columns(12)
+    assert len(set(many)) == 144 and "tpm1_10" in many and "tpm11_0" in many

@@ -160,6 +160,53 @@ def test_bad_inputs_are_config_errors() -> None:
         run_policy(z, policy, P0=np.eye(4))
 
 
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        # each was taken: inf and a half-NaN row as missed detections, 0.5/2/NaN flags as True,
+        # a 3-vector velocity a numpy broadcast error, a negative range, a bearing in degrees
+        ({"z": (2, 0, np.inf)}, r"z\[0, 2\] is infinite \(NaN is a missed detection\)"),
+        ({"z": (2, 1, np.nan)}, r"z\[0, 2\] is partly NaN: a missed detection is a row of NaN"),
+        ({"detected": 0.5}, "detected must be booleans or the numbers 0 and 1"),
+        ({"detected": 2.0}, "detected must be booleans or the numbers 0 and 1"),
+        ({"detected": np.nan}, "detected must be booleans or the numbers 0 and 1"),
+        ({"velocity": [1.0, 2.0, 3.0]}, r"velocity must be finite, of shape \(2,\) or \(1, 2\)"),
+        ({"velocity": [1.0, np.nan]}, r"velocity must be finite"),
+        ({"z": (3, 0, -5.0)}, r"z\[0, 3\] = \[-5.0, 0.1\] is no measurement of the sensor: "
+                              r"it takes a range >= 0 m and a bearing in rad"),
+        ({"z": (3, 1, 45.0)}, r"z\[0, 3\] = \[1000.0, 45.0\] is no measurement"),
+        ({"P0": np.diag([1.0, 1.0, 1.0, -1.0])}, "sequence 0: P0 must be positive definite"),
+        ({"P0": np.eye(4) + np.triu(np.ones((4, 4)), 1)}, "sequence 0: P0 must be symmetric"),
+        ({"x0": [np.nan, 0.0, 0.0, 0.0]}, "sequence 0: x0 and P0 must be finite"),
+    ],
+    ids=["inf", "half-nan", "flag-half", "flag-2", "flag-nan", "velocity-3", "velocity-nan",
+         "negative-range", "degrees", "P0-indefinite", "P0-asymmetric", "x0-nan"],
+)
+def test_inputs_the_track_cannot_mean_are_refused(change, message) -> None:
+    z = np.ones((5, 2)) * [1000.0, 0.1]
+    kwargs: dict = {}
+    if "z" in change:
+        k, i, value = change["z"]
+        z[k, i] = value
+    if "detected" in change:
+        kwargs["detected"] = np.array([1.0, 1.0, change["detected"], 1.0, 1.0])
+    if "velocity" in change:
+        kwargs["velocity"] = change["velocity"]
+    if "P0" in change or "x0" in change:
+        kwargs["x0"] = change.get("x0", np.zeros(4))
+        kwargs["P0"] = change.get("P0", np.eye(4))
+    with pytest.raises(ConfigError, match=message):
+        run_policy(z, _policy("fixed"), **kwargs)
+
+
+def test_flags_of_zeros_and_ones_are_taken() -> None:
+    z = np.ones((5, 2)) * [1000.0, 0.1]
+    flags = np.array([1, 1, 0, 1, 1])
+    as_numbers = run_policy(z, _policy("fixed"), detected=flags)
+    as_bools = run_policy(z, _policy("fixed"), detected=flags.astype(bool))
+    np.testing.assert_array_equal(as_numbers.estimate, as_bools.estimate)
+
+
 class _EvidencePolicy:
     """Moves the stays by the stay bank's evidence for the sticky stays: its actions and the
     centre of its TPM come from the stay bank, which the replay has to run too."""
