@@ -89,6 +89,9 @@ Array = NDArray[np.float64]
 #: The selector's training episodes: seeds from ``2**60`` on, below the learned detector's
 #: (``2**61``) and above every evaluation, validation and SB3 training seed.
 SELECTOR_SEED_BASE = 1 << 60
+#: The largest ``--fit-seed``: its episodes' seeds ``SELECTOR_SEED_BASE + 10**10 seed + ...``
+#: stay below the learned detector's (:data:`~imm_gym.seeding.DETECTOR_SEED_BASE`).
+MAX_FIT_SEED = 10**8
 #: Logits per unit action of the ``stay`` action: 0.995 from the uniform base within reach.
 GAIN = 9.0
 #: Features the selector reads beyond a training file's: the stay bank's evidence (the bank
@@ -424,6 +427,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     for name in ("horizon", "stride", "epochs", "runs"):
         if getattr(args, name) < 1:
             p.error(f"--{name} must be at least 1, got {getattr(args, name)}")
+    if args.seed < 0:
+        p.error(f"--seed must be >= 0, got {args.seed}")
+    if not 0 <= args.fit_seed <= MAX_FIT_SEED:
+        p.error(f"--fit-seed must be in [0, {MAX_FIT_SEED}] (the training episodes' seeds stay "
+                f"below the learned detector's), got {args.fit_seed}")
     suite = suite_configs("benchmark")
     unknown = sorted(set(args.scenario) - set(suite))
     if unknown:
@@ -446,12 +454,22 @@ def main(argv: Sequence[str] | None = None) -> None:
                                      selector.env_overrides, trained_across=selector.trained_across,
                                      fit={"members_from": list(args.weights)})
     else:
-        features = read_env_config(args.features_from or args.env_config[0]).get(
-            "obs_features", ())
+        try:
+            features = read_env_config(args.features_from or args.env_config[0]).get(
+                "obs_features", ())
+        except ConfigError as err:
+            p.error(f"{'--features-from' if args.features_from else '--env-config'}: {err}")
         mode = "stay" if args.shares is None else "set"
-        files = [selector_overrides({**read_env_config(f), "obs_features": features}, args.share,
-                                    args.q_maneuver, args.n_segments, mode)
-                 for f in args.env_config]
+        files = []
+        for f in args.env_config:  # each read and built as the selector runs it
+            try:
+                files.append(selector_overrides({**read_env_config(f), "obs_features": features},
+                                                args.share, args.q_maneuver, args.n_segments,
+                                                mode))
+                EnvConfig.build(files[-1])
+            except ConfigError as err:  # a file's own errors name it, the built config's not
+                where = "" if str(err).startswith(f) else f"{f}: "
+                p.error(f"--env-config: {where}{err}")
         core = TrackingCore(EnvConfig.build(files[0]), 1)
         grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
         priors = (np.stack([grid, np.full(len(grid), args.share)], axis=1) if args.shares is None

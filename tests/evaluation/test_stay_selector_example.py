@@ -109,15 +109,24 @@ def test_bad_options_are_refused_before_any_work(
 
 @pytest.mark.parametrize(("option", "message"), [
     (["--runs", "0"], "--runs must be at least 1, got 0"),
+    (["--seed", "-1"], "--seed must be >= 0, got -1"),
+    (["--fit-seed", "-1"], "--fit-seed must be in [0, 100000000]"),
+    (["--fit-seed", str(10**9)], "--fit-seed must be in [0, 100000000]"),
+    (["--features-from", "no/such.yaml"], "--features-from: no/such.yaml: cannot read"),
+    (["--env-config", FILE, "no/such.yaml", "--episodes", "2"],
+     "--env-config: no/such.yaml: cannot read"),
+    (["--env-config", "examples/probes/hetero.yaml"], "--env-config: "
+     "examples/probes/hetero.yaml: "),  # built as the selector runs it
     (["--off-suite", "no/such/file.yaml"], "--off-suite: no/such/file.yaml: cannot read"),
     (["--off-suite", "examples/broad.yaml", "README.md"], "--off-suite: README.md: a "
      "configuration file ends in"),
 ])
-def test_the_scoring_options_are_refused_before_collecting(
+def test_the_runs_seeds_and_files_are_refused_before_collecting(
     option: list[str], message: str, capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """They were checked after collecting and fitting (about ten minutes by default)."""
+    """Usage errors (exit 2) before any work: --runs and --off-suite were met after collecting
+    and fitting (about ten minutes by default), the rest as tracebacks."""
     example = load_example("stay_selector")
     monkeypatch.setattr(example, "collect", lambda *a, **k: pytest.fail("collected"))
     with pytest.raises(SystemExit) as exit_:
