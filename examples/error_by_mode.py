@@ -12,10 +12,11 @@ code on the same runs of each scenario of the benchmark suite (common random num
   step used: how sticky the policy keeps each model while the target flies straight or turns.
 
 ``--window N`` adds, per scenario, the same over the episode's time: for each window of ``N``
-steps, each policy's ARMSE over the window's steps (the mean over them of the RMS error over
-runs, so the windows average back to the ARMSE), the true motion of the window's steps, and the
-median stay of the first model (straight flight in the built-in banks): where in the episode a
-policy gains or loses, say at a maneuver's onset or on a long straight leg.
+steps, each policy's ARMSE over the window's steps (the mean over them of each step's RMS error
+over runs, as the ARMSE is over all the steps: the windows' values weighted by their lengths —
+the last window may be shorter — average back to the ARMSE), the true motion of the window's
+steps, and the median stay of the first model (straight flight in the built-in banks): where in
+the episode a policy gains or loses, say at a maneuver's onset or on a long straight leg.
 
 ``--zero DIR`` adds a trained agent's zero action (its settings, the action all zeros): the TPM
 its ``stay`` action moves from, so the table shows what the policy adds to its base::
