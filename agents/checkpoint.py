@@ -204,7 +204,12 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
         except ConfigError as err:
             raise ConfigError(f"{file}: evaluation_config: {err}") from None
     network = load_agent(directory).model
-    check_tensors(directory / TENSORS_FILE, load_tensors(directory / TENSORS_FILE), network, swa)
+    tensors_file = directory / TENSORS_FILE
+    # names, dtypes and shapes from the header before a tensor is read, then the numbers
+    tensors = load_tensors(
+        tensors_file, lambda declared: check_tensors(tensors_file, declared, network, swa)
+    )
+    check_tensors(tensors_file, tensors, network, swa)
     return state
 
 
@@ -226,8 +231,12 @@ def restore(
 
     file = directory / RESUME_FILE
     load_weights(model.policy, directory)
-    tensors = load_tensors(directory / TENSORS_FILE)
-    check_tensors(directory / TENSORS_FILE, tensors, model.policy, state["swa"])
+    tensors_file = directory / TENSORS_FILE
+    tensors = load_tensors(
+        tensors_file,
+        lambda declared: check_tensors(tensors_file, declared, model.policy, state["swa"]),
+    )
+    check_tensors(tensors_file, tensors, model.policy, state["swa"])
     _load_optimizer(model.policy, tensors, directory / TENSORS_FILE)
     model.num_timesteps = state["num_timesteps"]
     model._n_updates = state["n_updates"]
@@ -266,10 +275,12 @@ def restore(
 def check_tensors(file: Path, tensors: dict[str, Any], policy: Any, swa: Any) -> None:
     """The tensors of ``resume.safetensors`` checked against the network ``policy`` (the one of
     ``agent.json``, or the model's being resumed): only ``optimizer/...``, ``rng/torch`` and
-    ``swa/...`` names; the optimizer's state fitting the policy's parameters
-    (:func:`_optimizer_state`); the weight average (present exactly when ``resume.json``'s
-    ``swa`` records one) the network's state dict, name for name, each tensor of its shape and
-    dtype, an integer buffer equal to the network's.
+    ``swa/...`` names; ``rng/torch`` of the dtype and shape of torch's generator state; the
+    optimizer's state fitting the policy's parameters (:func:`_optimizer_state`); the weight
+    average (present exactly when ``resume.json``'s ``swa`` records one) the network's state
+    dict, name for name, each tensor of its shape and dtype, an integer buffer equal to the
+    network's. Meta tensors (the file's header, :func:`agents.network.load_tensors`) have
+    their names, dtypes and shapes checked, not their numbers.
 
     Raises:
         ConfigError: a tensor does not fit; the message names ``file``.
@@ -283,6 +294,10 @@ def check_tensors(file: Path, tensors: dict[str, Any], policy: Any, swa: Any) ->
     if unknown:
         raise ConfigError(f"{file}: {unknown[0]!r} is no tensor of a checkpoint (optimizer/..., "
                           "rng/torch, swa/...)")
+    rng, own_rng = tensors.get("rng/torch"), torch.get_rng_state()
+    if rng is not None and (rng.dtype != own_rng.dtype or rng.shape != own_rng.shape):
+        raise ConfigError(f"{file}: 'rng/torch' is {rng.dtype} {tuple(rng.shape)}, torch's "
+                          f"generator state is {own_rng.dtype} {tuple(own_rng.shape)}")
     _optimizer_state(policy.optimizer, tensors, file)
     average = {name[4:]: value for name, value in tensors.items() if name.startswith("swa/")}
     if swa is None:
@@ -305,7 +320,7 @@ def check_tensors(file: Path, tensors: dict[str, Any], policy: Any, swa: Any) ->
                 f"{file}: tensor 'swa/{name}' is {value.dtype} {tuple(value.shape)}, the network "
                 f"of agent.json needs {own.dtype} {tuple(own.shape)}"
             )
-        if not value.is_floating_point() and not torch.equal(value, own):
+        if not value.is_meta and not value.is_floating_point() and not torch.equal(value, own):
             raise ConfigError(f"{file}: tensor 'swa/{name}' is not the network's (an integer "
                               "buffer its description sets, not averaged)")
 
@@ -405,7 +420,8 @@ def _optimizer_state(optimizer: Any, tensors: dict[str, Any], file: Path) -> dic
     against ``optimizer``'s parameters: each parameter's :data:`ADAM_STATE` in float32,
     ``step`` a scalar count >= 0, ``exp_avg_sq`` >= 0 (Adam divides by ``1 - beta ** step``
     and takes the square root of the second moment: a negative step or moment is NaN or a
-    division by zero in the first update)."""
+    division by zero in the first update). The numbers of meta tensors are not checked
+    (:func:`check_tensors`)."""
     import torch
 
     params = [p for group in optimizer.param_groups for p in group["params"]]
@@ -430,11 +446,12 @@ def _optimizer_state(optimizer: Any, tensors: dict[str, Any], file: Path) -> dic
             )
         if value.dtype != torch.float32:
             raise ConfigError(f"{file}: {key!r} is {value.dtype}, not torch.float32")
-        if parts[2] == "step" and not 0.0 <= float(value) < np.inf:
+        numbers = not value.is_meta
+        if numbers and parts[2] == "step" and not 0.0 <= float(value) < np.inf:
             raise ConfigError(
                 f"{file}: {key!r} must be a finite count >= 0, got {float(value)!r}"
             )
-        if parts[2] == "exp_avg_sq" and bool((value < 0).any()):
+        if numbers and parts[2] == "exp_avg_sq" and bool((value < 0).any()):
             raise ConfigError(
                 f"{file}: {key!r} holds negative values (Adam's second moments are >= 0)"
             )

@@ -4,7 +4,8 @@ A network is rebuilt (:func:`build_policy`) from a description checked by
 :func:`agents.schema.check_spec` — the policy class by name from :data:`POLICY_CLASSES`, the
 activation by name, sizes as integers, flags as booleans — and its weights are read with
 ``safetensors`` (a header of names, dtypes and shapes, then raw numbers: reading it cannot run
-code). :func:`policy_spec` writes the description of a live policy.
+code), the header compared with the network before any number is read (:func:`load_tensors`).
+:func:`policy_spec` writes the description of a live policy.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 import torch
 from gymnasium import spaces
 from safetensors import SafetensorError, safe_open
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor
 from torch import nn
@@ -248,31 +249,89 @@ TENSOR_DTYPES = (
     torch.int64,
     torch.bool,
 )
+#: safetensors' names of the dtypes of :data:`TENSOR_DTYPES` and of the float8 ones (which a
+#: message names as torch does); a name outside them is refused as it is spelt.
+SAFETENSORS_DTYPES = {
+    "F16": torch.float16,
+    "BF16": torch.bfloat16,
+    "F32": torch.float32,
+    "F64": torch.float64,
+    "U8": torch.uint8,
+    "I8": torch.int8,
+    "I16": torch.int16,
+    "I32": torch.int32,
+    "I64": torch.int64,
+    "BOOL": torch.bool,
+    "F8_E4M3": torch.float8_e4m3fn,
+    "F8_E5M2": torch.float8_e5m2,
+}
 
 
-def load_tensors(file: Path) -> dict[str, torch.Tensor]:
+def load_tensors(
+    file: Path, check: Callable[[dict[str, torch.Tensor]], None]
+) -> dict[str, torch.Tensor]:
     """Named tensors from a safetensors ``file``, each of :data:`TENSOR_DTYPES`, every floating
-    one finite.
+    one finite, read only after ``check`` has accepted what the file's header declares.
+
+    ``check`` is given the declared tensors as meta tensors (name, dtype and shape; torch's
+    ``meta`` device holds no numbers) and raises on any the caller does not expect, so a file
+    that declares other tensors (an extra one of gigabytes, say, in a sparse file) is refused
+    before any of its tensors is read or allocated.
 
     Raises:
-        ConfigError: the file is missing, truncated or not safetensors, holds a tensor of
-            another dtype, or NaN/inf.
+        ConfigError: the file is missing, not a regular file, truncated or not safetensors,
+            declares a tensor of another dtype, holds NaN/inf, or ``check`` refuses it.
     """
     if not file.is_file():
         raise ConfigError(f"{file}: missing")
     try:
-        tensors = load_file(str(file))
-    except (SafetensorError, OSError, ValueError) as err:
+        with safe_open(str(file), framework="pt") as f:
+            declared = {}
+            for name in f.keys():
+                view = f.get_slice(name)
+                dtype = SAFETENSORS_DTYPES.get(view.get_dtype())
+                if dtype not in TENSOR_DTYPES:
+                    raise ConfigError(
+                        f"{file}: tensor {name!r} is {dtype or view.get_dtype()}, not one of "
+                        f"{[str(dtype) for dtype in TENSOR_DTYPES]}"
+                    )
+                declared[name] = torch.empty(view.get_shape(), dtype=dtype, device="meta")
+            check(declared)
+            tensors = {name: f.get_tensor(name) for name in declared}
+    except ConfigError:
+        raise
+    except (SafetensorError, OSError, ValueError, RuntimeError) as err:
         raise ConfigError(f"{file}: not a readable safetensors file ({err})") from None
     for name, tensor in tensors.items():
-        if tensor.dtype not in TENSOR_DTYPES:
-            raise ConfigError(
-                f"{file}: tensor {name!r} is {tensor.dtype}, not one of "
-                f"{[str(dtype) for dtype in TENSOR_DTYPES]}"
-            )
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
             raise ConfigError(f"{file}: tensor {name!r} holds NaN or infinite values")
     return tensors
+
+
+def check_declared(
+    file: Path, declared: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tensor],
+    what: str,
+) -> None:
+    """Refuse tensors ``declared`` (meta tensors of :func:`load_tensors`, or read ones) whose
+    names are not those of ``expected`` or one of which has another dtype or shape; ``what``
+    names what they should fit in the message.
+
+    Raises:
+        ConfigError: naming ``file``, the missing and unexpected names, or the tensor of
+            another dtype or shape and the one ``what`` needs.
+    """
+    missing = sorted(set(expected) - set(declared))
+    unexpected = sorted(set(declared) - set(expected))
+    if missing or unexpected:
+        raise ConfigError(
+            f"{file}: the tensors do not fit {what} (missing {missing}, unexpected {unexpected})"
+        )
+    for name, tensor in declared.items():
+        if tensor.shape != expected[name].shape or tensor.dtype != expected[name].dtype:
+            raise ConfigError(
+                f"{file}: tensor {name!r} is {tensor.dtype} {tuple(tensor.shape)}, {what} "
+                f"needs {expected[name].dtype} {tuple(expected[name].shape)}"
+            )
 
 
 def save_weights(policy: nn.Module, directory: Path) -> None:
@@ -282,27 +341,17 @@ def save_weights(policy: nn.Module, directory: Path) -> None:
 
 def load_weights(policy: nn.Module, directory: Path) -> None:
     """Load ``directory/policy.safetensors`` into ``policy`` (every tensor, exact shapes; an
-    integer buffer must equal the network's own).
+    integer buffer must equal the network's own), its names, dtypes and shapes compared with
+    the network's from the file's header before any tensor is read (:func:`load_tensors`).
 
     Raises:
         ConfigError: the file is unreadable, or its tensors do not fit the network.
     """
     file = directory / WEIGHTS
-    state = load_tensors(file)
     expected = policy.state_dict()
-    missing = sorted(set(expected) - set(state))
-    unexpected = sorted(set(state) - set(expected))
-    if missing or unexpected:
-        raise ConfigError(
-            f"{file}: the tensors do not fit the network of agent.json (missing {missing}, "
-            f"unexpected {unexpected})"
-        )
+    what = "the network of agent.json"
+    state = load_tensors(file, lambda declared: check_declared(file, declared, expected, what))
     for name, tensor in state.items():
-        if tensor.shape != expected[name].shape or tensor.dtype != expected[name].dtype:
-            raise ConfigError(
-                f"{file}: tensor {name!r} is {tensor.dtype} {tuple(tensor.shape)}, the network "
-                f"of agent.json needs {expected[name].dtype} {tuple(expected[name].shape)}"
-            )
         # an integer buffer (the actor's input index) is not learned: agent.json fixes it
         if not tensor.is_floating_point() and not torch.equal(tensor, expected[name]):
             raise ConfigError(

@@ -248,21 +248,35 @@ def load_selector(path: str | Path) -> StaySelector:
     # the priors and the environment checked first, the members' tensors loaded into it
     selector = StaySelector([], data.get("priors"), env, obs_size, f"selector {str(file)!r}",
                             trained_across)
+    P = len(selector.priors)
+    with torch.device("meta"):  # the members' names and shapes, nothing allocated
+        expected = {name: tuple(t.shape)
+                    for name, t in network(obs_size, P, hidden).state_dict().items()}
     for member in members:
-        net = network(obs_size, len(selector.priors), hidden)
         if not (directory / member).is_file():
             raise ConfigError(f"{file}: member {member!r} is not a file of the directory")
-        tensors = load_tensors(directory / member)  # safetensors only, every number finite
-        other = sorted(name for name, t in tensors.items() if t.dtype != torch.float32)
-        if other:
-            raise ConfigError(f"{file}: member {member!r}: tensors {other} are not float32")
-        try:
-            net.load_state_dict(tensors)
-        except Exception as err:  # torch's errors: a misshapen file
-            detail = " ".join(str(err).split())  # torch's message is several lines
-            raise ConfigError(f"{file}: member {member!r} does not fit an observation of "
-                              f"{obs_size} entries and {len(selector.priors)} priors "
-                              f"({detail})") from None
+
+        def fits(declared: dict[str, torch.Tensor], member: str = member) -> None:
+            """The member's declared tensors: float32, the names and shapes of the network."""
+            other = sorted(name for name, t in declared.items() if t.dtype != torch.float32)
+            if other:
+                raise ConfigError(f"{file}: member {member!r}: tensors {other} are not float32")
+            shapes = {name: tuple(t.shape) for name, t in declared.items()}
+            wrong = sorted(set(shapes) ^ set(expected)) or sorted(
+                name for name in shapes if shapes[name] != expected[name]
+            )
+            if wrong:
+                name = wrong[0]
+                raise ConfigError(f"{file}: member {member!r} does not fit an observation of "
+                                  f"{obs_size} entries and {P} priors at width {hidden} "
+                                  f"(tensor {name!r}: {shapes.get(name, 'absent')} in the "
+                                  f"file, {expected.get(name, 'absent')} in the network)")
+
+        # safetensors only, every number finite; names, dtypes and shapes checked from the
+        # header before a tensor is read or the network built
+        tensors = load_tensors(directory / member, fits)
+        net = network(obs_size, P, hidden)
+        net.load_state_dict(tensors)
         selector.nets.append(net.eval())
     return selector
 

@@ -377,3 +377,29 @@ def test_a_checkpoint_whose_numbers_break_training_is_refused(saved, tmp_path, d
     damage(directory)
     with pytest.raises(ConfigError, match=message):
         read_checkpoint(directory)
+
+
+def test_resume_tensors_declaring_an_extra_tensor_are_refused_before_they_are_read(
+    saved, tmp_path
+) -> None:
+    """A ``resume.safetensors`` whose header declares a tensor of a gigabyte (a hole on disk)
+    beyond the checkpoint's is refused from its header, the gigabyte never allocated; so is one
+    whose torch generator state is a gigabyte."""
+    from declared import declare_tensor, peak_growth
+
+    for name, message in [
+        ("optimizer/0/junk", "'optimizer/0/junk' is no entry of Adam's state"),
+        ("rng/torch", r"'rng/torch' is torch.float32 (268435456,), torch's generator state"),
+    ]:
+        directory = Path(shutil.copytree(saved.directory, tmp_path / name.replace("/", "_")))
+        file = directory / TENSORS_FILE
+        if name == "rng/torch":
+            _tensors(directory, lambda t: t.pop("rng/torch"))
+        declare_tensor(file, name, 2**30)
+        growth, refusal = peak_growth(
+            "from pathlib import Path; from agents.checkpoint import read_checkpoint; "
+            f"read_checkpoint(Path({str(saved.directory)!r}))",
+            f"read_checkpoint(Path({str(directory)!r}))",
+        )
+        assert f"{TENSORS_FILE}: {message}" in refusal
+        assert growth < 100 * 2**20, f"{name}: {growth / 2**20:.0f} MiB"
