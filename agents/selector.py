@@ -59,6 +59,12 @@ COMBINE = ("mean_prediction",)
 SELECTOR_KEYS = ("format", "combine", "priors", "hidden", "members", "trained_across", "fit")
 #: The action modes a selector acts in (module docstring).
 SELECTOR_MODES = ("stay", "set")
+#: The most priors a selector may choose among. Its networks give one prediction per prior, so
+#: ``selector.json``'s priors set the size of their last layer, ``hidden`` times as many numbers
+#: (16 MiB of float32 at this bound and the widest ``hidden``, :data:`~agents.schema.MAX_WIDTH`;
+#: a 16 MiB ``selector.json`` lists some 700 000 priors, 11 GiB). The grids of
+#: ``examples/stay_selector.py`` are some tens of priors (the bank's stays at a few shares).
+MAX_PRIORS = 1024
 
 
 def network(inputs: int, outputs: int, hidden: int = 256) -> torch.nn.Sequential:
@@ -175,9 +181,9 @@ def combine(selectors: Sequence[StaySelector]) -> StaySelector:
 
 def check_priors(where: str, priors: Any, config: EnvConfig) -> Array:
     """``priors`` as a ``(P, 2)`` array after checking it against the environment ``config``:
-    numbers (a string such as ``"0.6"`` or a boolean is refused, not read as one), stays in
-    ``[1/M, 1)``, shares in ``[0, 1]``; in ``stay`` mode at ``stay_base: uniform``, every share
-    the environment's ``detector_share``."""
+    2 to :data:`MAX_PRIORS` pairs of numbers (a string such as ``"0.6"`` or a boolean is
+    refused, not read as one), stays in ``[1/M, 1)``, shares in ``[0, 1]``; in ``stay`` mode at
+    ``stay_base: uniform``, every share the environment's ``detector_share``."""
     M = len(config.bank)
     rows = priors.tolist() if isinstance(priors, np.ndarray) else priors
     numbers = isinstance(rows, (list, tuple)) and all(
@@ -192,6 +198,9 @@ def check_priors(where: str, priors: Any, config: EnvConfig) -> Array:
     if array.ndim != 2 or array.shape[1:] != (2,) or len(array) < 2:
         raise ConfigError(f"{where}: priors must be a list of at least two [stay, share] pairs "
                           f"of numbers, got {priors!r:.200}")
+    if len(array) > MAX_PRIORS:
+        raise ConfigError(f"{where}: priors must be at most {MAX_PRIORS} [stay, share] pairs, got "
+                          f"{len(array)}")
     s, v = array.T
     if not (np.all(s >= 1.0 / M - 1e-12) and np.all(s < 1.0)):
         raise ConfigError(f"{where}: every stay must be in [1/{M}, 1), got {s.tolist()}")

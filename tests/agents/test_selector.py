@@ -159,6 +159,9 @@ def write_selector(tmp_path: Path, **changes: Any) -> Path:
     ({"priors": [[0.5, 0.25], [0.9, 0.25]]}, "every share must be the environment's"),
     ({"priors": [[0.5, 1.5], [0.9, 0.75]]}, "every share must be in [0, 1]"),
     ({"priors": [[0.5, 0.75]]}, "at least two [stay, share] pairs"),
+    # each prior an output of the networks: refused before a member is read or built
+    ({"priors": [[0.5, 0.75]] * 60_000, "hidden": 4096},
+     "priors must be at most 1024 [stay, share] pairs, got 60000"),
     ({"priors": [[10**400, 0.75], [0.9, 0.75]]}, "at least two [stay, share] pairs"),
     ({"priors": [["0.6", "0.75"], ["0.9", "0.75"]]}, "[stay, share] pairs of numbers"),
     ({"priors": [[0.6, 0.75], [True, 0.75]]}, "[stay, share] pairs of numbers"),
