@@ -11,9 +11,10 @@ optimizer state), ``agent.json``, ``env.json`` and ``vecnormalize.json``: data o
 the evaluation needs to act, about 340 KiB an agent. An ensemble's members are copied into
 ``seed_S/`` subdirectories (``member_K/`` when their seeds do not tell them apart) named by a new
 ``ensemble.json``; a stay selector's ``selector.json``, ``env.json`` and networks are copied as
-they are. A learned detector's network that ``env.json`` names is copied beside it. The target
-is replaced as a whole — it must be absent, empty or a policy exported before — so no file of
-the previous policy stays.
+they are. The network of a ``learned`` detector that ``env.json`` names is copied beside it,
+once read as a detector file (``detector_weights`` is refused with any other detector). The
+target is replaced as a whole — it must be absent, empty or a policy exported before — so no
+file of the previous policy stays.
 
     python -m agents.export --from-pickle OLD_AGENT --to NEW_DIR
 
@@ -28,8 +29,9 @@ import argparse
 import json
 import shutil
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from agents import PRETRAINED
 from agents.ensemble import (
@@ -65,19 +67,19 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     try:
         if is_selector(source):
             selector = read_json(source / SELECTOR_FILE)
-            load_selector(source)
-            _copy_agent(source, staging, [SELECTOR_FILE, ENV_FILE, *selector["members"]])
+            overrides = load_selector(source).env_overrides
+            files = [SELECTOR_FILE, ENV_FILE, *selector["members"]]
+            _copy_agent(source, staging, overrides, files)
             load_selector(staging)
         elif is_ensemble(source):
-            load_ensemble(source)
+            ensemble = load_ensemble(source)
             members = member_paths(source)
             names = _member_names(members)
-            for member, name in zip(members, names, strict=True):
-                _copy_agent(member, staging / name)
+            for member, policy, name in zip(members, ensemble.members, names, strict=True):
+                _copy_agent(member, staging / name, policy.env_overrides)
             write_ensemble(staging, [staging / name for name in names])
         else:
-            load_agent(source)
-            _copy_agent(source, staging)
+            _copy_agent(source, staging, load_agent(source).env_overrides)
     except BaseException:  # nothing left beside the target
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -86,17 +88,42 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     return sorted(p for p in target.rglob("*") if p.is_file())
 
 
-def _copy_agent(source: Path, target: Path, files: Sequence[str] = FILES) -> None:
-    """Copy the acting files of the policy directory ``source`` into ``target``; a detector
-    file that ``env.json`` names goes beside them as :data:`DETECTOR_FILE`, named relative."""
+def _copy_agent(
+    source: Path, target: Path, overrides: Mapping[str, Any], files: Sequence[str] = FILES
+) -> None:
+    """Copy the acting files of the policy directory ``source`` into ``target``, ``overrides``
+    the environment overrides its loader read (:func:`agents.policy.read_env_file`: a
+    ``detector_weights`` made absolute). The network of a ``learned`` detector goes beside them
+    as :data:`DETECTOR_FILE`, named relative, once
+    :meth:`~imm_gym.sim.learned_detector.DetectorNetwork.load` has accepted it (a regular file
+    holding a detector network): no other file is copied.
+
+    Raises:
+        ConfigError: ``detector_weights`` is given for another detector than ``learned``, or
+            names no detector file; the message names ``env.json``.
+    """
+    from imm_gym.sim.env_config import EnvConfig
+    from imm_gym.sim.learned_detector import DetectorNetwork
+
+    weights = overrides.get("detector_weights")
+    if weights is not None:
+        if overrides.get("detector") != "learned":
+            raise ConfigError(
+                f"{source / ENV_FILE}: detector_weights must be null (absent) unless detector is "
+                f"'learned', the one that reads it; got {weights!r} with detector "
+                f"{overrides.get('detector', EnvConfig.detector)!r}"
+            )
+        try:
+            DetectorNetwork.load(weights)
+        except ConfigError as err:
+            raise ConfigError(f"{source / ENV_FILE}: {err}") from None
     target.mkdir(parents=True)
     for name in files:
         if (source / name).is_file():
             shutil.copy2(source / name, target / name)
-    env = read_json(source / ENV_FILE)
-    weights = env.get("detector_weights")
-    if isinstance(weights, str):
-        shutil.copy2(source / weights, target / DETECTOR_FILE)  # an absolute path stays one
+    if weights is not None:
+        shutil.copy2(weights, target / DETECTOR_FILE)
+        env = read_json(source / ENV_FILE)
         (target / ENV_FILE).write_text(
             json.dumps({**env, "detector_weights": DETECTOR_FILE}, indent=2) + "\n"
         )

@@ -430,7 +430,16 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     """The agent's overrides — ``env_id``'s preset with ``env.json``'s fields over it, validated
     — and the size of one observation and of an action in that environment. A relative
     ``detector_weights`` is taken from the directory of ``env.json``, as a configuration file's
-    is from its own (:func:`write_env_file`), and made absolute (``..`` and links resolved)."""
+    is from its own (:func:`write_env_file`), and made absolute (``..`` and links resolved); it
+    is refused unless the detector is ``learned``, the one that reads it (and checks it: a
+    detector file, :class:`~imm_gym.sim.learned_detector.DetectorNetwork`), so that no other
+    file is named by a policy (:mod:`agents.export` copies the detector beside it).
+
+    Raises:
+        ConfigError: ``env.json`` is unreadable or malformed, its fields do not make an
+            :class:`~imm_gym.EnvConfig`, or it names ``detector_weights`` for another detector
+            than ``learned``; the message names the file.
+    """
     from imm_gym.envs import PRESETS
     from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
@@ -458,6 +467,11 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
         config = EnvConfig.build(overrides)
     except ConfigError as err:
         raise ConfigError(f"{file}: {err}") from None
+    if config.detector != "learned" and weights is not None:
+        raise ConfigError(
+            f"{file}: detector_weights must be null (absent) unless detector is 'learned', the "
+            f"one that reads it; got {weights!r} with detector {config.detector!r}"
+        )
     M = len(config.bank)
     obs_size = bounds(config.obs_features, M, config.sensor.dim_z)[0].size
     return overrides, int(obs_size), action_size(config.action_mode, M)
@@ -466,8 +480,15 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
 def write_env_file(directory: Path, overrides: Mapping[str, Any]) -> None:
     """``directory/env.json``: the overrides an agent acts with, tuples as lists, a
     ``detector_weights`` path made absolute, so that it reads the same from any working
-    directory (:mod:`agents.export` copies that file beside the policy and names it relative)."""
+    directory (:mod:`agents.export` copies that file beside the policy and names it relative);
+    ``detector_weights`` only with the ``learned`` detector, the one that reads it
+    (:func:`read_env_file` refuses it with another: a configuration file may give it to every
+    part of a run, whatever its detector)."""
+    from imm_gym.sim.env_config import EnvConfig
+
     data = dict(overrides)  # JSON writes tuples as lists
+    if data.get("detector", EnvConfig.detector) != "learned":
+        data.pop("detector_weights", None)
     if isinstance(data.get("detector_weights"), str):
         data["detector_weights"] = str(Path(data["detector_weights"]).resolve())
     (directory / ENV_FILE).write_text(json.dumps(data, indent=2) + "\n")

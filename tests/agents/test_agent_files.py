@@ -113,3 +113,60 @@ def test_episode_start_none_continues_the_frame_stack_as_in_sb3_contrib() -> Non
     assert not np.array_equal(fresh, omitted)
     again, _ = policy.predict(obs[0])
     np.testing.assert_array_equal(again, first)
+
+
+@pytest.mark.parametrize("weights", ["/etc/passwd", "../../x", "/dev/zero"])
+def test_a_detector_file_is_named_only_for_the_learned_detector(
+    tmp_path: Path, weights: str
+) -> None:
+    """env.json's detector_weights named any file while the detector was not 'learned' (it
+    was then neither read nor checked), and the export copied that file (``/dev/zero`` without
+    end) into the exported policy: it is refused by the loader and by the export, which
+    leaves nothing beside its target."""
+    from agents.export import export
+
+    agent = _copy(shipped_agent(), tmp_path / "a", "env.json", detector_weights=weights)
+    assert json.loads((agent / "env.json").read_text()).get("detector", "shadow") != "learned"
+    message = r"env\.json: detector_weights must be null \(absent\) unless detector is 'learned'"
+    with pytest.raises(ConfigError, match=message):
+        load_agent(agent)
+    with pytest.raises(ConfigError, match=message):
+        export(agent, tmp_path / "shipped")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a"]
+
+
+def test_the_export_copies_only_a_learned_detectors_checked_file(tmp_path: Path) -> None:
+    """What the export copies beside a policy as its detector: a file the learned detector has
+    read as a detector network, never another (a device, a file of another kind)."""
+    from agents.export import _copy_agent
+    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+
+    source = shipped_agent()
+    for overrides, message in [
+        ({"detector": "shadow", "detector_weights": "/etc/passwd"},
+         "detector_weights must be null"),
+        ({"detector_weights": str(DEFAULT_WEIGHTS)}, "detector_weights must be null"),
+        ({"detector": "learned", "detector_weights": "/dev/zero"}, "'/dev/zero': no such file"),
+        ({"detector": "learned", "detector_weights": str(source / "agent.json")},
+         "not a safetensors file"),
+    ]:
+        with pytest.raises(ConfigError, match=message) as err:
+            _copy_agent(source, tmp_path / "copy", overrides)
+        assert str(source / "env.json") in str(err.value)
+        assert not (tmp_path / "copy").exists()
+    _copy_agent(source, tmp_path / "copy", {"detector": "learned",
+                                            "detector_weights": str(DEFAULT_WEIGHTS)})
+    assert (tmp_path / "copy" / "detector.safetensors").read_bytes() == DEFAULT_WEIGHTS.read_bytes()
+
+
+def test_an_agent_trained_with_an_unread_detector_file_is_written_without_it(
+    tmp_path: Path,
+) -> None:
+    """A configuration file may name a detector network for every part of a run: an agent of
+    another detector is written without it (its loader would refuse it)."""
+    from agents.policy import write_env_file
+
+    for detector, kept in (("shadow", False), ("learned", True)):
+        write_env_file(tmp_path, {"detector": detector, "detector_weights": "d.safetensors"})
+        written = json.loads((tmp_path / "env.json").read_text())
+        assert ("detector_weights" in written) is kept
