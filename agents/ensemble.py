@@ -22,7 +22,6 @@ Build one with ``python -m agents.ensemble OUT MEMBER [MEMBER ...]`` and evaluat
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 from collections.abc import Sequence
@@ -119,19 +118,26 @@ class EnsemblePolicy:
 
 
 def same_detector(a: EnvConfig, b: EnvConfig) -> bool:
-    """Whether the learned detectors of ``a`` and ``b`` are one network: their files (the
-    shipped one for None) hold the same bytes, wherever each is (an export copies a member's
-    detector beside it)."""
-    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+    """Whether ``a`` and ``b`` act alike whatever ``detector_weights`` each names: only the
+    ``learned`` detector reads it (when either detector is another, it makes no difference;
+    ``detector`` itself is compared apart), and two learned detectors act alike when their
+    files — the shipped one for None, wherever each is (an export copies a member's detector
+    beside it) — load as one network: the same window, weights and biases. Each file is read
+    by :meth:`~imm_gym.sim.learned_detector.DetectorNetwork.load`, which checks it, never
+    otherwise.
 
-    def digest(weights: str | None) -> str:
-        file = Path(weights) if weights is not None else DEFAULT_WEIGHTS
-        try:
-            return hashlib.sha256(file.read_bytes()).hexdigest()
-        except OSError as err:
-            raise ConfigError(f"detector_weights {str(file)!r}: cannot be read ({err})") from None
+    Raises:
+        ConfigError: a file is not a detector network (the message names it).
+    """
+    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, DetectorNetwork
 
-    return digest(a.detector_weights) == digest(b.detector_weights)
+    if a.detector != "learned" or b.detector != "learned":
+        return True
+    one, other = (DetectorNetwork.load(c.detector_weights or DEFAULT_WEIGHTS) for c in (a, b))
+    arrays = (*one.weights, *one.biases), (*other.weights, *other.biases)
+    return one.window == other.window and len(arrays[0]) == len(arrays[1]) and all(
+        np.array_equal(x, y) for x, y in zip(*arrays, strict=True)
+    )
 
 
 def is_ensemble(path: str | Path) -> bool:

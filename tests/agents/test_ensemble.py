@@ -190,3 +190,30 @@ def test_a_failed_export_leaves_nothing_beside_its_target(members, tmp_path, mon
     with pytest.raises(ConfigError, match="refused"):
         agents.export.export(source, tmp_path / "shipped")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e", "other"]
+
+
+def test_members_detectors_are_compared_as_networks_never_read_otherwise(
+    tmp_path, monkeypatch
+) -> None:
+    """Members' detector files were compared by reading them whole, with no check (a member
+    naming ``/dev/zero`` read without end): two learned detectors are compared as the networks
+    their files load as (one network saved with other notes acts alike), and the file of
+    another detector, which it does not read, is not compared."""
+    from imm_gym.sim.learned_detector import DetectorNetwork
+
+    def unread(self: Path) -> bytes:
+        raise AssertionError(f"{self} read whole")
+
+    source = detector_ensemble(tmp_path, ["../turn.safetensors", "../other.safetensors"])
+    network = DetectorNetwork.load(source / "turn.safetensors")
+    network.save(source / "other.safetensors", notes={"saved": "again"})
+    assert (source / "other.safetensors").read_bytes() != (
+        source / "turn.safetensors").read_bytes()
+    monkeypatch.setattr(Path, "read_bytes", unread)
+    assert len(load_ensemble(source).members) == 2
+    members = []
+    for weights in ("/dev/zero", "/dev/null"):  # with the shadow detector, unread
+        member = load_agent(shipped_agent())
+        member.env_overrides = {**member.env_overrides, "detector_weights": weights}
+        members.append(member)
+    assert len(EnsemblePolicy(members).members) == 2
