@@ -25,7 +25,10 @@ unless stated:
    timed call ``venv.step(actions)`` (same-step resets), whole cycles of 150 batch steps.
 4. FilterPy ``IMMEstimator`` over three UKFs, one tracker, ``predict(); update(z)`` on the
    paper scenario — ``bench_imm.filterpy_episode`` (``bench_imm.py`` is imported from this
-   directory), so set up and timed exactly as there.
+   directory), so set up and timed exactly as there. Its repeats take turns with those of the
+   four scalar-env rows without a render mode (one repeat of each in every round, as
+   ``bench_kernel.py``'s calls do), so that a change in the machine's speed hits both sides of
+   the speed-up alike; the render rows are timed after, against the same FilterPy median.
 
 The vector fronts step with random actions by default (``--vec-actions zero`` for zeros). Each
 configuration is warmed up first (the numba kernels compile on their first call), then timed
@@ -41,12 +44,13 @@ core, so compare the two (and the load averages printed at the end) before trust
 
 Headline checks, the aims of issue #19: (1) vector env, N = 1024, parallel on, shadow default
 (banks A + B + shadow), at least 250,000 env-steps/s; (2) the scalar env through
-``gymnasium.make`` at least 40x faster than one FilterPy IMM-UKF step.
+``gymnasium.make`` at least 40x faster than one FilterPy IMM-UKF step (the ratio of the medians
+of interleaved repeats, wall time). The verdicts are on wall time; the CPU time is shown beside.
 
 Run from the repository root::
 
     python benchmarks/bench_env.py                 # full run (~1.5 min; ~2 min under load)
-    python benchmarks/bench_env.py --quick         # ~20 s: 3 repeats of one episode / cycle
+    python benchmarks/bench_env.py --quick         # ~15 s: 3 repeats of one episode / cycle
     python benchmarks/bench_env.py --repeats 9 --json /tmp/bench_env.json
 """
 
@@ -108,6 +112,7 @@ VECTOR_CONFIGS: tuple[tuple[str, dict[str, Any]], ...] = (
     ),
 )
 HEADLINE_VECTOR = ("parallel on,  shadow on", 1024)
+FP_KEY = ("FilterPy", "-")  # the FilterPy reference among the interleaved scalar cases
 QUICK_MAX_N = 64  # --quick: larger N only for the headline configuration
 MIN_REPEAT_S = 0.3  # a repeat runs whole episodes / cycles until at least this long (not --quick)
 LONG_REPEAT_S = 1.0  # repeats longer than this use --long-repeats
@@ -175,6 +180,11 @@ def bench(
     m = harness.measure(
         warmup, block, unit_steps, repeats, min_repeat_s, long_repeats, LONG_REPEAT_S
     )
+    return result(front, config, actions, n, m)
+
+
+def result(front: str, config: str, actions: str, n: int, m: harness.Measurement) -> Result:
+    """The :class:`Result` of a measurement of ``n`` sub-envs."""
     return Result(
         front=front,
         config=config,
@@ -326,8 +336,7 @@ def filterpy_case(seed: int) -> tuple[Callable[[], float], harness.Block, int]:
     """One FilterPy IMM-UKF tracker over the paper scenario, set up as ``bench_imm.py`` does.
 
     Whole 150-step episodes of ``predict(); update(z)`` by ``bench_imm.filterpy_episode`` (which
-    times its loop, building the three UKFs outside it); process CPU time is taken around the
-    episodes, so it also holds that small set-up.
+    times its loop, wall and process CPU time, building the three UKFs outside it).
     """
     sonar = Sonar()
     imm = IMM(paper_bank(), sonar)
@@ -379,7 +388,8 @@ def render(
         harness.right("speed-up vs FilterPy"),
         caption=(
             "medians over repeats of whole episodes, resets included; CPU = process CPU time; "
-            "speed-up = FilterPy µs per IMM-UKF step / this row's µs per env step"
+            "speed-up = FilterPy µs per IMM-UKF step / this row's µs per env step (wall); "
+            "FilterPy's repeats taken in turn with the four rows without a render mode"
         ),
     )
     for r in [*scalar, fp]:
@@ -450,7 +460,8 @@ def render(
         Column("met?", justify="center"),
         caption=(
             "verdicts on wall time; CPU time leaves out waiting for a core (not cache or "
-            "hyper-thread sharing)"
+            "hyper-thread sharing); (2): medians of the scalar env's and FilterPy's repeats, "
+            "taken in turn (interleaved) in one round-robin"
         ),
     )
     headline.add_row(
@@ -506,17 +517,32 @@ def run(args: argparse.Namespace, console: Console) -> int:
 
     common = {"repeats": repeats, "long_repeats": long_repeats, "min_repeat_s": min_repeat_s}
 
-    # 1. scalar env
-    scalar: list[Result] = []
+    # 1. scalar env without a render mode and the FilterPy reference, their repeats in turn
     made = gym.make(ENV_ID)
     horizon = made.unwrapped.core.horizon
+    cases: dict[tuple[str, str], tuple[Callable[[], float], harness.Block, int]] = {}
     for front, env in (("gymnasium.make", made), (".unwrapped", made.unwrapped)):
         for kind in ("zero", "random"):
-            console.print(f"[dim]timing scalar env {front} {kind} actions ...[/dim]")
             pool = action_pool(env.action_space, kind, horizon, args.seed)
-            warmup, block = scalar_case(env, pool, args.seed)
-            scalar.append(bench(front, "default", kind, 1, block, warmup, horizon, **common))
+            cases[front, kind] = (*scalar_case(env, pool, args.seed), horizon)
+    fp_warmup, fp_block, fp_horizon = filterpy_case(args.seed)
+    cases[FP_KEY] = (fp_warmup, fp_block, fp_horizon)
+    console.print(
+        "[dim]timing scalar env gymnasium.make / .unwrapped, zero / random actions, and "
+        "FilterPy IMMEstimator (UKF) N=1 (bench_imm.py), repeats in turn ...[/dim]"
+    )
+    measured = harness.measure_interleaved(
+        cases, repeats, min_repeat_s, long_repeats, LONG_REPEAT_S
+    )
     made.close()
+    scalar = [
+        result(front, "default", kind, 1, measured[front, kind])
+        for front, kind in cases
+        if (front, kind) != FP_KEY
+    ]
+    fp = result("FilterPy", "IMMEstimator, 3 UKFs (bench_imm.py)", "-", 1, measured[FP_KEY])
+
+    # 2. the cost of watching
     for front, draws in (("make rgb_array", False), ("make rgb_array + render()", True)):
         console.print(f"[dim]timing scalar env {front} random actions ...[/dim]")
         env = gym.make(ENV_ID, render_mode="rgb_array")
@@ -524,20 +550,6 @@ def run(args: argparse.Namespace, console: Console) -> int:
         warmup, block = scalar_case(env, pool, args.seed, draws)
         scalar.append(bench(front, "default", "random", 1, block, warmup, horizon, **common))
         env.close()
-
-    # 2. FilterPy reference
-    console.print("[dim]timing FilterPy IMMEstimator (UKF) N=1 (bench_imm.py) ...[/dim]")
-    warmup, block, fp_horizon = filterpy_case(args.seed)
-    fp = bench(
-        "FilterPy",
-        "IMMEstimator, 3 UKFs (bench_imm.py)",
-        "-",
-        1,
-        block,
-        warmup,
-        fp_horizon,
-        **common,
-    )
 
     # 3. native vector env and SB3 adapter
     vector: list[Result] = []
@@ -616,15 +628,20 @@ def run(args: argparse.Namespace, console: Console) -> int:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    harness.add_repeats(p, "timed repeats per configuration (5; 3 quick)")
+    harness.add_repeats(p, "timed repeats per configuration, >= 1 (5; 3 quick)")
     p.add_argument(
         "--long-repeats",
-        type=int,
+        type=harness.positive_int,
         default=None,
-        help=f"repeats of configurations whose repeat lasts > {LONG_REPEAT_S:g} s (3; 1 quick)",
+        help=(
+            f"repeats of configurations whose repeat lasts > {LONG_REPEAT_S:g} s, >= 1 "
+            "(3; 1 quick)"
+        ),
     )
     harness.add_quick(
-        p, "3 repeats of one episode / cycle each (1 at N = 1024, headline config only)"
+        p,
+        "repeats of one episode / cycle each: 3 (--long-repeats' 1 only where one would last "
+        f"> {LONG_REPEAT_S:g} s), N = 1024 for the headline configuration only",
     )
     p.add_argument(
         "--vec-actions",

@@ -19,10 +19,12 @@ seconds one step takes, and a ``block(units)`` that runs ``units`` whole episode
 returns a :class:`Sample`. :func:`measure` warms up, sizes a repeat to the fewest whole units
 lasting at least ``min_repeat_s`` (one unit when it is 0), times the repeats and keeps each
 repeat's time per step, ``t_r = wall_r / steps_r`` (and the same for process-CPU time); the
-reported figures are medians over the repeats. Loops are timed by :func:`timed`: wall time by
-``time.perf_counter``, process-CPU time by ``time.process_time`` read outside the wall-clock
-window, garbage collection off (as ``timeit`` does). The CPU time is reported because the machine
-is shared: under load the wall time also holds the time the process waited for a core.
+reported figures are medians over the repeats. Configurations whose figures are divided by each
+other are timed by :func:`measure_interleaved`, their repeats taking turns. Loops are timed by
+:func:`timed`: wall time by ``time.perf_counter``, process-CPU time by ``time.process_time`` read
+outside the wall-clock window, garbage collection off (as ``timeit`` does). The CPU time is
+reported because the machine is shared: under load the wall time also holds the time the
+process waited for a core.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from rich.console import Console
 from rich.table import Column, Table
@@ -70,10 +72,12 @@ PIPE_WIDTH = 200  # console width when not printing to a terminal
 # ---------------------------------------------------------------------------------------------
 
 
-def timed(loop: Callable[[], None]) -> tuple[float, float]:
-    """Wall and process-CPU seconds taken by ``loop()`` with the garbage collector off."""
+def timed(loop: Callable[[], None], gc_off: bool = True) -> tuple[float, float]:
+    """Wall and process-CPU seconds taken by ``loop()``, with the garbage collector off (unless
+    ``gc_off`` is false: a timing of whole program runs, collections included)."""
     gc_was_enabled = gc.isenabled()
-    gc.disable()
+    if gc_off:
+        gc.disable()
     try:
         c0 = time.process_time()
         t0 = time.perf_counter()
@@ -96,10 +100,12 @@ class Sample:
     ends: int
 
 
-# episode(steps) -> seconds spent in the timed loop of `steps` steps (its set-up not timed)
-Episode = Callable[[int], float]
+# episode(steps) -> (wall, process-CPU) seconds spent in the timed loop of `steps` steps, as
+# `timed` gives them (its set-up not timed)
+Episode = Callable[[int], tuple[float, float]]
 # block(units) -> the Sample of `units` whole episodes / cycles
 Block = Callable[[int], Sample]
+K = TypeVar("K")  # the key of a configuration in measure_interleaved
 
 
 def episode_warmup(episode: Episode, steps: int) -> Callable[[], float]:
@@ -108,19 +114,20 @@ def episode_warmup(episode: Episode, steps: int) -> Callable[[], float]:
 
     def warmup() -> float:
         episode(steps)
-        return episode(steps) / steps
+        return episode(steps)[0] / steps
 
     return warmup
 
 
 def episode_block(episode: Episode, horizon: int) -> Block:
-    """Block of whole ``horizon``-step episodes: wall time = the sum of the episodes' timed loops;
-    process-CPU time is read around the episodes, so it also holds their set-up."""
+    """Block of whole ``horizon``-step episodes: wall and process-CPU time = the sums over the
+    episodes' timed loops (their set-up left out of both)."""
 
     def block(episodes: int) -> Sample:
-        c0 = time.process_time()
-        seconds = sum(episode(horizon) for _ in range(episodes))
-        return Sample(seconds, time.process_time() - c0, episodes * horizon, episodes)
+        times = [episode(horizon) for _ in range(episodes)]
+        wall = sum(t[0] for t in times)
+        cpu = sum(t[1] for t in times)
+        return Sample(wall, cpu, episodes * horizon, episodes)
 
     return block
 
@@ -198,6 +205,48 @@ def measure(
         steps=sum(s.steps for s in samples),
         ends=sum(s.ends for s in samples),
     )
+
+
+def measure_interleaved(
+    cases: dict[K, tuple[Callable[[], float], Block, int]],
+    repeats: int,
+    min_repeat_s: float,
+    long_repeats: int | None = None,
+    long_repeat_s: float = math.inf,
+) -> dict[K, Measurement]:
+    """:func:`measure` of several configurations whose repeats take turns.
+
+    ``cases[name] = (warmup, block, unit_steps)``; each is warmed up and its repeat sized as
+    :func:`measure` does, then every round times one repeat of each case in turn, so that a
+    change in the machine's speed hits them alike and the ratio of two cases' medians compares
+    like with like. Each timed repeat is preceded by its case's ``warmup()`` again, untimed, so
+    that no case pays for the caches the case before it evicted (a scalar env's 2 ms episode
+    right after a FilterPy episode took ~20 % longer). ``long_repeats`` repeats are run when any
+    case's repeat is estimated to last longer than ``long_repeat_s``.
+    """
+    units: dict[K, int] = {}
+    longest = 0.0
+    for name, (warmup, _, unit_steps) in cases.items():
+        per_unit = warmup() * unit_steps
+        units[name] = max(1, math.ceil(min_repeat_s / per_unit)) if min_repeat_s > 0 else 1
+        longest = max(longest, units[name] * per_unit)
+    if long_repeats is not None and longest > long_repeat_s:
+        repeats = long_repeats
+    samples: dict[K, list[Sample]] = {name: [] for name in cases}
+    for _ in range(repeats):
+        for name, (warmup, block, _) in cases.items():
+            warmup()
+            samples[name].append(block(units[name]))
+    return {
+        name: Measurement(
+            units=units[name],
+            per_step_s=[s.wall_s / s.steps for s in done],
+            cpu_per_step_s=[s.cpu_s / s.steps for s in done],
+            steps=sum(s.steps for s in done),
+            ends=sum(s.ends for s in done),
+        )
+        for name, done in samples.items()
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -326,8 +375,33 @@ def write_json(path: str, payload: dict[str, Any], console: Console | None = Non
 # ---------------------------------------------------------------------------------------------
 
 
+def at_least(low: int) -> Callable[[str], int]:
+    """An argparse ``type``: an integer ``>= low``; anything else is a usage error (exit 2)
+    naming the flag and the allowed range."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"must be an integer >= {low}, got {text!r}"
+            ) from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {value}")
+        return value
+
+    parse.__name__ = f"integer >= {low}"
+    return parse
+
+
+#: argparse ``type`` of a count (``--repeats``, ``--runs``, ...): an integer >= 1
+positive_int = at_least(1)
+#: argparse ``type`` of a seed: an integer >= 0
+seed_int = at_least(0)
+
+
 def add_repeats(parser: argparse.ArgumentParser, help: str) -> None:
-    parser.add_argument("--repeats", type=int, default=None, help=help)
+    parser.add_argument("--repeats", type=positive_int, default=None, help=help)
 
 
 def add_quick(parser: argparse.ArgumentParser, help: str) -> None:
@@ -341,12 +415,12 @@ def add_json(parser: argparse.ArgumentParser) -> None:
 
 
 def add_seed(parser: argparse.ArgumentParser, help: str) -> None:
-    parser.add_argument("--seed", type=int, default=0, help=help)
+    parser.add_argument("--seed", type=seed_int, default=0, help=help)
 
 
 def count(value: int | None, quick: bool, full: int, quick_default: int, flag: str) -> int:
     """A repeat count: ``value`` if given, else ``quick_default`` / ``full`` (``--quick`` or
-    not); exits unless it is at least 1."""
+    not); exits unless it is at least 1 (a flag parsed with :data:`positive_int` already is)."""
     n = value if value is not None else (quick_default if quick else full)
     if n < 1:
         raise SystemExit(f"{flag} must be >= 1")

@@ -16,20 +16,20 @@ import harness
 import numpy as np
 
 from imm_gym.papers.systems import draw, run_bank, score_run, system_setup
-from imm_gym.papers.tuning import TunerConfig, bank_objective, tune
+from imm_gym.papers.tuning import OPTIMIZERS, TunerConfig, bank_objective, tune
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--bank", default="seed003", choices=["seed002", "seed003"])
-    parser.add_argument("--train-runs", type=int, default=10)
-    parser.add_argument("--test-runs", type=int, default=50)
-    parser.add_argument("--particles", type=int, default=10)
-    parser.add_argument("--generations", type=int, default=30)
-    parser.add_argument("--opt-seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--train-runs", type=harness.positive_int, default=10)
+    parser.add_argument("--test-runs", type=harness.positive_int, default=50)
+    parser.add_argument("--particles", type=harness.at_least(2), default=10)
+    parser.add_argument("--generations", type=harness.positive_int, default=30)
+    parser.add_argument("--opt-seeds", type=harness.seed_int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--decay", type=float, default=4.0, help="BBSCA's r1 decay lambda")
-    parser.add_argument("--methods", nargs="+", default=["bbsca", "sca"])
+    parser.add_argument("--methods", nargs="+", choices=OPTIMIZERS, default=["bbsca", "sca"])
     harness.add_json(parser)
     args = parser.parse_args()
     imm, family, sensor, tpm = system_setup(args.bank)
