@@ -210,7 +210,7 @@ def check_spec(where: str, spec: Any) -> dict[str, Any]:
 
     Raises:
         ConfigError: not a mapping, an unknown class or key, a missing size or activation, a
-            wrong kind.
+            wrong kind, or ``use_sde`` for a ``PerModelPolicy`` (:data:`NO_SDE`).
     """
     if not isinstance(spec, Mapping):
         raise ConfigError(f"{where} must be a mapping, got {spec!r}")
@@ -226,6 +226,23 @@ def check_spec(where: str, spec: Any) -> dict[str, Any]:
     if missing:
         raise ConfigError(f"{where}: missing {missing}")
     checks = {**POLICY_KWARGS, **SPEC_FIELDS}
-    return {"class": name} | {
+    out = {"class": name} | {
         k: checks[k](f"{where}.{k}", v) for k, v in spec.items() if k != "class"
     }
+    check_sde(f"{where}.use_sde", name, out.get("use_sde", False))
+    return out
+
+
+#: The policy classes that cannot explore with gSDE (``use_sde``): the per-model policy's log
+#: standard deviation is one number shared by the models, of shape ``(1,)``, where gSDE needs a
+#: matrix of the latent's size by the actions' (its first action fails on it).
+NO_SDE = ("PerModelPolicy",)
+
+
+def check_sde(where: str, policy: Any, use_sde: Any) -> None:
+    """Refuse ``use_sde: true`` (``where`` names it) for a policy class of :data:`NO_SDE`."""
+    if use_sde is True and policy in NO_SDE:
+        raise ConfigError(
+            f"{where} must be false for a {policy} (its one log standard deviation shared by "
+            "the models is no matrix gSDE can use), got true"
+        )

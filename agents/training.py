@@ -30,7 +30,7 @@ import numpy as np
 import yaml
 from threadpoolctl import threadpool_limits
 
-from agents.schema import check_flag, check_number, check_policy_kwargs, check_size
+from agents.schema import check_flag, check_number, check_policy_kwargs, check_sde, check_size
 from imm_gym.sim.mixture import check_mixture
 from imm_gym.validation import ConfigError, load_yaml
 
@@ -214,7 +214,8 @@ def check_hyperparams(where: str, params: Any, algo: str, complete: bool = True)
 
     Raises:
         ConfigError: not a mapping, an unknown key, a value of the wrong kind, a missing
-            ``n_envs``/``n_timesteps``/``policy``, a policy the algorithm does not train, or
+            ``n_envs``/``n_timesteps``/``policy``, a policy the algorithm does not train,
+            ``use_sde`` with a policy that cannot use it (:data:`agents.schema.NO_SDE`), or
             ``critic_state`` with a recurrent agent; the message names ``where`` and the key.
     """
     params = _mapping(where, params)
@@ -238,18 +239,22 @@ def check_hyperparams(where: str, params: Any, algo: str, complete: bool = True)
         )
     if out.get("critic_state") and algo != "ppo":
         raise ConfigError(f"{where}: critic_state: true needs --algo ppo, got --algo {algo}")
+    check_sde(f"{where}: use_sde", out.get("policy"), out.get("use_sde", False))
     return out
 
 
 def check_policy(params: Mapping[str, Any], configs: Sequence[Any]) -> None:
-    """The entry's policy against the configurations it trains on (every part's), before any
-    work: a ``PerModelPolicy`` writes one action entry per model (the stay modes).
+    """The entry's policy (its hyperparameters merged: a ``--config`` file's over the entry's)
+    against the configurations it trains on (every part's), before any work: a
+    ``PerModelPolicy`` writes one action entry per model (the stay modes), without gSDE
+    (``use_sde``: :data:`agents.schema.NO_SDE`).
 
     Raises:
         ConfigError: naming the key and what it allows.
     """
     from imm_gym.sim.actions import STAY_MODES
 
+    check_sde("use_sde", params.get("policy"), params.get("use_sde", False))
     if params.get("policy") != "PerModelPolicy":
         return
     modes = sorted({cfg.action_mode for cfg in configs} - set(STAY_MODES))

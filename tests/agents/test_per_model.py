@@ -488,3 +488,36 @@ def test_the_shipped_per_model_policy_is_not_run_on_a_heterogeneous_bank() -> No
     reason = cannot_run("pretrained-per-model", base, 0)
     assert reason is not None and "needs a linear bank" in reason
     assert cannot_run("pretrained-per-model", EnvConfig.build({"scenario": "random"}), 0) is None
+
+
+def test_gsde_is_refused_for_the_per_model_policy_when_loaded(tmp_path) -> None:
+    """Its one log standard deviation (shape (1,)) is no matrix gSDE can use: an agent.json
+    with ``use_sde: true`` loaded, then failed on its first action (RuntimeError)."""
+    import shutil
+
+    from agents import PRETRAINED_PER_MODEL
+    from agents.ensemble import member_paths
+
+    agent = shutil.copytree(member_paths(PRETRAINED_PER_MODEL)[0], tmp_path / "agent")
+    meta = json.loads((agent / "agent.json").read_text())
+    meta["policy"]["use_sde"] = True
+    (agent / "agent.json").write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match=r"agent\.json: policy\.use_sde must be false for a "
+                                          r"PerModelPolicy .*got true"):
+        load_agent(agent)
+
+
+def test_gsde_is_refused_for_the_per_model_policy_before_training(tmp_path, capsys) -> None:
+    from agents.training import check_policy
+
+    tracker = tmp_path / "tracker.yaml"
+    tracker.write_text("scenario: random\n")
+    with pytest.raises(SystemExit):
+        train_small(tmp_path, "--timesteps", "64", "--no-eval", "--env-config", str(tracker),
+                    extra=PER_MODEL + "use_sde: true\n")
+    err = capsys.readouterr().err
+    assert "small.yml: use_sde must be false for a PerModelPolicy" in err
+    assert not (tmp_path / "seed_0").exists()
+    # an entry's use_sde under a --config file's policy: the merged entry is checked
+    with pytest.raises(ConfigError, match="use_sde must be false for a PerModelPolicy"):
+        check_policy({"policy": "PerModelPolicy", "use_sde": True}, [])
