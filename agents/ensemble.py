@@ -12,8 +12,11 @@ differences out. An ensemble is a directory holding one data file,
 Each member is a trained agent's directory (:mod:`agents.policy`), relative to the ensemble's
 directory or absolute; loading reads JSON and tensors only, never code. Every member must read
 and write the same things — the :data:`~imm_gym.sim.mixture.POLICY_FIELDS` of their
-``env.json`` equal (observation features, action mode, bank...) — so one observation serves
-them all; they may have been rewarded differently.
+``env.json`` equal (observation features, action mode, detector...) — so one observation serves
+them all, and must have been trained on one bank (``env.json``'s ``bank``): the ensemble
+records member 0's tracker, which the evaluation names as the one it was trained on and
+compares the evaluated bank's models with (with the trackers of a mixture any member was
+trained across). They may have been rewarded differently.
 
 Build one with ``python -m agents.ensemble OUT MEMBER [MEMBER ...]`` and evaluate it as any agent
 (``python -m imm_gym.evaluate --policy OUT``).
@@ -33,6 +36,7 @@ from numpy.typing import NDArray
 
 from agents.policy import AGENT_FILE, LearnedPolicy, load_agent, read_manifest
 from agents.selector import StaySelector, is_selector, load_selector
+from imm_gym.sim.config_file import plain
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.mixture import POLICY_FIELDS
 from imm_gym.validation import ConfigError
@@ -72,6 +76,12 @@ class EnsemblePolicy:
                 raise ConfigError(
                     f"{source}: member {k} ({member.source}) reads or writes other things than "
                     f"member 0 ({first.source}): {what} differ"
+                )
+            if acts[k].bank != acts[0].bank:
+                raise ConfigError(
+                    f"{source}: member {k} ({member.source}) was trained on another bank than "
+                    f"member 0 ({first.source}), whose tracker the ensemble records: "
+                    f"{plain(acts[k].bank)} and {plain(acts[0].bank)}"
                 )
         self.members = tuple(members)
         self.source = source

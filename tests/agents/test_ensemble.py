@@ -217,3 +217,23 @@ def test_members_detectors_are_compared_as_networks_never_read_otherwise(
         member.env_overrides = {**member.env_overrides, "detector_weights": weights}
         members.append(member)
     assert len(EnsemblePolicy(members).members) == 2
+
+
+def test_members_trained_on_other_banks_are_refused(tmp_path) -> None:
+    """Members trained on banks of one size but other models (CT ±12 °/s against ±4 °/s)
+    combined silently, the ensemble recording member 0's bank as the one it was trained on;
+    the shipped ensembles' members share theirs."""
+    from agents import PRETRAINED, PRETRAINED_PER_MODEL
+
+    other = Path(shutil.copytree(shipped_agent(), tmp_path / "other"))
+    env = json.loads((other / "env.json").read_text())
+    for model in env["bank"][1:]:
+        model["turn_rate_deg"] = 12.0 if model["turn_rate_deg"] > 0 else -12.0
+    (other / "env.json").write_text(json.dumps(env))
+    data = {"format": "imm_gym-ensemble", "members": [str(shipped_agent()), str(other)]}
+    with pytest.raises(ConfigError, match=r"member 1 \(.*other'\) was trained on another bank "
+                                          r"than member 0 .*'turn_rate_deg': 12\.0.* and "
+                                          r".*'turn_rate_deg': 4\.0"):
+        load_policy(write(tmp_path / "e", data))
+    for shipped in (PRETRAINED, PRETRAINED_PER_MODEL):
+        assert len(load_ensemble(shipped).members) == 5
