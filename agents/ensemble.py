@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.policy import AGENT_FILE, LearnedPolicy, load_agent, read_manifest
+from agents.policy import AGENT_FILE, LearnedPolicy, agent_directory, load_agent, read_manifest
 from agents.selector import StaySelector, is_selector, load_selector
 from imm_gym.sim.config_file import plain
 from imm_gym.sim.env_config import EnvConfig
@@ -158,11 +158,14 @@ def is_ensemble(path: str | Path) -> bool:
 
 def member_paths(path: str | Path) -> list[Path]:
     """The member directories ``ensemble.json`` (in the directory ``path``, or ``path``
-    itself) names, resolved, without loading them.
+    itself) names, resolved, without loading them: each the directory :func:`load_agent`
+    reads (:func:`~agents.policy.agent_directory`: a member named by a file in it, such as
+    ``seed_0/agent.json``, is ``seed_0``).
 
     Raises:
         ConfigError: ``ensemble.json`` is malformed (unknown keys, another format or combine
-            rule, no members, a member listed twice); the message names the file.
+            rule, no members, a member listed twice, by its directory or a file in it); the
+            message names the file.
     """
     path = Path(path)
     directory = path.parent if path.name == ENSEMBLE_FILE else path
@@ -178,7 +181,7 @@ def member_paths(path: str | Path) -> list[Path]:
     paths = []
     for m in members:
         try:
-            paths.append((directory / m).resolve())
+            paths.append(agent_directory(directory / m).resolve())
         except (OSError, ValueError, RuntimeError) as err:  # a NUL byte, a loop of symlinks
             raise ConfigError(f"{file}: member {m!r} is not a path ({err})") from None
     if len(set(paths)) != len(paths):
@@ -219,11 +222,12 @@ def load_policy(path: str | Path) -> LearnedPolicy | EnsemblePolicy | StaySelect
 
 
 def write_ensemble(directory: str | Path, members: Sequence[str | Path]) -> Path:
-    """Write ``directory/ensemble.json`` naming ``members`` (paths relative to ``directory``),
-    after checking that they load as one ensemble. Returns the file."""
+    """Write ``directory/ensemble.json`` naming ``members`` (their directories, relative to
+    ``directory``), after checking that they load as one ensemble. Returns the file."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    relative = [os.path.relpath(Path(m).resolve(), directory.resolve()) for m in members]
+    relative = [os.path.relpath(agent_directory(m).resolve(), directory.resolve())
+                for m in members]
     file = directory / ENSEMBLE_FILE
     data = {"format": FORMAT, "combine": COMBINE[0], "members": relative}
     EnsemblePolicy([load_agent(m) for m in members], source=str(directory))
@@ -239,7 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("out", type=Path, help="the ensemble's directory")
     parser.add_argument("members", nargs="+", type=Path, help="trained agents' directories")
     args = parser.parse_args(argv)
-    if len({m.resolve() for m in args.members}) != len(args.members):
+    if len({agent_directory(m).resolve() for m in args.members}) != len(args.members):
         parser.error(f"a member is given twice: {[str(m) for m in args.members]}")
     try:
         file = write_ensemble(args.out, args.members)

@@ -221,6 +221,14 @@ class LearnedPolicy:
         return (actions[0] if single else actions), (stack, lstm)
 
 
+def agent_directory(path: str | Path) -> Path:
+    """The agent directory :func:`load_agent` reads for ``path``: ``path`` itself, or the
+    directory of the file it names (a ``.json``, ``.safetensors``, ``.pt`` or ``.zip`` name:
+    ``agent.json``, ``policy.safetensors``...). Nothing is read."""
+    path = Path(path)
+    return path.parent if path.suffix in (".zip", ".pt", ".safetensors", ".json") else path
+
+
 def load_agent(path: str | Path) -> LearnedPolicy:
     """Load a trained agent from its directory (or a file in it), checking every file.
 
@@ -235,8 +243,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
     from agents.schema import check_spec
     from imm_gym.sim.env_config import EnvConfig
 
-    path = Path(path)
-    directory = path.parent if path.suffix in (".zip", ".pt", ".safetensors", ".json") else path
+    directory = agent_directory(path)
     agent_file = directory / AGENT_FILE
     if not agent_file.is_file():
         raise FileNotFoundError(f"no trained agent at {str(directory)!r} (agent.json missing)")

@@ -237,3 +237,18 @@ def test_members_trained_on_other_banks_are_refused(tmp_path) -> None:
         load_policy(write(tmp_path / "e", data))
     for shipped in (PRETRAINED, PRETRAINED_PER_MODEL):
         assert len(load_ensemble(shipped).members) == 5
+
+
+def test_a_member_listed_by_its_directory_and_a_file_in_it_is_listed_twice(
+    members, tmp_path, capsys
+) -> None:
+    """``seed_0/agent.json`` is loaded as ``seed_0``: listed beside it, the member got two
+    votes."""
+    agent, other = members
+    data = {"format": "imm_gym-ensemble",
+            "members": [str(agent), str(agent / "agent.json"), str(other)]}
+    with pytest.raises(ConfigError, match=r"ensemble\.json: a member is listed twice"):
+        load_ensemble(write(tmp_path / "e", data))
+    with pytest.raises(SystemExit):
+        ensemble_main([str(tmp_path / "cli"), str(agent), str(agent / "agent.json")])
+    assert "a member is given twice" in capsys.readouterr().err
