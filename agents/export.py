@@ -41,7 +41,14 @@ from agents.ensemble import (
     member_paths,
     write_ensemble,
 )
-from agents.policy import AGENT_FILE, ENV_FILE, NORMALIZER_FILE, load_agent, read_json
+from agents.policy import (
+    AGENT_FILE,
+    ENV_FILE,
+    NORMALIZER_FILE,
+    agent_directory,
+    load_agent,
+    read_json,
+)
 from agents.selector import SELECTOR_FILE, is_selector, load_selector
 from imm_gym.validation import ConfigError
 
@@ -53,8 +60,9 @@ DETECTOR_FILE = "detector.safetensors"
 
 def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     """Replace ``target`` by the acting files of ``source`` — an agent directory, an
-    ensemble's (:mod:`agents.ensemble`) or a stay selector's (:mod:`agents.selector`) — after
-    checking that they load. Returns the files written.
+    ensemble's (:mod:`agents.ensemble`) or a stay selector's (:mod:`agents.selector`), or a file
+    in it as their loaders take it (``DIR/agent.json`` is ``DIR``) — after checking that they
+    load. Returns the files written.
 
     Raises:
         FileNotFoundError: ``source`` is neither an agent nor an ensemble directory.
@@ -66,10 +74,11 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
     shutil.rmtree(staging, ignore_errors=True)
     try:
         if is_selector(source):
-            selector = read_json(source / SELECTOR_FILE)
-            overrides = load_selector(source).env_overrides
+            directory = source.parent if source.name == SELECTOR_FILE else source
+            selector = read_json(directory / SELECTOR_FILE)
+            overrides = load_selector(directory).env_overrides
             files = [SELECTOR_FILE, ENV_FILE, *selector["members"]]
-            _copy_agent(source, staging, overrides, files)
+            _copy_agent(directory, staging, overrides, files)
             load_selector(staging)
         elif is_ensemble(source):
             ensemble = load_ensemble(source)
@@ -79,7 +88,8 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
                 _copy_agent(member, staging / name, policy.env_overrides)
             write_ensemble(staging, [staging / name for name in names])
         else:
-            _copy_agent(source, staging, load_agent(source).env_overrides)
+            agent = load_agent(source)  # its directory, or a file in it
+            _copy_agent(agent_directory(source), staging, agent.env_overrides)
     except BaseException:  # nothing left beside the target
         shutil.rmtree(staging, ignore_errors=True)
         raise

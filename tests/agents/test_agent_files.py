@@ -170,3 +170,19 @@ def test_an_agent_trained_with_an_unread_detector_file_is_written_without_it(
         write_env_file(tmp_path, {"detector": detector, "detector_weights": "d.safetensors"})
         written = json.loads((tmp_path / "env.json").read_text())
         assert ("detector_weights" in written) is kept
+
+
+def test_the_export_takes_a_file_in_the_policy_directory_as_its_loader_does(
+    tmp_path: Path,
+) -> None:
+    """load_agent (and the evaluation) take ``DIR/agent.json`` as ``DIR``; the export copied
+    from ``agent.json/<file>`` and failed (Not a directory)."""
+    from agents.export import export
+
+    agent = shipped_agent()
+    export(agent / "agent.json", tmp_path / "from_file")
+    export(agent, tmp_path / "from_directory")
+    for name in ("agent.json", "env.json", "policy.safetensors", "vecnormalize.json"):
+        written = (tmp_path / "from_file" / name).read_bytes()
+        assert written == (tmp_path / "from_directory" / name).read_bytes() == (
+            agent / name).read_bytes()

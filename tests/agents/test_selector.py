@@ -258,3 +258,14 @@ def test_a_detector_named_relative_is_read_beside_env_json_and_exported_with_it(
     assert shipped.env_overrides["detector_weights"] == str(target / DETECTOR_FILE)
     obs = np.random.default_rng(0).normal(size=(3, shipped.obs_size))
     assert shipped.choose(obs).shape == (3,)
+
+
+def test_the_export_takes_the_selector_file_as_its_directory(tmp_path: Path) -> None:
+    from agents.export import export
+
+    directory = write_selector(tmp_path)
+    export(directory / SELECTOR_FILE, tmp_path / "shipped")
+    assert sorted(p.name for p in (tmp_path / "shipped").iterdir()) == sorted(
+        p.name for p in directory.iterdir()
+    )
+    assert isinstance(load_selector(tmp_path / "shipped"), StaySelector)
