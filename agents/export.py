@@ -29,6 +29,7 @@ import argparse
 import json
 import shutil
 import sys
+import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -70,8 +71,12 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
             something other than an exported policy.
     """
     _check_replaceable(target)
-    staging = target.with_name(target.name + ".export")
-    shutil.rmtree(staging, ignore_errors=True)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    # written in a fresh directory beside the target (no directory of the user's is reused),
+    # then renamed into place
+    scratch = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".export",
+                                    dir=target.parent))
+    staging = scratch / target.name
     try:
         if is_selector(source):
             directory = source.parent if source.name == SELECTOR_FILE else source
@@ -90,11 +95,10 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
         else:
             agent = load_agent(source)  # its directory, or a file in it
             _copy_agent(agent_directory(source), staging, agent.env_overrides)
-    except BaseException:  # nothing left beside the target
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    shutil.rmtree(target, ignore_errors=True)
-    staging.rename(target)
+        shutil.rmtree(target, ignore_errors=True)
+        staging.rename(target)
+    finally:  # nothing left beside the target
+        shutil.rmtree(scratch, ignore_errors=True)
     return sorted(p for p in target.rglob("*") if p.is_file())
 
 

@@ -186,3 +186,17 @@ def test_the_export_takes_a_file_in_the_policy_directory_as_its_loader_does(
         written = (tmp_path / "from_file" / name).read_bytes()
         assert written == (tmp_path / "from_directory" / name).read_bytes() == (
             agent / name).read_bytes()
+
+
+def test_the_export_leaves_a_directory_named_like_its_target_alone(tmp_path: Path) -> None:
+    """The export wrote into ``<target>.export`` beside the target, deleting whatever
+    directory of that name was there; it writes into a fresh one of its own."""
+    from agents.export import export
+
+    mine = tmp_path / "shipped.export"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    export(shipped_agent(), tmp_path / "shipped")
+    assert (mine / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shipped", "shipped.export"]
+    assert load_agent(tmp_path / "shipped").obs_size == load_agent(shipped_agent()).obs_size
