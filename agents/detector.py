@@ -33,10 +33,13 @@ from imm_gym.sim.detectors import TurnRateBelief, model_turn_rates, true_turn_ra
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.learned_detector import (
     MAX_LAYERS,
+    MAX_PARAMETERS,
     MAX_WIDTH,
     WINDOW,
     DetectorNetwork,
     LearnedDetector,
+    features_per_step,
+    parameter_count,
 )
 from imm_gym.validation import ConfigError, check_int
 
@@ -188,8 +191,12 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     args = parse_args(argv)
     configs = [read_env_config(f) for f in args.env_config]
-    for overrides in configs:
-        collection_config(overrides)  # every file checked before the long work
+    for overrides in configs:  # every file checked before the long work
+        M = len(collection_config(overrides).bank)
+        count = parameter_count([WINDOW * features_per_step(M), *args.hidden, M])
+        if count > MAX_PARAMETERS:
+            raise ConfigError(f"hidden: a network of {count} numbers for {M} models, above the "
+                              f"{MAX_PARAMETERS} a detector file may hold")
     set_threads(1)
     import torch
 

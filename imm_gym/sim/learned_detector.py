@@ -26,7 +26,9 @@ weights and biases and a JSON header, checked before use; nothing in it runs.
 
 from __future__ import annotations
 
+import itertools
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,6 +56,9 @@ DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "data" / "turn_detector.safe
 TINY = 1e-12
 #: A network's largest layer count and width (a file beyond them is refused).
 MAX_LAYERS, MAX_WIDTH = 8, 4096
+#: The most numbers (weights and biases) a network may hold: 128 MiB as float64, some 450 times
+#: the shipped network's; a file declaring more is refused from its header, before reading.
+MAX_PARAMETERS = 2**24
 #: The largest magnitude of a weight or bias a file may hold (float32's largest number).
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
@@ -139,51 +144,81 @@ class DetectorNetwork:
                 if other:
                     raise ConfigError(f"{where}: tensor {other[0]!r} is {dtypes[other[0]]}, "
                                       f"not one of {list(FLOATS)}")
+                window = _header_window(where, header)
+                # names and shapes from the header, before any tensor is read: a file that
+                # declares a tensor of gigabytes allocates nothing
+                shapes = {name: tuple(f.get_slice(name).get_shape()) for name in f.keys()}
+                _check_layout(where, shapes, window)
                 tensors = {name: f.get_tensor(name) for name in f.keys()}
         except ConfigError:
             raise
         except (SafetensorError, OSError, ValueError) as error:
             raise ConfigError(f"{where}: not a safetensors file ({error})") from error
-        if header.get("format") != FORMAT:
-            raise ConfigError(f"{where}: header format must be {FORMAT!r}, got "
-                              f"{header.get('format')!r}")
-        # decimal digits only: int() would also take " 8", "+8" and "1_0"
-        text = header.get("window", "")
-        window = int(text) if text.isascii() and text.isdigit() else 0
-        if not 1 <= window <= 1000:
-            raise ConfigError(f"{where}: header window must be an integer in [1, 1000], got "
-                              f"{header.get('window')!r}")
-        layers = len(tensors) // 2
-        expected = {f"layer{i}.{kind}" for i in range(layers) for kind in ("weight", "bias")}
-        if not 1 <= layers <= MAX_LAYERS or set(tensors) != expected:
-            raise ConfigError(f"{where}: tensors must be layer0.weight, layer0.bias, ... "
-                              f"(1 to {MAX_LAYERS} layers), got {sorted(tensors)}")
         weights, biases = [], []
-        for i in range(layers):
+        for i in range(len(tensors) // 2):
             W, c = tensors[f"layer{i}.weight"], tensors[f"layer{i}.bias"]
-            width = weights[-1].shape[0] if weights else None
-            if (
-                W.ndim != 2 or c.shape != (W.shape[0],) or W.shape[0] > MAX_WIDTH
-                or (width is not None and W.shape[1] != width)
-                or W.dtype.kind != "f" or c.dtype.kind != "f"
-            ):
-                raise ConfigError(f"{where}: layer{i} has weight {W.shape} {W.dtype} and bias "
-                                  f"{c.shape} {c.dtype}: the layers' float shapes must chain")
             if not (np.abs(W) <= FLOAT32_MAX).all() or not (np.abs(c) <= FLOAT32_MAX).all():
                 raise ConfigError(f"{where}: layer{i} holds numbers that are not finite or "
                                   f"beyond float32's range (|x| <= {FLOAT32_MAX:.3g}; beyond it "
                                   "the beliefs overflow to NaN)")
             weights.append(W.astype(np.float64))
             biases.append(c.astype(np.float64))
-        M = weights[-1].shape[0]
-        if M < 2:
-            raise ConfigError(f"{where}: the last layer must give beliefs of at least 2 models, "
-                              f"got {M}")
-        if weights[0].shape[1] != window * features_per_step(M):
-            raise ConfigError(f"{where}: the input must be window * (2 M + 2) = "
-                              f"{window * features_per_step(M)} for {M} models, got "
-                              f"{weights[0].shape[1]}")
         return cls(tuple(weights), tuple(biases), window)
+
+
+def parameter_count(widths: Sequence[int]) -> int:
+    """Weights and biases of the layers ``widths[0] -> widths[1] -> ...``:
+    ``sum_i (w_i + 1) w_{i+1}``."""
+    return sum((a + 1) * b for a, b in itertools.pairwise(widths))
+
+
+def _header_window(where: str, header: dict[str, str]) -> int:
+    """A detector file's header: its format, and its window (decimal digits in [1, 1000])."""
+    if header.get("format") != FORMAT:
+        raise ConfigError(f"{where}: header format must be {FORMAT!r}, got "
+                          f"{header.get('format')!r}")
+    # decimal digits only: int() would also take " 8", "+8" and "1_0"
+    text = header.get("window", "")
+    window = int(text) if text.isascii() and text.isdigit() else 0
+    if not 1 <= window <= 1000:
+        raise ConfigError(f"{where}: header window must be an integer in [1, 1000], got "
+                          f"{header.get('window')!r}")
+    return window
+
+
+def _check_layout(where: str, shapes: dict[str, tuple[int, ...]], window: int) -> None:
+    """The tensors' names and shapes: ``layer0.weight, layer0.bias, ...`` (1 to
+    :data:`MAX_LAYERS` layers), each weight ``(width <= MAX_WIDTH, previous width)`` with a bias
+    of its width, the last layer at least 2 models wide (``M``), the first taking
+    ``window * (2 M + 2)`` inputs."""
+    layers = len(shapes) // 2
+    expected = {f"layer{i}.{kind}" for i in range(layers) for kind in ("weight", "bias")}
+    if not 1 <= layers <= MAX_LAYERS or set(shapes) != expected:
+        raise ConfigError(f"{where}: tensors must be layer0.weight, layer0.bias, ... "
+                          f"(1 to {MAX_LAYERS} layers), got {sorted(shapes)}")
+    width = None
+    for i in range(layers):
+        W, c = shapes[f"layer{i}.weight"], shapes[f"layer{i}.bias"]
+        if (
+            len(W) != 2 or c != (W[0],) or W[0] > MAX_WIDTH
+            or (width is not None and W[1] != width)
+        ):
+            raise ConfigError(f"{where}: layer{i} has weight {W} and bias {c}: the layers' "
+                              "shapes must chain")
+        width = W[0]
+    M = width
+    count = parameter_count([shapes["layer0.weight"][1], *(
+        shapes[f"layer{i}.weight"][0] for i in range(layers))])
+    if count > MAX_PARAMETERS:
+        raise ConfigError(f"{where}: the layers hold {count} numbers, above the "
+                          f"{MAX_PARAMETERS} a detector may hold")
+    if M < 2:
+        raise ConfigError(f"{where}: the last layer must give beliefs of at least 2 models, "
+                          f"got {M}")
+    inputs = shapes["layer0.weight"][1]
+    if inputs != window * features_per_step(M):
+        raise ConfigError(f"{where}: the input must be window * (2 M + 2) = "
+                          f"{window * features_per_step(M)} for {M} models, got {inputs}")
 
 
 def turn_rate_order(omegas: Array) -> NDArray[np.int64]:

@@ -111,3 +111,8 @@ def test_bad_arguments_fail_before_any_work(tmp_path) -> None:
         main(["--env-config", str(config), "--hidden", *["8"] * 8, "--out", out])
     with pytest.raises(ConfigError, match="needs a linear bank"):
         main(["--env-config", str(config), "--runs", "5", "--out", out])
+    linear = tmp_path / "paper.yaml"
+    linear.write_text("scenario: random\n")
+    with pytest.raises(ConfigError, match=r"hidden: a network of 34234371 numbers for 3 models, "
+                                          r"above the 16777216 a detector file may hold"):
+        main(["--env-config", str(linear), "--hidden", "4096", "4096", "4096", "--out", out])

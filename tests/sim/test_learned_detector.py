@@ -5,6 +5,7 @@ errors."""
 
 from __future__ import annotations
 
+import json
 from itertools import pairwise
 
 import numpy as np
@@ -115,6 +116,63 @@ def test_a_bad_file_is_refused_naming_what_is_wrong(tmp_path) -> None:
         DetectorNetwork.load(tmp_path / "huge")
     with pytest.raises(ConfigError, match="no such file"):
         DetectorNetwork.load(tmp_path / "missing")
+
+
+def _declare_huge(path, shape: tuple[int, int]) -> None:
+    """A detector file whose header declares layer0.weight of ``shape`` (float32), the data a
+    sparse hole: declared, nothing on disk."""
+    n = shape[0] * shape[1] * 4
+    entries = {
+        "__metadata__": {"format": FORMAT, "window": "2"},
+        "layer0.bias": {"dtype": "F32", "shape": [shape[0]], "data_offsets": [0, 4 * shape[0]]},
+        "layer0.weight": {"dtype": "F32", "shape": list(shape),
+                          "data_offsets": [4 * shape[0], 4 * shape[0] + n]},
+    }
+    header = json.dumps(entries).encode()
+    header += b" " * (-len(header) % 8)
+    with open(path, "wb") as handle:
+        handle.write(len(header).to_bytes(8, "little") + header)
+        handle.truncate(8 + len(header) + 4 * shape[0] + n)
+
+
+def test_a_file_declaring_a_huge_tensor_is_refused_before_reading_it(
+    tmp_path, monkeypatch
+) -> None:
+    """Names and shapes are checked from the header: layers of more numbers than a detector
+    may hold (declared, their data a sparse hole) are refused without reading a tensor."""
+    import safetensors
+
+    read: list[str] = []
+    real = safetensors.safe_open
+
+    class Recording:
+        def __init__(self, *args, **kwargs) -> None:
+            self.inner = real(*args, **kwargs)
+
+        def __enter__(self):
+            self.file = self.inner.__enter__()
+            return self
+
+        def __exit__(self, *exc):
+            return self.inner.__exit__(*exc)
+
+        def __getattr__(self, name):
+            return getattr(self.file, name)
+
+        def get_tensor(self, name):
+            read.append(name)
+            return self.file.get_tensor(name)
+
+    import imm_gym.sim.learned_detector as learned
+
+    monkeypatch.setattr(learned, "safe_open", Recording)
+    _declare_huge(tmp_path / "wide", (M, 2**23))
+    with pytest.raises(ConfigError, match=r"the input must be window|above the 16777216"):
+        DetectorNetwork.load(tmp_path / "wide")
+    _declare_huge(tmp_path / "big", (4096, 8192))
+    with pytest.raises(ConfigError, match=r"the layers hold \d+ numbers, above the 16777216"):
+        DetectorNetwork.load(tmp_path / "big")
+    assert read == []
     pickle = tmp_path / "net.pkl"
     pickle.write_bytes(b"\x80\x04\x95" + b"cos\nsystem\n" * 20)  # a pickle is not read
     with pytest.raises(ConfigError, match="not a safetensors file"):
