@@ -1,0 +1,87 @@
+"""Every observation block of a step recomputed by hand from the core's per-step quantities
+(mu, the models' log-likelihoods and NIS, the combined and shadow estimates' velocities): a
+bank of CV, CA and two CT models at T = 2 s over four slots, random actions so that bank A and
+the shadow IMM differ, the memories carried from their documented starts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.features import heading_rate
+
+FEATURES = (
+    "loglik", "nis", "time", "turn_rate", "shadow_turn_rate", "turn_rate_ema", "prob_ema",
+    "shadow_turn_rate_ema", "turn_magnitude_ema", "speed", "model_turn_rate", "model_kind",
+    "maneuver_snr",
+)
+BANK = [
+    {"kind": "cv", "noise": "continuous", "intensity": 0.1},
+    {"kind": "ca", "noise": "continuous", "intensity": 0.05},
+    {"kind": "ct", "turn_rate_deg": 3.0, "noise": "continuous", "intensity": 0.1},
+    {"kind": "ct", "turn_rate_deg": -6.0, "noise": "continuous", "intensity": 0.1},
+]
+N, M, T, STEPS = 4, 4, 2.0, 40
+
+
+def rate(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The heading change (rad) from velocities ``a`` to ``b``, by the angle between them."""
+    return np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.sum(a * b, axis=-1))
+
+
+def test_every_block_by_hand_over_an_episode() -> None:
+    # turns of 8-14 °/s: the shadow's heading rate passes 10 °/s, the memories' clip
+    config = EnvConfig.build({"scenario": "random", "bank": BANK,
+                              "family": {"T": T, "turn_rate_deg": [8.0, 14.0]},
+                              "obs_features": FEATURES})
+    core = TrackingCore(config, N)
+    core.reset(np.arange(N), [11, 12, 13, 14])
+    rng = np.random.default_rng(0)
+    lam, lam_magnitude = np.array([0.7, 0.9]), np.array([0.9, 0.97])
+    own_ema, shadow_ema, magnitude = np.zeros((N, 2)), np.zeros((N, 2)), np.zeros((N, 2))
+    prob_ema = np.repeat(core.mu[:, None, :], 2, axis=1)  # starts at mu(0)
+    clip, scale = config.loglik_clip, math.radians(10.0)
+    omega_bank = math.radians(6.0)
+    accuracy = core.position_accuracy.copy()
+    beyond = 0
+    for step in range(1, STEPS + 1):
+        v0, s0, mu0 = core.velocity.copy(), core.velocity_s.copy(), core.mu.copy()
+        obs = core.step(rng.uniform(-1.0, 1.0, (N, M * M))).obs.astype(np.float64)
+        v1, s1, mu = core.velocity, core.velocity_s, core.mu
+        own, shadow = rate(v0, v1) / T / scale, rate(s0, s1) / T / scale
+        beyond += int(np.sum(np.abs(shadow) > 1.0))
+        own_ema = lam * own_ema + (1 - lam) * own[:, None]
+        shadow_ema = lam * shadow_ema + (1 - lam) * np.clip(shadow, -1, 1)[:, None]
+        magnitude = lam_magnitude * magnitude + (1 - lam_magnitude) * np.minimum(
+            np.abs(shadow), 1.0)[:, None]
+        prob_ema = lam[None, :, None] * prob_ema + (1 - lam[None, :, None]) * mu[:, None, :]
+        L, nis = core.loglik, core.model_nis
+        speed = np.hypot(v1[:, 0], v1[:, 1])
+        offset = speed * omega_bank * T * T / (2 * accuracy)
+        blocks = [
+            mu, mu0,
+            np.clip(L - L.max(axis=1, keepdims=True), -clip, 0.0) / clip,
+            nis / (nis + 2.0),
+            np.full((N, 1), step / core.horizon),
+            np.clip(own, -1, 1)[:, None], np.clip(shadow, -1, 1)[:, None],
+            np.clip(own_ema, -1, 1), prob_ema.reshape(N, -1), shadow_ema, magnitude,
+            np.clip(speed / 30.0, 0, 1)[:, None],
+            np.tile([0.0, 0.0, 0.5, -1.0], (N, 1)),
+            np.tile([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0], (N, 1)),
+            np.clip(np.log10(np.maximum(offset, 1e-3)) / 3, -1, 1)[:, None],
+        ]
+        expected = np.concatenate(blocks, axis=1)
+        assert obs.shape == expected.shape
+        np.testing.assert_allclose(obs, expected, rtol=1e-5, atol=1e-6, err_msg=f"step {step}")
+    assert not np.array_equal(core.velocity, core.velocity_s)  # bank A is not the shadow
+    assert beyond > 0  # the memories' per-step clip was exercised
+
+
+def test_the_heading_rate_is_the_signed_angle_between_the_velocities() -> None:
+    v = np.array([[10.0, 0.0], [10.0, 0.0], [10.0, 0.0], [3.0, 4.0], [0.0, 0.0]])
+    w = np.array([[0.0, 5.0], [0.0, -5.0], [-10.0, 0.01], [-3.0, -4.0], [1.0, 0.0]])
+    expected = np.array([math.pi / 2, -math.pi / 2, math.pi - 0.001, math.pi, 0.0]) / 2.0
+    np.testing.assert_allclose(heading_rate(v, w, 2.0), expected, rtol=1e-6, atol=1e-12)
