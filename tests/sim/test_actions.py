@@ -52,6 +52,35 @@ def test_set_mode_large_diagonal_saturates_at_the_floor(p_min: float) -> None:
     np.testing.assert_allclose(tpm.sum(axis=1), 1.0, atol=1e-15)
 
 
+def test_set_mode_at_a_large_logit_scale_saturates_without_overflow() -> None:
+    """logit_scale 1000: exp(1000) overflows; the row's largest logit is taken out first, so the
+    TPM is the floored identity (it was NaN without that), on both engines."""
+    a = (2 * np.eye(3) - 1).reshape(1, 9)
+    tpms = [core_for("set", 1e-3, logit_scale=1000.0).tpm_from_action(a)[0]]
+    for engine in ("numpy", "compiled"):
+        env = TPMAdaptEnv(scenario="paper", action_mode="set", p_min=1e-3, logit_scale=1000.0,
+                          engine=engine)
+        env.reset(seed=0)
+        tpms.append(env.step(a[0])[4]["tpm"])
+    for tpm in tpms:
+        np.testing.assert_allclose(np.diag(tpm), 1 - 2e-3, rtol=1e-14)
+        np.testing.assert_allclose(tpm[~np.eye(3, dtype=bool)], 1e-3, rtol=1e-14)
+
+
+@pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
+def test_actions_beyond_the_box_make_the_clipped_actions_tpm(mode: str) -> None:
+    """tpm_from_action itself clips to [-1, 1] (the env test goes through the compiled step),
+    in every action mode."""
+    core = core_for(mode, 1e-3)
+    size = 3 if mode in ("stay", "stay_step") else 9
+    big = np.random.default_rng(3).uniform(-1, 1, (1, size)) * 7.0
+    current = np.array([stay_tpm(3, 0.7)])
+    np.testing.assert_array_equal(core.tpm_from_action(big, current),
+                                  core.tpm_from_action(np.clip(big, -1, 1), current))
+    assert not np.array_equal(core.tpm_from_action(big, current),
+                              core.tpm_from_action(big / 7.0, current))
+
+
 def test_scale_mode_multiplies_entries_by_powers_of_max_factor() -> None:
     core = core_for("scale", 0.0, max_factor=3.0)
     current = np.array([[[0.5, 0.25, 0.25], [0.1, 0.6, 0.3], [0.2, 0.2, 0.6]]])

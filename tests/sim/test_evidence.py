@@ -4,6 +4,8 @@ a grid of stays, on the shadow's probabilities and likelihoods)."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -18,6 +20,7 @@ from imm_gym.sim.features import (
     EVIDENCE_STAYS,
     EVIDENCE_STEP_CLIP,
     STAY_EVIDENCE_FACTOR,
+    stay_evidence_step,
     stay_tpms,
 )
 from imm_gym.tracking.imm import measurement_loglik, update_mode_probs
@@ -113,6 +116,20 @@ def test_the_stay_evidence_by_hand() -> None:
         expected = np.tanh((total - total.max(axis=1, keepdims=True)) / EVIDENCE_SCALE)
         np.testing.assert_allclose(obs[:, 2 * M :], expected, atol=1e-6)
     assert expected.min() < -0.1  # the stays were told apart
+
+
+def test_one_step_moves_a_stays_evidence_by_at_most_the_clip() -> None:
+    """A step whose measurement only the (unlikely) sticky stays cannot explain: the shadow was
+    sure of model 2, the measurement fits models 0 and 1 (log-likelihoods -2, -2, -80). Stay
+    s's evidence is log((1 - s) e^-2 + s e^-80) minus the best's, floored at -EVIDENCE_STEP_CLIP
+    (the stays 0.98 and 0.995, at -3.9 and -4.9 nats unfloored)."""
+    view = SimpleNamespace(mu_s_prev=np.array([[0.0, 0.0, 1.0]]),
+                           loglik_s=np.array([[-2.0, -2.0, -80.0]]))
+    stays = np.array([1 / 3, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995])
+    e = np.logaddexp(np.log1p(-stays) - 2.0, np.log(stays) - 80.0)
+    expected = np.maximum(e - e.max(), -EVIDENCE_STEP_CLIP)
+    assert expected[-1] == -EVIDENCE_STEP_CLIP and (e - e.max())[-1] < -4.8
+    np.testing.assert_allclose(stay_evidence_step(view)[0], expected, rtol=1e-12, atol=1e-12)
 
 
 def test_the_stay_evidence_points_to_the_stay_that_tracks_better() -> None:

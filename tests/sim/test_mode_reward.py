@@ -22,6 +22,13 @@ def test_mode_score_by_hand() -> None:
     np.testing.assert_allclose(mode_score(mu, mu_s, true), expected, rtol=1e-15)
 
 
+def test_the_mode_score_is_bounded_by_the_documented_floor() -> None:
+    """A confident hit against a confident miss scores ln(1.001 / 0.001) ≈ 6.9 (the floor
+    1e-3, as a literal: a test built from the constant cannot see it change)."""
+    score = mode_score(np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]), np.array([0]))
+    assert score[0] == pytest.approx(np.log(1.001 / 0.001), rel=1e-12)
+
+
 def test_mode_hit_by_hand() -> None:
     """+1 where only the policy's argmax is the true model, -1 where only the shadow's, 0 where
     both or neither are, or no model matches."""
