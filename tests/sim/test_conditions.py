@@ -4,6 +4,7 @@ an independent numpy IMM built for that slot's sampling period and sensor."""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import gymnasium
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 import imm_gym  # noqa: F401  (registers the envs)
 from imm_gym.scenarios.segments import RandomFamily
 from imm_gym.seeding import streams
-from imm_gym.sim.conditions import Variation, bank_noise, draw_conditions
+from imm_gym.sim.conditions import Variation, bank_noise, draw_conditions, maneuver_factors
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
@@ -357,3 +358,19 @@ def test_the_tracking_index_follows_each_slots_drawn_tracker() -> None:
     np.testing.assert_allclose(obs, np.log10(index) / 4, rtol=1e-5, atol=1e-6)
     ratio = obs[:, 1] - obs[:, 0]  # the maneuver models' noise against CV's, per slot
     np.testing.assert_allclose(ratio, np.log10(np.sqrt(0.5 * a)) / 4, rtol=1e-4, atol=1e-6)
+
+
+def test_every_model_but_cv_takes_the_maneuver_factor() -> None:
+    """CA models are maneuver models too (the Variation docstring): a CV/CA/CT bank's factors
+    are q_scale, q_scale q_maneuver, q_scale q_maneuver."""
+    bank = (SimpleNamespace(kind="cv"), SimpleNamespace(kind="ca"), SimpleNamespace(kind="ct"))
+    assert maneuver_factors(bank, 2.0, 3.0) == [2.0, 6.0, 6.0]
+
+
+def test_the_conditions_are_drawn_in_their_documented_order() -> None:
+    """speed before q_scale, one uniform each from the episode's generator, log-uniform: the
+    order fixes every varied episode of a seed (a reorder would silently change them all)."""
+    got = Variation(speed=(100.0, 200.0), q_scale=(0.5, 2.0)).draw(np.random.default_rng(7))
+    u = np.random.default_rng(7).uniform(size=2)
+    assert got["speed"] == pytest.approx(100.0 * 2.0 ** u[0], rel=1e-12)
+    assert got["q_scale"] == pytest.approx(0.5 * 4.0 ** u[1], rel=1e-12)

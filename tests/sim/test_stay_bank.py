@@ -13,6 +13,7 @@ from hypothesis.extra.numpy import arrays
 
 from imm_gym import EnvConfig, TrackingCore
 from imm_gym.sim.features import EVIDENCE_SCALE, EVIDENCE_STAYS
+from imm_gym.sim.imm_batch import BatchStep
 from imm_gym.sim.presets import CONTINUOUS_BANK
 from imm_gym.sim.stay_bank import (
     STAY_BANK_FACTOR,
@@ -287,3 +288,65 @@ def test_the_detectors_priors_are_detector_tpm_rows_of_every_stay(grid: str) -> 
     expected = detector_tpm_rows(np.tile(bank.stays, (N, 1)), np.repeat(belief, bank.S, axis=0),
                                  share)
     np.testing.assert_array_equal(bank._tpm_rows, expected)
+
+
+def test_resetting_one_slot_clears_its_evidence_and_keeps_the_others() -> None:
+    """A vector env's autoreset of one slot: its evidence starts again at 0 (the centre back at
+    the grid's mean logit), the other slot's is untouched bit for bit."""
+    core = stay_core(2, stay_base="evidence")
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        core.step(rng.uniform(-1, 1, (2, 3)))
+    bank = core.stay_bank
+    other = bank.evidence[1].copy()
+    assert np.ptp(bank.evidence[0]) > 0
+    core.reset(np.array([0]), [99])
+    assert np.all(bank.evidence[0] == 0.0)
+    np.testing.assert_array_equal(bank.evidence[1], other)
+    np.testing.assert_allclose(bank.centre()[0],
+                               1 / (1 + np.exp(-bank.logits.mean(axis=0))), rtol=1e-12)
+
+
+def _stub_cycle(bank, loglik_per_stay) -> None:
+    """Bank's IMMs replaced by a cycle whose measurement log-likelihood is ``loglik_per_stay[s]``
+    for every model of stay ``s`` (uniform predicted probabilities): each step's evidence."""
+    N, S, M = bank.n_envs, bank.S, bank.stays.shape[1]
+
+    def step(tpm, z, detected, fallback):
+        ll = np.repeat(np.tile(np.asarray(loglik_per_stay, float), N)[:, None], M, axis=1)
+        return BatchStep(np.full((N * S, M), 1.0 / M), ll, np.zeros(N * S),
+                         np.zeros((N * S, 4)), np.zeros(N * S, bool))
+
+    bank.batch.step = step
+
+
+def test_the_evidence_recursion_with_its_floor_and_discount_by_literals() -> None:
+    """A stay 50 nats behind in one step (an outlier) moves by the floor, 10 nats; one 3 nats
+    behind at every step reaches -3 (1 - 0.99^100) / 0.01 = -190.2 after 100 steps: the
+    documented floor and discount (README: λ = 0.99) as numbers, not the module's constants."""
+    core = stay_core(2, stay_base="evidence")
+    bank = core.stay_bank
+    gains = np.zeros(bank.S)
+    gains[1], gains[2] = -50.0, -3.0
+    _stub_cycle(bank, gains)
+    bank.evidence[:] = 0.0
+    z, detected = np.zeros((2, 2)), np.ones(2, dtype=bool)
+    bank.step(z, detected, None)
+    np.testing.assert_allclose(bank.evidence[:, 1:3], [[-10.0, -3.0]] * 2, rtol=1e-12)
+    for _ in range(99):
+        bank.step(z, detected, None)
+    np.testing.assert_allclose(bank.evidence[:, 2], -190.2, atol=0.05)
+
+
+def test_a_diverged_stay_counts_as_the_cap_in_the_position_error() -> None:
+    """A stay whose estimate is NaN scores the cap (it would poison bank_advantage's reward)."""
+    core = stay_core(2, stay_base="evidence")
+    bank = core.stay_bank
+    S = bank.S
+    estimates = np.zeros((2, S, 4))
+    estimates[0, 3, :2] = np.nan
+    estimates[1, :, 0] = 500.0
+    bank.estimates = lambda: estimates
+    bank.weights = np.full((2, S), 1.0 / S)
+    np.testing.assert_allclose(bank.position_error(np.zeros((2, 2)), cap=100.0),
+                               [100.0 / S, 100.0], rtol=1e-12)
