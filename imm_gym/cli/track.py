@@ -29,10 +29,10 @@ Input, by the file's suffix:
   where every ``z`` cell is a number, 0 where every one is empty) and ``vx``, ``vy`` (the initial
   velocity in m/s, from a sequence's first row: both empty, none given; later rows leave them
   empty or repeat them). The first row of a sequence initiates the track (a detection); each
-  later row is one filter step, at least one. A ``z`` cell is a finite number or empty, a
-  detection in the sensor's units (a range >= 0 m, a bearing in rad: ``|bearing| <= 2 pi``); a
-  row with more or fewer cells than the header, or a bad cell, is refused naming the file, the
-  line and the sequence.
+  later row is one filter step, at least one. A ``z`` cell is a finite number or empty; a row
+  with more or fewer cells than the header, or a bad cell, is refused naming the file, the line
+  and the sequence. Detections outside the sensor's units (a negative range, a bearing beyond
+  ``2 pi``: degrees, likely) are told of on stderr, the first named, and tracked as given.
 * ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected``, ``velocity (N, 2)``, or
   ``x0 (N, 4)`` and ``P0 (N, 4, 4)`` (read without unpickling).
 
@@ -96,8 +96,7 @@ def read_csv(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
 
     Every row has the header's cells; a ``z`` cell is a finite number or empty, a missed
     detection leaving every ``z`` cell of its row empty (or ``detected`` 0, its ``z`` cells then
-    unused); a detection is in the sensor's units (``sensor.invalid``: the sonar's range >= 0,
-    its bearing in rad); ``detected`` is 0 or 1; a ``sequence`` cell is not empty; a sequence
+    unused); ``detected`` is 0 or 1; a ``sequence`` cell is not empty; a sequence
     has two rows or more (the track's start and a step). Anything else is refused naming the
     file, the line and the sequence."""
     header, rows = _csv_rows(path)
@@ -177,15 +176,12 @@ def read_csv(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
                 "in every z cell"
             )
         det = finite if detected is None else detected
-        outside = np.flatnonzero(det & sensor.invalid(np.where(det[:, None], z, 0.0)))
-        if outside.size:
-            row = int(outside[0])
-            raise ConfigError(
-                f"{path}:{at[row]}: sequence {name!r}: z {z[row].tolist()} is no measurement "
-                f"of the sensor: it takes {sensor.measurement_units}"
-            )
+        odd = implausible_rows(sensor, z, det)
         velocity = _velocity(path, at, name, group) if "vx" in header else None
-        sequences.append({"name": name, "z": z, "detected": detected, "velocity": velocity})
+        sequences.append({
+            "name": name, "z": z, "detected": detected, "velocity": velocity,
+            "implausible": [f"{path}:{at[k]}: sequence {name!r}: z {z[k].tolist()}" for k in odd],
+        })
     for name, at in lines.items():  # after every cell is read: a bad cell is said first
         if len(at) < 2:
             raise ConfigError(
@@ -286,9 +282,9 @@ def unusable_row(z: NDArray[np.float64], detected: NDArray[np.bool_]) -> int | N
 
 def read_npz(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
     """The sequences of a measurement NPZ (see the module docstring): its arrays numbers of the
-    shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection) and a
-    detection in the sensor's units, the rest finite, a velocity or ``x0`` and ``P0`` (``P0``
-    symmetric positive definite); anything else refused naming the file."""
+    shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection), the rest
+    finite, a velocity or ``x0`` and ``P0`` (``P0`` symmetric positive definite); anything
+    else refused naming the file."""
     dim_z = sensor.dim_z
     try:  # no pickles: a file that is not an NPZ archive must not run code
         loaded = np.load(path, allow_pickle=False)
@@ -360,22 +356,30 @@ def read_npz(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
             )
         if bad is not None:
             raise ConfigError(f"{path}: {name}z's row {bad} is a detection and not finite")
-        outside = np.flatnonzero(
-            detected[i] & sensor.invalid(np.where(detected[i][:, None], z[i], 0.0))
-        )
-        if outside.size:
-            raise ConfigError(f"{path}: {name}z's row {int(outside[0])} "
-                              f"{z[i, outside[0]].tolist()} is no measurement of the sensor: "
-                              f"it takes {sensor.measurement_units}")
     if "x0" in extra:
         problem = start_problem(extra["x0"], extra["P0"])
         if problem is not None:
             said = problem.removeprefix("sequence 0: ") if single else problem
             raise ConfigError(f"{path}: {said}")
-    return [
-        {"name": str(i), "z": z[i], **{k: v[i] for k, v in extra.items()}}
-        for i in range(N)
-    ]
+    sequences = []
+    for i in range(N):
+        name = "" if single else f"sequence {i}: "
+        odd = implausible_rows(sensor, z[i], detected[i])
+        sequences.append({
+            "name": str(i), "z": z[i], **{k: v[i] for k, v in extra.items()},
+            "implausible": [f"{path}: {name}z's row {k} {z[i, k].tolist()}" for k in odd],
+        })
+    return sequences
+
+
+def implausible_rows(
+    sensor: Sonar, z: NDArray[np.float64], detected: NDArray[np.bool_]
+) -> list[int]:
+    """The detections of one sequence's ``z (K + 1, m)`` outside the sensor's units
+    (:meth:`~imm_gym.tracking.sensors.Sonar.implausible`: a negative range, a bearing in
+    degrees, likely): told of on stderr, tracked as given."""
+    return [int(k) for k in np.flatnonzero(
+        detected & sensor.implausible(np.where(detected[:, None], z, 0.0)))]
 
 
 def run(
@@ -537,6 +541,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         if not sequences:
             raise ConfigError(f"{args.measurements}: no measurements (no sequence)")
+        odd = [where for seq in sequences for where in seq["implausible"]]
+        if odd:
+            print(f"warning: {len(odd)} detection(s) outside the sensor's units (it takes "
+                  f"{config.sensor.measurement_units}; degrees, or a sign, likely), first at "
+                  f"{odd[0]}: tracked as given", file=sys.stderr)
         lengths = sorted({s["z"].shape[0] - 1 for s in sequences})
         if args.out.suffix == ".npz" and len(lengths) > 1:
             raise ConfigError(

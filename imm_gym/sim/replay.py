@@ -200,10 +200,9 @@ def run_policy(
 
     Raises:
         ConfigError: inconsistent shapes; an infinite ``z``, a row only partly NaN without
-            ``detected``, a detected non-finite measurement or one outside the sensor's units
-            (``sensor.invalid``: a negative range, a bearing beyond ``2 pi``); ``detected`` not
-            booleans or 0/1; a velocity, ``x0`` or ``P0`` not finite, ``P0`` not symmetric
-            positive definite, or ``P0`` without ``x0``.
+            ``detected``, a detected non-finite measurement; ``detected`` not booleans or 0/1;
+            a velocity, ``x0`` or ``P0`` not finite, ``P0`` not symmetric positive definite, or
+            ``P0`` without ``x0``.
     """
     base = EnvConfig() if config is None else config
     if overrides is None:
@@ -221,11 +220,6 @@ def run_policy(
     det = _detections(z_all, detected, single)
     if not det[:, 0].all():
         raise ConfigError("z[:, 0] initiates the track: it must be a finite detection")
-    bad = det & cfg.sensor.invalid(np.where(det[..., None], z_all, 0.0))
-    if bad.any():
-        n, k = (int(i) for i in np.argwhere(bad)[0])
-        raise ConfigError(f"z[{n}, {k}] = {z_all[n, k].tolist()} is no measurement of the "
-                          f"sensor: it takes {cfg.sensor.measurement_units}")
     # step-major and contiguous: each step's (N, m) slice is what the engine takes
     z_steps = np.ascontiguousarray(np.where(det[..., None], z_all, 0.0).transpose(1, 0, 2))
     det_steps = np.ascontiguousarray(det.T)

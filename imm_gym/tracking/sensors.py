@@ -174,12 +174,14 @@ class Sonar(_Clutter):
         """The sonar is nonlinear: no constant ``H``."""
         return None
 
-    #: What a recorded sonar measurement must be (:meth:`invalid`).
+    #: What a recorded sonar measurement is expected to be (:meth:`implausible`).
     measurement_units: ClassVar[str] = "a range >= 0 m and a bearing in rad, |bearing| <= 2 pi"
 
-    def invalid(self, z: Array) -> NDArray[np.bool_]:
-        """The rows of ``z (..., 2)`` that are no sonar measurement in its units (a negative
-        range, or a bearing beyond ``2 pi`` in magnitude: likely degrees); NaN rows are not."""
+    def implausible(self, z: Array) -> NDArray[np.bool_]:
+        """The rows of ``z (..., 2)`` unlikely to be sonar measurements in its units: a negative
+        range, or a bearing beyond ``2 pi`` in magnitude (degrees, likely); NaN rows are not.
+        The simulation draws such rows only under heavy outliers (its noise is not clipped), so
+        they are told of, not refused."""
         return (z[..., 0] < 0.0) | (np.abs(z[..., 1]) > 2.0 * math.pi)
 
     def initial_position(self, z: Array) -> tuple[Array, Array]:

@@ -164,7 +164,7 @@ def test_bad_inputs_are_config_errors() -> None:
     ("change", "message"),
     [
         # each was taken: inf and a half-NaN row as missed detections, 0.5/2/NaN flags as True,
-        # a 3-vector velocity a numpy broadcast error, a negative range, a bearing in degrees
+        # a 3-vector velocity a numpy broadcast error
         ({"z": (2, 0, np.inf)}, r"z\[0, 2\] is infinite \(NaN is a missed detection\)"),
         ({"z": (2, 1, np.nan)}, r"z\[0, 2\] is partly NaN: a missed detection is a row of NaN"),
         ({"detected": 0.5}, "detected must be booleans or the numbers 0 and 1"),
@@ -172,15 +172,12 @@ def test_bad_inputs_are_config_errors() -> None:
         ({"detected": np.nan}, "detected must be booleans or the numbers 0 and 1"),
         ({"velocity": [1.0, 2.0, 3.0]}, r"velocity must be finite, of shape \(2,\) or \(1, 2\)"),
         ({"velocity": [1.0, np.nan]}, r"velocity must be finite"),
-        ({"z": (3, 0, -5.0)}, r"z\[0, 3\] = \[-5.0, 0.1\] is no measurement of the sensor: "
-                              r"it takes a range >= 0 m and a bearing in rad"),
-        ({"z": (3, 1, 45.0)}, r"z\[0, 3\] = \[1000.0, 45.0\] is no measurement"),
         ({"P0": np.diag([1.0, 1.0, 1.0, -1.0])}, "sequence 0: P0 must be positive definite"),
         ({"P0": np.eye(4) + np.triu(np.ones((4, 4)), 1)}, "sequence 0: P0 must be symmetric"),
         ({"x0": [np.nan, 0.0, 0.0, 0.0]}, "sequence 0: x0 and P0 must be finite"),
     ],
     ids=["inf", "half-nan", "flag-half", "flag-2", "flag-nan", "velocity-3", "velocity-nan",
-         "negative-range", "degrees", "P0-indefinite", "P0-asymmetric", "x0-nan"],
+         "P0-indefinite", "P0-asymmetric", "x0-nan"],
 )
 def test_inputs_the_track_cannot_mean_are_refused(change, message) -> None:
     z = np.ones((5, 2)) * [1000.0, 0.1]
@@ -199,8 +196,13 @@ def test_inputs_the_track_cannot_mean_are_refused(change, message) -> None:
         run_policy(z, _policy("fixed"), **kwargs)
 
 
-def test_flags_of_zeros_and_ones_are_taken() -> None:
+def test_flags_of_zeros_and_ones_and_what_the_env_can_draw_are_taken() -> None:
+    """0/1 flags act as booleans; a negative range, which the env draws under heavy outliers
+    (its noise is not clipped), is tracked as given."""
     z = np.ones((5, 2)) * [1000.0, 0.1]
+    odd = z.copy()
+    odd[3] = [-9761.5, -1.07]
+    assert np.all(np.isfinite(run_policy(odd, _policy("fixed")).estimate))
     flags = np.array([1, 1, 0, 1, 1])
     as_numbers = run_policy(z, _policy("fixed"), detected=flags)
     as_bools = run_policy(z, _policy("fixed"), detected=flags.astype(bool))
