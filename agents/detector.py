@@ -228,4 +228,8 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except ConfigError as err:  # a usage error, said in one line (exit 2), before any work
+        print(f"python -m agents.detector: error: {err}", file=sys.stderr)
+        sys.exit(2)

@@ -5,6 +5,9 @@ belief on held-out episodes, and the command writes a file the env loads."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,3 +119,15 @@ def test_bad_arguments_fail_before_any_work(tmp_path) -> None:
     with pytest.raises(ConfigError, match=r"hidden: a network of 34234371 numbers for 3 models, "
                                           r"above the 16777216 a detector file may hold"):
         main(["--env-config", str(linear), "--hidden", "4096", "4096", "4096", "--out", out])
+
+
+def test_the_command_line_says_a_refused_argument_in_one_line(tmp_path) -> None:
+    """python -m agents.detector: a ConfigError before any work is a usage error (exit 2, one
+    line naming the option), not a traceback."""
+    done = subprocess.run(
+        [sys.executable, "-m", "agents.detector", "--env-config", "none.yaml", "--hidden", "0",
+         "--out", str(tmp_path / "d.safetensors")],
+        cwd=Path(__file__).resolve().parents[2], capture_output=True, text=True, check=False,
+    )
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.startswith("python -m agents.detector: error: hidden")
