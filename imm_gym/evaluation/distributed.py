@@ -18,6 +18,7 @@ without it.
 
 from __future__ import annotations
 
+import os
 import socket
 from typing import Any
 
@@ -56,11 +57,11 @@ def connect(address: str | None) -> None:
     """Join the Ray cluster at ``address`` (``auto``, ``HOST:PORT``), or with None Ray's default
     (``RAY_ADDRESS``, a running local cluster, else a new local instance); nothing if this
     process is connected already. Raises ConnectionError at once if nothing answers at a
-    ``HOST:PORT`` (:func:`unreachable`)."""
+    ``HOST:PORT`` given or in ``RAY_ADDRESS`` (:func:`unreachable`)."""
     import ray
 
     if not ray.is_initialized():
-        reason = unreachable(address)
+        reason = unreachable(address if address is not None else os.environ.get("RAY_ADDRESS"))
         if reason is not None:
             raise ConnectionError(reason)
         ray.init(address=address, include_dashboard=False, log_to_driver=False)

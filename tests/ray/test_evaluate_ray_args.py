@@ -77,3 +77,21 @@ def test_an_address_where_nothing_listens_is_refused_in_seconds_without_asking_r
     err = capsys.readouterr().err
     assert exc.value.code == 2 and f"--ray {address}: nothing answers at {address}" in err
     assert inits == []
+
+
+def test_a_ray_address_in_the_environment_where_nothing_listens_is_refused_too(
+    monkeypatch, capsys
+):
+    import ray
+
+    inits: list[dict] = []
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", lambda **kwargs: inits.append(kwargs))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        address = f"127.0.0.1:{s.getsockname()[1]}"
+    monkeypatch.setenv("RAY_ADDRESS", address)
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray"])
+    assert exc.value.code == 2 and f"nothing answers at {address}" in capsys.readouterr().err
+    assert inits == []
