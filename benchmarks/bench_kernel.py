@@ -71,13 +71,7 @@ def baseline_kernel(rev: str) -> ModuleType:
     """The kernel module of revision ``rev`` (imported from a cache directory; its numba cache
     lives there too), with the imm_gym modules it imports at module level snapshotted from the
     same revision (:func:`_snapshot`)."""
-    found = subprocess.run(
-        ["git", "rev-parse", "--verify", "--short=12", f"{rev}^{{commit}}"],
-        cwd=harness.REPO_ROOT,
-        check=False,
-        capture_output=True,
-        text=True,
-    )
+    found = _git("rev-parse", "--verify", "--short=12", f"{rev}^{{commit}}")
     if found.returncode != 0:
         raise SystemExit(f"--baseline {rev!r}: not a revision of this repository")
     sha = found.stdout.strip()
@@ -86,6 +80,13 @@ def baseline_kernel(rev: str) -> ModuleType:
     name = _snapshot(sha, "imm_gym.tracking.kernels.imm", where, {})
     sys.path.insert(0, str(where))
     return importlib.import_module(name)
+
+
+def _git(*args: str) -> subprocess.CompletedProcess[str]:
+    """``git ARGS`` in the repository, its output captured as text (not checked)."""
+    return subprocess.run(
+        ["git", *args], cwd=harness.REPO_ROOT, check=False, capture_output=True, text=True
+    )
 
 
 # a module-level ``from imm_gym.x.y import ...`` (not one indented inside a function)
@@ -97,13 +98,7 @@ def _snapshot(sha: str, module: str, where: Path, done: dict[str, str]) -> str:
     module-level imports of imm_gym modules rewritten to their snapshots (written the same way,
     recursively); returns the snapshot's module name. ``done``: modules already written."""
     name = done[module] = f"base_{module.replace('.', '_')}_{sha}"
-    shown = subprocess.run(
-        ["git", "show", f"{sha}:{module.replace('.', '/')}.py"],
-        cwd=harness.REPO_ROOT,
-        check=False,
-        capture_output=True,
-        text=True,
-    )
+    shown = _git("show", f"{sha}:{module.replace('.', '/')}.py")
     if shown.returncode != 0:
         raise SystemExit(f"baseline {sha}: cannot read {module} ({shown.stderr.strip()})")
     source = shown.stdout
