@@ -396,15 +396,14 @@ def run(
     own steps only."""
     if not sequences:
         raise ConfigError("no measurements")
+    started = []  # each sequence with --velocity where it gives no start of its own
+    for seq in sequences:
+        if seq.get("velocity") is None and velocity is not None and "x0" not in seq:
+            seq = {**seq, "velocity": np.asarray(velocity, dtype=np.float64)}
+        started.append(seq)
     results: dict[int, tuple[str, TrackResult]] = {}
     for kind in ("x0", "velocity", None):
-        group = []
-        for i, seq in enumerate(sequences):
-            seq = dict(seq)
-            if seq.get("velocity") is None and velocity is not None and "x0" not in seq:
-                seq["velocity"] = np.asarray(velocity, dtype=np.float64)
-            if _start_kind(seq) == kind:
-                group.append((i, seq))
+        group = [(i, seq) for i, seq in enumerate(started) if _start_kind(seq) == kind]
         if not group:
             continue
         longest = max(seq["z"].shape[0] for _, seq in group)

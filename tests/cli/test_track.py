@@ -62,6 +62,16 @@ def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
     return rows[0], np.array([[float(v) for v in row[1:]] for row in rows[1:]])
 
 
+def _write_sequences(path: Path, core: TrackingCore, lengths: tuple[int, ...]) -> None:
+    """A CSV of sequence n: the first ``lengths[n] + 1`` measurements of the core's slot n."""
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["z0", "z1", "sequence"])
+        for n, length in enumerate(lengths):
+            for k in range(length + 1):
+                writer.writerow([repr(float(core.z[n, k, 0])), repr(float(core.z[n, k, 1])), n])
+
+
 def test_csv_in_csv_out_is_the_env_episode(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     config = EnvConfig(sensor=Sonar(detection_prob=0.9))
     core, env = _episodes(config, "tip-imm")
@@ -117,12 +127,7 @@ def test_velocity_flag_and_sequences_of_different_lengths(tmp_path: Path) -> Non
     back, each as imm_gym.run_policy gives it alone."""
     core = TrackingCore(EnvConfig(), n_envs=2)
     core.reset(np.arange(2), SEEDS)
-    with (tmp_path / "z.csv").open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["z0", "z1", "sequence"])
-        for n, length in enumerate((30, 50)):
-            for k in range(length + 1):
-                writer.writerow([repr(float(core.z[n, k, 0])), repr(float(core.z[n, k, 1])), n])
+    _write_sequences(tmp_path / "z.csv", core, (30, 50))
     assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
                  "--velocity", "3", "-4", "--out", str(tmp_path / "out.csv")]) == 0
     _, table = _read_csv(tmp_path / "out.csv")
@@ -464,12 +469,7 @@ def test_shorter_sequences_are_padded_into_one_batch_and_cut_back(
     prediction-only steps do not count toward a short sequence's divergence."""
     core = TrackingCore(EnvConfig(), n_envs=2)
     core.reset(np.arange(2), SEEDS)
-    with (tmp_path / "z.csv").open("w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["z0", "z1", "sequence"])
-        for n, length in enumerate((5, 60)):
-            for k in range(length + 1):
-                writer.writerow([repr(float(core.z[n, k, 0])), repr(float(core.z[n, k, 1])), n])
+    _write_sequences(tmp_path / "z.csv", core, (5, 60))
     # a divergence cap that 55 steps of prediction alone exceed, and 5 filtered steps do not
     (tmp_path / "tracker.yaml").write_text("divergence_cov: 2.0e5\n")
     import imm_gym.cli.track as track
