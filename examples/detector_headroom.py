@@ -102,7 +102,8 @@ def detector_runs(
     names = [f"true, {d} late" for d in delays] + ["tracker (env)"]
     names += ([] if varied else ["CT-omega EKF"]) + ["learned (env)"]
     combos = [(name, s, v) for name in names for s in STAYS for v in SHARES]
-    core = prior_core(overrides, len(combos), runs, seed)
+    slots = prior_core(overrides, len(combos), runs, seed)
+    core = slots.core
     omegas = model_turn_rates(core.config.bank)
     if omegas is None:
         raise ValueError("the turn-rate prior needs a linear bank (CV and CT models)")
@@ -139,7 +140,7 @@ def detector_runs(
         b = np.where(learned[:, None], network.belief[run], belief(rate))
         return detector_tpm_rows(stays, b, shares)
 
-    result = run_priors(core, len(combos), rows)
+    result = run_priors(slots, rows)
     return {combo: result.scores(c)[:2] for c, combo in enumerate(combos)}
 
 

@@ -40,14 +40,15 @@ def detector_runs(
     """``{(stay, share): (ARMSE, mode accuracy, TV)}`` of the prior at every stay of
     :data:`STAYS` and every share, on runs ``seed .. seed + runs - 1``."""
     combos = [(s, v) for s in STAYS for v in shares]
-    core = prior_core(overrides, len(combos), runs, seed)
+    slots = prior_core(overrides, len(combos), runs, seed)
+    core = slots.core
     stays = np.repeat([s for s, _ in combos], runs)
     share = np.repeat([v for _, v in combos], runs)
 
     def rows(k: int, info: dict[str, Any] | None) -> np.ndarray:
         return detector_tpm_rows(stays, core.mu_s, share)
 
-    result = run_priors(core, len(combos), rows)
+    result = run_priors(slots, rows)
     return {combo: result.scores(c) for c, combo in enumerate(combos)}
 
 

@@ -29,6 +29,8 @@ from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
 from imm_gym.evaluation.rollout import armse_from_squared
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.tracking.tpm import validate_tpm
+from imm_gym.validation import ConfigError
 
 Array = NDArray[np.float64]
 
@@ -39,17 +41,39 @@ LOGIT = 10.0
 P_MIN = 1e-4
 
 
-def prior_core(overrides: Mapping[str, Any], n_priors: int, runs: int, seed: int) -> TrackingCore:
+@dataclass(frozen=True)
+class PriorSlots:
+    """A reset core of ``n_priors * runs`` slots, prior-major (module docstring).
+
+    Attributes:
+        core: the core, in ``set`` mode, reset on the runs.
+        n_priors: ``P``, the priors run side by side.
+        runs: ``R``, the runs each prior is scored on.
+    """
+
+    core: TrackingCore
+    n_priors: int
+    runs: int
+
+
+def prior_core(overrides: Mapping[str, Any], n_priors: int, runs: int, seed: int) -> PriorSlots:
     """A reset core of ``n_priors * runs`` slots on the configuration ``overrides`` in ``set``
     mode: every prior on runs ``seed .. seed + runs - 1`` (module docstring), no features and an
-    error reward (nothing but the tracker is read)."""
+    error reward (nothing but the tracker is read).
+
+    Raises:
+        ConfigError: ``n_priors`` or ``runs`` below 1.
+    """
+    for name, value in (("n_priors", n_priors), ("runs", runs)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ConfigError(f"{name} must be an integer >= 1, got {value!r}")
     config = EnvConfig.build(dict(overrides)).replace(
         action_mode="set", logit_scale=LOGIT, p_min=P_MIN, shadow="fixed", reward="error",
         obs_features=(), tpm_cost=0.0, tpm_change_cost=0.0, mode_reward=0.0,
     )
     core = TrackingCore(config, n_priors * runs)
     core.reset(np.arange(n_priors * runs), [seed + r for _ in range(n_priors) for r in range(runs)])
-    return core
+    return PriorSlots(core, n_priors, runs)
 
 
 @dataclass(frozen=True)
@@ -60,11 +84,13 @@ class PriorRuns:
         squared_error: ``(P, R, K)`` squared position errors.
         mode_probs: ``(P, R, K, M)``.
         true_model: ``(R, K)`` the true model of each step.
+        diverged: ``(P, R)`` the runs whose tracker diverged under each prior.
     """
 
     squared_error: Array
     mode_probs: Array
     true_model: NDArray[np.int64]
+    diverged: NDArray[np.bool_]
 
     def scores(self, prior: int) -> tuple[float, float, float]:
         """Prior ``prior``'s position ARMSE, mode accuracy and mode-probability total variation
@@ -78,21 +104,41 @@ class PriorRuns:
 
 
 def run_priors(
-    core: TrackingCore, n_priors: int, rows: Callable[[int, dict[str, Any] | None], Array]
+    slots: PriorSlots, rows: Callable[[int, dict[str, Any] | None], Array]
 ) -> PriorRuns:
     """Run the core of :func:`prior_core` to its horizon, the TPM of step ``k`` (all slots,
     ``(P * R, M, M)``, prior-major) given by ``rows(k, info)``, ``info`` the previous step's
-    (None before the first)."""
+    (None before the first).
+
+    A run whose tracker diverges is scored as :func:`~imm_gym.evaluation.rollout.rollout`
+    scores it: from the step it diverges at, its position error is ``divergence_error`` and its
+    mode probabilities uniform, and its slot is no longer stepped (its rows are not read).
+
+    Raises:
+        ConfigError: a step's rows (of the slots still tracking) not ``(P * R, M, M)``, not
+            finite, with a negative entry or a row not summing to 1.
+    """
+    core, n_priors, runs = slots.core, slots.n_priors, slots.runs
     N, M, K = core.n_envs, core.M, core.horizon
-    runs = N // n_priors
     truth = core.truth[:runs, 1:, :2].copy()
     true_model = core.true_model[:runs].copy()
-    position = np.empty((n_priors, runs, K, 2))
+    held = core.config.divergence_error**2
+    squared_error = np.empty((n_priors, runs, K))
     probs = np.empty((n_priors, runs, K, M))
+    alive = np.ones(N, dtype=bool)
     info = None
     for k in range(K):
-        action = np.log(np.maximum(rows(k, info), 1e-300)) / LOGIT
-        info = core.step(np.clip(action, -1.0, 1.0).reshape(N, M * M)).info
-        position[:, :, k] = info["estimate"][:, :2].reshape(n_priors, runs, 2)
-        probs[:, :, k] = info["mode_probs"].reshape(n_priors, runs, M)
-    return PriorRuns(np.sum((position - truth) ** 2, axis=-1), probs, true_model)
+        tpm = np.asarray(rows(k, info), dtype=np.float64)
+        if tpm.shape != (N, M, M):
+            raise ConfigError(f"rows({k}) must have shape {(N, M, M)}, got {tpm.shape}")
+        validate_tpm(tpm[alive], M, name=f"rows({k})")
+        action = np.log(np.maximum(np.where(alive[:, None, None], tpm, 1.0), 1e-300)) / LOGIT
+        result = core.step(np.clip(action, -1.0, 1.0).reshape(N, M * M), active=alive)
+        info = result.info
+        alive &= ~result.terminated
+        position = info["estimate"][:, :2].reshape(n_priors, runs, 2)
+        error = np.sum((position - truth[:, k]) ** 2, axis=-1)
+        squared_error[:, :, k] = np.where(alive.reshape(n_priors, runs), error, held)
+        live_probs = np.where(alive[:, None], info["mode_probs"], 1.0 / M)
+        probs[:, :, k] = live_probs.reshape(n_priors, runs, M)
+    return PriorRuns(squared_error, probs, true_model, ~alive.reshape(n_priors, runs))

@@ -14,13 +14,14 @@ from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
 from imm_gym.evaluation.priors import prior_core, run_priors
 from imm_gym.evaluation.rollout import armse_from_squared, evaluation_config, rollout
 from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError
 
 RUNS, SEED = 6, 11
 
 
 def test_fixed_rows_are_the_evaluations_fixed_tpm_and_the_slots_prior_major() -> None:
     stays = (0.5, 0.98, 0.5)  # the first and last prior alike: same runs, same numbers
-    core = prior_core({"scenario": "paper"}, len(stays), RUNS, SEED)
+    slots = prior_core({"scenario": "paper"}, len(stays), RUNS, SEED)
     tpms = np.repeat(np.stack([stay_tpm(3, s) for s in stays]), RUNS, axis=0)
     seen: list[Any] = []
 
@@ -28,8 +29,8 @@ def test_fixed_rows_are_the_evaluations_fixed_tpm_and_the_slots_prior_major() ->
         seen.append((k, None if info is None else info["step"][0]))
         return tpms
 
-    result = run_priors(core, len(stays), rows)
-    K = core.horizon
+    result = run_priors(slots, rows)
+    K = slots.core.horizon
     assert seen[:2] == [(0, None), (1, 1)] and len(seen) == K  # the previous step's info
     assert result.squared_error.shape == (3, RUNS, K) and result.mode_probs.shape == (3, RUNS, K, 3)
     np.testing.assert_array_equal(result.squared_error[0], result.squared_error[2])
@@ -57,7 +58,7 @@ def test_a_prior_runs_exactly_at_the_floor_and_above_and_floored_below() -> None
     one_hot = np.tile([1.0, 0.0, 0.0], (4, 1))
     stays, shares = np.array([0.995, 0.995, 0.9, 1 / 3]), np.array([0.95, 1.0, 1.0, 0.5])
     asked = np.repeat(detector_tpm_rows(stays, one_hot, shares), RUNS, axis=0)
-    core = prior_core({"scenario": "paper"}, len(stays), RUNS, SEED)
+    slots = prior_core({"scenario": "paper"}, len(stays), RUNS, SEED)
     used: list[np.ndarray] = []
 
     def rows(k: int, info: dict[str, Any] | None) -> np.ndarray:
@@ -65,10 +66,50 @@ def test_a_prior_runs_exactly_at_the_floor_and_above_and_floored_below() -> None
             used.append(info["tpm"].copy())
         return asked
 
-    run_priors(core, len(stays), rows)
+    run_priors(slots, rows)
     ran = used[-1]
     exact = asked.min(axis=(1, 2)) >= P_MIN
     assert exact.reshape(4, RUNS)[:, 0].tolist() == [True, False, False, True]
     np.testing.assert_allclose(ran[exact], asked[exact], rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(ran[~exact], apply_floor(asked[~exact], P_MIN), rtol=1e-12)
     assert ran[~exact].min() == pytest.approx(P_MIN) and asked[~exact].min() == 0.0
+
+
+def test_a_run_that_diverges_is_scored_as_the_evaluation_scores_it() -> None:
+    """Missed detections and a tight divergence cap make some trackers diverge: from that step
+    on the run is held at the cap with uniform mode probabilities, as ``rollout`` holds it (the
+    core refuses to step a slot whose episode ended)."""
+    over = {"scenario": "random", "divergence_error": 60.0, "sensor": {"detection_prob": 0.7}}
+    stays = (0.98, 0.5)
+    slots = prior_core(over, len(stays), 8, 3)
+    tpms = np.repeat(np.stack([stay_tpm(3, s) for s in stays]), 8, axis=0)
+    result = run_priors(slots, lambda k, info: tpms)
+    assert result.diverged.shape == (2, 8) and result.diverged[0].any()
+    policy = FixedTPM(3, stays[0])
+    run = rollout(policy, evaluation_config(EnvConfig.build(over), policy.env_overrides), 8, 3)
+    np.testing.assert_array_equal(result.diverged[0], run.diverged)
+    np.testing.assert_allclose(result.squared_error[0], run.squared_position_error, rtol=1e-9)
+    np.testing.assert_allclose(result.mode_probs[0], run.mode_probs, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("rows", "message"),
+    [
+        (lambda tpm: tpm[:-1], r"rows\(0\) must have shape \(12, 3, 3\)"),
+        (lambda tpm: 5.0 * tpm, r"rows\(0\) rows must sum to 1"),
+        (lambda tpm: tpm + np.where(np.eye(3) > 0, 0.5, -0.25), r"rows\(0\) entries must be >= 0"),
+        (lambda tpm: np.full_like(tpm, np.nan), r"rows\(0\) must be finite"),
+    ],
+)
+def test_rows_that_are_not_the_slots_tpms_are_refused(rows: Any, message: str) -> None:
+    slots = prior_core({"scenario": "paper"}, 4, 3, SEED)
+    tpm = np.repeat(stay_tpm(3, 0.9)[None], 12, axis=0)
+    with pytest.raises(ConfigError, match=message):
+        run_priors(slots, lambda k, info: rows(tpm))
+
+
+@pytest.mark.parametrize("field", ["n_priors", "runs"])
+def test_a_core_without_priors_or_runs_is_refused(field: str) -> None:
+    sizes = {"n_priors": 2, "runs": 3, field: 0}
+    with pytest.raises(ConfigError, match=f"{field} must be an integer >= 1, got 0"):
+        prior_core({"scenario": "paper"}, sizes["n_priors"], sizes["runs"], SEED)
