@@ -73,6 +73,7 @@ def draw_episodes(
     with an active ``variation``, run by run at its own conditions (:func:`_draw_varied`).
     ``bank``: the tracker's models, which a family with ``designed_share > 0`` needs."""
     if variation is not None and variation.active:
+        _check_varied_source(variation, source)
         return _draw_varied(
             source, sensor, scenario_rngs, noise_rngs, velocity_std, variation, bank
         )
@@ -83,6 +84,24 @@ def draw_episodes(
     else:
         truth = source.truth(scenario_rngs)
     return Batch(truth, *_observe(sensor, truth.states, noise_rngs, velocity_std))
+
+
+def _check_varied_source(variation: Variation, source: TruthSource) -> None:
+    """Raise :class:`ConfigError` where ``variation`` varies what ``source`` fixes: a varied ``T``
+    or target speed needs the randomized family (the refusal of
+    :func:`~imm_gym.sim.conditions.check_variation` for ``EnvConfig.vary``). A fixed scenario's
+    segments are counted in steps, timed for its own ``T``: at another ``T`` every turn would
+    move in time; its speed is its initial velocity, not a range to draw from."""
+    if isinstance(source, RandomFamily):
+        return
+    got = type(source).__name__
+    if variation.speed is not None:
+        raise ConfigError(f"vary.speed needs scenario 'random' (a RandomFamily), got a {got}")
+    if variation.T is not None:
+        raise ConfigError(
+            f"vary.T needs scenario 'random' (a RandomFamily; a named scenario's segments are "
+            f"timed for its own T), got a {got}"
+        )
 
 
 def _designed(source: TruthSource) -> bool:

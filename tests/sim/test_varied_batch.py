@@ -18,6 +18,7 @@ from imm_gym.seeding import streams
 from imm_gym.sim.conditions import Variation, draw_conditions
 from imm_gym.sim.episodes import draw_batch, draw_episodes
 from imm_gym.tracking.sensors import PositionSensor, Sonar
+from imm_gym.validation import ConfigError
 
 
 def _reference(source, sensor, runs: int, seed: int, variation: Variation) -> dict:
@@ -91,3 +92,20 @@ def test_varied_batch_equals_run_by_run(case: str) -> None:
         assert got[name].dtype == value.dtype and got[name].shape == value.shape, name
         assert got[name].tobytes() == value.tobytes(), name
     np.testing.assert_array_equal(batch.truth.T, batch.conditions.T)
+
+
+@pytest.mark.parametrize(
+    ("variation", "field"),
+    [(Variation(T=(0.5, 2.0)), "vary.T"), (Variation(speed=(5.0, 10.0)), "vary.speed")],
+)
+def test_varied_period_or_speed_of_a_fixed_scenario_is_refused(
+    variation: Variation, field: str
+) -> None:
+    """A fixed scenario's segments are counted in steps (timed for its own T) and its speed is its
+    initial velocity: draw_batch refuses a varied T or speed for it, as EnvConfig.vary does,
+    rather than moving every turn in time (T) or failing inside dataclasses.replace (speed)."""
+    with pytest.raises(ConfigError, match=f"{field} needs scenario 'random'"):
+        draw_batch(paper_scenario(), Sonar(), 3, 0, variation=variation)
+    scen, noise = streams(0)
+    with pytest.raises(ConfigError, match=f"{field} needs scenario 'random'"):
+        draw_episodes(paper_scenario(), Sonar(), [scen], [noise], variation=variation)
