@@ -80,14 +80,25 @@ def test_paper_truth_constant_speed() -> None:
     np.testing.assert_allclose(speed, 25.0, rtol=1e-12)
 
 
-def test_truth_with_tangential_acceleration() -> None:
-    sc = Scenario((Segment(10, accel=2.0), Segment(5)), position=(0.0, 0.0), velocity=(3.0, 4.0))
+@pytest.mark.parametrize("T", [0.5, 1.0, 2.5])
+def test_truth_with_tangential_acceleration(T: float) -> None:
+    """Along the heading u from speed v0 = 5 m/s at a = 2 m/s² for 10 steps of T, the closed
+    form: p(t) = (v0 t + a t²/2) u and |v(t)| = v0 + a t at t = k T; then straight at
+    v0 + 10 a T."""
+    sc = Scenario(
+        (Segment(10, accel=2.0), Segment(5)), position=(0.0, 0.0), velocity=(3.0, 4.0), T=T
+    )
     s = generate_truth([sc]).states[0]
     u = np.array([0.6, 0.8])
-    t = np.arange(11)
+    t = np.arange(11) * T
     np.testing.assert_allclose(s[:11, :2], (5.0 * t + t**2)[:, None] * u, atol=1e-10)
     np.testing.assert_allclose(np.linalg.norm(s[:, 2:], axis=1)[:11], 5.0 + 2.0 * t)
-    np.testing.assert_allclose(np.linalg.norm(s[11:, 2:], axis=1), 25.0)
+    np.testing.assert_allclose(np.linalg.norm(s[11:, 2:], axis=1), 5.0 + 20.0 * T)
+    end = 5.0 + 20.0 * T
+    t_after = np.arange(1, 6) * T
+    np.testing.assert_allclose(
+        s[11:, :2], (5.0 * 10 * T + (10 * T) ** 2 + end * t_after)[:, None] * u, atol=1e-9
+    )
 
 
 # --------------------------------------------------------------------------- random family
@@ -247,21 +258,26 @@ def test_segment_turn_and_accel() -> None:
         Segment(10, turn_rate_deg=1.0, accel=1.0)
 
 
+@pytest.mark.parametrize("T", [0.5, 1.0, 2.5])
 @pytest.mark.parametrize(
-    ("segments", "velocity", "message"),
+    ("segments", "speed", "message"),
     [
-        ((Segment(10, accel=2.0),), (0.0, 0.0), r"segments\[0\]\.accel: the target is at rest"),
-        ((Segment(11, accel=-1.0),), (10.5, 0.0), r"segments\[0\]\.accel: .* below 0"),
-        ((Segment(5, accel=-2.0), Segment(3, 1.0), Segment(2, accel=1.0)), (10.0, 0.0),
+        ((Segment(10, accel=2.0),), 0.0, r"segments\[0\]\.accel: the target is at rest"),
+        ((Segment(11, accel=-1.0),), 10.5,
+         r"segments\[0\]\.accel: .* below 0 .*\(accel >= -0\.954545\)"),
+        ((Segment(5, accel=-2.0), Segment(3, 1.0), Segment(2, accel=1.0)), 10.0,
          r"segments\[2\]\.accel: the target is at rest"),
     ],
 )
-def test_an_acceleration_the_target_cannot_fly_is_refused(segments, velocity, message) -> None:
-    """Speeding up from rest has no heading; slowing past zero would flip the velocity."""
+def test_an_acceleration_the_target_cannot_fly_is_refused(segments, speed, message, T) -> None:
+    """Speeding up from rest has no heading; slowing past zero would flip the velocity. The
+    initial speed is ``speed * T`` m/s, so the speed after n steps of a, ``speed T + a n T``,
+    is T times the same number at every T: 10.5 T - 11 T < 0 (the least acceleration
+    -10.5 T / (11 T) = -0.954545), 10 T - 10 T = 0 (stopped exactly)."""
     with pytest.raises(ConfigError, match=message):
-        Scenario(segments, velocity=velocity)
+        Scenario(segments, velocity=(speed * T, 0.0), T=T)
     # stopping exactly, then going straight, is a target
-    Scenario((Segment(5, accel=-2.0), Segment(3)), velocity=(10.0, 0.0))
+    Scenario((Segment(5, accel=-2.0), Segment(3)), velocity=(10.0 * T, 0.0), T=T)
 
 
 def test_segment_from_mapping() -> None:
