@@ -11,7 +11,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from imm_gym.scenarios.segments import Scenario, Segment, TruthSource, paper_scenario
-from imm_gym.validation import check_finite, check_range
+from imm_gym.validation import ConfigError, check_finite, check_range, check_sequence
 
 #: Every named scenario's factory, in declaration order.
 SCENARIOS: dict[str, Callable[[], TruthSource]] = {}
@@ -40,16 +40,31 @@ def timed_scenario(
         T: sampling period (s).
 
     Raises:
-        ValueError: ``T`` is not positive, a duration is not finite, or not a multiple of ``T``.
+        ConfigError: ``T`` is not positive, a row is not a ``(duration_s, turn_rate_deg)`` pair,
+            a duration is not finite, not positive or not a multiple of ``T`` (the error, a
+            ``ValueError``, names the row ``table[i]``).
     """
     check_range("T", T, 0.0, lo_open=True)
     segments = []
-    for i, (duration_s, turn_rate_deg) in enumerate(table):
-        steps = round(check_finite(f"table[{i}] duration_s", duration_s) / T)
-        if steps < 1 or not math.isclose(steps * T, duration_s):
-            raise ValueError(f"segment of {duration_s} s is not a multiple of T = {T} s")
-        segments.append(Segment(steps, turn_rate_deg))
+    for i, row in enumerate(table):
+        duration_s, turn_rate_deg = check_sequence(
+            f"table[{i}] (duration_s, turn_rate_deg)", row, 2
+        )
+        segments.append(Segment(_steps(f"table[{i}] duration_s", duration_s, T), turn_rate_deg))
     return Scenario(tuple(segments), position, velocity, T)
+
+
+def _steps(name: str, duration_s: float, T: float) -> int:
+    """The number of steps ``n = duration_s / T`` of a segment lasting ``duration_s`` seconds,
+    which must be positive and a whole number of sampling periods (``n T = duration_s``)."""
+    duration_s = check_range(name, check_finite(name, duration_s), 0.0, lo_open=True)
+    steps = round(duration_s / T)
+    if steps < 1 or not math.isclose(steps * T, duration_s):
+        raise ConfigError(
+            f"{name} must be a positive multiple of T = {T} s (n T, n = 1, 2, ...), got "
+            f"{duration_s} s: not a multiple of T"
+        )
+    return steps
 
 
 def atc_scenario() -> Scenario:

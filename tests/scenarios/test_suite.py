@@ -109,9 +109,17 @@ def test_a_duration_that_is_not_a_multiple_of_T_is_refused() -> None:
         ([(10, 0.0)], -1.0, r"^T must be in"),
         ([(math.nan, 0.0)], 1.0, r"^table\[0\] duration_s must be finite"),
         ([(math.inf, 0.0)], 1.0, r"^table\[0\] duration_s must be finite"),
+        ([(10, 0.0), (0, 1.0)], 1.0, r"^table\[1\] duration_s must be in \(0.0, inf\), got 0"),
+        ([(10, 0.0), (-5, 1.0)], 1.0, r"^table\[1\] duration_s must be in \(0.0, inf\), got -5"),
+        ([(10, 0.0), (0.4, 1.0)], 1.0,
+         r"^table\[1\] duration_s must be a positive multiple of T = 1.0 s .* not a multiple"),
+        ([(12, 0.0)], 5.0, r"^table\[0\] duration_s must be a positive multiple of T = 5.0 s"),
+        ([(10, 0.0), (10,)], 1.0, r"^table\[1\] \(duration_s, turn_rate_deg\) must have 2"),
+        ([(10, 0.0), 10], 1.0, r"^table\[1\] \(duration_s, turn_rate_deg\) must be a list"),
     ],
 )
 def test_a_period_or_duration_out_of_range_is_refused_by_name(table, T, message) -> None:
-    """Division by zero, and NaN or infinite durations, were Python's errors naming nothing."""
+    """Division by zero, NaN or infinite durations and malformed rows were Python's errors naming
+    nothing; a duration of 0 s or below was "not a multiple of T" (a plain ValueError)."""
     with pytest.raises(ConfigError, match=message):
         timed_scenario(table, (0.0, 0.0), (1.0, 0.0), T)
