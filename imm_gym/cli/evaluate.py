@@ -61,7 +61,12 @@ from numpy.typing import NDArray
 from baselines import REGISTRY, Baseline, BuildContext
 from imm_gym.cli.provenance import versions
 from imm_gym.cli.tables import render_tables
-from imm_gym.evaluation.clairvoyant import clairvoyant_filter, clairvoyant_role, unsupported
+from imm_gym.evaluation.clairvoyant import (
+    clairvoyant_filter,
+    clairvoyant_role,
+    hold_diverged,
+    unsupported,
+)
 from imm_gym.evaluation.metrics import (
     IQM_LEVEL,
     IQM_RESAMPLES,
@@ -645,10 +650,12 @@ def clairvoyant_bound(
     """The clairvoyant filter's errors on the same runs (same seeds, same draws) and its role.
 
     Returns:
-        Its :func:`~imm_gym.evaluation.metrics.tracking_errors`, ``peak_error`` and
-        ``maneuver_response``, with ``role`` ``"bound"`` or ``"reference"``, ``note`` and
-        ``beaten_by`` (:func:`~imm_gym.evaluation.clairvoyant.clairvoyant_role` against
-        ``policies``' scores); where the filter cannot follow the scenario or the bank
+        Its :func:`~imm_gym.evaluation.metrics.tracking_errors` under the policies' divergence
+        rule (:func:`~imm_gym.evaluation.clairvoyant.hold_diverged`), ``diverged`` (the runs it
+        lost), ``peak_error`` and ``maneuver_response``, with ``role`` ``"bound"`` or
+        ``"reference"``, ``note`` and ``beaten_by``
+        (:func:`~imm_gym.evaluation.clairvoyant.clairvoyant_role` against ``policies``'
+        scores); where the filter cannot follow the scenario or the bank
         (:func:`~imm_gym.evaluation.clairvoyant.unsupported`) only ``role`` ``"skipped"`` and
         the ``note`` saying why.
     """
@@ -665,7 +672,7 @@ def clairvoyant_bound(
     reason = unsupported(batch.truth, base.bank)
     if reason is not None:
         return {"role": "skipped", "note": f"skipped: {reason}"}
-    xs, _ = clairvoyant_filter(
+    xs, Ps = clairvoyant_filter(
         batch.truth,
         batch.measurements.z[:, 1:],
         base.sensor,
@@ -676,10 +683,12 @@ def clairvoyant_bound(
         batch.measurements.detected[:, 1:],
     )
     truth = batch.truth.states[:, 1:]
+    xs, diverged = hold_diverged(xs, Ps, truth, base.divergence_error, base.divergence_cov)
     errors = tracking_errors(xs, truth)
     true_model = true_model_index(batch.truth, base.bank)
     return {
         **errors,
+        "diverged": int(diverged.sum()),
         "peak_error": peak_error(xs, truth),
         "maneuver_response": maneuver_response(xs, truth, true_model),
         **clairvoyant_role(errors, policies),

@@ -112,7 +112,8 @@ def render_tables(results: dict[str, Any]) -> None:
     if c is not None:
         if c["role"] != "skipped":
             label = f"clairvoyant ({c['role']})"
-            table.add_row(label, *(f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
+            cells = (f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS)
+            table.add_row(label, *cells, "", "", "", str(c["diverged"]), style="dim")
         if c["role"] != "bound":
             table.caption = c["note"]
     if paper_setting(meta):

@@ -12,7 +12,8 @@ its models and noise match the bank's: a finite run set, a target close to the n
 follow better can let a policy beat it. :func:`clairvoyant_role` therefore calls it a ``bound``
 only when no policy beat it on the runs at hand, a ``reference`` otherwise; motion it cannot
 follow (tangential acceleration, a bank without CV or CT models) is named by
-:func:`unsupported`.
+:func:`unsupported`. Its runs are scored under the policies' divergence rule
+(:func:`hold_diverged`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import Truth
+from imm_gym.sim.core import INFINITY_STAND_IN
 from imm_gym.tracking.filters import Filter, MeasurementModel, make_filter, predict
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, ct_transition
@@ -107,6 +109,17 @@ def clairvoyant_role(
     return {"role": "bound", "note": note, "beaten_by": {}}
 
 
+def _check_shapes(arrays: Mapping[str, tuple[Any, tuple[int, ...]]]) -> None:
+    """Refuse an input whose shape is not the one the truth's ``R`` runs of ``K`` steps call
+    for (measurements of steps 0..K would otherwise update every step one measurement late)."""
+    for name, (value, shape) in arrays.items():
+        if np.shape(value) != shape:
+            raise ConfigError(
+                f"clairvoyant_filter: {name} must have shape {shape} (R runs, K steps of the "
+                f"truth), got {np.shape(value)}"
+            )
+
+
 def clairvoyant_filter(
     truth: Truth,
     z: Array,
@@ -130,6 +143,10 @@ def clairvoyant_filter(
 
     Returns:
         Estimates ``(R, K, 4)`` and covariances ``(R, K, 4, 4)``.
+
+    Raises:
+        ConfigError: the truth or the bank unsupported, or an input whose shape is not the truth's
+            ``R`` and ``K``'s.
     """
     reason = unsupported(truth, models)
     if reason is not None:
@@ -137,6 +154,10 @@ def clairvoyant_filter(
     flt = make_filter(filter) if isinstance(filter, str) else filter
     q_cv, q_left, q_right = _noise_by_motion(models, truth.T)
     R, K = truth.turn_rate.shape
+    _check_shapes(
+        {"z": (z, (R, K, sensor.dim_z)), "x0": (x0, (R, 4)), "P0": (P0, (R, 4, 4))}
+        | ({} if detected is None else {"detected": (detected, (R, K))})
+    )
     omega = truth.turn_rate
     Q = np.where(
         (omega == 0)[..., None, None],
@@ -157,3 +178,40 @@ def clairvoyant_filter(
             P = np.where(det[:, None, None], upd.P, P_pred)
         xs[:, k], Ps[:, k] = x, P
     return xs, Ps
+
+
+def hold_diverged(
+    xs: Array, Ps: Array, truth: Array, divergence_error: float, divergence_cov: float
+) -> tuple[Array, NDArray[np.bool_]]:
+    """The filter's estimates as the policies' are scored
+    (:func:`~imm_gym.evaluation.rollout.rollout`): a run diverges at the first step ``k`` whose
+    estimate is not finite, whose position error exceeds ``divergence_error`` or whose
+    :math:`P_{xx} + P_{yy}` exceeds ``divergence_cov``; from ``k`` on its position is held
+    ``divergence_error / sqrt(2)`` off the truth on x and on y and its velocity error at step
+    ``k``'s (an entry NaN or beyond :data:`~imm_gym.sim.core.INFINITY_STAND_IN` as 0).
+
+    Args:
+        xs, Ps: ``(R, K, 4)``, ``(R, K, 4, 4)`` of :func:`clairvoyant_filter`.
+        truth: ``(R, K, 4)`` the true states at steps 1..K.
+
+    Returns:
+        The held estimates ``(R, K, 4)`` and the runs that diverged ``(R,)``.
+    """
+    R, K = xs.shape[:2]
+    error = np.sqrt(np.sum((xs[..., :2] - truth[..., :2]) ** 2, axis=-1))
+    bad = (
+        ~np.all(np.isfinite(xs), axis=-1)
+        | ~(error <= divergence_error)
+        | ~(Ps[..., 0, 0] + Ps[..., 1, 1] <= divergence_cov)
+    )
+    diverged = bad.any(axis=1)
+    first = np.where(diverged, bad.argmax(axis=1), K)
+    runs = np.flatnonzero(diverged)
+    velocity = xs[runs, first[runs], 2:4]
+    velocity_error = np.zeros((R, 2))
+    velocity = np.where(np.abs(velocity) < INFINITY_STAND_IN, velocity, 0.0)
+    velocity_error[runs] = velocity - truth[runs, first[runs], 2:4]
+    position = truth[..., :2] + divergence_error / np.sqrt(2.0)
+    held = np.concatenate([position, truth[..., 2:4] + velocity_error[:, None]], axis=-1)
+    after = np.arange(K)[None, :] >= first[:, None]
+    return np.where(after[..., None], held, xs), diverged

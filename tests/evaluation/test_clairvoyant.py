@@ -11,6 +11,7 @@ from imm_gym.evaluation.clairvoyant import (
     BOUNDED_KEYS,
     clairvoyant_filter,
     clairvoyant_role,
+    hold_diverged,
     unsupported,
 )
 from imm_gym.tracking.hetero import SONAR_HETERO_BANK, HeteroBank
@@ -73,12 +74,14 @@ def _ct_by_hand(omega: float, T: float) -> np.ndarray:
     )
 
 
-def test_the_clairvoyant_filter_predicts_each_step_with_its_own_true_motion() -> None:
+@pytest.mark.parametrize("noise", ["discrete", "continuous"])
+def test_the_clairvoyant_filter_predicts_each_step_with_its_own_true_motion(noise: str) -> None:
     """Step k is predicted with the exact transition at that step's true turn rate (the one that
     moved the truth into measurement k) and the ``Q`` of the bank's model of that motion: the
     CV model's on straight steps, the left-turn CT model's on left turns, the right-turn one's on
     right turns (three different ``Q`` here); checked against a hand-written EKF loop. The turn
-    rate of the step before, or the CV model's ``Q`` on turns, gives other estimates."""
+    rate of the step before, or the CV model's ``Q`` on turns, gives other estimates. A
+    continuous-noise bank's ``Q`` is the one of the truth's sampling period (T = 2 s here)."""
     T = 2.0
     scenarios = [
         Scenario((Segment(4), Segment(4, 3.0), Segment(4, -2.0)), (3000.0, 4000.0), (10.0, 5.0),
@@ -94,8 +97,22 @@ def test_the_clairvoyant_filter_predicts_each_step_with_its_own_true_motion() ->
         for k in range(K):
             moved = _ct_by_hand(truth.turn_rate[r, k], T) @ truth.states[r, k]
             np.testing.assert_allclose(truth.states[r, k + 1], moved, rtol=1e-12, atol=1e-9)
-    q = {0: (9.0, 9.0, 1.0, 1.0), 1: (2.0, 3.0, 0.3, 0.4), -1: (4.0, 1.0, 0.6, 0.2)}
-    bank = (MotionModel("cv", q=q[0]), MotionModel("ct", 4.0, q[1]), MotionModel("ct", -4.0, q[-1]))
+    if noise == "discrete":
+        q = {0: (9.0, 9.0, 1.0, 1.0), 1: (2.0, 3.0, 0.3, 0.4), -1: (4.0, 1.0, 0.6, 0.2)}
+        bank = (MotionModel("cv", q=q[0]), MotionModel("ct", 4.0, q[1]),
+                MotionModel("ct", -4.0, q[-1]))
+        Q = {sign: np.diag(q[sign]) for sign in q}
+    else:
+        bank = tuple(
+            MotionModel(kind, rate, noise="continuous", intensity=intensity)
+            for kind, rate, intensity in (("cv", 0.0, 0.5), ("ct", 4.0, 0.1), ("ct", -4.0, 0.2))
+        )
+        # the white-acceleration Q of each axis over T (Bar-Shalom et al. 2001, §6.2.2): at the
+        # models' small turn rates the CT models' is within 2e-3 of it, far from T = 1 s's
+        cv_q = np.array([[T**3 / 3, T**2 / 2], [T**2 / 2, T]])
+        Q = {s: m.noise_covariance(4, T) for s, m in zip((0, 1, -1), bank, strict=True)}
+        np.testing.assert_allclose(Q[0][np.ix_([0, 2], [0, 2])], 0.5 * cv_q, rtol=1e-12)
+        np.testing.assert_allclose(Q[1][np.ix_([0, 2], [0, 2])], 0.1 * cv_q, rtol=2e-3)
     sonar = Sonar(position=(500.0, -300.0))
     sigma = np.array([sonar.sigma_r, np.radians(sonar.sigma_theta_deg)])
     rng = np.random.default_rng(4)
@@ -117,7 +134,7 @@ def test_the_clairvoyant_filter_predicts_each_step_with_its_own_true_motion() ->
         for k in range(K):
             omega = truth.turn_rate[r, k]
             F = _ct_by_hand(omega, T)
-            x, P = F @ x, F @ P @ F.T + np.diag(q[int(np.sign(omega))])
+            x, P = F @ x, F @ P @ F.T + Q[int(np.sign(omega))]
             if detected[r, k]:
                 dx, dy = x[0] - 500.0, x[1] + 300.0
                 r2 = dx * dx + dy * dy
@@ -133,3 +150,43 @@ def test_the_clairvoyant_filter_predicts_each_step_with_its_own_true_motion() ->
             np.testing.assert_allclose(Ps[r, k], P, rtol=1e-9, atol=1e-9, err_msg=f"{r}, {k}")
     # the motion of each kind is there to be told apart
     assert {int(np.sign(w)) for w in truth.turn_rate[0]} == {-1, 0, 1}
+
+
+def test_measurements_of_steps_0_to_k_are_refused_not_taken_one_step_late() -> None:
+    """``z`` is measurements 1..K: the batch's ``z`` with its step-0 column would update every
+    step with the measurement before; shapes that do not fit the truth name the input."""
+    truth = generate_truth([_scenario(Segment(4), Segment(4, 3.0), Segment(4, -2.0))] * 2)
+    x0, P0 = truth.states[:, 0], np.broadcast_to(np.eye(4) * 100.0, (2, 4, 4))
+    z = np.zeros((2, 12, 2))
+    clairvoyant_filter(truth, z, Sonar(), paper_bank(), x0, P0, filter="ekf")
+    with pytest.raises(ConfigError, match=r"z must have shape \(2, 12, 2\).*got \(2, 13, 2\)"):
+        clairvoyant_filter(truth, np.zeros((2, 13, 2)), Sonar(), paper_bank(), x0, P0)
+    with pytest.raises(ConfigError, match=r"detected must have shape \(2, 12\)"):
+        clairvoyant_filter(truth, z, Sonar(), paper_bank(), x0, P0,
+                           detected=np.ones((2, 13), dtype=bool))
+    with pytest.raises(ConfigError, match=r"P0 must have shape \(2, 4, 4\)"):
+        clairvoyant_filter(truth, z, Sonar(), paper_bank(), x0, P0[0])
+
+
+def test_a_run_is_held_from_the_step_it_diverges_at_as_the_policies_are() -> None:
+    """Three runs of four steps: run 0 keeps within the caps, run 1's position error passes
+    ``divergence_error`` at step 1, run 2's ``P_xx + P_yy`` passes ``divergence_cov`` at step 2
+    with an infinite velocity there (its held velocity error is the truth's negative)."""
+    truth = np.arange(3 * 4 * 4, dtype=float).reshape(3, 4, 4)
+    xs = truth + 1.0
+    Ps = np.broadcast_to(np.eye(4), (3, 4, 4, 4)).copy()
+    xs[1, 1, 0] += 100.0
+    xs[1, 1, 2] = truth[1, 1, 2] + 7.0
+    xs[1, 2:, 0] = np.nan  # what comes after is not read
+    Ps[2, 2, 1, 1] = 1e3
+    xs[2, 2, 3] = np.inf
+    held, diverged = hold_diverged(xs, Ps, truth, divergence_error=50.0, divergence_cov=100.0)
+    assert diverged.tolist() == [False, True, True]
+    np.testing.assert_array_equal(held[0], xs[0])
+    np.testing.assert_array_equal(held[1, 0], xs[1, 0])
+    np.testing.assert_array_equal(held[2, :2], xs[2, :2])
+    cap = 50.0 / np.sqrt(2.0)
+    for r, k, velocity_error in ((1, 1, (7.0, 1.0)), (2, 2, (1.0, -truth[2, 2, 3]))):
+        for later in range(k, 4):
+            expected = truth[r, later] + np.array([cap, cap, *velocity_error])
+            np.testing.assert_allclose(held[r, later], expected, rtol=1e-15)
