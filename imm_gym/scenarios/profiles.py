@@ -57,14 +57,21 @@ def profile_truth(
         position: ``(N, 2)``; speed: ``(N,)`` (m/s); heading: ``(N,)`` (rad) at ``t = 0``.
         T: sampling period (s).
         cart_accel: optional ``(N, K, 2)`` world-frame acceleration (m/s²) of step k.
+
+    Raises:
+        ConfigError: ``T <= 0``, a NaN or infinite entry (naming the array), mismatched shapes,
+            a Cartesian step that also turns or accelerates, or a speed driven below 0.
     """
-    omega, accel = np.atleast_2d(omega), np.atleast_2d(accel)
+    T = check_range("T", T, 0.0, lo_open=True)
+    omega, accel = _finite("omega", omega, 2), _finite("accel", accel, 2)
+    position, speed = _finite("position", position), _finite("speed", speed)
+    heading = _finite("heading", heading)
     if omega.shape != accel.shape:
         raise ConfigError(f"omega and accel profiles differ in shape: {omega.shape}, {accel.shape}")
     N, K = omega.shape
     if cart_accel is None:
         cart_accel = np.zeros((N, K, 2))
-    cart_accel = np.asarray(cart_accel, dtype=np.float64).reshape(-1, K, 2)
+    cart_accel = _finite("cart_accel", cart_accel).reshape(-1, K, 2)
     if cart_accel.shape != (N, K, 2):
         raise ConfigError(f"cart_accel has shape {cart_accel.shape}, expected {(N, K, 2)}")
     cartesian = np.any(cart_accel != 0.0, axis=-1)
@@ -99,6 +106,20 @@ def profile_truth(
     accel[cartesian] = (np.diff(v, axis=1) / T)[cartesian]
     cart = np.stack([states[..., 0], states[..., 1], v * np.cos(psi), v * np.sin(psi)], axis=-1)
     return Truth(cart, omega, accel, T, heading=psi)
+
+
+def _finite(name: str, value: Array, ndim: int = 0) -> Array:
+    """``value`` as a float array of at least ``ndim`` dimensions, every entry finite, else
+    :class:`ConfigError` naming ``name`` and the first bad entry."""
+    array = np.asarray(value, dtype=np.float64)
+    array = np.atleast_2d(array) if ndim == 2 else array
+    bad = np.argwhere(~np.isfinite(array))
+    if bad.size:
+        where = tuple(int(i) for i in bad[0])
+        raise ConfigError(
+            f"{name} must be finite everywhere, got {array[where]} at index {list(where)}"
+        )
+    return array
 
 
 def _check_ranges(family: object, names: tuple[str, ...]) -> None:

@@ -40,6 +40,38 @@ def test_profile_truth_matches_segment_truth_on_turns() -> None:
     np.testing.assert_allclose(pt.states, ref.states, atol=1e-9)
 
 
+def _profile_args() -> dict[str, np.ndarray]:
+    return {
+        "omega": np.array([[0.1, 0.0]]),
+        "accel": np.array([[0.0, 0.5]]),
+        "position": np.array([[0.0, 0.0]]),
+        "speed": np.array([5.0]),
+        "heading": np.array([0.3]),
+        "cart_accel": np.zeros((1, 2, 2)),
+    }
+
+
+@pytest.mark.parametrize(
+    ("name", "index"),
+    [("omega", (0, 1)), ("accel", (0, 0)), ("position", (0, 1)), ("speed", (0,)),
+     ("heading", (0,)), ("cart_accel", (0, 1, 0))],
+)
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_profile_truth_refuses_a_non_finite_profile_by_name(name, index, bad) -> None:
+    """A NaN or infinite entry was propagated into the whole truth; it is refused, named."""
+    args = _profile_args()
+    args[name][index] = bad
+    with pytest.raises(ConfigError, match=rf"^{name} must be finite everywhere, got {bad}"):
+        profile_truth(T=1.0, **args)
+
+
+@pytest.mark.parametrize("T", [0.0, -1.0, math.nan])
+def test_profile_truth_refuses_a_period_that_is_not_positive(T: float) -> None:
+    """At T < 0 the truth ran backwards (and T = 0 stood still)."""
+    with pytest.raises(ConfigError, match=r"^T must be in \(0.0, inf\)"):
+        profile_truth(T=T, **_profile_args())
+
+
 def test_driving_family_has_its_maneuvers() -> None:
     fam = DrivingFamily()
     pt = fam.truth([np.random.default_rng(s) for s in range(4)])
