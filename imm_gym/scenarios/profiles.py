@@ -148,7 +148,10 @@ class DrivingFamily:
     ``U(curve)`` (S-curve), turn speed ``U(turn)``, S-curve rate ``U(s_rate)`` rad/s.
 
     Attributes:
-        cruise, curve, turn: speed ranges (m/s); s_rate: S-curve turn-rate range (rad/s).
+        cruise, curve, turn: speed ranges (m/s), each ``0 < low <= high``; the curve and turn
+            speeds are slower than any cruise speed (``curve[1] <= cruise[0]``,
+            ``turn[1] <= cruise[0]``), so the target slows down before the curves.
+        s_rate: S-curve turn-rate range (rad/s).
         T: sampling period (s).
     """
 
@@ -160,8 +163,20 @@ class DrivingFamily:
 
     def __post_init__(self) -> None:
         _check_ranges(self, ("cruise", "curve", "turn", "s_rate"))
+        self._check_slower_than_cruise()
         store(self, "T", check_range("family.T", self.T, 0.0, 0.5, lo_open=True))
         check_divides("family.T", self.T, DRIVING_DURATIONS)
+
+    def _check_slower_than_cruise(self) -> None:
+        """``curve[1] <= cruise[0]`` and ``turn[1] <= cruise[0]``: the target brakes before the
+        curves and speeds up after them (accelerations ``(curve - cruise) / 4 s <= 0``)."""
+        for name in ("curve", "turn"):
+            lo, hi = getattr(self, name)
+            if hi > self.cruise[0]:
+                raise ConfigError(
+                    f"family.{name}[1] must be <= family.cruise[0] = {self.cruise[0]} m/s (the "
+                    f"target slows down from cruise to the {name} speed), got {name} = {(lo, hi)}"
+                )
 
     def segments(self, rng: np.random.Generator) -> tuple[list[tuple[float, float, float]], float]:
         """``[(duration s, omega, accel)]`` and the initial speed of one draw."""

@@ -11,6 +11,7 @@ from imm_gym import ConfigError, Scenario, Segment, generate_truth
 from imm_gym.evaluation.metrics import trajectory_metrics
 from imm_gym.papers.systems import draw, hetero_ekf_evaluation, hetero_ekf_sensor
 from imm_gym.scenarios.profiles import (
+    DRIVING_DURATIONS,
     DrivingFamily,
     ManeuverFamily,
     maneuver_profile,
@@ -85,6 +86,28 @@ def test_driving_family_has_its_maneuvers() -> None:
     # the S-curve turns back: net heading change of the gentle part is 0
     gentle = (np.abs(w) > 0) & ~sharp
     np.testing.assert_allclose(np.sum(w * gentle, axis=1), 0.0, atol=1e-9)
+    # the speed at each segment's end: cruise, the curve speed through the S-curve, back to
+    # cruise, the turn speed through each 90° turn, back to cruise after it
+    ends = np.round(np.cumsum(DRIVING_DURATIONS) / T).astype(int)
+    v = speed[:, ends]
+    cruise, curve, turn = speed[:, 0], v[:, 1], v[:, 7]
+    assert np.all((fam.cruise[0] <= cruise) & (cruise <= fam.cruise[1]))
+    assert np.all((fam.curve[0] <= curve) & (curve <= fam.curve[1]))
+    assert np.all((fam.turn[0] <= turn) & (turn <= fam.turn[1]))
+    expected = np.stack(
+        [cruise, curve, curve, curve, curve, cruise, cruise, turn, turn, cruise, cruise, turn, turn,
+         cruise, cruise], axis=1,
+    )
+    np.testing.assert_allclose(v, expected, rtol=1e-12)
+
+
+def test_a_driving_family_whose_curves_are_faster_than_cruise_is_refused() -> None:
+    """A curve or turn speed above the cruise speed made "slow down" speed up."""
+    with pytest.raises(ConfigError, match=r"^family\.curve\[1\] must be <= family\.cruise\[0\]"):
+        DrivingFamily(curve=(20.0, 21.0))
+    with pytest.raises(ConfigError, match=r"^family\.turn\[1\] must be <= family\.cruise\[0\]"):
+        DrivingFamily(cruise=(12.0, 16.0), turn=(5.0, 13.0))
+    DrivingFamily(cruise=(12.0, 16.0), curve=(12.0, 12.0), turn=(12.0, 12.0))
 
 
 def test_trajectory_metrics_closed_form() -> None:
