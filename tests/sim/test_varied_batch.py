@@ -67,7 +67,7 @@ CASES = {
     "truth noise": (
         RandomFamily(truth_q=(1.0, 1.0, 0.1, 0.1)),
         Sonar(),
-        Variation(T=(0.5, 5.0), sigma_r=(10.0, 100.0)),
+        Variation(T=(0.5, 5.0), sigma_r=(10.0, 100.0), speed=(5.0, 300.0)),
     ),
     "scenario": (paper_scenario(), Sonar(), Variation(sigma_r=(10.0, 100.0), share=0.7)),
 }
