@@ -31,15 +31,14 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 from agents.schema import check_flag, check_number, check_policy_kwargs, check_sde, check_size
+from imm_gym.seeding import TRAIN_SEED_BASE, VALIDATION_SEED_BASE
 from imm_gym.sim.mixture import check_mixture
 from imm_gym.validation import ConfigError, load_yaml
 
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
-TRAIN_SEED_BASE = 100_000_000
 #: The training slots a run seed may have: run seed ``s``'s slot ``i`` is seeded with
 #: ``TRAIN_SEED_BASE + SLOTS_PER_SEED s + i``, so that no two run seeds share a slot's streams.
 SLOTS_PER_SEED = 10_000
-VALIDATION_SEED_BASE = 50_000_000
 #: The largest run seed ``s``: the algorithm seeds numpy's global generator with it
 #: (``np.random.seed`` takes 0 to 2**32 - 1; RLlib's too). The seeds derived from it — the
 #: training slots' ``TRAIN_SEED_BASE + 10_000 s + i`` (below 2**46, under

@@ -13,6 +13,14 @@ import numpy as np
 #: Training runs of the tuners use seeds ``seed + TRAIN_SEED_OFFSET + r`` (never evaluation seeds).
 TRAIN_SEED_OFFSET = 1_000_000
 
+#: The validation runs that pick an agent's checkpoint (``agents.training``): seeds
+#: ``VALIDATION_SEED_BASE + r``. Evaluation and tuning seeds stay below it.
+VALIDATION_SEED_BASE = 50_000_000
+
+#: An agent's training slots (``agents.training.seed_training_env``): slot ``i`` of run seed ``s``
+#: is seeded with ``TRAIN_SEED_BASE + 10_000 s + i``.
+TRAIN_SEED_BASE = 100_000_000
+
 #: The learned detector's episodes (``python -m agents.detector``): seeds from ``2**61`` on,
 #: above every evaluation, validation and SB3 training seed and below RLlib's.
 DETECTOR_SEED_BASE = 1 << 61

@@ -25,7 +25,9 @@ adds their interquartile means with stratified bootstrap CIs (:mod:`imm_gym.cli.
 ``"across_seeds"``).
 
 The best fixed TPM is searched on training runs whose seeds (``seed + 1_000_000 + r``) never
-overlap the evaluation seeds.
+overlap the evaluation seeds: ``--runs`` is at most 1 000 000, and ``--seed`` at most
+:data:`MAX_SEED` (48 999 900), so that the evaluation and tuning seeds stay below the agents'
+validation seeds (50 000 000+) and training slots (100 000 000+); outside, a usage error.
 
 ``--ray [ADDR]`` runs the tracking of every roll-out (the best-fixed search's too) in chunks of
 runs on a Ray cluster (:mod:`imm_gym.evaluation.distributed`; ``ADDR``: ``auto`` or
@@ -89,7 +91,7 @@ from imm_gym.evaluation.rollout import (
 from imm_gym.papers.systems import SYSTEMS
 from imm_gym.scenarios.catalog import SCENARIOS, SUITE_CONFIGS, SUITES
 from imm_gym.scenarios.segments import Scenario, true_model_index
-from imm_gym.seeding import TRAIN_SEED_OFFSET
+from imm_gym.seeding import TRAIN_SEED_BASE, TRAIN_SEED_OFFSET, VALIDATION_SEED_BASE
 from imm_gym.sim.actions import action_size
 from imm_gym.sim.config_file import (
     EVALUATED_FIELDS,
@@ -112,6 +114,12 @@ from imm_gym.validation import ConfigError, from_dict, unique_keys
 #: ``--bank``: environment overrides of each bank.
 BANKS = BANK_PRESETS
 TRAIN_RUNS = 100
+#: The most runs: the evaluation seeds ``seed .. seed + runs - 1`` stay below the tuners' training
+#: seeds ``seed + TRAIN_SEED_OFFSET + r``.
+MAX_RUNS = TRAIN_SEED_OFFSET
+#: The largest ``--seed``: the tuners' last training seed ``seed + TRAIN_SEED_OFFSET + TRAIN_RUNS
+#: - 1`` (and so every evaluation seed) stays below the agents' validation seeds.
+MAX_SEED = VALIDATION_SEED_BASE - TRAIN_SEED_OFFSET - TRAIN_RUNS
 #: The files a directory suite reads (``--suite DIR``).
 CONFIG_SUFFIXES = (".yaml", ".yml", ".json")
 
@@ -851,13 +859,35 @@ def output_problem(path: Path, kind: str) -> str | None:
     return None
 
 
+def seed_problem(seed: int, runs: int) -> str | None:
+    """Why ``--seed seed --runs runs`` cannot be evaluated, or None: the runs' seeds
+    ``seed .. seed + runs - 1`` and the tuners' training seeds ``seed + TRAIN_SEED_OFFSET + r``
+    must not meet each other nor reach the agents' validation seeds or training slots."""
+    if runs < 1:
+        return f"--runs must be >= 1, got {runs}"
+    if seed < 0:
+        return f"--seed must be >= 0, got {seed}"
+    if runs > MAX_RUNS:
+        return (
+            f"--runs must be in [1, {MAX_RUNS}], got {runs}: the run seeds --seed .. --seed + "
+            f"--runs - 1 stay below the tuners' training seeds --seed + {TRAIN_SEED_OFFSET}+"
+        )
+    if seed > MAX_SEED:
+        return (
+            f"--seed must be in [0, {MAX_SEED}], got {seed}: the run seeds and the tuners' "
+            f"training seeds (--seed + {TRAIN_SEED_OFFSET} + r, r < {TRAIN_RUNS}) stay below the "
+            f"agents' validation seeds ({VALIDATION_SEED_BASE}+) and training slots "
+            f"({TRAIN_SEED_BASE}+)"
+        )
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.runs < 1:
-        parser.error(f"--runs must be >= 1, got {args.runs}")
-    if args.seed < 0:
-        parser.error(f"--seed must be >= 0, got {args.seed}")
+    problem = seed_problem(args.seed, args.runs)
+    if problem:
+        parser.error(problem)
     outputs = (("--json", args.json, "file"), ("--plots", args.plots, "directory"),
                ("--tradeoff", args.tradeoff, "file"))
     for flag, path, kind in outputs:

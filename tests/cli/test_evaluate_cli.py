@@ -188,6 +188,44 @@ def test_cli_rejects_bad_arguments(argv, message, capsys) -> None:
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--seed", "50000000"], "--seed must be in [0, 48999900], got 50000000"),
+        (["--seed", "100000000"], "--seed must be in [0, 48999900], got 100000000"),
+        # a tuner's last training seed, 48999901 + 1000000 + 99, would be a validation seed
+        (["--seed", "48999901"], "--seed must be in [0, 48999900], got 48999901"),
+        (["--runs", "1000001"], "--runs must be in [1, 1000000], got 1000001"),
+        (["--runs", "100000000"], "--runs must be in [1, 1000000], got 100000000"),
+    ],
+)
+def test_seeds_of_validation_training_or_tuning_runs_are_refused(
+    argv, message, capsys, monkeypatch
+) -> None:
+    """Evaluation seeds stay below the agents' validation seeds (50 000 000+, those that picked
+    a checkpoint) and training slots (100 000 000+), with the tuners' training seeds; and the
+    runs below the tuners' offset (1 000 000), which they would overlap. Refused before any
+    work; ``--seed 48999900`` (the most) and seeds 20 000 000+ are evaluated."""
+    from imm_gym.seeding import TRAIN_SEED_BASE, TRAIN_SEED_OFFSET, VALIDATION_SEED_BASE
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", *argv, "--quiet"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and message in err
+    if argv[0] == "--seed":
+        assert f"--seed + {TRAIN_SEED_OFFSET} + r" in err
+        assert f"({VALIDATION_SEED_BASE}+)" in err and f"({TRAIN_SEED_BASE}+)" in err
+    seeds = []
+    monkeypatch.setattr(
+        "imm_gym.cli.evaluate.evaluate",
+        lambda policies, scenario, runs, seed, **kw: seeds.append((seed, runs)) or 1 / 0,
+    )
+    for seed in ("48999900", "20000000"):
+        with pytest.raises(ZeroDivisionError):
+            main(["--policy", "fixed", "--seed", seed, "--runs", "1000000", "--quiet"])
+    assert seeds == [(48_999_900, 1_000_000), (20_000_000, 1_000_000)]
+
+
 def test_a_reference_not_evaluated_is_refused_before_any_work(monkeypatch) -> None:
     """A --reference that is not among the policies is refused before a policy is tuned or
     rolled out (it was refused after every roll-out)."""
