@@ -18,7 +18,7 @@ CORE_PACKAGES = ("numpy", "scipy", "gymnasium")
 def versions(*optional: str) -> dict[str, str]:
     """``{"imm_gym": ..., "git_commit": ..., "python": ..., "numpy": ..., ...}``.
 
-    ``git_commit`` is the commit checked out where the package lies in a git work tree (absent
+    ``git_commit`` is the commit checked out where a git work tree tracks the package (absent
     otherwise); each distribution of ``optional`` (by its distribution name, e.g.
     ``"stable-baselines3"``) is recorded where it is installed and left out where it is not.
     """
@@ -38,19 +38,32 @@ def versions(*optional: str) -> dict[str, str]:
 
 
 def git_commit(directory: Path) -> str | None:
-    """``git rev-parse HEAD`` in ``directory`` if it lies in a git work tree; None otherwise, and
-    where git is missing or fails (the versions are a record, never a reason to stop)."""
+    """``git rev-parse HEAD`` of the git work tree that tracks the package ``directory`` (its
+    ``__init__.py``); None where none does — outside a work tree, or inside one that does not
+    track it (a virtual environment within another project's checkout) — and where git is
+    missing or fails (the versions are a record, never a reason to stop)."""
     if not any((d / ".git").exists() for d in (directory, *directory.parents)):
         return None
     try:
-        done = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=directory,
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        )
+        _git(directory, "ls-files", "--error-unmatch", "__init__.py")
+        return _git(directory, "rev-parse", "HEAD") or None
     except (OSError, subprocess.SubprocessError):
         return None
-    return done.stdout.strip() or None
+
+
+def _git(directory: Path, *args: str) -> str:
+    """The output of ``git ARGS`` run in ``directory``, stripped (taking no optional lock: the
+    work tree may be in use).
+
+    Raises:
+        OSError, subprocess.SubprocessError: git is missing, fails or takes over 10 s.
+    """
+    done = subprocess.run(
+        ["git", "--no-optional-locks", *args],
+        cwd=directory,
+        capture_output=True,
+        text=True,
+        timeout=10,
+        check=True,
+    )
+    return done.stdout.strip()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import platform
 import re
+import subprocess
 from importlib import metadata
 from pathlib import Path
 
@@ -32,3 +33,40 @@ def test_the_commit_is_recorded_in_a_work_tree_only(tmp_path: Path) -> None:
     package = Path(imm_gym.__file__).resolve().parent
     if any((d / ".git").exists() for d in (package, *package.parents)):
         assert re.fullmatch(r"[0-9a-f]{40}", versions()["git_commit"])
+
+
+def _git(directory: Path, *args: str) -> str:
+    """``git ARGS`` in ``directory`` (an identity of its own for commits), its output stripped."""
+    config = ["-c", "user.name=t", "-c", "user.email=t@example.org", "-c", "commit.gpgsign=false"]
+    done = subprocess.run(
+        ["git", *config, *args], cwd=directory, capture_output=True, text=True, check=True
+    )
+    return done.stdout.strip()
+
+
+def _repo(root: Path, *tracked: str) -> Path:
+    """A git repository at ``root`` with the files ``tracked`` committed (each holding a line)."""
+    root.mkdir(parents=True, exist_ok=True)
+    _git(root, "init", "-q")
+    for name in tracked:
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text("x = 1\n")
+    _git(root, "add", *tracked)
+    _git(root, "commit", "-q", "-m", "one")
+    return root
+
+
+def test_a_repository_that_does_not_track_the_package_gives_no_commit(tmp_path, monkeypatch):
+    """A package inside another project's work tree (a virtual environment in its checkout,
+    ignored there) records no commit: that project's HEAD says nothing of the package."""
+    outer = _repo(tmp_path / "outer", "unrelated.txt", ".gitignore")
+    (outer / ".gitignore").write_text("venv/\n")
+    package = outer / "venv" / "site" / "pkg"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("__version__ = '0'\n")
+    assert git_commit(package) is None
+    monkeypatch.setattr(imm_gym, "__file__", str(package / "__init__.py"))
+    assert "git_commit" not in versions()
+    _git(outer, "add", "-f", "venv/site/pkg/__init__.py")
+    _git(outer, "commit", "-q", "-m", "the package tracked")
+    assert versions()["git_commit"] == git_commit(package) == _git(outer, "rev-parse", "HEAD")
