@@ -15,19 +15,21 @@ from pathlib import Path
 CORE_PACKAGES = ("numpy", "scipy", "gymnasium")
 
 
-def versions(*optional: str) -> dict[str, str]:
-    """``{"imm_gym": ..., "git_commit": ..., "python": ..., "numpy": ..., ...}``.
+def versions(*optional: str) -> dict[str, str | bool]:
+    """``{"imm_gym": ..., "git_commit": ..., "git_dirty": ..., "python": ..., "numpy": ..., ...}``.
 
-    ``git_commit`` is the commit checked out where a git work tree tracks the package (absent
-    otherwise); each distribution of ``optional`` (by its distribution name, e.g.
-    ``"stable-baselines3"``) is recorded where it is installed and left out where it is not.
+    ``git_commit`` is the commit checked out where a git work tree tracks the package, and
+    ``git_dirty`` whether tracked files of that tree differ from it (the commit alone does not
+    give the code run then); both absent otherwise. Each distribution of ``optional`` (by its
+    distribution name, e.g. ``"stable-baselines3"``) is recorded where it is installed and left
+    out where it is not.
     """
     import imm_gym
 
-    record = {"imm_gym": imm_gym.__version__}
-    commit = git_commit(Path(imm_gym.__file__).resolve().parent)
-    if commit is not None:
-        record["git_commit"] = commit
+    record: dict[str, str | bool] = {"imm_gym": imm_gym.__version__}
+    state = git_state(Path(imm_gym.__file__).resolve().parent)
+    if state is not None:
+        record["git_commit"], record["git_dirty"] = state
     record["python"] = platform.python_version()
     for name in (*CORE_PACKAGES, *optional):
         try:
@@ -38,17 +40,27 @@ def versions(*optional: str) -> dict[str, str]:
 
 
 def git_commit(directory: Path) -> str | None:
-    """``git rev-parse HEAD`` of the git work tree that tracks the package ``directory`` (its
-    ``__init__.py``); None where none does — outside a work tree, or inside one that does not
-    track it (a virtual environment within another project's checkout) — and where git is
-    missing or fails (the versions are a record, never a reason to stop)."""
+    """The commit of :func:`git_state`, or None."""
+    state = git_state(directory)
+    return None if state is None else state[0]
+
+
+def git_state(directory: Path) -> tuple[str, bool] | None:
+    """``(commit, dirty)`` of the git work tree that tracks the package ``directory`` (its
+    ``__init__.py``): ``git rev-parse HEAD``, and whether ``git status --porcelain
+    --untracked-files=no`` lists a tracked file that differs from it (anywhere in the tree;
+    untracked files do not count). None where no work tree tracks the package — outside one, or
+    inside one that does not track it (a virtual environment within another project's checkout)
+    — and where git is missing or fails (the versions are a record, never a reason to stop)."""
     if not any((d / ".git").exists() for d in (directory, *directory.parents)):
         return None
     try:
         _git(directory, "ls-files", "--error-unmatch", "__init__.py")
-        return _git(directory, "rev-parse", "HEAD") or None
+        commit = _git(directory, "rev-parse", "HEAD")
+        changed = _git(directory, "status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.SubprocessError):
         return None
+    return (commit, bool(changed)) if commit else None
 
 
 def _git(directory: Path, *args: str) -> str:

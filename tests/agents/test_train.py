@@ -420,6 +420,7 @@ def test_the_versions_name_the_package_its_commit_and_the_algorithms_library() -
     assert "sb3-contrib" not in train._versions("sb3", "ppo")
     if (Path(train.__file__).parent / ".git").exists():
         assert re.fullmatch(r"[0-9a-f]{40}", versions["git_commit"])
+        assert isinstance(versions["git_dirty"], bool)
 
 
 def test_export_copies_the_acting_files(trained, tmp_path) -> None:

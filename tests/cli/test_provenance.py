@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 import imm_gym
-from imm_gym.cli.provenance import git_commit, versions
+from imm_gym.cli.provenance import git_commit, git_state, versions
 
 
 def test_the_record_names_the_package_python_and_the_core_libraries() -> None:
@@ -70,3 +70,24 @@ def test_a_repository_that_does_not_track_the_package_gives_no_commit(tmp_path, 
     _git(outer, "add", "-f", "venv/site/pkg/__init__.py")
     _git(outer, "commit", "-q", "-m", "the package tracked")
     assert versions()["git_commit"] == git_commit(package) == _git(outer, "rev-parse", "HEAD")
+
+
+def test_a_work_tree_whose_tracked_files_differ_from_the_commit_is_recorded_dirty(
+    tmp_path, monkeypatch
+) -> None:
+    """``git_dirty`` beside ``git_commit``: a tracked file modified (anywhere in the tree) makes
+    the commit alone not the code run; an untracked file does not."""
+    root = _repo(tmp_path / "project", "pkg/__init__.py", "train.py")
+    package = root / "pkg"
+    head = _git(root, "rev-parse", "HEAD")
+    monkeypatch.setattr(imm_gym, "__file__", str(package / "__init__.py"))
+    assert git_state(package) == (head, False)
+    (root / "notes.txt").write_text("untracked\n")
+    record = versions()
+    assert (record["git_commit"], record["git_dirty"]) == (head, False)
+    (root / "train.py").write_text("x = 2\n")
+    assert git_state(package) == (head, True)
+    record = versions()
+    assert (record["git_commit"], record["git_dirty"]) == (head, True)
+    _git(root, "commit", "-q", "-am", "two")
+    assert git_state(package) == (_git(root, "rev-parse", "HEAD"), False) != (head, False)
