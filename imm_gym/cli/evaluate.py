@@ -897,7 +897,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     _check_animate(parser, args)
     if len(args.agent_seeds) == 1:
         parser.error("--agent-seeds needs two or more directories (one is a --policy)")
-    if len(set(args.agent_seeds)) != len(args.agent_seeds):
+    if len({Path(d).resolve() for d in args.agent_seeds}) != len(args.agent_seeds):
+        # resolved: 'dir', 'dir/' and './dir' are one seed, whose IQM would have zero-width CIs
         parser.error(f"--agent-seeds given a directory twice: {args.agent_seeds}")
     if args.bar and args.suite is None:
         parser.error("--bar applies to --suite")

@@ -121,6 +121,9 @@ def test_the_command_adds_the_seeds_rows_and_their_aggregate(tmp_path, capsys) -
     [
         (["--agent-seeds", "a"], "two or more directories"),
         (["--agent-seeds", "a", "a"], "a directory twice"),
+        # one directory however spelled: three copies of one seed would give zero-width CIs
+        (["--agent-seeds", "d/seed_0", "d/seed_0/", "./d/seed_0"], "a directory twice"),
+        (["--agent-seeds", "d/seed_0", "d/x/../seed_0"], "a directory twice"),
         (["--runs", "2"], "at least one --policy"),
         (["--agent-seeds", "a", "b", "--scenario", "seed002"], "--agent-seeds does not apply"),
     ],
