@@ -51,6 +51,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
@@ -884,7 +885,9 @@ def seed_problem(seed: int, runs: int) -> str | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.argv = argv
     problem = seed_problem(args.seed, args.runs)
     if problem:
         parser.error(problem)
@@ -956,7 +959,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         render_seeds(results["across_seeds"], results["meta"]["scenario"])
     if args.tradeoff:
         results["tradeoff"] = _tradeoff(args, scenario, overrides, results, make_core)
-    _record(results, args.json)
+    _record(results, args)
     if args.plots:
         from imm_gym.evaluation.plots import write_figures
 
@@ -1113,7 +1116,7 @@ def _main_suite(
 
         results["across_seeds"] = suite_across_seeds(results, args.agent_seeds)
         render_seeds(results["across_seeds"])
-    _record(results, args.json)
+    _record(results, args)
     return 0
 
 
@@ -1143,13 +1146,15 @@ def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
     except ValueError as err:
         parser.error(str(err))
     render_system_tables(results)
-    _record(results, args.json)
+    _record(results, args)
     return 0
 
 
-def _record(results: dict[str, Any], path: Path | None) -> None:
-    """The command line in the results' ``meta`` and, with ``--json``, the results written."""
-    results["meta"]["command"] = " ".join(["python -m imm_gym.evaluate", *sys.argv[1:]])
+def _record(results: dict[str, Any], args: argparse.Namespace) -> None:
+    """The command line :func:`main` parsed (``args.argv``, quoted for a shell) in the results'
+    ``meta`` and, with ``--json``, the results written."""
+    results["meta"]["command"] = f"python -m imm_gym.evaluate {shlex.join(args.argv)}"
+    path = args.json
     if path:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(results, indent=2))

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import shlex
+import sys
 
 import numpy as np
 import pytest
@@ -386,3 +388,18 @@ def test_meta_records_the_learning_stack_and_the_bootstrap(tmp_path, capsys) -> 
     printed = " ".join(capsys.readouterr().out.split())
     assert "Paired bootstrap: 2000 resamples of the runs" in printed
     assert "seed 0, 95% percentile interval" in printed
+
+
+def test_meta_records_the_command_main_parsed_quoted(tmp_path, monkeypatch) -> None:
+    """``meta.command`` is the argv ``main`` was given (not the process's), each argument quoted
+    for a shell: a path with a space splits back into one argument."""
+    out = tmp_path / "a dir" / "res.json"
+    argv = ["--policy", "fixed", "--runs", "2", "--no-clairvoyant", "--quiet", "--json", str(out)]
+    monkeypatch.setattr(sys, "argv", ["evaluate", "--policy", "something-else"])
+    assert main(argv) == 0
+    command = json.loads(out.read_text())["meta"]["command"]
+    assert command.startswith("python -m imm_gym.evaluate ")
+    assert shlex.split(command)[3:] == argv
+    monkeypatch.setattr(sys, "argv", ["evaluate", *argv])
+    assert main() == 0
+    assert json.loads(out.read_text())["meta"]["command"] == command
