@@ -70,21 +70,30 @@ def suite_across_seeds(results: Mapping[str, Any], seeds: Sequence[str]) -> dict
     their network cannot read, a bank of another size) and the IQM over those scenarios and the
     seeds of the relative difference against the reference (``reference``: ``--reference``'s
     paired differences, also with ``--bar``, whose bar may be another policy on some cases),
-    stratified by scenario."""
+    stratified by scenario. Where no scenario ran every seed there is no such IQM:
+    ``relative_vs_reference`` is None and ``note`` says why (never a NaN)."""
     ran = {
         name: r
         for name, r in results["scenarios"].items()
         if all(seed in r["policies"] for seed in seeds)
     }
     per_scenario = {name: across_seeds(r, seeds) for name, r in ran.items()}
-    relative = np.array([s["relative_vs_reference"]["per_seed"] for s in per_scenario.values()])
-    return {
+    summary: dict[str, Any] = {
         "seeds": list(seeds),
         "reference": next((s["reference"] for s in per_scenario.values()), None),
         "scenarios": per_scenario,
         "not_run": [name for name in results["scenarios"] if name not in ran],
-        "relative_vs_reference": stratified_bootstrap_iqm(relative),
+        "relative_vs_reference": None,
     }
+    if not per_scenario:
+        summary["note"] = (
+            "no scenario ran every seed (their networks read trackers of different sizes): no "
+            "IQM over the suite"
+        )
+        return summary
+    relative = np.array([s["relative_vs_reference"]["per_seed"] for s in per_scenario.values()])
+    summary["relative_vs_reference"] = stratified_bootstrap_iqm(relative)
+    return summary
 
 
 def render_seeds(summary: Mapping[str, Any], scenario: str = "") -> None:
@@ -94,7 +103,8 @@ def render_seeds(summary: Mapping[str, Any], scenario: str = "") -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    scenarios = summary.get("scenarios") or {scenario: summary}
+    suite = "scenarios" in summary
+    scenarios = summary["scenarios"] if suite else {scenario: summary}
     n = len(summary["seeds"])
     console = Console(width=None if sys.stdout.isatty() else 150)
     # text in square brackets is rich markup: escaped, or '[stratified ...]' (a tag) is dropped
@@ -112,8 +122,11 @@ def render_seeds(summary: Mapping[str, Any], scenario: str = "") -> None:
             f"{100 * r['iqm']:+.2f}% [{100 * r['low']:+.2f}, {100 * r['high']:+.2f}] "
             f"({escape(s['reference'])})",
         )
-    pooled = summary.get("relative_vs_reference") if "scenarios" in summary else None
-    if pooled is not None:
+    pooled = summary.get("relative_vs_reference") if suite else None
+    if suite and pooled is None:
+        table.caption = escape(f"{summary.get('note', 'no IQM over the suite')}; not run on "
+                               f"{', '.join(summary['not_run'])}")
+    elif pooled is not None:
         table.caption = (
             f"all scenarios, relative Δ vs the reference, {escape(summary['reference'])}: "
             f"{100 * pooled['iqm']:+.2f}% [{100 * pooled['low']:+.2f}, {100 * pooled['high']:+.2f}]"

@@ -95,6 +95,24 @@ def test_over_a_suite_the_cases_the_seeds_did_not_run_on_are_left_out() -> None:
     assert out["relative_vs_reference"] == without["relative_vs_reference"]
 
 
+def test_a_suite_where_no_case_ran_every_seed_has_no_iqm_and_no_nan(capsys) -> None:
+    """Each seed ran on some case, none on all: no suite-wide IQM (None and a note, strict JSON:
+    it was NaN) and the table says so (it raised a KeyError, losing the evaluation's JSON)."""
+    results = {
+        "scenarios": {
+            "three": _result({"best-fixed": 10.0, "a": 9.0}),
+            "four": _result({"best-fixed": 10.0, "b": 9.5}),
+        }
+    }
+    out = suite_across_seeds(results, ["a", "b"])
+    assert out["relative_vs_reference"] is None and out["scenarios"] == {}
+    assert out["not_run"] == ["three", "four"] and "no scenario ran every seed" in out["note"]
+    json.dumps(out, allow_nan=False)
+    render_seeds(out)
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "no scenario ran every seed" in printed and "not run on three, four" in printed
+
+
 def test_the_command_adds_the_seeds_rows_and_their_aggregate(tmp_path, capsys) -> None:
     dirs = [str(shutil.copytree(shipped_agent(), tmp_path / f"seed_{s}")) for s in range(2)]
     out = tmp_path / "res.json"
