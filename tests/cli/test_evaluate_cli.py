@@ -16,6 +16,16 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.validation import ConfigError
 
 
+def _printed_row(printed: str, first: str, after: str = "") -> list[str]:
+    """The cells of the first table row of ``printed`` (from the text ``after`` on) whose first
+    cell is ``first``."""
+    for line in printed[printed.index(after):].splitlines():
+        cells = [c.strip() for c in line.strip().strip("│").split("│")]
+        if cells[0] == first:
+            return cells
+    raise AssertionError(f"no row {first!r} in {printed}")
+
+
 def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:
     out = tmp_path / "res.json"
     figs = tmp_path / "figs"
@@ -58,6 +68,17 @@ def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:
         assert (figs / png).stat().st_size > 1000
     printed = capsys.readouterr().out
     assert "paper: TIP-IMM" in printed and "17.0247" in printed
+    # every policy's printed ARMSE cells are its JSON values, in the columns' order, and the
+    # paired difference's CI is printed [low, high]
+    keys = ("armse_pos", "armse_pos_x", "armse_pos_y", "armse_vel_x", "armse_vel_y")
+    for name in ("fixed", "tip-imm"):
+        row = data["policies"][name]
+        cells = _printed_row(printed, name)
+        assert cells[1:6] == [f"{row[k]:.4f}" for k in keys]
+        assert cells[8] == f"{100 * row['mode_accuracy']:.1f}%"
+    assert _printed_row(printed, "tip-imm", after="Position ARMSE minus")[1:] == [
+        f"{d['diff']:+.3f}", f"[{d['low']:+.3f}, {d['high']:+.3f}]", f"{100 * d['relative']:+.2f}%"
+    ]
     assert "clairvoyant (bound)" in printed and "maneuver response (m)" in printed
 
 

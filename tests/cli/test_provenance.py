@@ -19,6 +19,7 @@ def test_the_record_names_the_package_python_and_the_core_libraries() -> None:
     assert record["imm_gym"] == imm_gym.__version__
     assert record["python"] == platform.python_version()
     assert record["numpy"] == np.__version__
+    assert record["scipy"] == metadata.version("scipy")
     assert record["gymnasium"] == metadata.version("gymnasium")
 
 
@@ -32,7 +33,10 @@ def test_the_commit_is_recorded_in_a_work_tree_only(tmp_path: Path) -> None:
     assert git_commit(tmp_path) is None
     package = Path(imm_gym.__file__).resolve().parent
     if any((d / ".git").exists() for d in (package, *package.parents)):
-        assert re.fullmatch(r"[0-9a-f]{40}", versions()["git_commit"])
+        record = versions()
+        assert re.fullmatch(r"[0-9a-f]{40}", record["git_commit"])
+        assert record["git_commit"] == _git(package, "rev-parse", "HEAD")
+        assert isinstance(record["git_dirty"], bool)
 
 
 def _git(directory: Path, *args: str) -> str:

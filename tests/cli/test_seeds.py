@@ -29,6 +29,26 @@ def _result(armse: dict[str, float], accuracy: float = 0.6, ref: str = "best-fix
     }
 
 
+def _printed_row(printed: str, first: str) -> list[str]:
+    """The cells of the table row of ``printed`` whose first cell is ``first``."""
+    for line in printed.splitlines():
+        cells = [c.strip() for c in line.strip().strip("│").split("│")]
+        if cells[0] == first:
+            return cells
+    raise AssertionError(f"no row {first!r} in {printed}")
+
+
+def _expected_cells(s: dict) -> list[str]:
+    """The cells of a scenario's row from its JSON: IQM [low, high] of each quantity."""
+    a, m, r = s["armse_pos"], s["mode_accuracy"], s["relative_vs_reference"]
+    return [
+        f"{a['iqm']:.2f} [{a['low']:.2f}, {a['high']:.2f}]",
+        f"{100 * m['iqm']:.1f}% [{100 * m['low']:.1f}, {100 * m['high']:.1f}]",
+        f"{100 * r['iqm']:+.2f}% [{100 * r['low']:+.2f}, {100 * r['high']:+.2f}] "
+        f"({s['reference']})",
+    ]
+
+
 def test_per_scenario_the_seeds_values_and_their_iqm() -> None:
     armse = {"best-fixed": 20.0, "s0": 18.0, "s1": 19.0, "s2": 30.0, "s3": 19.5, "s4": 18.5}
     seeds = ["s0", "s1", "s2", "s3", "s4"]
@@ -62,6 +82,9 @@ def test_over_a_suite_scenarios_are_the_strata(capsys) -> None:
             "hard": _result({"best-fixed": 50.0, "a": 55.0, "b": 60.0, "c": 50.0}),
         }
     }
+    for scenario, accuracies in (("easy", (0.5, 0.7, 0.9)), ("hard", (0.2, 0.3, 0.6))):
+        for seed, accuracy in zip(seeds, accuracies, strict=True):
+            results["scenarios"][scenario]["policies"][seed]["mode_accuracy"] = accuracy
     out = suite_across_seeds(results, seeds)
     relative = np.array([[-0.1, -0.05, 0.05], [0.1, 0.2, 0.0]])
     # by hand: 10000 resamples (seed 0), each scenario's three seeds drawn with replacement from
@@ -78,8 +101,18 @@ def test_over_a_suite_scenarios_are_the_strata(capsys) -> None:
     assert set(out["scenarios"]) == {"easy", "hard"} and out["not_run"] == []
     assert out["reference"] == "best-fixed"
     render_seeds(out)
-    printed = " ".join(capsys.readouterr().out.split())
-    assert "all scenarios, relative Δ vs the reference, best-fixed:" in printed
+    table = capsys.readouterr().out
+    # the printed cells are the JSON's IQM [low, high] (10.5 - 9 m wide: low < IQM < high)
+    for name in ("easy", "hard"):
+        assert _printed_row(table, name)[1:] == _expected_cells(out["scenarios"][name])
+    assert _printed_row(table, "easy")[1:3] == ["9.67 [9.00, 10.50]", "70.0% [50.0, 90.0]"]
+    printed = " ".join(table.split())
+    pooled = out["relative_vs_reference"]
+    assert (
+        "all scenarios, relative Δ vs the reference, best-fixed: "
+        f"{100 * pooled['iqm']:+.2f}% [{100 * pooled['low']:+.2f}, {100 * pooled['high']:+.2f}]"
+    ) in printed
+    assert "+2.50% [" in printed
 
 
 def test_over_a_suite_the_cases_the_seeds_did_not_run_on_are_left_out() -> None:
@@ -88,9 +121,12 @@ def test_over_a_suite_the_cases_the_seeds_did_not_run_on_are_left_out() -> None:
     seeds = ["a", "b", "c"]
     easy = _result({"best-fixed": 10.0, "a": 9.0, "b": 9.5, "c": 10.5})
     hard = _result({"best-fixed": 50.0, "a": 55.0, "b": 60.0, "c": 50.0})
-    results = {"scenarios": {"easy": easy, "five": _result({"best-fixed": 30.0}), "hard": hard}}
+    # 'part': a seed ran there, not every one (an aggregate needs them all)
+    part = _result({"best-fixed": 30.0, "a": 29.0})
+    five = _result({"best-fixed": 30.0})
+    results = {"scenarios": {"easy": easy, "five": five, "part": part, "hard": hard}}
     out = suite_across_seeds(results, seeds)
-    assert out["not_run"] == ["five"] and list(out["scenarios"]) == ["easy", "hard"]
+    assert out["not_run"] == ["five", "part"] and list(out["scenarios"]) == ["easy", "hard"]
     without = suite_across_seeds({"scenarios": {"easy": easy, "hard": hard}}, seeds)
     assert out["relative_vs_reference"] == without["relative_vs_reference"]
 
