@@ -903,6 +903,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if len({Path(d).resolve() for d in args.agent_seeds}) != len(args.agent_seeds):
         # resolved: 'dir', 'dir/' and './dir' are one seed, whose IQM would have zero-width CIs
         parser.error(f"--agent-seeds given a directory twice: {args.agent_seeds}")
+    # a --policy or --reference naming a seed's directory otherwise spelled is that seed
+    spelling = {Path(d).resolve(): d for d in args.agent_seeds}
+    args.policy = [spelling.get(Path(p).resolve(), p) for p in args.policy]
+    if args.reference is not None:
+        args.reference = spelling.get(Path(args.reference).resolve(), args.reference)
     if args.bar and args.suite is None:
         parser.error("--bar applies to --suite")
     if args.tuned and args.scenario not in SYSTEMS:

@@ -194,12 +194,16 @@ def test_bad_seed_lists_are_refused(argv, message, capsys) -> None:
     [
         ([], "needs a reference outside the seeds"),
         (["--policy", "tip-imm", "--reference", "SEED0"], "is one of --agent-seeds"),
+        (["--policy", "tip-imm", "--reference", "SEED0/"], "is one of --agent-seeds"),
+        (["--policy", "tip-imm", "--reference", "SEED0/../seed_0"], "is one of --agent-seeds"),
+        (["--policy", "SEED0/"], "needs a reference outside the seeds"),
     ],
 )
 def test_the_seeds_are_not_their_own_reference(tmp_path, capsys, extra, message) -> None:
-    """A seed as the reference would add its zero difference to the seeds' IQM."""
+    """A seed as the reference would add its zero difference to the seeds' IQM, whatever the
+    spelling of its directory; a --policy naming a seed's directory is that seed."""
     dirs = [str(tmp_path / f"seed_{s}") for s in range(2)]
-    argv = ["--agent-seeds", *dirs, *[dirs[0] if a == "SEED0" else a for a in extra]]
+    argv = ["--agent-seeds", *dirs, *[a.replace("SEED0", dirs[0]) for a in extra]]
     with pytest.raises(SystemExit):
         main([*argv, "--scenario", "paper", "--runs", "2"])
     assert message in capsys.readouterr().err
