@@ -9,8 +9,11 @@ Lambda_i``. The adapted TPM scales the switching probabilities and keeps rows st
 
     pi_ij' = d_ij pi_ij  (j != i),     pi_ii' = 1 - sum_{j != i} pi_ij'.
 
-Seed 003's guard: the adapted TPM is accepted only if every diagonal entry exceeds 0.6 (a stay
-probability below 0.5 would describe a transient, not a motion mode); otherwise the TPM is kept.
+Seed 003's guard (its Step 3): the adapted TPM is accepted only if every diagonal entry exceeds
+0.6 (a stay probability below 0.5 would describe a transient, not a motion mode); otherwise the
+TPM is kept. Its Step 2 first tests "the necessary conditions for adaptive adjustment", equation
+(22), lost in extraction with the others: that precondition is not applied here (the update is
+proposed every step and the guard alone decides).
 The likelihoods come from the observation feature ``loglik`` (log-likelihoods relative to the best
 model, clipped to ``[-loglik_clip, 0]``), the current TPM from the feature ``tpm``; the new TPM is
 set through the ``set`` action (row logits ``log pi'``).

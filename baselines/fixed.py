@@ -28,11 +28,15 @@ class FixedTPM(Baseline):
         self, n_models: int = 3, stay: float | Sequence[float] | None = None
     ) -> None:
         super().__init__(n_models)
-        self.stay = stay if stay is None or isinstance(stay, (int, float)) else tuple(stay)
+        if stay is not None:
+            stay_tpm(n_models, stay)  # refuses a stay outside [0, 1], or not one per model
+        # one stay (a numpy scalar too) or one per model, as plain floats
+        self.stay = (
+            None if stay is None else float(stay) if np.ndim(stay) == 0 else tuple(map(float, stay))
+        )
         # without a stay, no floor: the configured TPM is kept whatever the base's p_min
         self.env_overrides = {"action_mode": "scale", "p_min": 0.0}
         if stay is not None:
-            stay_tpm(n_models, stay)  # refuses a stay outside [0, 1], or not one per model
             stays = np.broadcast_to(np.asarray(stay, dtype=np.float64), (n_models,))
             smallest = float(min(stays.min(), ((1.0 - stays) / (n_models - 1)).min()))
             self.env_overrides.update(

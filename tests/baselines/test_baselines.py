@@ -215,24 +215,41 @@ def test_the_fixed_policy_keeps_the_configured_tpm_over_a_higher_floor() -> None
         np.testing.assert_array_equal(result.info["tpm"][0], stay_tpm(3, 0.995))
 
 
-def test_tip_policy_applies_the_rule_through_the_env() -> None:
-    policy = TIPIMM()
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {},
+        {"reading": "intent", "alpha": 1.2, "beta": 0.8, "max_factor": 3.0, "parallel": False,
+         "floor": 0.02},
+    ],
+)
+def test_tip_policy_applies_the_rule_through_the_env(settings: dict) -> None:
+    """The rule with the policy's own settings (the defaults: SPEC §6's 1.1 / 0.9, the literal
+    reading, factors up to 2, the parallel bank, floor 0.05) reaches the environment's TPM."""
+    rule = {"alpha": 1.1, "beta": 0.9, "reading": "literal", **settings}
+    floor = settings.get("floor", 0.05)
+    policy = TIPIMM(**settings)
+    assert policy.env_overrides["parallel"] == settings.get("parallel", True)
+    assert policy.env_overrides["max_factor"] == settings.get("max_factor", 2.0)
     cfg = EnvConfig.build({"scenario": "paper", **policy.env_overrides})
     core = TrackingCore(cfg, 1)
     core.reset(np.array([0]), [7])
     obs = core.observe()
-    for _ in range(30):
+    moved = 0
+    for _ in range(60):
         before = core.tpm.copy()
         action, _ = policy.predict(obs)
         mu_now, mu_prev = obs[:, :3].astype(np.float64), obs[:, 3:6].astype(np.float64)
-        expected = before * tip_factors(mu_now, mu_prev, 1.1, 0.9, "literal")
+        factors = tip_factors(mu_now, mu_prev, rule["alpha"], rule["beta"], rule["reading"])
+        expected = before * factors
         expected /= expected.sum(axis=-1, keepdims=True)
         result = core.step(action)
         obs = result.obs
-        if expected.min() >= 0.05:  # the floor did not bind: the rule alone
-            np.testing.assert_allclose(core.tpm, expected, rtol=1e-12)
-        assert core.tpm.min() >= 0.05 - 1e-12
+        np.testing.assert_allclose(core.tpm, apply_floor(expected, floor), rtol=1e-12)
+        moved += int(np.abs(core.tpm - before).max() > 1e-6)
+        assert core.tpm.min() >= floor - 1e-12
         np.testing.assert_allclose(core.tpm.sum(axis=-1), 1.0, atol=1e-12)
+    assert moved >= 10  # the rule moved the TPM, not only the floor held it
 
 
 def test_amp_update_and_guard_by_hand() -> None:
@@ -250,6 +267,29 @@ def test_amp_update_and_guard_by_hand() -> None:
     # a strong likelihood ratio pushes a diagonal below 0.6: the TPM is kept
     big = np.log(np.array([[1.0, 10.0, 1.0]]))
     np.testing.assert_array_equal(amp.adapt(tpm, big), tpm)
+
+
+def test_amp_policy_applies_its_update_through_the_env() -> None:
+    """What the policy sets is the guarded update of the TPM the environment ran, from the
+    log-likelihoods (relative to the best model's, clipped) the tracker gave: read off the
+    step's info, not the observation the policy reads."""
+    amp = AMPIMM()
+    cfg = EnvConfig.build({"scenario": "paper", **amp.env_overrides})
+    core = TrackingCore(cfg, 2)
+    core.reset(np.arange(2), [3, 4])
+    result = core.step(np.zeros((2, 9)) + tpm_to_logits(core.tpm, cfg.logit_scale).reshape(2, 9))
+    adapted = 0
+    for _ in range(60):
+        before = core.tpm.copy()
+        loglik = result.info["loglik"] - result.info["loglik"].max(axis=-1, keepdims=True)
+        loglik = np.maximum(loglik, -cfg.loglik_clip)
+        expected = apply_floor(amp.adapt(before, loglik), cfg.p_min)
+        action, _ = amp.predict(result.obs)
+        result = core.step(action)
+        # the policy reads the TPM and the likelihoods in float32 (the observation's precision)
+        np.testing.assert_allclose(core.tpm, expected, rtol=1e-6, atol=1e-9)
+        adapted += int(np.abs(expected - before).max() > 1e-6)
+    assert adapted >= 10  # the update moved the TPM, not only the guard kept it
 
 
 def test_tpm_to_logits_round_trips_through_set_mode() -> None:
@@ -311,6 +351,14 @@ def test_episode_start_none_continues_the_episode_as_in_sb3_contrib() -> None:
         prev = mu
     prior = tpm_to_logits(stay_tpm(3, 0.8)[None], 4.0)[0].ravel()
     assert not np.allclose(a_none[0], prior)  # the window counted the transitions
+
+
+def test_a_numpy_scalar_stay_is_one_stay() -> None:
+    for stay in (np.float32(0.6), np.float64(0.6), np.int64(1)):
+        policy = FixedTPM(3, stay)
+        assert policy.stay == float(stay) and isinstance(policy.stay, float)
+        assert policy.env_overrides["initial_stay"] == float(stay)
+    assert FixedTPM(3, np.array([0.9, 0.8, 0.7])).stay == (0.9, 0.8, 0.7)
 
 
 @pytest.mark.parametrize(
