@@ -26,8 +26,10 @@ Conversions go through CTRA, as seed 002 writes them:
 and ``cart6`` through NCV (``[x_{NCV}; 0, 0]`` and its first four components). A composite
 conversion's Jacobian is the product of the steps' Jacobians, and covariances map as
 ``P' = J P J^T`` (first order, seed 002). At zero speed the heading is undefined: the conversion
-gives heading 0 and uses ``max(v, V_MIN)`` in the heading row of the Jacobian (a huge but finite
-heading variance); the speed row stays the unit velocity direction.
+gives heading 0 and uses ``max(v, V_MIN)`` in the heading row of the Jacobian; the speed row stays
+the unit velocity direction. Where the speed is within 3 standard deviations of 0 the converted
+heading variance is capped at a uniform heading's, ``\pi^2/3``, and its cross-covariances set to 0
+(:func:`cap_heading`).
 
 The CT and CTRA transitions (seed 002 eqs. 5-6 and the CTRA update) are written in one closed form
 valid at ``\omega = 0``: with ``\theta = \omega T`` and
@@ -198,7 +200,42 @@ def convert(x: Array, P: Array, src: str, dst: str) -> tuple[Array, Array]:
             f"conversion source: a {src!r} covariance is {n} x {n}, got an array of shape "
             f"{P.shape} (incompatible state space)"
         )
-    return out, J @ P @ np.swapaxes(J, -1, -2)
+    P_out = J @ P @ np.swapaxes(J, -1, -2)
+    if src in ("ncv", "cart6") and HEADING[dst] is not None:
+        P_out = cap_heading(out, P_out, P[..., 2:4, 2:4])
+    return out, P_out
+
+
+#: Variance of a heading uniform on ``(-pi, pi]``: ``pi^2 / 3`` (rad²).
+UNIFORM_HEADING_VAR = math.pi**2 / 3.0
+
+
+def cap_heading(x: Array, P: Array, P_v: Array, k: float = 3.0) -> Array:
+    r"""A CT/CTRA covariance converted from a Cartesian velocity, its heading capped where the
+    speed says nothing about the heading.
+
+    The first-order conversion gives ``P_{\psi\psi} = u_\perp^T P_v u_\perp / \max(v,
+    V_{MIN})^2``, unbounded as ``v \to 0`` (``2 \cdot 10^{11}`` m²/s² of velocity variance one
+    step after a start at rest). Where ``v < k \sqrt{\lambda_{max}(P_v)}`` (the speed within
+    ``k`` standard deviations of 0), ``P_{\psi\psi} \leftarrow \min(P_{\psi\psi}, \pi^2/3)``
+    (the variance of a heading uniform on the circle) and the heading's cross-covariances are set
+    to 0; elsewhere ``P`` is unchanged.
+
+    Args:
+        x: ``(..., n)`` converted states (speed at index 2, heading at 3); P: ``(..., n, n)``;
+        P_v: ``(..., 2, 2)`` the source's Cartesian velocity covariance; k: the threshold in
+            standard deviations.
+    """
+    lam = np.linalg.eigvalsh(P_v)[..., -1]
+    slow = x[..., 2] < k * np.sqrt(np.maximum(lam, 0.0))
+    if not np.any(slow):
+        return P
+    var = np.minimum(P[..., 3, 3], UNIFORM_HEADING_VAR)
+    capped = P.copy()
+    capped[..., 3, :] = 0.0
+    capped[..., :, 3] = 0.0
+    capped[..., 3, 3] = var
+    return np.where(slow[..., None, None], capped, P)
 
 
 def _g_series(theta: Array, n: int) -> Array:

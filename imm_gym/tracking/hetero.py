@@ -394,6 +394,9 @@ class HeteroIMM:
 
         Components the Cartesian state lacks (``omega``, ``a``, CA's acceleration) start at 0 with
         the bank's ``turn_rate_var`` / ``accel_var`` (defaults 0.2 and 1.0, seed 002's ``P_0``).
+        A start speed within 3 standard deviations of 0 leaves the heading undetermined: its
+        variance is capped at a uniform heading's, ``pi^2 / 3``
+        (:func:`imm_gym.tracking.conversions.cap_heading`).
 
         Args:
             x0: ``(4,)`` or ``(N, 4)``; P0: ``(4, 4)`` or ``(N, 4, 4)``, symmetric PD.

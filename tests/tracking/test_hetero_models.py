@@ -93,6 +93,46 @@ def test_zero_speed_conversion_is_finite() -> None:
     assert np.all(np.isfinite(x)) and np.all(np.isfinite(P))
 
 
+@pytest.mark.parametrize("dst", ["ct", "ctra"])
+def test_heading_variance_is_capped_where_the_speed_is_within_three_sigma(dst: str) -> None:
+    """Below ``v = 3 sqrt(lambda_max(P_v))`` the heading's variance is at most a uniform
+    heading's, ``pi^2 / 3``, and uncorrelated; above it the conversion is ``J P J^T``."""
+    P = np.diag([4.0, 4.0, 9.0, 4.0])
+    P[0, 2] = P[2, 0] = 1.0
+    for v in (0.0, 1e-3, 1.0, 8.9):
+        x = np.array([1.0, 2.0, v * 0.6, v * 0.8])
+        _, Pc = convert(x, P, "ncv", dst)
+        _, J = conversion(x, "ncv", dst)
+        raw = J @ P @ J.T
+        assert Pc[3, 3] == pytest.approx(min(raw[3, 3], math.pi**2 / 3))
+        np.testing.assert_array_equal(np.delete(Pc[3], 3), 0.0)
+        np.testing.assert_array_equal(np.delete(Pc[:, 3], 3), 0.0)
+        keep = [i for i in range(len(Pc)) if i != 3]
+        np.testing.assert_allclose(Pc[np.ix_(keep, keep)], raw[np.ix_(keep, keep)])
+    x = np.array([1.0, 2.0, 9.1 * 0.6, 9.1 * 0.8])  # 3 sigma = 9
+    _, J = conversion(x, "ncv", dst)
+    np.testing.assert_array_equal(convert(x, P, "ncv", dst)[1], J @ P @ J.T)
+    # a batch: only the slow rows are capped
+    xs = np.array([[0.0, 0.0, 1e-4, 0.0], [0.0, 0.0, 30.0, 0.0]])
+    _, Pb = convert(xs, np.stack([P, P]), "ncv", dst)
+    assert Pb[0, 3, 3] == pytest.approx(math.pi**2 / 3)
+    assert Pb[1, 3, 3] == pytest.approx(4.0 / 900.0)
+
+
+def test_a_track_started_at_rest_keeps_a_bounded_velocity_covariance() -> None:
+    """A start at (or near) zero speed: the CT/CTRA models' heading is capped, so the combined
+    velocity variance after one step stays of the order of ``P0``'s (it reached 2e11 m²/s²)."""
+    sensor = Sonar()
+    imm = HeteroIMM(HeteroBank(), sensor, T=1.0)
+    P0 = np.diag([400.0, 400.0, 900.0, 900.0])
+    truth = np.array([[3020.0, 4515.0, 20.0, 15.0]])
+    for v0 in (0.0, 1e-3, 1.0):
+        state = imm.init(np.array([[3000.0, 4500.0, v0, 0.0]]), P0)
+        assert np.all(state.P[0, 1:, 3, 3] <= math.pi**2 / 3)
+        _, out = imm.step(state, stay_tpm(3, 0.95), sensor.h(truth))
+        assert np.all(np.linalg.eigvalsh(out.P[0, 2:, 2:]) < 1e4)
+
+
 @pytest.mark.parametrize(
     ("x", "src", "dst"),
     [(np.zeros(4), "ct", "ncv"), (np.zeros(5), "ctra", "ncv"), (np.zeros(4), "ncv", "polar")],
@@ -283,10 +323,14 @@ def test_a_factorization_that_fails_past_the_checks_flags_its_tracker() -> None:
 def test_covariance_round_trips_through_ctra(
     entries: list[float], v: float, psi: float, w: float, p: float
 ) -> None:
-    """NCV -> CTRA -> NCV and CT -> CTRA -> CT give back (x, P): the Jacobians compose to I."""
+    """NCV -> CTRA -> NCV and CT -> CTRA -> CT give back (x, P): the Jacobians compose to I
+    (where the speed is 4 standard deviations from 0, outside the heading cap)."""
     A = np.array(entries).reshape(6, 6)
     x_ncv = np.array([p, -p, v * math.cos(psi), v * math.sin(psi)])
     P_ncv = A[:4, :4] @ A[:4, :4].T + 1e-3 * np.eye(4)
+    d = np.array([1.0, 1.0, 1.0, 1.0])
+    d[2:] = v / (4.0 * math.sqrt(np.linalg.eigvalsh(P_ncv[2:, 2:])[-1]))
+    P_ncv = d[:, None] * P_ncv * d[None, :]
     x, P = convert(*convert(x_ncv, P_ncv, "ncv", "ctra"), "ctra", "ncv")
     np.testing.assert_allclose(x, x_ncv, atol=1e-9)
     np.testing.assert_allclose(P, P_ncv, rtol=1e-9, atol=1e-9 * np.abs(P_ncv).max())
