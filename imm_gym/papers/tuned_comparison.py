@@ -54,7 +54,7 @@ def evaluate_system(
         if p == "fixed":
             bank = TunedBank(name, (1.0,) * imm.n_models, 1.0, method="none")
         elif tuned and p in tuned:
-            bank = TunedBank.load(tuned[p])
+            bank = TunedBank.load(tuned[p], method=p)
             if bank.bank != name:
                 raise ConfigError(
                     f"tuned bank {tuned[p]}: its field bank is {bank.bank!r}, the factors of "

@@ -60,6 +60,7 @@ from imm_gym.tracking.hetero import HeteroIMM
 from imm_gym.validation import (
     ConfigError,
     check_choice,
+    check_finite,
     check_int,
     check_range,
     check_sequence,
@@ -258,6 +259,10 @@ class TunedBank:
     notes: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.bank, str) or not self.bank:
+            raise ConfigError(
+                f"tuned.bank must be a non-empty string (the system's name), got {self.bank!r}"
+            )
         q_scale = check_sequence("tuned.q_scale", self.q_scale)
         if not q_scale:
             raise ConfigError("tuned.q_scale must have one entry per model")
@@ -271,6 +276,10 @@ class TunedBank:
         )
         store(self, "r_scale", check_range("tuned.r_scale", self.r_scale, 0.0, lo_open=True))
         check_choice("tuned.method", self.method, (*OPTIMIZERS, "none"))
+        if self.objective is not None:
+            store(self, "objective", check_finite("tuned.objective", self.objective))
+        if not isinstance(self.notes, dict):
+            raise ConfigError(f"tuned.notes must be a mapping, got {self.notes!r}")
 
     @classmethod
     def from_theta(
@@ -290,14 +299,22 @@ class TunedBank:
         Path(path).write_text(json.dumps(asdict(self), indent=2))
 
     @classmethod
-    def load(cls, path: str | Path) -> TunedBank:
+    def load(cls, path: str | Path, method: str | None = None) -> TunedBank:
+        """The bank saved at ``path``; with ``method``, refused unless its ``method`` is that
+        optimizer (a file tuned by SCA is not a BBSCA-tuned bank)."""
         try:
             data = json.loads(Path(path).read_text(), object_pairs_hook=unique_keys)
         except (OSError, ValueError) as err:  # unreadable, not JSON, a key given twice
             raise ConfigError(f"tuned bank {path}: cannot read ({err})") from None
         except RecursionError:
             raise ConfigError(f"tuned bank {path}: cannot read (nested too deeply)") from None
-        return from_dict(cls, data, f"tuned bank {path}")
+        tuned = from_dict(cls, data, f"tuned bank {path}")
+        if method is not None and tuned.method != method:
+            raise ConfigError(
+                f"tuned bank {path}: its field method is {tuned.method!r}; it was given for the "
+                f"policy {method!r}, which needs a bank tuned by {method!r}"
+            )
+        return tuned
 
 
 def tune(

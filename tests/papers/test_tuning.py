@@ -239,3 +239,29 @@ def test_a_bank_tuned_for_another_system_is_refused(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit):
         evaluate_main([*argv, "--tuned", f"bbsca={path}"])
     assert "field bank is 'seed002'" in capsys.readouterr().err
+
+
+def test_a_tuned_file_is_typed_and_matches_its_policy(tmp_path) -> None:
+    """``bank`` is a string, ``objective`` a finite number, ``notes`` a mapping; a file tuned by
+    SCA is refused for the ``bbsca`` policy (and the other way round)."""
+    from imm_gym.papers.tuned_comparison import evaluate_system
+
+    bad = tmp_path / "bad.json"
+    for body, field in (
+        ('{"bank": ["x"], "q_scale": [1, 1, 1]}', r"tuned\.bank"),
+        ('{"bank": "seed003", "q_scale": [1, 1, 1], "objective": "abc"}', r"tuned\.objective"),
+        ('{"bank": "seed003", "q_scale": [1, 1, 1], "objective": NaN}', r"tuned\.objective"),
+        ('{"bank": "seed003", "q_scale": [1, 1, 1], "notes": [1]}', r"tuned\.notes"),
+    ):
+        bad.write_text(body)
+        with pytest.raises(ConfigError, match=field):
+            TunedBank.load(bad)
+    sca = tmp_path / "sca.json"
+    TunedBank("seed003", (1.0, 1.0, 1.0), method="sca", objective=1.2).save(sca)
+    assert TunedBank.load(sca, method="sca").objective == 1.2
+    with pytest.raises(ConfigError, match=r"field method is 'sca'.*policy 'bbsca'"):
+        TunedBank.load(sca, method="bbsca")
+    with pytest.raises(ConfigError, match=r"field method is 'sca'"):
+        evaluate_system("seed003", ["bbsca"], runs=1, seed=0, tuned={"bbsca": str(sca)})
+    rows = evaluate_system("seed003", ["sca"], runs=1, seed=0, tuned={"sca": str(sca)})
+    assert rows["policies"]["sca"]["train_objective"] == 1.2
