@@ -241,6 +241,81 @@ def test_a_bank_tuned_for_another_system_is_refused(tmp_path, capsys) -> None:
     assert "field bank is 'seed002'" in capsys.readouterr().err
 
 
+def test_optimizer_and_tuner_are_reproducible_by_seed() -> None:
+    """The optimizer draws from ``default_rng(config.seed)``: the same seed repeats, another
+    differs."""
+    for method in ("bbsca", "sca"):
+        a = optimize(sphere, 3, TunerConfig(method=method, generations=3, seed=2))
+        b = optimize(sphere, 3, TunerConfig(method=method, generations=3, seed=2))
+        c = optimize(sphere, 3, TunerConfig(method=method, generations=3, seed=3))
+        np.testing.assert_array_equal(a.best, b.best)
+        assert a.history == b.history
+        assert not np.array_equal(a.best, c.best)
+    sensor = bbsca_sensor()
+    imm = bbsca_imm(sensor)
+    batch = draw(ManeuverFamily(), sensor, 1, 2_000_000)
+    tpm = stay_tpm(3, 0.9)
+
+    def tuned(seed: int) -> TunedBank:
+        return tune(imm, batch, tpm, sensor.sigma, TunerConfig(particles=3, generations=1,
+                                                               seed=seed))[0]
+
+    first = tuned(5)
+    assert tuned(5) == first
+    assert tuned(6).q_scale != first.q_scale
+
+
+def test_a_tuned_row_is_the_bank_run_with_its_factors(tmp_path) -> None:
+    """A tuned policy's filtering metrics are those of the bank run with its ``Q`` and ``R``
+    factors (not the untuned bank's)."""
+    from imm_gym.papers.systems import score_run, system_setup
+    from imm_gym.papers.tuned_comparison import evaluate_system
+
+    path = tmp_path / "bb.json"
+    TunedBank("seed003", (2.0, 0.5, 1.5), 1.3).save(path)
+    tuned = {"bbsca": str(path)}
+    rows = evaluate_system("seed003", ["fixed", "bbsca"], runs=2, seed=4, tuned=tuned)
+    row = rows["policies"]["bbsca"]
+    imm, family, sensor, tpm = system_setup("seed003")
+    batch = draw(family, sensor, 2, 4)
+    q = np.tile([2.0, 0.5, 1.5], (2, 1))
+    expected = score_run(run_bank(imm, batch, tpm, q_scale=q, r_scale=np.full(2, 1.3)), batch, 4)
+    for key in ("pos_rmse", "vel_rmse", "nis_mean", "nees_mean"):
+        assert row[key] == pytest.approx(expected[key], rel=1e-12), key
+    held_out = bank_objective(imm, batch, tpm, sensor.sigma)
+    theta = np.log10([[2.0, 0.5, 1.5, 1.3]])
+    assert row["innovation_mse"] == pytest.approx(held_out(theta)[0], rel=1e-12)
+    assert rows["policies"]["fixed"]["pos_rmse"] != pytest.approx(row["pos_rmse"], rel=1e-6)
+
+
+def test_tuned_policies_train_on_the_training_seeds_with_the_run_seed(monkeypatch) -> None:
+    """A policy tuned on the fly trains on ``train_runs`` runs seeded ``seed + TRAIN_SEED_OFFSET +
+    r`` (not the evaluation runs), with the optimizer seeded ``seed`` and its own method."""
+    import imm_gym.papers.tuned_comparison as tc
+    from imm_gym.papers.systems import system_setup
+    from imm_gym.seeding import TRAIN_SEED_OFFSET
+
+    calls: list[tuple] = []
+
+    def fake_tune(imm, batch, tpm, sigma, cfg, bank="custom"):  # type: ignore[no-untyped-def]
+        calls.append((batch, cfg))
+        return TunedBank(bank, (1.0, 1.0, 1.0), 1.0, method=cfg.method), None
+
+    monkeypatch.setattr(tc, "tune", fake_tune)
+    rows = tc.evaluate_system("seed003", ["bbsca", "sca"], runs=1, seed=7, train_runs=3,
+                              generations=4)
+    _, family, sensor, _ = system_setup("seed003")
+    train = draw(family, sensor, 3, 7 + TRAIN_SEED_OFFSET)
+    assert [c[1].method for c in calls] == ["bbsca", "sca"]
+    for batch, cfg in calls:
+        assert cfg.seed == 7 and cfg.generations == 4
+        assert batch.n_runs == 3
+        np.testing.assert_array_equal(batch.measurements.z, train.measurements.z)
+        np.testing.assert_array_equal(batch.truth.states, train.truth.states)
+    first, last = 7 + TRAIN_SEED_OFFSET, 7 + TRAIN_SEED_OFFSET + 2
+    assert rows["policies"]["bbsca"]["train_seeds"] == f"{first}..{last}"
+
+
 def test_a_tuned_file_is_typed_and_matches_its_policy(tmp_path) -> None:
     """``bank`` is a string, ``objective`` a finite number, ``notes`` a mapping; a file tuned by
     SCA is refused for the ``bbsca`` policy (and the other way round)."""
