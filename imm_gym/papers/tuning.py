@@ -141,32 +141,55 @@ def optimize(objective: Callable[[Array], Array], dim: int, config: TunerConfig)
     best, best_f = X[b].copy(), float(f[b])
     history = [best_f]
     for t in range(G):
-        if config.method == "sca":
-            r1 = config.a * (1.0 - t / G)
-        else:
-            r1 = config.a * np.exp(-config.decay * t / G)
-        r2 = rng.uniform(0.0, 2 * np.pi, size=X.shape)
-        r3 = rng.uniform(0.0, 2.0, size=X.shape)
-        r4 = rng.uniform(size=X.shape)
-        trig = np.where(r4 < 0.5, np.sin(r2), np.cos(r2))
-        Y = X + r1 * trig * np.abs(r3 * best - X)
+        r1 = step_scale(config.method, t, G, config.a, config.decay)
+        Y = sine_cosine_step(X, best, r1, rng)
         if config.method == "bbsca":
-            k = rng.integers(0, P, size=X.shape)
-            other = X[k, np.arange(dim)[None, :]]
-            gauss = rng.normal((best + other) / 2.0, np.abs(best - other))
-            Y = np.where(rng.uniform(size=X.shape) < 0.5, Y, gauss)
+            gauss = bare_bones_step(X, best, rng)
+            Y = np.where(rng.uniform(size=X.shape) < 0.5, Y, gauss)  # r_5 < 0.5: sine-cosine
         Y = np.clip(Y, lo, hi)
         fy = np.asarray(objective(Y), dtype=np.float64)
         fy = np.where(np.isfinite(fy), fy, np.inf)
-        if config.method == "bbsca":
-            X, f = greedy_select(X, f, Y, fy)
-        else:
-            X, f = Y, fy
+        X, f = next_swarm(config.method, X, f, Y, fy)
         b = int(np.argmin(fy))
         if fy[b] < best_f:
             best, best_f = Y[b].copy(), float(fy[b])
         history.append(best_f)
     return OptimResult(best, best_f, history, P * (G + 1))
+
+
+def step_scale(method: str, t: int, generations: int, a: float, decay: float) -> float:
+    """``r_1`` at generation ``t`` of ``T_max``: SCA ``a (1 - t / T_max)`` (linear), BBSCA
+    ``a e^{-lambda t / T_max}`` (exponential, ``lambda = decay``)."""
+    if method == "sca":
+        return a * (1.0 - t / generations)
+    return float(a * np.exp(-decay * t / generations))
+
+
+def sine_cosine_step(X: Array, best: Array, r1: float, rng: np.random.Generator) -> Array:
+    """SCA's proposal ``X + r_1 trig(r_2) |r_3 b - X|`` per component: ``trig = sin`` if
+    ``r_4 < 0.5`` else ``cos``, ``r_2 ~ U(0, 2 pi)``, ``r_3 ~ U(0, 2)``, ``r_4 ~ U(0, 1)``."""
+    r2 = rng.uniform(0.0, 2 * np.pi, size=X.shape)
+    r3 = rng.uniform(0.0, 2.0, size=X.shape)
+    r4 = rng.uniform(size=X.shape)
+    trig = np.where(r4 < 0.5, np.sin(r2), np.cos(r2))
+    return X + r1 * trig * np.abs(r3 * best - X)
+
+
+def bare_bones_step(X: Array, best: Array, rng: np.random.Generator) -> Array:
+    """BBSCA's Gaussian proposal ``Y_{ij} ~ N((b_j + X_{kj}) / 2, |b_j - X_{kj}|)`` (standard
+    deviation ``|b_j - X_{kj}|``), ``k`` a particle drawn per component."""
+    P, dim = X.shape
+    k = rng.integers(0, P, size=X.shape)
+    other = X[k, np.arange(dim)[None, :]]
+    return rng.normal((best + other) / 2.0, np.abs(best - other))
+
+
+def next_swarm(method: str, X: Array, f: Array, Y: Array, fy: Array) -> tuple[Array, Array]:
+    """The swarm of the next generation: SCA moves every particle to its proposal (no
+    selection), BBSCA keeps the better of the two (:func:`greedy_select`)."""
+    if method == "bbsca":
+        return greedy_select(X, f, Y, fy)
+    return Y, fy
 
 
 def greedy_select(X: Array, f: Array, Y: Array, fy: Array) -> tuple[Array, Array]:

@@ -18,8 +18,11 @@ from imm_gym.papers.tuning import (
     TunedBank,
     TunerConfig,
     bank_objective,
+    bare_bones_step,
     greedy_select,
+    next_swarm,
     optimize,
+    step_scale,
     tune,
 )
 from imm_gym.sim.episodes import Batch
@@ -84,7 +87,8 @@ def test_tuning_lowers_the_training_objective_and_round_trips(tmp_path) -> None:
     batch = draw(ManeuverFamily(), sensor, 2, 1_000_000)
     cfg = TunerConfig(particles=4, generations=2, seed=0)
     tuned, res = tune(imm, batch, stay_tpm(3, 0.9), sensor.sigma, cfg, bank="seed003")
-    assert res.value <= res.history[0]  # particle 0 is the untuned bank
+    untuned = bank_objective(imm, batch, stay_tpm(3, 0.9), sensor.sigma)(np.zeros((1, 4)))[0]
+    assert res.history[0] <= untuned  # particle 0 is the untuned bank
     path = tmp_path / "tuned.json"
     tuned.save(path)
     loaded = TunedBank.load(path)
@@ -239,6 +243,70 @@ def test_a_bank_tuned_for_another_system_is_refused(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit):
         evaluate_main([*argv, "--tuned", f"bbsca={path}"])
     assert "field bank is 'seed002'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("bounds", "start"), [((-2.0, 2.0), 0.0), ((0.5, 1.5), 0.5)])
+def test_particle_zero_is_the_untuned_point(bounds: tuple[float, float], start: float) -> None:
+    """The initial swarm's particle 0 is ``theta = 0`` (the untuned bank), clipped to the box."""
+    swarms: list[np.ndarray] = []
+
+    def recording(theta: np.ndarray) -> np.ndarray:
+        swarms.append(theta.copy())
+        return sphere(theta)
+
+    res = optimize(recording, 3, TunerConfig(particles=5, generations=2, bounds=bounds, seed=4))
+    np.testing.assert_array_equal(swarms[0][0], np.full(3, start))
+    assert np.all(swarms[0][1:] != start)  # the others are drawn
+    assert res.history[0] <= float(sphere(np.full(3, start))[0])
+
+
+def test_step_scale_is_linear_for_sca_and_exponential_for_bbsca() -> None:
+    """``r_1``: SCA ``a (1 - t / T)``, BBSCA ``a e^{-lambda t / T}`` (seed 003 §3.2.2 (i))."""
+    for t in (0, 5, 10, 19):
+        assert step_scale("sca", t, 20, 2.0, 4.0) == pytest.approx(2.0 * (1 - t / 20))
+        assert step_scale("bbsca", t, 20, 2.0, 4.0) == pytest.approx(2.0 * np.exp(-4.0 * t / 20))
+    assert step_scale("bbsca", 10, 20, 3.0, 1.0) == pytest.approx(3.0 * np.exp(-0.5))
+
+
+@pytest.mark.parametrize("method", ["bbsca", "sca"])
+def test_the_optimizer_steps_by_its_own_schedule(method: str, monkeypatch) -> None:
+    import imm_gym.papers.tuning as tuning
+
+    scales: list[float] = []
+
+    def recording(*args: object) -> float:
+        scales.append(step_scale(*args))  # type: ignore[arg-type]
+        return scales[-1]
+
+    monkeypatch.setattr(tuning, "step_scale", recording)
+    optimize(sphere, 2, TunerConfig(method=method, generations=4, a=2.0, decay=4.0, seed=0))
+    expected = [step_scale(method, t, 4, 2.0, 4.0) for t in range(4)]
+    assert scales == pytest.approx(expected)
+
+
+def test_bare_bones_step_is_gaussian_between_the_best_and_a_particle() -> None:
+    """``Y ~ N((b + X_k) / 2, |b - X_k|)``: with every particle at 0 and ``b = 2``, mean 1 and
+    standard deviation 2."""
+    X = np.zeros((20_000, 1))
+    Y = bare_bones_step(X, np.array([2.0]), np.random.default_rng(0))
+    assert Y.mean() == pytest.approx(1.0, abs=0.05)
+    assert Y.std() == pytest.approx(2.0, rel=0.03)
+    # the mean lies between the best and the chosen particle, which is drawn per component
+    X = np.array([[0.0, 10.0], [4.0, 10.0]])
+    Y = bare_bones_step(np.repeat(X, 5000, axis=0), np.array([0.0, 10.0]), np.random.default_rng(1))
+    assert Y[:, 1] == pytest.approx(np.full(10_000, 10.0))  # |b - X_k| = 0 in component 1
+    assert Y[:, 0].mean() == pytest.approx(1.0, abs=0.1)  # half the draws N(0, 0), half N(2, 4)
+
+
+def test_sca_moves_every_particle_and_bbsca_selects() -> None:
+    X, f = np.zeros((2, 1)), np.array([1.0, 1.0])
+    Y, fy = np.ones((2, 1)), np.array([5.0, 0.5])
+    new_X, new_f = next_swarm("sca", X, f, Y, fy)
+    np.testing.assert_array_equal(new_X, Y)
+    np.testing.assert_array_equal(new_f, fy)
+    new_X, new_f = next_swarm("bbsca", X, f, Y, fy)
+    np.testing.assert_array_equal(new_X, [[0.0], [1.0]])
+    np.testing.assert_array_equal(new_f, [1.0, 0.5])
 
 
 def test_optimizer_and_tuner_are_reproducible_by_seed() -> None:
