@@ -209,15 +209,19 @@ def test_transition_jacobians_match_finite_differences(w: float) -> None:
     )
 
 
-def test_ekf_engine_equals_kalman_imm_on_linear_bank() -> None:
-    """The heterogeneous engine with the linear CV/CT(±4°/s) bank is the classical KF-IMM."""
+ASYMMETRIC_TPM = np.array([[0.97, 0.02, 0.01], [0.30, 0.60, 0.10], [0.05, 0.45, 0.50]])
+
+
+@pytest.mark.parametrize("tpm", [stay_tpm(3, 0.9), ASYMMETRIC_TPM], ids=["stay", "asymmetric"])
+def test_ekf_engine_equals_kalman_imm_on_linear_bank(tpm: np.ndarray) -> None:
+    """The heterogeneous engine with the linear CV/CT(±4°/s) bank is the classical KF-IMM, also
+    with an asymmetric TPM (``pi_ij`` = P(i -> j): a transposed TPM in the mixing differs)."""
     rng = np.random.default_rng(3)
     sensor = PositionSensor(sigma_pos=20.0, sigma_vel=2.0)
     N, K = 4, 30
     z = rng.normal(size=(N, K, 4)) * [50, 50, 3, 3] + [3000, 4000, 20, 15]
     x0 = np.tile([3000.0, 4000.0, 20.0, 15.0], (N, 1))
     P0 = np.diag([400.0, 400.0, 25.0, 25.0])
-    tpm = stay_tpm(3, 0.9)
     ref = IMM(paper_bank(), sensor, filter="kf", engine="numpy").run(z, tpm, x0, P0)
     imm = HeteroIMM(linear_models(paper_bank()), sensor, T=1.0)
     state = imm.init(x0, P0, np.full(3, 1 / 3))
@@ -473,3 +477,62 @@ def test_headings_mix_around_the_model_that_weighs_most() -> None:
     _, x0s, _ = imm.mix(state, stay_tpm(3, 0.9))
     heading = np.rad2deg(x0s[1][0, 3])
     assert abs(abs(heading) - 180.0) < 0.5, heading
+
+
+def test_per_tracker_q_scale_is_each_models_own_factor() -> None:
+    """Tracker-wise ``q_scale[:, j]`` multiplies model j's ``Q``: the same as the bank's own
+    ``q_scale``, and tracker by tracker."""
+    rng = np.random.default_rng(5)
+    sensor = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+    z = rng.normal(size=(2, 40, 4)) * 0.5 + np.array([0.0, 0.0, 5.0, 0.0])
+    z[..., 0] += 0.5 * np.arange(40)
+    tpm = stay_tpm(3, 0.9)
+    x0, P0 = np.tile([0.0, 0.0, 5.0, 0.0], (2, 1)), 0.25 * np.eye(4)
+    scales = np.array([[1.0, 5.0, 0.2], [0.3, 1.0, 4.0]])
+    batched = run(HeteroIMM(HeteroBank(), sensor, T=0.1), z, tpm, x0, P0, q_scale=scales)
+    for i in range(2):
+        own = HeteroIMM(HeteroBank(q_scale=tuple(scales[i])), sensor, T=0.1)
+        alone = run(own, z[i : i + 1], tpm, x0[i : i + 1], P0)
+        np.testing.assert_allclose(batched.x[i], alone.x[0], rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(batched.mode_probs[i], alone.mode_probs[0], atol=1e-12)
+
+
+def test_initial_state_takes_the_banks_variances_and_probabilities() -> None:
+    """Seed 002's bank starts at mu = (0.90, 0.08, 0.02); omega and a start at 0 with the bank's
+    ``turn_rate_var`` / ``accel_var`` added to the converted ``P0``."""
+    sensor = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+    x0 = np.array([[1.0, 2.0, 3.0, 4.0]])
+    P0 = np.diag([0.5, 0.6, 1.0, 1.0])
+    state = HeteroIMM(HeteroBank(), sensor, T=0.1).init(x0, P0)
+    np.testing.assert_array_equal(state.mu, [[0.90, 0.08, 0.02]])
+    bank = HeteroBank(turn_rate_var=0.3, accel_var=2.5)
+    state = HeteroIMM(bank, sensor, T=0.1).init(x0, P0)
+    np.testing.assert_array_equal(state.mu, [[0.90, 0.08, 0.02]])
+    _, P_ct = convert(x0, P0[None], "ncv", "ct")
+    _, P_ctra = convert(x0, P0[None], "ncv", "ctra")
+    P_ct[0, 4, 4] += 0.3
+    P_ctra[0, 4, 4] += 0.3
+    P_ctra[0, 5, 5] += 2.5
+    np.testing.assert_allclose(state.P[0, 0, :4, :4], P0)
+    np.testing.assert_allclose(state.P[0, 1, :5, :5], P_ct[0])
+    np.testing.assert_allclose(state.P[0, 2], P_ctra[0])
+    assert state.P[0, 1, 4, 4] == pytest.approx(0.3) and state.P[0, 2, 5, 5] == pytest.approx(2.5)
+    np.testing.assert_array_equal(state.x[0, 1, 4], 0.0)
+    uniform = HeteroIMM(HeteroBank(models=("ncv", "ct")), sensor, T=0.1).init(x0, P0)
+    np.testing.assert_array_equal(uniform.mu, [[0.5, 0.5]])
+
+
+def test_a_finite_non_positive_definite_innovation_covariance_is_flagged() -> None:
+    """A finite ``S`` that is not positive definite (here from a negative-definite ``P``) flags
+    its tracker (or raises without ``allow_failure``); the other tracker runs on."""
+    sensor = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+    imm = HeteroIMM(HeteroBank(), sensor, T=0.1)
+    state = imm.init(np.tile([0.0, 0.0, 5.0, 0.0], (2, 1)), np.eye(4))
+    state.P[1] = -1e3 * np.eye(state.P.shape[-1])
+    assert np.all(np.isfinite(state.P))
+    _, out = imm.step(state, stay_tpm(3, 0.9), np.zeros((2, 4)), allow_failure=True)
+    assert out.failed.tolist() == [False, True]
+    assert np.all(np.isfinite(out.x[0]))
+    # the engine's own check (numpy's factorization would raise "Matrix is not positive definite")
+    with pytest.raises(np.linalg.LinAlgError, match=r"innovation covariance not positive definite"):
+        imm.step(state, stay_tpm(3, 0.9), np.zeros((2, 4)))
