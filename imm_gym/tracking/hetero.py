@@ -27,7 +27,8 @@ be transformed into the state space of the target model j"):
 
 1. mixing in each target space: ``x_{i\to j} = g_{i\to j}(x_i)``,
    ``P_{i\to j} = J P_i J^T``, then :func:`imm_gym.tracking.imm.mix` (headings averaged as residuals
-   about model j's own heading);
+   about the heading of the model that weighs most in the mix into j, the largest
+   ``\pi_{ij} \mu_i``; :meth:`HeteroIMM.mix`);
 2. EKF per model: ``x^- = f_j(x_0)``, ``P^- = F_j P_0 F_j^T + Q_j`` (``F_j`` the Jacobian at
    ``x_0``), update with ``h_j = h \circ g_{j\to ncv}`` and ``H_j = H(g(x^-)) J_{j\to ncv}``;
 3. :func:`imm_gym.tracking.imm.update_mode_probs`;
