@@ -130,6 +130,23 @@ def _rate(where: str, value: Any) -> float | str:
     return value
 
 
+def _positive(where: str, value: Any) -> float:
+    """A finite number above 0 (``max_grad_norm``: at or below 0 the clipped gradient vanishes
+    or flips, and PPO climbs its loss; ``target_kl``: no update's KL is below 0)."""
+    number = check_number(where, value)
+    if not number > 0:
+        raise ConfigError(f"{where} must be a finite number > 0, got {value!r}")
+    return number
+
+
+def _non_negative(where: str, value: Any) -> float:
+    """A finite number >= 0 (``vf_coef``: below 0 the critic climbs its error)."""
+    number = check_number(where, value)
+    if not number >= 0:
+        raise ConfigError(f"{where} must be a finite number >= 0, got {value!r}")
+    return number
+
+
 def _optional(check: Callable[[str, Any], Any]) -> Callable[[str, Any], Any]:
     return lambda where, value: None if value is None else check(where, value)
 
@@ -198,11 +215,11 @@ ALGO_KEYS: dict[str, Callable[[str, Any], Any]] = {
     "clip_range_vf": _optional(_rate),
     "normalize_advantage": check_flag,
     "ent_coef": check_number,
-    "vf_coef": check_number,
-    "max_grad_norm": check_number,
+    "vf_coef": _non_negative,
+    "max_grad_norm": _positive,
     "use_sde": check_flag,
     "sde_sample_freq": _sde_sample_freq,
-    "target_kl": _optional(check_number),
+    "target_kl": _optional(_positive),  # None (null): no early stop, as SB3 allows
     "stats_window_size": check_size,
 }
 

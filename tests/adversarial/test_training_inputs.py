@@ -46,6 +46,11 @@ def usage_error(argv: list[str], tmp_path: Path, capsys) -> str:
         ("learning_rate: fast", "learning_rate must be a positive number or 'lin_<number>'"),
         ("clip_range: lin_x", "clip_range must be a number or 'lin_<number>'"),
         ("ent_coef: .nan", "ent_coef must be a finite number"),
+        ("max_grad_norm: -0.5", "max_grad_norm must be a finite number > 0, got -0.5"),
+        ("max_grad_norm: 0", "max_grad_norm must be a finite number > 0, got 0"),
+        ("vf_coef: -1.0", "vf_coef must be a finite number >= 0, got -1.0"),
+        ("target_kl: -1.0", "target_kl must be a finite number > 0, got -1.0"),
+        ("target_kl: 0.0", "target_kl must be a finite number > 0, got 0.0"),
         ("frobnicate: 1", "unknown hyperparameters ['frobnicate']"),
         ("policy: CnnPolicy", "policy must be one of ['MlpPolicy', 'PerModelPolicy'] for ppo"),
         ("env_kwargs: [1, 2]", "env_kwargs must be a mapping"),
@@ -63,6 +68,30 @@ def test_a_bad_hyperparameter_is_a_usage_error_naming_it(yaml, message, tmp_path
     assert message in line
     if "env_kwargs of" not in line:
         assert str(config) in line
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "allowed"),
+    [("max_grad_norm", -0.5, "> 0"), ("max_grad_norm", 0, "> 0"), ("vf_coef", -1.0, ">= 0"),
+     ("target_kl", -1.0, "> 0"), ("target_kl", 0.0, "> 0")],
+)
+def test_the_optimizer_coefficients_are_refused_outside_their_ranges(key, value, allowed):
+    """A negative max_grad_norm flips the clipped gradient (PPO climbs its loss), a negative
+    vf_coef the critic's; no KL is below 0."""
+    from agents.training import check_hyperparams
+    from imm_gym.validation import ConfigError
+
+    with pytest.raises(ConfigError, match=f"f: {key} must be a finite number {allowed}"):
+        check_hyperparams("f", {key: value}, "ppo", complete=False)
+
+
+def test_the_optimizer_coefficients_take_their_working_ranges() -> None:
+    """vf_coef 0 (no critic loss), a small max_grad_norm and target_kl null (no early stop, as
+    SB3 allows) are kept; the refusals are in the table above."""
+    from agents.training import check_hyperparams
+
+    given = {"vf_coef": 0.0, "max_grad_norm": 1e-3, "target_kl": None}
+    assert check_hyperparams("f", given, "ppo", complete=False) == given
 
 
 def test_yaml_numbers_without_a_dot_are_numbers(tmp_path) -> None:
