@@ -417,6 +417,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     """
     from agents.training import (
         check_hyperparams,
+        check_input_size,
         check_policy,
         jsonable,
         load_hyperparams,
@@ -525,6 +526,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
             raise ConfigError(f"{where} of the hyperparameters: {err}") from None
     check_parts(configs)
     check_policy(params, configs)
+    check_input_size(params, configs[0])
     return params
 
 

@@ -30,7 +30,15 @@ import numpy as np
 import yaml
 from threadpoolctl import threadpool_limits
 
-from agents.schema import check_flag, check_number, check_policy_kwargs, check_sde, check_size
+from agents.policy import MAX_FRAMES
+from agents.schema import (
+    MAX_INPUT,
+    check_flag,
+    check_number,
+    check_policy_kwargs,
+    check_sde,
+    check_size,
+)
 from imm_gym.seeding import TRAIN_SEED_BASE, VALIDATION_SEED_BASE
 from imm_gym.sim.mixture import check_mixture
 from imm_gym.validation import ConfigError, load_yaml
@@ -183,6 +191,17 @@ def _n_envs(where: str, value: Any) -> int:
     return size
 
 
+def _frame_stack(where: str, value: Any) -> int:
+    """A frame-stack depth an agent may be loaded with (:data:`agents.policy.MAX_FRAMES`)."""
+    size = check_size(where, value)
+    if size > MAX_FRAMES:
+        raise ConfigError(
+            f"{where} must be in [1, {MAX_FRAMES}] (the most frames an agent is loaded with), "
+            f"got {value!r}"
+        )
+    return size
+
+
 def _mapping(where: str, value: Any) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise ConfigError(f"{where} must be a mapping, got {value!r}")
@@ -195,7 +214,7 @@ STACK_KEYS: dict[str, Callable[[str, Any], Any]] = {
     "n_timesteps": _timesteps,
     "policy": lambda where, value: value,  # checked against the algorithm below
     "normalize": check_flag,
-    "frame_stack": check_size,
+    "frame_stack": _frame_stack,
     "env_kwargs": _mapping,
     "env_mixture": lambda where, value: (check_mixture(where, value), value)[1],
     "critic_state": check_flag,
@@ -278,6 +297,29 @@ def check_policy(params: Mapping[str, Any], configs: Sequence[Any]) -> None:
         raise ConfigError(
             f"policy PerModelPolicy writes one action entry per model: action_mode must be one "
             f"of {list(STAY_MODES)}, got {modes[0]!r}"
+        )
+
+
+def check_input_size(params: Mapping[str, Any], config: Any) -> None:
+    """The network's input — ``frame_stack`` frames of the observation of ``config`` (the
+    agent's configuration; the parts of a mixture observe alike), each with the critic's ground
+    truth where ``critic_state`` is set — within :data:`agents.schema.MAX_INPUT`, the largest
+    input an agent is loaded with, before any training.
+
+    Raises:
+        ConfigError: naming ``frame_stack`` and the largest it may be for this observation.
+    """
+    from imm_gym.sim.core import critic_state_size
+    from imm_gym.sim.features import bounds
+
+    M = len(config.bank)
+    frame = bounds(config.obs_features, M, config.sensor.dim_z)[0].size
+    frame += critic_state_size(M) if params.get("critic_state") else 0
+    frames = int(params.get("frame_stack", 1))
+    if frames * frame > MAX_INPUT:
+        raise ConfigError(
+            f"frame_stack must be in [1, {MAX_INPUT // frame}] for frames of {frame} entries "
+            f"(an agent's input is at most {MAX_INPUT} entries), got {frames}"
         )
 
 

@@ -46,6 +46,7 @@ def usage_error(argv: list[str], tmp_path: Path, capsys) -> str:
         ("learning_rate: fast", "learning_rate must be a positive number or 'lin_<number>'"),
         ("clip_range: lin_x", "clip_range must be a number or 'lin_<number>'"),
         ("ent_coef: .nan", "ent_coef must be a finite number"),
+        ("frame_stack: 65", "frame_stack must be in [1, 64] (the most frames an agent is loaded"),
         ("max_grad_norm: -0.5", "max_grad_norm must be a finite number > 0, got -0.5"),
         ("max_grad_norm: 0", "max_grad_norm must be a finite number > 0, got 0"),
         ("vf_coef: -1.0", "vf_coef must be a finite number >= 0, got -1.0"),
@@ -83,6 +84,25 @@ def test_the_optimizer_coefficients_are_refused_outside_their_ranges(key, value,
 
     with pytest.raises(ConfigError, match=f"f: {key} must be a finite number {allowed}"):
         check_hyperparams("f", {key: value}, "ppo", complete=False)
+
+
+def test_a_frame_stack_no_agent_loads_is_refused_before_training(tmp_path, capsys, monkeypatch):
+    """An agent is loaded with at most MAX_FRAMES frames and MAX_INPUT entries: a run that
+    stacks more would train its budget, then fail to load its own agent and checkpoints."""
+    import agents.training
+    from agents.policy import MAX_FRAMES
+    from agents.training import check_hyperparams
+    from imm_gym.validation import ConfigError
+
+    assert check_hyperparams("f", {"frame_stack": MAX_FRAMES}, "ppo", complete=False)
+    with pytest.raises(ConfigError, match=rf"f: frame_stack must be in \[1, {MAX_FRAMES}\]"):
+        check_hyperparams("f", {"frame_stack": MAX_FRAMES + 1}, "ppo", complete=False)
+    # the default entry's frames: 44 observed entries and 11 of the critic's ground truth
+    monkeypatch.setattr(agents.training, "MAX_INPUT", 4 * 55 - 1)
+    config = tmp_path / "fs.yml"
+    config.write_text("frame_stack: 4\ncritic_state: true\n")
+    line = usage_error(["--config", str(config), "--timesteps", "64"], tmp_path, capsys)
+    assert "frame_stack must be in [1, 3] for frames of 55 entries (an agent's input is at " in line
 
 
 def test_the_optimizer_coefficients_take_their_working_ranges() -> None:
