@@ -4,9 +4,10 @@
 scenario -> truth -> sonar -> IMM bank(s) (TPM from the action) -> estimate -> reward, observation
 and diagnostics. Each episode slot ``i`` owns its two random streams
 (:func:`imm_gym.seeding.streams`): slot ``i`` reset with seed ``s`` replays exactly the episode of
-a scalar environment reset with seed ``s``, whatever the other slots do — its draws, and its
-numbers bit for bit (a product over the slots is taken row by row where a batch-wide BLAS call
-would round by the batch's shape: ``tests/sim/test_batch_independence.py``).
+a scalar environment reset with seed ``s``, whatever the other slots do — its draws, and on the
+compiled engine its numbers bit for bit (a product over the slots is taken row by row where a
+batch-wide BLAS call would round by the batch's shape: ``tests/sim/test_batch_independence.py``;
+the numpy engine's batched products round by the batch's shape, about 1e-11 m).
 
 The observation is ``[mu(t), mu(t-1)]`` followed by the blocks of ``obs_features``, each
 declared once in :mod:`imm_gym.sim.features` (the datasheet table of
@@ -310,13 +311,13 @@ class TrackingCore:
             return
         if len(seeds) != indices.size:
             raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
+        if np.unique(indices).size != indices.size:
+            listed = np.unique(indices, return_counts=True)
+            twice = listed[0][listed[1] > 1].tolist()
+            raise ValueError(f"slots {twice} listed more than once in one reset: one seed each")
         # slots given the same seed draw the same episode: drawn once (row `rows[p]` of the
-        # batch is position p's), the twins' streams cloned after the draws (not where a slot
-        # is listed twice: its streams are replaced in turn, as each listing's seed says)
-        if np.unique(indices).size == indices.size:
-            twin = _first_of_each_seed(seeds)
-        else:
-            twin = np.arange(indices.size)
+        # batch is position p's), the twins' streams cloned after the draws
+        twin = _first_of_each_seed(seeds)
         drawn = np.flatnonzero(twin == np.arange(indices.size))
         rows = np.searchsorted(drawn, twin)
         # every seed checked (its streams built) before a slot's streams are replaced: a
@@ -512,7 +513,18 @@ class TrackingCore:
 
         Inactive slots keep their state (their outputs in the result are meaningless: the vector
         fronts mask them). An active slot whose episode ended must be reset first.
+
+        Raises:
+            ValueError: ``active`` not a boolean mask of shape ``(n_envs,)`` (an index array
+                would be read as a mask of other slots).
         """
+        if active is not None:
+            active = np.asarray(active)
+            if active.dtype != np.bool_ or active.shape != (self.n_envs,):
+                raise ValueError(
+                    f"active must be a boolean mask of shape ({self.n_envs},), got "
+                    f"{active.dtype} of shape {active.shape}"
+                )
         all_active = active is None or bool(np.asarray(active).all())
         # np.count_nonzero, not ndarray.any: a C call, several times cheaper on small arrays
         if np.count_nonzero(self.done if active is None else self.done & active):

@@ -35,3 +35,16 @@ def test_a_slot_of_a_batch_is_the_slot_alone(name) -> None:
         np.testing.assert_array_equal(b.reward[2], a.reward[0])
         for key in ("estimate", "mode_probs", "tpm"):
             np.testing.assert_array_equal(b.info[key][2], a.info[key][0], key)
+
+
+@pytest.mark.parametrize(
+    "active", [np.array([0, 2]), np.array([1, 0, 1, 0]), np.ones(3, dtype=bool)]
+)
+def test_active_must_be_a_boolean_mask_of_the_slots(active: np.ndarray) -> None:
+    """An index array (or 0/1 integers, or a mask of another length) would be read as a mask
+    of other slots than meant: refused before anything moves."""
+    core = TrackingCore(EnvConfig(), 4)
+    core.reset(np.arange(4), [0, 1, 2, 3])
+    with pytest.raises(ValueError, match=r"active must be a boolean mask of shape \(4,\)"):
+        core.step(np.zeros((4, 9)), active=active)
+    assert core.k.tolist() == [0, 0, 0, 0]

@@ -91,12 +91,12 @@ def test_a_clone_draws_the_same_numbers_independently() -> None:
     assert np.array_equal(twin.random(2), ahead)
 
 
-def test_a_slot_listed_twice_takes_its_last_seed_and_shares_nothing() -> None:
-    """A slot listed twice in one reset gets its streams replaced in turn (the last listing's
-    seed then drawing its episode), and a slot given the same seed as the first listing keeps
-    that seed's episode: nothing is shared across the listings."""
-    together, alone = TrackingCore(EnvConfig(), 2), TrackingCore(EnvConfig(), 2)
-    together.reset(np.array([0, 1, 0]), [5, 5, 9])
-    alone.reset(np.array([1]), [5])
-    assert together.z[1].tobytes() == alone.z[1].tobytes()
-    assert not np.array_equal(together.z[0], together.z[1])
+def test_a_slot_listed_twice_in_one_reset_is_refused() -> None:
+    """One seed per slot: a slot listed twice would draw from one listing's streams for both
+    (the second episode of its last seed), so the reset is refused and no slot changes."""
+    core = TrackingCore(EnvConfig(), 2)
+    core.reset(np.array([0, 1]), [3, 4])
+    before = core.z.copy()
+    with pytest.raises(ValueError, match=r"slots \[0\] listed more than once"):
+        core.reset(np.array([0, 1, 0]), [5, 5, 9])
+    np.testing.assert_array_equal(core.z, before)
