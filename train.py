@@ -416,6 +416,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
             budget is not above the checkpoint's step count.
     """
     from agents.training import (
+        check_batches,
         check_hyperparams,
         check_input_size,
         check_policy,
@@ -527,6 +528,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
     check_parts(configs)
     check_policy(params, configs)
     check_input_size(params, configs[0])
+    check_batches(params)
     return params
 
 

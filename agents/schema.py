@@ -103,6 +103,21 @@ def check_number(where: str, value: Any) -> float:
     return number
 
 
+#: The largest ``|log_std_init|``: a standard deviation of ``e**20`` (or ``e**-20``) is no
+#: exploration but overflow, the first update's weights NaN.
+MAX_LOG_STD = 20.0
+
+
+def _log_std(where: str, value: Any) -> float:
+    """A finite ``log_std_init`` within ``[-MAX_LOG_STD, MAX_LOG_STD]``."""
+    number = check_number(where, value)
+    if abs(number) > MAX_LOG_STD:
+        raise ConfigError(
+            f"{where} must be in [{-MAX_LOG_STD:g}, {MAX_LOG_STD:g}], got {value!r}"
+        )
+    return number
+
+
 def _activation(where: str, value: Any) -> str:
     if not isinstance(value, str) or value not in ACTIVATIONS:
         raise ConfigError(f"{where} must be one of {list(ACTIVATIONS)}, got {value!r}")
@@ -136,7 +151,7 @@ def _net_arch(where: str, value: Any) -> list[int] | dict[str, list[int]]:
 POLICY_KWARGS: dict[str, Callable[[str, Any], Any]] = {
     "net_arch": _net_arch,
     "activation_fn": _activation,
-    "log_std_init": check_number,
+    "log_std_init": _log_std,
     "ortho_init": check_flag,
     "full_std": check_flag,
     "use_expln": check_flag,

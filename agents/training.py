@@ -124,14 +124,18 @@ def _unit(where: str, value: Any) -> float:
 
 
 def _rate(where: str, value: Any) -> float | str:
-    """A positive number, or rl-zoo3's ``lin_<number>`` (a linear schedule to 0), kept as is."""
+    """A positive finite number, or rl-zoo3's ``lin_<number>`` (a linear schedule to 0 from a
+    positive finite number: ``lin_inf`` would make every weight NaN), kept as is."""
     if isinstance(value, str) and value.startswith("lin_"):
         try:
             initial = float(value[4:])
         except ValueError:
             initial = math.nan
-        if not initial > 0:
-            raise ConfigError(f"{where} must be a number or 'lin_<number>', got {value!r}")
+        if not 0 < initial < math.inf:
+            raise ConfigError(
+                f"{where} must be a number or 'lin_<number>', the number finite and > 0, got "
+                f"{value!r}"
+            )
         return value
     if isinstance(value, str) or not check_number(where, value) > 0:
         raise ConfigError(f"{where} must be a positive number or 'lin_<number>', got {value!r}")
@@ -320,6 +324,29 @@ def check_input_size(params: Mapping[str, Any], config: Any) -> None:
         raise ConfigError(
             f"frame_stack must be in [1, {MAX_INPUT // frame}] for frames of {frame} entries "
             f"(an agent's input is at most {MAX_INPUT} entries), got {frames}"
+        )
+
+
+def check_batches(params: Mapping[str, Any]) -> None:
+    """Advantages normalized over a minibatch (``normalize_advantage``, on by default) need two
+    samples or more in it and in the rollout: ``batch_size >= 2`` and ``n_envs * n_steps >= 2``
+    (SB3 asserts both once the run directory exists), checked before any work.
+
+    Raises:
+        ConfigError: naming the key and what it allows.
+    """
+    if params.get("normalize_advantage") is False:
+        return
+    if params.get("batch_size", 64) < 2:
+        raise ConfigError(
+            f"batch_size must be >= 2 with normalize_advantage (the advantages are normalized "
+            f"over a minibatch), got {params['batch_size']}"
+        )
+    rollout = params["n_envs"] * params.get("n_steps", 2048)
+    if rollout < 2:
+        raise ConfigError(
+            f"n_envs * n_steps must be >= 2 with normalize_advantage (one rollout's samples), "
+            f"got {params['n_envs']} * {params.get('n_steps', 2048)}"
         )
 
 

@@ -105,6 +105,34 @@ def test_a_frame_stack_no_agent_loads_is_refused_before_training(tmp_path, capsy
     assert "frame_stack must be in [1, 3] for frames of 55 entries (an agent's input is at " in line
 
 
+@pytest.mark.parametrize(
+    ("yaml", "message"),
+    [
+        ("learning_rate: lin_inf", "learning_rate must be a number or 'lin_<number>', the number"),
+        ("clip_range: lin_1e999", "clip_range must be a number or 'lin_<number>', the number"),
+        ("policy_kwargs: {log_std_init: 1000.0}", "policy_kwargs.log_std_init must be in [-20, "),
+        ("policy_kwargs: {log_std_init: -20.5}", "policy_kwargs.log_std_init must be in [-20, "),
+        ("batch_size: 1", "batch_size must be >= 2 with normalize_advantage"),
+        ("n_envs: 1\nn_steps: 1", "n_envs * n_steps must be >= 2 with normalize_advantage"),
+    ],
+)
+def test_values_that_would_crash_training_are_refused_before_it(yaml, message, tmp_path, capsys):
+    """Each passed the checks, then made the weights NaN or tripped an SB3 assertion with a
+    traceback once OUT/seed_0/config.json existed (which refused the rerun)."""
+    config = tmp_path / "bad.yml"
+    config.write_text(yaml + "\n")
+    line = usage_error(["--config", str(config), "--timesteps", "64"], tmp_path, capsys)
+    assert message in line
+
+
+def test_one_sample_batches_are_allowed_without_advantage_normalization() -> None:
+    """SB3 needs two samples only to normalize the advantages."""
+    from agents.training import check_batches
+
+    check_batches({"n_envs": 1, "n_steps": 1, "batch_size": 1, "normalize_advantage": False})
+    check_batches({"n_envs": 2, "n_steps": 1, "batch_size": 2})
+
+
 def test_the_optimizer_coefficients_take_their_working_ranges() -> None:
     """vf_coef 0 (no critic loss), a small max_grad_norm and target_kl null (no early stop, as
     SB3 allows) are kept; the refusals are in the table above."""
