@@ -123,7 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--config",
         type=Path,
-        help="YAML file with hyperparameters overriding the entry (with --resume: only the "
+        help="YAML file with hyperparameters overriding the entry, its env_kwargs over every "
+        "part of the entry's env_mixture too unless it gives env_mixture (with --resume: only the "
         "budget, n_timesteps)",
     )
     p.add_argument(
@@ -384,6 +385,22 @@ def on_preset(params: dict[str, Any], env_id: str) -> dict[str, Any]:
     return {**params, "env_kwargs": env_kwargs}
 
 
+def with_config(params: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    """The hyperparameters ``params`` with a ``--config`` file's checked ``extra`` over them: its
+    ``env_kwargs`` over the entry's and over every part of the entry's ``env_mixture`` (a reward
+    or an agent setting changed for all the slots, as an ``--env-config`` file's fields are),
+    unless the file gives its own ``env_mixture``, which is then taken as it stands."""
+    extra = dict(extra)
+    changes = extra.pop("env_kwargs", {})
+    updated = {**params, **extra, "env_kwargs": {**params.get("env_kwargs", {}), **changes}}
+    if changes and "env_mixture" not in extra and "env_mixture" in params:
+        updated["env_mixture"] = [
+            {**part, "env_kwargs": {**part["env_kwargs"], **changes}}
+            for part in params["env_mixture"]
+        ]
+    return updated
+
+
 def _agent_fields(kwargs: dict[str, Any]) -> dict[str, Any]:
     """The fields of ``kwargs`` that say what the agent is trained as
     (:data:`imm_gym.sim.mixture.AGENT_FIELDS`)."""
@@ -449,8 +466,7 @@ def hyperparams(args: argparse.Namespace, resume: dict[str, Any] | None) -> dict
         extra = check_hyperparams(
             str(args.config), read_yaml(args.config), args.algo, complete=False
         )
-        env_kwargs = {**params.get("env_kwargs", {}), **extra.pop("env_kwargs", {})}
-        updated = {**params, **extra, "env_kwargs": env_kwargs}
+        updated = with_config(params, extra)
         budget_from = "--config" if "n_timesteps" in extra else budget_from
         if resume is not None:
             changed = sorted(

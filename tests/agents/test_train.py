@@ -306,6 +306,38 @@ def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> No
 
 
 @pytest.mark.parametrize("value", ["1.0", "-0.1", "'late'", "false"])
+def _hyperparams(tmp_path: Path, yaml: str) -> dict:
+    """The run's hyperparameters with ``yaml`` as ``--config`` (nothing trained)."""
+    config = tmp_path / "c.yml"
+    config.write_text(yaml)
+    parser = train.build_parser()
+    args = parser.parse_args(["--config", str(config), "--out", str(tmp_path / "out")])
+    return train.hyperparams(args, train.check_args(parser, args))
+
+
+def test_config_env_kwargs_reach_every_part_of_the_mixture(tmp_path) -> None:
+    """A reward change (or what the policy reads, logit_scale) in a --config file's env_kwargs
+    reaches every slot, not only the entry's main part: the default entry has a mixture."""
+    params = _hyperparams(tmp_path, "env_kwargs: {tpm_change_cost: 0.1, mode_reward: 0.0}\n")
+    parts = [params["env_kwargs"]] + [p["env_kwargs"] for p in params["env_mixture"]]
+    assert len(parts) > 1
+    assert all((p["tpm_change_cost"], p["mode_reward"]) == (0.1, 0.0) for p in parts)
+    params = _hyperparams(tmp_path, "env_kwargs: {logit_scale: 4.0}\n")
+    assert {p["env_kwargs"]["logit_scale"] for p in params["env_mixture"]} == {4.0}
+    assert params["env_kwargs"]["logit_scale"] == 4.0
+
+
+def test_a_config_restating_the_mixture_keeps_its_own(tmp_path) -> None:
+    from agents.training import load_hyperparams
+
+    mixture = load_hyperparams(train.DEFAULT_ENTRY)[0]["env_mixture"]
+    mixture = [{**p, "env_kwargs": {**p["env_kwargs"], "mode_reward": 0.2}} for p in mixture]
+    given = {"env_kwargs": {"mode_reward": 0.0}, "env_mixture": mixture}
+    params = _hyperparams(tmp_path, json.dumps(given))
+    assert params["env_mixture"] == mixture
+    assert params["env_kwargs"]["mode_reward"] == 0.0
+
+
 def test_bad_swa_start_is_rejected(value, tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         train_small(tmp_path, "--timesteps", "256", extra=f"swa_start: {value}\n")
