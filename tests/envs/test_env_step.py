@@ -540,3 +540,19 @@ def test_heading_rate_of_a_rotated_velocity_is_the_turn_rate(omega_deg: float) -
     v_next = v @ np.array([[c, s], [-s, c]])  # each row rotated by omega T
     np.testing.assert_allclose(heading_rate(v, v_next, T), omega, atol=1e-12)
     np.testing.assert_array_equal(heading_rate(np.zeros((1, 2)), v[:1], T), 0.0)
+
+
+def test_an_episode_diverging_at_its_last_step_is_terminated_not_truncated() -> None:
+    """Divergence ends an episode as terminated wherever it happens, the horizon's step too (a
+    run both terminated and truncated would bootstrap from a lost track)."""
+    scenario = {"segments": [{"duration": 1}], "position": [3000.0, 4000.0],
+                "velocity": [10.0, 5.0]}
+    config = {"scenario": scenario, "divergence_error": 1e-3}
+    env = TPMAdaptEnv(config=config)
+    venv = TPMAdaptVectorEnv(2, config=config)
+    env.reset(seed=0)
+    venv.reset(seed=0)
+    _, _, terminated, truncated, info = env.step(np.zeros(9, np.float32))
+    assert info["diverged"] and terminated and not truncated
+    _, _, terminated, truncated, info = venv.step(np.zeros((2, 9), np.float32))
+    assert info["diverged"].all() and terminated.all() and not truncated.any()
