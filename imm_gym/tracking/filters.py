@@ -7,8 +7,9 @@ update:
 * :class:`KalmanFilter` — a linear sensor ``z = H x + v``;
 * :class:`ExtendedKalmanFilter` — ``h`` linearized at the predicted state (seed 002);
 * :class:`UnscentedKalmanFilter` — scaled unscented transform whose sigma points are the columns of
-  ``U sqrt(S)`` from the SVD ``P = U S U^T`` (SPEC §2, the "SVD-UKF"), defined even when ``P`` has
-  lost definiteness. The sigma points are drawn from the *predicted* covariance (``Q`` included).
+  the symmetric square root ``U sqrt(|S|) U^T`` from the SVD ``P = U S U^T`` (SPEC §2, the
+  "SVD-UKF"), defined even when ``P`` has lost definiteness. The sigma points are drawn from the
+  *predicted* covariance (``Q`` included).
   ``"ukf-cholesky"`` is the same filter with the columns of the Cholesky factor ``P = L L^T``
   instead (:func:`~imm_gym.tracking.linalg.cholesky_psd`): the same sigma-point moments for a
   linear sensor, differences of a higher order for the sonar, and no eigendecomposition.
@@ -158,7 +159,7 @@ class UnscentedKalmanFilter:
     r"""SVD-UKF update with scaled sigma points (Julier 2002; Wan & van der Merwe 2000).
 
     With ``lambda = alpha^2 (n + kappa) - n`` and ``P = U S U^T`` (SVD), the ``2n+1`` sigma points
-    are ``x`` and ``x ± sqrt(n + lambda) (U sqrt(S))_i``; weights
+    are ``x`` and ``x ± sqrt(n + lambda) (U sqrt(|S|) U^T)_i`` (:meth:`sigma_offsets`); weights
     ``W0m = lambda / (n + lambda)``, ``W0c = W0m + 1 - alpha^2 + beta``,
     ``Wi = 1 / (2 (n + lambda))``. Then
     ``z_pred = sum W_m Z_i`` (bearings averaged as residuals about the centre point),

@@ -518,8 +518,9 @@ class IMM:
             )
         if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(P0))):
             raise ConfigError("x0 and P0 must be finite")
-        if not np.allclose(P0, np.swapaxes(P0, -1, -2)):
-            raise ConfigError("P0 must be symmetric")
+        scale = np.abs(P0).max(axis=(-2, -1), keepdims=True)
+        if np.any(np.abs(P0 - np.swapaxes(P0, -1, -2)) > 1e-9 * scale):
+            raise ConfigError("P0 must be symmetric (to 1e-9 of its largest entry)")
         try:
             np.linalg.cholesky(P0)
         except np.linalg.LinAlgError:

@@ -572,6 +572,15 @@ def test_asymmetric_or_nonfinite_P0() -> None:
         imm.init(np.zeros(4), P0)
     with pytest.raises(ConfigError, match="P0"):
         imm.init(np.zeros(4), np.diag([np.nan, 1.0, 1.0, 1.0]))
+    # asymmetric at its own scale (an absolute tolerance let it through: the Cholesky factor
+    # read only its lower triangle, the symmetric part indefinite), and rounding that is not
+    small = np.eye(4) * 1e-10
+    small[0, 1] = 9e-9
+    with pytest.raises(ConfigError, match="P0 must be symmetric"):
+        imm.init(np.zeros(4), small)
+    rounded = np.diag([1e4, 1e4, 25.0, 25.0])
+    rounded[0, 1], rounded[1, 0] = 1.0, 1.0 + 1e-12
+    imm.init(np.zeros(4), rounded)
 
 
 @pytest.mark.parametrize(
