@@ -726,7 +726,11 @@ def train_one(
         return armse
 
     class Checkpoint(BaseCallback):
-        """Checkpoints and validations on schedule, the weight average, the stop request."""
+        """Checkpoints and validations on schedule, the weight average, the stop request.
+
+        The schedule runs after each update (at the start of the next rollout, and at the end
+        of training): the checkpoint or validation of step N holds the weights of the update
+        that reached N, never those of the rollout before it."""
 
         def __init__(self, every: int, validate_every: int) -> None:
             super().__init__()
@@ -738,29 +742,35 @@ def train_one(
         def _on_rollout_start(self) -> None:
             if swa is not None:  # the weights after the previous update
                 swa.update(model)
+            self.on_schedule()
 
         def _on_training_end(self) -> None:
             if swa is not None:
                 swa.update(model)
+            if not stop.requested:
+                self.on_schedule()
 
         def _on_step(self) -> bool:
-            if stop.requested:
-                return False
+            return not stop.requested
+
+        def on_schedule(self) -> None:
+            """The checkpoint and the validation due at the live step count, if any."""
+            steps = int(model.num_timesteps)
             saved, armse = False, None
-            if self.num_timesteps >= self.next:
-                self.next += self.every
+            if steps >= self.next:
+                while self.next <= steps:
+                    self.next += self.every
                 checkpoint("latest")
                 if args.keep_checkpoints:
-                    checkpoint(f"step_{self.num_timesteps}")
+                    checkpoint(f"step_{steps}")
                 saved = True
-            if self.validate_every and self.num_timesteps >= self.next_validation:
-                self.next_validation += self.validate_every
+            if self.validate_every and steps >= self.next_validation:
+                while self.next_validation <= steps:
+                    self.next_validation += self.validate_every
                 armse = validate()
             if (saved or armse is not None) and not progress_bar:
                 elapsed = time.perf_counter() - self.start
-                line = progress_line(self.num_timesteps, done, total, elapsed, armse)
-                say(f"seed {seed}: {line}")
-            return True
+                say(f"seed {seed}: {progress_line(steps, done, total, elapsed, armse)}")
 
     def save(directory: Path, **more: Any) -> None:
         save_agent(
@@ -796,8 +806,8 @@ def train_one(
             f"continue with: python train.py --resume {latest}"
         )
     agent_dir = run_dir / "agent"
-    if args.validate_every:
-        validate()
+    if args.validate_every and not (history and history[-1]["timesteps"] == model.num_timesteps):
+        validate()  # the end, where the schedule did not validate it
     if swa is not None:
         swa.apply(model)
         selected = {"swa_start": swa.start, "snapshots": swa.snapshots}

@@ -227,6 +227,28 @@ def test_validation_keeps_the_best_checkpoint_as_the_agent(tmp_path) -> None:
     assert agent.read_bytes() == best.read_bytes()
 
 
+def test_the_checkpoint_and_validation_of_step_n_hold_the_weights_of_the_update_reaching_n(
+    tmp_path,
+) -> None:
+    """Scheduled after each update: step 256's checkpoint and validation (one rollout of
+    SMALL) are of the weights a 256-step run ends with, not the untrained network of before
+    that rollout's update; the end is validated once."""
+    argv = ("--validate-every", "256", "--validation-runs", "2", "--no-eval")
+    argv += ("--checkpoint-every", "256", "--keep-checkpoints")
+    one, two = tmp_path / "one", tmp_path / "two"
+    for out, steps in ((one, "256"), (two, "512")):
+        out.mkdir()
+        assert train_small(out, "--timesteps", steps, *argv, extra="swa_start: null\n") == 0
+    first = json.loads((one / "seed_0" / "training.json").read_text())["validation"]
+    both = json.loads((two / "seed_0" / "training.json").read_text())["validation"]
+    assert [v["timesteps"] for v in first] == [256]
+    assert [v["timesteps"] for v in both] == [256, 512]
+    assert both[0] == first[0]
+    ended = one / "seed_0" / "checkpoints" / "latest" / "policy.safetensors"
+    kept = two / "seed_0" / "checkpoints" / "step_256" / "policy.safetensors"
+    assert kept.read_bytes() == ended.read_bytes()
+
+
 def test_without_a_progress_bar_each_checkpoint_and_validation_prints_a_line(
     tmp_path, capsys
 ) -> None:
