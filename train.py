@@ -805,6 +805,9 @@ def train_one(
             f"interrupted: checkpoint saved to {latest} ({model.num_timesteps} steps); "
             f"continue with: python train.py --resume {latest}"
         )
+    final = ckpt_dir / f"step_{model.num_timesteps}"
+    if args.keep_checkpoints and not final.exists():  # a budget between checkpoint steps
+        checkpoint(final.name)
     agent_dir = run_dir / "agent"
     if args.validate_every and not (history and history[-1]["timesteps"] == model.num_timesteps):
         validate()  # the end, where the schedule did not validate it

@@ -68,6 +68,16 @@ def test_keep_checkpoints_keeps_every_checkpoint_by_its_step(trained) -> None:
         assert meta["num_timesteps"] == step
 
 
+def test_keep_checkpoints_keeps_the_final_state_between_checkpoint_steps(tmp_path) -> None:
+    argv = ("--timesteps", "768", "--checkpoint-every", "512", "--keep-checkpoints")
+    assert train_small(tmp_path, *argv, "--no-eval", "--validate-every", "0") == 0
+    ckpts = tmp_path / "seed_0" / "checkpoints"
+    assert sorted(p.name for p in ckpts.iterdir()) == ["latest", "step_512", "step_768"]
+    latest, kept = ckpts / "latest", ckpts / "step_768"
+    for name in ("policy.safetensors", "resume.json"):
+        assert (kept / name).read_bytes() == (latest / name).read_bytes()
+
+
 def test_resume_continues_the_step_count(trained) -> None:
     out, cfg = trained
     ckpt = out / "seed_0" / "checkpoints" / "latest"
