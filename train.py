@@ -69,6 +69,7 @@ import argparse
 import json
 import math
 import os
+import shlex
 import shutil
 import signal
 import sys
@@ -1337,7 +1338,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.engine == "rllib":
         connect_ray(parser, args)
     args.out.mkdir(parents=True, exist_ok=True)
-    command = " ".join(["python train.py", *(argv if argv is not None else sys.argv[1:])])
+    command = "python train.py " + shlex.join(argv if argv is not None else sys.argv[1:])
     versions = _versions(args.engine, args.algo)
     with StopRequest() as stop:
         try:

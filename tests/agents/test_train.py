@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import shlex
 import shutil
 from pathlib import Path
 
@@ -634,6 +635,17 @@ def test_several_seeds_make_an_ensemble_of_their_agents(tmp_path) -> None:
     np.testing.assert_allclose(ensemble.predict(obs)[0], (each[0] + each[1]) / 2, atol=1e-7)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["ensemble"] == str(tmp_path / "ensemble")
+
+
+def test_the_recorded_command_is_shell_quoted(tmp_path) -> None:
+    out = tmp_path / "sp ace"
+    out.mkdir()
+    assert train_small(out, "--timesteps", "256", "--no-eval", "--validate-every", "0") == 0
+    command = json.loads((out / "summary.json").read_text())["command"]
+    assert shlex.split(command)[:2] == ["python", "train.py"]
+    assert shlex.split(command)[2:] == ["--config", str(out / "small.yml"), "--out", str(out),
+                                        "--no-progress", "--timesteps", "256", "--no-eval",
+                                        "--validate-every", "0"]
 
 
 def test_jobs_train_seeds_in_parallel_processes_to_the_agents_they_get_alone(tmp_path) -> None:
