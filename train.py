@@ -176,7 +176,11 @@ def build_parser() -> argparse.ArgumentParser:
         "last)",
     )
     p.add_argument(
-        "--validation-runs", type=int, default=200, help="runs per validation (seeds 50,000,000+)"
+        "--validation-runs",
+        type=int,
+        default=200,
+        help="runs per validation (seeds 50,000,000+; at most 50,000,000: below the training "
+        "seeds)",
     )
     p.add_argument(
         "--paper-runs",
@@ -284,10 +288,7 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
         parser.error(f"--checkpoint-every must be >= 1, got {args.checkpoint_every}")
     if args.validate_every < 0:
         parser.error(f"--validate-every must be >= 0, got {args.validate_every}")
-    if args.validation_runs < 1:
-        parser.error(f"--validation-runs must be >= 1, got {args.validation_runs}")
-    if args.paper_runs < 1 or args.random_runs < 1:
-        parser.error("--paper-runs and --random-runs must be >= 1")
+    check_runs(parser, args)
     if args.config is not None and not args.config.is_file():
         parser.error(f"--config file {str(args.config)!r} does not exist")
     if args.engine == "rllib":
@@ -331,6 +332,30 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
         ]
     check_out(parser, args)
     return resume
+
+
+def check_runs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse (usage error) run counts whose seeds would reach another range
+    (:mod:`imm_gym.seeding`): the evaluation's ``0 .. R - 1`` below the tuners' training seeds
+    (:data:`imm_gym.cli.evaluate.MAX_RUNS`), the validation's ``VALIDATION_SEED_BASE + r``
+    below the agents' training slots (``TRAIN_SEED_BASE``)."""
+    from imm_gym.cli.evaluate import MAX_RUNS
+    from imm_gym.seeding import TRAIN_SEED_BASE, VALIDATION_SEED_BASE
+
+    most = TRAIN_SEED_BASE - VALIDATION_SEED_BASE
+    if not 1 <= args.validation_runs <= most:
+        parser.error(
+            f"--validation-runs must be in [1, {most}], got {args.validation_runs}: the "
+            f"validation seeds {VALIDATION_SEED_BASE} + r stay below the training seeds "
+            f"({TRAIN_SEED_BASE}+)"
+        )
+    for flag, runs in (("--paper-runs", args.paper_runs), ("--random-runs", args.random_runs)):
+        if not 1 <= runs <= MAX_RUNS:
+            parser.error(
+                f"{flag} must be in [1, {MAX_RUNS}], got {runs}: the evaluation seeds 0 .. "
+                f"{flag[2:].upper().replace('-', '_')} - 1 stay below the tuners' training seeds "
+                f"({MAX_RUNS}+)"
+            )
 
 
 def check_out(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

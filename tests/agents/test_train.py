@@ -390,7 +390,7 @@ def test_bad_swa_start_is_rejected(value, tmp_path, capsys) -> None:
         (["--config", "missing.yml"], "does not exist"),
         (["--algo", "dqn"], "invalid choice"),
         (["--validate-every", "-1"], "--validate-every must be >= 0"),
-        (["--validation-runs", "0"], "--validation-runs must be >= 1"),
+        (["--validation-runs", "0"], "--validation-runs must be in [1, 50000000], got 0"),
     ],
 )
 def test_bad_arguments(argv, message, capsys) -> None:
@@ -398,6 +398,29 @@ def test_bad_arguments(argv, message, capsys) -> None:
         train.main(argv)
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("flag", "most", "beyond"),
+    [
+        ("--validation-runs", 50_000_000, "the training seeds (100000000+)"),
+        ("--paper-runs", 1_000_000, "the tuners' training seeds (1000000+)"),
+        ("--random-runs", 1_000_000, "the tuners' training seeds (1000000+)"),
+    ],
+)
+def test_run_counts_whose_seeds_reach_another_range_are_refused(
+    flag, most, beyond, tmp_path, capsys
+) -> None:
+    """Validation seeds 50,000,000 + r stay below the training slots, evaluation seeds
+    0 .. R - 1 below the tuners' (imm_gym.seeding, imm_gym.cli.evaluate.MAX_RUNS)."""
+    parser = train.build_parser()
+    out = ["--out", str(tmp_path / "out")]
+    train.check_args(parser, parser.parse_args([flag, str(most), *out]))
+    with pytest.raises(SystemExit) as exc:
+        train.check_args(parser, parser.parse_args([flag, str(most + 1), *out]))
+    assert exc.value.code == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"{flag} must be in [1, {most}], got {most + 1}: " in line and beyond in line
 
 
 def test_the_largest_seed_allowed_trains_and_validates(tmp_path) -> None:
