@@ -1377,27 +1377,51 @@ def main(argv: list[str] | None = None) -> int:
                     trained[seed] = run_seed(args, params, seed, resume, command, versions, stop)
         except ConfigError as err:  # a checkpoint that does not fit the model
             parser.error(str(err))
-    summary: dict[str, Any] = {
-        "command": command,
-        "versions": versions,
-        "seeds": {str(seed): entry for seed, (_, entry) in trained.items()},
-    }
-    agents_trained = [agent_dir for agent_dir, _ in trained.values()]
-    if len(agents_trained) > 1:
-        from agents.ensemble import write_ensemble
-
-        file = write_ensemble(args.out / "ensemble", agents_trained)
-        summary["ensemble"] = str(file.parent)
-        print(
-            f"wrote {file.parent}: the {len(agents_trained)} seeds' agents acting on the mean of "
-            f"their actions (python -m imm_gym.evaluate --policy {file.parent})"
-        )
-    if not args.no_eval:
-        summary["across_seeds"] = _across_seeds(summary["seeds"])
-        _write_summary_report(args.out / "report.md", summary)
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
+    seeds = {str(seed): entry for seed, (_, entry) in trained.items()}
+    write_summary(args, seeds if resume is None else with_earlier_seeds(args.out, seeds),
+                  command, versions)
     print(f"wrote {args.out}")
     return 0
+
+
+def with_earlier_seeds(out: Path, seeds: dict[str, Any]) -> dict[str, Any]:
+    """The seeds of ``OUT/summary.json`` whose agents are still in ``OUT/seed_S/agent``, with
+    ``seeds`` (a resumed seed's entry) in place of their own, in the order of the seeds: what
+    a resumed run writes back, so that the other seeds of a multi-seed run stay reported."""
+    try:
+        earlier = json.loads((out / "summary.json").read_text())["seeds"]
+        kept = {
+            key: entry
+            for key, entry in earlier.items()
+            if key.isdigit() and (out / f"seed_{key}" / "agent").is_dir()
+        }
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return seeds  # no earlier summary (or not one of ours): this seed alone
+    merged = {**kept, **seeds}
+    return {key: merged[key] for key in sorted(merged, key=int)}
+
+
+def write_summary(
+    args: argparse.Namespace, seeds: dict[str, Any], command: str, versions: dict[str, str]
+) -> None:
+    """``OUT/summary.json`` of ``seeds`` (their ``summary.json`` entries by seed): with several,
+    ``OUT/ensemble/`` of their agents; where every seed was evaluated, the statistics across
+    them and ``OUT/report.md``."""
+    summary: dict[str, Any] = {"command": command, "versions": versions, "seeds": seeds}
+    if len(seeds) > 1:
+        from agents.ensemble import write_ensemble
+
+        members = [args.out / f"seed_{key}" / "agent" for key in seeds]
+        file = write_ensemble(args.out / "ensemble", members)
+        summary["ensemble"] = str(file.parent)
+        print(
+            f"wrote {file.parent}: the {len(members)} seeds' agents acting on the mean of "
+            f"their actions (python -m imm_gym.evaluate --policy {file.parent})"
+        )
+    if all("paper" in entry for entry in seeds.values()):
+        summary["across_seeds"] = _across_seeds(seeds)
+        _write_summary_report(args.out / "report.md", summary)
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
 
 
 def _describe_selection(selected: dict[str, Any]) -> str:

@@ -671,6 +671,26 @@ def test_the_recorded_command_is_shell_quoted(tmp_path) -> None:
                                         "--validate-every", "0"]
 
 
+def test_resuming_one_seed_of_several_keeps_the_others_in_the_summary(tmp_path) -> None:
+    from agents.ensemble import load_ensemble
+
+    argv = ("--timesteps", "256", "--no-eval", "--validate-every", "0", "--seed", "0", "1")
+    assert train_small(tmp_path, *argv) == 0
+    before = json.loads((tmp_path / "summary.json").read_text())
+    latest = tmp_path / "seed_1" / "checkpoints" / "latest"
+    argv = ("--timesteps", "512", "--no-eval", "--validate-every", "0", "--no-progress")
+    assert train.main(["--resume", str(latest), *argv]) == 0
+    after = json.loads((tmp_path / "summary.json").read_text())
+    assert list(after["seeds"]) == ["0", "1"]
+    assert after["seeds"]["0"] == before["seeds"]["0"]
+    assert after["seeds"]["1"]["training"]["timesteps"] == 512
+    assert after["ensemble"] == str(tmp_path / "ensemble")
+    assert "--resume" in after["command"]
+    assert len(load_ensemble(tmp_path / "ensemble").members) == 2
+    ensemble = json.loads((tmp_path / "ensemble" / "ensemble.json").read_text())
+    assert ensemble["members"] == ["../seed_0/agent", "../seed_1/agent"]
+
+
 def test_jobs_train_seeds_in_parallel_processes_to_the_agents_they_get_alone(tmp_path) -> None:
     """``--jobs 2``: each seed in its own spawned process, its agent byte for byte the one a
     sequential run gives, the summary in ``--seed`` order and the ensemble written."""
