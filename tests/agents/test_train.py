@@ -165,7 +165,7 @@ def test_a_resumed_run_continues_its_own_directory_and_validation_record(trained
     argv += ["--no-progress", "--validate-every", "256", "--validation-runs", "2"]
     assert train.main(argv) == 0
     stats = json.loads((run / "training.json").read_text())
-    assert [v["timesteps"] for v in stats["validation"]] == [256, 512, 512]
+    assert [v["timesteps"] for v in stats["validation"]] == [256, 512]
     assert stats["validation"][0]["armse_pos"] == 30.0 and not (run / "report.md").exists()
 
 
@@ -308,8 +308,8 @@ def test_a_progress_line_is_one_write(monkeypatch) -> None:
 
 def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> None:
     # 8 envs x 32 steps: an update every 256 steps; averaging from step 512 of 1024 takes the
-    # weights after updates 2, 3 and 4, which checkpoints step_768, step_1024 (saved while the
-    # next rollout is collected) and the final checkpoints/latest hold
+    # weights after updates 2, 3 and 4, which checkpoints step_512, step_768 and step_1024 hold
+    # (each saved after the update reaching its step)
     cfg = tmp_path / "swa.yml"
     cfg.write_text(SMALL + "swa_start: 0.5\n")
     common = ["--config", str(cfg), "--no-progress", "--no-eval", "--checkpoint-every", "256"]
@@ -317,7 +317,7 @@ def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> No
     assert train.main([*common, *argv, "--validate-every", "512", "--validation-runs", "3"]) == 0
     run = tmp_path / "seed_0"
     ckpts = run / "checkpoints"
-    snapshots = [load_agent(ckpts / name).model for name in ("step_768", "step_1024", "latest")]
+    snapshots = [load_agent(ckpts / name).model for name in ("step_512", "step_768", "step_1024")]
     expected = {
         k: sum(m.state_dict()[k] for m in snapshots) / 3 for k in snapshots[0].state_dict()
     }
@@ -338,7 +338,6 @@ def test_swa_agent_is_the_mean_of_the_weights_after_every_update(tmp_path) -> No
     assert stats["selected"]["snapshots"] == 4
 
 
-@pytest.mark.parametrize("value", ["1.0", "-0.1", "'late'", "false"])
 def _hyperparams(tmp_path: Path, yaml: str) -> dict:
     """The run's hyperparameters with ``yaml`` as ``--config`` (nothing trained)."""
     config = tmp_path / "c.yml"
@@ -371,6 +370,7 @@ def test_a_config_restating_the_mixture_keeps_its_own(tmp_path) -> None:
     assert params["env_kwargs"]["mode_reward"] == 0.0
 
 
+@pytest.mark.parametrize("value", ["1.0", "-0.1", "'late'", "false"])
 def test_bad_swa_start_is_rejected(value, tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         train_small(tmp_path, "--timesteps", "256", extra=f"swa_start: {value}\n")
