@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from imm_gym.sim.actions import validate_action
 from imm_gym.sim.core import StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.model_order import canonical_order, model_roles
 from imm_gym.validation import ConfigError
 
 #: The fields every part of a mixture must share: the observation (its blocks and the models
@@ -89,7 +90,11 @@ def check_mixture(
 
 def check_parts(configs: Sequence[EnvConfig]) -> None:
     """Raise :class:`ConfigError` where a part differs from the first in a field of
-    :data:`POLICY_FIELDS` or in its number of models (the policy's spaces)."""
+    :data:`POLICY_FIELDS` or in its number of models (the policy's spaces), or, with
+    ``model_order="bank"``, lists its models in another order than the first: ranked by kind and
+    turn rate (:func:`~imm_gym.sim.model_order.canonical_order`), its models must come in the
+    first's order, or entry ``j`` of the observation and the action would be, say, CV in one part
+    and CT(−ω) in another."""
     first = configs[0]
     for p, config in enumerate(configs[1:], start=1):
         differ = [f for f in POLICY_FIELDS if getattr(config, f) != getattr(first, f)]
@@ -99,6 +104,15 @@ def check_parts(configs: Sequence[EnvConfig]) -> None:
             raise ConfigError(
                 f"mixture part {p} differs from part 0 in {differ}: the parts of a mixture "
                 f"share what the policy reads and writes ({', '.join(POLICY_FIELDS)})"
+            )
+        if first.model_order == "bank" and not np.array_equal(
+            canonical_order(config.bank), canonical_order(first.bank)
+        ):
+            raise ConfigError(
+                f"mixture part {p} lists its models {list(model_roles(config.bank))} in another "
+                f"order than part 0 {list(model_roles(first.bank))}: with model_order bank the "
+                "parts must list the models (kind, turn rate) in the same order; list them so, "
+                "or set model_order: canonical"
             )
 
 

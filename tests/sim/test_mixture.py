@@ -113,6 +113,16 @@ def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
         MixtureCore([PAPER, two], [0.5, 0.5], 4)
 
 
+def test_with_the_bank_s_order_the_parts_list_their_models_alike() -> None:
+    # model_order bank: entry j is model j of each part's bank, so a part listing CT(-4), CV,
+    # CT(+4) would read and write CV's entry as CT(-4)'s; the canonical order reorders it
+    permuted = PAPER.bank[2], PAPER.bank[0], PAPER.bank[1]
+    with pytest.raises(ConfigError, match=r"part 1 lists its models .* model_order: canonical"):
+        MixtureCore([PAPER, PAPER.replace(bank=permuted)], [0.5, 0.5], 4)
+    canonical = PAPER.replace(model_order="canonical")
+    MixtureCore([canonical, canonical.replace(bank=permuted)], [0.5, 0.5], 4)
+
+
 def test_the_reset_info_is_each_slot_s_by_its_part() -> None:
     # what the vector env's reset and autoreset give (a runner's env may hold a mixture)
     mixture = MixtureCore([PAPER, SCALED], [0.4, 0.6], 5)
