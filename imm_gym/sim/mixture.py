@@ -184,23 +184,43 @@ class MixtureCore:
         return cls([config, *others], [1.0 - sum(shares), *shares], n_envs)
 
     def _parts(self, indices: NDArray[np.int64]) -> list[tuple[TrackingCore, NDArray[np.bool_]]]:
-        """Each core with the mask of ``indices`` that are its slots."""
+        """Each core with the mask of ``indices`` that are its slots.
+
+        Raises:
+            ValueError: an index outside ``[0, N)`` (it would be no part's and be left out).
+        """
+        outside = indices[(indices < 0) | (indices >= self.n_envs)]
+        if outside.size:
+            raise ValueError(
+                f"slot indices {outside.tolist()} outside [0, {self.n_envs}): the mixture has "
+                f"{self.n_envs} slots"
+            )
         return [
             (core, (indices >= lo) & (indices < hi))
             for core, lo, hi in zip(self.cores, self.starts[:-1], self.starts[1:], strict=True)
         ]
 
     def reset(self, indices: NDArray[np.int64], seeds: list[int | None]) -> None:
-        """:meth:`TrackingCore.reset` of the slots ``indices``, each by its part."""
-        indices = np.asarray(indices, dtype=np.int64)
+        """:meth:`TrackingCore.reset` of the slots ``indices``, each by its part.
+
+        Raises:
+            ValueError: an index outside ``[0, N)``, or not one seed per index.
+        """
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        if len(seeds) != indices.size:
+            raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
         for p, (core, mine) in enumerate(self._parts(indices)):
             if np.count_nonzero(mine):
                 chosen = [s for s, m in zip(seeds, mine, strict=True) if m]
                 core.reset(indices[mine] - self.starts[p], chosen)
 
     def reset_info(self, indices: NDArray[np.int64]) -> dict[str, NDArray[Any]]:
-        """:meth:`TrackingCore.reset_info` of the slots ``indices``, each row by its part."""
-        indices = np.asarray(indices, dtype=np.int64)
+        """:meth:`TrackingCore.reset_info` of the slots ``indices``, each row by its part.
+
+        Raises:
+            ValueError: an index outside ``[0, N)``.
+        """
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
         info: dict[str, NDArray[Any]] = {}
         for p, (core, mine) in enumerate(self._parts(indices)):
             if np.count_nonzero(mine):

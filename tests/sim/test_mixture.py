@@ -138,6 +138,27 @@ def test_the_reset_info_is_each_slot_s_by_its_part() -> None:
         np.testing.assert_array_equal(got[key], np.concatenate([e[key] for e in expected]))
 
 
+@pytest.mark.parametrize("index", [5, -1, 9])
+def test_slots_outside_the_mixture_are_refused(index) -> None:
+    # an index no part holds was left out silently (no episode started, no info row)
+    mixture = MixtureCore([PAPER, SCALED], [0.4, 0.6], 5)
+    mixture.reset(np.arange(5), [11, 12, 13, 14, 15])
+    mixture.step(np.zeros((5, 3)))
+    steps = [core.k.copy() for core in mixture.cores]
+    with pytest.raises(ValueError, match=rf"slot indices \[{index}\] outside \[0, 5\)"):
+        mixture.reset(np.array([0, index]), [1, 2])
+    with pytest.raises(ValueError, match=rf"slot indices \[{index}\] outside \[0, 5\)"):
+        mixture.reset_info(np.array([index]))
+    for core, k in zip(mixture.cores, steps, strict=True):
+        np.testing.assert_array_equal(core.k, k)  # slot 0 not reset either
+
+
+def test_a_reset_takes_one_seed_per_slot() -> None:
+    mixture = MixtureCore([PAPER, SCALED], [0.4, 0.6], 5)
+    with pytest.raises(ValueError, match="4 seeds for 5 slots"):
+        mixture.reset(np.arange(5), [1, 2, 3, 4])
+
+
 def test_a_rejected_step_leaves_every_part_as_it_was() -> None:
     # the whole step is checked before the first part steps: a NaN in the last part's slots,
     # a row too many, an ended episode in the last part
