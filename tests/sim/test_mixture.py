@@ -27,7 +27,10 @@ SCALED = EnvConfig(
 @pytest.mark.parametrize(
     ("shares", "n", "counts"),
     [([0.5, 0.5], 64, [32, 32]), ([1, 2], 9, [3, 6]), ([0.3, 0.3, 0.4], 10, [3, 3, 4]),
-     ([1, 1, 1], 8, [3, 3, 2]), ([0.25, 0.75], 2, [1, 1])],
+     ([1, 1, 1], 8, [3, 3, 2]), ([0.25, 0.75], 2, [1, 1]),
+     # ties to the earlier part whatever the float rounding of the main part's 1 - sum(shares)
+     ([1.0 - 0.55, 0.55], 30, [14, 16]), ([1.0 - 0.9, 0.9], 15, [2, 13]),
+     ([1.0 - 0.3, 0.3], 45, [32, 13]), ([9, 11], 30, [14, 16])],
 )
 def test_slots_are_split_by_largest_remainders(shares, n, counts) -> None:
     assert slot_counts(shares, n) == counts
