@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 from collections.abc import Mapping, Sequence
@@ -40,6 +41,7 @@ from imm_gym.sim.learned_detector import (
     LearnedDetector,
     features_per_step,
     parameter_count,
+    turn_rate_order,
 )
 from imm_gym.validation import ConfigError, check_int
 
@@ -185,18 +187,53 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def check_configs(
+    files: Sequence[Path | str], configs: Sequence[Mapping[str, Any]], hidden: Sequence[int]
+) -> None:
+    """Refuse, before any episode is run, a file whose bank is not linear or has repeated turn
+    rates, files of different numbers of models (one network reads them all) and a network above
+    :data:`MAX_PARAMETERS`.
+
+    Raises:
+        ConfigError: naming the file (``env_config``) or ``hidden``.
+    """
+    sizes = []
+    for name, overrides in zip(files, configs, strict=True):
+        omegas = model_turn_rates(collection_config(overrides).bank)
+        try:
+            turn_rate_order(omegas)  # type: ignore[arg-type]
+        except ConfigError as err:
+            raise ConfigError(f"env_config {str(name)!r}: {err}") from None
+        sizes.append(len(omegas))  # type: ignore[arg-type]
+    if len(set(sizes)) > 1:
+        raise ConfigError(f"env_config: the files' banks have {sizes} models; one detector reads "
+                          "them all, so every file must have as many")
+    M = sizes[0]
+    count = parameter_count([WINDOW * features_per_step(M), *hidden, M])
+    if count > MAX_PARAMETERS:
+        raise ConfigError(f"hidden: a network of {count} numbers for {M} models, above the "
+                          f"{MAX_PARAMETERS} a detector file may hold")
+
+
+def check_out(out: Path) -> None:
+    """Refuse, before any work, an ``--out`` that is a directory or whose nearest existing
+    parent is not a writable directory (the network would be lost after the training)."""
+    if out.is_dir():
+        raise ConfigError(f"out: {str(out)!r} is a directory; give the detector file's path")
+    parent = next(p for p in out.absolute().parents if p.exists())
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ConfigError(f"out: cannot write {str(out)!r} ({str(parent)!r} is not a writable "
+                          "directory)")
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     from agents.training import set_threads
     from imm_gym.sim.config_file import read_env_config
 
     args = parse_args(argv)
     configs = [read_env_config(f) for f in args.env_config]
-    for overrides in configs:  # every file checked before the long work
-        M = len(collection_config(overrides).bank)
-        count = parameter_count([WINDOW * features_per_step(M), *args.hidden, M])
-        if count > MAX_PARAMETERS:
-            raise ConfigError(f"hidden: a network of {count} numbers for {M} models, above the "
-                              f"{MAX_PARAMETERS} a detector file may hold")
+    check_configs(args.env_config, configs, args.hidden)  # all before the long work
+    check_out(args.out)
     set_threads(1)
     import torch
 

@@ -131,3 +131,40 @@ def test_the_command_line_says_a_refused_argument_in_one_line(tmp_path) -> None:
     )
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.startswith("python -m agents.detector: error: hidden")
+
+
+def _bank_file(path: Path, rates: list[float]) -> str:
+    """A configuration file of a CV model and CT models of ``rates`` (°/s)."""
+    bank = [{"kind": "cv", "noise": "continuous", "intensity": 0.1}] + [
+        {"kind": "ct", "turn_rate_deg": r, "noise": "continuous", "intensity": 0.05}
+        for r in rates
+    ]
+    path.write_text(json.dumps({"scenario": "random", "bank": bank}))
+    return str(path)
+
+
+def test_what_every_file_and_the_output_need_is_refused_before_any_episode(
+    tmp_path, monkeypatch
+) -> None:
+    # a later file's bank and the output were found out after the
+    # first file's episodes (or after the training): now before any
+    def no_work(*args, **kwargs):
+        raise AssertionError("an episode was run before the refusal")
+
+    monkeypatch.setattr("agents.detector.collect", no_work)
+    paper = _bank_file(tmp_path / "paper.yaml", [4.0, -4.0])
+    out = str(tmp_path / "d.safetensors")
+    for files, extra, message in [
+        ([paper, _bank_file(tmp_path / "two.yaml", [4.0])], [],
+         r"env_config: the files' banks have \[3, 2\] models"),
+        ([paper, _bank_file(tmp_path / "twice.yaml", [4.0, 4.0])], [],
+         r"env_config '.*twice.yaml': detector 'learned' needs models of distinct turn rates"),
+    ]:
+        with pytest.raises(ConfigError, match=message):
+            main(["--env-config", *files, *extra, "--out", out])
+    with pytest.raises(ConfigError, match=r"out: '.*' is a directory"):
+        main(["--env-config", paper, "--out", str(tmp_path)])
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    with pytest.raises(ConfigError, match=r"out: cannot write .* is not a writable directory"):
+        main(["--env-config", paper, "--out", str(blocked / "d.safetensors")])
