@@ -109,7 +109,13 @@ def collect(overrides: Mapping[str, Any], seeds: Sequence[int], window: int = WI
 
 def collect_runs(configs: Sequence[Mapping[str, Any]], runs: int, first_seed: int) -> Samples:
     """:func:`collect` over ``runs`` episodes spread evenly over ``configs`` (seeds
-    ``first_seed ..``, in batches of :data:`BATCH_RUNS`)."""
+    ``first_seed ..``, in batches of :data:`BATCH_RUNS`).
+
+    Raises:
+        ValueError: fewer runs than configurations (a configuration would get no episode).
+    """
+    if runs < len(configs):
+        raise ValueError(f"{runs} runs for {len(configs)} configurations: each needs one at least")
     parts = []
     seed = first_seed
     for i, overrides in enumerate(configs):
@@ -176,6 +182,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     check_int("runs", args.runs, 1, 10**6)
     check_int("held_out_runs", args.held_out_runs, 1, 10**6)
+    files = len(args.env_config)
+    for flag, runs in (("runs", args.runs), ("held_out_runs", args.held_out_runs)):
+        if runs < files:
+            raise ConfigError(f"{flag} must be at least the {files} --env-config files (every "
+                              f"file gets its share of the episodes), got {runs}")
     check_int("seed", args.seed, 0, 10**9)
     check_int("epochs", args.epochs, 1, 1000)
     for width in args.hidden:

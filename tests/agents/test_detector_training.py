@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from safetensors import safe_open
 
-from agents.detector import Samples, collect, cross_entropy, fit, main
+from agents.detector import Samples, collect, collect_runs, cross_entropy, fit, main
 from imm_gym import EnvConfig, TrackingCore
 from imm_gym.sim.detectors import TurnRateBelief
 from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, WINDOW, DetectorNetwork
@@ -146,7 +146,7 @@ def _bank_file(path: Path, rates: list[float]) -> str:
 def test_what_every_file_and_the_output_need_is_refused_before_any_episode(
     tmp_path, monkeypatch
 ) -> None:
-    # a later file's bank and the output were found out after the
+    # a later file's bank, the runs each file gets and the output were found out after the
     # first file's episodes (or after the training): now before any
     def no_work(*args, **kwargs):
         raise AssertionError("an episode was run before the refusal")
@@ -159,6 +159,8 @@ def test_what_every_file_and_the_output_need_is_refused_before_any_episode(
          r"env_config: the files' banks have \[3, 2\] models"),
         ([paper, _bank_file(tmp_path / "twice.yaml", [4.0, 4.0])], [],
          r"env_config '.*twice.yaml': detector 'learned' needs models of distinct turn rates"),
+        ([paper, paper, paper], ["--runs", "2"], r"runs must be at least the 3 --env-config"),
+        ([paper, paper], ["--held-out-runs", "1"], r"held_out_runs must be at least the 2"),
     ]:
         with pytest.raises(ConfigError, match=message):
             main(["--env-config", *files, *extra, "--out", out])
@@ -168,3 +170,10 @@ def test_what_every_file_and_the_output_need_is_refused_before_any_episode(
     blocked.write_text("")
     with pytest.raises(ConfigError, match=r"out: cannot write .* is not a writable directory"):
         main(["--env-config", paper, "--out", str(blocked / "d.safetensors")])
+
+
+def test_fewer_runs_than_configurations_are_refused() -> None:
+    # the later configurations got no episode, silently
+    family = {"scenario": "random", "family": {"horizon": 30, "min_duration": 5}}
+    with pytest.raises(ValueError, match="1 runs for 2 configurations"):
+        collect_runs([family, family], 1, 2**61)
