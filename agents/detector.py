@@ -6,10 +6,10 @@ draws N episodes spread evenly over the configurations (seeds from
 training seed), runs the detector's uniform IMM on each (:class:`LearnedDetector` without a
 network: the same code that feeds the network in the env) and records, before every step, its
 window and the interpolation weights of the target's true turn rate over that step. A
-multilayer perceptron is fitted to them by cross-entropy (Adam; ``torch.manual_seed(seed)``:
-the same arguments give the same file on one machine), scored on held-out episodes against the
-best constant belief, and written as a detector file (data only: safetensors, a JSON header
-with what was run).
+multilayer perceptron is fitted to them by cross-entropy (Adam; ``torch.manual_seed(seed)``,
+the header's metadata in sorted order: the same arguments give the same file, byte for byte, on
+one machine), scored on held-out episodes against the best constant belief, and written as a
+detector file (data only: safetensors, a JSON header with what was run).
 """
 
 from __future__ import annotations
@@ -237,6 +237,23 @@ def check_out(out: Path) -> None:
                           "directory)")
 
 
+def sort_header(path: Path) -> None:
+    """Rewrite the safetensors file ``path`` with its header's metadata in sorted key order.
+
+    The writer keeps the metadata in a hash map whose order changes from one run to the next;
+    sorted, the same arguments give a byte-identical file. The header is written compact and
+    padded with spaces to a multiple of 8 bytes, as the writer does; the tensors' bytes (their
+    offsets count from the end of the header) are kept as they are.
+    """
+    data = path.read_bytes()
+    size = int.from_bytes(data[:8], "little")
+    header = json.loads(data[8 : 8 + size])
+    header["__metadata__"] = dict(sorted(header.get("__metadata__", {}).items()))
+    text = json.dumps(header, separators=(",", ":"), ensure_ascii=False).encode()
+    text += b" " * (-len(text) % 8)
+    path.write_bytes(len(text).to_bytes(8, "little") + text + data[8 + size :])
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     from agents.training import set_threads
     from imm_gym.sim.config_file import read_env_config
@@ -270,6 +287,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     network.save(args.out, notes)
+    sort_header(args.out)
     print(json.dumps({k: notes[k] for k in ("samples", "held_out_cross_entropy",
                                             "constant_cross_entropy")}))
     print(f"wrote {args.out}")

@@ -177,3 +177,22 @@ def test_fewer_runs_than_configurations_are_refused() -> None:
     family = {"scenario": "random", "family": {"horizon": 30, "min_duration": 5}}
     with pytest.raises(ValueError, match="1 runs for 2 configurations"):
         collect_runs([family, family], 1, 2**61)
+
+
+def test_the_same_arguments_give_the_same_file(tmp_path, capsys) -> None:
+    # the writer's metadata came out in another key order each run: now sorted, byte-identical
+    config = tmp_path / "family.yaml"
+    config.write_text("scenario: random\nfamily: {horizon: 30, min_duration: 5}\n")
+    out = tmp_path / "d.safetensors"
+    files = []
+    for _ in range(3):
+        main(["--env-config", str(config), "--runs", "4", "--held-out-runs", "2", "--epochs", "1",
+              "--hidden", "4", "--seed", "3", "--out", str(out)])
+        files.append(out.read_bytes())
+    assert files[0] == files[1] == files[2]
+    size = int.from_bytes(files[0][:8], "little")
+    assert size % 8 == 0
+    metadata = json.loads(files[0][8 : 8 + size])["__metadata__"]
+    assert list(metadata) == sorted(metadata) == ["format", "notes", "window"]
+    network = DetectorNetwork.load(out)  # still a detector file the env reads
+    assert network.window == WINDOW and network.n_models == M
