@@ -135,7 +135,16 @@ class TPMAdaptSB3VecEnv(VecEnv):
         """Nothing to release."""
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+        """The adapter's attribute for every index asked; ``config`` of a mixture is each slot's
+        part's configuration (the others are shared by every sub-env)."""
+        targets = list(self._get_indices(indices))
+        if attr_name == "config" and isinstance(self.core, MixtureCore):
+            slots = np.asarray(targets, dtype=np.int64).reshape(-1)
+            if np.any((slots < 0) | (slots >= self.num_envs)):
+                raise IndexError(f"indices {targets} outside [0, {self.num_envs})")
+            parts = np.searchsorted(self.core.starts, slots, side="right") - 1
+            return [self.core.cores[p].config for p in parts]
+        return [getattr(self, attr_name) for _ in targets]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         raise AttributeError(f"TPMAdaptSB3VecEnv sub-envs share one core; cannot set {attr_name!r}")

@@ -204,3 +204,20 @@ def test_a_rejected_step_leaves_every_part_as_it_was() -> None:
 def test_bad_mixture_entries_name_the_part(parts, message) -> None:
     with pytest.raises(ConfigError, match=message):
         check_mixture("env_mixture", parts)
+
+
+def test_the_sb3_adapter_gives_each_slot_its_part_s_config() -> None:
+    # get_attr("config") gave part 0's configuration for every slot
+    from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
+
+    scaled = {**POLICY, "bank": CONTINUOUS_BANK, "sojourn": (60.0, 20.0, 20.0)}
+    mixture = [{"env_kwargs": {**scaled, "vary": {"T": [0.5, 5.0]}}, "share": 0.5}]
+    env = TPMAdaptSB3VecEnv(4, config=POLICY, mixture=mixture)
+    configs = env.get_attr("config")
+    parts = [env.core.cores[p].config for p in (0, 0, 1, 1)]
+    assert all(c is part for c, part in zip(configs, parts, strict=True))
+    assert not configs[1].vary.active and configs[3].vary.active
+    assert env.get_attr("config", indices=3)[0] is env.core.cores[1].config
+    assert env.get_attr("num_envs", indices=[0, 3]) == [4, 4]
+    with pytest.raises(IndexError, match=r"outside \[0, 4\)"):
+        env.get_attr("config", indices=[4])
