@@ -273,6 +273,25 @@ def test_same_seeds_same_beliefs_on_both_engines_and_under_varied_conditions(tmp
     assert np.isfinite(varied.learned_detector.window).all()
 
 
+def test_the_heading_rate_record_is_per_second_at_each_slot_s_sampling_period(tmp_path) -> None:
+    # the record's last entry is heading_rate(v_{k-1}, v_k, T) / scale at the slot's own T
+    # (drawn per episode in [0.5, 5] s): a rate per step (divided by 1 s) would pass at T = 1
+    core = learned_core(4, tmp_path, random_network(4), vary={"T": [0.5, 5.0]},
+                        **BANK_PRESETS["cv-ct-continuous"])
+    detector = core.learned_detector
+    T = core.sampling_period.copy()
+    assert np.min(np.abs(T - 1.0)) > 0.05
+    turned = 0.0
+    for _ in range(25):
+        before = detector.velocity.copy()
+        core.step(np.zeros((4, M)))
+        rate = heading_rate(before, detector.velocity, T)
+        expected = np.clip(rate / detector.scale, -3.0, 3.0)
+        np.testing.assert_allclose(detector.window[:, -1, -1], expected, rtol=1e-9, atol=1e-12)
+        turned = max(turned, float(np.max(np.abs(expected))))
+    assert turned > 1e-3  # heading changes among them
+
+
 def test_its_belief_is_an_observation(tmp_path) -> None:
     core = learned_core(2, tmp_path, random_network(5), detector_share=0.0,
                         obs_features=("detector_belief",))
