@@ -292,6 +292,22 @@ def test_the_heading_rate_record_is_per_second_at_each_slot_s_sampling_period(tm
     assert turned > 1e-3  # heading changes among them
 
 
+def test_a_nan_measurement_leaves_a_finite_belief(tmp_path) -> None:
+    # a failed filter's NaN in the record is 0 (nan_to_num): the window and the belief stay
+    # finite and the belief a distribution
+    core = learned_core(3, tmp_path, random_network(5))
+    for _ in range(3):
+        core.step(np.zeros((3, M)))
+    detector = core.learned_detector
+    for z in (np.full((3, 2), np.nan), np.full((3, 2), np.inf)):
+        snap = detector.snapshot()
+        detector.step(z, np.ones(3, dtype=bool), core.state_a, core.sampling_period)
+        assert np.isfinite(detector.window).all()
+        assert np.isfinite(detector.belief).all()
+        np.testing.assert_allclose(detector.belief.sum(axis=1), 1.0, rtol=1e-12)
+        detector.restore(snap, np.ones(3, dtype=bool))
+
+
 def test_its_belief_is_an_observation(tmp_path) -> None:
     core = learned_core(2, tmp_path, random_network(5), detector_share=0.0,
                         obs_features=("detector_belief",))
