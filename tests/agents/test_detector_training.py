@@ -15,6 +15,7 @@ from safetensors import safe_open
 
 from agents.detector import Samples, collect, collect_runs, cross_entropy, fit, main
 from imm_gym import EnvConfig, TrackingCore
+from imm_gym.seeding import DETECTOR_SEED_BASE
 from imm_gym.sim.detectors import TurnRateBelief
 from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS, WINDOW, DetectorNetwork
 from imm_gym.sim.presets import BANK_PRESETS
@@ -196,3 +197,29 @@ def test_the_same_arguments_give_the_same_file(tmp_path, capsys) -> None:
     assert list(metadata) == sorted(metadata) == ["format", "notes", "window"]
     network = DetectorNetwork.load(out)  # still a detector file the env reads
     assert network.window == WINDOW and network.n_models == M
+
+
+def test_the_episodes_seeds_are_the_detector_s_block(tmp_path, monkeypatch, capsys) -> None:
+    # training episodes DETECTOR_SEED_BASE + 10**6 seed .., held-out ones 2**60 above: no
+    # evaluation, validation or training seed
+    import agents.detector
+
+    seen = []
+
+    def spy(overrides, seeds, window=WINDOW):
+        seen.append(list(seeds))
+        return collect(overrides, seeds, window)
+
+    monkeypatch.setattr(agents.detector, "collect", spy)
+    config = tmp_path / "family.yaml"
+    config.write_text("scenario: random\nfamily: {horizon: 30, min_duration: 5}\n")
+    out = tmp_path / "d.safetensors"
+    main(["--env-config", str(config), str(config), "--runs", "5", "--held-out-runs", "2",
+          "--epochs", "1", "--hidden", "4", "--seed", "7", "--out", str(out)])
+    first = DETECTOR_SEED_BASE + 10**6 * 7
+    assert seen == [[first, first + 1, first + 2], [first + 3, first + 4],
+                    [first + 2**60], [first + 2**60 + 1]]
+    with safe_open(str(out), framework="np") as f:
+        notes = json.loads(f.metadata()["notes"])
+    assert notes["seeds"] == [first, first + 4]
+    assert notes["held_out_seeds"] == [first + 2**60, first + 2**60 + 1]
