@@ -59,6 +59,32 @@ def test_critic_state_is_the_trackers_errors_and_the_coming_model() -> None:
             np.testing.assert_array_equal(block[i, 8:], np.eye(3)[coming])
 
 
+def test_the_terminal_observation_holds_the_critic_state() -> None:
+    # the ended episode's last observation, as the next ones, with the critic's columns: the
+    # critic bootstraps a truncated episode's value from it
+    env = TPMAdaptSB3VecEnv(num_envs=2, env_id="imm_gym/TPMAdapt-v0", critic_state=True,
+                            family={"horizon": 30, "min_duration": 5}, **ENV)
+    core = env.core
+    env.reset()
+    last: list[np.ndarray] = []
+    reset = core.reset
+
+    def remember(indices, seeds):  # the observation and critic state before the autoreset
+        last.append(np.concatenate([core.observe(), core.critic_state()], axis=1))
+        reset(indices, seeds)
+
+    core.reset = remember
+    dones = np.zeros(2, dtype=bool)
+    while not dones.any():
+        _, _, dones, infos = env.step(np.zeros((2, 9), dtype=np.float32))
+    assert len(last) == 1
+    for i in np.flatnonzero(dones):
+        terminal = infos[i]["terminal_observation"]
+        assert terminal.shape == env.observation_space.shape
+        np.testing.assert_array_equal(terminal, last[0][i])
+        assert np.any(terminal[core.obs_dim :] != 0.0)
+
+
 def core_estimate(core, i: int) -> np.ndarray:
     """Combined estimate of slot ``i``, summed by hand: ``Σ_j μ_j x_j``."""
     return sum(core.mu[i, j] * core.state_a.x[i, j] for j in range(core.M))
