@@ -106,6 +106,25 @@ def test_a_bank_with_a_ca_model_beside_one_without_gives_position_and_velocity()
         mixture.critic_state(), np.concatenate([c.critic_state() for c in alone])
     )
 
+def test_the_step_s_info_has_the_keys_every_part_gives() -> None:
+    # parts rewarded for different things give different info keys: a key one part lacks
+    # (the mode score and the TPM's divergence of a part rewarded for them) is left out
+    rewarded = PAPER.replace(mode_reward=0.1, tpm_cost=0.1)
+    mixture = MixtureCore([rewarded, PAPER], [0.5, 0.5], 4)
+    alone = [TrackingCore(rewarded, 2), TrackingCore(PAPER, 2)]
+    mixture.reset(np.arange(4), [1, 2, 3, 4])
+    alone[0].reset(np.arange(2), [1, 2])
+    alone[1].reset(np.arange(2), [3, 4])
+    got = mixture.step(np.zeros((4, 3)))
+    parts = [alone[0].step(np.zeros((2, 3))), alone[1].step(np.zeros((2, 3)))]
+    assert {"mode_score", "tpm_divergence"} <= set(parts[0].info) - set(parts[1].info)
+    assert set(got.info) == set(parts[0].info) & set(parts[1].info)
+    np.testing.assert_array_equal(got.reward, np.concatenate([p.reward for p in parts]))
+    np.testing.assert_array_equal(
+        got.info["reward_error"], np.concatenate([p.info["reward_error"] for p in parts])
+    )
+
+
 def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
     with pytest.raises(ConfigError, match=r"part 1 differs from part 0 in \['obs_features'"):
         MixtureCore([PAPER, SCALED.replace(obs_features=("loglik",))], [0.5, 0.5], 4)
