@@ -3,7 +3,8 @@
 SB3 conventions: same-step reset (a finished episode is reset inside ``step_wait``, its last
 observation goes to ``info["terminal_observation"]``), ``info["TimeLimit.truncated"]`` for a
 truncation, ``dones = terminated | truncated``, fresh arrays every step. Actions have shape
-``(num_envs, M*M)``; another shape or a NaN/inf entry raises
+``(num_envs, action_dim)`` (``M*M`` entries, one per TPM entry, or ``M`` in the stay modes, one
+stay per model); another shape or a NaN/inf entry raises
 :class:`~imm_gym.sim.actions.ActionError`, as in the Gymnasium fronts. ``seed(s)`` seeds the
 next ``reset`` with ``s + i`` per sub-env, like the Gymnasium vector env.
 """
@@ -98,8 +99,9 @@ class TPMAdaptSB3VecEnv(VecEnv):
         return obs
 
     def step_async(self, actions: NDArray[Any]) -> None:
-        """Take ``(num_envs, M*M)`` actions; any other shape raises ``ActionError`` (never
-        reshaped: a ``(M*M, num_envs)`` array is not the same actions)."""
+        """Take ``(num_envs, action_dim)`` actions (``M*M``, or ``M`` in the stay modes); any
+        other shape raises ``ActionError`` (never reshaped: an ``(action_dim, num_envs)`` array
+        is not the same actions)."""
         a = np.asarray(actions)
         if a.shape != (self.num_envs, self.core.action_dim):
             raise ActionError(
