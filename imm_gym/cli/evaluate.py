@@ -897,6 +897,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         problem = None if path is None else output_problem(path, kind)
         if problem:
             parser.error(f"{flag} {str(path)!r}: {problem}")
+    if args.tradeoff is not None and args.tradeoff.suffix.lower() != ".png":
+        # matplotlib takes the format from the suffix: '.txt' failed after the evaluation
+        parser.error(f"--tradeoff {str(args.tradeoff)!r}: the figure is a PNG, end it in .png")
     _check_animate(parser, args)
     if len(args.agent_seeds) == 1:
         parser.error("--agent-seeds needs two or more directories (one is a --policy)")

@@ -47,6 +47,10 @@ Array = NDArray[np.float64]
 
 #: ``χ²₂(0.95)``: the 95 % quantile of the chi-square law with 2 degrees of freedom, ``−2 ln 0.05``.
 CHI2_2_95 = -2.0 * math.log(0.05)
+#: The 95 % ellipse is not drawn once its larger axis passes this many zoom half-widths: it then
+#: covers the zoom panel whole, and Agg draws every dash of it (a frame took 0.8 s at a standard
+#: deviation of 1e7 m, ran out of memory at 1e15 m).
+ELLIPSE_LIMIT = 1000.0
 #: The figure's size in inches (640 x 400 pixels at scale 1, 100 dots per inch).
 FIGURE_SIZE = (6.4, 4.0)
 #: Frames per second of the render modes and of the animations (ten simulated seconds per second
@@ -220,7 +224,7 @@ class TrackFigure:
         self.stays = [
             heat.text(i, i, "", ha="center", va="center", fontsize=6) for i in range(M)
         ]
-        short = [_short(label) for label in self.labels]
+        short = short_labels(self.labels)
         heat.set_xticks(range(M), short)
         heat.set_yticks(range(M), short)
         heat.set_title("TPM used (row: from)", fontsize=7, pad=2)
@@ -288,9 +292,10 @@ class TrackFigure:
 
         estimated = bool(np.isfinite(x).all())
         self.now.set_data([x[0] - p[0]], [x[1] - p[1]])
-        self.ellipse.set_visible(estimated and bool(np.isfinite(view.covariance).all()))
+        shown = estimated and bool(np.isfinite(view.covariance).all())
+        width, height, angle = ellipse_axes(view.covariance) if shown else (0.0, 0.0, 0.0)
+        self.ellipse.set_visible(shown and max(width, height) <= ELLIPSE_LIMIT * self.zoom)
         if self.ellipse.get_visible():
-            width, height, angle = ellipse_axes(view.covariance)
             self.ellipse.set_center((x[0] - p[0], x[1] - p[1]))
             self.ellipse.set_width(width)
             self.ellipse.set_height(height)
@@ -389,7 +394,16 @@ def _new_figure(size: tuple[float, float], dpi: float, window: bool) -> Figure:
     return fig
 
 
-def _short(label: str) -> str:
-    """A model's tick label: ``CT(+4°/s)`` -> ``CT+``, ``CV`` -> ``CV``."""
-    name, _, rest = label.partition("(")
-    return name + ("+" if rest.startswith("+") else "−" if rest.startswith("-") else "")
+def short_labels(labels: Sequence[str]) -> list[str]:
+    """The models' tick labels: ``CT(+4°/s)`` -> ``CT+``, ``CV`` -> ``CV``; with the turn rate
+    (``CT+4``, ``CT−2.5``) where two models would otherwise share one (two CT models turning the
+    same way)."""
+    split = [label.partition("(") for label in labels]
+    signs = [("+" if r.startswith("+") else "−" if r.startswith("-") else "") for _, _, r in split]
+    short = [name + sign for (name, _, _), sign in zip(split, signs, strict=True)]
+    if len(set(short)) == len(short):
+        return short
+    return [
+        name + sign + rest.lstrip("+-").removesuffix(")").removesuffix("°/s")
+        for (name, _, rest), sign in zip(split, signs, strict=True)
+    ]

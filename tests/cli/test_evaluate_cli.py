@@ -344,6 +344,18 @@ def test_the_tradeoff_figure_sweeps_the_fixed_tpms_on_the_same_runs(tmp_path) ->
         main(["--policy", "fixed", "--suite", "benchmark", "--tradeoff", str(figure)])
 
 
+@pytest.mark.parametrize("name", ["r.txt", "r"])
+def test_a_tradeoff_file_that_is_not_a_png_is_refused_before_the_evaluation(
+    tmp_path, capsys, name: str
+) -> None:
+    """matplotlib takes the format from the suffix: '.txt' failed after the whole evaluation
+    (the JSON lost with it), no suffix wrote FILE.png beside the name printed."""
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", "--runs", "2", "--quiet", "--tradeoff", str(tmp_path / name)])
+    assert exc.value.code == 2
+    assert "the figure is a PNG, end it in .png" in capsys.readouterr().err
+
+
 def test_tuned_banks_apply_to_the_seed_systems_only(capsys) -> None:
     with pytest.raises(SystemExit):
         main(["--policy", "bbsca", "--tuned", "bbsca=t.json", "--scenario", "paper"])
