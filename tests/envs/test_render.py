@@ -347,3 +347,112 @@ def test_closing_the_vector_env_releases_every_slots_figure() -> None:
     env.close()
     assert renderer.figures == {}
     np.testing.assert_array_equal(renderer.frame(0), first[0])
+
+
+#: 50 steps, a turn from step 31 on, outliers and missed detections
+LONG_CLUTTER = {
+    "scenario": {
+        "segments": [{"duration": 30}, {"duration": 20, "turn_rate_deg": 3.0}],
+        "position": [3000.0, 4500.0],
+        "velocity": [20.0, 15.0],
+    },
+    "sensor": {"outlier_prob": 0.2, "detection_prob": 0.8},
+}
+
+
+def _xy(line) -> np.ndarray:
+    return np.column_stack([line.get_xdata(), line.get_ydata()]).astype(np.float64)
+
+
+def _drawn_rows(line) -> np.ndarray:
+    return np.isfinite(_xy(line)).all(axis=1)
+
+
+def test_the_drawn_artists_are_the_steps_data() -> None:
+    """Every step's picture, read from its artists, against the step's own ``info`` (and the
+    sensor's draws): the heatmap is the non-symmetric TPM the step used, the ellipse the 95 %
+    contour of the position covariance around the estimate (an eigen-decomposition done here),
+    the tracks the truth and the estimates relative to the true target, the misses on the truth
+    where the step had no detection, the outliers where the sensor drew one, the mode
+    probabilities of each step at that step, the true-model bar the step's true model, and the
+    mode probabilities' window moving on by 20 steps when the step reaches its right end."""
+    seed = 4
+    env = TPMAdaptEnv(config=LONG_CLUTTER, render_mode="rgb_array")
+    env.reset(seed=seed)
+    env.render()
+    figure = env._renderer.figure(0)
+    cfg = env.config
+    batch = draw_batch(cfg.source, cfg.sensor, 1, seed, cfg.velocity_std)
+    outlier = batch.measurements.outlier[0]
+    rng = np.random.default_rng(1)
+    truth, estimate, detected, probs, models = [], [], [True], {}, {}
+    horizon = env.core.horizon
+    assert horizon >= 45
+    first_of = {10: 0, 39: 0, 40: 20, 45: 20}
+    asymmetric = 0
+    seen = set()
+    for k in range(1, horizon + 1):
+        _, _, terminated, _, info = env.step(rng.uniform(-1, 1, 9).astype(np.float32))
+        assert not terminated or k == horizon
+        env.render()
+        truth.append(info["true_state"][:2])
+        estimate.append(info["estimate"][:2])
+        detected.append(bool(info["detected"]))
+        probs[k], models[k] = info["mode_probs"], int(info["true_model"])
+        seen.add(models[k])
+        p, x = info["true_state"][:2], info["estimate"][:2]
+
+        tpm = np.asarray(info["tpm"])
+        np.testing.assert_allclose(figure.heat.get_array(), tpm)
+        asymmetric += not np.allclose(tpm, tpm.T, atol=1e-3)
+
+        cov = np.asarray(info["covariance"])[:2, :2]
+        lam, vec = np.linalg.eigh(cov)
+        quantile = -2.0 * math.log(0.05)
+        ellipse = figure.ellipse
+        assert ellipse.get_visible()
+        np.testing.assert_allclose(ellipse.get_center(), x - p, atol=1e-9)
+        assert ellipse.width == pytest.approx(2 * math.sqrt(quantile * lam[1]))
+        assert ellipse.height == pytest.approx(2 * math.sqrt(quantile * lam[0]))
+        major = math.degrees(math.atan2(vec[1, 1], vec[0, 1]))
+        turn = (ellipse.angle - major) % 180.0
+        assert min(turn, 180.0 - turn) == pytest.approx(0.0, abs=1e-6)
+        np.testing.assert_allclose(_xy(figure.now), [x - p], atol=1e-9)
+
+        near = figure.tracks[0]
+        np.testing.assert_allclose(_xy(near[0])[1:], np.array(truth) - p, atol=1e-9)
+        np.testing.assert_allclose(_xy(near[1])[1:], np.array(estimate) - p, atol=1e-9)
+        scene = figure.tracks[1]
+        np.testing.assert_allclose(_xy(scene[0])[1:], np.array(truth), atol=1e-9)
+        np.testing.assert_allclose(_xy(scene[1])[1:], np.array(estimate), atol=1e-9)
+        missed = ~np.array(detected)
+        for lines, origin in ((near, p), (scene, np.zeros(2))):
+            np.testing.assert_array_equal(_drawn_rows(lines[4]), missed)
+            np.testing.assert_allclose(
+                _xy(lines[4])[1:][missed[1:]], (np.array(truth) - origin)[missed[1:]], atol=1e-9
+            )
+            np.testing.assert_array_equal(
+                _drawn_rows(lines[3]), ~missed & outlier[: k + 1]
+            )
+            np.testing.assert_array_equal(_drawn_rows(lines[2]), ~missed)
+
+        for j, line in enumerate(figure.mu_lines):
+            steps, values = line.get_xdata(), line.get_ydata()
+            assert steps[-1] == k
+            for t, value in zip(steps, values, strict=True):
+                if t >= 1:
+                    assert value == pytest.approx(probs[int(t)][j])
+        bars = {}
+        for j, bar in enumerate(figure.true_bars):
+            centres, heights = np.asarray(bar.get_xdata())[0::2] + 0.5, bar.get_ydata()[0::2]
+            for t, h in zip(centres.tolist(), heights, strict=True):
+                if np.isfinite(h):
+                    assert round(t) not in bars
+                    bars[round(t)] = j
+        first = int(figure.mu_lines[0].get_xdata()[0])
+        assert bars == {t: models[t] for t in range(max(first, 1), k + 1)}
+        if k in first_of:
+            assert first == first_of[k]
+            assert figure.ax_mu.get_xlim() == (first_of[k], first_of[k] + 40)
+    assert asymmetric >= 40
+    assert len(seen) >= 2 and outlier.any() and not all(detected)
