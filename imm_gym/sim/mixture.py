@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from imm_gym.sim.actions import validate_action
 from imm_gym.sim.core import StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.model_order import canonical_order, model_roles
+from imm_gym.sim.model_order import model_roles
 from imm_gym.validation import ConfigError
 
 #: The fields every part of a mixture must share: the observation (its blocks and the models
@@ -96,12 +96,14 @@ def check_mixture(
 
 def check_parts(configs: Sequence[EnvConfig]) -> None:
     """Raise :class:`ConfigError` where a part differs from the first in a field of
-    :data:`POLICY_FIELDS` or in its number of models (the policy's spaces), or, with
-    ``model_order="bank"``, lists its models in another order than the first: ranked by kind and
-    turn rate (:func:`~imm_gym.sim.model_order.canonical_order`), its models must come in the
-    first's order, or entry ``j`` of the observation and the action would be, say, CV in one part
-    and CT(−ω) in another."""
+    :data:`POLICY_FIELDS` or in its number of models (the policy's spaces), or lists the same
+    models as the first (kind, and a CT model's sense of turn: :func:`model_roles`, in the
+    configuration's ``model_order``) in another order: entry ``j`` of the observation and the
+    action would be, say, CV in one part and CT(−) in the other. Parts of other models (a CA model
+    beside CT ones) have no common order to keep: a policy reading them tells them apart by
+    their per-model features."""
     first = configs[0]
+    order = first.model_order
     for p, config in enumerate(configs[1:], start=1):
         differ = [f for f in POLICY_FIELDS if getattr(config, f) != getattr(first, f)]
         if len(config.bank) != len(first.bank):
@@ -111,14 +113,12 @@ def check_parts(configs: Sequence[EnvConfig]) -> None:
                 f"mixture part {p} differs from part 0 in {differ}: the parts of a mixture "
                 f"share what the policy reads and writes ({', '.join(POLICY_FIELDS)})"
             )
-        if first.model_order == "bank" and not np.array_equal(
-            canonical_order(config.bank), canonical_order(first.bank)
-        ):
+        roles, first_roles = model_roles(config.bank, order), model_roles(first.bank, order)
+        if sorted(roles) == sorted(first_roles) and roles != first_roles:
             raise ConfigError(
-                f"mixture part {p} lists its models {list(model_roles(config.bank))} in another "
-                f"order than part 0 {list(model_roles(first.bank))}: with model_order bank the "
-                "parts must list the models (kind, turn rate) in the same order; list them so, "
-                "or set model_order: canonical"
+                f"mixture part {p} gives its models the entries {list(roles)}, part 0 "
+                f"{list(first_roles)} (model_order {order}): list them so that each entry is "
+                "the same kind of model in every part"
             )
 
 

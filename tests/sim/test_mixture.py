@@ -135,14 +135,25 @@ def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
         MixtureCore([PAPER, two], [0.5, 0.5], 4)
 
 
-def test_with_the_bank_s_order_the_parts_list_their_models_alike() -> None:
-    # model_order bank: entry j is model j of each part's bank, so a part listing CT(-4), CV,
-    # CT(+4) would read and write CV's entry as CT(-4)'s; the canonical order reorders it
+def test_the_parts_give_each_entry_the_same_kind_of_model() -> None:
+    """model_order bank: entry j is model j of each part's bank, so a part listing CT(-4), CV,
+    CT(+4) would read and write CV's entry as CT(-4)'s; the canonical order reorders it. Banks
+    whose entries stand for the same models at other turn rates are one order (a ranking by
+    |omega| called them different); in the canonical order, banks turning faster one way than
+    the other would give entry 1 opposite turns in the two parts."""
     permuted = PAPER.bank[2], PAPER.bank[0], PAPER.bank[1]
-    with pytest.raises(ConfigError, match=r"part 1 lists its models .* model_order: canonical"):
+    with pytest.raises(ConfigError, match=r"part 1 gives its models the entries \['CT\(−\)'"):
         MixtureCore([PAPER, PAPER.replace(bank=permuted)], [0.5, 0.5], 4)
     canonical = PAPER.replace(model_order="canonical")
     MixtureCore([canonical, canonical.replace(bank=permuted)], [0.5, 0.5], 4)
+    a = PAPER.replace(bank=({"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 4.0},
+                            {"kind": "ct", "turn_rate_deg": -2.0}))
+    b = PAPER.replace(bank=({"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 2.0},
+                            {"kind": "ct", "turn_rate_deg": -4.0}))
+    MixtureCore([a, b], [0.5, 0.5], 4)
+    a, b = (c.replace(model_order="canonical") for c in (a, b))
+    with pytest.raises(ConfigError, match=r"model_order canonical"):
+        MixtureCore([a, b], [0.5, 0.5], 4)
 
 
 def test_the_reset_info_is_each_slot_s_by_its_part() -> None:
