@@ -809,10 +809,13 @@ def train_one(
             {**extra, "num_timesteps": int(model.num_timesteps), **more},
         )
 
+    written: set[str] = set()  # the checkpoints this run wrote (not an earlier run's, resumed)
+
     def checkpoint(name: str) -> None:
         """``checkpoints/NAME``: the agent and everything ``--resume`` needs."""
         meta = {**extra, "num_timesteps": int(model.num_timesteps)}
         save_checkpoint(ckpt_dir / name, model, env, run, meta, swa)
+        written.add(name)
 
     start = time.perf_counter()
     model.learn(
@@ -831,9 +834,9 @@ def train_one(
             f"interrupted: checkpoint saved to {latest} ({model.num_timesteps} steps); "
             f"continue with: python train.py --resume {latest}"
         )
-    final = ckpt_dir / f"step_{model.num_timesteps}"
-    if args.keep_checkpoints and not final.exists():  # a budget between checkpoint steps
-        checkpoint(final.name)
+    final = f"step_{model.num_timesteps}"
+    if args.keep_checkpoints and final not in written:  # a budget between checkpoint steps
+        checkpoint(final)  # over a step_N left by the run this one resumed from, if any
     agent_dir = run_dir / "agent"
     if args.validate_every and not (history and history[-1]["timesteps"] == model.num_timesteps):
         validate()  # the end, where the schedule did not validate it

@@ -79,6 +79,21 @@ def test_keep_checkpoints_keeps_the_final_state_between_checkpoint_steps(tmp_pat
         assert (kept / name).read_bytes() == (latest / name).read_bytes()
 
 
+def test_a_resumed_run_keeps_its_own_final_state_over_the_earlier_runs(tmp_path) -> None:
+    """Resumed from step_512 of a run that went on to step_768, a run whose budget also ends at
+    768 writes its own step_768 (it kept the earlier run's, another budget's)."""
+    argv = ("--checkpoint-every", "512", "--keep-checkpoints", "--no-eval", "--validate-every",
+            "0")
+    assert train_small(tmp_path, "--timesteps", "600", *argv) == 0
+    ckpts = tmp_path / "seed_0" / "checkpoints"
+    first = json.loads((ckpts / "step_768" / "resume.json").read_text())
+    resume = ("--resume", str(ckpts / "step_512"))
+    assert train_small(tmp_path, "--timesteps", "700", *resume, *argv) == 0
+    kept, latest = (json.loads((ckpts / n / "resume.json").read_text())
+                    for n in ("step_768", "latest"))
+    assert kept == latest and kept != first
+
+
 def test_resume_continues_the_step_count(trained) -> None:
     out, cfg = trained
     ckpt = out / "seed_0" / "checkpoints" / "latest"
