@@ -131,7 +131,8 @@ def run_priors(
         tpm = np.asarray(rows(k, info), dtype=np.float64)
         if tpm.shape != (N, M, M):
             raise ConfigError(f"rows({k}) must have shape {(N, M, M)}, got {tpm.shape}")
-        validate_tpm(tpm[alive], M, name=f"rows({k})")
+        if alive.any():  # every run lost: nothing left to check (or step)
+            validate_tpm(tpm[alive], M, name=f"rows({k})")
         action = np.log(np.maximum(np.where(alive[:, None, None], tpm, 1.0), 1e-300)) / LOGIT
         result = core.step(np.clip(action, -1.0, 1.0).reshape(N, M * M), active=alive)
         info = result.info

@@ -92,6 +92,17 @@ def test_a_run_that_diverges_is_scored_as_the_evaluation_scores_it() -> None:
     np.testing.assert_allclose(result.mode_probs[0], run.mode_probs, rtol=1e-9, atol=1e-12)
 
 
+def test_runs_go_on_held_once_every_tracker_has_diverged() -> None:
+    """A cap of 5 m loses every run within a few steps: the held errors and uniform mode
+    probabilities fill the rest of the horizon (the rows' check had nothing left to read)."""
+    slots = prior_core({"scenario": "paper", "divergence_error": 5.0}, 2, 3, SEED)
+    tpms = np.repeat(np.stack([stay_tpm(3, s) for s in (0.5, 0.98)]), 3, axis=0)
+    result = run_priors(slots, lambda k, info: tpms)
+    assert result.diverged.all()
+    np.testing.assert_array_equal(result.squared_error[..., -1], 25.0)
+    np.testing.assert_array_equal(result.mode_probs[..., -1, :], 1.0 / 3.0)
+
+
 @pytest.mark.parametrize(
     ("rows", "message"),
     [
