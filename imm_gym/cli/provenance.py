@@ -39,12 +39,6 @@ def versions(*optional: str) -> dict[str, str | bool]:
     return record
 
 
-def git_commit(directory: Path) -> str | None:
-    """The commit of :func:`git_state`, or None."""
-    state = git_state(directory)
-    return None if state is None else state[0]
-
-
 def git_state(directory: Path) -> tuple[str, bool] | None:
     """``(commit, dirty)`` of the git work tree that tracks the package ``directory`` (its
     ``__init__.py``): ``git rev-parse HEAD``, and whether ``git status --porcelain

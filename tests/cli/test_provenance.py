@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 import imm_gym
-from imm_gym.cli.provenance import git_commit, git_state, versions
+from imm_gym.cli.provenance import git_state, versions
 
 
 def test_the_record_names_the_package_python_and_the_core_libraries() -> None:
@@ -30,7 +30,7 @@ def test_an_optional_library_is_recorded_where_installed_and_left_out_where_not(
 
 
 def test_the_commit_is_recorded_in_a_work_tree_only(tmp_path: Path) -> None:
-    assert git_commit(tmp_path) is None
+    assert git_state(tmp_path) is None
     package = Path(imm_gym.__file__).resolve().parent
     if any((d / ".git").exists() for d in (package, *package.parents)):
         record = versions()
@@ -68,12 +68,13 @@ def test_a_repository_that_does_not_track_the_package_gives_no_commit(tmp_path, 
     package = outer / "venv" / "site" / "pkg"
     package.mkdir(parents=True)
     (package / "__init__.py").write_text("__version__ = '0'\n")
-    assert git_commit(package) is None
+    assert git_state(package) is None
     monkeypatch.setattr(imm_gym, "__file__", str(package / "__init__.py"))
     assert "git_commit" not in versions()
     _git(outer, "add", "-f", "venv/site/pkg/__init__.py")
     _git(outer, "commit", "-q", "-m", "the package tracked")
-    assert versions()["git_commit"] == git_commit(package) == _git(outer, "rev-parse", "HEAD")
+    commit = _git(outer, "rev-parse", "HEAD")
+    assert versions()["git_commit"] == commit and git_state(package) == (commit, False)
 
 
 def test_a_work_tree_whose_tracked_files_differ_from_the_commit_is_recorded_dirty(
