@@ -74,7 +74,7 @@ def test_a_repository_that_does_not_track_the_package_gives_no_commit(tmp_path, 
     _git(outer, "add", "-f", "venv/site/pkg/__init__.py")
     _git(outer, "commit", "-q", "-m", "the package tracked")
     commit = _git(outer, "rev-parse", "HEAD")
-    assert versions()["git_commit"] == commit and git_state(package) == (commit, False)
+    assert versions()["git_commit"] == commit and git_state(package) == (commit, True)  # .gitignore
 
 
 def test_a_work_tree_whose_tracked_files_differ_from_the_commit_is_recorded_dirty(
