@@ -22,6 +22,7 @@ from imm_gym.evaluation.animation import (
 from imm_gym.evaluation.rollout import evaluation_config, rollout
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
+from imm_gym.sim.render import TrackFigure, model_labels
 
 #: 20 steps with a turn, outliers and missed detections
 SCENARIO = {
@@ -137,3 +138,38 @@ def test_mp4_is_written_where_ffmpeg_is_installed(tmp_path) -> None:
     path = tmp_path / "a.mp4"
     assert write_animation(_rollouts(CLUTTER, 7), CLUTTER, 7, path, scale=0.5) == 20
     assert path.stat().st_size > 1000
+
+
+def test_the_view_of_run_1_is_that_runs_step_and_its_picture_draws_it() -> None:
+    """Run 1 of a random family (its true models not run 0's) at every step ``t``: the TPM and
+    the covariance are those of step ``t`` (index ``t - 1`` of the roll-out; the TIP-IMM's TPM
+    moves from step to step), the true models run 1's, and the figure's heatmap, ellipse and
+    true-model bar show them."""
+    family = EnvConfig(scenario="random", family={"horizon": 30, "n_segments": [1, 3]})
+    tip = _rollouts(family, 0, names=("tip-imm",))["tip-imm"]
+    assert not tip.diverged.any()
+    assert np.any(tip.true_model[0] != tip.true_model[1])
+    batch = draw_batch(family.source, family.sensor, 2, 0, family.velocity_std, family.vary)
+    np.testing.assert_array_equal(batch.truth.states[1, 1:], tip.truth[1])
+    picture = TrackFigure(model_labels(family.bank))
+    moved = 0
+    for t in range(1, 31):
+        view = rollout_view(tip, batch, family.sensor, "tip-imm", t, run=1)
+        np.testing.assert_array_equal(view.tpm, tip.tpm[1, t - 1])
+        np.testing.assert_array_equal(view.covariance, tip.covariance[1, t - 1, :2, :2])
+        np.testing.assert_array_equal(view.true_model[1:], tip.true_model[1, :t])
+        np.testing.assert_array_equal(view.estimate[1:], tip.estimate[1, :t, :2])
+        np.testing.assert_array_equal(view.truth, batch.truth.states[1, : t + 1, :2])
+        moved += t > 1 and not np.array_equal(tip.tpm[1, t - 1], tip.tpm[1, t - 2])
+        picture.frame(view)
+        np.testing.assert_array_equal(picture.heat.get_array(), tip.tpm[1, t - 1])
+        lam = np.linalg.eigvalsh(tip.covariance[1, t - 1, :2, :2])
+        quantile = -2.0 * np.log(0.05)
+        assert picture.ellipse.width == pytest.approx(2 * np.sqrt(quantile * lam[1]))
+        assert picture.ellipse.height == pytest.approx(2 * np.sqrt(quantile * lam[0]))
+        last = {
+            j for j, bar in enumerate(picture.true_bars)
+            if len(bar.get_ydata()) and np.isfinite(bar.get_ydata()[-1])
+        }
+        assert last == {int(tip.true_model[1, t - 1])}
+    assert moved >= 15

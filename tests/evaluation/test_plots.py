@@ -127,3 +127,20 @@ def test_the_mp4_writer_writes_each_frame_before_the_next_is_drawn(monkeypatch) 
     monkeypatch.setattr(matplotlib.animation, "FFMpegWriter", Writer)
     assert animation._write_mp4(frames(), Path("unused.mp4"), 10) == 5
     assert written == [1, 2, 3, 4, 5]  # frame i written when i + 1 frames were drawn
+
+
+def test_the_figures_draw_run_0s_truth_and_the_root_mean_square_error() -> None:
+    """Two runs of a random family (different paths): the trajectory's truth and estimate are
+    run 0's, and the RMSE curve is ``sqrt(mean over runs of |p_hat - p|^2)`` worked out here."""
+    config = EnvConfig(scenario="random", family={"horizon": 30, "n_segments": [1, 3]})
+    run = _fixed_rollout(config)
+    assert not run.diverged.any()
+    assert not np.allclose(run.truth[0, :, :2], run.truth[1, :, :2])
+    figs = figures({"fixed": run}, META, config)
+    truth, estimate = figs["trajectory"].axes[0].get_lines()[:2]
+    np.testing.assert_array_equal(truth.get_xydata(), run.truth[0, :, :2])
+    np.testing.assert_array_equal(estimate.get_xydata(), run.estimate[0, :, :2])
+    squared = ((run.estimate[:, :, :2] - run.truth[:, :, :2]) ** 2).sum(axis=-1)
+    rmse = figs["rmse"].axes[0].get_lines()[0]
+    np.testing.assert_allclose(rmse.get_ydata(), np.sqrt(squared.mean(axis=0)), rtol=1e-9)
+    assert rmse.get_ydata().max() > 2.0  # the square root differs from the mean square
