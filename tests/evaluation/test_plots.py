@@ -144,3 +144,27 @@ def test_the_figures_draw_run_0s_truth_and_the_root_mean_square_error() -> None:
     rmse = figs["rmse"].axes[0].get_lines()[0]
     np.testing.assert_allclose(rmse.get_ydata(), np.sqrt(squared.mean(axis=0)), rtol=1e-9)
     assert rmse.get_ydata().max() > 2.0  # the square root differs from the mean square
+
+
+def test_the_tradeoff_figure_draws_the_fixed_curve_and_each_policys_point(
+    tmp_path, monkeypatch
+) -> None:
+    """The fixed TPMs' curve at (100 · accuracy, ARMSE) in stay order, one point per policy."""
+    from imm_gym.evaluation import plots
+
+    drawn = []
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or save(fig, path))
+    fixed = {
+        0.99: {"mode_accuracy": 0.8, "armse_pos": 30.0},
+        0.9: {"mode_accuracy": 0.7, "armse_pos": 25.0},
+    }
+    policies = {"a": {"mode_accuracy": 0.85, "armse_pos": 20.0, "mode_prob_tv": 0.1},
+                "b": {"mode_accuracy": 0.6, "armse_pos": 40.0, "mode_prob_tv": 0.2}}
+    path = plots.tradeoff_figure(policies, fixed, tmp_path / "t.png", META)
+    assert path.exists() and len(drawn) == 1
+    lines = drawn[0].axes[0].get_lines()
+    assert len(lines) == 3
+    np.testing.assert_allclose(lines[0].get_xydata(), [[70.0, 25.0], [80.0, 30.0]])
+    np.testing.assert_allclose(lines[1].get_xydata(), [[85.0, 20.0]])
+    np.testing.assert_allclose(lines[2].get_xydata(), [[60.0, 40.0]])
