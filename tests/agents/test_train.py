@@ -372,6 +372,11 @@ def test_config_env_kwargs_reach_every_part_of_the_mixture(tmp_path) -> None:
     params = _hyperparams(tmp_path, "env_kwargs: {logit_scale: 4.0}\n")
     assert {p["env_kwargs"]["logit_scale"] for p in params["env_mixture"]} == {4.0}
     assert params["env_kwargs"]["logit_scale"] == 4.0
+    # a tracker field stays the main part's: the parts are there to vary the trackers
+    params = _hyperparams(tmp_path, "env_kwargs: {sensor: {sigma_r: 30.0}}\n")
+    assert params["env_kwargs"]["sensor"] == {"sigma_r": 30.0}
+    before = _hyperparams(tmp_path, "{}\n")["env_mixture"]
+    assert params["env_mixture"] == before
 
 
 def test_a_config_restating_the_mixture_keeps_its_own(tmp_path) -> None:
