@@ -88,7 +88,8 @@ class IMMStep:
         nis: ``(N,)`` NIS of the IMM's predicted measurement density (moment-matched mixture of the
             model-conditioned predictions, weights ``cbar``); 0 on a missed detection.
         detected: ``(N,)`` whether a measurement was used.
-        failed: ``(N,)`` trackers whose innovation covariance lost positive definiteness
+        failed: ``(N,)`` trackers whose cycle failed: an innovation covariance not positive
+            definite, or mode probabilities, combined estimate or its variances not finite
             (outputs NaN); only with ``IMM.step(..., allow_failure=True)``, else an error.
         z_pred: ``(N, m)`` mean of the predicted measurement mixture (weights ``cbar``), the
             one-step prediction whose error the tuner's objective measures, where the tracker
@@ -213,6 +214,15 @@ def cycles_by_tracker(
         else np.concatenate([getattr(o, f.name) for o in steps])
         for f in fields(IMMStep)
     ))
+
+
+def _finite_outputs(mu: Array, x_hat: Array, P_hat: Array) -> BoolArray:
+    """``(N,)`` trackers whose cycle's mode probabilities, combined estimate and its variances
+    are finite (NaN where every model's likelihood underflowed, inf after an overflow): the
+    others failed, as the compiled kernel flags them."""
+    variances = np.diagonal(P_hat, axis1=-2, axis2=-1)
+    return (np.isfinite(mu).all(axis=-1) & np.isfinite(x_hat).all(axis=-1)
+            & np.isfinite(variances).all(axis=-1))
 
 
 def _refuse_extra_axes(tpm: Array, M: int) -> None:
@@ -581,12 +591,14 @@ class IMM:
             tpm, z = self._checked(tpm, z, detected, N, M)
         if self.engine == "compiled":
             return self._step_compiled(state, tpm, z, detected, allow_failure)
-        try:
+        if not allow_failure:
             return self._step_numpy(state, tpm, z, detected)
-        except np.linalg.LinAlgError:
-            if not allow_failure:
-                raise
-            return self._step_numpy_rows(state, tpm, z, detected)
+        # failures are flagged, not warned about (as the compiled engine)
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            try:
+                return self._step_numpy(state, tpm, z, detected)
+            except np.linalg.LinAlgError:
+                return self._step_numpy_rows(state, tpm, z, detected)
 
     def _step_numpy(
         self, state: IMMState, tpm: Array, z: Array, detected: BoolArray | None
@@ -610,6 +622,8 @@ class IMM:
             innovation = np.where(det[:, None, None], upd.innovation, 0.0)
         mu = update_mode_probs(loglik, cbar)
         x_hat, P_hat = combine(mu, x, P)
+        if not _finite_outputs(mu, x_hat, P_hat).all():
+            raise np.linalg.LinAlgError("mode probabilities or combined estimate not finite")
         nis = np.where(det, self._mixture_nis(cbar, upd, z), 0.0)
         out = IMMStep(
             x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, det, np.zeros(N, dtype=bool)
@@ -706,7 +720,8 @@ class IMM:
             return self._step_one(state, tpm, z, detected, False, allow_failure)
         if failures and not allow_failure:
             raise np.linalg.LinAlgError(
-                "innovation covariance is not positive definite for 1 tracker(s)"
+                "IMM cycle failed for 1 tracker(s): innovation covariance not positive "
+                "definite, or outputs not finite"
             )
         return _new_state(x, P, mu), _new_step(
             x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, detected, failed
@@ -745,7 +760,8 @@ class IMM:
         )
         if failures and not allow_failure:
             raise np.linalg.LinAlgError(
-                f"innovation covariance is not positive definite for {failures} tracker(s)"
+                f"IMM cycle failed for {failures} tracker(s): innovation covariance not "
+                "positive definite, or outputs not finite"
             )
         return _new_state(x, P, mu), _new_step(
             x_hat, P_hat, mu, cbar, loglik, model_nis, innovation, nis, detected, failed

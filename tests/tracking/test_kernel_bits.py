@@ -194,3 +194,47 @@ def test_packing_refuses_other_banks() -> None:
     assert imm._bank_one is not None
     assert IMM(paper_bank()[:2], Sonar())._bank_one is None
     assert IMM(paper_bank(), Sonar(), engine="numpy")._bank_one is None
+
+
+@pytest.mark.parametrize("engine", ["compiled", "numpy"])
+@pytest.mark.parametrize("filt", ["ukf", "ukf-cholesky", "ekf"])
+@pytest.mark.parametrize("n", [1, 3])
+def test_a_cycle_whose_outputs_are_not_finite_is_failed(engine: str, filt: str, n: int) -> None:
+    """A measurement of 1e160 m overflows every model's NIS: each likelihood is 0 and the mode
+    probabilities 0/0. The innovation covariances are positive definite, yet the cycle failed:
+    it is flagged (NaN outputs) or raises, as a lost positive definiteness is, and the other
+    trackers get their own numbers (bit for bit in the compiled kernel's lanes)."""
+    batch = draw_batch(paper_scenario(), Sonar(), n, 4)
+    imm = IMM(paper_bank(), Sonar(), filter=filt, engine=engine)
+    state = imm.init(batch.x0, batch.P0)
+    z = batch.measurements.z[:, 1].copy()
+    z[n - 1, 0] = 1e160
+    tpm = stay_tpm(3, 0.95)
+    post, out = imm.step(state, tpm, z, allow_failure=True)
+    assert out.failed.tolist() == [t == n - 1 for t in range(n)]
+    for a in (post.x, post.P, post.mu, out.x, out.P, out.mode_probs, out.nis):
+        assert np.isnan(a[n - 1]).all()
+    with pytest.raises(np.linalg.LinAlgError), np.errstate(all="ignore"):
+        imm.step(state, tpm, z)
+    if n > 1:
+        keep = slice(0, n - 1)
+        _, alone = imm.step(IMMState(state.x[keep], state.P[keep], state.mu[keep]), tpm, z[keep])
+        if engine == "compiled":  # lanes do not interact
+            assert out.x[keep].tobytes() == alone.x.tobytes()
+        else:  # the reference reran tracker by tracker: numpy's products round by batch size
+            np.testing.assert_allclose(out.x[keep], alone.x, rtol=1e-12)
+
+
+@pytest.mark.parametrize("engine", ["compiled", "numpy"])
+def test_an_overflowing_covariance_is_failed(engine: str) -> None:
+    """An EKF started with a covariance of 1e160 m² overflows its innovation covariance's
+    determinant to inf (which passes ``det > 0``) and every likelihood to 0: failed, not NaN
+    outputs with ``failed`` False."""
+    batch = draw_batch(paper_scenario(), Sonar(), 2, 4)
+    P0 = batch.P0.copy()
+    P0[1] *= 1e156
+    imm = IMM(paper_bank(), Sonar(), filter="ekf", engine=engine)
+    _, out = imm.step(imm.init(batch.x0, P0), stay_tpm(3, 0.95), batch.measurements.z[:, 1],
+                      allow_failure=True)
+    assert out.failed.tolist() == [False, True]
+    assert np.isfinite(out.x[0]).all() and np.isnan(out.x[1]).all()

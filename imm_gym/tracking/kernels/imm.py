@@ -215,9 +215,10 @@ def imm_step(
 ) -> int:  # pragma: no cover
     """One IMM cycle for N trackers (shapes as :meth:`imm_gym.tracking.imm.IMM.step`).
 
-    Returns the number of trackers whose innovation covariance was not positive definite (a
-    diverged tracker); those are flagged in ``failed_out`` and their outputs filled with NaN, the
-    others are unaffected.
+    Returns the number of trackers whose cycle failed (a diverged tracker): an innovation
+    covariance not positive definite, or mode probabilities, a combined estimate or its
+    variances not finite (every model's likelihood underflowing, an overflow); those are flagged
+    in ``failed_out`` and their outputs filled with NaN, the others are unaffected.
 
     ``tpm`` is ``(N, M, M)`` (a broadcast view is fine). ``F``, ``Q`` (``(B, M, n, n)``) and
     ``R`` (``(B, m, m)``) hold one bank per tracker (``B = N``: trackers at their own sampling
@@ -1118,7 +1119,8 @@ def _store(
 ) -> int:  # pragma: no cover
     """The block's outputs into the trackers' rows (a missed detection keeps the prediction, its
     likelihood terms 0; a tracker whose innovation covariance, or its mixture's, is not positive
-    definite is flagged and filled with NaN); returns the number of such trackers.
+    definite, or whose mode probabilities, combined estimate or its variances are not finite, is
+    flagged and filled with NaN); returns the number of such trackers.
 
     Every tracker's outputs first, lane loop innermost (as :func:`_load`), then the failed
     trackers' rows overwritten with NaN."""
@@ -1157,6 +1159,10 @@ def _store(
         failed = False
         for j in range(M):
             failed = failed or not ok[j * nb + b] > 0.0
+            failed = failed or not mu_new[j, b] - mu_new[j, b] == 0.0  # NaN or inf
+        for r in range(n):
+            failed = failed or not xhat[r, b] - xhat[r, b] == 0.0
+            failed = failed or not Phat[r, r, b] - Phat[r, r, b] == 0.0
         if seen and mixture_nis:
             failed = failed or not okm[b] > 0.0
         failed_out[t] = failed
