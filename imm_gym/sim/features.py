@@ -9,7 +9,9 @@ computed from the core's per-step quantities (:class:`StepView`) and, for a memo
 memory starts and advances. Adding a feature is one :func:`register` call here (and its test).
 
 Memories are exponential moving averages :math:`m(t) = \lambda m(t-1) + (1 - \lambda) w(t)`,
-one per factor ``lambda``, advanced after every step (only for observed features).
+one per factor ``lambda``, advanced after every step (only for observed features); the evidence
+memories (``shadow_evidence``, ``stay_evidence``) are discounted sums
+:math:`m(t) = \lambda m(t-1) + w(t)`, as their descriptions say.
 """
 
 from __future__ import annotations
@@ -205,10 +207,11 @@ def datasheet_table() -> str:
 def heading_rate(v_prev: Array, v: Array, T: Array | float) -> Array:
     r"""Heading rate between two velocity estimates ``(N, 2)``:
     :math:`\dot\psi = \operatorname{atan2}(v_{k-1} \times v_k,\ v_{k-1} \cdot v_k) / T`
-    (0 where either velocity is zero)."""
+    (0 where either velocity is zero: ``+ 0.0`` makes a dot product of -0 +0, where atan2
+    would read a half turn)."""
     cross = v_prev[:, 0] * v[:, 1] - v_prev[:, 1] * v[:, 0]
     dot = v_prev[:, 0] * v[:, 0] + v_prev[:, 1] * v[:, 1]
-    return np.arctan2(cross, dot) / T
+    return np.arctan2(cross, dot + 0.0) / T
 
 
 def turn_rate(view: StepView) -> Array:

@@ -1,5 +1,6 @@
-"""Every observation block of a step recomputed by hand from the core's per-step quantities
-(mu, the models' log-likelihoods and NIS, the combined and shadow estimates' velocities): a
+"""Thirteen of the observation blocks (the others in their own modules' tests) recomputed by
+hand from the core's per-step quantities (mu, the models' log-likelihoods and NIS, the combined
+and shadow estimates' velocities): a
 bank of CV, CA and two CT models at T = 2 s over four slots, random actions so that bank A and
 the shadow IMM differ, the memories carried from their documented starts."""
 
@@ -85,3 +86,12 @@ def test_the_heading_rate_is_the_signed_angle_between_the_velocities() -> None:
     w = np.array([[0.0, 5.0], [0.0, -5.0], [-10.0, 0.01], [-3.0, -4.0], [1.0, 0.0]])
     expected = np.array([math.pi / 2, -math.pi / 2, math.pi - 0.001, math.pi, 0.0]) / 2.0
     np.testing.assert_allclose(heading_rate(v, w, 2.0), expected, rtol=1e-6, atol=1e-12)
+
+
+def test_the_heading_rate_from_or_to_rest_is_zero_whatever_the_quadrant() -> None:
+    """A zero velocity against one heading south-west makes a dot product of -0, where atan2
+    reads a half turn (the replay path's first step starts from rest)."""
+    rest = np.zeros((4, 2))
+    v = np.array([[-1.0, -1.0], [-3.0, -0.5], [1.0, 1.0], [-1.0, 1.0]])
+    assert heading_rate(rest, v, 1.0).tolist() == [0.0] * 4
+    assert np.abs(heading_rate(v, rest, 1.0)).tolist() == [0.0] * 4
