@@ -190,6 +190,8 @@ def validate_tpm(tpm: Array, n_models: int, name: str = "tpm") -> Array:
     a = np.asarray(tpm, dtype=np.float64)
     if a.ndim < 2 or a.shape[-2:] != (n_models, n_models):
         raise ConfigError(f"{name} must have shape (..., {n_models}, {n_models}), got {a.shape}")
+    if a.size == 0:  # an empty batch of TPMs
+        return a
     lowest = a.min()
     if not np.isfinite(a.sum()):
         raise ConfigError(f"{name} must be finite")

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imm_gym import ConfigError
+from imm_gym import ConfigError, EnvConfig, TrackingCore
 from imm_gym.tracking.tpm import (
     MAX_T_OVER_SOJOURN,
     sojourn_generator,
@@ -199,3 +199,10 @@ def test_an_environment_starts_from_one_stay_per_model() -> None:
         EnvConfig(initial_stay=(0.9, 0.5, -0.1))
     with pytest.raises(ConfigError, match=r"initial_stay must be a real number"):
         EnvConfig(initial_stay="0.9")  # type: ignore[arg-type]
+
+
+def test_an_empty_batch_of_tpms_is_valid() -> None:
+    """No TPM to check is no error (a core reset of no slot validates its ``initial_tpms``)."""
+    assert validate_tpm(np.zeros((0, 3, 3)), 3).shape == (0, 3, 3)
+    core = TrackingCore(EnvConfig(scenario="paper"), 2)
+    core.reset(np.array([], dtype=int), [], initial_tpms=np.zeros((0, 3, 3)))
