@@ -42,10 +42,19 @@ class ActionError(ValueError):
     """An action has the wrong shape or a non-finite entry."""
 
 
+def real_numbers(action: Any) -> NDArray[Any]:
+    """``action`` as an array after checking it holds real numbers (bool, integer or float):
+    a complex action would lose its imaginary part, a string be parsed."""
+    a = action if isinstance(action, np.ndarray) else np.asarray(action)
+    if a.dtype.kind not in "biuf":
+        raise ActionError(f"action must hold real numbers, got dtype {a.dtype}")
+    return a
+
+
 def validate_action(action: NDArray[Any], n_envs: int, action_dim: int) -> Array:
-    """``action`` as float64 after checking shape ``(N, action_dim)`` and finiteness (not
-    clipped)."""
-    a = np.asarray(action, dtype=np.float64)
+    """``action`` as float64 after checking its type (real numbers: bool, integer or float),
+    shape ``(N, action_dim)`` and finiteness (not clipped)."""
+    a = np.asarray(real_numbers(action), dtype=np.float64)
     if a.shape != (n_envs, action_dim):
         raise ActionError(
             f"action must have shape ({n_envs}, {action_dim}) "

@@ -41,7 +41,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imm_gym.sim.actions import ActionError
+from imm_gym.sim.actions import ActionError, real_numbers
 from imm_gym.sim.core import INFINITY_STAND_IN, TrackingCore
 from imm_gym.sim.kernels import ACTION_MODE_CODES, env_step_body, step_inputs
 from imm_gym.sim.rewards import REWARD_TERMS
@@ -335,7 +335,8 @@ class SoloStep:
         """One step: ``(obs, reward, terminated, truncated, info)``, fresh objects, the info's
         numbers as Python scalars and its arrays views of this step's row of the episode's info
         record (written once: they never change)."""
-        a = np.array(action, dtype=np.float64)  # a fresh C-contiguous copy: one compiled variant
+        # a fresh C-contiguous copy: one compiled variant
+        a = np.array(real_numbers(action), dtype=np.float64)
         if a.shape != self._action_shape:
             raise ActionError(f"action must have shape {self._action_shape}, got {a.shape}")
         if self._core.k is not self._k:  # the core was reset or stepped by itself

@@ -292,6 +292,8 @@ BAD_SCALAR = [
     np.zeros((1, 9)),
     np.zeros((3, 3)),
     np.float64(0.0),
+    np.full(9, 0.5 + 1j),  # not silently its real part
+    np.array(["0.5"] * 9),  # not parsed as numbers
 ]
 
 
