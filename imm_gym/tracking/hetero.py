@@ -69,6 +69,7 @@ from imm_gym.tracking.imm import (
     Tracker,
     combine,
     cycles_by_tracker,
+    finite_outputs,
     measurement_mixture,
     mix,
     run,
@@ -573,12 +574,15 @@ class HeteroIMM:
         posterior = IMMState(x_new, P_new, mu)
         x_hat, P_hat = self.combine(mu, posterior.x, posterior.P)
         z_mix, S_mix = measurement_mixture(self.sensor, cbar, z_pred, S)
-        # a tracker that failed before carries NaN probabilities: its mixture is NaN too
-        lost = ~(np.isfinite(S_mix).all(axis=(-1, -2)) & np.isfinite(z_mix).all(axis=-1))
+        # a tracker that failed before carries NaN probabilities: its mixture is NaN too; every
+        # likelihood underflowing (an overflowed NIS) leaves the probabilities 0/0
+        lost = ~(np.isfinite(S_mix).all(axis=(-1, -2)) & np.isfinite(z_mix).all(axis=-1)
+                 & finite_outputs(mu, x_hat, P_hat))
         if lost.any():
             if not allow_failure:
                 raise np.linalg.LinAlgError(
-                    f"predicted measurement density not finite for {int(lost.sum())} tracker(s)"
+                    "predicted measurement density or outputs not finite for "
+                    f"{int(lost.sum())} tracker(s)"
                 )
             failed |= lost
             S_mix = np.where(lost[:, None, None], np.eye(m), S_mix)

@@ -216,7 +216,7 @@ def cycles_by_tracker(
     ))
 
 
-def _finite_outputs(mu: Array, x_hat: Array, P_hat: Array) -> BoolArray:
+def finite_outputs(mu: Array, x_hat: Array, P_hat: Array) -> BoolArray:
     """``(N,)`` trackers whose cycle's mode probabilities, combined estimate and its variances
     are finite (NaN where every model's likelihood underflowed, inf after an overflow): the
     others failed, as the compiled kernel flags them."""
@@ -622,7 +622,7 @@ class IMM:
             innovation = np.where(det[:, None, None], upd.innovation, 0.0)
         mu = update_mode_probs(loglik, cbar)
         x_hat, P_hat = combine(mu, x, P)
-        if not _finite_outputs(mu, x_hat, P_hat).all():
+        if not finite_outputs(mu, x_hat, P_hat).all():
             raise np.linalg.LinAlgError("mode probabilities or combined estimate not finite")
         nis = np.where(det, self._mixture_nis(cbar, upd, z), 0.0)
         out = IMMStep(

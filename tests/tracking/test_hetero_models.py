@@ -9,7 +9,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imm_gym import IMM, ConfigError, PositionSensor, Sonar, paper_bank, stay_tpm
+from imm_gym import (
+    IMM,
+    ConfigError,
+    PositionSensor,
+    Sonar,
+    draw_batch,
+    paper_bank,
+    paper_scenario,
+    stay_tpm,
+)
 from imm_gym.tracking.conversions import (
     SPACES,
     conversion,
@@ -536,3 +545,23 @@ def test_a_finite_non_positive_definite_innovation_covariance_is_flagged() -> No
     # the engine's own check (numpy's factorization would raise "Matrix is not positive definite")
     with pytest.raises(np.linalg.LinAlgError, match=r"innovation covariance not positive definite"):
         imm.step(state, stay_tpm(3, 0.9), np.zeros((2, 4)))
+
+
+@pytest.mark.parametrize("case", ["z", "P0"])
+def test_a_cycle_whose_outputs_are_not_finite_is_failed(case: str) -> None:
+    """A measurement of 1e160 m, or a covariance of 1e160 m², overflows the NIS: every
+    likelihood is 0, the mode probabilities 0/0. Flagged (or raised), not NaN outputs with
+    ``failed`` False; the other trackers run on."""
+    batch = draw_batch(paper_scenario(), Sonar(), 3, 0)
+    P0, z = batch.P0.copy(), batch.measurements.z[:, 1].copy()
+    if case == "z":
+        z[1, 0] = 1e160
+    else:
+        P0[1] *= 1e156
+    imm = HeteroIMM(HeteroBank(), Sonar())
+    state = imm.init(batch.x0, P0)
+    _, out = imm.step(state, stay_tpm(3, 0.95), z, allow_failure=True)
+    assert out.failed.tolist() == [False, True, False]
+    assert np.isfinite(out.x[[0, 2]]).all() and np.isnan(out.x[1]).all()
+    with pytest.raises(np.linalg.LinAlgError), np.errstate(all="ignore"):
+        imm.step(state, stay_tpm(3, 0.95), z)
