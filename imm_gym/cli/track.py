@@ -33,8 +33,9 @@ Input, by the file's suffix:
   with more or fewer cells than the header, or a bad cell, is refused naming the file, the line
   and the sequence. Detections outside the sensor's units (a negative range, a bearing beyond
   ``2 pi``: degrees, likely) are told of on stderr, the first named, and tracked as given.
-* ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected``, ``velocity (N, 2)``, or
-  ``x0 (N, 4)`` and ``P0 (N, 4, 4)`` (read without unpickling).
+* ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected`` (default: 1 where every
+  ``z`` cell is finite, 0 where every one is NaN), ``velocity (N, 2)``, or ``x0 (N, 4)`` and
+  ``P0 (N, 4, 4)`` (read without unpickling).
 
 A CSV is UTF-8 (a byte order mark is dropped); a file that cannot be read is refused naming it.
 
@@ -282,9 +283,9 @@ def unusable_row(z: NDArray[np.float64], detected: NDArray[np.bool_]) -> int | N
 
 def read_npz(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
     """The sequences of a measurement NPZ (see the module docstring): its arrays numbers of the
-    shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection), the rest
-    finite, a velocity or ``x0`` and ``P0`` (``P0`` symmetric positive definite); anything
-    else refused naming the file."""
+    shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection: without
+    ``detected``, NaN in every cell of its row), the rest finite, a velocity or ``x0`` and
+    ``P0`` (``P0`` symmetric positive definite); anything else refused naming the file."""
     dim_z = sensor.dim_z
     try:  # no pickles: a file that is not an NPZ archive must not run code
         loaded = np.load(path, allow_pickle=False)
@@ -346,6 +347,7 @@ def read_npz(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
         where = tuple(int(i) for i in np.argwhere(np.isinf(z))[0][1 if single else 0:])
         raise ConfigError(f"{path}: z{list(where)} is infinite (NaN is a missed detection)")
     detected = extra.get("detected", np.all(np.isfinite(z), axis=2))
+    partial = ~detected & ~np.all(np.isnan(z), axis=2)  # without detected: some cells NaN
     for i in range(N):
         name = "" if single else f"sequence {i}: "
         bad = unusable_row(z[i], detected[i])
@@ -353,6 +355,12 @@ def read_npz(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
             raise ConfigError(
                 f"{path}: {name}z's first row initiates the track: it must be a finite "
                 "detection"
+            )
+        if "detected" not in extra and np.any(partial[i]):
+            raise ConfigError(
+                f"{path}: {name}z's row {int(np.flatnonzero(partial[i])[0])} has some cells NaN "
+                "and some not; a missed detection is NaN in every cell (or give an array "
+                "detected)"
             )
         if bad is not None:
             raise ConfigError(f"{path}: {name}z's row {bad} is a detection and not finite")

@@ -427,6 +427,12 @@ _Z = np.array([[1000.0, 0.1], [1010.0, 0.1], [1020.0, 0.1]])
          r"sequence 1: z's first row initiates the track"),
         ({"z": np.where([[False], [True], [False]], np.nan, _Z), "detected": np.ones(3)},
          r"z's row 1 is a detection and not finite"),
+        # without detected, a row partly NaN is refused as in a CSV (it was a missed detection)
+        ({"z": np.where([[False, False], [False, True], [False, False]], np.nan, _Z)},
+         r"z's row 1 has some cells NaN and some not; a missed detection is NaN in every cell"),
+        ({"z": np.stack([_Z, np.where([[False, False], [False, False], [True, False]], np.nan,
+                                      _Z)])},
+         r"sequence 1: z's row 2 has some cells NaN and some not"),
     ],
 )
 def test_bad_npz_arrays_are_usage_errors(
