@@ -11,7 +11,8 @@ every recorded sequence and writes, per step, the estimate, its covariance, the 
 probabilities and the TPM used. ``--policy`` is a baseline's name, ``pretrained``,
 ``pretrained-per-model`` (a bank of any size) or a trained agent's directory, resolved as
 ``python -m imm_gym.evaluate`` resolves them (a tuned baseline such as ``best-fixed`` is tuned on
-simulated runs of the configuration, seeds from ``--seed``).
+simulated runs of the configuration, seeds from ``--seed``: 0 to
+:data:`~imm_gym.cli.evaluate.MAX_SEED`, as for ``python -m imm_gym.evaluate``).
 ``--env-config FILE`` (YAML or JSON, :mod:`imm_gym.sim.config_file`) is a mapping of
 EnvConfig fields: the sensor (whose components ``z`` are), the bank, the filter, the TPM settings,
 the scenario (its sampling period); what it says an agent is trained as
@@ -75,10 +76,12 @@ from numpy.typing import NDArray
 
 from baselines import REGISTRY
 from imm_gym.cli.evaluate import (
+    MAX_SEED,
     agent_overrides,
     evaluated_config,
     make_policy,
     output_problem,
+    seed_problem,
 )
 from imm_gym.cli.tables import models_differ_note
 from imm_gym.sim.config_file import read_env_config
@@ -508,7 +511,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="initial velocity (m/s) of sequences that give none "
                         "(default: zero, standard deviation 30 m/s)")
     parser.add_argument("--seed", type=int, default=0,
-                        help="seed of a tuned baseline's simulated training runs")
+                        help=f"seed of a tuned baseline's simulated training runs (0 to "
+                        f"{MAX_SEED})")
     return parser
 
 
@@ -516,6 +520,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """The command line; returns the exit status (2: a usage or input error)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    problem = seed_problem(args.seed, 1)  # a tuned baseline's seeds, checked as evaluate's
+    if problem:
+        parser.error(problem)
     for name, path in (("--measurements", args.measurements), ("--out", args.out)):
         if path.suffix not in (".csv", ".npz"):
             parser.error(f"{name} must end in .csv or .npz, got {path}")

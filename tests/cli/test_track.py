@@ -18,7 +18,7 @@ from agents import PRETRAINED
 from agents.ensemble import load_policy
 from baselines import make_baseline
 from imm_gym import EnvConfig, Sonar, TrackingCore
-from imm_gym.cli.evaluate import agent_overrides
+from imm_gym.cli.evaluate import MAX_SEED, agent_overrides
 from imm_gym.cli.track import main
 
 SEEDS = [5, 6]
@@ -508,7 +508,8 @@ def test_inputs_refused_before_the_policy_is_built(
     tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """No measurements, a --velocity not finite, a P0 not positive definite, an output that is
-    the input, family beside a named scenario: refused before the policy (a tuned baseline's
+    the input, family beside a named scenario, a --seed outside evaluate's range (a negative one
+    was taken, a very negative one a traceback): refused before the policy (a tuned baseline's
     search took 16-18 s first) and before anything is written."""
     import imm_gym.cli.track as track
 
@@ -530,6 +531,12 @@ def test_inputs_refused_before_the_policy_is_built(
         (["--measurements", str(tmp_path / "z.csv"), "--env-config",
           str(tmp_path / "t5.yaml")],
          r"t5.yaml: family applies to scenario 'random' only, and the scenario \('paper'\)"),
+        (["--measurements", str(tmp_path / "z.csv"), "--seed", "-5"],
+         r"--seed must be >= 0, got -5"),
+        (["--measurements", str(tmp_path / "z.csv"), "--seed", "-100000000000"],
+         r"--seed must be >= 0, got -100000000000"),
+        (["--measurements", str(tmp_path / "z.csv"), "--seed", str(MAX_SEED + 1)],
+         rf"--seed must be in \[0, {MAX_SEED}\], got {MAX_SEED + 1}"),
     ]
     for argv, message in cases:
         with pytest.raises(SystemExit) as exit_info:
