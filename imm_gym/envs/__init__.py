@@ -21,7 +21,7 @@ def register_envs() -> None:
             id=env_id,
             entry_point="imm_gym.envs.tpm_adapt:TPMAdaptEnv",
             vector_entry_point="imm_gym.envs.vector:TPMAdaptVectorEnv",
-            kwargs={"config": preset},
+            kwargs={"preset": preset},
             disable_env_checker=False,
         )
 

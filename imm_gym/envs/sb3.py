@@ -66,10 +66,8 @@ class TPMAdaptSB3VecEnv(VecEnv):
     ) -> None:
         preset: dict[str, Any] = {}
         if env_id is not None:
-            preset = dict(gym.spec(env_id).kwargs.get("config") or {})
-            if config is None or isinstance(config, Mapping):
-                config = {**preset, **(config or {})}
-        self.config = EnvConfig.build(config, **kwargs)
+            preset = dict(gym.spec(env_id).kwargs.get("preset") or {})
+        self.config = EnvConfig.build(config, preset, **kwargs)
         self.core: TrackingCore | MixtureCore
         if mixture:
             self.core = MixtureCore.of(self.config, mixture, preset, num_envs, "mixture")

@@ -95,8 +95,10 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ## Arguments
     | name      | type                    | default  | meaning                                    |
     |-----------|-------------------------|----------|--------------------------------------------|
-    | config    | EnvConfig or dict       | preset   | the full configuration (replaces the preset)|
+    | config    | EnvConfig or dict       | None     | a dict updates the preset's fields; an     |
+    |           |                         |          | EnvConfig is the whole configuration       |
     | render_mode | str or None           | None     | ``"rgb_array"``, ``"human"`` (see Rendering)|
+    | preset    | dict                    | the id's | the registered id's fields (set by make)   |
     | **kwargs  | EnvConfig fields        |          | override single fields, e.g. parallel=True |
 
     ``gymnasium.make("imm_gym/TPMAdapt-v0", parallel=True, obs_features=("tpm", "loglik"))``.
@@ -146,6 +148,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self,
         config: EnvConfig | Mapping[str, Any] | None = None,
         render_mode: str | None = None,
+        preset: Mapping[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -153,7 +156,7 @@ class TPMAdaptEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 f"render_mode must be None or one of {self.metadata['render_modes']}, "
                 f"got {render_mode!r}"
             )
-        self.config = EnvConfig.build(config, **kwargs)
+        self.config = EnvConfig.build(config, preset, **kwargs)
         core = self.core = TrackingCore(self.config, n_envs=1)
         self.observation_space = spaces.Box(core.obs_low, core.obs_high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (core.action_dim,), dtype=np.float32)

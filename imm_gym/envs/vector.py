@@ -21,7 +21,8 @@ from imm_gym.validation import ConfigError
 
 
 class TPMAdaptVectorEnv(VectorEnv):
-    """N TPM-adaptation episodes in one batched core (see :class:`TPMAdaptEnv` for the MDP).
+    """N TPM-adaptation episodes in one batched core (see :class:`TPMAdaptEnv` for the MDP and
+    the configuration's arguments: ``config``, ``preset``, keyword fields).
 
     Sub-env ``i`` owns its random streams: ``reset(seed=s)`` gives sub-env ``i`` the seed
     ``s + i`` (or ``seed[i]`` for a sequence of ``num_envs`` seeds, each None or a non-negative
@@ -60,6 +61,7 @@ class TPMAdaptVectorEnv(VectorEnv):
         config: EnvConfig | Mapping[str, Any] | None = None,
         render_mode: str | None = None,
         render_envs: Iterable[int] | None = None,
+        preset: Mapping[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -67,10 +69,11 @@ class TPMAdaptVectorEnv(VectorEnv):
                 f"render_mode must be None or one of {self.metadata['render_modes']}, "
                 f"got {render_mode!r}"
             )
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        num_envs = int(num_envs)
         envs = _render_envs(render_envs, num_envs)
-        self.config = EnvConfig.build(config, **kwargs)
+        self.config = EnvConfig.build(config, preset, **kwargs)
         self.num_envs = num_envs
         self.core = TrackingCore(self.config, n_envs=num_envs)
         self.single_observation_space = spaces.Box(

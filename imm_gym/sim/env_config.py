@@ -430,8 +430,17 @@ class EnvConfig:
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def build(cls, config: EnvConfig | Mapping[str, Any] | None = None, **kwargs: Any) -> EnvConfig:
-        """From an :class:`EnvConfig` or mapping, updated with keyword arguments."""
+    def build(
+        cls,
+        config: EnvConfig | Mapping[str, Any] | None = None,
+        preset: Mapping[str, Any] | None = None,
+        **kwargs: Any,
+    ) -> EnvConfig:
+        """From an :class:`EnvConfig` or mapping, updated with keyword arguments; a ``preset``
+        (a registered id's fields) is the base a ``config`` mapping updates (an
+        :class:`EnvConfig` is the whole configuration: it replaces the preset)."""
+        if preset is not None and (config is None or isinstance(config, Mapping)):
+            config = {**preset, **(config or {})}
         if config is None:
             base: dict[str, Any] = {}
         elif isinstance(config, EnvConfig):

@@ -36,7 +36,8 @@ BANK_PRESETS: dict[str, dict[str, Any]] = {
     "hetero": {"bank": dict(SONAR_HETERO_BANK), "filter": "ekf"},
 }
 
-#: Registered ids and their configuration (``config`` keyword of the entry points).
+#: Registered ids and their configuration (``preset`` keyword of the entry points: the base a
+#: ``config`` mapping and keyword arguments update).
 ENV_PRESETS: dict[str, dict[str, Any]] = {
     # The randomized family (SPEC §6): the training environment.
     "imm_gym/TPMAdapt-v0": {"scenario": "random"},

@@ -25,11 +25,34 @@ def test_import_registers_every_preset() -> None:
         spec = gym.spec(env_id)
         assert spec.entry_point == "imm_gym.envs.tpm_adapt:TPMAdaptEnv"
         assert spec.vector_entry_point == "imm_gym.envs.vector:TPMAdaptVectorEnv"
-        assert spec.kwargs["config"] == preset
+        assert spec.kwargs == {"preset": preset}
         env = gym.make(env_id)
         assert isinstance(env.unwrapped, TPMAdaptEnv)
         assert env.unwrapped.config == EnvConfig.build(preset)
         env.close()
+
+
+def test_a_config_mapping_updates_the_ids_preset_and_an_envconfig_replaces_it() -> None:
+    """``config={...}`` through ``gym.make`` and ``make_vec`` updates the id's preset, as keyword
+    arguments and the SB3 adapter's ``env_id`` do (it replaced it: the paper id with one field
+    given trained on the randomized family, the parallel id lost its bank B)."""
+    paper = gym.make("imm_gym/TPMAdaptPaper-v0", config={"p_min": 0.02}).unwrapped.config
+    assert paper.scenario == "paper" and paper.p_min == 0.02
+    venv = gym.make_vec("imm_gym/TPMAdaptParallel-v0", num_envs=2,
+                        vectorization_mode="vector_entry_point", config={"p_min": 0.1})
+    assert venv.unwrapped.config.parallel and venv.unwrapped.config.p_min == 0.1
+    assert "bank_b" in venv.unwrapped.config.obs_features
+    venv.close()
+    whole = EnvConfig(scenario="random", p_min=0.02)
+    assert gym.make("imm_gym/TPMAdaptPaper-v0", config=whole).unwrapped.config == whole
+    assert TPMAdaptEnv(config={"p_min": 0.02}).config == EnvConfig(p_min=0.02)
+
+
+def test_a_numpy_integer_is_a_number_of_envs() -> None:
+    venv = TPMAdaptVectorEnv(np.int64(2), config={"scenario": "paper"})
+    assert venv.num_envs == 2 and type(venv.num_envs) is int
+    with pytest.raises(ValueError, match="num_envs"):
+        TPMAdaptVectorEnv(np.True_)
 
 
 def test_presets_configure_what_they_claim() -> None:

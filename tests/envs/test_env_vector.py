@@ -436,7 +436,7 @@ def test_sb3_seed_then_reset_reproduces_the_gymnasium_vector_reset() -> None:
 
 def test_sb3_env_id_gives_the_preset() -> None:
     venv = TPMAdaptSB3VecEnv(num_envs=2, env_id="imm_gym/TPMAdaptParallel-v0")
-    assert venv.config == EnvConfig.build(gym.spec("imm_gym/TPMAdaptParallel-v0").kwargs["config"])
+    assert venv.config == EnvConfig.build(gym.spec("imm_gym/TPMAdaptParallel-v0").kwargs["preset"])
     venv = TPMAdaptSB3VecEnv(num_envs=2, env_id="imm_gym/TPMAdaptPaper-v0", parallel=True)
     assert venv.config.scenario == "paper" and venv.config.parallel
 
