@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
 import sys
 import zipfile
 from collections.abc import Mapping, Sequence
@@ -529,7 +530,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     problem = output_problem(args.out, "file")  # before any work, as evaluate's outputs
     if problem:
         parser.error(f"--out {str(args.out)!r}: {problem}")
-    if args.out.resolve() == args.measurements.resolve():
+    if args.out.resolve() == args.measurements.resolve() or (  # or a hard link to it
+        args.out.exists() and args.measurements.exists()
+        and os.path.samefile(args.out, args.measurements)
+    ):
         parser.error(f"--out {str(args.out)!r} is the --measurements file: it would be "
                      "overwritten; give another output file")
     if args.velocity is not None and not np.all(np.isfinite(args.velocity)):

@@ -545,11 +545,13 @@ def test_inputs_refused_before_the_policy_is_built(
         assert re.search(message, capsys.readouterr().err), message
         assert not (tmp_path / "out.csv").exists()
     before = (tmp_path / "z.csv").read_text()
-    with pytest.raises(SystemExit):
-        main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
-              "--out", str(tmp_path / ".." / tmp_path.name / "z.csv")])
-    assert "is the --measurements file" in capsys.readouterr().err
-    assert (tmp_path / "z.csv").read_text() == before
+    (tmp_path / "hard_link.csv").hardlink_to(tmp_path / "z.csv")  # it was overwritten
+    for out in (tmp_path / ".." / tmp_path.name / "z.csv", tmp_path / "hard_link.csv"):
+        with pytest.raises(SystemExit):
+            main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                  "--out", str(out)])
+        assert "is the --measurements file" in capsys.readouterr().err
+        assert (tmp_path / "z.csv").read_text() == before
 
 
 @pytest.mark.parametrize(
