@@ -102,10 +102,17 @@ def read_csv(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
     Every row has the header's cells; a ``z`` cell is a finite number or empty, a missed
     detection leaving every ``z`` cell of its row empty (or ``detected`` 0, its ``z`` cells then
     unused); ``detected`` is 0 or 1; a ``sequence`` cell is not empty; a sequence
-    has two rows or more (the track's start and a step). Anything else is refused naming the
-    file, the line and the sequence."""
+    has two rows or more (the track's start and a step). Anything else (an empty file too) is
+    refused naming the file, the line and the sequence."""
     header, rows = _csv_rows(path)
     z_cols = [f"z{i}" for i in range(sensor.dim_z)]
+    if not header:  # no cell in line 1
+        raise ConfigError(
+            f"{path}: "
+            + ("line 1, the header, is empty" if rows else "the file is empty")
+            + f": it starts with a header of columns {', '.join(z_cols)} (and optionally "
+            f"{', '.join(OPTIONAL_COLUMNS)})"
+        )
     unknown = [c for c in header if c not in z_cols and c not in OPTIONAL_COLUMNS]
     if [c for c in z_cols if c not in header] or unknown:
         raise ConfigError(

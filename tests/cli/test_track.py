@@ -173,6 +173,9 @@ def test_csv_sequences_come_back_in_the_input_order(tmp_path: Path) -> None:
     ("content", "extra", "message"),
     [
         ("z0,z1,range\n1,2,3\n", [], "columns must be z0, z1"),
+        # an empty file, an empty header line: said (it was "columns must be ...; got ")
+        ("", [], r"z.csv: the file is empty: it starts with a header of columns z0, z1 \(and "),
+        ("\nz0,z1\n1000,0.1\n1010,0.1\n", [], r"z.csv: line 1, the header, is empty: it starts"),
         ("z0,z1\n1000,0.1\n1000,abc\n", [],
          r"z.csv:3: sequence '0': column z1: 'abc' is not a number"),
         ("sequence,z0,z1,vx,vy\na,1000,0,1,2\nb,1000,0,,2\nb,1000,0,,\n", [],
