@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.schema import finite_number
+from agents.schema import MAX_INPUT, finite_number
 from imm_gym.sim.config_file import TRACKER_FIELDS, tracker_of
 from imm_gym.validation import ConfigError, unique_keys
 
@@ -53,6 +53,10 @@ AGENT_KEYS = (
 #: The most frames an agent may stack (its network's input is that many observations) and the
 #: most ground-truth entries its critic may read per frame.
 MAX_FRAMES, MAX_CRITIC_DIMS = 64, 1024
+#: The most models a bank of ``env.json`` may hold: each gives two entries of a frame (its
+#: probabilities now and a step before) and no network reads more than
+#: :data:`~agents.schema.MAX_INPUT` entries.
+MAX_MODELS = MAX_INPUT // 2
 #: The keys of ``vecnormalize.json``.
 NORMALIZER_KEYS = ("mean", "var", "count", "clip_obs", "epsilon")
 #: The largest JSON file of an agent, ensemble, selector or checkpoint read (a checkpoint's
@@ -442,15 +446,20 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     detector file, :class:`~imm_gym.sim.learned_detector.DetectorNetwork`), so that no other
     file is named by a policy (:mod:`agents.export` copies the detector beside it).
 
+    The observation's size is summed from the features' declared sizes, no array built: a
+    bank of :data:`MAX_MODELS` models observing its ``M x M`` TPM gives 268 M entries, which the
+    caller compares with what the network reads.
+
     Raises:
-        ConfigError: ``env.json`` is unreadable or malformed, its fields do not make an
-            :class:`~imm_gym.EnvConfig`, or it names ``detector_weights`` for another detector
-            than ``learned``; the message names the file.
+        ConfigError: ``env.json`` is unreadable or malformed, its bank holds more than
+            :data:`MAX_MODELS` models (refused before the configuration is built), its fields
+            do not make an :class:`~imm_gym.EnvConfig`, or it names ``detector_weights`` for
+            another detector than ``learned``; the message names the file.
     """
     from imm_gym.envs import PRESETS
     from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
-    from imm_gym.sim.features import bounds
+    from imm_gym.sim.features import FEATURES
 
     recorded = read_json(file)
     weights = recorded.get("detector_weights")
@@ -470,6 +479,13 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     overrides = {**PRESETS.get(env_id, {}), **recorded}
     if "obs_features" in overrides and isinstance(overrides["obs_features"], list):
         overrides["obs_features"] = tuple(overrides["obs_features"])
+    bank = overrides.get("bank")
+    models = bank.get("models") if isinstance(bank, Mapping) else bank  # linear or hetero
+    if isinstance(models, (list, tuple)) and len(models) > MAX_MODELS:
+        raise ConfigError(
+            f"{file}: bank holds {len(models)} models, more than the {MAX_MODELS} an agent's "
+            f"network can read (two entries each, at most {MAX_INPUT} entries)"
+        )
     try:
         config = EnvConfig.build(overrides)
     except ConfigError as err:
@@ -479,9 +495,10 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
             f"{file}: detector_weights must be null (absent) unless detector is 'learned', the "
             f"one that reads it; got {weights!r} with detector {config.detector!r}"
         )
-    M = len(config.bank)
-    obs_size = bounds(config.obs_features, M, config.sensor.dim_z)[0].size
-    return overrides, int(obs_size), action_size(config.action_mode, M)
+    M, dim_z = len(config.bank), config.sensor.dim_z
+    # as imm_gym.sim.features.bounds lays it out: [mu(t), mu(t-1)], then each feature's block
+    obs_size = 2 * M + sum(FEATURES[name].size(M, dim_z) for name in config.obs_features)
+    return overrides, obs_size, action_size(config.action_mode, M)
 
 
 def write_env_file(directory: Path, overrides: Mapping[str, Any]) -> None:

@@ -200,3 +200,28 @@ def test_the_export_leaves_a_directory_named_like_its_target_alone(tmp_path: Pat
     assert (mine / "notes.txt").read_text() == "mine"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shipped", "shipped.export"]
     assert load_agent(tmp_path / "shipped").obs_size == load_agent(shipped_agent()).obs_size
+
+
+def test_an_env_file_of_a_large_bank_is_refused_before_the_observation_is_laid_out(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """env.json's bank of 300 models observing their TPM gives a frame of 90,600 entries: the
+    loader sums the features' sizes (a bank of 30,000 models made it build 6.7 GiB of bounds
+    before comparing), and refuses a bank beyond what any network reads before building the
+    configuration."""
+    import imm_gym.sim.features
+
+    def bounds(*args: object) -> None:
+        pytest.fail("the observation's bounds were built")
+
+    monkeypatch.setattr(imm_gym.sim.features, "bounds", bounds)
+    agent = _copy(shipped_agent(), tmp_path / "a")
+    env = {"bank": [{"kind": "cv"}] * 300, "p_min": 0.0, "obs_features": ["tpm"], "shadow": "fixed"}
+    (agent / "env.json").write_text(json.dumps(env))
+    with pytest.raises(ConfigError, match=r"env\.json gives \d+ frames of 906\d\d entries"):
+        load_agent(agent)
+    from agents.policy import MAX_MODELS
+
+    agent = _copy(agent, tmp_path / "b", "env.json", bank=[{"kind": "cv"}] * (MAX_MODELS + 1))
+    with pytest.raises(ConfigError, match=rf"env\.json: bank holds {MAX_MODELS + 1} models, more "):
+        load_agent(agent)
