@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import socket
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -77,6 +78,14 @@ def chunk_sizes(runs: int, chunks: int) -> list[int]:
     return [runs // C + (1 if c < runs % C else 0) for c in range(C)]
 
 
+def cause(err: Exception) -> str:
+    """Why a Ray actor died, in one line: the last line of Ray's message to its first sentence
+    (the exception the actor's creation raised, ``ImportError: ...``, or ``The actor is dead
+    because its worker process has died``)."""
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+    return (lines[-1].split(". ")[0] if lines else type(err).__name__).removesuffix(".")
+
+
 class Shard:
     """The body of a shard actor: a :class:`TrackingCore` of the chunk's slots."""
 
@@ -122,6 +131,8 @@ class ShardPool:
 
     Raises:
         ValueError: ``shards`` outside ``[1, the cluster's CPUs]``.
+        RuntimeError: an actor failed to start (its node cannot import imm_gym, say); the
+            message names it and the cause, and the pool's actors are ended.
         TimeoutError: an actor did not start within ``start_timeout`` (other work holds the
             CPUs it needs, or its node is slow to start a worker); the pool's actors are ended.
     """
@@ -136,9 +147,17 @@ class ShardPool:
             raise ValueError(f"shards must be in [1, {cpus}] (the cluster's CPUs), got {n}")
         actor = ray.remote(num_cpus=1)(Shard).options(scheduling_strategy="SPREAD")
         self.actors = [actor.remote() for _ in range(n)]
-        started, _ = ray.wait(
-            [a.node.remote() for a in self.actors], num_returns=n, timeout=start_timeout
-        )
+        calls = [a.node.remote() for a in self.actors]
+        started, _ = ray.wait(calls, num_returns=n, timeout=start_timeout)
+        for i, call in enumerate(calls):
+            if call in started:  # ready: started, or failed to (its error is ready too)
+                try:
+                    ray.get(call)
+                except ray.exceptions.RayActorError as err:
+                    self.close()
+                    raise RuntimeError(
+                        f"evaluation shard {i} of {n} failed to start: {cause(err)}"
+                    ) from None
         if len(started) < n:
             self.close()
             raise TimeoutError(
@@ -178,6 +197,10 @@ class ShardedCore:
         actors: shard actors (:class:`ShardPool`); the first ``C`` hold a chunk each.
         config: the environment configuration.
         n_envs: R, the number of slots.
+
+    Raises:
+        RuntimeError: a shard died (its process or node ended); the message names the shard,
+            its runs and the cause.
     """
 
     def __init__(self, actors: list[Any], config: EnvConfig, n_envs: int) -> None:
@@ -187,14 +210,30 @@ class ShardedCore:
         sizes = chunk_sizes(n_envs, len(actors))
         self.actors = actors[: len(sizes)]
         self.bounds = np.cumsum([0, *sizes])
-        built = ray.get(
-            [a.build.remote(config, n) for a, n in zip(self.actors, sizes, strict=True)]
+        self.n_envs = n_envs
+        built = self._get(
+            [a.build.remote(config, n) for a, n in zip(self.actors, sizes, strict=True)],
+            range(len(sizes)),
         )
         self.horizon, self.M = built[0]
-        self.n_envs = n_envs
         self.truth = np.zeros((n_envs, self.horizon + 1, 4))
         self.true_model = np.full((n_envs, self.horizon), -1, dtype=np.int64)
         self._obs: NDArray[np.float32] | None = None
+
+    def _get(self, calls: list[Any], shards: Iterable[int]) -> list[Any]:
+        """The results of ``calls``, one to each of ``shards`` (indices into ``actors``); a
+        shard that died is a RuntimeError naming it, its runs and the cause."""
+        results = []
+        for c, call in zip(shards, calls, strict=True):
+            try:
+                results.append(self._ray.get(call))
+            except self._ray.exceptions.RayActorError as err:
+                a, b = self.bounds[c], self.bounds[c + 1]
+                raise RuntimeError(
+                    f"evaluation shard {c} of {len(self.actors)} (runs {a}..{b - 1} of "
+                    f"{self.n_envs}) died: {cause(err)}"
+                ) from None
+        return results
 
     def _parts(self, values: NDArray[Any]) -> list[NDArray[Any]]:
         return [values[a:b] for a, b in zip(self.bounds[:-1], self.bounds[1:], strict=True)]
@@ -220,7 +259,7 @@ class ShardedCore:
                     )
                 )
                 shards.append(c)
-        for c, (truth, true_model, obs) in zip(shards, self._ray.get(calls), strict=True):
+        for c, (truth, true_model, obs) in zip(shards, self._get(calls, shards), strict=True):
             a = self.bounds[c]
             self.truth[a : a + len(truth)] = truth
             self.true_model[a : a + len(true_model)] = true_model
@@ -238,8 +277,9 @@ class ShardedCore:
         """One step of every slot; the shards' results concatenated in run order."""
         actions = self._parts(np.asarray(action))
         actives = [None] * len(actions) if active is None else self._parts(np.asarray(active))
-        results = self._ray.get(
-            [s.step.remote(x, m) for s, x, m in zip(self.actors, actions, actives, strict=True)]
+        results = self._get(
+            [s.step.remote(x, m) for s, x, m in zip(self.actors, actions, actives, strict=True)],
+            range(len(self.actors)),
         )
         info = {key: np.concatenate([r.info[key] for r in results]) for key in results[0].info}
         out = StepResult(

@@ -381,6 +381,62 @@ def test_exported_agent_acts_as_the_rllib_module(cluster, tmp_path: Path):
         algo.stop()
 
 
+def wait_for_both_cpus() -> None:
+    """Until the cluster's two CPUs are free again (a pool's ended actors return theirs)."""
+    import time
+
+    deadline = time.monotonic() + 60
+    while ray.available_resources().get("CPU", 0) < 2 and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert ray.available_resources().get("CPU", 0) == 2, "a shard still holds its CPU"
+
+
+def test_a_shard_that_fails_to_start_is_a_usage_error_naming_ray_and_the_cause(
+    cluster, monkeypatch, capsys
+):
+    """The shards' class cannot be created on the nodes (as where imm_gym is not installed): the
+    command stops with the usage error naming ``--ray``, the shard and the cause, and the pool's
+    actors are ended (``ray.wait`` counts a failed start as ready: it passed, and the first step
+    raised Ray's traceback)."""
+    from imm_gym.cli.evaluate import main
+    from imm_gym.evaluation import distributed
+
+    class Unimportable(distributed.Shard):  # a local class: Ray sends it by value
+        def __init__(self) -> None:
+            raise ImportError("no imm_gym on this node")
+
+    monkeypatch.setattr(distributed, "Shard", Unimportable)
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray",
+              cluster.address])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2
+    assert (f"--ray {cluster.address}: evaluation shard 0 of 2 failed to start: ImportError: "
+            f"no imm_gym on this node") in err
+    wait_for_both_cpus()
+
+
+def test_a_shard_that_dies_mid_run_is_named_with_its_runs(cluster):
+    from imm_gym.evaluation.distributed import ShardPool
+    from imm_gym.sim.core import TrackingCore
+    from imm_gym.sim.env_config import EnvConfig
+
+    config = EnvConfig()
+    pool = ShardPool(2)
+    try:
+        core = pool.core(config, 3)  # chunks of runs 0..1 and 2..2
+        core.reset(np.arange(3), [1, 2, 3])
+        ray.kill(pool.actors[1])
+        died = r"evaluation shard 1 of 2 \(runs 2\.\.2 of 3\) died: .*ray\.kill"
+        with pytest.raises(RuntimeError, match=died):
+            core.step(np.zeros((3, TrackingCore(config, n_envs=1).action_dim)))
+        with pytest.raises(RuntimeError, match=died):
+            core.reset(np.array([2]), [4])
+    finally:
+        pool.close()
+    wait_for_both_cpus()
+
+
 def test_evaluate_command_with_ray_writes_the_same_json(cluster, tmp_path: Path, monkeypatch):
     """Last in the file: the command's shard actors live until this process lets them go. With
     ``--ray`` each roll-out (one a policy) steps a core of shards, without it none does."""
