@@ -207,9 +207,10 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
     tensors_file = directory / TENSORS_FILE
     # names, dtypes and shapes from the header before a tensor is read, then the numbers
     tensors = load_tensors(
-        tensors_file, lambda declared: check_tensors(tensors_file, declared, network, swa)
+        tensors_file,
+        lambda declared: check_tensors(tensors_file, declared, network, swa, state["n_updates"]),
     )
-    check_tensors(tensors_file, tensors, network, swa)
+    check_tensors(tensors_file, tensors, network, swa, state["n_updates"])
     return state
 
 
@@ -232,12 +233,13 @@ def restore(
     file = directory / RESUME_FILE
     load_weights(model.policy, directory)
     tensors_file = directory / TENSORS_FILE
+    swa_state, n_updates = state["swa"], state["n_updates"]
     tensors = load_tensors(
         tensors_file,
-        lambda declared: check_tensors(tensors_file, declared, model.policy, state["swa"]),
+        lambda declared: check_tensors(tensors_file, declared, model.policy, swa_state, n_updates),
     )
-    check_tensors(tensors_file, tensors, model.policy, state["swa"])
-    _load_optimizer(model.policy, tensors, directory / TENSORS_FILE)
+    check_tensors(tensors_file, tensors, model.policy, swa_state, n_updates)
+    _load_optimizer(model.policy, tensors, directory / TENSORS_FILE, n_updates)
     model.num_timesteps = state["num_timesteps"]
     model._n_updates = state["n_updates"]
     model._episode_num = state["episode_num"]
@@ -272,11 +274,14 @@ def restore(
         ) from None
 
 
-def check_tensors(file: Path, tensors: dict[str, Any], policy: Any, swa: Any) -> None:
+def check_tensors(
+    file: Path, tensors: dict[str, Any], policy: Any, swa: Any, n_updates: int
+) -> None:
     """The tensors of ``resume.safetensors`` checked against the network ``policy`` (the one of
     ``agent.json``, or the model's being resumed): only ``optimizer/...``, ``rng/torch`` and
     ``swa/...`` names; ``rng/torch`` of the dtype and shape of torch's generator state; the
-    optimizer's state fitting the policy's parameters (:func:`_optimizer_state`); the weight
+    optimizer's state fitting the policy's parameters, every parameter's once ``n_updates`` (the
+    run's gradient steps, ``resume.json``'s) is above 0 (:func:`_optimizer_state`); the weight
     average (present exactly when ``resume.json``'s ``swa`` records one) the network's state
     dict, name for name, each tensor of its shape and dtype, an integer buffer equal to the
     network's. Meta tensors (the file's header, :func:`agents.network.load_tensors`) have
@@ -298,7 +303,7 @@ def check_tensors(file: Path, tensors: dict[str, Any], policy: Any, swa: Any) ->
     if rng is not None and (rng.dtype != own_rng.dtype or rng.shape != own_rng.shape):
         raise ConfigError(f"{file}: 'rng/torch' is {rng.dtype} {tuple(rng.shape)}, torch's "
                           f"generator state is {own_rng.dtype} {tuple(own_rng.shape)}")
-    _optimizer_state(policy.optimizer, tensors, file)
+    _optimizer_state(policy.optimizer, tensors, file, n_updates)
     average = {name[4:]: value for name, value in tensors.items() if name.startswith("swa/")}
     if swa is None:
         if average:
@@ -404,20 +409,24 @@ def _optimizer_tensors(optimizer: Any) -> dict[str, Any]:
     }
 
 
-def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path) -> None:
+def _load_optimizer(policy: Any, tensors: dict[str, Any], file: Path, n_updates: int) -> None:
     """Load the ``optimizer/...`` tensors into ``policy.optimizer`` (its hyperparameters are the
     recorded ones, rebuilt; only the per-parameter state is loaded), checked
     (:func:`_optimizer_state`)."""
     optimizer = policy.optimizer
-    state = _optimizer_state(optimizer, tensors, file)
+    state = _optimizer_state(optimizer, tensors, file, n_updates)
     optimizer.load_state_dict(
         {"state": state, "param_groups": optimizer.state_dict()["param_groups"]}
     )
 
 
-def _optimizer_state(optimizer: Any, tensors: dict[str, Any], file: Path) -> dict[int, Any]:
+def _optimizer_state(
+    optimizer: Any, tensors: dict[str, Any], file: Path, n_updates: int
+) -> dict[int, Any]:
     """The per-parameter state of the ``optimizer/...`` tensors, every name and shape checked
-    against ``optimizer``'s parameters: each parameter's :data:`ADAM_STATE` in float32,
+    against ``optimizer``'s parameters: each parameter's :data:`ADAM_STATE` (or none before the
+    first update, ``n_updates`` 0: a run that has updated its weights has Adam's moments for
+    every parameter, without which a resumed run would restart them silently) in float32,
     ``step`` a scalar count >= 0, ``exp_avg_sq`` >= 0 (Adam divides by ``1 - beta ** step``
     and takes the square root of the second moment: a negative step or moment is NaN or a
     division by zero in the first update). The numbers of meta tensors are not checked
@@ -456,8 +465,11 @@ def _optimizer_state(optimizer: Any, tensors: dict[str, Any], file: Path) -> dic
                 f"{file}: {key!r} holds negative values (Adam's second moments are >= 0)"
             )
         state.setdefault(index, {})[parts[2]] = value
-    if state and sorted(state) != list(range(len(params))):
-        raise ConfigError(f"{file}: optimizer state for {len(state)} of {len(params)} parameters")
+    if (state or n_updates > 0) and sorted(state) != list(range(len(params))):
+        raise ConfigError(
+            f"{file}: optimizer state for {len(state)} of {len(params)} parameters (n_updates "
+            f"{n_updates}: Adam's state of every parameter needed to resume)"
+        )
     for index, entries in state.items():
         if sorted(entries) != sorted(ADAM_STATE):
             raise ConfigError(
