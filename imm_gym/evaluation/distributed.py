@@ -57,14 +57,27 @@ def unreachable(address: str | None, timeout: float = CONNECT_TIMEOUT) -> str | 
 def connect(address: str | None) -> None:
     """Join the Ray cluster at ``address`` (``auto``, ``HOST:PORT``), or with None Ray's default
     (``RAY_ADDRESS``, a running local cluster, else a new local instance); nothing if this
-    process is connected already. Raises ConnectionError at once if nothing answers at a
-    ``HOST:PORT`` given or in ``RAY_ADDRESS`` (:func:`unreachable`)."""
+    process is connected already. Raises ConnectionError at once if nothing answers
+    (:func:`unreachable`) at a ``HOST:PORT`` given or, for None and ``auto``, at the one Ray
+    would join: ``RAY_ADDRESS`` when set and not empty, else the address the last ``ray start``
+    on this machine left in Ray's temp directory (``ray_current_cluster``, which ``ray stop``
+    removes)."""
     import ray
 
     if not ray.is_initialized():
-        reason = unreachable(address if address is not None else os.environ.get("RAY_ADDRESS"))
+        where, target = "", address
+        if address in (None, "auto"):
+            from ray._private.utils import get_ray_address_file, read_ray_address
+
+            if os.environ.get("RAY_ADDRESS"):
+                where, target = "RAY_ADDRESS: ", os.environ["RAY_ADDRESS"]
+            else:
+                file = get_ray_address_file(None)
+                where = f"{file} (left by a `ray start`; `ray stop` removes it): "
+                target = read_ray_address()
+        reason = unreachable(target)
         if reason is not None:
-            raise ConnectionError(reason)
+            raise ConnectionError(where + reason)
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
 
 

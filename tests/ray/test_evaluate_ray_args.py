@@ -95,3 +95,57 @@ def test_a_ray_address_in_the_environment_where_nothing_listens_is_refused_too(
         main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray"])
     assert exc.value.code == 2 and f"nothing answers at {address}" in capsys.readouterr().err
     assert inits == []
+
+
+def dead_address() -> str:
+    """A ``HOST:PORT`` nothing listens on: Ray would retry it for minutes."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"127.0.0.1:{s.getsockname()[1]}"
+
+
+@pytest.fixture
+def inits(monkeypatch: pytest.MonkeyPatch) -> list[dict]:
+    """The calls of ``ray.init`` (recorded, none made), with neither ``RAY_ADDRESS`` nor a
+    ``ray_current_cluster`` file of an earlier ``ray start`` on this machine."""
+    import ray
+    import ray._private.utils
+
+    calls: list[dict] = []
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", lambda **kwargs: calls.append(kwargs))
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(ray._private.utils, "read_ray_address", lambda temp_dir=None: None)
+    return calls
+
+
+def test_ray_auto_checks_the_ray_address_in_the_environment(inits, monkeypatch, capsys):
+    address = dead_address()
+    monkeypatch.setenv("RAY_ADDRESS", address)
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray", "auto"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2
+    assert f"--ray auto: RAY_ADDRESS: nothing answers at {address} within 5 s" in err
+    assert inits == []
+
+
+@pytest.mark.parametrize("flag", [[], ["auto"]], ids=["bare", "auto"])
+def test_a_dead_address_left_by_an_earlier_ray_start_is_refused(flag, inits, monkeypatch, capsys):
+    import ray._private.utils
+
+    address = dead_address()
+    monkeypatch.setattr(ray._private.utils, "read_ray_address", lambda temp_dir=None: address)
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray", *flag])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "ray_current_cluster (left by a `ray start`" in err
+    assert f"nothing answers at {address} within 5 s" in err
+    assert inits == []
+
+
+@pytest.mark.parametrize("address", [None, "auto"])
+def test_ray_default_without_an_address_to_check_is_left_to_ray(address, inits):
+    """Neither ``RAY_ADDRESS`` nor a recorded cluster: Ray finds a local one or starts one."""
+    distributed.connect(address)
+    assert inits == [{"address": address, "include_dashboard": False, "log_to_driver": False}]

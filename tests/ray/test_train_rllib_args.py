@@ -14,6 +14,7 @@ import pytest
 # ray.rllib, not ray: with tests/ on the path this very directory imports as a namespace "ray"
 pytest.importorskip("ray.rllib")
 import ray
+import ray._private.utils
 
 import train
 
@@ -34,6 +35,9 @@ def ray_init(monkeypatch: pytest.MonkeyPatch) -> list[dict]:
 
     monkeypatch.setattr(ray, "is_initialized", lambda: False)
     monkeypatch.setattr(ray, "init", init)
+    # no RAY_ADDRESS and no cluster recorded by an earlier `ray start` on this machine
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setattr(ray._private.utils, "read_ray_address", lambda temp_dir=None: None)
     return calls
 
 
@@ -98,4 +102,19 @@ def test_an_address_where_nothing_listens_is_refused_in_seconds_without_asking_r
     err = capsys.readouterr().err
     assert exc.value.code == 2 and f"--ray-address {address!r}: cannot connect to Ray" in err
     assert f"nothing answers at {address} within 5 s" in err
+    assert ray_init == [] and not (tmp_path / "run").exists()
+
+
+def test_ray_address_auto_checks_the_ray_address_in_the_environment(
+    tmp_path, ray_init, capsys, monkeypatch
+):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        address = f"127.0.0.1:{s.getsockname()[1]}"
+    monkeypatch.setenv("RAY_ADDRESS", address)
+    with pytest.raises(SystemExit) as exc:
+        run(tmp_path, "n_envs: 8\nn_steps: 16\nbatch_size: 64\n", "--ray-address", "auto")
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "--ray-address 'auto': cannot connect to Ray" in err
+    assert f"RAY_ADDRESS: nothing answers at {address} within 5 s" in err
     assert ray_init == [] and not (tmp_path / "run").exists()
