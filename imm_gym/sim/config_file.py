@@ -93,7 +93,8 @@ def parse_env_config(data: Any, where: str) -> dict[str, Any]:
 def read_env_config(path: str | Path) -> dict[str, Any]:
     """The EnvConfig overrides of the YAML (``.yaml``, ``.yml``) or JSON file ``path``, checked
     (:func:`parse_env_config`) before anything runs. A relative ``detector_weights`` is taken
-    from the file's directory.
+    from the file's directory and made absolute (links resolved), so that every process opens
+    the same file whatever its working directory (a Ray worker's is its node's).
 
     Raises:
         ConfigError: the file cannot be read or parsed, or its content is invalid; the message
@@ -120,9 +121,15 @@ def read_env_config(path: str | Path) -> dict[str, Any]:
             raise ConfigError(f"{path}: not valid JSON (nested too deeply)") from None
     else:
         raise ConfigError(f"{path}: a configuration file ends in .yaml, .yml or .json")
-    if isinstance(data, Mapping) and isinstance(data.get("detector_weights"), str):
+    weights = data.get("detector_weights") if isinstance(data, Mapping) else None
+    if isinstance(weights, str):
         # a detector file named relative to the configuration file, wherever it is run from
-        data = {**data, "detector_weights": str(path.parent / data["detector_weights"])}
+        try:
+            data = {**data, "detector_weights": str((path.parent / weights).resolve())}
+        except (OSError, ValueError, RuntimeError) as err:  # a NUL byte, a loop of links
+            raise ConfigError(
+                f"{path}: detector_weights {weights!r} is not a path ({err})"
+            ) from None
     return parse_env_config(data, str(path))
 
 
