@@ -434,14 +434,18 @@ def _optimizer_state(
     import torch
 
     params = [p for group in optimizer.param_groups for p in group["params"]]
+    # each parameter's index as str() writes it: int() also reads "01" or "١" (an Arabic-Indic
+    # one) as 1, a second tensor that would silently replace optimizer/1's
+    indices = {str(i): i for i in range(len(params))}
     state: dict[int, dict[str, Any]] = {}
     for key, value in sorted(tensors.items()):
         parts = key.split("/")
         if parts[0] != "optimizer":
             continue
-        if len(parts) != 3 or not parts[1].isdigit() or int(parts[1]) >= len(params):
-            raise ConfigError(f"{file}: {key!r} names no parameter of the optimizer")
-        index = int(parts[1])
+        if len(parts) != 3 or parts[1] not in indices:
+            raise ConfigError(f"{file}: {key!r} names no parameter of the optimizer (indices 0 "
+                              f"to {len(params) - 1} in decimal digits, no leading zero)")
+        index = indices[parts[1]]
         if parts[2] not in ADAM_STATE:
             raise ConfigError(
                 f"{file}: {key!r} is no entry of Adam's state (one of {list(ADAM_STATE)})"

@@ -5,6 +5,7 @@ slot continues its random streams instead of replaying its first episodes."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -198,6 +199,17 @@ def test_an_incomplete_optimizer_state_is_refused_before_training(
     model, env = build(saved.params)
     with pytest.raises(ConfigError, match=message):
         restore(directory, state, model, env, WeightAverage(0))
+
+
+@pytest.mark.parametrize("alias", ["01", "\u0661", "+1", " 1"])
+def test_an_optimizer_index_spelt_otherwise_is_refused(saved, tmp_path, alias) -> None:
+    """``optimizer/01/exp_avg`` (or an Arabic-Indic one) beside ``optimizer/1/exp_avg`` read as
+    parameter 1's: one of the two replaced the other silently."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _tensors(directory, lambda t: t.__setitem__(
+        f"optimizer/{alias}/exp_avg", torch.full_like(t["optimizer/1/exp_avg"], 1e6)))
+    with pytest.raises(ConfigError, match=re.escape(f"'optimizer/{alias}/exp_avg' names no")):
+        read_checkpoint(directory)
 
 
 def test_streams_of_another_slot_count_are_refused(saved) -> None:
