@@ -149,7 +149,7 @@ def read_checkpoint(directory: Path) -> dict[str, Any]:
     from imm_gym.sim.env_config import EnvConfig
 
     file = directory / RESUME_FILE
-    if not file.is_file():
+    if not file.exists():  # one that is not a regular file: read_json says so
         if (directory / "model.zip").exists():
             raise ConfigError(
                 f"{directory} is a checkpoint of an earlier version (SB3's model.zip: pickled "

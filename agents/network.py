@@ -201,11 +201,11 @@ def check_weights_size(spec: dict[str, Any], directory: Path) -> None:
     :mod:`agents.schema` may describe gigabytes).
 
     Raises:
-        ConfigError: the file is missing, not safetensors, or too small; the message names it.
+        ConfigError: the file is missing, not a regular file, not safetensors, or too small;
+            the message names it.
     """
     file = directory / WEIGHTS
-    if not file.is_file():
-        raise ConfigError(f"{file}: missing")
+    check_regular_file(file)
     try:
         with safe_open(str(file), framework="pt"):
             pass
@@ -218,6 +218,17 @@ def check_weights_size(spec: dict[str, Any], directory: Path) -> None:
             f"{file}: {size} bytes, fewer than the {4 * count} of the {count} float32 "
             "parameters of the network agent.json describes"
         )
+
+
+def check_regular_file(file: Path) -> None:
+    """Refuse a ``file`` that is missing or not a regular file (a directory, a device such as
+    ``/dev/zero``, a FIFO), a link to one included.
+
+    Raises:
+        ConfigError: naming the file and which of the two it is.
+    """
+    if not file.is_file():
+        raise ConfigError(f"{file}: {'not a regular file' if file.exists() else 'missing'}")
 
 
 def _no_schedule(progress_remaining: float) -> float:
@@ -282,8 +293,7 @@ def load_tensors(
         ConfigError: the file is missing, not a regular file, truncated or not safetensors,
             declares a tensor of another dtype, holds NaN/inf, or ``check`` refuses it.
     """
-    if not file.is_file():
-        raise ConfigError(f"{file}: missing")
+    check_regular_file(file)
     try:
         with safe_open(str(file), framework="pt") as f:
             declared = {}

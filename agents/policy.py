@@ -238,7 +238,8 @@ def load_agent(path: str | Path) -> LearnedPolicy:
 
     Raises:
         FileNotFoundError: there is no ``agent.json``.
-        ConfigError: a file is unreadable, malformed or inconsistent with the others (bad JSON,
+        ConfigError: a file is unreadable, not a regular file (``agent.json`` a directory or a
+            link to ``/dev/zero``), malformed or inconsistent with the others (bad JSON,
             an unknown key, truncated weights, an observation size that the environment of
             ``env.json`` does not give), or the agent is in the pickled format of earlier
             versions; the message names the file.
@@ -249,7 +250,7 @@ def load_agent(path: str | Path) -> LearnedPolicy:
 
     directory = agent_directory(path)
     agent_file = directory / AGENT_FILE
-    if not agent_file.is_file():
+    if not agent_file.exists():  # one that is not a regular file: read_json says so
         raise FileNotFoundError(f"no trained agent at {str(directory)!r} (agent.json missing)")
     meta = read_json(agent_file)
     if "policy" not in meta and any((directory / f).exists() for f in ("policy.pt", "model.zip")):

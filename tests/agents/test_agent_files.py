@@ -225,3 +225,19 @@ def test_an_env_file_of_a_large_bank_is_refused_before_the_observation_is_laid_o
     agent = _copy(agent, tmp_path / "b", "env.json", bank=[{"kind": "cv"}] * (MAX_MODELS + 1))
     with pytest.raises(ConfigError, match=rf"env\.json: bank holds {MAX_MODELS + 1} models, more "):
         load_agent(agent)
+
+
+@pytest.mark.parametrize("name", ["agent.json", "policy.safetensors"])
+@pytest.mark.parametrize("kind", ["directory", "/dev/zero"])
+def test_an_agent_file_that_is_not_a_regular_file_is_named_so(
+    tmp_path: Path, name: str, kind: str
+) -> None:
+    """A directory or a link to /dev/zero in place of a file was reported missing."""
+    agent = _copy(shipped_agent(), tmp_path / "a")
+    (agent / name).unlink()
+    if kind == "directory":
+        (agent / name).mkdir()
+    else:
+        (agent / name).symlink_to(kind)
+    with pytest.raises(ConfigError, match=rf"{name}: not a regular file"):
+        load_agent(agent)

@@ -212,6 +212,16 @@ def test_an_optimizer_index_spelt_otherwise_is_refused(saved, tmp_path, alias) -
         read_checkpoint(directory)
 
 
+@pytest.mark.parametrize("name", ["resume.json", TENSORS_FILE])
+def test_a_checkpoint_file_that_is_not_a_regular_file_is_named_so(saved, tmp_path, name) -> None:
+    """A link to /dev/zero in place of a file was reported missing."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    (directory / name).unlink()
+    (directory / name).symlink_to("/dev/zero")
+    with pytest.raises(ConfigError, match=rf"{name}: not a regular file"):
+        read_checkpoint(directory)
+
+
 def test_streams_of_another_slot_count_are_refused(saved) -> None:
     directory, params = saved.directory, saved.params
     recorded = json.loads((directory / "resume.json").read_text())["streams"]
