@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from imm_gym.sim.actions import action_size, validate_action
 from imm_gym.sim.core import StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 
@@ -229,6 +230,7 @@ class ShardedCore:
             range(len(sizes)),
         )
         self.horizon, self.M = built[0]
+        self.action_dim = action_size(config.action_mode, self.M)
         self.truth = np.zeros((n_envs, self.horizon + 1, 4))
         self.true_model = np.full((n_envs, self.horizon), -1, dtype=np.int64)
         self._obs: NDArray[np.float32] | None = None
@@ -258,8 +260,20 @@ class ShardedCore:
         initial_tpms: NDArray[np.float64] | None = None,
     ) -> None:
         """Start new episodes in the slots ``indices`` (global), each shard its own
-        (:meth:`TrackingCore.reset`)."""
-        indices = np.asarray(indices)
+        (:meth:`TrackingCore.reset`).
+
+        Raises:
+            ValueError: not one seed per slot in ``indices`` (as :meth:`TrackingCore.reset`).
+            IndexError: a slot outside ``[0, n_envs - 1]``.
+        """
+        indices = np.asarray(indices, dtype=np.int64)
+        if indices.size == 0:
+            return
+        if len(seeds) != indices.size:
+            raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
+        outside = indices[(indices < 0) | (indices >= self.n_envs)]
+        if outside.size:
+            raise IndexError(f"slots must be in [0, {self.n_envs - 1}], got {outside.tolist()}")
         calls, shards = [], []
         for c, (a, b) in enumerate(zip(self.bounds[:-1], self.bounds[1:], strict=True)):
             mine = (indices >= a) & (indices < b)
@@ -287,9 +301,22 @@ class ShardedCore:
         return self._obs.copy()
 
     def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:
-        """One step of every slot; the shards' results concatenated in run order."""
-        actions = self._parts(np.asarray(action))
-        actives = [None] * len(actions) if active is None else self._parts(np.asarray(active))
+        """One step of every slot; the shards' results concatenated in run order.
+
+        Raises:
+            ActionError: ``action`` not finite real numbers of shape ``(n_envs, action_dim)``
+                (as :meth:`TrackingCore.step`).
+            ValueError: ``active`` not a boolean mask of shape ``(n_envs,)``.
+        """
+        actions = self._parts(validate_action(action, self.n_envs, self.action_dim))
+        if active is not None:
+            active = np.asarray(active)
+            if active.dtype != np.bool_ or active.shape != (self.n_envs,):
+                raise ValueError(
+                    f"active must be a boolean mask of shape ({self.n_envs},), got "
+                    f"{active.dtype} of shape {active.shape}"
+                )
+        actives = [None] * len(actions) if active is None else self._parts(active)
         results = self._get(
             [s.step.remote(x, m) for s, x, m in zip(self.actors, actions, actives, strict=True)],
             range(len(self.actors)),

@@ -406,6 +406,7 @@ def test_a_shard_that_fails_to_start_is_a_usage_error_naming_ray_and_the_cause(
             raise ImportError("no imm_gym on this node")
 
     monkeypatch.setattr(distributed, "Shard", Unimportable)
+    wait_for_both_cpus()  # the earlier tests' actors ended: a shard on each CPU
     with pytest.raises(SystemExit) as exc:
         main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray",
               cluster.address])
@@ -432,6 +433,43 @@ def test_a_shard_that_dies_mid_run_is_named_with_its_runs(cluster):
             core.step(np.zeros((3, TrackingCore(config, n_envs=1).action_dim)))
         with pytest.raises(RuntimeError, match=died):
             core.reset(np.array([2]), [4])
+    finally:
+        pool.close()
+    wait_for_both_cpus()
+
+
+def test_sharded_core_refuses_what_the_core_refuses(cluster):
+    """Surplus seeds, action rows or mask entries, and a slot outside the core, are refused as
+    the single-process core refuses them (the shards were sent their chunks' rows and the rest
+    was dropped), before any shard is asked: both cores step on alike afterwards."""
+    from imm_gym.evaluation.distributed import ShardPool
+    from imm_gym.sim.actions import ActionError
+    from imm_gym.sim.core import TrackingCore
+    from imm_gym.sim.env_config import EnvConfig
+
+    config = EnvConfig()
+    pool = ShardPool(2)
+    try:
+        sharded, local = pool.core(config, 3), TrackingCore(config, n_envs=3)
+        dim = local.action_dim
+        refused = [
+            (lambda c: c.reset(np.arange(3), [1, 2, 3, 4]), ValueError, "4 seeds for 3 slots"),
+            (lambda c: c.step(np.zeros((4, dim))), ActionError,
+             rf"action must have shape \(3, {dim}\) .*got \(4, {dim}\)"),
+            (lambda c: c.step(np.zeros((3, dim)), np.ones(4, dtype=bool)), ValueError,
+             r"active must be a boolean mask of shape \(3,\), got bool of shape \(4,\)"),
+        ]
+        for core in (sharded, local):
+            core.reset(np.arange(3), [1, 2, 3])
+            for call, error, match in refused:
+                with pytest.raises(error, match=match):
+                    call(core)
+            with pytest.raises(IndexError):
+                core.reset(np.array([0, 5]), [7, 8])
+        with pytest.raises(IndexError, match=r"slots must be in \[0, 2\], got \[5\]"):
+            sharded.reset(np.array([0, 5]), [7, 8])
+        action = np.zeros((3, dim))
+        np.testing.assert_array_equal(sharded.step(action).obs, local.step(action).obs)
     finally:
         pool.close()
     wait_for_both_cpus()
