@@ -93,7 +93,7 @@ def _ncv_to_ctra(x: Array) -> tuple[Array, Array]:
     out = np.zeros((*x.shape[:-1], 6))
     out[..., :2] = x[..., :2]
     out[..., 2] = v
-    out[..., 3] = np.arctan2(vy, vx)
+    out[..., 3] = np.where(moving, np.arctan2(vy, vx), 0.0)  # a -0 vx would read heading pi
     J = np.zeros((*x.shape[:-1], 6, 4))
     J[..., 0, 0] = J[..., 1, 1] = 1.0
     J[..., 2, 2], J[..., 2, 3] = ux, uy
