@@ -26,6 +26,7 @@ from imm_gym.sim.model_order import MODEL_ORDERS
 from imm_gym.sim.rewards import MODE_SCORES, REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
+from imm_gym.tracking.initiation import MAX_VELOCITY_STD
 from imm_gym.tracking.models import MotionModel, paper_bank
 from imm_gym.tracking.sensors import Sonar
 from imm_gym.tracking.tpm import MAX_T_OVER_SOJOURN, stay_tpm, tpm_from_sojourn
@@ -380,8 +381,10 @@ class EnvConfig:
         if "turn_band" in features and not has_ct:
             raise ConfigError("obs_features 'turn_band' needs a linear bank with a CT model")
         store(self, "obs_features", features)
-        for name in ("loglik_clip", "velocity_std", "divergence_error", "divergence_cov"):
+        for name in ("loglik_clip", "divergence_error", "divergence_cov"):
             store(self, name, check_range(name, getattr(self, name), 0.0, lo_open=True))
+        store(self, "velocity_std", check_range(
+            "velocity_std", self.velocity_std, 0.0, MAX_VELOCITY_STD, lo_open=True))
         check_choice("engine", self.engine, ENGINES)
         check_variation(self.vary, self.scenario, self.bank, self.sensor)
         if self.vary.active and self.engine == "numpy":

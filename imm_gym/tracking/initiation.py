@@ -15,6 +15,11 @@ Array = NDArray[np.float64]
 _SMALLEST_STD = math.sqrt(sys.float_info.min)
 """The smallest standard deviation whose variance is a normal float64."""
 
+MAX_VELOCITY_STD = 1e6
+"""The largest prior standard deviation (m/s) of a first velocity estimate: far beyond any
+target (a track started knowing nothing of its velocity takes tens of m/s,
+:data:`~imm_gym.sim.replay.UNKNOWN_VELOCITY_STD`), its variance far from overflow."""
+
 
 def initiate(
     sensor: object, z0: Array, velocity: Array, velocity_std: float = 5.0
@@ -26,17 +31,24 @@ def initiate(
 
     Args:
         sensor: a sensor with ``initial_position`` (:mod:`imm_gym.tracking.sensors`).
-        z0: ``(N, m)`` first measurements.
+        z0: ``(m,)`` or ``(N, m)`` first measurements (``m`` the sensor's ``dim_z``).
         velocity: ``(2,)`` or ``(N, 2)`` velocity (m/s).
-        velocity_std: standard deviation of the velocity guess (m/s).
+        velocity_std: standard deviation of the velocity guess (m/s), in
+            ``[sqrt(smallest normal float), MAX_VELOCITY_STD]``.
 
     Returns:
         ``x0 (N, 4)`` and ``P0 (N, 4, 4)``.
     """
-    check_range("velocity_std", velocity_std, _SMALLEST_STD)
+    check_range("velocity_std", velocity_std, _SMALLEST_STD, MAX_VELOCITY_STD)
     z0 = np.atleast_2d(np.asarray(z0, dtype=np.float64))
+    dim_z = getattr(sensor, "dim_z", z0.shape[-1])
+    if z0.ndim != 2 or z0.shape[1] != dim_z:
+        raise ConfigError(f"z0 must have shape ({dim_z},) or (N, {dim_z}), got {z0.shape}")
     N = z0.shape[0]
-    v = np.broadcast_to(np.asarray(velocity, dtype=np.float64), (N, 2))
+    v = np.asarray(velocity, dtype=np.float64)
+    if v.shape not in ((2,), (N, 2)):
+        raise ConfigError(f"velocity must have shape (2,) or ({N}, 2), got {v.shape}")
+    v = np.broadcast_to(v, (N, 2))
     if not np.all(np.isfinite(z0)) or not np.all(np.isfinite(v)):
         raise ConfigError("z0 and velocity must be finite")
     pos, pos_cov = sensor.initial_position(z0)  # type: ignore[attr-defined]

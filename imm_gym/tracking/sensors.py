@@ -160,7 +160,7 @@ class Sonar(_Clutter):
 
     def residual(self, a: Array, b: Array) -> Array:
         """``a - b`` with the bearing difference wrapped to (-pi, pi]."""
-        d = a - b
+        d = np.asarray(a, dtype=np.float64) - b
         d[..., 1] = wrap_angle(d[..., 1])
         return d
 

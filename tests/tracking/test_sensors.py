@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from imm_gym import ConfigError, PositionSensor, Sonar, initiate
+from imm_gym import ConfigError, EnvConfig, PositionSensor, Sonar, initiate
 
 PI = np.pi
 
@@ -333,3 +333,23 @@ def test_initiate_accepts_accurate_sensors(sensor: object) -> None:
 def test_initiate_refuses_velocity_std_whose_variance_underflows() -> None:
     with pytest.raises(ConfigError, match="velocity_std"):
         initiate(Sonar(), np.array([[5000.0, 0.3]]), np.zeros(2), velocity_std=1e-160)
+
+
+def test_sonar_residual_of_integer_measurements_keeps_the_wrapped_bearing() -> None:
+    d = Sonar().residual(np.array([10, 3]), np.array([0, -3]))
+    np.testing.assert_allclose(d, [10.0, 6.0 - 2.0 * math.pi])
+
+
+def test_initiate_refuses_misshapen_inputs_and_a_velocity_std_beyond_any_target() -> None:
+    z0 = np.array([[5000.0, 0.3]])
+    with pytest.raises(ConfigError, match=r"z0 must have shape \(2,\) or \(N, 2\)"):
+        initiate(Sonar(), np.array([[5000.0, 0.3, 7.0]]), np.zeros(2))
+    for v in (np.zeros(3), np.zeros((2, 2))):
+        with pytest.raises(ConfigError, match=r"velocity must have shape \(2,\) or \(1, 2\)"):
+            initiate(Sonar(), z0, v)
+    with pytest.raises(ConfigError, match=r"velocity_std must be in .*1000000.0\]"):
+        initiate(Sonar(), z0, np.zeros(2), velocity_std=1e150)
+    with pytest.raises(ConfigError, match=r"velocity_std must be in .*1000000.0\]"):
+        EnvConfig(velocity_std=1e160)
+    x0, _ = initiate(Sonar(), np.array([5000.0, 0.0]), np.array([1.0, 2.0]), velocity_std=1e6)
+    np.testing.assert_allclose(x0, [[5000.0, 0.0, 1.0, 2.0]])
