@@ -3,13 +3,16 @@
 A trained agent is a directory (a run's ``agent/``, ``best/``, a checkpoint, or the shipped
 ``pretrained/``) of data files only — loading it never unpickles, so it cannot run code:
 
-* ``agent.json`` — the algorithm, the frame-stack depth, the critic-only entries per frame and,
-  under ``"policy"``, the network's description (:mod:`agents.schema`: class and activation by
-  name, layer sizes, observation and action sizes);
+* ``agent.json`` — the algorithm, the frame-stack depth, the critic-only entries per frame,
+  whether it normalizes its observations (``normalize``) and, under ``"policy"``, the network's
+  description (:mod:`agents.schema`: class and activation by name, layer sizes, observation and
+  action sizes);
 * ``policy.safetensors`` — the network's tensors (policy and value heads; no optimizer state);
 * ``env.json`` — the :class:`~imm_gym.EnvConfig` overrides it was trained with (action mode,
   features...);
-* ``vecnormalize.json`` — the observation normalizer's running mean/variance (optional).
+* ``vecnormalize.json`` — the observation normalizer's running mean/variance, present exactly
+  when ``agent.json`` records ``normalize: true`` (an ``agent.json`` written before the field
+  that lacks it may go without it: a warning says the agent acts on raw observations).
 
 A checkpoint adds the files that resume training (:mod:`agents.checkpoint`). The pickled files of
 earlier versions (``policy.pt``, ``model.zip``) are refused, with the command that converts them
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import json
 import stat
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -38,11 +42,13 @@ from imm_gym.validation import ConfigError, unique_keys
 ALGOS = ("ppo", "recurrent-ppo")
 #: The files of an agent directory (``vecnormalize.json`` only when trained with a normalizer).
 AGENT_FILE, ENV_FILE, NORMALIZER_FILE = "agent.json", "env.json", "vecnormalize.json"
-#: The keys of ``agent.json`` (``policy``, ``algo`` and ``frame_stack`` required).
+#: The keys of ``agent.json`` (``policy``, ``algo`` and ``frame_stack`` required; ``normalize``
+#: written by :func:`agents.training.save_agent` since it is read).
 AGENT_KEYS = (
     "algo",
     "frame_stack",
     "critic_dims",
+    "normalize",
     "policy",
     "env_id",
     "seed",
@@ -295,8 +301,8 @@ def load_agent(path: str | Path) -> LearnedPolicy:
             f"{spec['action_size']}, but the environment of {directory / ENV_FILE} gives "
             f"{frame_stack} frames of {frame} entries and takes {actions}"
         )
-    norm = _check_normalizer(directory / NORMALIZER_FILE, frame)
     check_weights_size(spec, directory)  # before the network is allocated
+    norm = _check_normalizer(directory / NORMALIZER_FILE, frame, meta.get("normalize"))
     model = build_policy(spec, where)
     load_weights(model, directory)
     return LearnedPolicy(
@@ -383,9 +389,10 @@ def read_manifest(
 
 
 def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
-    """``agent.json`` checked: known keys; ``algo``, ``frame_stack``, ``critic_dims``, ``env_id``,
-    ``seed``, ``num_timesteps`` and ``swa`` valid, each tracker of ``trained_across`` a valid one
-    (the ``policy`` entry is checked by :func:`agents.schema.check_spec`)."""
+    """``agent.json`` checked: known keys; ``algo``, ``frame_stack``, ``critic_dims``,
+    ``normalize`` (a boolean), ``env_id``, ``seed``, ``num_timesteps`` and ``swa`` valid, each
+    tracker of ``trained_across`` a valid one (the ``policy`` entry is checked by
+    :func:`agents.schema.check_spec`)."""
     unknown = sorted(set(meta) - set(AGENT_KEYS))
     if unknown:
         raise ConfigError(f"{file}: unknown keys {unknown}; allowed: {list(AGENT_KEYS)}")
@@ -402,6 +409,8 @@ def check_agent_meta(file: Path, meta: dict[str, Any]) -> dict[str, Any]:
                 f"{file}: {key} must be an integer in [{low}, {high}], got {value!r}"
             )
         out[key] = value
+    if "normalize" in meta and not isinstance(meta["normalize"], bool):
+        raise ConfigError(f"{file}: normalize must be true or false, got {meta['normalize']!r}")
     if "env_id" in meta and not isinstance(meta["env_id"], str):
         raise ConfigError(f"{file}: env_id must be a string, got {meta['env_id']!r}")
     for key in ("seed", "num_timesteps"):
@@ -520,12 +529,35 @@ def write_env_file(directory: Path, overrides: Mapping[str, Any]) -> None:
 
 
 def _check_normalizer(
-    file: Path, size: int
+    file: Path, size: int, recorded: bool | None = None
 ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, float, float]:
     """``vecnormalize.json``'s mean, variance (``size`` entries each), clip and epsilon (its
-    ``count`` checked, a positive number); no normalizer (None, None, 10, 1e-8) when the file
-    does not exist."""
-    if not file.exists():
+    ``count`` checked, a positive number); no normalizer (None, None, 10, 1e-8) when
+    ``agent.json`` records ``normalize`` (``recorded``) false. An ``agent.json`` that does not
+    record it (written before the field) has the normalizer the file gives: none, with a
+    warning, when the file does not exist.
+
+    Raises:
+        ConfigError: the file is missing while ``agent.json`` records ``normalize: true``
+            (the agent would act on raw observations), present while it records false, or
+            malformed.
+    """
+    present = file.exists() or file.is_symlink()  # a broken link: read_json says missing
+    if recorded is not None and present != recorded:
+        raise ConfigError(
+            f"{file}: missing, but {file.parent / AGENT_FILE} records normalize: true (the agent "
+            "acts on observations normalized by its statistics)"
+            if recorded
+            else f"{file}: present, but {file.parent / AGENT_FILE} records normalize: false"
+        )
+    if not present:
+        if recorded is None:
+            warnings.warn(
+                f"{file.parent / AGENT_FILE} does not record whether the agent normalizes its "
+                f"observations (normalize, written since) and {file.name} is absent: the agent "
+                "acts on raw observations, wrongly if its normalizer's file was lost",
+                stacklevel=3,
+            )
         return None, None, 10.0, 1e-8
     stats = read_json(file)
     if set(stats) != set(NORMALIZER_KEYS):

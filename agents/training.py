@@ -430,7 +430,8 @@ def save_agent(
     extra: dict[str, Any] | None = None,
 ) -> None:
     """Write the acting files of :mod:`agents.policy`: ``policy.safetensors``, ``agent.json``
-    (with the network's description), ``env.json`` and ``vecnormalize.json``."""
+    (with the network's description and ``normalize``, whether the observations are
+    normalized), ``env.json`` and, when they are, ``vecnormalize.json``."""
     from agents.network import policy_spec, save_weights
     from agents.policy import write_env_file
 
@@ -450,6 +451,7 @@ def save_agent(
     meta = {
         "algo": algo,
         "frame_stack": frame_stack,
+        "normalize": norm is not None,
         **(extra or {}),
         "policy": policy_spec(model.policy),
     }

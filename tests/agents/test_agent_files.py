@@ -241,3 +241,31 @@ def test_an_agent_file_that_is_not_a_regular_file_is_named_so(
         (agent / name).symlink_to(kind)
     with pytest.raises(ConfigError, match=rf"{name}: not a regular file"):
         load_agent(agent)
+
+
+def test_an_agent_recorded_as_normalizing_needs_its_normalizer(tmp_path: Path) -> None:
+    """An agent copied without vecnormalize.json loaded silently and acted on raw observations;
+    agent.json records whether it normalizes, and the file must be there exactly then."""
+    agent = _copy(shipped_agent(), tmp_path / "a")
+    assert json.loads((agent / "agent.json").read_text())["normalize"] is True
+    (agent / "vecnormalize.json").unlink()
+    with pytest.raises(ConfigError, match=r"vecnormalize\.json: missing, but .*agent\.json "
+                       "records normalize: true"):
+        load_agent(agent)
+    raw = _copy(shipped_agent(), tmp_path / "raw", "agent.json", normalize=False)
+    with pytest.raises(ConfigError, match=r"vecnormalize\.json: present, but .*normalize: false"):
+        load_agent(raw)
+    (raw / "vecnormalize.json").unlink()
+    assert load_agent(raw).obs_mean is None
+    with pytest.raises(ConfigError, match=r"agent\.json: normalize must be true or false"):
+        load_agent(_copy(agent, tmp_path / "b", "agent.json", normalize=1))
+    # an agent.json written before the field: the normalizer the directory gives, a warning
+    # when there is none
+    old = _copy(agent, tmp_path / "old")
+    meta = json.loads((old / "agent.json").read_text())
+    del meta["normalize"]
+    (old / "agent.json").write_text(json.dumps(meta))
+    with pytest.warns(UserWarning, match=r"does not record whether the agent normalizes"):
+        assert load_agent(old).obs_mean is None
+    shutil.copy(shipped_agent() / "vecnormalize.json", old)
+    assert load_agent(old).obs_mean is not None

@@ -69,6 +69,14 @@ def saved(tmp_path_factory) -> SimpleNamespace:
     )
 
 
+def test_a_saved_agent_records_that_it_normalizes_its_observations(saved) -> None:
+    """agent.json says whether vecnormalize.json belongs to the agent (its loader requires it
+    exactly then)."""
+    assert find_normalizer(saved.env) is not None
+    assert json.loads((saved.directory / "agent.json").read_text())["normalize"] is True
+    assert (saved.directory / "vecnormalize.json").is_file()
+
+
 def test_restore_gives_back_the_saved_training_state(saved) -> None:
     directory, params, model, env, swa = (
         saved.directory,
