@@ -297,7 +297,9 @@ class TrackingCore:
         (the next episode of the same sequence), or gets streams from OS entropy if it has none.
         ``initial_tpms`` (``(len(indices), M, M)``, valid TPMs) start these episodes from other
         TPMs than the configuration's (bank B keeps them): the same targets and noise from
-        several starting TPMs in one batch (the best fixed TPM's search).
+        several starting TPMs in one batch (the best fixed TPM's search). A slot outside
+        ``[0, n_envs - 1]`` (a negative one too) raises ``IndexError``, a slot listed twice or a
+        seed count other than the slots' ``ValueError``, before any slot changes.
         """
         indices = np.asarray(indices, dtype=np.int64)
         if initial_tpms is not None:
@@ -311,6 +313,9 @@ class TrackingCore:
             return
         if len(seeds) != indices.size:
             raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
+        outside = indices[(indices < 0) | (indices >= self.n_envs)]
+        if outside.size:
+            raise IndexError(f"slots must be in [0, {self.n_envs - 1}], got {outside.tolist()}")
         if np.unique(indices).size != indices.size:
             listed = np.unique(indices, return_counts=True)
             twice = listed[0][listed[1] > 1].tolist()

@@ -100,3 +100,15 @@ def test_a_slot_listed_twice_in_one_reset_is_refused() -> None:
     with pytest.raises(ValueError, match=r"slots \[0\] listed more than once"):
         core.reset(np.array([0, 1, 0]), [5, 5, 9])
     np.testing.assert_array_equal(core.z, before)
+
+
+def test_a_slot_outside_the_core_is_refused() -> None:
+    """A negative slot wrapped round to the last one, a slot past the end raised a bare
+    IndexError from list assignment: both are refused by name before any slot changes."""
+    core = TrackingCore(EnvConfig(), 2)
+    core.reset(np.array([0, 1]), [3, 4])
+    before = core.z.copy()
+    for bad in ([0, -1], [2]):
+        with pytest.raises(IndexError, match=r"slots must be in \[0, 1\], got \[(-1|2)\]"):
+            core.reset(np.array(bad), [5] * len(bad))
+    np.testing.assert_array_equal(core.z, before)
