@@ -893,6 +893,9 @@ def connect_ray(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
             connect(args.ray_address)
         except (ConnectionError, ValueError, RuntimeError) as err:
             reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+            if isinstance(err, ConnectionError):  # the address Ray would join answers not
+                given = "" if args.ray_address is None else f"--ray-address {args.ray_address!r}: "
+                parser.error(f"{given}cannot connect to Ray ({reason})")
             if args.ray_address is None:
                 parser.error(f"cannot start a local Ray instance ({reason}); give --ray-address")
             parser.error(f"--ray-address {args.ray_address!r}: cannot connect to Ray ({reason})")
