@@ -959,15 +959,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         results["meta"]["scenario"] = args.scenario
     elif results["meta"]["scenario"] == "file":
         results["meta"]["scenario"] = str(args.env_config)
-    render_tables(results)
     if args.agent_seeds:
         from imm_gym.cli.seeds import across_seeds, render_seeds
 
         results["across_seeds"] = across_seeds(results, args.agent_seeds)
-        render_seeds(results["across_seeds"], results["meta"]["scenario"])
     if args.tradeoff:
         results["tradeoff"] = _tradeoff(args, scenario, overrides, results, make_core)
+    # the JSON before the tables: a table that cannot be printed loses no result
     _record(results, args)
+    render_tables(results)
+    if args.agent_seeds:
+        render_seeds(results["across_seeds"], results["meta"]["scenario"])
     if args.plots:
         from imm_gym.evaluation.plots import write_figures
 
@@ -1118,13 +1120,14 @@ def _main_suite(
         )
     except ConfigError as err:
         parser.error(str(err))
-    render_suite_table(results)
     if args.agent_seeds:
         from imm_gym.cli.seeds import render_seeds, suite_across_seeds
 
         results["across_seeds"] = suite_across_seeds(results, args.agent_seeds)
-        render_seeds(results["across_seeds"])
     _record(results, args)
+    render_suite_table(results)
+    if args.agent_seeds:
+        render_seeds(results["across_seeds"])
     return 0
 
 
@@ -1153,8 +1156,8 @@ def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
         results = evaluate_system(args.scenario, args.policy, args.runs, args.seed, tuned)
     except ValueError as err:
         parser.error(str(err))
-    render_system_tables(results)
     _record(results, args)
+    render_system_tables(results)
     return 0
 
 

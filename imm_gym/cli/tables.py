@@ -83,15 +83,19 @@ def _cell(row: dict[str, Any], key: str, fmt: str) -> str:
 def render_tables(results: dict[str, Any]) -> None:
     """Print the Table-2 layout (the clairvoyant row labelled by its role, its note below), the
     IMM behaviour (mode accuracy, mode-probability total variation, peak error, maneuver
-    response) and the paired differences with rich."""
+    response) and the paired differences with rich; names, scenarios and notes are printed as
+    given (escaped: ``runs/ppo[lr=3e-4]/agent`` is not read as rich markup)."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     meta = results["meta"]
     console = Console(width=None if sys.stdout.isatty() else 150)
     table = Table(
-        title=f"ARMSE, scenario '{meta['scenario']}', {meta['runs']} runs (seeds {meta['seeds']}), "
-        f"{meta['steps']} steps, {meta['filter'].upper()}"
+        title=escape(
+            f"ARMSE, scenario '{meta['scenario']}', {meta['runs']} runs (seeds {meta['seeds']}), "
+            f"{meta['steps']} steps, {meta['filter'].upper()}"
+        )
     )
     table.add_column("policy")
     for _, label in TABLE_COLUMNS:
@@ -99,7 +103,7 @@ def render_tables(results: dict[str, Any]) -> None:
     for label in ("NIS ≤ χ²95", "NEES ≤ χ²95", "mode acc.", "diverged"):
         table.add_column(label, justify="right")
     for name, r in results["policies"].items():
-        label = policy_label(name, r)
+        label = escape(policy_label(name, r))
         table.add_row(
             label,
             *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS),
@@ -115,14 +119,14 @@ def render_tables(results: dict[str, Any]) -> None:
             cells = (f"{c[k]:.4f}" for k, _ in TABLE_COLUMNS)
             table.add_row(label, *cells, "", "", "", str(c["diverged"]), style="dim")
         if c["role"] != "bound":
-            table.caption = c["note"]
+            table.caption = escape(c["note"])
     if paper_setting(meta):
         for name, r in PAPER_TABLE2.items():
             table.add_row(name, *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS), style="dim")
     console.print(table)
     note = divergence_note(meta, results["policies"].values())
     if note:
-        console.print(note)
+        console.print(escape(note))
     behaviour = Table(
         title="IMM behaviour: mode-probability total variation ½·Σ|μ(k) − μ(k−1)| per step, "
         "mean of each run's peak position error, position RMSE over the 10 steps after each "
@@ -132,7 +136,7 @@ def render_tables(results: dict[str, Any]) -> None:
     for _, label, _ in BEHAVIOUR_COLUMNS:
         behaviour.add_column(label, justify="right")
     for name, r in results["policies"].items():
-        behaviour.add_row(name, *(_cell(r, k, fmt) for k, _, fmt in BEHAVIOUR_COLUMNS))
+        behaviour.add_row(escape(name), *(_cell(r, k, fmt) for k, _, fmt in BEHAVIOUR_COLUMNS))
     if c is not None and c["role"] != "skipped":
         behaviour.add_row(
             "clairvoyant", *(_cell(c, k, fmt) for k, _, fmt in BEHAVIOUR_COLUMNS), style="dim"
@@ -142,20 +146,26 @@ def render_tables(results: dict[str, Any]) -> None:
         if r.get("tracker_differs"):
             fields = r["tracker_differs"]
             console.print(
-                f"{name} was trained on another tracker than the evaluated one "
-                f"({', '.join(fields)} {'differs' if len(fields) == 1 else 'differ'}: see "
-                "trained_on and evaluated_on in the JSON)"
+                escape(
+                    f"{name} was trained on another tracker than the evaluated one "
+                    f"({', '.join(fields)} {'differs' if len(fields) == 1 else 'differ'}: see "
+                    "trained_on and evaluated_on in the JSON)"
+                )
             )
         if r.get("models_differ"):
-            console.print(models_differ_note(name, r["models_differ"]))
+            console.print(escape(models_differ_note(name, r["models_differ"])))
     paired = results["paired"]
     if paired["differences"]:
-        diff = Table(title=f"Position ARMSE minus {paired['reference']}'s, 95% paired bootstrap CI")
+        diff = Table(
+            title=escape(
+                f"Position ARMSE minus {paired['reference']}'s, 95% paired bootstrap CI"
+            )
+        )
         for col in ("policy", "difference (m)", "95% CI (m)", "relative"):
             diff.add_column(col, justify="right" if col != "policy" else "left")
         for name, d in paired["differences"].items():
             diff.add_row(
-                name,
+                escape(name),
                 f"{d['diff']:+.3f}",
                 "undefined (1 run)" if d["low"] is None else f"[{d['low']:+.3f}, {d['high']:+.3f}]",
                 f"{100 * d['relative']:+.2f}%",
@@ -172,34 +182,38 @@ def render_suite_table(results: dict[str, Any]) -> None:
     diverged runs and the paired difference of the position ARMSE against the reference with its
     95 % bootstrap CI; the clairvoyant row by its role; a policy not run on a case, and why.
     Then each policy's tally against the bar, else the reference
-    (:func:`~imm_gym.cli.evaluate.suite_tally`)."""
+    (:func:`~imm_gym.cli.evaluate.suite_tally`). Names, scenarios and notes are printed as given
+    (escaped, not read as rich markup)."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     meta = results["meta"]
     console = Console(width=None if sys.stdout.isatty() else 150)
     table = Table(
-        title=f"Suite '{meta['suite']}', {meta['runs']} runs (seeds {meta['seeds']}) per case, "
-        "each with its configuration file"
+        title=escape(
+            f"Suite '{meta['suite']}', {meta['runs']} runs (seeds {meta['seeds']}) per case, "
+            "each with its configuration file"
+        )
     )
     for col in ("scenario", "policy", "pos ARMSE (m)", "mode acc.", "NEES ≤ χ²95", "diverged"):
         table.add_column(col, justify="left" if col in ("scenario", "policy") else "right")
     table.add_column("Δ vs reference (m), 95% CI", justify="right")
     for scenario, r in results["scenarios"].items():
         paired = r["paired"]
-        steps = f"{scenario} ({r['meta']['steps']} steps)"
+        steps = escape(f"{scenario} ({r['meta']['steps']} steps)")
         bar = r.get("bar", {}).get("policy")
         for i, (name, row) in enumerate(r["policies"].items()):
             d = paired["differences"].get(name)
             if d is None:
-                delta = f"reference ({name})"
+                delta = escape(f"reference ({name})")
             elif d["low"] is None:
                 delta = f"{d['diff']:+.2f}"
             else:
                 delta = f"{d['diff']:+.2f} [{d['low']:+.2f}, {d['high']:+.2f}]"
             table.add_row(
                 steps if i == 0 else "",
-                policy_label(name, row) + (" — the bar" if name == bar else ""),
+                escape(policy_label(name, row) + (" — the bar" if name == bar else "")),
                 f"{row['armse_pos']:.2f}",
                 f"{100 * row['mode_accuracy']:.1f}%",
                 f"{100 * row['nees']['inside']:.1f}%",
@@ -208,7 +222,7 @@ def render_suite_table(results: dict[str, Any]) -> None:
                 end_section=False,
             )
         for name, reason in r.get("skipped", {}).items():
-            table.add_row("", name, *["—"] * 4, f"not run: {reason}", style="dim")
+            table.add_row("", escape(name), *["—"] * 4, escape(f"not run: {reason}"), style="dim")
         c = r.get("clairvoyant")
         if c is not None and c["role"] != "skipped":
             table.add_row(
@@ -224,7 +238,7 @@ def render_suite_table(results: dict[str, Any]) -> None:
         }
     )
     if moved:
-        table.caption = (
+        table.caption = escape(
             f"{', '.join(moved)}: trained on another tracker than some scenarios' (JSON: "
             "trained_on, evaluated_on, tracker_differs)"
         )
@@ -232,10 +246,12 @@ def render_suite_table(results: dict[str, Any]) -> None:
     for scenario, r in results["scenarios"].items():
         for name, row in r["policies"].items():
             if row.get("models_differ"):
-                console.print(f"{scenario}: " + models_differ_note(name, row["models_differ"]))
+                console.print(
+                    escape(f"{scenario}: " + models_differ_note(name, row["models_differ"]))
+                )
         note = divergence_note(r["meta"], r["policies"].values())
         if note:
-            console.print(f"{scenario}: {note}")
+            console.print(escape(f"{scenario}: {note}"))
     line = bootstrap_line(meta)
     if line:
         console.print(line)
@@ -248,7 +264,7 @@ def render_suite_table(results: dict[str, Any]) -> None:
         line = f"{name} against {against} ({n} cases, paired 95% CIs): {counts}"
         if cases["skipped"]:
             line += f"; not run on {len(cases['skipped'])}"
-        console.print(line)
+        console.print(escape(line))
 
 
 SYSTEM_COLUMNS = (
@@ -267,8 +283,10 @@ SYSTEM_COLUMNS = (
 
 
 def render_system_tables(results: dict[str, object]) -> None:
-    """Print the seed-scenario table (seed 002's paper row beside it) with rich."""
+    """Print the seed-scenario table (seed 002's paper row beside it) with rich; policy names
+    printed as given (escaped, not read as rich markup)."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     meta: dict[str, object] = results["meta"]  # type: ignore[assignment]
@@ -283,7 +301,7 @@ def render_system_tables(results: dict[str, object]) -> None:
     rows = dict(results["policies"])  # type: ignore[call-overload]
     paper = results.get("paper") or {}
     for name, r in rows.items():
-        table.add_row(name, *(fmt.format(r[k]) for k, _, fmt in SYSTEM_COLUMNS))
+        table.add_row(escape(name), *(fmt.format(r[k]) for k, _, fmt in SYSTEM_COLUMNS))
     if paper:
         table.add_row(
             "seed 002 paper (their trajectory)",
