@@ -90,24 +90,34 @@ def mode_accuracy(mode_probs: Array, true_index: NDArray[np.int64]) -> float:
     return float(np.mean(p_true > p_other))
 
 
-def mode_prob_tv(mode_probs: Array) -> float:
+def mode_prob_tv(mode_probs: Array, live: NDArray[np.bool_] | None = None) -> float | None:
     r"""Mean per-step total variation of the mode probabilities.
 
     ``TV_k = 1/2 * sum_j |mu_j(k) - mu_j(k-1)|`` for ``k = 2..K`` — the first scored step has no
     predecessor here (the initial probabilities ``mu(0)`` are not part of the record), so the
-    mean is over the ``K - 1`` differences of each run and over the R runs. 0 for probabilities
+    mean is over the ``K - 1`` differences of each run and over the R runs, or, with ``live``,
+    over the differences whose steps ``k - 1`` and ``k`` are both live (a diverged run's held
+    probabilities do not move: counted, they would read as a smooth IMM). 0 for probabilities
     that never move, 1 for one-hot probabilities that switch model every step; a jittery IMM
     scores high even where its estimates are good.
 
     Args:
         mode_probs: ``(R, K, M)``.
+        live: ``(R, K)`` the steps recorded from the tracker (:attr:`Rollout.live
+            <imm_gym.evaluation.rollout.Rollout.live>`); None: every step.
 
     Returns:
-        The mean of ``TV_k`` (0 when K < 2: no step-to-step change is recorded).
+        The mean of ``TV_k``, None when no difference counts (K < 2, or no two consecutive live
+        steps).
     """
     if mode_probs.shape[-2] < 2:
-        return 0.0
-    return float(0.5 * np.abs(np.diff(mode_probs, axis=-2)).sum(axis=-1).mean())
+        return None
+    tv = 0.5 * np.abs(np.diff(mode_probs, axis=-2)).sum(axis=-1)
+    if live is not None:
+        tv = tv[live[..., 1:] & live[..., :-1]]
+    if tv.size == 0:
+        return None
+    return float(tv.mean())
 
 
 def peak_error(estimate: Array, truth: Array) -> float:

@@ -251,8 +251,10 @@ def score(rollout: Rollout, dim_z: int = 2) -> dict[str, Any]:
     IMM behaviour: ``mode_prob_tv`` (:func:`~imm_gym.evaluation.metrics.mode_prob_tv`),
     ``peak_error`` (:func:`~imm_gym.evaluation.metrics.peak_error`) and ``maneuver_response``
     (:func:`~imm_gym.evaluation.metrics.maneuver_response`, 10 steps; None without maneuvers).
-    A diverged run counts in the errors with its held error and in the mode scores with uniform
-    mode probabilities (:func:`rollout`); NIS and NEES are over the live steps only
+    A diverged run counts in the errors with its held error and in the mode accuracy with uniform
+    mode probabilities (:func:`rollout`); the total variation is over the step pairs both live
+    (held probabilities do not move: a divergence would read as smooth); NIS and NEES are over
+    the live steps only
     (:attr:`Rollout.live`: a held estimate has no covariance to test; scored against ``I`` its
     NEES would be of the order of ``divergence_error²``); the divergences count in ``diverged``."""
     out: dict[str, Any] = tracking_errors(rollout.estimate, rollout.truth)
@@ -262,7 +264,7 @@ def score(rollout: Rollout, dim_z: int = 2) -> dict[str, Any]:
     )
     out["mode_accuracy"] = mode_accuracy(rollout.mode_probs, rollout.true_model)
     out["diverged"] = int(rollout.diverged.sum())
-    out["mode_prob_tv"] = mode_prob_tv(rollout.mode_probs)
+    out["mode_prob_tv"] = mode_prob_tv(rollout.mode_probs, rollout.live)
     out["peak_error"] = peak_error(rollout.estimate, rollout.truth)
     out["maneuver_response"] = maneuver_response(
         rollout.estimate, rollout.truth, rollout.true_model

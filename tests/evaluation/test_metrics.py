@@ -204,7 +204,7 @@ def test_mode_prob_tv_constant_is_zero_alternating_one_hots_is_one() -> None:
     half = alternating.copy()
     half[:, 10:] = half[:, 9:10]
     assert mode_prob_tv(half) == pytest.approx(9 / 19)
-    assert mode_prob_tv(constant[:, :1]) == 0.0  # one step: no change recorded
+    assert mode_prob_tv(constant[:, :1]) is None  # one step: no change recorded
 
 
 def test_mode_prob_tv_by_hand() -> None:
@@ -215,6 +215,21 @@ def test_mode_prob_tv_by_hand() -> None:
     assert mode_prob_tv(np.concatenate([mu, mu[:, :1].repeat(4, axis=1)])) == pytest.approx(
         (0.4 + 0.7) / 6
     )
+
+
+def test_mode_prob_tv_counts_the_step_pairs_both_live() -> None:
+    """A diverged run's held (uniform) probabilities do not move: counted, its held steps would
+    lower the mean and a divergence read as a smooth IMM. With ``live`` the mean is over the
+    differences whose two steps are live, None when there is none."""
+    mu = np.array([[[0.5, 0.5], [0.9, 0.1], [0.9, 0.1], [0.2, 0.8]]] * 2)
+    live = np.ones((2, 4), dtype=bool)
+    assert mode_prob_tv(mu, live) == mode_prob_tv(mu)
+    mu[1, 2:] = 0.5  # run 1 diverges at its third step: held at uniform from there
+    live[1, 2:] = False
+    # run 0's three differences, run 1's first (0.4); its difference into the held step is not
+    assert mode_prob_tv(mu, live) == pytest.approx((0.4 + 0.0 + 0.7 + 0.4) / 4)
+    assert mode_prob_tv(mu, np.zeros((2, 4), dtype=bool)) is None
+    assert mode_prob_tv(mu, np.tile([True, False], (2, 2))) is None  # no two live in a row
 
 
 def _positions(errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

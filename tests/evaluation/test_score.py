@@ -90,6 +90,21 @@ def test_nees_counts_the_live_steps_only() -> None:
     assert s["armse_pos"] > 1000.0  # the position error keeps the cap
 
 
+def test_a_divergence_does_not_smooth_the_mode_probabilities() -> None:
+    """A diverged run's held uniform probabilities are not steps of its IMM: the total variation
+    is over the step pairs both live, so a divergence does not lower it; every run diverged at
+    its first step leaves no pair: None (null), not 0."""
+    run = _diverged()
+    mode_probs = run.mode_probs.copy()
+    mode_probs[:, :, 0] = np.where(np.arange(10) % 2 == 0, 0.8, 0.2)  # TV 0.6 every step
+    mode_probs[:, :, 1] = 1.0 - mode_probs[:, :, 0]
+    mode_probs[2, 6:] = 0.5
+    s = score(replace(run, mode_probs=mode_probs))
+    assert s["mode_prob_tv"] == pytest.approx(0.6)
+    lost = replace(run, live=np.zeros((3, 10), dtype=bool), diverged=np.ones(3, dtype=bool))
+    assert score(lost)["mode_prob_tv"] is None
+
+
 def test_nis_counts_the_detections_only_against_chi2_of_the_measurement_dimension() -> None:
     """A missed detection of a live run (``detected`` False, ``live`` True) has no innovation:
     its NIS of 0 is not a value of the test. Counting it (the mask dropped) lowers the mean and
