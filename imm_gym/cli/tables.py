@@ -22,7 +22,8 @@ TABLE_COLUMNS = (
 )
 
 
-#: The IMM behaviour table: (key, header, format); a None value prints as "—".
+#: The IMM behaviour table: (key, header, format); a None value (nothing to score: no step with
+#: a matching model, no two live steps in a row) prints as "—".
 BEHAVIOUR_COLUMNS = (
     ("mode_accuracy", "mode acc.", "{:.1%}"),
     ("mode_prob_tv", "mode-prob. TV / step", "{:.4f}"),
@@ -80,6 +81,11 @@ def _cell(row: dict[str, Any], key: str, fmt: str) -> str:
     return "—" if value is None else fmt.format(value)
 
 
+def _percent(value: float | None) -> str:
+    """A share as a percentage, "—" for None (no value to count)."""
+    return "—" if value is None else f"{100 * value:.1f}%"
+
+
 def render_tables(results: dict[str, Any]) -> None:
     """Print the Table-2 layout (the clairvoyant row labelled by its role, its note below), the
     IMM behaviour (mode accuracy, mode-probability total variation, peak error, maneuver
@@ -107,9 +113,9 @@ def render_tables(results: dict[str, Any]) -> None:
         table.add_row(
             label,
             *(f"{r[k]:.4f}" for k, _ in TABLE_COLUMNS),
-            f"{100 * r['nis']['inside']:.1f}%",
-            f"{100 * r['nees']['inside']:.1f}%",
-            f"{100 * r['mode_accuracy']:.1f}%",
+            _percent(r["nis"]["inside"]),
+            _percent(r["nees"]["inside"]),
+            _percent(r["mode_accuracy"]),
             str(r["diverged"]),
         )
     c = results.get("clairvoyant")
@@ -215,8 +221,8 @@ def render_suite_table(results: dict[str, Any]) -> None:
                 steps if i == 0 else "",
                 escape(policy_label(name, row) + (" — the bar" if name == bar else "")),
                 f"{row['armse_pos']:.2f}",
-                f"{100 * row['mode_accuracy']:.1f}%",
-                f"{100 * row['nees']['inside']:.1f}%",
+                _percent(row["mode_accuracy"]),
+                _percent(row["nees"]["inside"]),
                 str(row["diverged"]),
                 delta,
                 end_section=False,
@@ -301,7 +307,7 @@ def render_system_tables(results: dict[str, object]) -> None:
     rows = dict(results["policies"])  # type: ignore[call-overload]
     paper = results.get("paper") or {}
     for name, r in rows.items():
-        table.add_row(escape(name), *(fmt.format(r[k]) for k, _, fmt in SYSTEM_COLUMNS))
+        table.add_row(escape(name), *(_cell(r, k, fmt) for k, _, fmt in SYSTEM_COLUMNS))
     if paper:
         table.add_row(
             "seed 002 paper (their trajectory)",

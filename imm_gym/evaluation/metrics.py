@@ -53,7 +53,7 @@ def nees(estimate: Array, covariance: Array, truth: Array) -> Array:
 
 def consistency(
     values: Array, dof: int, mask: NDArray[np.bool_] | None = None, level: float = 0.95
-) -> dict[str, float]:
+) -> dict[str, float | None]:
     """Share of NIS/NEES values below the ``level`` quantile of ``chi2(dof)``, and their mean.
 
     Seed 002's test: a consistent filter has about 95 % of the values below the one-sided 95 %
@@ -61,11 +61,15 @@ def consistency(
 
     Args:
         values: NIS or NEES values, any shape; mask: which to count (e.g. detections only).
+
+    Returns:
+        ``mean``, ``inside`` (None, not 0, when no value counts: every run diverged at its first
+        step, say), ``bound``, ``dof``.
     """
     v = values if mask is None else values[mask]
     bound = float(stats.chi2.ppf(level, dof))
     if v.size == 0:
-        return {"mean": 0.0, "inside": 0.0, "bound": bound, "dof": dof}
+        return {"mean": None, "inside": None, "bound": bound, "dof": dof}
     return {
         "mean": float(v.mean()),
         "inside": float(np.mean(v <= bound)),
@@ -74,15 +78,16 @@ def consistency(
     }
 
 
-def mode_accuracy(mode_probs: Array, true_index: NDArray[np.int64]) -> float:
-    """Share of steps whose most probable model is the true one (steps with a match only).
+def mode_accuracy(mode_probs: Array, true_index: NDArray[np.int64]) -> float | None:
+    """Share of steps whose most probable model is the true one (steps with a match only; None
+    when no step has one).
 
     The true model must be more probable than every other: a tie at the top — the uniform
     probabilities of a diverged run, or of the uniform TPM after a missed detection — identifies
     no model, and counts as a miss (not as the first model, which ``argmax`` would return)."""
     valid = true_index >= 0
     if not np.any(valid):
-        return 0.0
+        return None
     probs, true = mode_probs[valid], true_index[valid]
     is_true = np.arange(probs.shape[-1]) == true[:, None]
     p_true = probs[is_true]

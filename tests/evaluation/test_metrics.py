@@ -85,7 +85,7 @@ def test_consistency_mask_and_empty() -> None:
     assert c["mean"] == pytest.approx(2.0)
     assert c["inside"] == 1.0
     c = consistency(v, 4, mask=np.zeros(4, dtype=bool))
-    assert c["inside"] == 0.0 and c["mean"] == 0.0
+    assert c["inside"] is None and c["mean"] is None  # no value: no mean of 0 to read as one
     assert c["bound"] == pytest.approx(stats.chi2.ppf(0.95, 4))
 
 
@@ -178,7 +178,7 @@ def test_mode_accuracy() -> None:
     idx2[:, :40] = -1
     always_cv[:, :40] = [0.0, 1.0, 0.0]
     assert mode_accuracy(always_cv, idx2) == pytest.approx(55 / 110)
-    assert mode_accuracy(perfect, np.full_like(idx, -1)) == 0.0
+    assert mode_accuracy(perfect, np.full_like(idx, -1)) is None  # no step to score
 
 
 

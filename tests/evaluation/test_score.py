@@ -105,6 +105,21 @@ def test_a_divergence_does_not_smooth_the_mode_probabilities() -> None:
     assert score(lost)["mode_prob_tv"] is None
 
 
+def test_no_live_step_leaves_the_consistency_tests_without_values() -> None:
+    """Every run diverged at its first step: no NIS or NEES value counts, and the means and
+    shares are None (JSON null), not 0 (a NEES mean of 0 would read as a measured one)."""
+    run = _diverged()
+    none = np.zeros((3, 10), dtype=bool)
+    lost = replace(run, live=none, detected=none, nis=np.zeros((3, 10)),
+                   diverged=np.ones(3, dtype=bool))
+    s = score(lost)
+    for test in ("nis", "nees"):
+        assert s[test]["mean"] is None and s[test]["inside"] is None
+    assert s["nees"]["bound"] == pytest.approx(9.4877, abs=1e-4)
+    no_match = replace(run, true_model=np.full((3, 10), -1, dtype=np.int64))
+    assert score(no_match)["mode_accuracy"] is None
+
+
 def test_nis_counts_the_detections_only_against_chi2_of_the_measurement_dimension() -> None:
     """A missed detection of a live run (``detected`` False, ``live`` True) has no innovation:
     its NIS of 0 is not a value of the test. Counting it (the mask dropped) lowers the mean and
