@@ -4,8 +4,10 @@ A network is rebuilt (:func:`build_policy`) from a description checked by
 :func:`agents.schema.check_spec` — the policy class by name from :data:`POLICY_CLASSES`, the
 activation by name, sizes as integers, flags as booleans — and its weights are read with
 ``safetensors`` (a header of names, dtypes and shapes, then raw numbers: reading it cannot run
-code), the header compared with the network before any number is read (:func:`load_tensors`).
-:func:`policy_spec` writes the description of a live policy.
+code), the header compared with the described network's tensors before the network is built
+(:func:`check_weights_size`, :func:`expected_tensors`) and with the built network before any
+number is read (:func:`load_tensors`). :func:`policy_spec` writes the description of a live
+policy.
 """
 
 from __future__ import annotations
@@ -193,23 +195,101 @@ def parameter_count(spec: dict[str, Any]) -> int:
     return count + actions
 
 
+def expected_tensors(spec: dict[str, Any]) -> dict[str, torch.Tensor]:
+    """The state dict of the network :func:`build_policy` builds from the checked description
+    ``spec`` as meta tensors (names, dtypes and shapes; no numbers), computed without building
+    it: SB3's ``mlp_extractor.policy_net``/``value_net`` (``Linear`` layers at even indices,
+    activations between), ``action_net``, ``value_net`` and ``log_std`` (``latent x actions``,
+    or ``latent x 1`` without ``full_std``, with gSDE); the asymmetric actor's input index
+    (:mod:`agents.asymmetric`); the per-model ``phi``, ``psi`` and shared action layer
+    (:mod:`agents.per_model`); sb3-contrib's ``lstm_actor`` and ``lstm_critic`` (or the
+    ``critic`` layer of a critic without LSTM that does not share the actor's). The same layout
+    :func:`parameter_count` counts.
+    """
+    obs, actions = spec["observation_size"], spec["action_size"]
+    arch = spec.get("net_arch", {"pi": [64, 64], "vf": [64, 64]})
+    pi, vf = (arch["pi"], arch["vf"]) if isinstance(arch, dict) else (arch, arch)
+    name = spec["class"]
+    shapes: dict[str, tuple[torch.dtype, tuple[int, ...]]] = {}
+
+    def linear(prefix: str, n_in: int, n_out: int) -> None:
+        shapes[f"{prefix}.weight"] = (torch.float32, (n_out, n_in))
+        shapes[f"{prefix}.bias"] = (torch.float32, (n_out,))
+
+    def mlp(prefix: str, sizes: list[int]) -> None:
+        for i, (n_in, n_out) in enumerate(pairwise(sizes)):
+            linear(f"{prefix}.{2 * i}", n_in, n_out)
+
+    def lstm(prefix: str, n_in: int, hidden: int, layers: int) -> None:
+        for k, n in enumerate([n_in, *[hidden] * (layers - 1)]):
+            for kind, width in (("ih", n), ("hh", hidden)):
+                shapes[f"{prefix}.weight_{kind}_l{k}"] = (torch.float32, (4 * hidden, width))
+                shapes[f"{prefix}.bias_{kind}_l{k}"] = (torch.float32, (4 * hidden,))
+
+    features = obs
+    if name == "MlpLstmPolicy":
+        hidden, layers = spec.get("lstm_hidden_size", 256), spec.get("n_lstm_layers", 1)
+        lstm("lstm_actor", obs, hidden, layers)
+        if spec.get("enable_critic_lstm", True):
+            lstm("lstm_critic", obs, hidden, layers)
+        elif not spec.get("shared_lstm", False):
+            linear("critic", obs, hidden)
+        features = hidden
+    actor_in = features
+    if name == "AsymmetricMlpPolicy":
+        actor_in = obs - spec["frame_stack"] * spec["critic_dims"]
+        shapes["mlp_extractor.index"] = (torch.int64, (actor_in,))
+    latent_pi = pi[-1] if pi else actor_in
+    latent_vf = vf[-1] if vf else features
+    mlp("mlp_extractor.value_net", [features, *vf])
+    linear("value_net", latent_vf, 1)
+    if name == "PerModelPolicy":
+        check_actor_layers(pi)
+        try:  # as parameter_count: a layout build_policy refuses reads one entry
+            tokens, shared = stacked_index(
+                spec["obs_features"], actions, spec["dim_z"], spec["frame_stack"],
+                spec["critic_dims"],
+            )
+            token = tokens.shape[1] + shared.size
+        except (KeyError, ValueError):
+            token = 1
+        mlp("mlp_extractor.phi", [token, pi[0]])
+        mlp("mlp_extractor.psi", [2 * pi[0], *pi[1:]])
+        linear("action_net.linear", latent_pi, 1)
+        shapes["log_std"] = (torch.float32, (1,))
+    else:
+        mlp("mlp_extractor.policy_net", [actor_in, *pi])
+        linear("action_net", latent_pi, actions)
+        sde = spec.get("use_sde", False)
+        std = actions if spec.get("full_std", True) else 1
+        shapes["log_std"] = (torch.float32, (latent_pi, std) if sde else (actions,))
+    return {
+        key: torch.empty(shape, dtype=dtype, device="meta")
+        for key, (dtype, shape) in shapes.items()
+    }
+
+
 def check_weights_size(spec: dict[str, Any], directory: Path) -> None:
     """Refuse, before the network is built, a ``directory/policy.safetensors`` that is not a
-    safetensors file (its header read, not its tensors) or holds fewer bytes than the
-    :func:`parameter_count` float32 numbers of the described network: building a network the
-    file cannot hold would allocate what no file asked for (a description within the bounds of
-    :mod:`agents.schema` may describe gigabytes).
+    safetensors file, holds fewer bytes than the :func:`parameter_count` float32 numbers of the
+    described network, or whose header declares other tensors than the network's
+    (:func:`expected_tensors`: a name missing or unexpected, another dtype or shape), the
+    header read, not its tensors: building a network the file does not hold would allocate what
+    no file asked for (a description within the bounds of :mod:`agents.schema` may describe
+    gigabytes, and a sparse file may pad its few real tensors with a gigabyte-tensor hole).
 
     Raises:
-        ConfigError: the file is missing, not a regular file, not safetensors, or too small;
-            the message names it.
+        ConfigError: the file is missing, not a regular file, not safetensors, too small, or
+            declares tensors that do not fit; the message names it.
     """
     file = directory / WEIGHTS
     check_regular_file(file)
     try:
-        with safe_open(str(file), framework="pt"):
-            pass
-    except (SafetensorError, OSError, ValueError) as err:
+        with safe_open(str(file), framework="pt") as f:
+            declared = _declared_tensors(file, f)
+    except ConfigError:
+        raise
+    except (SafetensorError, OSError, ValueError, RuntimeError) as err:
         raise ConfigError(f"{file}: not a readable safetensors file ({err})") from None
     count = parameter_count(spec)
     size = file.stat().st_size
@@ -218,6 +298,7 @@ def check_weights_size(spec: dict[str, Any], directory: Path) -> None:
             f"{file}: {size} bytes, fewer than the {4 * count} of the {count} float32 "
             "parameters of the network agent.json describes"
         )
+    check_declared(file, declared, expected_tensors(spec), "the network of agent.json")
 
 
 def check_regular_file(file: Path) -> None:
@@ -296,16 +377,7 @@ def load_tensors(
     check_regular_file(file)
     try:
         with safe_open(str(file), framework="pt") as f:
-            declared = {}
-            for name in f.keys():
-                view = f.get_slice(name)
-                dtype = SAFETENSORS_DTYPES.get(view.get_dtype())
-                if dtype not in TENSOR_DTYPES:
-                    raise ConfigError(
-                        f"{file}: tensor {name!r} is {dtype or view.get_dtype()}, not one of "
-                        f"{[str(dtype) for dtype in TENSOR_DTYPES]}"
-                    )
-                declared[name] = torch.empty(view.get_shape(), dtype=dtype, device="meta")
+            declared = _declared_tensors(file, f)
             check(declared)
             tensors = {name: f.get_tensor(name) for name in declared}
     except ConfigError:
@@ -316,6 +388,22 @@ def load_tensors(
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
             raise ConfigError(f"{file}: tensor {name!r} holds NaN or infinite values")
     return tensors
+
+
+def _declared_tensors(file: Path, f: Any) -> dict[str, torch.Tensor]:
+    """The tensors the header of ``file`` (open as ``f`` by ``safe_open``) declares, as meta
+    tensors, each of :data:`TENSOR_DTYPES` (a ConfigError naming ``file`` otherwise)."""
+    declared = {}
+    for name in f.keys():
+        view = f.get_slice(name)
+        dtype = SAFETENSORS_DTYPES.get(view.get_dtype())
+        if dtype not in TENSOR_DTYPES:
+            raise ConfigError(
+                f"{file}: tensor {name!r} is {dtype or view.get_dtype()}, not one of "
+                f"{[str(dtype) for dtype in TENSOR_DTYPES]}"
+            )
+        declared[name] = torch.empty(view.get_shape(), dtype=dtype, device="meta")
+    return declared
 
 
 def check_declared(

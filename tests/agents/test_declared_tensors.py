@@ -4,11 +4,16 @@ shapes — before any of its tensors is read: a file that declares an extra tens
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
+import pytest
 from declared import declare_tensor, peak_growth
 from helpers import shipped_agent
+
+from agents.network import build_policy, expected_tensors, parameter_count
+from agents.schema import check_spec
 
 #: A tensor the files declare beyond the expected ones, and the growth of the peak memory
 #: allowed while they are refused (far below it).
@@ -27,6 +32,65 @@ def test_a_weights_file_declaring_an_extra_tensor_is_refused_before_it_is_read(
     assert "policy.safetensors: the tensors do not fit the network" in message
     assert "unexpected ['junk']" in message
     assert growth < ALLOWED, f"{growth / 2**20:.0f} MiB"
+
+
+def test_a_large_network_padded_by_a_sparse_tensor_is_refused_before_it_is_built(
+    tmp_path: Path,
+) -> None:
+    """agent.json describing 0.9 GiB of parameters (within agents.schema's bounds) beside the
+    shipped agent's few real tensors and a hole that makes the file as large: the names of the
+    file's header are compared with the described network's before the network is built (it
+    was built, 1.1 GiB, and only then compared)."""
+    agent = Path(shutil.copytree(shipped_agent(), tmp_path / "agent"))
+    meta = json.loads((agent / "agent.json").read_text())
+    meta["policy"]["net_arch"] = {"pi": [4096] * 8, "vf": [4096] * 8}
+    (agent / "agent.json").write_text(json.dumps(meta))
+    count = parameter_count(check_spec("agent.json", meta["policy"]))
+    declare_tensor(agent / "policy.safetensors", "junk", 4 * count)
+    growth, message = peak_growth(
+        f"from agents.policy import load_agent; load_agent({str(shipped_agent())!r})",
+        f"load_agent({str(agent)!r})",
+    )
+    assert "policy.safetensors: the tensors do not fit the network of agent.json" in message
+    assert "'mlp_extractor.policy_net.14.weight'" in message and "unexpected ['junk']" in message
+    assert growth < ALLOWED, f"{growth / 2**20:.0f} MiB"
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        {"class": "MlpPolicy", "observation_size": 7, "action_size": 3},
+        {"class": "MlpPolicy", "observation_size": 7, "action_size": 3, "net_arch": [5, 4],
+         "use_sde": True, "full_std": False, "share_features_extractor": False},
+        {"class": "MlpPolicy", "observation_size": 7, "action_size": 2,
+         "net_arch": {"pi": [], "vf": [6]}, "use_sde": True},
+        {"class": "AsymmetricMlpPolicy", "observation_size": 12, "action_size": 3,
+         "net_arch": {"pi": [5], "vf": [4, 4]}, "critic_dims": 2, "frame_stack": 3},
+        {"class": "AsymmetricMlpPolicy", "observation_size": 12, "action_size": 3,
+         "net_arch": {"pi": [], "vf": []}, "critic_dims": 2, "frame_stack": 3, "use_sde": True},
+        {"class": "PerModelPolicy", "observation_size": 2 * 16, "action_size": 3,
+         "net_arch": {"pi": [6, 5, 7], "vf": [4]}, "critic_dims": 0, "frame_stack": 2,
+         "obs_features": ["loglik", "innovation", "speed"], "dim_z": 2},
+        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+         "lstm_hidden_size": 5, "n_lstm_layers": 3, "net_arch": [4], "shared_lstm": False,
+         "enable_critic_lstm": True},
+        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+         "lstm_hidden_size": 5, "n_lstm_layers": 1, "shared_lstm": False,
+         "enable_critic_lstm": False},
+        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+         "lstm_hidden_size": 5, "n_lstm_layers": 2, "shared_lstm": True,
+         "enable_critic_lstm": False},
+    ],
+)
+def test_the_tensors_computed_from_a_description_are_the_built_network_s(spec: dict) -> None:
+    """What the weights file's header is compared with before the network is built is the
+    state dict the network has once built: every name, dtype and shape."""
+    spec = check_spec("test", {"activation_fn": "tanh", **spec})
+    built = build_policy(spec, "test").state_dict()
+    expected = expected_tensors(spec)
+    assert sorted(expected) == sorted(built)
+    for name, tensor in built.items():
+        assert (expected[name].dtype, expected[name].shape) == (tensor.dtype, tensor.shape), name
 
 
 def test_a_selector_member_declaring_an_extra_tensor_is_refused_before_it_is_read(
