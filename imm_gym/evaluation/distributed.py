@@ -106,21 +106,30 @@ class Shard:
     def __init__(self) -> None:
         self.core: TrackingCore | None = None
 
-    def build(self, config: EnvConfig, n_envs: int) -> tuple[int, int]:
-        """A fresh core of ``n_envs`` slots; returns its horizon and number of models."""
+    def build(self, config: EnvConfig, n_envs: int) -> tuple[int, int, int]:
+        """A fresh core of ``n_envs`` slots; returns its horizon, number of models and
+        measurement size."""
         self.core = TrackingCore(config, n_envs=n_envs)
-        return self.core.horizon, self.core.M
+        return self.core.horizon, self.core.M, self.core.z.shape[-1]
 
     def reset(
         self,
         indices: NDArray[np.int64],
         seeds: list[int | None],
         initial_tpms: NDArray[np.float64] | None = None,
-    ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float32]]:
-        """:meth:`TrackingCore.reset`; returns the truth, the true models and the observation."""
+    ) -> tuple[
+        NDArray[np.float64],
+        NDArray[np.int64],
+        NDArray[np.float64],
+        NDArray[np.bool_],
+        NDArray[np.float32],
+    ]:
+        """:meth:`TrackingCore.reset`; returns the truth, the true models, the measurements and
+        their detection flags, and the observation."""
         assert self.core is not None
         self.core.reset(indices, seeds, initial_tpms)
-        return self.core.truth, self.core.true_model, self.core.observe()
+        c = self.core
+        return c.truth, c.true_model, c.z, c.detected, c.observe()
 
     def step(self, actions: NDArray[Any], active: NDArray[np.bool_] | None) -> StepResult:
         """:meth:`TrackingCore.step` of the chunk's slots."""
@@ -204,8 +213,8 @@ class ShardPool:
 class ShardedCore:
     """A :class:`TrackingCore` of ``n_envs`` slots as contiguous chunks held by shard actors
     (module docstring): the attributes and methods :func:`~imm_gym.evaluation.rollout.rollout`
-    uses (``horizon``, ``M``, ``truth``, ``true_model``, ``reset``, ``observe``, ``step``), with
-    the same values in the same order.
+    uses (``horizon``, ``M``, ``truth``, ``true_model``, ``z``, ``detected``, ``reset``,
+    ``observe``, ``step``), with the same values in the same order.
 
     Args:
         actors: shard actors (:class:`ShardPool`); the first ``C`` hold a chunk each.
@@ -229,10 +238,12 @@ class ShardedCore:
             [a.build.remote(config, n) for a, n in zip(self.actors, sizes, strict=True)],
             range(len(sizes)),
         )
-        self.horizon, self.M = built[0]
+        self.horizon, self.M, m = built[0]
         self.action_dim = action_size(config.action_mode, self.M)
         self.truth = np.zeros((n_envs, self.horizon + 1, 4))
         self.true_model = np.full((n_envs, self.horizon), -1, dtype=np.int64)
+        self.z = np.zeros((n_envs, self.horizon + 1, m))
+        self.detected = np.ones((n_envs, self.horizon + 1), dtype=bool)
         self._obs: NDArray[np.float32] | None = None
 
     def _get(self, calls: list[Any], shards: Iterable[int]) -> list[Any]:
@@ -286,10 +297,14 @@ class ShardedCore:
                     )
                 )
                 shards.append(c)
-        for c, (truth, true_model, obs) in zip(shards, self._get(calls, shards), strict=True):
+        for c, (truth, true_model, z, detected, obs) in zip(
+            shards, self._get(calls, shards), strict=True
+        ):
             a = self.bounds[c]
             self.truth[a : a + len(truth)] = truth
             self.true_model[a : a + len(true_model)] = true_model
+            self.z[a : a + len(z)] = z
+            self.detected[a : a + len(detected)] = detected
             if self._obs is None:
                 self._obs = np.zeros((self.n_envs, obs.shape[1]), dtype=obs.dtype)
             self._obs[a : a + len(obs)] = obs

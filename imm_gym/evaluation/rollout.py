@@ -5,11 +5,11 @@
 all policies see the same targets and the same sensor noise (common random numbers) whatever
 environment settings they need (a designed family's targets are drawn for the evaluated bank
 whatever bank a policy brings, :func:`evaluation_config`; :func:`check_paired` holds roll-outs to
-the same targets before their errors are paired). A run whose tracker diverges keeps a position
-error of ``divergence_error`` (the cap: ``divergence_error / sqrt(2)`` on x and on y), the
-velocity error of its estimate at the step it diverges at (the error it was lost with; an entry
-that is not finite there, the error of a zero velocity) and uniform mode probabilities from that
-step to the end of its episode; its NIS and NEES count up to the step before
+the same targets and the same measurements before their errors are paired). A run whose tracker
+diverges keeps a position error of ``divergence_error`` (the cap: ``divergence_error / sqrt(2)``
+on x and on y), the velocity error of its estimate at the step it diverges at (the error it was
+lost with; an entry that is not finite there, the error of a zero velocity) and uniform mode
+probabilities from that step to the end of its episode; its NIS and NEES count up to the step before
 (:attr:`Rollout.live`), the divergence itself is counted apart (``diverged``).
 """
 
@@ -56,6 +56,9 @@ class Rollout:
         diverged: ``(R,)`` runs whose tracker diverged.
         live: ``(R, K)`` the steps recorded from the tracker itself: False from the step a run
             diverges at (its estimate held at the cap there, its covariance a placeholder ``I``).
+        measurements: ``(R, K + 1, m)`` the measurements ``z`` the tracker was given, step 0's
+            (the track's start) first, NaN at a missed detection (what the policy's tracker
+            saw: the common random numbers :func:`check_paired` holds).
     """
 
     estimate: Array
@@ -68,6 +71,7 @@ class Rollout:
     true_model: NDArray[np.int64]
     diverged: NDArray[np.bool_]
     live: NDArray[np.bool_]
+    measurements: Array
 
     def groups(self, G: int) -> list[Rollout]:
         """The records of a roll-out from ``G`` starting TPMs (:func:`rollout`'s
@@ -139,12 +143,24 @@ def evaluation_config(base: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
     return config
 
 
+def _runs_differing(a: Array, b: Array) -> str:
+    """The runs (first axis) where ``a`` and ``b`` are not the same, NaN equal to NaN, the first
+    five of them (all runs for arrays of other shapes)."""
+    if a.shape != b.shape:
+        return "all"
+    same = (a == b) | (np.isnan(a) & np.isnan(b))
+    runs = np.flatnonzero(~same.reshape(len(a), -1).all(axis=1))
+    return f"{runs[:5].tolist()}{' ...' if runs.size > 5 else ''}"
+
+
 def check_paired(rollouts: Mapping[str, Rollout]) -> None:
     """Raise :class:`ValueError` naming the first of ``rollouts`` whose runs are not the first
-    one's — another number of runs or steps, or other targets (``truth`` not bit for bit the
-    same) —: a paired difference (:func:`paired_bootstrap`) holds only between roll-outs of the
-    same runs (common random numbers). Cheap beside the roll-outs: one comparison of the
-    ``(R, K, 4)`` truths per policy."""
+    one's — another number of runs or steps, other targets (``truth`` not bit for bit the same)
+    or other measurements (:attr:`Rollout.measurements`: other sensor noise, detections or
+    outliers, as a policy's overrides of the sensor give) —: a paired difference
+    (:func:`paired_bootstrap`) holds only between roll-outs of the same runs (common random
+    numbers). Cheap beside the roll-outs: one comparison of the ``(R, K, 4)`` truths and the
+    ``(R, K + 1, m)`` measurements per policy."""
     items = iter(rollouts.items())
     first = next(items, None)
     if first is None:
@@ -157,11 +173,17 @@ def check_paired(rollouts: Mapping[str, Rollout]) -> None:
                 f"{ref_name!r} {ref.truth.shape[0]} of {ref.truth.shape[1]}: they cannot be paired"
             )
         if not np.array_equal(other.truth, ref.truth):
-            runs = np.flatnonzero(np.any(other.truth != ref.truth, axis=(1, 2)))
             raise ValueError(
                 f"{name!r} was rolled out on other targets than {ref_name!r} (runs "
-                f"{runs[:5].tolist()}{' ...' if runs.size > 5 else ''} differ): their errors "
-                "cannot be paired (common random numbers)"
+                f"{_runs_differing(other.truth, ref.truth)} differ): their errors cannot be "
+                "paired (common random numbers)"
+            )
+        if not np.array_equal(other.measurements, ref.measurements, equal_nan=True):
+            raise ValueError(
+                f"{name!r} was given other measurements than {ref_name!r} (runs "
+                f"{_runs_differing(other.measurements, ref.measurements)} differ: other sensor "
+                "noise, detections or outliers): their errors cannot be paired (common random "
+                "numbers)"
             )
 
 
@@ -213,6 +235,7 @@ def rollout(
     live = np.zeros((R, K), dtype=bool)
     truth = core.truth[:, 1:].copy()
     true_model = core.true_model.copy()
+    measurements = np.where(core.detected[..., None], core.z, np.nan)
     obs = core.observe()
     state = None
     start = np.ones(R, dtype=bool)
@@ -243,7 +266,9 @@ def rollout(
         obs = result.obs
         if progress is not None:
             progress(k + 1)
-    return Rollout(est, cov, truth, probs, tpms, nis, detected, true_model, ~alive, live)
+    return Rollout(
+        est, cov, truth, probs, tpms, nis, detected, true_model, ~alive, live, measurements
+    )
 
 
 def score(rollout: Rollout, dim_z: int = 2) -> dict[str, Any]:

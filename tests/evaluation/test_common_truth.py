@@ -2,7 +2,7 @@
 (``family.designed_share > 0``) draws its turns for the CT models' noise, so a policy with its own
 bank (bbsca's tuned ``Q``) is rolled out on the targets drawn for the evaluated bank
 (:class:`imm_gym.sim.core.PairedConfig`); :func:`check_paired` refuses roll-outs of other
-targets before their errors are paired."""
+targets or other measurements before their errors are paired."""
 
 from __future__ import annotations
 
@@ -80,3 +80,23 @@ def test_check_paired_refuses_other_targets_and_other_runs() -> None:
     shorter = rollout(fixed, config, 2, 0)
     with pytest.raises(ValueError, match="'c' ran 2 runs of 150 steps and 'a' 3 of 150"):
         check_paired({"a": a, "c": shorter})
+
+
+def test_check_paired_refuses_other_measurements_of_the_same_targets() -> None:
+    """A policy whose overrides touch the sensor meets the same targets through other noise (or
+    other detections): its errors are not paired with the others' either."""
+    fixed = FixedTPM(3)
+    base = EnvConfig.build({"scenario": "random", "sensor": {"detection_prob": 0.8}})
+    a = rollout(fixed, evaluation_config(base, fixed.env_overrides), 4, 11)
+    assert np.isnan(a.measurements).any() and not np.isnan(a.measurements).all()  # missed ones
+    check_paired({"a": a, "a again": rollout(fixed, evaluation_config(base, {}), 4, 11)})
+    noisier = {**fixed.env_overrides, "sensor": {"detection_prob": 0.8, "sigma_r": 20.0}}
+    b = rollout(fixed, evaluation_config(base, noisier), 4, 11)
+    np.testing.assert_array_equal(a.truth, b.truth)
+    with pytest.raises(ValueError, match=r"'b' was given other measurements than 'a' \(runs "
+                                         r"\[0, 1, 2, 3\] differ: other sensor noise"):
+        check_paired({"a": a, "b": b})
+    missed = a.measurements.copy()
+    missed[2, 5] = np.nan  # one more missed detection, in run 2
+    with pytest.raises(ValueError, match=r"\(runs \[2\] differ"):
+        check_paired({"a": a, "c": replace(a, measurements=missed)})

@@ -129,6 +129,8 @@ class _FailingCore:
     def __init__(self, config: EnvConfig, n: int) -> None:
         self.truth = np.tile(np.array([100.0, 0.0, 3.0, 4.0]), (n, self.horizon + 1, 1))
         self.true_model = np.zeros((n, self.horizon), dtype=np.int64)
+        self.z = self.truth[..., :2].copy()
+        self.detected = np.ones((n, self.horizon + 1), dtype=bool)
         self.k = 0
 
     def reset(self, indices, seeds, initial_tpms=None) -> None:

@@ -32,6 +32,7 @@ def _rollout(true_model: np.ndarray, errors: np.ndarray, mode_probs: np.ndarray)
         true_model=true_model,
         diverged=np.zeros(R, dtype=bool),
         live=np.ones((R, K), dtype=bool),
+        measurements=np.zeros((R, K + 1, 2)),
     )
 
 
