@@ -70,6 +70,7 @@ from imm_gym.evaluation.clairvoyant import (
     hold_diverged,
     unsupported,
 )
+from imm_gym.evaluation.distributed import ShardError
 from imm_gym.evaluation.metrics import (
     IQM_LEVEL,
     IQM_RESAMPLES,
@@ -933,6 +934,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.ray is not None and args.scenario in SYSTEMS:
         parser.error(f"--ray does not apply to --scenario {args.scenario}")
     make_core = _cores(parser, args.ray)
+    try:
+        return _run(parser, args, make_core)
+    except ShardError as err:
+        # a shard that died mid-run (its process or node ended): one line, not Ray's traceback
+        parser.exit(1, f"{parser.prog}: error: {err}\n")
+
+
+def _run(
+    parser: argparse.ArgumentParser,
+    args: argparse.Namespace,
+    make_core: Callable[[EnvConfig, int], Any],
+) -> int:
+    """The checked command line's evaluation: a suite, a seed system, or one scenario's."""
     if args.suite is not None:
         return _main_suite(parser, args, make_core)
     if args.scenario in SYSTEMS:
@@ -1019,7 +1033,9 @@ def _cores(parser: argparse.ArgumentParser, address: str | None) -> Callable[[En
     at ``address`` ("" for Ray's default) (:mod:`imm_gym.evaluation.distributed`), joined and
     started when the first roll-out builds its core: after every check of the arguments, the
     configuration and the policies. Ray not installed is a usage error here; a cluster that
-    cannot be joined, or whose shards do not start, a ConfigError naming ``--ray`` then."""
+    cannot be joined, or whose shards do not start, a ConfigError naming ``--ray`` then; a shard
+    that dies later a :class:`~imm_gym.evaluation.distributed.ShardError`, which :func:`main`
+    reports in one line (exit status 1)."""
     if address is None:
         return TrackingCore
     try:

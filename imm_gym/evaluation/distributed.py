@@ -34,6 +34,11 @@ CONNECT_TIMEOUT = 5.0
 """Seconds :func:`connect` waits for a ``HOST:PORT`` to accept a connection."""
 
 
+class ShardError(RuntimeError):
+    """A shard actor failed to start or died (its process or node ended); the message names the
+    shard (its runs, once it holds some) and the cause, in one line."""
+
+
 def unreachable(address: str | None, timeout: float = CONNECT_TIMEOUT) -> str | None:
     """Why nothing accepts a TCP connection at a ``HOST:PORT`` or ``ray://HOST:PORT`` address
     within ``timeout`` seconds, or None when something does or the address names no port
@@ -154,7 +159,7 @@ class ShardPool:
 
     Raises:
         ValueError: ``shards`` outside ``[1, the cluster's CPUs]``.
-        RuntimeError: an actor failed to start (its node cannot import imm_gym, say); the
+        ShardError: an actor failed to start (its node cannot import imm_gym, say); the
             message names it and the cause, and the pool's actors are ended.
         TimeoutError: an actor did not start within ``start_timeout`` (other work holds the
             CPUs it needs, or its node is slow to start a worker); the pool's actors are ended.
@@ -178,7 +183,7 @@ class ShardPool:
                     ray.get(call)
                 except ray.exceptions.RayActorError as err:
                     self.close()
-                    raise RuntimeError(
+                    raise ShardError(
                         f"evaluation shard {i} of {n} failed to start: {cause(err)}"
                     ) from None
         if len(started) < n:
@@ -222,7 +227,7 @@ class ShardedCore:
         n_envs: R, the number of slots.
 
     Raises:
-        RuntimeError: a shard died (its process or node ended); the message names the shard,
+        ShardError: a shard died (its process or node ended); the message names the shard,
             its runs and the cause.
     """
 
@@ -248,14 +253,14 @@ class ShardedCore:
 
     def _get(self, calls: list[Any], shards: Iterable[int]) -> list[Any]:
         """The results of ``calls``, one to each of ``shards`` (indices into ``actors``); a
-        shard that died is a RuntimeError naming it, its runs and the cause."""
+        shard that died is a :class:`ShardError` naming it, its runs and the cause."""
         results = []
         for c, call in zip(shards, calls, strict=True):
             try:
                 results.append(self._ray.get(call))
             except self._ray.exceptions.RayActorError as err:
                 a, b = self.bounds[c], self.bounds[c + 1]
-                raise RuntimeError(
+                raise ShardError(
                     f"evaluation shard {c} of {len(self.actors)} (runs {a}..{b - 1} of "
                     f"{self.n_envs}) died: {cause(err)}"
                 ) from None

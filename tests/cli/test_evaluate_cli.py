@@ -438,3 +438,30 @@ def test_meta_records_the_command_main_parsed_quoted(tmp_path, monkeypatch) -> N
     monkeypatch.setattr(sys, "argv", ["evaluate", *argv])
     assert main() == 0
     assert json.loads(out.read_text())["meta"]["command"] == command
+
+
+def test_a_shard_that_died_ends_the_command_in_one_line(monkeypatch, capsys) -> None:
+    """A Ray shard dying mid-run (:class:`~imm_gym.evaluation.distributed.ShardError`) stops the
+    command with one error line, exit status 1, not a traceback; other errors are not caught."""
+    import imm_gym.cli.evaluate as cli
+    from imm_gym.evaluation.distributed import ShardError
+
+    def died(*args, **kwargs):
+        raise ShardError("evaluation shard 1 of 2 (runs 2..3 of 4) died: the node ended")
+
+    monkeypatch.setattr(cli, "evaluate", died)
+    with pytest.raises(SystemExit) as exc:
+        main(["--policy", "fixed", "--runs", "4", "--quiet"])
+    assert exc.value.code == 1
+    err = capsys.readouterr().err
+    assert err.splitlines() == [
+        "python -m imm_gym.evaluate: error: evaluation shard 1 of 2 (runs 2..3 of 4) died: the "
+        "node ended"
+    ]
+
+    def failed(*args, **kwargs):
+        raise RuntimeError("not a shard")
+
+    monkeypatch.setattr(cli, "evaluate", failed)
+    with pytest.raises(RuntimeError, match="not a shard"):
+        main(["--policy", "fixed", "--runs", "4", "--quiet"])

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -418,7 +420,7 @@ def test_a_shard_that_fails_to_start_is_a_usage_error_naming_ray_and_the_cause(
 
 
 def test_a_shard_that_dies_mid_run_is_named_with_its_runs(cluster):
-    from imm_gym.evaluation.distributed import ShardPool
+    from imm_gym.evaluation.distributed import ShardError, ShardPool
     from imm_gym.sim.core import TrackingCore
     from imm_gym.sim.env_config import EnvConfig
 
@@ -429,9 +431,9 @@ def test_a_shard_that_dies_mid_run_is_named_with_its_runs(cluster):
         core.reset(np.arange(3), [1, 2, 3])
         ray.kill(pool.actors[1])
         died = r"evaluation shard 1 of 2 \(runs 2\.\.2 of 3\) died: .*ray\.kill"
-        with pytest.raises(RuntimeError, match=died):
+        with pytest.raises(ShardError, match=died):
             core.step(np.zeros((3, TrackingCore(config, n_envs=1).action_dim)))
-        with pytest.raises(RuntimeError, match=died):
+        with pytest.raises(ShardError, match=died):
             core.reset(np.array([2]), [4])
     finally:
         pool.close()
@@ -472,6 +474,45 @@ def test_sharded_core_refuses_what_the_core_refuses(cluster):
         np.testing.assert_array_equal(sharded.step(action).obs, local.step(action).obs)
     finally:
         pool.close()
+    wait_for_both_cpus()
+
+
+def test_a_shard_that_dies_mid_evaluation_ends_the_command_in_one_line(
+    cluster, monkeypatch, capsys
+):
+    """A shard whose process ends during the roll-out (its node went away): the command stops
+    with one error line naming the shard and its runs, exit status 1, not Ray's traceback."""
+    from imm_gym.cli.evaluate import main
+    from imm_gym.evaluation import distributed
+
+    class Dying(distributed.Shard):  # a local class: Ray sends it by value
+        def step(self, actions, active):
+            if self.core.k >= 3:
+                os._exit(1)
+            return super().step(actions, active)
+
+    pools: list[distributed.ShardPool] = []
+    start = distributed.ShardPool.__init__
+
+    def kept(self, *args, **kwargs) -> None:
+        start(self, *args, **kwargs)
+        pools.append(self)
+
+    monkeypatch.setattr(distributed, "Shard", Dying)
+    monkeypatch.setattr(distributed.ShardPool, "__init__", kept)
+    wait_for_both_cpus()
+    try:
+        with pytest.raises(SystemExit) as exc:
+            main(["--policy", "fixed", "--runs", "2", "--quiet", "--no-clairvoyant", "--ray",
+                  cluster.address])
+    finally:
+        for pool in pools:
+            pool.close()
+    err = capsys.readouterr().err
+    assert exc.value.code == 1
+    assert "Traceback" not in err
+    assert re.search(r"^.*: error: evaluation shard [01] of 2 \(runs [01]\.\.[01] of 2\) died: ",
+                     err, re.MULTILINE), err
     wait_for_both_cpus()
 
 
