@@ -135,8 +135,8 @@ def render_tables(results: dict[str, Any]) -> None:
         console.print(escape(note))
     behaviour = Table(
         title="IMM behaviour: mode-probability total variation ½·Σ|μ(k) − μ(k−1)| per step, "
-        "mean of each run's peak position error, position RMSE over the 10 steps after each "
-        "maneuver starts"
+        "mean of each run's peak position error, position RMSE over the 10 steps from each "
+        "change of the true model (a maneuver's start or end)"
     )
     behaviour.add_column("policy")
     for _, label, _ in BEHAVIOUR_COLUMNS:
@@ -184,10 +184,10 @@ def render_tables(results: dict[str, Any]) -> None:
 
 def render_suite_table(results: dict[str, Any]) -> None:
     """Print one table of a suite's evaluation: a row per case and policy with the position
-    ARMSE, the mode accuracy, the share of NEES values inside the 95 % χ² interval, the
-    diverged runs and the paired difference of the position ARMSE against the reference with its
-    95 % bootstrap CI; the clairvoyant row by its role; a policy not run on a case, and why.
-    Then each policy's tally against the bar, else the reference
+    ARMSE, the mode accuracy, the share of NEES values at or below the one-sided 95 % bound of
+    χ²(4), the diverged runs and the paired difference of the position ARMSE against the
+    reference with its 95 % bootstrap CI; the clairvoyant row by its role; a policy not run on a
+    case, and why. Then each policy's tally against the bar, else the reference
     (:func:`~imm_gym.cli.evaluate.suite_tally`). Names, scenarios and notes are printed as given
     (escaped, not read as rich markup)."""
     from rich.console import Console

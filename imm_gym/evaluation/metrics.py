@@ -1,6 +1,7 @@
 """Tracking metrics: RMSE(t) and ARMSE (SPEC §3, eqs. 20-21), NIS/NEES consistency (seed 002),
 mode-identification accuracy, and what IMM users look at besides: the mode probabilities'
-step-to-step variation, the peak error and the error just after each maneuver starts.
+step-to-step variation, the peak error and the error just after each change of the true model
+(a maneuver's start or end).
 
 Shapes: R runs, K scored steps; estimates ``(R, K, n >= 4)`` and truth ``(R, K, 4)`` on
 ``[x, y, vx, vy]``.
@@ -149,7 +150,8 @@ def maneuver_starts(true_model: NDArray[np.int64]) -> NDArray[np.bool_]:
 def maneuver_response(
     estimate: Array, truth: Array, true_model: NDArray[np.int64], window: int = 10
 ) -> float | None:
-    r"""Position RMSE over the ``window`` steps after each maneuver starts.
+    r"""Position RMSE over the ``window`` steps from each change of the true model (a maneuver's
+    start or its end).
 
     With ``S`` the maneuver starts (:func:`maneuver_starts`: ``(r, s)`` such that the true model
     of step ``s`` differs from step ``s - 1``'s) and ``c_{r,k} = #{s in S_r : s <= k < s + window}``
