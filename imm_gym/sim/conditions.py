@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import TurnDesign
+from imm_gym.sim.model_order import canonical_order
 from imm_gym.tracking.initiation import MAX_VELOCITY_STD
 from imm_gym.tracking.models import MotionModel, bank_dim, velocity_noise
 from imm_gym.validation import ConfigError, check_range, check_sequence, store
@@ -272,7 +273,9 @@ def turn_design(
     """The turns each run's tracker is designed to fly: the turn rates of the bank's CT models
     and their :func:`~imm_gym.tracking.models.velocity_noise` per step at the run's ``T`` and
     process-noise factors (:func:`bank_noise`) over ``T``, the lateral acceleration
-    ``sqrt(q / T)`` (m/s²) their noise absorbs.
+    ``sqrt(q / T)`` (m/s²) their noise absorbs. The CT models are taken in canonical order
+    (:func:`~imm_gym.sim.model_order.canonical_order`, the first run's velocity noise breaking
+    ties of turn rate), so that every listing of one bank draws the same targets.
 
     Raises:
         ConfigError: the bank has no CT model.
@@ -284,6 +287,8 @@ def turn_design(
             f"fly), got {[m.label for m in models]}"
         )
     Q = bank_noise(models, T, q_scale, q_maneuver)
+    order = canonical_order(tuple(models[j] for j in cts), velocity_noise(Q[0, cts]))
+    cts = [cts[c] for c in order]
     rates = np.array([models[j].omega for j in cts])
     accel_std = velocity_noise(Q[:, cts]) / np.asarray(T, dtype=np.float64)[:, None]
     return TurnDesign(np.broadcast_to(rates, accel_std.shape).copy(), accel_std)
