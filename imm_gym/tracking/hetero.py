@@ -92,6 +92,8 @@ Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 HETERO_KINDS = ("ncv", "ct", "ctra")
+#: Seed 002's start probability of each kind (a bank of the three kinds, in any order).
+SEED_PROBS = {"ncv": 0.90, "ct": 0.08, "ctra": 0.02}
 
 
 @dataclass(frozen=True)
@@ -229,7 +231,8 @@ class HeteroBank:
         sigma_ctra: CTRA jerk noise (m/s³) and yaw-acceleration noise (rad/s²).
         q_scale: one ``Q`` factor per model (> 0; the BBSCA tuner's output).
         initial_probs: model probabilities at the start; ``None``: seed 002's (0.90, 0.08, 0.02)
-            for the bank ``ncv, ct, ctra``, uniform for any other.
+            for the bank ``ncv, ct, ctra`` (by kind, :data:`SEED_PROBS`, in any order), uniform
+            for any other.
         turn_rate_var, accel_var: variances given to ``omega`` (rad²/s²) and ``a`` (m²/s⁴) when a
             track is initiated from a Cartesian estimate (seed 002's ``P_0``: 0.2 and 1.0).
     """
@@ -291,8 +294,8 @@ class HeteroBank:
         """The initial model probabilities (see ``initial_probs``)."""
         if self.initial_probs is not None:
             return self.initial_probs
-        if self.models == HETERO_KINDS:
-            return (0.90, 0.08, 0.02)
+        if sorted(self.models) == sorted(HETERO_KINDS):
+            return tuple(SEED_PROBS[kind] for kind in self.models)
         return (1.0 / len(self.models),) * len(self.models)
 
     def build(self) -> tuple[HeteroModel, ...]:

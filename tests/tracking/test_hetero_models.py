@@ -580,3 +580,15 @@ def test_a_cycle_whose_outputs_are_not_finite_is_failed(case: str) -> None:
     assert np.isfinite(out.x[[0, 2]]).all() and np.isnan(out.x[1]).all()
     with pytest.raises(np.linalg.LinAlgError), np.errstate(all="ignore"):
         imm.step(state, stay_tpm(3, 0.95), z)
+
+
+@pytest.mark.parametrize("models", [("ncv", "ct", "ctra"), ("ct", "ncv", "ctra"),
+                                    ("ctra", "ct", "ncv")])
+def test_seed_start_probabilities_follow_the_kinds_in_any_order(models: tuple[str, ...]) -> None:
+    seed = {"ncv": 0.90, "ct": 0.08, "ctra": 0.02}
+    assert HeteroBank(models=models).probs == tuple(seed[kind] for kind in models)
+
+
+def test_other_heterogeneous_banks_start_uniform() -> None:
+    assert HeteroBank(models=("ncv", "ct")).probs == (0.5, 0.5)
+    assert HeteroBank(models=("ncv", "ct", "ct")).probs == (1 / 3,) * 3
