@@ -507,6 +507,7 @@ def export_agent(
         "frame_stack": frames,
         "critic_dims": 0,
         "env_id": env_id,
+        "normalize": stats is not None,  # the loader then requires vecnormalize.json exactly
         **extra,
         "policy": policy_spec(policy),
     }

@@ -11,6 +11,7 @@ import dataclasses
 import json
 import os
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -354,7 +355,10 @@ def test_exported_agent_acts_as_the_rllib_module(cluster, tmp_path: Path):
         rllib.set_log_std(algo, -1.0)
         algo.train()
         rllib.export_agent(algo, tmp_path, params, ENV_ID, {"seed": 7})
-        policy = load_agent(tmp_path)
+        assert json.loads((tmp_path / "agent.json").read_text())["normalize"] is True
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # not loaded as an agent that predates the record
+            policy = load_agent(tmp_path)
         runner = algo.env_runner_group.local_env_runner
         (filt,) = [p for p in runner._env_to_module.connectors if isinstance(p, MeanStdFilter)]
         assert filt._filters[None].running_stats.n > 0
