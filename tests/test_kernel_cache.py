@@ -23,6 +23,13 @@ FILES = {
 }
 
 
+@pytest.fixture(autouse=True)
+def _no_numba_cache_dir(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``refresh`` reads ``NUMBA_CACHE_DIR`` by default: unset it, so that a test neither depends
+    on the caller's cache folder nor writes the temporary package's digest into it."""
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+
+
 @pytest.fixture
 def package(tmp_path: Path) -> Path:
     root = tmp_path / "imm_gym"
