@@ -9,7 +9,8 @@ running inside the cached ``imm_gym/sim/kernels.py`` and ``imm_gym/sim/solo.py``
 
 :func:`refresh` (run when this module is imported: ``imm_gym`` imports it first) hashes the
 source of every module of the package that imports numba and of the package modules those import
-(at the top of the file), and compares the digest with the one recorded beside the caches when
+(``import imm_gym.a``, ``from imm_gym.a import b``, ``from imm_gym import a``, at the top of the
+file or indented), and compares the digest with the one recorded beside the caches when
 they were last refreshed. If the two differ, every numba cache file of the package (``*.nbi``,
 ``*.nbc`` under its ``__pycache__`` directories) is deleted: numba compiles again at the first call
 (``python -m imm_gym.precompile`` does it in parallel). With ``NUMBA_CACHE_DIR`` set numba keeps
@@ -33,9 +34,15 @@ DIGEST_FILE = Path("__pycache__") / "numba_sources.sha256"
 CACHE_SUFFIXES = (".nbi", ".nbc")
 
 
-#: a line importing numba; a line importing from a package module (its name)
-_NUMBA = re.compile(rb"^(?:import numba|from numba[. ])", re.MULTILINE)
-_PACKAGE_IMPORT = re.compile(rb"^(?:from|import) (imm_gym(?:\.\w+)+)", re.MULTILINE)
+#: a line importing numba; a line importing a package module (its name); a line importing
+#: from the package or a package module (its name and the names it imports), indented or not
+_NUMBA = re.compile(rb"^[ \t]*(?:import numba|from numba[. ])", re.MULTILINE)
+_PACKAGE_IMPORT = re.compile(rb"^[ \t]*import (imm_gym(?:\.\w+)+)", re.MULTILINE)
+_PACKAGE_FROM = re.compile(
+    rb"^[ \t]*from (imm_gym(?:\.\w+)*) import[ \t]*(\([^)]*\)|(?:[^\n#;\\]|\\\n)*)",
+    re.MULTILINE,
+)
+_COMMENT = re.compile(rb"#[^\n]*")
 
 
 def _module_file(name: str, root: Path) -> Path | None:
@@ -47,6 +54,21 @@ def _module_file(name: str, root: Path) -> Path | None:
     return None
 
 
+def _imported_modules(source: bytes) -> Iterator[str]:
+    """The names of the package modules ``source`` may import: ``import imm_gym.a``, ``from
+    imm_gym.a import b`` (``imm_gym.a`` and ``imm_gym.a.b``, a module or a name with no file of
+    its own) and ``from imm_gym import a`` (``imm_gym`` and ``imm_gym.a``), indented or not, the
+    names in parentheses or over continued lines too."""
+    for name in _PACKAGE_IMPORT.findall(source):
+        yield name.decode()
+    for module, names in _PACKAGE_FROM.findall(source):
+        yield module.decode()
+        listed = _COMMENT.sub(b"", names).replace(b"\\\n", b" ").decode()
+        for entry in listed.strip("()").split(","):
+            if entry.split():
+                yield f"{module.decode()}.{entry.split()[0]}"
+
+
 def compiled_sources(root: Path = PACKAGE) -> list[Path]:
     """The modules under ``root`` that import numba and the package modules they import."""
     sources: set[Path] = set()
@@ -54,8 +76,8 @@ def compiled_sources(root: Path = PACKAGE) -> list[Path]:
         source = path.read_bytes()
         if _NUMBA.search(source):
             sources.add(path)
-            for name in _PACKAGE_IMPORT.findall(source):
-                if (f := _module_file(name.decode(), root)) is not None:
+            for name in _imported_modules(source):
+                if (f := _module_file(name, root)) is not None:
                     sources.add(f)
     return sorted(sources)
 

@@ -55,6 +55,35 @@ def test_the_sources_are_the_numba_modules_and_what_they_import(package: Path) -
     assert names == ["constants.py", "kernels.py", "sub/__init__.py", "sub/body.py"]
 
 
+def test_every_import_form_of_a_package_module_is_followed(package: Path) -> None:
+    """A module imported from the package (``from imm_gym import a``), a submodule imported from
+    a subpackage (``from imm_gym.sub import b``: ``sub/b.py``, not only ``sub/__init__.py``), an
+    indented import and names in parentheses or over continued lines are compiled sources."""
+    (package / "kernels.py").write_text(
+        "import numba\n"
+        "from imm_gym import constants\n"
+        "from imm_gym.sub import more as m, body  # a comment\n"
+        "from imm_gym.deep import (\n    first,  # a comment\n    second,\n)\n"
+        "from imm_gym.deep import LIMIT, \\\n    third\n"
+        "def late():\n    from imm_gym.lazy import value\n"
+    )
+    for name in ("sub/more.py", "deep/__init__.py", "deep/first.py", "deep/second.py",
+                 "deep/third.py", "lazy.py", "unused.py"):
+        (package / name).parent.mkdir(exist_ok=True)
+        (package / name).write_text("VALUE = 1.0\n")
+    names = [p.relative_to(package).as_posix() for p in compiled_sources(package)]
+    assert names == [
+        "__init__.py", "constants.py", "deep/__init__.py", "deep/first.py", "deep/second.py",
+        "deep/third.py", "kernels.py", "lazy.py", "sub/__init__.py", "sub/body.py", "sub/more.py",
+    ]
+    assert refresh(package)
+    caches = _caches(package)
+    assert not refresh(package)
+    (package / "sub" / "more.py").write_text("VALUE = 2.0\n")
+    assert refresh(package)
+    assert not any(p.exists() for p in caches)
+
+
 def test_caches_are_dropped_when_a_source_changes_and_kept_otherwise(package: Path) -> None:
     caches = _caches(package)
     assert refresh(package)  # no digest recorded yet: nothing known about these caches
