@@ -71,7 +71,16 @@ def draw_episodes(
     """One run per pair of generators: the truth of ``source``, the measurements of ``sensor``,
     and the filter start from the first measurement and the true initial velocity (SPEC §6);
     with an active ``variation``, run by run at its own conditions (:func:`_draw_varied`).
-    ``bank``: the tracker's models, which a family with ``designed_share > 0`` needs."""
+    ``bank``: the tracker's models, which a family with ``designed_share > 0`` needs.
+
+    Raises:
+        ConfigError: ``scenario_rngs`` and ``noise_rngs`` differ in length.
+    """
+    if len(scenario_rngs) != len(noise_rngs):
+        raise ConfigError(
+            "draw_episodes needs one noise generator per scenario generator (one pair per run), "
+            f"got {len(scenario_rngs)} scenario_rngs and {len(noise_rngs)} noise_rngs"
+        )
     if variation is not None and variation.active:
         _check_varied_source(variation, source)
         return _draw_varied(

@@ -109,3 +109,13 @@ def test_varied_period_or_speed_of_a_fixed_scenario_is_refused(
     scen, noise = streams(0)
     with pytest.raises(ConfigError, match=f"{field} needs scenario 'random'"):
         draw_episodes(paper_scenario(), Sonar(), [scen], [noise], variation=variation)
+
+
+@pytest.mark.parametrize("variation", [None, Variation(sigma_r=(10.0, 100.0))])
+def test_generator_lists_of_different_lengths_are_refused(variation: Variation | None) -> None:
+    """Three scenario generators and two noise generators: refused up front, both counts named
+    (the varied path returned three truths and two measurement runs)."""
+    scenario = [streams(s)[0] for s in range(3)]
+    noise = [streams(s)[1] for s in range(2)]
+    with pytest.raises(ConfigError, match="3 scenario_rngs and 2 noise_rngs"):
+        draw_episodes(RandomFamily(), Sonar(), scenario, noise, variation=variation)
