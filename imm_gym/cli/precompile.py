@@ -2,9 +2,9 @@
 (``python -m imm_gym.precompile``).
 
 The kernels compile on first use and are cached next to their source (``__pycache__``): the first
-``IMM.step`` or env of one tracker and the first of N trackers each wait about two minutes on a
-laptop core, one after the other. This compiles both at once, one process per core, so a fresh
-install (or a CI run) pays the compile once, in parallel::
+``IMM.step`` or env of one tracker and the first of N trackers each wait about two and a half
+minutes on a laptop core, one after the other. This compiles both at once, one process per core,
+so a fresh install (or a CI run) pays the compile once, in parallel::
 
     python -m imm_gym.precompile            # as many processes as cores
     python -m imm_gym.precompile --jobs 1   # one after the other
@@ -74,8 +74,8 @@ def single() -> None:
 
 
 #: The entry points, by name: each compiles (or loads) its kernels and what they call. The two
-#: IMM cycles are the long compiles (about two minutes each); each job builds one, then the env
-#: step that calls it (seconds, the cycle then loads from the cache).
+#: IMM cycles are the long compiles (about two and a half minutes each); each job builds one, then
+#: the env step that calls it (seconds, the cycle then loads from the cache).
 JOBS: dict[str, Callable[[], None]] = {"batch": batch, "single": single}
 
 
@@ -112,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--only",
         choices=list(JOBS),
         action="append",
-        help="compile this entry point only (repeatable; default: all)",
+        help="compile this entry point only (repeatable, a repeat runs once; default: all)",
     )
     return p
 
@@ -122,7 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.jobs < 1:
         parser.error(f"--jobs must be at least 1, got {args.jobs}")
-    names = args.only or list(JOBS)
+    names = list(dict.fromkeys(args.only)) if args.only else list(JOBS)
     start = time.perf_counter()
 
     def report(name: str, seconds: float) -> None:

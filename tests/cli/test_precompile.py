@@ -68,3 +68,15 @@ def test_jobs_below_one_is_refused_naming_the_flag(capsys: pytest.CaptureFixture
     with pytest.raises(SystemExit):
         main(["--jobs", "0"])
     assert "--jobs must be at least 1, got 0" in capsys.readouterr().err
+
+
+def test_a_repeated_only_runs_its_entry_point_once(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    calls: list[str] = []
+    monkeypatch.setitem(JOBS, "single", lambda: calls.append("single"))
+    monkeypatch.setitem(JOBS, "batch", lambda: calls.append("batch"))
+    argv = ["--jobs", "1", "--only", "single", "--only", "batch", "--only", "single"]
+    assert main(argv) == 0
+    assert calls == ["single", "batch"]
+    assert capsys.readouterr().out.splitlines()[-1].startswith("compiled single, batch in ")
