@@ -492,6 +492,11 @@ def true_model_index(truth: Truth, models: Sequence[MotionModel] | HeteroBank) -
     acceleration records a turn rate too), else the turn's CT model. For a heterogeneous bank
     (:class:`~imm_gym.tracking.hetero.HeteroBank`): straight -> NCV, turn -> CT (turn rate
     estimated), acceleration -> CTRA.
+
+    Twins (two models of one kind that differ in their noise only, such as a quiet and a loud
+    CV model, or two CT models of one turn rate) make the true model ambiguous: the first
+    listed is taken, so the index, and the critic's one-hot of it, depends on how the bank lists
+    the twins, also with ``model_order="canonical"``.
     """
     omega, accel = truth.turn_rate, truth.accel
     starts, lengths = _runs(omega, accel)  # a segment's motion holds for many steps
