@@ -84,22 +84,29 @@ class PriorRuns:
         squared_error: ``(P, R, K)`` squared position errors.
         mode_probs: ``(P, R, K, M)``.
         true_model: ``(R, K)`` the true model of each step.
-        diverged: ``(P, R)`` the runs whose tracker diverged under each prior.
+        live: ``(P, R, K)`` the steps recorded from the tracker itself (False from the step a
+            run's tracker diverged at, as :attr:`~imm_gym.evaluation.rollout.Rollout.live`).
     """
 
     squared_error: Array
     mode_probs: Array
     true_model: NDArray[np.int64]
-    diverged: NDArray[np.bool_]
+    live: NDArray[np.bool_]
 
-    def scores(self, prior: int) -> tuple[float, float, float]:
+    @property
+    def diverged(self) -> NDArray[np.bool_]:
+        """``(P, R)`` the runs whose tracker diverged under each prior."""
+        return ~self.live[..., -1]
+
+    def scores(self, prior: int) -> tuple[float, float | None, float | None]:
         """Prior ``prior``'s position ARMSE, mode accuracy and mode-probability total variation
-        per step (:mod:`imm_gym.evaluation.metrics`)."""
+        per step over the live steps (:mod:`imm_gym.evaluation.metrics`; None where nothing
+        counts)."""
         probs = self.mode_probs[prior]
         return (
             armse_from_squared(self.squared_error[prior]),
             mode_accuracy(probs, self.true_model),
-            mode_prob_tv(probs),
+            mode_prob_tv(probs, self.live[prior]),
         )
 
 
@@ -125,6 +132,7 @@ def run_priors(
     held = core.config.divergence_error**2
     squared_error = np.empty((n_priors, runs, K))
     probs = np.empty((n_priors, runs, K, M))
+    live = np.empty((n_priors, runs, K), dtype=bool)
     alive = np.ones(N, dtype=bool)
     info = None
     for k in range(K):
@@ -137,9 +145,10 @@ def run_priors(
         result = core.step(np.clip(action, -1.0, 1.0).reshape(N, M * M), active=alive)
         info = result.info
         alive &= ~result.terminated
+        live[:, :, k] = alive.reshape(n_priors, runs)
         position = info["estimate"][:, :2].reshape(n_priors, runs, 2)
         error = np.sum((position - truth[:, k]) ** 2, axis=-1)
         squared_error[:, :, k] = np.where(alive.reshape(n_priors, runs), error, held)
         live_probs = np.where(alive[:, None], info["mode_probs"], 1.0 / M)
         probs[:, :, k] = live_probs.reshape(n_priors, runs, M)
-    return PriorRuns(squared_error, probs, true_model, ~alive.reshape(n_priors, runs))
+    return PriorRuns(squared_error, probs, true_model, live)

@@ -88,8 +88,13 @@ def test_a_run_that_diverges_is_scored_as_the_evaluation_scores_it() -> None:
     policy = FixedTPM(3, stays[0])
     run = rollout(policy, evaluation_config(EnvConfig.build(over), policy.env_overrides), 8, 3)
     np.testing.assert_array_equal(result.diverged[0], run.diverged)
+    np.testing.assert_array_equal(result.live[0], run.live)
     np.testing.assert_allclose(result.squared_error[0], run.squared_position_error, rtol=1e-9)
     np.testing.assert_allclose(result.mode_probs[0], run.mode_probs, rtol=1e-9, atol=1e-12)
+    # the held steps' uniform probabilities do not count as an IMM that does not move
+    tv = result.scores(0)[2]
+    np.testing.assert_allclose(tv, mode_prob_tv(run.mode_probs, run.live), rtol=1e-9)
+    assert tv > mode_prob_tv(run.mode_probs)
 
 
 def test_runs_go_on_held_once_every_tracker_has_diverged() -> None:
