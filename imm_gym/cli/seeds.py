@@ -32,8 +32,9 @@ from imm_gym.evaluation.metrics import (
 QUANTITIES = ("armse_pos", "mode_accuracy", "relative_vs_reference")
 
 
-def _per_seed(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, list[float]]:
-    """Each quantity of :data:`QUANTITIES` for every seed of one scenario's result.
+def _per_seed(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, list[float | None]]:
+    """Each quantity of :data:`QUANTITIES` for every seed of one scenario's result (a mode
+    accuracy None where no step's true model is in the bank).
 
     Raises:
         ValueError: a seed without a paired difference against the reference (the reference
@@ -41,10 +42,11 @@ def _per_seed(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, list
     """
     rows = result["policies"]
     paired = result["paired"]
-    values: dict[str, list[float]] = {q: [] for q in QUANTITIES}
+    values: dict[str, list[float | None]] = {q: [] for q in QUANTITIES}
     for name in seeds:
         values["armse_pos"].append(float(rows[name]["armse_pos"]))
-        values["mode_accuracy"].append(float(rows[name]["mode_accuracy"]))
+        accuracy = rows[name]["mode_accuracy"]
+        values["mode_accuracy"].append(None if accuracy is None else float(accuracy))
         d = paired["differences"].get(name)
         if d is None:
             raise ValueError(
@@ -57,11 +59,14 @@ def _per_seed(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, list
 
 def across_seeds(result: Mapping[str, Any], seeds: Sequence[str]) -> dict[str, Any]:
     """One scenario: per quantity the seeds' values and their IQM with its stratified bootstrap
-    CI (``{"per_seed": [...], "iqm": ..., "low": ..., "high": ...}``), the reference's name and
-    the seeds."""
+    CI (``{"per_seed": [...], "iqm": ..., "low": ..., "high": ...}``; the three None where a
+    seed has no value), the reference's name and the seeds."""
     out: dict[str, Any] = {"seeds": list(seeds), "reference": result["paired"]["reference"]}
     for key, values in _per_seed(result, seeds).items():
-        out[key] = {"per_seed": values, **stratified_bootstrap_iqm(np.asarray(values))}
+        if any(v is None for v in values):
+            out[key] = {"per_seed": values, "iqm": None, "low": None, "high": None}
+        else:
+            out[key] = {"per_seed": values, **stratified_bootstrap_iqm(np.asarray(values))}
     return out
 
 
@@ -118,7 +123,8 @@ def render_seeds(summary: Mapping[str, Any], scenario: str = "") -> None:
         table.add_row(
             escape(name or "—"),
             f"{a['iqm']:.2f} [{a['low']:.2f}, {a['high']:.2f}]",
-            f"{100 * m['iqm']:.1f}% [{100 * m['low']:.1f}, {100 * m['high']:.1f}]",
+            "—" if m["iqm"] is None
+            else f"{100 * m['iqm']:.1f}% [{100 * m['low']:.1f}, {100 * m['high']:.1f}]",
             f"{100 * r['iqm']:+.2f}% [{100 * r['low']:+.2f}, {100 * r['high']:+.2f}] "
             f"({escape(s['reference'])})",
         )

@@ -107,7 +107,8 @@ def tradeoff_figure(
     """Position ARMSE against mode accuracy: the fixed TPMs of a stay grid as one curve, every
     other policy as a point named in the legend (with its mode-probability total variation per
     step; a legend, not labels beside the points, which overlap where policies are close), all
-    on the same runs.
+    on the same runs. A policy or stay whose mode accuracy is None (no step's true model in the
+    bank) has no point; a total variation None (no two live steps in a row) reads "TV —".
 
     Args:
         policies: each policy's :func:`~imm_gym.evaluation.rollout.score`.
@@ -116,7 +117,7 @@ def tradeoff_figure(
     """
     fig = Figure(figsize=(8, 5.5))
     ax = fig.subplots()
-    stays = sorted(fixed)
+    stays = sorted(s for s in fixed if fixed[s]["mode_accuracy"] is not None)
     acc = [100.0 * fixed[s]["mode_accuracy"] for s in stays]
     err = [fixed[s]["armse_pos"] for s in stays]
     ax.plot(acc, err, "o-", color="0.55", lw=1, ms=4, label="fixed TPM (stay on the diagonal)")
@@ -124,9 +125,12 @@ def tradeoff_figure(
         ax.annotate(f"{s:.3g}", (a, e), textcoords="offset points", xytext=(4, -10), fontsize=7,
                     color="0.4")
     for name, row in policies.items():
+        if row["mode_accuracy"] is None:
+            continue
         a, e = 100.0 * row["mode_accuracy"], row["armse_pos"]
         label = name if len(name) <= 28 else "…" + name[-27:]  # an agent's directory
-        ax.plot(a, e, "D", ms=6, label=f"{label} (TV {row['mode_prob_tv']:.2f})")
+        tv = "—" if row["mode_prob_tv"] is None else f"{row['mode_prob_tv']:.2f}"
+        ax.plot(a, e, "D", ms=6, label=f"{label} (TV {tv})")
     ax.set(
         xlabel="mode accuracy (%): argmax of the mode probabilities = the true model",
         ylabel="position ARMSE (m)",

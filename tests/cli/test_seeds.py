@@ -231,3 +231,15 @@ def test_one_scenarios_table_names_the_scenario(capsys) -> None:
     render_seeds(across_seeds(_result(armse), ["s0", "s1"]), "vsmm-s2")
     printed = capsys.readouterr().out
     assert "vsmm-s2" in printed and "—" not in printed
+
+
+def test_seeds_without_a_mode_accuracy_have_no_iqm_of_it(capsys) -> None:
+    """A bank without the true model has no mode accuracy (None): its IQM is None and the
+    table prints "—" (float(None) raised TypeError)."""
+    armse = {"best-fixed": 20.0, "s0": 18.0, "s1": 19.0}
+    out = across_seeds(_result(armse, accuracy=None), ["s0", "s1"])
+    assert out["mode_accuracy"] == {"per_seed": [None, None], "iqm": None, "low": None,
+                                    "high": None}
+    assert out["armse_pos"]["iqm"] == pytest.approx(18.5)
+    render_seeds(out, "paper")
+    assert _printed_row(capsys.readouterr().out, "paper")[2] == "—"

@@ -168,3 +168,23 @@ def test_the_tradeoff_figure_draws_the_fixed_curve_and_each_policys_point(
     np.testing.assert_allclose(lines[0].get_xydata(), [[70.0, 25.0], [80.0, 30.0]])
     np.testing.assert_allclose(lines[1].get_xydata(), [[85.0, 20.0]])
     np.testing.assert_allclose(lines[2].get_xydata(), [[60.0, 40.0]])
+
+
+def test_the_tradeoff_figure_leaves_out_what_has_no_mode_accuracy(tmp_path, monkeypatch) -> None:
+    """A mode accuracy None (no step's true model in the bank) has no point, a TV None reads
+    "TV —" (100 · None raised TypeError)."""
+    from imm_gym.evaluation import plots
+
+    drawn = []
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or save(fig, path))
+    fixed = {0.99: {"mode_accuracy": 0.8, "armse_pos": 30.0},
+             0.9: {"mode_accuracy": None, "armse_pos": 25.0}}
+    policies = {"a": {"mode_accuracy": None, "armse_pos": 20.0, "mode_prob_tv": 0.1},
+                "b": {"mode_accuracy": 0.6, "armse_pos": 40.0, "mode_prob_tv": None}}
+    plots.tradeoff_figure(policies, fixed, tmp_path / "t.png", META)
+    lines = drawn[0].axes[0].get_lines()
+    assert len(lines) == 2
+    np.testing.assert_allclose(lines[0].get_xydata(), [[80.0, 30.0]])
+    np.testing.assert_allclose(lines[1].get_xydata(), [[60.0, 40.0]])
+    assert lines[1].get_label() == "b (TV —)"
