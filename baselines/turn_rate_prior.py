@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from imm_gym.evaluation.rollout import evaluation_config
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.tracking.tpm import stay_tpm
-from imm_gym.validation import ConfigError
+from imm_gym.validation import ConfigError, check_range, check_sequence
 
 from .base import Baseline
 from .best_fixed import stay_grid
@@ -44,7 +44,12 @@ P_MIN = 1e-4
 class TurnRatePrior(Baseline):
     """The zero ``stay`` action on the tracker's TPM of stay ``stay``, the ``share`` of its
     jumps placed by the ``detector`` (``turn_rate``, or ``learned``: ``learned-prior``;
-    ``stay=None``: the configured initial TPM's stays)."""
+    ``stay=None``: the configured initial TPM's stays).
+
+    Raises:
+        ConfigError: ``stay`` (or one of its entries) is outside ``[1/M, 1]``: the detector's
+            rows take stays of at least ``1/M``.
+    """
 
     name = "turn-rate-prior"
 
@@ -56,6 +61,11 @@ class TurnRatePrior(Baseline):
         detector: str = "turn_rate",
     ) -> None:
         super().__init__(n_models)
+        if isinstance(stay, (list, tuple, np.ndarray)):
+            for i, s in enumerate(check_sequence("stay", stay, n_models)):
+                check_range(f"stay[{i}]", s, 1.0 / n_models, 1.0)
+        elif stay is not None:
+            check_range("stay", stay, 1.0 / n_models, 1.0)
         self.stay = stay
         self.share = share
         if detector == "learned":

@@ -14,6 +14,7 @@ from imm_gym.evaluation.metrics import tracking_errors
 from imm_gym.evaluation.rollout import evaluation_config, rollout
 from imm_gym.sim.detectors import turn_rate_belief
 from imm_gym.sim.stay_bank import detector_tpm_rows
+from imm_gym.validation import ConfigError
 
 PAPER = EnvConfig(scenario="paper")
 RATES = np.radians([0.0, 4.0, -4.0])
@@ -109,3 +110,12 @@ def test_on_the_random_family_it_is_below_a_stay_per_model(tmp_path) -> None:
     assert results["paired"]["differences"]["turn-rate-prior"]["high"] < 0.0
     rows = results["policies"]
     assert rows["turn-rate-prior"]["mode_accuracy"] > rows["tip-imm"]["mode_accuracy"]
+
+
+@pytest.mark.parametrize("stay", [0.1, 1.5, [0.9, 0.2, 0.9], [0.9, 0.9]])
+def test_a_stay_outside_one_over_m_to_one_is_refused(stay) -> None:
+    """The detector's rows take stays of at least 1/M: a lower stay ran as 1/M."""
+    with pytest.raises(ConfigError, match=r"stay(\[1\])? must (be in \[0\.333\d*, 1\.0\]|have 3)"):
+        TurnRatePrior(3, stay=stay, share=0.5)
+    assert TurnRatePrior(3, stay=1 / 3, share=0.5).stay == 1 / 3
+    assert TurnRatePrior(3, stay=[1.0, 0.5, 1 / 3], share=0.5).stay == [1.0, 0.5, 1 / 3]
