@@ -223,11 +223,19 @@ def load_policy(path: str | Path) -> LearnedPolicy | EnsemblePolicy | StaySelect
 
 def write_ensemble(directory: str | Path, members: Sequence[str | Path]) -> Path:
     """Write ``directory/ensemble.json`` naming ``members`` (their directories, relative to
-    ``directory``), after checking that they load as one ensemble. Returns the file."""
+    ``directory``), after checking that they load as one ensemble. Returns the file.
+
+    Raises:
+        ConfigError: a member is given twice (by its directory or a file in it, as
+            :func:`member_paths` reads them; checked before ``directory`` is created), or the
+            members do not load as one ensemble.
+    """
     directory = Path(directory)
+    resolved = [agent_directory(m).resolve() for m in members]
+    if len(set(resolved)) != len(resolved):
+        raise ConfigError(f"a member is given twice: {[str(m) for m in members]}")
     directory.mkdir(parents=True, exist_ok=True)
-    relative = [os.path.relpath(agent_directory(m).resolve(), directory.resolve())
-                for m in members]
+    relative = [os.path.relpath(m, directory.resolve()) for m in resolved]
     file = directory / ENSEMBLE_FILE
     data = {"format": FORMAT, "combine": COMBINE[0], "members": relative}
     EnsemblePolicy([load_agent(m) for m in members], source=str(directory))
@@ -243,8 +251,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("out", type=Path, help="the ensemble's directory")
     parser.add_argument("members", nargs="+", type=Path, help="trained agents' directories")
     args = parser.parse_args(argv)
-    if len({agent_directory(m).resolve() for m in args.members}) != len(args.members):
-        parser.error(f"a member is given twice: {[str(m) for m in args.members]}")
     try:
         file = write_ensemble(args.out, args.members)
     except (ConfigError, FileNotFoundError) as err:

@@ -12,7 +12,13 @@ from helpers import shipped_agent
 from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
-from agents.ensemble import ENSEMBLE_FILE, EnsemblePolicy, load_ensemble, load_policy
+from agents.ensemble import (
+    ENSEMBLE_FILE,
+    EnsemblePolicy,
+    load_ensemble,
+    load_policy,
+    write_ensemble,
+)
 from agents.ensemble import main as ensemble_main
 from agents.policy import LearnedPolicy, load_agent
 from imm_gym.cli.evaluate import main as evaluate_main
@@ -249,6 +255,15 @@ def test_a_member_listed_by_its_directory_and_a_file_in_it_is_listed_twice(
             "members": [str(agent), str(agent / "agent.json"), str(other)]}
     with pytest.raises(ConfigError, match=r"ensemble\.json: a member is listed twice"):
         load_ensemble(write(tmp_path / "e", data))
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as exit_:
         ensemble_main([str(tmp_path / "cli"), str(agent), str(agent / "agent.json")])
+    assert exit_.value.code == 2
     assert "a member is given twice" in capsys.readouterr().err
+
+
+def test_write_ensemble_refuses_a_member_given_twice_before_writing(members, tmp_path) -> None:
+    """The Python API wrote the file load_ensemble refuses: the CLI alone checked."""
+    agent, other = members
+    with pytest.raises(ConfigError, match="a member is given twice"):
+        write_ensemble(tmp_path / "e", [agent, agent / "agent.json", other])
+    assert not (tmp_path / "e").exists()
