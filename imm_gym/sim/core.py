@@ -179,6 +179,7 @@ class TrackingCore:
             self.batch_kernel_args,
             config.detector_share,
             config.stay_grid,
+            int(canonical_order(config.bank)[0]),
         ) if needs_bank else None
         #: the ``learned`` detector (:mod:`imm_gym.sim.learned_detector`), else None
         self.learned_detector = LearnedDetector(

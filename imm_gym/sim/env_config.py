@@ -144,8 +144,9 @@ class EnvConfig:
             agents.detector`` writes one); None (default): the shipped one. Unused by the other
             detectors (a configuration file may name it for the policies that use it).
         stay_grid: the stay bank's priors: ``"stays"`` (one stay for every row, 1/M .. 0.995)
-            or ``"pairs"`` (those and the per-model pairs, the first model's stay sticky and the
-            others' shorter-lived, :func:`imm_gym.sim.stay_bank.grid_stays`), so that the
+            or ``"pairs"`` (those and the per-model pairs, the stay of the model first in the
+            canonical order sticky — CV, whatever the listing — and the others' shorter-lived,
+            :func:`imm_gym.sim.stay_bank.grid_stays`), so that the
             ``evidence`` and ``evidence_best`` bases are a stay per row; needs one of them.
         max_factor: largest per-step factor of ``scale`` mode (> 1).
         logit_scale: logit of ``set`` mode, or change of the stay's logit in the stay modes,

@@ -24,8 +24,9 @@ The evidence serves two ends: the ``stay_bank_evidence`` observation block and t
 stay :math:`\arg\max_s E_s` (:meth:`StayBank.best`).
 
 With ``EnvConfig.stay_grid = "pairs"`` the bank also runs the per-model priors of
-:data:`PAIR_FIRST` × :data:`PAIR_OTHERS` (:func:`grid_stays`): the first model's stay — straight
-flight in the built-in banks — sticky, every other model's shorter-lived, which no single stay
+:data:`PAIR_FIRST` × :data:`PAIR_OTHERS` (:func:`grid_stays`): the stay of the model first in the
+canonical order — straight flight (CV, else CA), whatever the listing — sticky, every other
+model's shorter-lived, which no single stay
 expresses (the ``best-fixed-rows`` baseline's family). The stays are then per row,
 :math:`s_{k,i}`, and the centre and the best are per row too:
 :math:`\sigma(\sum_k w_k \operatorname{logit} s_{k,i})` and :math:`s_{\arg\max_k E_k, i}`.
@@ -63,23 +64,25 @@ STAY_BANK_FACTOR = 0.99
 STAY_BANK_FLOOR = 10.0
 
 
-#: ``stay_grid: "pairs"``: the first model's stays of the per-model priors the stay bank runs
+#: ``stay_grid: "pairs"``: the sticky model's stays of the per-model priors the stay bank runs
 #: beside the single stays...
 PAIR_FIRST = (0.95, 0.99, 0.999)
 #: ...and every other model's (after ``1/M``).
 PAIR_OTHERS = (0.6, 0.8, 0.9)
 
 
-def grid_stays(n_models: int, grid: str = "stays") -> Array:
+def grid_stays(n_models: int, grid: str = "stays", sticky: int = 0) -> Array:
     """``(S, M)`` each prior's stay per row: the single stays ``1/M`` and :data:`EVIDENCE_STAYS`
-    on every row, then with ``grid="pairs"`` each ``(a, b, ..., b)``, ``a`` of
-    :data:`PAIR_FIRST` and ``b`` of ``1/M`` and :data:`PAIR_OTHERS`."""
+    on every row, then with ``grid="pairs"`` each ``a`` of :data:`PAIR_FIRST` on row ``sticky``
+    and ``b`` of ``1/M`` and :data:`PAIR_OTHERS` on every other row (``(a, b, ..., b)`` for
+    ``sticky = 0``)."""
     M = n_models
     singles = np.repeat(evidence_stays(M)[:, None], M, axis=1)
     if grid == "stays":
         return singles
-    pairs = [(a,) + (b,) * (M - 1) for a in PAIR_FIRST for b in (1.0 / M, *PAIR_OTHERS)]
-    return np.concatenate([singles, np.array(pairs)])
+    pairs = np.array([[b] * M for _ in PAIR_FIRST for b in (1.0 / M, *PAIR_OTHERS)])
+    pairs[:, sticky] = np.repeat(PAIR_FIRST, 1 + len(PAIR_OTHERS))
+    return np.concatenate([singles, pairs])
 
 
 def detector_tpm_rows(stays: Array, belief: Array, share: float | Array) -> Array:
@@ -141,6 +144,9 @@ class StayBank:
             evenly spread stay TPM, so that the evidence compares the priors the ``stay``
             action moves between.
         grid: ``"stays"`` or ``"pairs"`` (:func:`grid_stays`).
+        sticky: the bank index of the model whose stay the pairs make sticky (the first in the
+            canonical order, :func:`~imm_gym.sim.model_order.canonical_order`: straight flight,
+            whatever the listing).
     """
 
     def __init__(
@@ -150,12 +156,13 @@ class StayBank:
         kernel_args: tuple | None,
         detector_share: float = 0.0,
         grid: str = "stays",
+        sticky: int = 0,
     ) -> None:
         M = imm.n_models
         self.n_envs = N = n_envs
         self.detector_share = detector_share
         #: ``(S, M)`` each prior's stay per row, the stays' logits, ``(S, M, M)`` the TPMs
-        self.stays = grid_stays(M, grid)
+        self.stays = grid_stays(M, grid, sticky)
         self.logits = np.log(self.stays) - np.log1p(-self.stays)
         self.tpms = stay_tpm_rows(self.stays, M)
         self.S = S = len(self.tpms)

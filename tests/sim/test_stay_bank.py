@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from imm_gym import EnvConfig, TrackingCore
+from imm_gym import EnvConfig, TrackingCore, paper_bank
 from imm_gym.sim.features import EVIDENCE_SCALE, EVIDENCE_STAYS
 from imm_gym.sim.imm_batch import BatchStep
 from imm_gym.sim.presets import CONTINUOUS_BANK
@@ -350,3 +350,23 @@ def test_a_diverged_stay_counts_as_the_cap_in_the_position_error() -> None:
     bank.weights = np.full((2, S), 1.0 / S)
     np.testing.assert_allclose(bank.position_error(np.zeros((2, 2)), cap=100.0),
                                [100.0 / S, 100.0], rtol=1e-12)
+
+
+def test_the_pairs_make_straight_flight_sticky_whatever_the_listing() -> None:
+    """The pairs' sticky stay goes to the model first in the canonical order (CV), not to the
+    first listed: a bank listed CT(+4), CV, CT(-4) runs the same priors on the same rows'
+    models, and with ``model_order: canonical`` tracks as the default listing (the first-listed
+    rule made CT(+4) sticky there: 16.5 m apart)."""
+    bank = paper_bank()
+    listings = (bank, (bank[1], bank[0], bank[2]))
+    cores = [TrackingCore(EnvConfig(scenario="paper", bank=b, stay_base="evidence",
+                                    stay_grid="pairs", action_mode="stay",
+                                    model_order="canonical"), 2) for b in listings]
+    first, second = (c.stay_bank.stays for c in cores)
+    np.testing.assert_array_equal(second, first[:, [1, 0, 2]])
+    assert (first[1 + len(EVIDENCE_STAYS):, 0] > 0.9).all()
+    for core in cores:
+        core.reset(np.arange(2), [3, 4])
+    for _ in range(40):
+        a, b = (core.step(np.zeros((2, core.action_dim))) for core in cores)
+        np.testing.assert_allclose(a.info["estimate"], b.info["estimate"], atol=1e-6)
