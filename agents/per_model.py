@@ -45,6 +45,8 @@ from imm_gym.validation import ConfigError
 #: Entries of the critic's ground truth that are no model's (two 4-d errors); the rest is the
 #: coming model, one-hot (:meth:`imm_gym.sim.core.TrackingCore.critic_state`).
 CRITIC_SHARED = critic_state_size(0)
+#: Prefixes of the critic's tensors in the policy's state: its MLP and its value head.
+VALUE_SIDE = ("mlp_extractor.value_net.", "value_net.")
 
 
 def frame_groups(
@@ -276,15 +278,16 @@ def refit_state(
     state: dict[str, torch.Tensor], target: dict[str, torch.Tensor]
 ) -> dict[str, torch.Tensor]:
     """``state`` (a trained PerModelPolicy's) for a network of another number of models with
-    state ``target``: every actor tensor carried over (their shapes do not depend on the number
-    of models), the value network's first layer (which reads the whole observation) kept at
-    ``target``'s, unused: the critic never acts."""
+    state ``target``: every tensor whose shape does not depend on the number of models carried
+    over (the actor's all), the value side's others kept at ``target``'s, unused: the critic
+    never acts. Those read the whole observation: the value network's first layer, or with
+    ``net_arch.vf`` empty the value head."""
     out = {}
     for name, tensor in target.items():
-        if name.startswith("mlp_extractor.value_net.0."):
-            out[name] = tensor
-        elif state[name].shape == tensor.shape:
+        if state[name].shape == tensor.shape:
             out[name] = state[name]
+        elif name.startswith(VALUE_SIDE):
+            out[name] = tensor
         else:
             raise ConfigError(f"tensor {name!r} depends on the number of models")
     return out

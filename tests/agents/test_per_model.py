@@ -102,14 +102,16 @@ def test_the_model_s_turn_rate_and_kind_say_which_model_an_entry_is() -> None:
     np.testing.assert_array_equal(core.observe()[:, 8:], np.tile(model_kinds(bank), (2, 1)))
 
 
-def spec_for(M: int, frame_stack: int = 2, critic: bool = True) -> dict:
+def spec_for(
+    M: int, frame_stack: int = 2, critic: bool = True, vf: tuple[int, ...] = (16,)
+) -> dict:
     per_model, shared = frame_layout(FEATURES_READ, M, DIM_Z)
     critic_dims = critic_state_size(M) if critic else 0
     return check_spec("test", {
         "class": "PerModelPolicy",
         "observation_size": frame_stack * (per_model.size + shared.size + critic_dims),
         "action_size": M,
-        "net_arch": {"pi": [16, 16], "vf": [16]},
+        "net_arch": {"pi": [16, 16], "vf": list(vf)},
         "activation_fn": "tanh",
         "log_std_init": -1.0,
         "ortho_init": False,
@@ -160,12 +162,15 @@ def tied_stats(M: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray
     return mean, var
 
 
-def test_every_model_duplicated_gives_every_action_twice() -> None:
+@pytest.mark.parametrize("vf", [(16,), ()])
+def test_every_model_duplicated_gives_every_action_twice(vf) -> None:
     """Mean pooling: a bank whose every model appears twice has the same context, so each copy
-    acts as the model did in the bank of three (normalizer and frame stack included)."""
+    acts as the model did in the bank of three (normalizer and frame stack included). With
+    ``net_arch.vf`` empty the value head reads the whole observation: it is not carried over
+    either (it was refused as a tensor depending on the number of models)."""
     torch.manual_seed(2)
     rng = np.random.default_rng(3)
-    spec = spec_for(3)
+    spec = spec_for(3, vf=vf)
     model = build_policy(spec, "test")
     mean, var = tied_stats(3, rng)
     agent = LearnedPolicy(model, {}, mean, var, frame_stack=2, critic_dims=critic_state_size(3),
