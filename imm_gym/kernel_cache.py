@@ -34,10 +34,10 @@ DIGEST_FILE = Path("__pycache__") / "numba_sources.sha256"
 CACHE_SUFFIXES = (".nbi", ".nbc")
 
 
-#: a line importing numba; a line importing a package module (its name); a line importing
+#: a line importing numba; a line of imports (its modules, the package's taken); a line importing
 #: from the package or a package module (its name and the names it imports), indented or not
 _NUMBA = re.compile(rb"^[ \t]*(?:import numba|from numba[. ])", re.MULTILINE)
-_PACKAGE_IMPORT = re.compile(rb"^[ \t]*import (imm_gym(?:\.\w+)+)", re.MULTILINE)
+_IMPORT = re.compile(rb"^[ \t]*import ([^\n;]*)", re.MULTILINE)
 _PACKAGE_FROM = re.compile(
     rb"^[ \t]*from (imm_gym(?:\.\w+)*) import[ \t]*(\([^)]*\)|(?:[^\n#;\\]|\\\n)*)",
     re.MULTILINE,
@@ -58,12 +58,16 @@ def _imported_modules(source: bytes) -> Iterator[str]:
     """The names of the package modules ``source`` may import: ``import imm_gym.a``, ``from
     imm_gym.a import b`` (``imm_gym.a`` and ``imm_gym.a.b``, a module or a name with no file of
     its own) and ``from imm_gym import a`` (``imm_gym`` and ``imm_gym.a``), indented or not, the
-    names in parentheses or over continued lines too."""
-    for name in _PACKAGE_IMPORT.findall(source):
-        yield name.decode()
+    names in parentheses or over continued lines too, several modules on one ``import`` line, the
+    comments dropped first (a ``)`` in one ended a parenthesised list)."""
+    source = _COMMENT.sub(b"", source)
+    for listed in _IMPORT.findall(source):
+        for entry in listed.decode().split(","):
+            if entry.split() and entry.split()[0].startswith("imm_gym."):
+                yield entry.split()[0]
     for module, names in _PACKAGE_FROM.findall(source):
         yield module.decode()
-        listed = _COMMENT.sub(b"", names).replace(b"\\\n", b" ").decode()
+        listed = names.replace(b"\\\n", b" ").decode()
         for entry in listed.strip("()").split(","):
             if entry.split():
                 yield f"{module.decode()}.{entry.split()[0]}"

@@ -58,23 +58,26 @@ def test_the_sources_are_the_numba_modules_and_what_they_import(package: Path) -
 def test_every_import_form_of_a_package_module_is_followed(package: Path) -> None:
     """A module imported from the package (``from imm_gym import a``), a submodule imported from
     a subpackage (``from imm_gym.sub import b``: ``sub/b.py``, not only ``sub/__init__.py``), an
-    indented import and names in parentheses or over continued lines are compiled sources."""
+    indented import, names in parentheses (a comment with a ``)`` among them) or over continued
+    lines and several modules on one ``import`` line are compiled sources."""
     (package / "kernels.py").write_text(
         "import numba\n"
+        "import os, imm_gym.plain as p, imm_gym.second_plain\n"
         "from imm_gym import constants\n"
         "from imm_gym.sub import more as m, body  # a comment\n"
-        "from imm_gym.deep import (\n    first,  # a comment\n    second,\n)\n"
+        "from imm_gym.deep import (\n    first,  # see f(x)\n    second,\n)\n"
         "from imm_gym.deep import LIMIT, \\\n    third\n"
         "def late():\n    from imm_gym.lazy import value\n"
     )
     for name in ("sub/more.py", "deep/__init__.py", "deep/first.py", "deep/second.py",
-                 "deep/third.py", "lazy.py", "unused.py"):
+                 "deep/third.py", "lazy.py", "unused.py", "plain.py", "second_plain.py"):
         (package / name).parent.mkdir(exist_ok=True)
         (package / name).write_text("VALUE = 1.0\n")
     names = [p.relative_to(package).as_posix() for p in compiled_sources(package)]
     assert names == [
         "__init__.py", "constants.py", "deep/__init__.py", "deep/first.py", "deep/second.py",
-        "deep/third.py", "kernels.py", "lazy.py", "sub/__init__.py", "sub/body.py", "sub/more.py",
+        "deep/third.py", "kernels.py", "lazy.py", "plain.py", "second_plain.py",
+        "sub/__init__.py", "sub/body.py", "sub/more.py",
     ]
     assert refresh(package)
     caches = _caches(package)
