@@ -172,6 +172,9 @@ class TrackingCore:
             stay_bank=needs_bank,
             mode_score=config.mode_score,
         )
+        noise = velocity_noise(np.stack(
+            [m.noise_covariance(self.n, T) for m in config.bank]
+        )) if isinstance(config.bank, tuple) else np.full(M, np.nan)
         #: the stay bank, where the configuration uses its evidence (else None)
         self.stay_bank = StayBank(
             self.imm,
@@ -179,7 +182,7 @@ class TrackingCore:
             self.batch_kernel_args,
             config.detector_share,
             config.stay_grid,
-            int(canonical_order(config.bank)[0]),
+            int(canonical_order(config.bank, noise)[0]),
         ) if needs_bank else None
         #: the ``learned`` detector (:mod:`imm_gym.sim.learned_detector`), else None
         self.learned_detector = LearnedDetector(
@@ -198,9 +201,6 @@ class TrackingCore:
         self.obs_dim = self.obs_low.size
         #: ``(N,)`` each slot's sampling period (s)
         self.sampling_period = np.full(n_envs, float(config.source.T))
-        noise = velocity_noise(np.stack(
-            [m.noise_covariance(self.n, T) for m in config.bank]
-        )) if isinstance(config.bank, tuple) else np.full(M, np.nan)
         #: ``(N, M)`` each slot's per-model RMS velocity process noise per step (m/s), from its
         #: ``Q`` (NaN for a heterogeneous bank, whose noise depends on the state)
         self.velocity_noise = np.repeat(noise[None], n_envs, axis=0)

@@ -24,6 +24,7 @@ from imm_gym.sim.stay_bank import (
 )
 from imm_gym.tracking.hetero import make_tracker
 from imm_gym.tracking.imm import IMMState
+from imm_gym.tracking.models import PAPER_Q, MotionModel
 from imm_gym.tracking.tpm import stay_tpm, stay_tpm_rows
 from imm_gym.validation import ConfigError
 
@@ -370,3 +371,16 @@ def test_the_pairs_make_straight_flight_sticky_whatever_the_listing() -> None:
     for _ in range(40):
         a, b = (core.step(np.zeros((2, core.action_dim))) for core in cores)
         np.testing.assert_allclose(a.info["estimate"], b.info["estimate"], atol=1e-6)
+
+
+def test_with_twin_cv_models_the_quieter_is_sticky_whatever_the_listing() -> None:
+    """Twins (two CV models told apart by their noise) are ordered as the policy's canonical
+    order orders them, by velocity noise: the quiet CV is sticky in either listing (without the
+    noise the first listed was)."""
+    quiet = MotionModel("cv", q=tuple(0.1 * v for v in PAPER_Q))
+    loud = MotionModel("cv", q=tuple(10.0 * v for v in PAPER_Q))
+    ct = MotionModel("ct", 4.0, tuple(0.5 * v for v in PAPER_Q))
+    for bank in ((quiet, loud, ct), (loud, quiet, ct)):
+        core = TrackingCore(EnvConfig(bank=bank, stay_base="evidence", stay_grid="pairs",
+                                      action_mode="stay", model_order="canonical"), 1)
+        assert int(np.argmax(core.stay_bank.stays[-1])) == bank.index(quiet)
