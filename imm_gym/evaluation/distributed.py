@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.actions import action_size, validate_action
-from imm_gym.sim.core import StepResult, TrackingCore
+from imm_gym.sim.core import StepResult, TrackingCore, checked_reset
 from imm_gym.sim.env_config import EnvConfig
 
 CONNECT_TIMEOUT = 5.0
@@ -279,17 +279,12 @@ class ShardedCore:
         (:meth:`TrackingCore.reset`).
 
         Raises:
-            ValueError: not one seed per slot in ``indices`` (as :meth:`TrackingCore.reset`).
-            IndexError: a slot outside ``[0, n_envs - 1]``.
+            ConfigError, ValueError, IndexError: as :meth:`TrackingCore.reset`
+                (:func:`~imm_gym.sim.core.checked_reset`), before any shard resets.
         """
-        indices = np.asarray(indices, dtype=np.int64)
+        indices, initial_tpms = checked_reset(indices, seeds, initial_tpms, self.n_envs, self.M)
         if indices.size == 0:
             return
-        if len(seeds) != indices.size:
-            raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
-        outside = indices[(indices < 0) | (indices >= self.n_envs)]
-        if outside.size:
-            raise IndexError(f"slots must be in [0, {self.n_envs - 1}], got {outside.tolist()}")
         calls, shards = [], []
         for c, (a, b) in enumerate(zip(self.bounds[:-1], self.bounds[1:], strict=True)):
             mine = (indices >= a) & (indices < b)

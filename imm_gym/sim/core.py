@@ -116,6 +116,44 @@ class StepResult:
     info: dict[str, Any]
 
 
+def checked_reset(
+    indices: NDArray[np.int64],
+    seeds: list[int | None],
+    initial_tpms: Array | None,
+    n_envs: int,
+    M: int,
+) -> tuple[NDArray[np.int64], Array | None]:
+    """A reset's slots as an integer array and its ``initial_tpms`` validated, for a core of
+    ``n_envs`` slots and ``M`` models (:meth:`TrackingCore.reset`, and the sharded core's before
+    any shard resets).
+
+    Raises:
+        ConfigError: ``initial_tpms`` not valid TPMs of shape ``(len(indices), M, M)``.
+        ValueError: not one seed per slot, or a slot listed twice.
+        IndexError: a slot outside ``[0, n_envs - 1]``.
+    """
+    indices = np.asarray(indices, dtype=np.int64)
+    if initial_tpms is not None:
+        initial_tpms = validate_tpm(initial_tpms, M, "initial_tpms")
+        if initial_tpms.shape != (indices.size, M, M):
+            raise ConfigError(
+                f"initial_tpms must have shape ({indices.size}, {M}, {M}) (a TPM per slot "
+                f"reset), got {initial_tpms.shape}"
+            )
+    if indices.size == 0:
+        return indices, initial_tpms
+    if len(seeds) != indices.size:
+        raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
+    outside = indices[(indices < 0) | (indices >= n_envs)]
+    if outside.size:
+        raise IndexError(f"slots must be in [0, {n_envs - 1}], got {outside.tolist()}")
+    if np.unique(indices).size != indices.size:
+        listed = np.unique(indices, return_counts=True)
+        twice = listed[0][listed[1] > 1].tolist()
+        raise ValueError(f"slots {twice} listed more than once in one reset: one seed each")
+    return indices, initial_tpms
+
+
 class TrackingCore:
     """N TPM-adaptation episodes: truth, sonar, IMM bank A (adapted TPM), optional bank B (fixed
     TPM, entropy fusion with feedback), optional shadow IMM (fixed TPM) for the reward, optional
@@ -300,27 +338,12 @@ class TrackingCore:
         TPMs than the configuration's (bank B keeps them): the same targets and noise from
         several starting TPMs in one batch (the best fixed TPM's search). A slot outside
         ``[0, n_envs - 1]`` (a negative one too) raises ``IndexError``, a slot listed twice or a
-        seed count other than the slots' ``ValueError``, before any slot changes.
+        seed count other than the slots' ``ValueError``, before any slot changes
+        (:func:`checked_reset`).
         """
-        indices = np.asarray(indices, dtype=np.int64)
-        if initial_tpms is not None:
-            initial_tpms = validate_tpm(initial_tpms, self.M, "initial_tpms")
-            if initial_tpms.shape != (indices.size, self.M, self.M):
-                raise ConfigError(
-                    f"initial_tpms must have shape ({indices.size}, {self.M}, {self.M}) (a TPM "
-                    f"per slot reset), got {initial_tpms.shape}"
-                )
+        indices, initial_tpms = checked_reset(indices, seeds, initial_tpms, self.n_envs, self.M)
         if indices.size == 0:
             return
-        if len(seeds) != indices.size:
-            raise ValueError(f"{len(seeds)} seeds for {indices.size} slots")
-        outside = indices[(indices < 0) | (indices >= self.n_envs)]
-        if outside.size:
-            raise IndexError(f"slots must be in [0, {self.n_envs - 1}], got {outside.tolist()}")
-        if np.unique(indices).size != indices.size:
-            listed = np.unique(indices, return_counts=True)
-            twice = listed[0][listed[1] > 1].tolist()
-            raise ValueError(f"slots {twice} listed more than once in one reset: one seed each")
         # slots given the same seed draw the same episode: drawn once (row `rows[p]` of the
         # batch is position p's), the twins' streams cloned after the draws
         twin = _first_of_each_seed(seeds)

@@ -445,13 +445,15 @@ def test_a_shard_that_dies_mid_run_is_named_with_its_runs(cluster):
 
 
 def test_sharded_core_refuses_what_the_core_refuses(cluster):
-    """Surplus seeds, action rows or mask entries, and a slot outside the core, are refused as
-    the single-process core refuses them (the shards were sent their chunks' rows and the rest
-    was dropped), before any shard is asked: both cores step on alike afterwards."""
+    """Surplus seeds, action rows or mask entries, a slot listed twice or outside the core and
+    initial TPMs of another count are refused as the single-process core refuses them (the
+    shards were sent their chunks' rows and the rest was dropped, or shard 0 reset before shard 1
+    refused), before any shard is asked: both cores step on alike afterwards."""
     from imm_gym.evaluation.distributed import ShardPool
     from imm_gym.sim.actions import ActionError
     from imm_gym.sim.core import TrackingCore
     from imm_gym.sim.env_config import EnvConfig
+    from imm_gym.validation import ConfigError
 
     config = EnvConfig()
     pool = ShardPool(2)
@@ -460,6 +462,11 @@ def test_sharded_core_refuses_what_the_core_refuses(cluster):
         dim = local.action_dim
         refused = [
             (lambda c: c.reset(np.arange(3), [1, 2, 3, 4]), ValueError, "4 seeds for 3 slots"),
+            # a slot listed twice: shard 0's slot 0 reset before shard 1 refused its own twice
+            (lambda c: c.reset(np.array([0, 2, 2]), [5, 6, 7]), ValueError,
+             r"slots \[2\] listed more than once"),
+            (lambda c: c.reset(np.arange(3), [5, 6, 7], np.full((2, 3, 3), 1 / 3)), ConfigError,
+             r"initial_tpms must have shape \(3, 3, 3\)"),
             (lambda c: c.step(np.zeros((4, dim))), ActionError,
              rf"action must have shape \(3, {dim}\) .*got \(4, {dim}\)"),
             (lambda c: c.step(np.zeros((3, dim)), np.ones(4, dtype=bool)), ValueError,
