@@ -228,7 +228,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                 (scores[(detector, s, v)], s, v) for s in STAYS for v in SHARES
             )
             cells = table.setdefault(detector, ["—"] * len(configs))
-            cells[column] = f"{armse:.2f} / {100 * acc:.0f} % ({s:.3g}, {v:g})"
+            accuracy = "—" if acc is None else f"{100 * acc:.0f} %"  # None: nothing to score
+            cells[column] = f"{armse:.2f} / {accuracy} ({s:.3g}, {v:g})"
     print("| detector | " + " | ".join(configs) + " |")
     print("|---|" + "---|" * len(configs))
     for detector, cells in table.items():

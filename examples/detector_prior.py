@@ -78,7 +78,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         scores = detector_runs(overrides, shares, args.runs, args.seed)
         for v in shares:
             row = [scores[(s, v)] for s in STAYS]
-            cells = [f"{e:.2f} / {100 * a:.0f} % / {tv:.2f}" for e, a, tv in row]
+            cells = [
+                f"{e:.2f} / " + ("—" if a is None else f"{100 * a:.0f} %") + " / "
+                + ("—" if tv is None else f"{tv:.2f}")  # None: nothing to score (all lost)
+                for e, a, tv in row
+            ]
             best = min(range(len(STAYS)), key=lambda i: row[i][0])
             print(f"| {name} | {v:g} | " + " | ".join(cells) + f" | {row[best][0]:.2f} "
                   f"(stay {STAYS[best]:.3g}) |", flush=True)

@@ -339,9 +339,12 @@ def score(selector: StaySelector, configs: Mapping[str, Mapping[str, Any]], runs
         d = paired_bootstrap(err["selector"], err["best-fixed"])
         acc = [mode_accuracy(rollouts[k].mode_probs, rollouts[k].true_model)
                for k in ("selector", "best-fixed")]
-        tv = mode_prob_tv(rollouts["selector"].mode_probs)
+        tv = mode_prob_tv(rollouts["selector"].mode_probs, rollouts["selector"].live)
+        # None: nothing to score (every run lost at once)
+        accuracy = " / ".join("—" if a is None else f"{a:.1%}" for a in acc)
+        tv_cell = "—" if tv is None else f"{tv:.3f}"
         print(f"| {name} | {armse} | {d['diff']:+.2f} [{d['low']:+.2f}, {d['high']:+.2f}] "
-              f"| {acc[0]:.1%} / {acc[1]:.1%} | {tv:.3f} |", flush=True)
+              f"| {accuracy} | {tv_cell} |", flush=True)
 
 
 def train(files: Sequence[Mapping[str, Any]], args: argparse.Namespace,
