@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from imm_gym.scenarios.segments import TurnDesign
 from imm_gym.sim.model_order import canonical_order
-from imm_gym.tracking.initiation import MAX_VELOCITY_STD
+from imm_gym.tracking.initiation import MAX_VELOCITY_STD, MIN_VELOCITY_STD
 from imm_gym.tracking.models import MotionModel, bank_dim, velocity_noise
 from imm_gym.validation import ConfigError, check_range, check_sequence, store
 
@@ -61,7 +61,7 @@ LIMITS: dict[str, tuple[float, float]] = {
     "speed": (0.0, math.inf),
     "q_scale": (0.0, math.inf),
     "q_maneuver": (0.0, math.inf),
-    "velocity_std": (0.0, MAX_VELOCITY_STD),
+    "velocity_std": (MIN_VELOCITY_STD, MAX_VELOCITY_STD),
 }
 #: The conditions that are not the sensor's fields.
 NOT_SENSOR = ("T", "speed", "q_scale", "q_maneuver", "velocity_std")

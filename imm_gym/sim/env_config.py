@@ -26,7 +26,7 @@ from imm_gym.sim.model_order import MODEL_ORDERS
 from imm_gym.sim.rewards import MODE_SCORES, REWARD_TERMS
 from imm_gym.tracking.filters import FILTERS
 from imm_gym.tracking.hetero import HeteroBank
-from imm_gym.tracking.initiation import MAX_VELOCITY_STD
+from imm_gym.tracking.initiation import MAX_VELOCITY_STD, MIN_VELOCITY_STD
 from imm_gym.tracking.models import MotionModel, paper_bank
 from imm_gym.tracking.sensors import Sonar
 from imm_gym.tracking.tpm import MAX_T_OVER_SOJOURN, stay_tpm, tpm_from_sojourn
@@ -191,7 +191,9 @@ class EnvConfig:
             however its configuration lists the models. ``info`` keeps the bank's order.
         loglik_clip: per-model log-likelihoods relative to the best model are clipped to
             ``[-loglik_clip, 0]`` and divided by it.
-        velocity_std: standard deviation of the initial velocity (m/s), SPEC §6.
+        velocity_std: standard deviation of the initial velocity (m/s), SPEC §6, in
+            ``[MIN_VELOCITY_STD, MAX_VELOCITY_STD]`` (about 1.5e-154 .. 1e6,
+            :mod:`imm_gym.tracking.initiation`).
         divergence_error: position error (m) that ends an episode as diverged.
         divergence_cov: trace of the position covariance (m²) that ends an episode as diverged.
         engine: how the banks run (:mod:`imm_gym.sim.engines`): ``"compiled"`` (one numba call
@@ -385,7 +387,7 @@ class EnvConfig:
         for name in ("loglik_clip", "divergence_error", "divergence_cov"):
             store(self, name, check_range(name, getattr(self, name), 0.0, lo_open=True))
         store(self, "velocity_std", check_range(
-            "velocity_std", self.velocity_std, 0.0, MAX_VELOCITY_STD, lo_open=True))
+            "velocity_std", self.velocity_std, MIN_VELOCITY_STD, MAX_VELOCITY_STD))
         check_choice("engine", self.engine, ENGINES)
         check_variation(self.vary, self.scenario, self.bank, self.sensor)
         if self.vary.active and self.engine == "numpy":

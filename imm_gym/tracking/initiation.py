@@ -12,8 +12,9 @@ from imm_gym.validation import ConfigError, check_range
 
 Array = NDArray[np.float64]
 
-_SMALLEST_STD = math.sqrt(sys.float_info.min)
-"""The smallest standard deviation whose variance is a normal float64."""
+MIN_VELOCITY_STD = math.sqrt(sys.float_info.min)
+"""The smallest prior standard deviation (m/s) of a first velocity estimate: the smallest whose
+variance is a normal float64."""
 
 MAX_VELOCITY_STD = 1e6
 """The largest prior standard deviation (m/s) of a first velocity estimate: far beyond any
@@ -34,12 +35,12 @@ def initiate(
         z0: ``(m,)`` or ``(N, m)`` first measurements (``m`` the sensor's ``dim_z``).
         velocity: ``(2,)`` or ``(N, 2)`` velocity (m/s).
         velocity_std: standard deviation of the velocity guess (m/s), in
-            ``[sqrt(smallest normal float), MAX_VELOCITY_STD]``.
+            ``[MIN_VELOCITY_STD, MAX_VELOCITY_STD]``.
 
     Returns:
         ``x0 (N, 4)`` and ``P0 (N, 4, 4)``.
     """
-    check_range("velocity_std", velocity_std, _SMALLEST_STD, MAX_VELOCITY_STD)
+    check_range("velocity_std", velocity_std, MIN_VELOCITY_STD, MAX_VELOCITY_STD)
     z0 = np.atleast_2d(np.asarray(z0, dtype=np.float64))
     dim_z = getattr(sensor, "dim_z", z0.shape[-1])
     if z0.ndim != 2 or z0.shape[1] != dim_z:

@@ -332,8 +332,17 @@ def test_a_varied_track_start_draws_last_and_spreads_the_first_velocity_estimate
 
 
 def test_a_varied_track_start_must_be_a_positive_range() -> None:
-    with pytest.raises(ConfigError, match=r"vary.velocity_std\[0\] must be in \(0.0"):
+    with pytest.raises(ConfigError, match=r"vary.velocity_std\[0\] must be in \(1.49\d*e-154"):
         Variation(velocity_std=(0.0, 10.0))
+
+
+def test_a_track_start_whose_variance_underflows_is_refused_by_the_configuration() -> None:
+    """EnvConfig and vary take the track start's own range: a velocity_std of 1e-160 was
+    accepted and refused by the first reset."""
+    with pytest.raises(ConfigError, match=r"velocity_std must be in \[1.49\d*e-154, 1000000.0\]"):
+        EnvConfig(velocity_std=1e-160)
+    with pytest.raises(ConfigError, match=r"vary.velocity_std\[0\] must be in \(1.49\d*e-154"):
+        Variation(velocity_std=(1e-160, 10.0))
 
 
 def test_the_tracking_index_follows_each_slots_drawn_tracker() -> None:
