@@ -448,6 +448,8 @@ def save_agent(
             "epsilon": float(norm.epsilon),
         }
         (directory / "vecnormalize.json").write_text(json.dumps(stats))
+    else:  # an earlier agent's statistics in this directory would contradict the record
+        (directory / "vecnormalize.json").unlink(missing_ok=True)
     meta = {
         "algo": algo,
         "frame_stack": frame_stack,
