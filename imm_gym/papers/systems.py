@@ -132,10 +132,11 @@ def run_bank(
     )
 
 
-def score_run(result: IMMResult, batch: Batch, dim_z: int) -> dict[str, float]:
-    """Seed 002's metrics of one bank run (``repeat = 1``)."""
+def score_run(result: IMMResult, batch: Batch, dim_z: int) -> dict[str, float | None]:
+    """Seed 002's metrics of one bank run (``repeat = 1``; the NIS and NEES means and shares
+    None where nothing counts)."""
     truth = batch.truth.states[:, 1:]
-    out: dict[str, float] = trajectory_metrics(result.x, truth, batch.truth.heading[:, 1:])
+    out: dict[str, float | None] = trajectory_metrics(result.x, truth, batch.truth.heading[:, 1:])
     nis = consistency(result.nis, dim_z, mask=batch.measurements.detected[:, 1:])
     nes = consistency(nees(result.x, result.P, truth), 4)
     out.update(
