@@ -105,32 +105,21 @@ def test_an_address_where_nothing_listens_is_refused_in_seconds_without_asking_r
     assert ray_init == [] and not (tmp_path / "run").exists()
 
 
-def test_ray_address_auto_checks_the_ray_address_in_the_environment(
-    tmp_path, ray_init, capsys, monkeypatch
+@pytest.mark.parametrize("given", [["--ray-address", "auto"], []], ids=["auto", "none"])
+def test_a_dead_ray_address_in_the_environment_is_refused_in_seconds(
+    tmp_path, ray_init, capsys, monkeypatch, given
 ):
+    """``auto`` and no address join what ``RAY_ADDRESS`` names: checked first, and with no
+    address the error is that address, not "cannot start a local Ray instance"."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         address = f"127.0.0.1:{s.getsockname()[1]}"
     monkeypatch.setenv("RAY_ADDRESS", address)
     with pytest.raises(SystemExit) as exc:
-        run(tmp_path, "n_envs: 8\nn_steps: 16\nbatch_size: 64\n", "--ray-address", "auto")
+        run(tmp_path, "n_envs: 8\nn_steps: 16\nbatch_size: 64\n", *given)
     err = capsys.readouterr().err
-    assert exc.value.code == 2 and "--ray-address 'auto': cannot connect to Ray" in err
-    assert f"RAY_ADDRESS: nothing answers at {address} within 5 s" in err
-    assert ray_init == [] and not (tmp_path / "run").exists()
-
-
-def test_no_address_and_a_dead_ray_address_says_so_not_that_no_local_instance_starts(
-    tmp_path, ray_init, capsys, monkeypatch
-):
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        address = f"127.0.0.1:{s.getsockname()[1]}"
-    monkeypatch.setenv("RAY_ADDRESS", address)
-    with pytest.raises(SystemExit) as exc:
-        run(tmp_path, "n_envs: 8\nn_steps: 16\nbatch_size: 64\n")
-    err = capsys.readouterr().err
-    assert exc.value.code == 2 and "cannot connect to Ray" in err
+    prefix = "--ray-address 'auto': " if given else ""
+    assert exc.value.code == 2 and f"{prefix}cannot connect to Ray" in err
     assert f"RAY_ADDRESS: nothing answers at {address} within 5 s" in err
     assert "local Ray instance" not in err
     assert ray_init == [] and not (tmp_path / "run").exists()
