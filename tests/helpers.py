@@ -65,3 +65,31 @@ def shipped_agent() -> Path:
     from agents.ensemble import is_ensemble, member_paths
 
     return member_paths(PRETRAINED)[0] if is_ensemble(PRETRAINED) else PRETRAINED
+
+
+#: Network descriptions of every policy class and option the loader builds (gSDE, empty layer
+#: lists, the asymmetric critic, the per-model actor, each LSTM layout): what their tensors and
+#: sizes computed from the description are checked against.
+NETWORK_SPECS = [
+    {"class": "MlpPolicy", "observation_size": 7, "action_size": 3},
+    {"class": "MlpPolicy", "observation_size": 7, "action_size": 3, "net_arch": [5, 4],
+     "use_sde": True, "full_std": False, "share_features_extractor": False},
+    {"class": "MlpPolicy", "observation_size": 7, "action_size": 2,
+     "net_arch": {"pi": [], "vf": [6]}, "use_sde": True},
+    {"class": "AsymmetricMlpPolicy", "observation_size": 12, "action_size": 3,
+     "net_arch": {"pi": [5], "vf": [4, 4]}, "critic_dims": 2, "frame_stack": 3},
+    {"class": "AsymmetricMlpPolicy", "observation_size": 12, "action_size": 3,
+     "net_arch": {"pi": [], "vf": []}, "critic_dims": 2, "frame_stack": 3, "use_sde": True},
+    {"class": "PerModelPolicy", "observation_size": 2 * 16, "action_size": 3,
+     "net_arch": {"pi": [6, 5, 7], "vf": [4]}, "critic_dims": 0, "frame_stack": 2,
+     "obs_features": ["loglik", "innovation", "speed"], "dim_z": 2},
+    {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+     "lstm_hidden_size": 5, "n_lstm_layers": 3, "net_arch": [4], "shared_lstm": False,
+     "enable_critic_lstm": True},
+    {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+     "lstm_hidden_size": 5, "n_lstm_layers": 1, "shared_lstm": False,
+     "enable_critic_lstm": False},
+    {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
+     "lstm_hidden_size": 5, "n_lstm_layers": 2, "shared_lstm": True,
+     "enable_critic_lstm": False},
+]

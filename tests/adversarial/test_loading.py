@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from helpers import SMALL, shipped_agent
+from helpers import NETWORK_SPECS, SMALL, shipped_agent
 from safetensors.torch import load_file, save_file
 
 import train
@@ -455,30 +455,7 @@ def test_a_description_larger_than_its_weights_file_is_refused_before_it_is_buil
     assert str(agent) in refused_by_evaluate(agent, capsys)
 
 
-@pytest.mark.parametrize(
-    "spec",
-    [
-        {"class": "MlpPolicy", "observation_size": 7, "action_size": 3},
-        {"class": "MlpPolicy", "observation_size": 7, "action_size": 3, "net_arch": [5, 4],
-         "use_sde": True, "full_std": False},
-        {"class": "MlpPolicy", "observation_size": 7, "action_size": 2,
-         "net_arch": {"pi": [], "vf": [6]}, "use_sde": True},
-        {"class": "AsymmetricMlpPolicy", "observation_size": 12, "action_size": 3,
-         "net_arch": {"pi": [5], "vf": [4, 4]}, "critic_dims": 2, "frame_stack": 3},
-        {"class": "PerModelPolicy", "observation_size": 2 * 16, "action_size": 3,
-         "net_arch": {"pi": [6, 5], "vf": [4]}, "critic_dims": 0, "frame_stack": 2,
-         "obs_features": ["loglik", "innovation", "speed"], "dim_z": 2},
-        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
-         "lstm_hidden_size": 5, "n_lstm_layers": 3, "net_arch": [4], "shared_lstm": False,
-         "enable_critic_lstm": True},
-        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
-         "lstm_hidden_size": 5, "n_lstm_layers": 1, "shared_lstm": False,
-         "enable_critic_lstm": False},
-        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
-         "lstm_hidden_size": 5, "n_lstm_layers": 2, "shared_lstm": True,
-         "enable_critic_lstm": False},
-    ],
-)
+@pytest.mark.parametrize("spec", NETWORK_SPECS)
 def test_the_size_computed_from_a_description_is_the_built_network_s(spec) -> None:
     from agents.network import build_policy, parameter_count
     from agents.schema import check_spec

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 from declared import declare_tensor, peak_growth
-from helpers import shipped_agent
+from helpers import NETWORK_SPECS, shipped_agent
 
 from agents.network import build_policy, expected_tensors, parameter_count
 from agents.schema import check_spec
@@ -56,32 +56,7 @@ def test_a_large_network_padded_by_a_sparse_tensor_is_refused_before_it_is_built
     assert growth < ALLOWED, f"{growth / 2**20:.0f} MiB"
 
 
-@pytest.mark.parametrize(
-    "spec",
-    [
-        {"class": "MlpPolicy", "observation_size": 7, "action_size": 3},
-        {"class": "MlpPolicy", "observation_size": 7, "action_size": 3, "net_arch": [5, 4],
-         "use_sde": True, "full_std": False, "share_features_extractor": False},
-        {"class": "MlpPolicy", "observation_size": 7, "action_size": 2,
-         "net_arch": {"pi": [], "vf": [6]}, "use_sde": True},
-        {"class": "AsymmetricMlpPolicy", "observation_size": 12, "action_size": 3,
-         "net_arch": {"pi": [5], "vf": [4, 4]}, "critic_dims": 2, "frame_stack": 3},
-        {"class": "AsymmetricMlpPolicy", "observation_size": 12, "action_size": 3,
-         "net_arch": {"pi": [], "vf": []}, "critic_dims": 2, "frame_stack": 3, "use_sde": True},
-        {"class": "PerModelPolicy", "observation_size": 2 * 16, "action_size": 3,
-         "net_arch": {"pi": [6, 5, 7], "vf": [4]}, "critic_dims": 0, "frame_stack": 2,
-         "obs_features": ["loglik", "innovation", "speed"], "dim_z": 2},
-        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
-         "lstm_hidden_size": 5, "n_lstm_layers": 3, "net_arch": [4], "shared_lstm": False,
-         "enable_critic_lstm": True},
-        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
-         "lstm_hidden_size": 5, "n_lstm_layers": 1, "shared_lstm": False,
-         "enable_critic_lstm": False},
-        {"class": "MlpLstmPolicy", "observation_size": 9, "action_size": 3,
-         "lstm_hidden_size": 5, "n_lstm_layers": 2, "shared_lstm": True,
-         "enable_critic_lstm": False},
-    ],
-)
+@pytest.mark.parametrize("spec", NETWORK_SPECS)
 def test_the_tensors_computed_from_a_description_are_the_built_network_s(spec: dict) -> None:
     """What the weights file's header is compared with before the network is built is the
     state dict the network has once built: every name, dtype and shape."""
