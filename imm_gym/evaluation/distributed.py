@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.actions import action_size, validate_action
-from imm_gym.sim.core import StepResult, TrackingCore, checked_reset
+from imm_gym.sim.core import StepResult, TrackingCore, checked_active, checked_reset
 from imm_gym.sim.env_config import EnvConfig
 
 CONNECT_TIMEOUT = 5.0
@@ -324,13 +324,7 @@ class ShardedCore:
             ValueError: ``active`` not a boolean mask of shape ``(n_envs,)``.
         """
         actions = self._parts(validate_action(action, self.n_envs, self.action_dim))
-        if active is not None:
-            active = np.asarray(active)
-            if active.dtype != np.bool_ or active.shape != (self.n_envs,):
-                raise ValueError(
-                    f"active must be a boolean mask of shape ({self.n_envs},), got "
-                    f"{active.dtype} of shape {active.shape}"
-                )
+        active = checked_active(active, self.n_envs)
         actives = [None] * len(actions) if active is None else self._parts(active)
         results = self._get(
             [s.step.remote(x, m) for s, x, m in zip(self.actors, actions, actives, strict=True)],

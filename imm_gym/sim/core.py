@@ -154,6 +154,24 @@ def checked_reset(
     return indices, initial_tpms
 
 
+def checked_active(active: NDArray[np.bool_] | None, n_envs: int) -> NDArray[np.bool_] | None:
+    """A step's ``active`` as an array after checking it is a boolean mask of the ``n_envs``
+    slots (an index array would be read as a mask of other slots), None as given.
+
+    Raises:
+        ValueError: naming the shape and dtype received.
+    """
+    if active is None:
+        return None
+    active = np.asarray(active)
+    if active.dtype != np.bool_ or active.shape != (n_envs,):
+        raise ValueError(
+            f"active must be a boolean mask of shape ({n_envs},), got {active.dtype} of shape "
+            f"{active.shape}"
+        )
+    return active
+
+
 class TrackingCore:
     """N TPM-adaptation episodes: truth, sonar, IMM bank A (adapted TPM), optional bank B (fixed
     TPM, entropy fusion with feedback), optional shadow IMM (fixed TPM) for the reward, optional
@@ -547,13 +565,7 @@ class TrackingCore:
             ValueError: ``active`` not a boolean mask of shape ``(n_envs,)`` (an index array
                 would be read as a mask of other slots).
         """
-        if active is not None:
-            active = np.asarray(active)
-            if active.dtype != np.bool_ or active.shape != (self.n_envs,):
-                raise ValueError(
-                    f"active must be a boolean mask of shape ({self.n_envs},), got "
-                    f"{active.dtype} of shape {active.shape}"
-                )
+        active = checked_active(active, self.n_envs)
         all_active = active is None or bool(np.asarray(active).all())
         # np.count_nonzero, not ndarray.any: a C call, several times cheaper on small arrays
         if np.count_nonzero(self.done if active is None else self.done & active):
