@@ -469,7 +469,7 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
     from imm_gym.envs import PRESETS
     from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
-    from imm_gym.sim.features import FEATURES
+    from imm_gym.sim.features import observation_size
 
     recorded = read_json(file)
     weights = recorded.get("detector_weights")
@@ -505,9 +505,8 @@ def read_env_file(file: Path, env_id: Any) -> tuple[dict[str, Any], int, int]:
             f"{file}: detector_weights must be null (absent) unless detector is 'learned', the "
             f"one that reads it; got {weights!r} with detector {config.detector!r}"
         )
-    M, dim_z = len(config.bank), config.sensor.dim_z
-    # as imm_gym.sim.features.bounds lays it out: [mu(t), mu(t-1)], then each feature's block
-    obs_size = 2 * M + sum(FEATURES[name].size(M, dim_z) for name in config.obs_features)
+    M = len(config.bank)
+    obs_size = observation_size(config.obs_features, M, config.sensor.dim_z)
     return overrides, obs_size, action_size(config.action_mode, M)
 
 

@@ -470,13 +470,13 @@ def export_agent(
     from agents.policy import write_env_file
     from imm_gym.sim.actions import action_size
     from imm_gym.sim.env_config import EnvConfig
-    from imm_gym.sim.features import bounds
+    from imm_gym.sim.features import observation_size
 
     env_kwargs = jsonable(params.get("env_kwargs", {}))
     config = EnvConfig.build({**PRESETS[env_id], **env_kwargs})
     M = len(config.bank)
     frames = int(params.get("frame_stack", 1))
-    obs_size = int(bounds(config.obs_features, M, config.sensor.dim_z)[0].size)
+    obs_size = observation_size(config.obs_features, M, config.sensor.dim_z)
     kwargs = params.get("policy_kwargs", {})
     arch = kwargs.get("net_arch", {"pi": [64, 64], "vf": [64, 64]})
     hidden = list(arch["pi"] if isinstance(arch, dict) else arch)

@@ -314,10 +314,10 @@ def check_input_size(params: Mapping[str, Any], config: Any) -> None:
         ConfigError: naming ``frame_stack`` and the largest it may be for this observation.
     """
     from imm_gym.sim.core import critic_state_size
-    from imm_gym.sim.features import bounds
+    from imm_gym.sim.features import observation_size
 
     M = len(config.bank)
-    frame = bounds(config.obs_features, M, config.sensor.dim_z)[0].size
+    frame = observation_size(config.obs_features, M, config.sensor.dim_z)
     frame += critic_state_size(M) if params.get("critic_state") else 0
     frames = int(params.get("frame_stack", 1))
     if frames * frame > MAX_INPUT:

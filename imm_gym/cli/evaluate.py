@@ -106,7 +106,7 @@ from imm_gym.sim.config_file import (
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
-from imm_gym.sim.features import bounds
+from imm_gym.sim.features import observation_size
 from imm_gym.sim.mixture import AGENT_FIELDS
 from imm_gym.sim.model_order import for_bank, model_roles
 from imm_gym.sim.presets import BANK_PRESETS
@@ -393,7 +393,7 @@ def agent_overrides(
             f"{source} cannot be evaluated on this configuration: {err}", str(err)
         ) from None
     M = len(cfg.bank)
-    obs_size = int(bounds(cfg.obs_features, M, cfg.sensor.dim_z)[0].size)
+    obs_size = observation_size(cfg.obs_features, M, cfg.sensor.dim_z)
     if hasattr(policy, "obs_size") and obs_size != policy.obs_size:
         raise UnreadableTracker(
             f"{source} reads observations of {policy.obs_size} entries, but the evaluated "

@@ -16,7 +16,7 @@ memories (``shadow_evidence``, ``stay_evidence``) are discounted sums
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -165,6 +165,12 @@ def feature_sizes(n_models: int, dim_z: int) -> dict[str, int]:
 def shadow_features() -> tuple[str, ...]:
     """The features computed from the shadow IMM."""
     return tuple(name for name, f in FEATURES.items() if f.needs_shadow)
+
+
+def observation_size(features: Sequence[str], n_models: int, dim_z: int) -> int:
+    """Entries of the whole observation (``[mu(t), mu(t-1)]`` then the blocks), as
+    :func:`bounds` lays it out, with no array built."""
+    return 2 * n_models + sum(FEATURES[name].size(n_models, dim_z) for name in features)
 
 
 def bounds(

@@ -95,3 +95,13 @@ def test_the_heading_rate_from_or_to_rest_is_zero_whatever_the_quadrant() -> Non
     v = np.array([[-1.0, -1.0], [-3.0, -0.5], [1.0, 1.0], [-1.0, 1.0]])
     assert heading_rate(rest, v, 1.0).tolist() == [0.0] * 4
     assert np.abs(heading_rate(v, rest, 1.0)).tolist() == [0.0] * 4
+
+
+def test_the_observation_size_is_the_bounds_length_for_every_feature() -> None:
+    from imm_gym.sim.features import FEATURES, bounds, observation_size
+
+    for M, dim_z in ((2, 2), (3, 2), (5, 4)):
+        for name in FEATURES:
+            assert observation_size((name,), M, dim_z) == bounds((name,), M, dim_z)[0].size
+        every = tuple(FEATURES)
+        assert observation_size(every, M, dim_z) == bounds(every, M, dim_z)[0].size
