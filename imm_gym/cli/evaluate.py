@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from agents.policy import agent_directory
 from baselines import REGISTRY, Baseline, BuildContext
 from imm_gym.cli.provenance import versions
 from imm_gym.cli.tables import render_tables
@@ -904,14 +905,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     _check_animate(parser, args)
     if len(args.agent_seeds) == 1:
         parser.error("--agent-seeds needs two or more directories (one is a --policy)")
-    if len({Path(d).resolve() for d in args.agent_seeds}) != len(args.agent_seeds):
-        # resolved: 'dir', 'dir/' and './dir' are one seed, whose IQM would have zero-width CIs
+    # the directory the loader reads, resolved: 'dir', 'dir/', './dir' and 'dir/agent.json' are
+    # one seed, whose IQM would have zero-width CIs
+    seed_dirs = [agent_directory(d).resolve() for d in args.agent_seeds]
+    if len(set(seed_dirs)) != len(seed_dirs):
         parser.error(f"--agent-seeds given a directory twice: {args.agent_seeds}")
     # a --policy or --reference naming a seed's directory otherwise spelled is that seed
-    spelling = {Path(d).resolve(): d for d in args.agent_seeds}
-    args.policy = [spelling.get(Path(p).resolve(), p) for p in args.policy]
+    spelling = dict(zip(seed_dirs, args.agent_seeds, strict=True))
+    args.policy = [spelling.get(agent_directory(p).resolve(), p) for p in args.policy]
     if args.reference is not None:
-        args.reference = spelling.get(Path(args.reference).resolve(), args.reference)
+        args.reference = spelling.get(agent_directory(args.reference).resolve(), args.reference)
     if args.bar and args.suite is None:
         parser.error("--bar applies to --suite")
     if args.tuned and args.scenario not in SYSTEMS:

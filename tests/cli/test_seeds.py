@@ -178,6 +178,9 @@ def test_the_command_adds_the_seeds_rows_and_their_aggregate(tmp_path, capsys) -
         # one directory however spelled: three copies of one seed would give zero-width CIs
         (["--agent-seeds", "d/seed_0", "d/seed_0/", "./d/seed_0"], "a directory twice"),
         (["--agent-seeds", "d/seed_0", "d/x/../seed_0"], "a directory twice"),
+        # a file of the directory names the directory the loader reads
+        (["--agent-seeds", "d/seed_0", "d/seed_0/agent.json", "d/seed_1"], "a directory twice"),
+        (["--agent-seeds", "d/seed_0/policy.safetensors", "./d/seed_0"], "a directory twice"),
         (["--runs", "2"], "at least one --policy"),
         (["--agent-seeds", "a", "b", "--scenario", "seed002"], "--agent-seeds does not apply"),
     ],
@@ -196,6 +199,7 @@ def test_bad_seed_lists_are_refused(argv, message, capsys) -> None:
         (["--policy", "tip-imm", "--reference", "SEED0"], "is one of --agent-seeds"),
         (["--policy", "tip-imm", "--reference", "SEED0/"], "is one of --agent-seeds"),
         (["--policy", "tip-imm", "--reference", "SEED0/../seed_0"], "is one of --agent-seeds"),
+        (["--policy", "tip-imm", "--reference", "SEED0/agent.json"], "is one of --agent-seeds"),
         (["--policy", "SEED0/"], "needs a reference outside the seeds"),
     ],
 )
