@@ -18,6 +18,18 @@ import numpy as np
 from imm_gym.papers.systems import draw, run_bank, score_run, system_setup
 from imm_gym.papers.tuning import OPTIMIZERS, TunerConfig, bank_objective, tune
 from imm_gym.seeding import TRAIN_SEED_OFFSET
+from imm_gym.validation import check_range
+
+
+def decay_value(text: str) -> float:
+    """An argparse ``type``: BBSCA's decay lambda, a real number in (0, inf) as ``TunerConfig``
+    requires; anything else is a usage error (exit 2) naming the flag and the range."""
+    try:
+        return check_range("decay", float(text), 0.0, lo_open=True)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be a real number in (0.0, inf), got {text!r}"
+        ) from None
 
 
 def main() -> None:
@@ -28,7 +40,7 @@ def main() -> None:
     parser.add_argument("--particles", type=harness.at_least(2), default=10)
     parser.add_argument("--generations", type=harness.positive_int, default=30)
     parser.add_argument("--opt-seeds", type=harness.seed_int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--decay", type=float, default=4.0, help="BBSCA's r1 decay lambda")
+    parser.add_argument("--decay", type=decay_value, default=4.0, help="BBSCA's r1 decay lambda")
     parser.add_argument("--methods", nargs="+", choices=OPTIMIZERS, default=["bbsca", "sca"])
     harness.add_json(parser)
     args = parser.parse_args()
