@@ -408,9 +408,32 @@ def add_quick(parser: argparse.ArgumentParser, help: str) -> None:
     parser.add_argument("--quick", action="store_true", help=help)
 
 
+def json_file(text: str) -> str:
+    """An argparse ``type``: a file the results can be written to at the end of the run, its
+    directory existing and writable and the path not a directory; anything else is a usage error
+    (exit 2) when the arguments are parsed, not a traceback after the timings."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"must be a file to write, got the directory {text!r}")
+    folder = path.parent
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(
+            f"the directory {str(folder)!r} of {text!r} does not exist"
+        )
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(
+            f"the directory {str(folder)!r} of {text!r} is not writable"
+        )
+    return text
+
+
 def add_json(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--json", metavar="FILE", default=None, help="also write the results as JSON"
+        "--json",
+        metavar="FILE",
+        type=json_file,
+        default=None,
+        help="also write the results as JSON (FILE's directory must exist and be writable)",
     )
 
 
