@@ -30,7 +30,8 @@ root ``U sqrt(S) Uᵀ`` instead of the columns of ``U sqrt(S)``, the same mean a
 other points, so a range-bearing sensor's moments differ beyond rounding. The EKF rows differ
 from 07f550f's by rounding only (at most ~1e-13 relative).
 
-Run from the repository root (the baseline compiles on the first run, ~1 min)::
+Run from the repository root (the baseline compiles on the first run with an empty cache: a few
+minutes)::
 
     python benchmarks/bench_kernel.py
     python benchmarks/bench_kernel.py --quick --json /tmp/kernel.json
