@@ -1,9 +1,9 @@
 r"""Seed 002's and seed 003's evaluations: their banks, sensors, scenarios and metrics.
 
-* **seed 002** — the NCV/CT/CTRA IMM-EKF (:class:`~imm_gym.tracking.hetero.HeteroBank`, Table I: TPM
-0.90 /
-  0.05, ``mu_0 = (0.90, 0.08, 0.02)``) on :class:`~imm_gym.scenarios.profiles.DrivingFamily`, a
-  position+velocity sensor (``sigma_p = 0.5`` m, ``sigma_v = 0.5`` m/s), ``T = 0.1`` s. Metrics:
+* **seed 002** — the NCV/CT/CTRA IMM-EKF (:class:`~imm_gym.tracking.hetero.HeteroBank`, Table
+  I: TPM 0.90 / 0.05, ``mu_0 = (0.90, 0.08, 0.02)``) on
+  :class:`~imm_gym.scenarios.profiles.DrivingFamily`, a position+velocity sensor
+  (``sigma_p = 0.5`` m, ``sigma_v = 0.5`` m/s), ``T = 0.1`` s. Metrics:
   :func:`~imm_gym.evaluation.metrics.trajectory_metrics` (position RMSE / MAE / max / FDE, velocity
   and yaw RMSE) and NIS / NEES (dof 4) with the share inside the 95 % χ² bound and the mean.
 * **seed 003** — a CV / CA / CT(+6.75°/s, the profile's turn rate) linear bank on
