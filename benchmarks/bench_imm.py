@@ -19,7 +19,9 @@ before numpy is imported):
 
 Each configuration is warmed up first (imm_gym's numba kernel compiles on its first call), then
 timed with ``time.perf_counter`` over ``--repeats`` repeats (garbage collection off while timing,
-as ``timeit`` does). A repeat runs whole 150-step episodes, enough of them to last at least
+as ``timeit`` does), the configurations' repeats taking turns, each after an untimed warm-up of
+its own (``harness.measure_interleaved``): the speed-ups over FilterPy divide medians taken over
+the same stretch of time. A repeat runs whole 150-step episodes, enough of them to last at least
 ``MIN_REPEAT_S`` (one episode with ``--quick``). Reported figures are medians over the repeats:
 microseconds per batch step and tracker-steps per second (N / time per batch step), wall time,
 and beside it the process CPU time per batch step (of the same timed loops; on a shared machine
@@ -74,6 +76,8 @@ WARMUP_STEPS = 10
 # largest position difference imm_gym vs FilterPy over all steps: ~10x the 4.3e-3 m measured
 # (Cholesky against symmetric square roots), far below the 26 m of the least wrong setup tried
 SANITY_TOL_M = 0.05
+IMM_GYM = "imm_gym"
+FP_KEY = ("FilterPy IMMEstimator", "ukf", 1)  # the FilterPy reference among the timed cases
 
 Array = np.ndarray
 
@@ -105,23 +109,18 @@ class Result:
 # ---------------------------------------------------------------------------------------------
 
 
-def bench(
-    impl: str,
-    filt: str,
-    n: int,
-    episode: harness.Episode,
-    horizon: int,
-    repeats: int,
-    min_repeat_s: float,
-) -> Result:
-    """Warm up, size the repeats, then time ``repeats`` repeats of whole episodes."""
-    m = harness.measure(
+def case(episode: harness.Episode, horizon: int) -> tuple[Callable[[], float], harness.Block, int]:
+    """The ``(warmup, block, unit_steps)`` of :func:`harness.measure_interleaved` for episodes of
+    ``horizon`` steps."""
+    return (
         harness.episode_warmup(episode, WARMUP_STEPS),
         harness.episode_block(episode, horizon),
         horizon,
-        repeats,
-        min_repeat_s,
     )
+
+
+def result(impl: str, filt: str, n: int, m: harness.Measurement) -> Result:
+    """The :class:`Result` of a measurement of ``n`` trackers."""
     return Result(
         impl=impl,
         filter=filt,
@@ -336,9 +335,9 @@ def render(
         harness.right("speed-up vs FilterPy"),
         harness.right("vs 150k target"),
         caption=(
-            f"median of {repeats} repeats; µs per batch step = one step of all N trackers, wall "
-            "time; CPU = process CPU time; speed-up = FilterPy µs per tracker-step / this row's "
-            "(wall)"
+            f"median of {repeats} repeats, the rows' taken in turn; µs per batch step = one step "
+            "of all N trackers, wall time; CPU = process CPU time; speed-up = FilterPy µs per "
+            "tracker-step / this row's (wall)"
         ),
     )
     for r in [*results, fp]:
@@ -358,7 +357,7 @@ def render(
         )
     console.print(table)
 
-    ukf = {r.n_trackers: r for r in results if r.impl == "imm_gym" and r.filter == "ukf"}
+    ukf = {r.n_trackers: r for r in results if r.impl == IMM_GYM and r.filter == "ukf"}
     speedup_n1 = fp.us_per_step / ukf[1].us_per_step
     speedup_n1_cpu = fp.cpu_us_per_step / ukf[1].cpu_us_per_step
     target_ratio = ukf[1024].tracker_steps_per_s / TARGET_TRACKER_STEPS_PER_S
@@ -429,19 +428,26 @@ def run(args: argparse.Namespace, console: Console) -> int:
         return batches[n]
 
     configs = [("ukf", n) for n in N_IMM_GYM_UKF] + [("ekf", n) for n in N_IMM_GYM_EKF]
-    results = []
+    cases: dict[tuple[str, str, int], tuple[Callable[[], float], harness.Block, int]] = {}
     for filt, n in configs:
-        console.print(f"[dim]timing imm_gym {filt} N={n} ...[/dim]")
         imm = IMM(paper_bank(), sonar, filter=filt)
         b = batch_of(n)
-        ep = imm_gym_episode(imm, b.measurements.z, b.x0, b.P0, tpm)
-        results.append(bench("imm_gym", filt, n, ep, horizon, repeats, min_repeat_s))
-
-    console.print("[dim]timing FilterPy IMMEstimator (UKF) N=1 ...[/dim]")
+        cases[IMM_GYM, filt, n] = case(
+            imm_gym_episode(imm, b.measurements.z, b.x0, b.P0, tpm), horizon
+        )
     imm = IMM(paper_bank(), sonar)
     b = batch_of(1)
-    ep = filterpy_episode(imm.F, imm.Q, sonar.R, b.measurements.z[0], b.x0[0], b.P0[0])
-    fp = bench("FilterPy IMMEstimator", "ukf", 1, ep, horizon, repeats, min_repeat_s)
+    cases[FP_KEY] = case(
+        filterpy_episode(imm.F, imm.Q, sonar.R, b.measurements.z[0], b.x0[0], b.P0[0]), horizon
+    )
+    names = ", ".join(f"{filt} N={n}" for filt, n in configs)
+    console.print(
+        f"[dim]timing imm_gym {names} and FilterPy IMMEstimator (UKF) N=1, repeats in turn "
+        "...[/dim]"
+    )
+    measured = harness.measure_interleaved(cases, repeats, min_repeat_s)
+    results = [result(*key, measured[key]) for key in cases if key != FP_KEY]
+    fp = result(*FP_KEY, measured[FP_KEY])
 
     sanity = sanity_check(imm, args.seed)
     headline = render(console, results, fp, sanity, env, repeats)
