@@ -41,8 +41,10 @@ evaluated tracker (sensor, bank, filter) with its own settings (action mode, fea
 JSON gives its ``trained_on`` and ``evaluated_on`` trackers and ``tracker_differs`` (the fields that
 differ, also said under the table), ``models_differ`` where the evaluated bank's models stand for
 others than the trained banks' (said too: the agent reads them as its own), and ``meta.env_config``
-the file (the overrides when called from Python; the paper's Table 2 rows are printed only without
-one, on the paper scenario with the paper's bank and filter); an agent whose observation or
+the file and what it said, ``{"file": PATH, "overrides": {...}}`` (its EnvConfig overrides as
+read, before ``--scenario`` and ``--bank``: the record re-runs with ``meta.command`` after the file
+is edited; the overrides alone when called from Python; the paper's Table 2 rows are printed only
+without one, on the paper scenario with the paper's bank and filter); an agent whose observation or
 action size the evaluated configuration does not give is refused before any work.
 """
 
@@ -437,6 +439,18 @@ def agent_overrides(
     return kept, notes
 
 
+def config_record(
+    path: Path | None, overrides: Mapping[str, Any] | None
+) -> dict[str, Any] | None:
+    """``meta.env_config`` of a configuration file: ``{"file": path, "overrides": what it said}``
+    (the EnvConfig overrides read from it, :func:`~imm_gym.sim.config_file.read_env_config`, as
+    plain data; a suite's case with the scenario it runs where the file gives none), so that the
+    record re-runs after the file is edited; None without a file."""
+    if path is None:
+        return None
+    return {"file": str(path), "overrides": plain(overrides)}
+
+
 def suite_files(suite: str) -> dict[str, Path]:
     """Each case of ``suite`` and its configuration file: a named suite's
     (:data:`~imm_gym.scenarios.catalog.SUITES`) ``SUITE_CONFIGS/NAME.yaml`` per scenario,
@@ -523,7 +537,8 @@ def evaluate_suite(
 
     Returns:
         ``{"scenarios": {CASE: evaluate's results (``meta.bank``: ``env-config`` where the case's
-        file gives a bank, as with ``--env-config``), with "skipped": {POLICY: reason}} and, with
+        file gives a bank, as with ``--env-config``; ``meta.env_config``: the file and its
+        overrides, :func:`config_record`), with "skipped": {POLICY: reason}} and, with
         ``bar``, "bar": {"policy": NAME, "differences": {POLICY: paired difference}}},
         "tally": {POLICY: {"below", "level", "above", "skipped": [CASE, ...]}}, "meta": {...}}``;
         the tally sorts the cases by the paired difference against the bar, else the reference
@@ -570,7 +585,7 @@ def evaluate_suite(
             env_config=env_config,
             make_core=make_core,
         )
-        results["meta"]["env_config"] = str(files[case])
+        results["meta"]["env_config"] = config_record(files[case], overrides)
         results["meta"]["bank"] = "env-config" if "bank" in env_config else "paper"
         results["skipped"] = skipped[case]
         if bar:
@@ -955,7 +970,8 @@ def _run(
     if args.scenario in SYSTEMS:
         return _main_system(parser, args)
     try:
-        overrides = _run_config(args)
+        file_config = None if args.env_config is None else read_env_config(args.env_config)
+        overrides = _run_config(args, file_config)
         scenario = overrides.pop("scenario")
         results, rollouts = evaluate(
             args.policy,
@@ -971,7 +987,7 @@ def _run(
     except ConfigError as err:
         parser.error(str(err))
     results["meta"]["bank"] = args.bank or ("env-config" if "bank" in overrides else "paper")
-    results["meta"]["env_config"] = None if args.env_config is None else str(args.env_config)
+    results["meta"]["env_config"] = config_record(args.env_config, file_config)
     if args.scenario is not None:
         results["meta"]["scenario"] = args.scenario
     elif results["meta"]["scenario"] == "file":
@@ -994,7 +1010,7 @@ def _run(
         for path in write_figures(rollouts, args.plots, results["meta"], base):
             print(f"wrote {path}")
     if args.animate:
-        _write_animation(args, rollouts)
+        _write_animation(args, rollouts, file_config)
     return 0
 
 
@@ -1062,11 +1078,13 @@ def _cores(parser: argparse.ArgumentParser, address: str | None) -> Callable[[En
     return make_core
 
 
-def _run_config(args: argparse.Namespace) -> dict[str, Any]:
-    """The EnvConfig overrides of the command line: the ``--env-config`` file's, its scenario
-    replaced by ``--scenario`` (``paper`` when neither gives one) and its bank and filter by
-    ``--bank``'s preset."""
-    overrides = {} if args.env_config is None else read_env_config(args.env_config)
+def _run_config(
+    args: argparse.Namespace, file_config: Mapping[str, Any] | None
+) -> dict[str, Any]:
+    """The EnvConfig overrides of the command line: ``file_config`` (the ``--env-config``
+    file's, read once by the caller), its scenario replaced by ``--scenario`` (``paper`` when
+    neither gives one) and its bank and filter by ``--bank``'s preset."""
+    overrides = dict(file_config or {})
     if args.scenario is not None:
         overrides["scenario"] = load_source(args.scenario)
     overrides.setdefault("scenario", "paper")
@@ -1097,11 +1115,14 @@ def _check_animate(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(f"--animate {str(args.animate)!r}: {problem}")
 
 
-def _write_animation(args: argparse.Namespace, rollouts: dict[str, Rollout]) -> None:
-    """Run 0 of every policy's roll-out side by side (:mod:`imm_gym.evaluation.animation`)."""
+def _write_animation(
+    args: argparse.Namespace, rollouts: dict[str, Rollout], file_config: Mapping[str, Any] | None
+) -> None:
+    """Run 0 of every policy's roll-out side by side (:mod:`imm_gym.evaluation.animation`) on
+    the command line's configuration (``file_config``: the ``--env-config`` file's overrides)."""
     from imm_gym.evaluation.animation import write_animation
 
-    base = EnvConfig.build(_run_config(args))
+    base = EnvConfig.build(_run_config(args, file_config))
     frames = write_animation(rollouts, base, args.seed, args.animate)
     print(f"wrote {args.animate} ({frames} frames of seed {args.seed}: {', '.join(rollouts)})")
 

@@ -42,7 +42,28 @@ def test_the_file_applies_to_every_policy(tmp_path) -> None:
     for name in ("fixed", "best-fixed"):
         assert got["policies"][name]["armse_pos"] == direct["policies"][name]["armse_pos"]
         assert got["policies"][name]["armse_pos"] < plain["policies"][name]["armse_pos"]
-    assert got["meta"]["env_config"] == str(file) and got["meta"]["scenario"] == "paper"
+    assert got["meta"]["env_config"] == {"file": str(file), "overrides": {"scenario": "paper",
+                                                                          **overrides}}
+    assert got["meta"]["scenario"] == "paper"
+
+
+def test_the_record_holds_what_the_file_said(tmp_path) -> None:
+    """meta.env_config keeps the file's overrides beside its path: the run is redone from the
+    record after the file is edited (it held the path alone)."""
+    file = tmp_path / "sensor.yaml"
+    file.write_text(SENSOR_FILE)
+    out = tmp_path / "out.json"
+    argv = ["--env-config", str(file), "--policy", "fixed", "--scenario", "random", "--runs", "2"]
+    assert main([*argv, "--quiet", "--json", str(out), "--no-clairvoyant"]) == 0
+    file.write_text("scenario: paper\nsensor: {sigma_r: 50.0}\n")
+    meta = json.loads(out.read_text())["meta"]
+    recorded = meta["env_config"]
+    assert recorded["file"] == str(file) and recorded["overrides"]["sensor"]["sigma_r"] == 10.0
+    again, _ = evaluate(["fixed"], meta["scenario"], 2, 0, clairvoyant=False,
+                        env_config={k: v for k, v in recorded["overrides"].items()
+                                    if k != "scenario"})
+    got = json.loads(out.read_text())["policies"]["fixed"]["armse_pos"]
+    assert again["policies"]["fixed"]["armse_pos"] == got
 
 
 def test_scenario_flag_replaces_the_files_scenario(tmp_path) -> None:
@@ -147,7 +168,8 @@ def test_the_benchmark_suite_runs_end_to_end(tmp_path, capsys) -> None:
     results = json.loads(out.read_text())
     assert list(results["scenarios"]) == ["paper", "random", "atc", "vsmm-s1", "vsmm-s2", "vsmm-s3"]
     for name, r in results["scenarios"].items():
-        assert r["meta"]["scenario"] == name and r["meta"]["env_config"].endswith(f"{name}.yaml")
+        assert r["meta"]["scenario"] == name
+        assert r["meta"]["env_config"]["file"].endswith(f"{name}.yaml")
         assert r["paired"]["reference"] == "fixed"
         assert set(r["policies"]) == {"fixed", "pretrained"}
         assert f"{name} ({r['meta']['steps']} steps)" in printed
@@ -197,7 +219,9 @@ def test_a_directory_is_a_suite_of_its_configuration_files(tmp_path, capsys) -> 
     assert list(results["scenarios"]) == ["fine", "four"]
     assert results["meta"]["suite"] == str(folder) and results["meta"]["reference"] == "fixed"
     fine, four = results["scenarios"]["fine"], results["scenarios"]["four"]
-    assert fine["meta"]["env_config"] == str(folder / "fine.yaml")
+    assert fine["meta"]["env_config"] == {"file": str(folder / "fine.yaml"),
+                                          "overrides": yaml.safe_load(SENSOR_FILE)}
+    assert four["meta"]["env_config"]["overrides"]["bank"][3]["turn_rate_deg"] == 6.0
     assert four["meta"]["scenario"] == "random"
     assert fine["skipped"] == {} and set(fine["policies"]) == {"fixed", "pretrained", "best-fixed"}
     assert set(four["policies"]) == {"fixed", "best-fixed"}
