@@ -92,7 +92,9 @@ def figures(
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    """Write ``fig`` (a figure outside pyplot: no backend is switched, nothing to close)."""
+    """Write ``fig`` (a figure outside pyplot: no backend is switched, nothing to close), making
+    the missing directories of ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     return path
@@ -113,7 +115,8 @@ def tradeoff_figure(
     Args:
         policies: each policy's :func:`~imm_gym.evaluation.rollout.score`.
         fixed: the score of the classical IMM at each stay probability.
-        path: the PNG written; meta: the evaluation's ``meta`` (scenario, runs, seeds).
+        path: the PNG written (its missing directories made); meta: the evaluation's ``meta``
+            (scenario, runs, seeds).
     """
     fig = Figure(figsize=(8, 5.5))
     ax = fig.subplots()

@@ -188,3 +188,15 @@ def test_the_tradeoff_figure_leaves_out_what_has_no_mode_accuracy(tmp_path, monk
     np.testing.assert_allclose(lines[0].get_xydata(), [[80.0, 30.0]])
     np.testing.assert_allclose(lines[1].get_xydata(), [[60.0, 40.0]])
     assert lines[1].get_label() == "b (TV —)"
+
+
+def test_the_tradeoff_figure_makes_its_missing_directories(tmp_path) -> None:
+    """The CLI accepts a --tradeoff path whose directories do not exist yet (as --json and
+    --plots): the figure makes them (it raised FileNotFoundError after the whole evaluation)."""
+    from imm_gym.evaluation import plots
+
+    fixed = {0.9: {"mode_accuracy": 0.7, "armse_pos": 25.0}}
+    policies = {"a": {"mode_accuracy": 0.85, "armse_pos": 20.0, "mode_prob_tv": 0.1}}
+    path = tmp_path / "new" / "deeper" / "t.png"
+    assert plots.tradeoff_figure(policies, fixed, path, META) == path
+    assert path.is_file()
