@@ -23,6 +23,7 @@ import dataclasses
 import math
 import numbers
 import re
+import reprlib
 from collections.abc import Mapping, Sequence
 from typing import Any, TypeVar
 
@@ -35,6 +36,28 @@ class ConfigError(ValueError):
     """A configuration field or an input array is invalid; the message names it."""
 
 
+#: How a refused value is shown in a message: at most 6 entries of a list, tuple or mapping, 3
+#: levels deep, 60 characters of a string — a YAML file of nested aliases is a few hundred bytes
+#: whose value would print in gigabytes.
+_SHORT = reprlib.Repr()
+_SHORT.maxlevel = 3
+_SHORT.maxtuple = _SHORT.maxlist = _SHORT.maxdict = _SHORT.maxset = _SHORT.maxfrozenset = 6
+_SHORT.maxstring = _SHORT.maxother = 60
+_SHORT.maxlong = 40
+#: The longest a refused value is shown, in characters.
+SHOWN_CHARS = 200
+
+
+def shown(value: Any) -> str:
+    """``repr(value)`` shortened for a message: entries past the sixth and nesting past the third
+    level are ``...``, and the text is cut at :data:`SHOWN_CHARS` characters."""
+    try:
+        text = _SHORT.repr(value)
+    except ValueError:  # an integer of more digits than Python turns into text
+        return f"an integer of {value.bit_length()} bits"
+    return text if len(text) <= SHOWN_CHARS else text[: SHOWN_CHARS - 3] + "..."
+
+
 def _real(name: str, value: Any, expected: str) -> float:
     """``value`` as float if it is a real number (not a bool, not a string), else raise."""
     if type(value) is float:
@@ -42,19 +65,21 @@ def _real(name: str, value: Any, expected: str) -> float:
     if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
         value = value[()]
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ConfigError(f"{name} must be {expected}, got {value!r} ({type(value).__name__})")
+        raise ConfigError(
+            f"{name} must be {expected}, got {shown(value)} ({type(value).__name__})"
+        )
     try:
         return float(value)
     except OverflowError:  # an integer such as 10**400, beyond the floats
         raise ConfigError(f"{name} must be {expected}, got an integer beyond the floats "
-                          f"({len(str(abs(int(value))))} digits)") from None
+                          f"({int(value).bit_length()} bits)") from None
 
 
 def check_finite(name: str, value: float) -> float:
     """Return ``value`` as float, or raise if it is not a finite real number."""
     v = _real(name, value, "a finite real number")
     if not math.isfinite(v):
-        raise ConfigError(f"{name} must be finite, got {value!r}")
+        raise ConfigError(f"{name} must be finite, got {shown(value)}")
     return v
 
 
@@ -77,7 +102,7 @@ def check_range(
     bad_lo = v <= lo if lo_open else v < lo
     bad_hi = v >= hi if hi_open else v > hi
     if bad_lo or bad_hi or not math.isfinite(v):
-        raise ConfigError(f"{name} must be in {interval}, got {value!r}")
+        raise ConfigError(f"{name} must be in {interval}, got {shown(value)}")
     return v
 
 
@@ -100,18 +125,18 @@ def check_int(name: str, value: int, lo: int, hi: float = math.inf) -> int:
     )
     if isinstance(value, (bool, np.bool_)) or not integral:
         raise ConfigError(
-            f"{name} must be an integer in {interval}, got {value!r} ({type(value).__name__})"
+            f"{name} must be an integer in {interval}, got {shown(value)} ({type(value).__name__})"
         )
     v = int(value)
     if v < lo or v > hi:
-        raise ConfigError(f"{name} must be an integer in {interval}, got {value!r}")
+        raise ConfigError(f"{name} must be an integer in {interval}, got {shown(value)}")
     return v
 
 
 def check_choice(name: str, value: str, choices: tuple[str, ...]) -> str:
     """Return ``value`` if it is one of ``choices``, else raise listing them."""
     if not isinstance(value, str) or value not in choices:
-        raise ConfigError(f"{name} must be one of {list(choices)}, got {value!r}")
+        raise ConfigError(f"{name} must be one of {list(choices)}, got {shown(value)}")
     return value
 
 
@@ -124,9 +149,9 @@ def check_sequence(name: str, value: Any, length: int | None = None) -> tuple[An
     if isinstance(value, np.ndarray) and value.ndim == 1:
         value = tuple(value.tolist())
     if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Sequence):
-        raise ConfigError(f"{name} must be a list, got {value!r} ({type(value).__name__})")
+        raise ConfigError(f"{name} must be a list, got {shown(value)} ({type(value).__name__})")
     if length is not None and len(value) != length:
-        raise ConfigError(f"{name} must have {length} entries, got {len(value)}: {value!r}")
+        raise ConfigError(f"{name} must have {length} entries, got {len(value)}: {shown(value)}")
     return tuple(value)
 
 

@@ -36,7 +36,7 @@ from imm_gym.papers.tuning import TunerConfig
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM
 from imm_gym.tracking.imm import run
-from imm_gym.validation import load_yaml
+from imm_gym.validation import check_int, load_yaml
 
 #: Every real-valued field of EnvConfig and of its nested configurations, as the path a
 #: configuration mapping gives it and the name the error message must carry.
@@ -196,6 +196,27 @@ def test_a_key_given_twice_is_refused_naming_the_file(tmp_path, suffix: str, tex
 
 def test_yaml_merge_keys_may_be_overridden() -> None:
     assert load_yaml("x: &a {p: 1, q: 2}\ny:\n  <<: *a\n  q: 3\n")["y"] == {"p": 1, "q": 3}
+
+
+def test_a_value_of_nested_yaml_aliases_is_shown_shortened(tmp_path) -> None:
+    # a few hundred bytes whose value, printed whole, is 8 million characters (6 levels of 10)
+    nested = ["&a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
+    nested += [f"&a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 6)]
+    path = tmp_path / "tracker.yaml"
+    path.write_text(f"p_min: [{', '.join(nested)}]\n")
+    with pytest.raises(ConfigError) as err:
+        read_env_config(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: p_min must be a real number in [0.0, 0.333")
+    assert "got (['lol', 'lol'" in message and len(message) < 400
+
+
+def test_an_integer_too_long_to_print_is_refused_naming_the_field() -> None:
+    expected = r"horizon must be an integer in \[1, 10\], got an integer of 16610 bits"
+    with pytest.raises(ConfigError, match=expected):
+        check_int("horizon", 10**5000, 1, 10)
+    with pytest.raises(ConfigError, match=r"p_min must be .*beyond the floats \(16610 bits\)"):
+        EnvConfig(p_min=10**5000)
 
 
 # --- configuration structure --------------------------------------------------------------------
