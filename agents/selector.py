@@ -21,6 +21,10 @@ How the prior reaches the tracker depends on the action mode it was fitted in (`
 * ``set`` (shares per prior): each row's logits ``log Pi_ij`` centred and over ``logit_scale``
   (:func:`set_action`), exact wherever every entry is at least ``p_min``.
 
+A selector with a prior the action cannot set at some belief (its entries beyond ``[-1, 1]``
+before the clip) is refused, naming the range of ``logit_scale`` that reaches it
+(:func:`check_reach`).
+
 A selector is a directory of data files only — loading never unpickles, so it cannot run code:
 
 * ``selector.json``: ``{"format": "imm_gym-stay-selector", "combine": "mean_prediction",
@@ -183,7 +187,8 @@ def check_priors(where: str, priors: Any, config: EnvConfig) -> Array:
     """``priors`` as a ``(P, 2)`` array after checking it against the environment ``config``:
     2 to :data:`MAX_PRIORS` pairs of numbers (a string such as ``"0.6"`` or a boolean is
     refused, not read as one), stays in ``[1/M, 1)``, shares in ``[0, 1]``; in ``stay`` mode at
-    ``stay_base: uniform``, every share the environment's ``detector_share``."""
+    ``stay_base: uniform``, every share the environment's ``detector_share``; every prior within
+    the action's reach at every belief (:func:`check_reach`)."""
     M = len(config.bank)
     rows = priors.tolist() if isinstance(priors, np.ndarray) else priors
     numbers = isinstance(rows, (list, tuple)) and all(
@@ -220,7 +225,55 @@ def check_priors(where: str, priors: Any, config: EnvConfig) -> Array:
     ):
         raise ConfigError(f"{where}: the environment's obs_features must end with "
                           f"'detector_belief' (the belief the priors are computed from)")
+    check_reach(where, array, config)
     return array
+
+
+def check_reach(where: str, priors: Array, config: EnvConfig) -> None:
+    """Check that the action of ``config``'s mode sets every prior ``(P, 2)`` at every belief,
+    its entries within ``[-1, 1]`` before :func:`stay_action` and :func:`set_action` clip them.
+
+    * ``stay``: row ``i``'s entry is ``log(1 + r / ((1 - r) q_i)) / logit_scale``, largest where
+      ``q_i`` is least, ``(1 - v) / M`` (a belief of 0 in mode ``i``): in reach while
+      ``r <= (exp(logit_scale) - 1) (1 - r) (1 - v) / M``;
+    * ``set``: a row's largest entry is half the log-ratio of its largest to its smallest
+      probability (floored to ``p_min``) over ``logit_scale``, largest at a belief certain of one
+      mode: in reach while that half is at most ``logit_scale`` at each of the ``M`` certain
+      beliefs (always so with ``logit_scale >= log(1 / p_min) / 2``).
+
+    Raises:
+        ConfigError: a prior out of reach, naming ``env.json``'s ``logit_scale`` (and in the
+            ``stay`` mode ``detector_share``) and the range that reaches it.
+    """
+    M, gain = len(config.bank), config.logit_scale
+    s, v = priors.T
+    r = (s - 1.0 / M) / (1.0 - 1.0 / M)
+    if config.action_mode == "stay":
+        out = np.flatnonzero(r > np.expm1(gain) * (1.0 - r) * (1.0 - v) / M)
+        if len(out):
+            k = out[np.argmax(r[out])]  # the stickiest prior out of reach
+            with np.errstate(divide="ignore"):  # a share of 1: no logit_scale reaches it
+                need = np.log1p(r[k] / ((1.0 - r[k]) * (1.0 - v[k]) / M))
+            share = 1.0 - M * r[k] / ((1.0 - r[k]) * np.expm1(gain))
+            ranges = [f"logit_scale >= {need:.6g}"] if np.isfinite(need) else []
+            ranges += [f"detector_share in [0, {share:.6g}]"] if share >= 0.0 else []
+            needs = " or ".join(ranges) or "a smaller detector_share and a larger logit_scale"
+            raise ConfigError(f"{where}: the stay action does not reach the stay {s[k]:.6g} at "
+                              f"{ENV_FILE}'s detector_share {v[k]:.6g} and logit_scale "
+                              f"{gain:.6g}: it needs {needs}")
+        return
+    certain = np.eye(M)[:, None]  # (M, 1, M): each certain belief, for every prior
+    rows = apply_floor(detector_tpm_rows(s, certain, v), config.p_min)
+    with np.errstate(divide="ignore"):  # a zero entry (p_min 0, share 1): out of any reach
+        half = 0.5 * (np.log(rows.max(axis=-1)) - np.log(rows.min(axis=-1))).max(axis=(0, 2))
+    out = np.flatnonzero(half > gain)
+    if len(out):
+        k = out[np.argmax(half[out])]
+        needs = (f"logit_scale >= {half[k]:.6g}" if np.isfinite(half[k])
+                 else "p_min > 0 (a zero entry is out of any logit_scale's reach)")
+        raise ConfigError(f"{where}: the set action does not set the prior [{s[k]:.6g}, "
+                          f"{v[k]:.6g}] (floored to p_min {config.p_min:.6g}) at {ENV_FILE}'s "
+                          f"logit_scale {gain:.6g}: it needs {needs}")
 
 
 def is_selector(path: str | Path) -> bool:

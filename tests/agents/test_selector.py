@@ -269,3 +269,52 @@ def test_the_export_takes_the_selector_file_as_its_directory(tmp_path: Path) -> 
         p.name for p in directory.iterdir()
     )
     assert isinstance(load_selector(tmp_path / "shipped"), StaySelector)
+
+
+@pytest.mark.parametrize(("env", "priors", "message"), [
+    ({**STAY_ENV, "detector_share": 1.0}, stay_priors(1.0),
+     "does not reach the stay 0.995 at env.json's detector_share 1 and logit_scale 9: it needs "
+     "detector_share in [0, 0.951"),
+    ({**STAY_ENV, "logit_scale": 4.0}, stay_priors(0.75),
+     "does not reach the stay 0.995 at env.json's detector_share 0.75 and logit_scale 4: it "
+     "needs logit_scale >= 7.37"),
+    ({**SET_ENV, "logit_scale": 3.0}, pair_priors(),
+     "does not set the prior [0.333333, 1] (floored to p_min 0.0001) at env.json's "
+     "logit_scale 3: it needs logit_scale >= 4.6"),
+])
+def test_priors_the_action_cannot_reach_are_refused_naming_env_json(
+    tmp_path: Path, env: dict[str, Any], priors: np.ndarray, message: str
+) -> None:
+    """The action clips to [-1, 1]: a prior beyond it at some belief would silently not be the
+    TPM the selector chose."""
+    obs_size = core_of(env, 1).observe().shape[1]
+    with pytest.raises(ConfigError, match=r"selector\.json") as err:
+        save_selector(tmp_path / "sel", [network(obs_size, len(priors), 8)], priors, env)
+    assert message in str(err.value)
+
+
+@pytest.mark.parametrize("mode", ["stay", "set"])
+def test_the_reach_is_the_action_unclipped_at_a_certain_belief(tmp_path: Path, mode: str) -> None:
+    """The bound is exact: the selector loads at a logit_scale a little above the stickiest
+    prior's (whose action there is just within [-1, 1]) and is refused a little below."""
+    M, certain = 3, np.eye(3)[1:2]  # a belief of 0 in mode 0
+    if mode == "stay":
+        env, priors = STAY_ENV, stay_priors(0.75)
+        r = (0.995 - 1 / M) / (1 - 1 / M)
+        need = np.log1p(r / ((1 - r) * 0.25 / M))
+    else:
+        env, priors = SET_ENV, pair_priors()
+        need = 0.5 * np.log((1 - 2e-4) / 1e-4)  # share 1: a row certain of one mode, floored
+    obs_size = core_of(env, 1).observe().shape[1]
+    for k, scale in enumerate((1 + 1e-6, 1 - 1e-6)):
+        gain = need * scale
+        nets = [network(obs_size, len(priors), 8)]
+        if scale < 1:
+            with pytest.raises(ConfigError, match=f"logit_scale >= {need:.6g}"):
+                save_selector(tmp_path / f"{k}", nets, priors, {**env, "logit_scale": gain})
+            continue
+        save_selector(tmp_path / f"{k}", nets, priors, {**env, "logit_scale": gain})
+        s, v = priors.T
+        largest = (np.abs(stay_action(s, certain, 0.75, gain)) if mode == "stay"
+                   else np.abs(set_action(s, v, np.eye(3)[:1], gain, 1e-4))).max()
+        assert 1 - 1e-5 < largest <= 1
