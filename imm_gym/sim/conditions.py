@@ -153,16 +153,19 @@ class Variation:
     def draw(self, rng: np.random.Generator) -> dict[str, float]:
         """One episode's conditions from its generator: with ``share < 1`` first a uniform draw
         that keeps the configured conditions (nothing returned) above ``share``, then one draw
-        per varied condition, in the order of :data:`DRAWS`."""
+        per varied condition, in the order of :data:`DRAWS`, clipped to its ``[low, high]``
+        (a log-uniform draw's ``exp`` may round one step past an end: a pinned range draws its
+        value)."""
         values: dict[str, float] = {}
         if self.share < 1.0 and rng.uniform() >= self.share:
             return values
         for name in self.varied:
             lo, hi = getattr(self, name)
             if DRAWS[name] == "log":
-                values[name] = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+                value = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
             else:
-                values[name] = float(rng.uniform(lo, hi))
+                value = float(rng.uniform(lo, hi))
+            values[name] = min(max(value, lo), hi)
         return values
 
 

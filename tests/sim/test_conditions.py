@@ -98,6 +98,22 @@ def test_conditions_are_a_function_of_the_seed_and_lie_in_their_ranges() -> None
     np.testing.assert_allclose(c.R[:, 0, 0], sigma_r**2)
 
 
+@pytest.mark.parametrize("name", ["velocity_std", "sigma_theta_deg", "q_scale", "outlier_prob"])
+def test_a_pinned_or_hair_wide_range_draws_inside_its_ends(name: str) -> None:
+    # exp(uniform(log lo, log hi)) rounds one step past an end: velocity_std (1e6, 1e6) drew
+    # 999999.9999999995 unclipped
+    ends = {"velocity_std": 1e6, "sigma_theta_deg": 180.0, "q_scale": 3.7, "outlier_prob": 0.3}
+    lo = ends[name]
+    at_limit = name in ("velocity_std", "sigma_theta_deg")  # the end is the condition's limit
+    for hi in (lo, float(np.nextafter(lo, 0.0 if at_limit else math.inf))):
+        low, high = min(lo, hi), max(lo, hi)
+        drawn = [Variation(**{name: (low, high)}).draw(np.random.default_rng(s))[name]
+                 for s in range(200)]
+        assert all(low <= v <= high for v in drawn)
+    pinned = Variation(**{name: (lo, lo)}).draw(np.random.default_rng(0))[name]
+    assert pinned == lo
+
+
 def test_a_position_sensor_varies_its_own_noise() -> None:
     variation = Variation(sigma_pos=(5.0, 50.0))
     variation.check(PositionSensor())
