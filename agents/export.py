@@ -13,8 +13,9 @@ the evaluation needs to act, about 340 KiB an agent. An ensemble's members are c
 ``ensemble.json``; a stay selector's ``selector.json``, ``env.json`` and networks are copied as
 they are. The network of a ``learned`` detector that ``env.json`` names is copied beside it,
 once read as a detector file (``detector_weights`` is refused with any other detector). The
-target is replaced as a whole — it must be absent, empty or a policy exported before — so no
-file of the previous policy stays.
+target is replaced as a whole — it must be absent, empty or a policy exported before, holding
+nothing an export does not write (a checkpoint's resume files, a user's files are refused) — so
+no file of the previous policy stays.
 
     python -m agents.export --from-pickle OLD_AGENT --to NEW_DIR
 
@@ -153,18 +154,48 @@ def _member_names(members: Sequence[Path]) -> list[str]:
 
 
 def _check_replaceable(target: Path) -> None:
-    """Refuse to replace a directory that is not empty and holds no exported policy."""
-    if target.is_file() or (
-        target.is_dir()
-        and any(target.iterdir())
-        and not (target / AGENT_FILE).is_file()
-        and not (target / ENSEMBLE_FILE).is_file()
-        and not (target / SELECTOR_FILE).is_file()
-    ):
+    """Refuse to replace a file, or a directory holding anything an export does not write
+    (:func:`_exported`): a checkpoint's resume files, an agent's training record or a user's
+    files would go with it.
+
+    Raises:
+        ConfigError: naming the target and the files an export does not write.
+    """
+    if target.is_file():
+        raise ConfigError(f"{target}: the export replaces its target, which must be absent, "
+                          f"empty or a policy exported before, not a file")
+    if not target.is_dir():
+        return
+    unexpected = sorted(str(p.relative_to(target)) for p in target.rglob("*")
+                        if p.relative_to(target) not in _exported(target))
+    if unexpected:
+        more = f" and {len(unexpected) - 5} more" if len(unexpected) > 5 else ""
         raise ConfigError(
             f"{target}: the export replaces its target, which must be absent, empty or a policy "
-            f"exported before ({AGENT_FILE}, {ENSEMBLE_FILE} or {SELECTOR_FILE} in it)"
+            f"exported before; it holds {unexpected[:5]}{more}, which an export does not write"
         )
+
+
+def _exported(target: Path) -> set[Path]:
+    """The paths (relative to ``target``) an export writes into ``target`` as the policy it
+    holds: an agent's :data:`FILES` and :data:`DETECTOR_FILE`; a selector's
+    ``selector.json``, ``env.json``, detector and the members it names; an ensemble's
+    ``ensemble.json`` and the member directories it names, each an agent's files."""
+    agent = {Path(name) for name in (*FILES, DETECTOR_FILE)}
+    for manifest in (SELECTOR_FILE, ENSEMBLE_FILE):
+        if (target / manifest).is_file():
+            try:
+                members = read_json(target / manifest).get("members")
+            except ConfigError:  # not a manifest an export writes: its files are not either
+                members = None
+            names = [m for m in members if isinstance(m, str) and m not in ("", ".", "..")
+                     and Path(m).name == m] if isinstance(members, list) else []
+            if manifest == SELECTOR_FILE:
+                return {Path(SELECTOR_FILE), Path(ENV_FILE), Path(DETECTOR_FILE),
+                        *map(Path, names)}
+            return {Path(ENSEMBLE_FILE), *map(Path, names),
+                    *(Path(name) / file for name in names for file in agent)}
+    return agent if (target / AGENT_FILE).is_file() else set()
 
 
 def convert_pickled(source: Path, target: Path) -> list[Path]:
