@@ -99,10 +99,40 @@ class TrackView:
 
 
 def model_labels(bank: Sequence[MotionModel] | HeteroBank) -> list[str]:
-    """Short names of a bank's models: ``CV``, ``CT(+4°/s)``, ... or ``NCV``, ``CT``, ``CTRA``."""
+    """Short names of a bank's models: ``CV``, ``CT(+4°/s)``, ... or ``NCV``, ``CT``, ``CTRA``.
+
+    A name two models share is followed by each one's process noise, after a space: the
+    continuous noise's density (``CV q=0.05``, ``CV q=5``), the discrete noise's distinct
+    diagonal entries (``CV q=0.1/0.12``) or a heterogeneous bank's ``Q`` factor (``NCV Q×2``);
+    where that is shared too, by the model's index in the bank (``CV [0]``, ``CV [1]``). Names
+    no other model has are left as they are.
+    """
     if isinstance(bank, HeteroBank):
-        return [kind.upper() for kind in bank.models]
-    return [model.label for model in bank]
+        names = [kind.upper() for kind in bank.models]
+        noises = [f"Q×{scale:g}" for scale in bank.q_scale]
+    else:
+        names = [model.label for model in bank]
+        noises = [_noise_tag(model) for model in bank]
+    labels = list(names)
+    for name in dict.fromkeys(names):
+        group = [j for j, other in enumerate(names) if other == name]
+        if len(group) == 1:
+            continue
+        tags = [noises[j] for j in group]
+        if len(set(tags)) < len(tags):
+            tags = [f"[{j}]" for j in group]
+        for j, tag in zip(group, tags, strict=True):
+            labels[j] = f"{name} {tag}"
+    return labels
+
+
+def _noise_tag(model: MotionModel) -> str:
+    """``q=`` a model's continuous noise density, or its discrete noise's distinct diagonal
+    entries joined by ``/``."""
+    if model.noise == "continuous":
+        return f"q={model.intensity:g}"
+    assert model.q is not None  # a discrete model's q is filled in by its validation
+    return "q=" + "/".join(f"{v:g}" for v in dict.fromkeys(model.q))
 
 
 def scene_extent(truth: Array, sensor: Sequence[float], margin: float = 0.08) -> tuple[
@@ -396,14 +426,17 @@ def _new_figure(size: tuple[float, float], dpi: float, window: bool) -> Figure:
 
 def short_labels(labels: Sequence[str]) -> list[str]:
     """The models' tick labels: ``CT(+4°/s)`` -> ``CT+``, ``CV`` -> ``CV``; with the turn rate
-    (``CT+4``, ``CT−2.5``) where two models would otherwise share one (two CT models turning the
-    same way)."""
-    split = [label.partition("(") for label in labels]
+    (``CT+4``, ``CT−2.5``) where two names would otherwise share one (two CT models turning the
+    same way). The noise or index :func:`model_labels` puts after a name two models share is
+    kept (``CV q=0.05``, ``CT+4 [0]``)."""
+    tagged = [label.partition(" ") for label in labels]
+    split = [name.partition("(") for name, _, _ in tagged]
+    tags = [space + tag for _, space, tag in tagged]
     signs = [("+" if r.startswith("+") else "−" if r.startswith("-") else "") for _, _, r in split]
     short = [name + sign for (name, _, _), sign in zip(split, signs, strict=True)]
-    if len(set(short)) == len(short):
-        return short
+    if len(set(short)) == len({name for name, _, _ in tagged}):
+        return [name + tag for name, tag in zip(short, tags, strict=True)]
     return [
-        name + sign + rest.lstrip("+-").removesuffix(")").removesuffix("°/s")
-        for (name, _, rest), sign in zip(split, signs, strict=True)
+        name + sign + rest.lstrip("+-").removesuffix(")").removesuffix("°/s") + tag
+        for (name, _, rest), sign, tag in zip(split, signs, tags, strict=True)
     ]

@@ -456,3 +456,31 @@ def test_the_drawn_artists_are_the_steps_data() -> None:
             assert figure.ax_mu.get_xlim() == (first_of[k], first_of[k] + 40)
     assert asymmetric >= 40
     assert len(seen) >= 2 and outlier.any() and not all(detected)
+
+
+def test_models_of_one_kind_are_told_apart_by_their_noise_or_index() -> None:
+    """The shipped probes' two CVs (q 0.05 and q 5) were both ``CV`` in every legend and tick; a
+    name no other model has stays as it is."""
+    from imm_gym import EnvConfig
+    from imm_gym.cli.evaluate import read_env_config
+    from imm_gym.sim.render import model_labels, short_labels
+    from imm_gym.tracking.hetero import HeteroBank
+    from imm_gym.tracking.models import MotionModel
+
+    bank = EnvConfig.build(read_env_config("examples/probes/cv2ct.yaml")).bank
+    assert model_labels(bank) == ["CV q=0.05", "CV q=5", "CT(+3°/s)"]
+    assert short_labels(model_labels(bank)) == ["CV q=0.05", "CV q=5", "CT+"]
+    picture = TrackFigure(model_labels(bank))
+    ticks = [t.get_text() for t in picture.ax_tpm.get_xticklabels()]
+    assert ticks == ["CV q=0.05", "CV q=5", "CT+"]
+    assert [t.get_text() for t in picture.ax_mu.get_legend().get_texts()] == model_labels(bank)
+
+    discrete = (MotionModel("cv"), MotionModel("cv", q=(1.0, 1.0, 2.0, 2.0)))
+    assert model_labels(discrete) == ["CV q=0.1/0.12", "CV q=1/2"]
+    same = (MotionModel("ct", 4.0), MotionModel("ct", 4.0), MotionModel("ct", 2.0))
+    assert model_labels(same) == ["CT(+4°/s) [0]", "CT(+4°/s) [1]", "CT(+2°/s)"]
+    assert short_labels(model_labels(same)) == ["CT+4 [0]", "CT+4 [1]", "CT+2"]
+    hetero = HeteroBank(models=("ncv", "ncv", "ct"), q_scale=(1.0, 2.0, 1.0))
+    assert model_labels(hetero) == ["NCV Q×1", "NCV Q×2", "CT"]
+    assert model_labels(HeteroBank()) == ["NCV", "CT", "CTRA"]
+    assert short_labels(["CV", "CT(+4°/s)", "CT(-4°/s)"]) == ["CV", "CT+", "CT−"]
