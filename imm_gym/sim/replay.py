@@ -103,9 +103,18 @@ class ReplayCore(TrackingCore):
         return out
 
 
+def _floats(name: str, value: Any) -> Array:
+    """``value`` as a float array, or raise :class:`ConfigError` naming ``name`` where it is not
+    an array of numbers (text, rows of different lengths)."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"{name} must be an array of numbers ({err})") from None
+
+
 def _as_batch(name: str, value: Any, ndim: int, single: bool) -> Array:
     """``value`` as a float array with a leading sequence axis (added for a single sequence)."""
-    array = np.asarray(value, dtype=np.float64)
+    array = _floats(name, value)
     if single:
         array = array[None]
     if array.ndim != ndim:
@@ -188,7 +197,8 @@ def run_policy(
         x0, P0: ``(N, 4)`` and ``(N, 4, 4)`` initial estimate and covariance (default: from
             ``z[:, 0]`` and ``velocity``).
         velocity: ``(N, 2)`` or ``(2,)`` initial velocity (m/s) with standard deviation
-            ``config.velocity_std``; default zero with :data:`UNKNOWN_VELOCITY_STD`.
+            ``config.velocity_std`` of the start made from ``z[:, 0]`` (not with ``x0``);
+            default zero with :data:`UNKNOWN_VELOCITY_STD`.
         overrides: the EnvConfig fields the policy needs, applied to ``config`` (default: its
             ``env_overrides``, if any: action mode, observation features, a tuned bank...; for
             a trained agent, ensemble or selector, without the tracker, targets and evaluation
@@ -199,10 +209,11 @@ def run_policy(
         The :class:`TrackResult`, batched (``N = 1`` for a single sequence).
 
     Raises:
-        ConfigError: inconsistent shapes; an infinite ``z``, a row only partly NaN without
-            ``detected``, a detected non-finite measurement; ``detected`` not booleans or 0/1;
-            a velocity, ``x0`` or ``P0`` not finite, ``P0`` not symmetric positive definite, or
-            ``P0`` without ``x0``.
+        ConfigError: inconsistent shapes; ``z``, ``x0``, ``P0`` or ``velocity`` not an array
+            of numbers (text, rows of different lengths); an infinite ``z``, a row only partly
+            NaN without ``detected``, a detected non-finite measurement; ``detected`` not
+            booleans or 0/1; a velocity, ``x0`` or ``P0`` not finite, ``P0`` not symmetric
+            positive definite, ``P0`` without ``x0``, or ``velocity`` with ``x0``.
     """
     base = EnvConfig() if config is None else config
     if overrides is None:
@@ -211,7 +222,7 @@ def run_policy(
             overrides = {k: v for k, v in overrides.items() if k not in EVALUATED_FIELDS}
     cfg = base.replace(**overrides)
     policy = for_bank(policy, len(cfg.bank))
-    z_in = np.asarray(z, dtype=np.float64)
+    z_in = _floats("z", z)
     single = z_in.ndim == 2
     z_all = _as_batch("z", z_in, 3, single)
     N, K1, m = z_all.shape
@@ -229,12 +240,15 @@ def run_policy(
         if velocity is None:
             start, cov = initiate(cfg.sensor, z_steps[0], np.zeros(2), UNKNOWN_VELOCITY_STD)
         else:
-            v = np.asarray(velocity, dtype=np.float64)
+            v = _floats("velocity", velocity)
             if v.shape not in ((2,), (N, 2)) or not np.all(np.isfinite(v)):
                 raise ConfigError(f"velocity must be finite, of shape (2,) or ({N}, 2), got "
                                   f"{v.tolist()} of shape {v.shape}")
             start, cov = initiate(cfg.sensor, z_steps[0], v, cfg.velocity_std)
     else:
+        if velocity is not None:
+            raise ConfigError("velocity and x0 both given: velocity is for the start made from "
+                              "z[:, 0], which x0 and P0 replace; give one of them")
         start = _as_batch("x0", x0, 2, single)
         cov = _as_batch("P0", P0, 3, single) if P0 is not None else None
         if cov is None:

@@ -196,6 +196,28 @@ def test_inputs_the_track_cannot_mean_are_refused(change, message) -> None:
         run_policy(z, _policy("fixed"), **kwargs)
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        # numpy's ValueError, not ConfigError; a velocity beside x0 was silently ignored
+        ({"z": [[1000.0, 0.1], [1.0]]}, "z must be an array of numbers"),
+        ({"z": [["a", "b"], ["c", "d"]]}, "z must be an array of numbers"),
+        ({"velocity": ["a", "b"]}, "velocity must be an array of numbers"),
+        ({"x0": [[0.0, 0.0], [0.0]], "P0": np.eye(4)}, "x0 must be an array of numbers"),
+        ({"x0": np.zeros(4), "P0": np.eye(4) * 100.0, "velocity": [1.0, 2.0, 3.0]},
+         "velocity and x0 both given"),
+        ({"x0": np.zeros(4), "P0": np.eye(4) * 100.0, "velocity": [1.0, 2.0]},
+         "velocity and x0 both given"),
+    ],
+    ids=["z-ragged", "z-text", "velocity-text", "x0-ragged", "velocity-bad-with-x0",
+         "velocity-with-x0"],
+)
+def test_inputs_that_are_no_array_of_numbers_or_two_starts_are_refused(kwargs, message) -> None:
+    kwargs = {"z": np.ones((5, 2)) * [1000.0, 0.1], **kwargs}
+    with pytest.raises(ConfigError, match=message):
+        run_policy(policy=_policy("fixed"), **kwargs)
+
+
 def test_flags_of_zeros_and_ones_and_what_the_env_can_draw_are_taken() -> None:
     """0/1 flags act as booleans; a negative range, which the env draws under heavy outliers
     (its noise is not clipped), is tracked as given."""
