@@ -248,8 +248,11 @@ def evaluate(
     labelled a bound or a reference, or skipped with the reason (:func:`clairvoyant_bound`).
     ``make_core``: builds the core of each roll-out
     (:func:`~imm_gym.evaluation.rollout.rollout`; ``--ray``: a
-    :class:`~imm_gym.evaluation.distributed.ShardPool`'s, the same numbers).
+    :class:`~imm_gym.evaluation.distributed.ShardPool`'s, the same numbers). ``meta.versions``
+    (:func:`~imm_gym.cli.provenance.versions`) is read once, as the evaluation starts: the code
+    it ran, not a commit made while it runs.
     """
+    started = versions(*OPTIONAL_PACKAGES)
     if bank not in BANKS:
         raise ConfigError(f"--bank must be one of {list(BANKS)}, got {bank!r}")
     base = evaluated_config(scenario, env_config, bank)
@@ -310,7 +313,7 @@ def evaluate(
         "filter": base.filter,
         "bank": bank,
         "env_config": plain(dict(env_config)) if env_config else None,
-        "versions": versions(*OPTIONAL_PACKAGES),
+        "versions": started,
         "divergence": divergence_meta(base),
         "bootstrap": bootstrap_meta(),
     }
@@ -542,8 +545,11 @@ def evaluate_suite(
         ``bar``, "bar": {"policy": NAME, "differences": {POLICY: paired difference}}},
         "tally": {POLICY: {"below", "level", "above", "skipped": [CASE, ...]}}, "meta": {...}}``;
         the tally sorts the cases by the paired difference against the bar, else the reference
-        (its 95 % CI below zero, including it, above it).
+        (its 95 % CI below zero, including it, above it). ``meta.versions``, the suite's and
+        every case's, is read once, as the suite starts: the code it ran, not a commit made
+        while it runs.
     """
+    started = versions(*OPTIONAL_PACKAGES)
     files = suite_files(suite)
     configs = _read_suite(suite, files)
     rules = [name for name in policies if name in REGISTRY]
@@ -587,6 +593,7 @@ def evaluate_suite(
         )
         results["meta"]["env_config"] = config_record(files[case], overrides)
         results["meta"]["bank"] = "env-config" if "bank" in env_config else "paper"
+        results["meta"]["versions"] = started
         results["skipped"] = skipped[case]
         if bar:
             best = min(bar, key=lambda name: results["policies"][name]["armse_pos"])
@@ -609,7 +616,7 @@ def evaluate_suite(
         "runs": runs,
         "seed": seed,
         "seeds": f"{seed}..{seed + runs - 1}",
-        "versions": versions(*OPTIONAL_PACKAGES),
+        "versions": started,
         "bootstrap": bootstrap_meta(),
     }
     return out
@@ -1192,10 +1199,12 @@ def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
         if not sep or not policy or not path:
             parser.error(f"--tuned must be POLICY=FILE (e.g. bbsca=tuned.json), got {item!r}")
         tuned[policy] = path
+    started = versions(*OPTIONAL_PACKAGES)  # the code that runs, as evaluate's meta.versions
     try:
         results = evaluate_system(args.scenario, args.policy, args.runs, args.seed, tuned)
     except ValueError as err:
         parser.error(str(err))
+    results["meta"]["versions"] = started
     _record(results, args)
     render_system_tables(results)
     return 0

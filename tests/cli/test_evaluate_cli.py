@@ -465,3 +465,41 @@ def test_a_shard_that_died_ends_the_command_in_one_line(monkeypatch, capsys) -> 
     monkeypatch.setattr(cli, "evaluate", failed)
     with pytest.raises(RuntimeError, match="not a shard"):
         main(["--policy", "fixed", "--runs", "4", "--quiet"])
+
+
+def test_meta_records_the_code_state_read_as_the_run_starts(tmp_path, monkeypatch) -> None:
+    """``meta.versions`` is read once, before any roll-out (it was read after them: a commit made
+    while the evaluation ran was recorded as the code run), for one scenario, a suite (its meta
+    and every case's) and a seed system."""
+    import imm_gym.cli.evaluate as cli
+    import imm_gym.papers.tuned_comparison as systems
+
+    state = {"git_commit": "at start"}
+
+    def commit_while_running(run):
+        def wrapped(*args, **kwargs):
+            state["git_commit"] = "committed mid-run"
+            return run(*args, **kwargs)
+
+        return wrapped
+
+    monkeypatch.setattr(cli, "versions", lambda *optional: dict(state))
+    monkeypatch.setattr(cli, "rollout", commit_while_running(cli.rollout))
+    monkeypatch.setattr(systems, "run_bank", commit_while_running(systems.run_bank))
+    results, _ = evaluate(["fixed"], "paper", 2, 0, clairvoyant=False)
+    assert results["meta"]["versions"] == {"git_commit": "at start"}
+    state["git_commit"] = "at start"
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    for name in ("a", "b"):
+        (folder / f"{name}.yaml").write_text("scenario: paper\n")
+    suite = cli.evaluate_suite(["fixed"], str(folder), 2, 0, clairvoyant=False)
+    assert suite["meta"]["versions"] == {"git_commit": "at start"}
+    cases = [r["meta"]["versions"] for r in suite["scenarios"].values()]
+    assert cases == [{"git_commit": "at start"}] * 2
+    state["git_commit"] = "at start"
+    out = tmp_path / "system.json"
+    argv = ["--scenario", "seed003", "--policy", "fixed", "--runs", "2", "--quiet"]
+    assert main([*argv, "--json", str(out)]) == 0
+    assert state["git_commit"] == "committed mid-run"
+    assert json.loads(out.read_text())["meta"]["versions"] == {"git_commit": "at start"}
