@@ -20,8 +20,9 @@ no file of the previous policy stays.
     python -m agents.export --from-pickle OLD_AGENT --to NEW_DIR
 
 converts an agent saved by an earlier version (``policy.pt``, or ``model.zip`` for a recurrent
-one: pickles, which run code when loaded) into these files. Run it only on a machine where you
-trust ``OLD_AGENT``: it is the one place that unpickles, and only when asked to.
+one: pickles, which run code when loaded) into these files, replacing ``NEW_DIR`` as the export
+replaces its target (``--to`` is required here). Run it only on a machine where you trust
+``OLD_AGENT``: it is the one place that unpickles, and only when asked to.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import json
 import shutil
 import sys
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -71,14 +72,8 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
         ConfigError: one of its files is malformed (the message names it), or ``target`` holds
             something other than an exported policy.
     """
-    _check_replaceable(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    # written in a fresh directory beside the target (no directory of the user's is reused),
-    # then renamed into place
-    scratch = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".export",
-                                    dir=target.parent))
-    staging = scratch / target.name
-    try:
+    def write(staging: Path) -> None:
+        """The acting files of ``source`` into ``staging``, checked by loading them."""
         if is_selector(source):
             directory = source.parent if source.name == SELECTOR_FILE else source
             selector = read_json(directory / SELECTOR_FILE)
@@ -96,6 +91,25 @@ def export(source: Path, target: Path = PRETRAINED) -> list[Path]:
         else:
             agent = load_agent(source)  # its directory, or a file in it
             _copy_agent(agent_directory(source), staging, agent.env_overrides)
+
+    return _replace(target, write)
+
+
+def _replace(target: Path, write: Callable[[Path], None]) -> list[Path]:
+    """Replace ``target`` by the directory ``write(staging)`` writes, once
+    :func:`_check_replaceable` allows it. Returns the files written.
+
+    ``staging`` is in a fresh directory beside the target (no directory of the user's is
+    reused), renamed into place once ``write`` returns; nothing is left beside the target, and
+    the target is untouched if ``write`` raises.
+    """
+    _check_replaceable(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".export",
+                                    dir=target.parent))
+    staging = scratch / target.name
+    try:
+        write(staging)
         shutil.rmtree(target, ignore_errors=True)
         staging.rename(target)
     finally:  # nothing left beside the target
@@ -199,12 +213,19 @@ def _exported(target: Path) -> set[Path]:
 
 
 def convert_pickled(source: Path, target: Path) -> list[Path]:
-    """Write the data-only files of an agent saved in the earlier pickled format.
+    """Replace ``target`` by the data-only files of an agent saved in the earlier pickled format.
 
-    Unpickles ``source/policy.pt`` (``source/model.zip`` for a recurrent agent) with SB3's
-    loaders — code in those files runs — then writes the network's description into
-    ``agent.json`` and its tensors into ``policy.safetensors``, and copies ``env.json`` and
-    ``vecnormalize.json``; the result is checked by loading it.
+    Once ``target`` may be replaced as :func:`export` replaces it (absent, empty or a policy
+    exported before), unpickles ``source/policy.pt`` (``source/model.zip`` for a recurrent
+    agent) with SB3's loaders — code in those files runs — and replaces ``target`` by the
+    network's description in ``agent.json`` (``normalize`` whether ``vecnormalize.json`` is
+    copied) and its tensors in ``policy.safetensors``, with ``env.json`` and
+    ``vecnormalize.json`` copied; the result is checked by loading it. Returns the files
+    written.
+
+    Raises:
+        ConfigError: ``source`` is not an agent of the earlier pickled format, the result does
+            not load, or ``target`` holds something other than an exported policy.
     """
     from agents.asymmetric import AsymmetricActorCriticPolicy
     from agents.network import policy_spec, save_weights
@@ -215,29 +236,34 @@ def convert_pickled(source: Path, target: Path) -> list[Path]:
     file = source / ("model.zip" if recurrent else "policy.pt")
     if not file.is_file():
         raise ConfigError(f"{file}: missing (an agent of the earlier pickled format holds it)")
-    try:
-        if recurrent:
-            from sb3_contrib import RecurrentPPO
 
-            policy = RecurrentPPO.load(file, device="cpu").policy
-        else:
-            from stable_baselines3.common.policies import ActorCriticPolicy
+    def write(staging: Path) -> None:
+        """The converted agent's files into ``staging``, checked by loading them."""
+        try:
+            if recurrent:
+                from sb3_contrib import RecurrentPPO
 
-            cls = AsymmetricActorCriticPolicy if meta.get("critic_dims", 0) else ActorCriticPolicy
-            policy = cls.load(str(file), device="cpu")
-    except Exception as err:  # whatever the unpickler or SB3 raise on a file of another kind
-        raise ConfigError(
-            f"{file}: not an agent of the earlier pickled format ({type(err).__name__}: {err})"
-        ) from None
-    target.mkdir(parents=True, exist_ok=True)
-    save_weights(policy, target)
-    meta["policy"] = policy_spec(policy)
-    (target / AGENT_FILE).write_text(json.dumps(meta, indent=2))
-    for name in (ENV_FILE, NORMALIZER_FILE):
-        if (source / name).is_file() and source.resolve() != target.resolve():
-            shutil.copy2(source / name, target / name)
-    load_agent(target)
-    return [target / name for name in FILES if (target / name).is_file()]
+                policy = RecurrentPPO.load(file, device="cpu").policy
+            else:
+                from stable_baselines3.common.policies import ActorCriticPolicy
+
+                cls = (AsymmetricActorCriticPolicy if meta.get("critic_dims", 0)
+                       else ActorCriticPolicy)
+                policy = cls.load(str(file), device="cpu")
+        except Exception as err:  # whatever the unpickler or SB3 raise on a file of another kind
+            raise ConfigError(f"{file}: not an agent of the earlier pickled format "
+                              f"({type(err).__name__}: {err})") from None
+        staging.mkdir(parents=True)
+        save_weights(policy, staging)
+        meta["policy"] = policy_spec(policy)
+        meta["normalize"] = (source / NORMALIZER_FILE).is_file()
+        (staging / AGENT_FILE).write_text(json.dumps(meta, indent=2))
+        for name in (ENV_FILE, NORMALIZER_FILE):
+            if (source / name).is_file():
+                shutil.copy2(source / name, staging / name)
+        load_agent(staging)
+
+    return _replace(target, write)  # the target checked before anything is unpickled
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -251,7 +277,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="a trained agent's directory (OUT/seed_S/agent), an ensemble's (OUT/ensemble) or "
         "a stay selector's",
     )
-    parser.add_argument("--to", type=Path, default=PRETRAINED, help="target directory")
+    parser.add_argument(
+        "--to", type=Path, default=None,
+        help="target directory (default agents/pretrained; required with --from-pickle)",
+    )
     parser.add_argument(
         "--from-pickle",
         action="store_true",
@@ -259,15 +288,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         "its files: only on a machine where you trust them) and write the data-only files",
     )
     args = parser.parse_args(argv)
+    if args.from_pickle and args.to is None:
+        parser.error("--from-pickle needs --to NEW_DIR, the converted agent's directory")
+    target = PRETRAINED if args.to is None else args.to
     try:
         if args.from_pickle:
-            copied = convert_pickled(args.source, args.to)
+            copied = convert_pickled(args.source, target)
         else:
-            copied = export(args.source, args.to)
+            copied = export(args.source, target)
     except (FileNotFoundError, ConfigError) as err:
         parser.error(str(err))
     size = sum(p.stat().st_size for p in copied)
-    print(f"exported {len(copied)} files ({size / 1024:.0f} KiB) to {args.to}")
+    print(f"exported {len(copied)} files ({size / 1024:.0f} KiB) to {target}")
     return 0
 
 

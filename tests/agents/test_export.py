@@ -3,16 +3,19 @@ export writes, and ``--from-pickle`` writes through the same replacement."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from helpers import shipped_agent
 
 from agents import PRETRAINED
-from agents.ensemble import EnsemblePolicy, load_policy
-from agents.export import export
-from agents.policy import LearnedPolicy
+from agents.ensemble import EnsemblePolicy, load_policy, member_paths
+from agents.export import convert_pickled, export
+from agents.export import main as export_main
+from agents.policy import AGENT_FILE, NORMALIZER_FILE, LearnedPolicy, load_agent
 from imm_gym.validation import ConfigError
 
 
@@ -44,3 +47,59 @@ def test_an_exported_policy_is_replaced_by_another(tmp_path: Path) -> None:
     export(shipped_agent(), target)  # an agent over an ensemble
     assert isinstance(load_policy(target), LearnedPolicy)
     assert not (target / "ensemble.json").exists()
+
+
+@pytest.fixture
+def pickled(tmp_path: Path) -> Path:
+    """An agent of the earlier pickled format (``policy.pt``) trained without a normalizer."""
+    agent = load_agent(shipped_agent())
+    old = tmp_path / "old"
+    old.mkdir()
+    agent.model.save(str(old / "policy.pt"))
+    meta = json.loads((shipped_agent() / AGENT_FILE).read_text())
+    meta.pop("policy")
+    meta.pop("normalize")
+    (old / AGENT_FILE).write_text(json.dumps(meta))
+    shutil.copy(shipped_agent() / "env.json", old / "env.json")
+    return old
+
+
+def test_a_pickled_agent_replaces_its_target_whole(pickled: Path, tmp_path: Path) -> None:
+    """Converted into an agent with a normalizer, or into an ensemble: nothing of the target
+    stays (its vecnormalize.json was used, its ensemble.json loaded in place of the agent)."""
+    obs = np.random.default_rng(0).normal(size=(4, load_agent(shipped_agent()).obs_size))
+    convert_pickled(pickled, tmp_path / "fresh")
+    expected = load_policy(tmp_path / "fresh").predict(obs)[0]
+    assert json.loads((tmp_path / "fresh" / AGENT_FILE).read_text())["normalize"] is False
+    other = [m for m in member_paths(PRETRAINED) if (m / NORMALIZER_FILE).is_file()][-1]
+    for target in (shutil.copytree(other, tmp_path / "stale"),
+                   shutil.copytree(PRETRAINED, tmp_path / "ensemble")):
+        written = convert_pickled(pickled, Path(target))
+        assert sorted(p.name for p in written) == [AGENT_FILE, "env.json", "policy.safetensors"]
+        assert sorted(p.name for p in Path(target).iterdir()) == sorted(p.name for p in written)
+        converted = load_policy(target)
+        assert isinstance(converted, LearnedPolicy)
+        np.testing.assert_array_equal(converted.predict(obs)[0], expected)
+
+
+def test_a_pickled_agent_is_not_converted_into_its_own_directory(pickled: Path) -> None:
+    before = (pickled / "policy.pt").read_bytes()
+    with pytest.raises(ConfigError, match=r"it holds \['policy\.pt'\]"):
+        convert_pickled(pickled, pickled)
+    assert (pickled / "policy.pt").read_bytes() == before
+
+
+def test_from_pickle_needs_a_target(
+    pickled: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """No default: the default target of the export is the shipped ensemble (a copy here)."""
+    import agents.export
+
+    shipped = Path(shutil.copytree(PRETRAINED, tmp_path / "pretrained"))
+    monkeypatch.setattr(agents.export, "PRETRAINED", shipped)
+    with pytest.raises(SystemExit) as exc:
+        export_main(["--from-pickle", str(pickled)])
+    assert exc.value.code == 2
+    assert "--from-pickle needs --to NEW_DIR" in capsys.readouterr().err
+    assert not (shipped / AGENT_FILE).exists()
