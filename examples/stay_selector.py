@@ -73,7 +73,7 @@ from agents.selector import (
     stay_action,
 )
 from agents.training import set_threads
-from imm_gym.cli.evaluate import evaluate, evaluated_config, suite_configs
+from imm_gym.cli.evaluate import cannot_run, evaluate, evaluated_config, suite_configs
 from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
 from imm_gym.evaluation.rollout import armse_from_squared, paired_bootstrap
 from imm_gym.sim.config_file import read_env_config, tracker_of
@@ -108,6 +108,8 @@ SET_GAIN, P_MIN = 10.0, 1e-4
 REDRAW = 1.0 / 30.0
 #: Episodes per collection batch.
 BATCH = 256
+#: The policies the selector is scored beside (:func:`score`).
+COMPARED = ("best-fixed", "pretrained", "learned-prior")
 
 
 def selector_overrides(
@@ -326,7 +328,7 @@ def score(selector: StaySelector, configs: Mapping[str, Mapping[str, Any]], runs
     """Print the selector beside ``best-fixed``, ``pretrained`` and ``learned-prior`` on each
     configuration: ARMSE (m), mode accuracy, the selector's mode-probability total variation and
     its paired difference from ``best-fixed`` with a 95 % CI."""
-    policies = ["best-fixed", "pretrained", "learned-prior"]
+    policies = list(COMPARED)
     print("| configuration | selector | " + " | ".join(policies)
           + " | selector − best-fixed (m) | mode acc. selector / best-fixed | TV |")
     print("|---" * (5 + len(policies)) + "|")
@@ -443,9 +445,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     for f in args.off_suite:  # read and checked before collecting and fitting
         try:
             off_suite[f] = read_env_config(f)
-            evaluated_config(off_suite[f].get("scenario", "random"), off_suite[f])
+            base = evaluated_config(off_suite[f].get("scenario", "random"), off_suite[f])
         except ConfigError as err:
             p.error(f"--off-suite: {err}")
+        for name in COMPARED:  # as evaluate checks them, before any roll-out
+            reason = cannot_run(name, base, args.seed)
+            if reason:
+                p.error(f"--off-suite: {f}: {name} cannot run on this configuration: {reason}")
     set_threads(1)  # one BLAS and torch thread: jobs beside it do not wait on each other
     if args.weights:
         try:

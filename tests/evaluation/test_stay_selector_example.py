@@ -120,6 +120,12 @@ def test_bad_options_are_refused_before_any_work(
     (["--off-suite", "no/such/file.yaml"], "--off-suite: no/such/file.yaml: cannot read"),
     (["--off-suite", "examples/broad.yaml", "README.md"], "--off-suite: README.md: a "
      "configuration file ends in"),
+    # a bank a compared policy cannot run on (ConfigError at the scoring, after the fit)
+    (["--off-suite", "examples/probes/cvcact.yaml"], "--off-suite: examples/probes/cvcact.yaml: "
+     "learned-prior cannot run on this configuration: detector 'learned' needs models of "
+     "distinct turn rates"),
+    (["--off-suite", "examples/probes/cv_ct.yaml"], "--off-suite: examples/probes/cv_ct.yaml: "
+     "pretrained cannot run on this configuration: reads 44 observation entries"),
 ])
 def test_the_runs_seeds_and_files_are_refused_before_collecting(
     option: list[str], message: str, capsys: pytest.CaptureFixture[str],
