@@ -124,9 +124,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--config",
         type=Path,
-        help="YAML file with hyperparameters overriding the entry, its env_kwargs' reward and "
-        "agent settings over every part of the entry's env_mixture too unless it gives "
-        "env_mixture (with --resume: only the budget, n_timesteps)",
+        help="YAML file with hyperparameters overriding the entry (its env_kwargs and "
+        "policy_kwargs key by key), its env_kwargs' reward and agent settings over every part of "
+        "the entry's env_mixture too unless it gives env_mixture (with --resume: only the "
+        "budget, n_timesteps)",
     )
     p.add_argument(
         "--env-config",
@@ -413,7 +414,9 @@ def on_preset(params: dict[str, Any], env_id: str) -> dict[str, Any]:
 
 def with_config(params: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     """The hyperparameters ``params`` with a ``--config`` file's checked ``extra`` over them: its
-    ``env_kwargs`` over the entry's, and those saying what the agent is trained as
+    ``env_kwargs`` and ``policy_kwargs`` key by key over the entry's (one level: a key given,
+    such as ``net_arch``, replaces the entry's whole; the entry's other keys stay), and those
+    saying what the agent is trained as
     (:data:`~imm_gym.sim.mixture.AGENT_FIELDS`: a reward, what the policy reads and writes) over
     every part of the entry's ``env_mixture`` too — its trackers and targets, which the parts are
     there to vary, stay each part's own — unless the file gives its own ``env_mixture``, which is
@@ -421,6 +424,8 @@ def with_config(params: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]
     extra = dict(extra)
     changes = extra.pop("env_kwargs", {})
     updated = {**params, **extra, "env_kwargs": {**params.get("env_kwargs", {}), **changes}}
+    if "policy_kwargs" in extra:
+        updated["policy_kwargs"] = {**params.get("policy_kwargs", {}), **extra["policy_kwargs"]}
     shared = _agent_fields(changes)
     if shared and "env_mixture" not in extra and "env_mixture" in params:
         updated["env_mixture"] = [

@@ -379,6 +379,17 @@ def test_config_env_kwargs_reach_every_part_of_the_mixture(tmp_path) -> None:
     assert params["env_mixture"] == before
 
 
+def test_config_policy_kwargs_apply_key_by_key_over_the_entrys(tmp_path) -> None:
+    """A --config file giving one policy_kwargs key keeps the entry's others (its 128x128
+    net_arch was dropped for SB3's 64x64 default); a key given replaces the entry's whole."""
+    entry = _hyperparams(tmp_path, "{}\n")["policy_kwargs"]
+    assert entry["net_arch"] == {"pi": [128, 128], "vf": [128, 128]}
+    params = _hyperparams(tmp_path, "policy_kwargs: {log_std_init: -0.5}\n")
+    assert params["policy_kwargs"] == {**entry, "log_std_init": -0.5}
+    params = _hyperparams(tmp_path, "policy_kwargs: {net_arch: {pi: [64], vf: [32]}}\n")
+    assert params["policy_kwargs"] == {**entry, "net_arch": {"pi": [64], "vf": [32]}}
+
+
 def test_a_config_restating_the_mixture_keeps_its_own(tmp_path) -> None:
     from agents.training import load_hyperparams
 
