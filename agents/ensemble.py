@@ -18,8 +18,8 @@ records member 0's tracker, which the evaluation names as the one it was trained
 compares the evaluated bank's models with (with the trackers of a mixture any member was
 trained across). They may have been rewarded differently.
 
-Build one with ``python -m agents.ensemble OUT MEMBER [MEMBER ...]`` and evaluate it as any agent
-(``python -m imm_gym.evaluate --policy OUT``).
+Build one with ``python -m agents.ensemble OUT MEMBER [MEMBER ...]`` (``OUT`` not an agent's or a
+selector's directory) and evaluate it as any agent (``python -m imm_gym.evaluate --policy OUT``).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agents.policy import AGENT_FILE, LearnedPolicy, agent_directory, load_agent, read_manifest
-from agents.selector import StaySelector, is_selector, load_selector
+from agents.selector import SELECTOR_FILE, StaySelector, is_selector, load_selector
 from imm_gym.sim.config_file import plain
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.mixture import POLICY_FIELDS
@@ -226,19 +226,27 @@ def write_ensemble(directory: str | Path, members: Sequence[str | Path]) -> Path
     ``directory``), after checking that they load as one ensemble. Returns the file.
 
     Raises:
-        ConfigError: a member is given twice (by its directory or a file in it, as
-            :func:`member_paths` reads them; checked before ``directory`` is created), or the
-            members do not load as one ensemble.
+        ConfigError: ``directory`` holds ``agent.json`` or ``selector.json`` (a policy of its
+            own, which the ensemble would shadow or be shadowed by when the directory is
+            loaded), a member is given twice (by its directory or a file in it, as
+            :func:`member_paths` reads them), or the members do not load as one ensemble; all
+            checked before ``directory`` is created.
+        FileNotFoundError: a member is not a trained agent's directory.
     """
     directory = Path(directory)
+    for policy_file in (AGENT_FILE, SELECTOR_FILE):
+        if (directory / policy_file).exists():
+            raise ConfigError(f"{directory}: holds {policy_file}, a policy of its own: an "
+                              f"ensemble's directory must hold neither {AGENT_FILE} nor "
+                              f"{SELECTOR_FILE} (loading it would take one policy for another)")
     resolved = [agent_directory(m).resolve() for m in members]
     if len(set(resolved)) != len(resolved):
         raise ConfigError(f"a member is given twice: {[str(m) for m in members]}")
+    EnsemblePolicy([load_agent(m) for m in members], source=str(directory))
     directory.mkdir(parents=True, exist_ok=True)
     relative = [os.path.relpath(m, directory.resolve()) for m in resolved]
     file = directory / ENSEMBLE_FILE
     data = {"format": FORMAT, "combine": COMBINE[0], "members": relative}
-    EnsemblePolicy([load_agent(m) for m in members], source=str(directory))
     file.write_text(json.dumps(data, indent=2) + "\n")
     return file
 

@@ -267,3 +267,32 @@ def test_write_ensemble_refuses_a_member_given_twice_before_writing(members, tmp
     with pytest.raises(ConfigError, match="a member is given twice"):
         write_ensemble(tmp_path / "e", [agent, agent / "agent.json", other])
     assert not (tmp_path / "e").exists()
+
+
+@pytest.mark.parametrize("policy_file", ["agent.json", "selector.json"])
+def test_an_ensemble_is_not_written_into_a_policys_directory(
+    members, tmp_path, capsys, policy_file
+) -> None:
+    """ensemble.json beside agent.json took precedence in load_policy: ``--policy OUT`` then
+    evaluated the ensemble in place of the agent."""
+    agent, other = members
+    out = Path(shutil.copytree(other, tmp_path / "out"))
+    if policy_file == "selector.json":
+        (out / "agent.json").rename(out / policy_file)
+    before = sorted(p.name for p in out.iterdir())
+    with pytest.raises(SystemExit) as exit_:
+        ensemble_main([str(out), str(agent), str(other)])
+    assert exit_.value.code == 2
+    assert f"{out}: holds {policy_file}, a policy of its own" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == before
+
+
+def test_a_failed_ensemble_creates_no_directory(members, tmp_path, capsys) -> None:
+    """The members are loaded before the directory is made: a member that is no agent leaves
+    nothing behind."""
+    agent, _ = members
+    with pytest.raises(SystemExit) as exit_:
+        ensemble_main([str(tmp_path / "e"), str(agent), str(tmp_path / "missing")])
+    assert exit_.value.code == 2
+    assert "no trained agent" in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()
