@@ -13,14 +13,18 @@ from pathlib import Path
 
 #: Distributions recorded wherever a run is made (read from their metadata: nothing is imported).
 CORE_PACKAGES = ("numpy", "scipy", "gymnasium")
+#: The packages beside imm_gym whose modules its command lines run: an untracked module in one
+#: (``baselines/__init__.py`` imports every module of its folder) is code the commit does not hold.
+PLUGIN_PACKAGES = ("baselines", "agents")
 
 
 def versions(*optional: str) -> dict[str, str | bool]:
     """``{"imm_gym": ..., "git_commit": ..., "git_dirty": ..., "python": ..., "numpy": ..., ...}``.
 
     ``git_commit`` is the commit checked out where a git work tree tracks the package, and
-    ``git_dirty`` whether tracked files of that tree differ from it (the commit alone does not
-    give the code run then); both absent otherwise. Each distribution of ``optional`` (by its
+    ``git_dirty`` whether tracked files of that tree differ from it or an untracked module lies
+    in the package or beside it (:func:`git_state`: the commit alone does not give the code run
+    then); both absent otherwise. Each distribution of ``optional`` (by its
     distribution name, e.g. ``"stable-baselines3"``) is recorded where it is installed and left
     out where it is not.
     """
@@ -42,19 +46,35 @@ def versions(*optional: str) -> dict[str, str | bool]:
 def git_state(directory: Path) -> tuple[str, bool] | None:
     """``(commit, dirty)`` of the git work tree that tracks the package ``directory`` (its
     ``__init__.py``): ``git rev-parse HEAD``, and whether ``git status --porcelain
-    --untracked-files=no`` lists a tracked file that differs from it (anywhere in the tree;
-    untracked files do not count). None where no work tree tracks the package — outside one, or
-    inside one that does not track it (a virtual environment within another project's checkout)
-    — and where git is missing or fails (the versions are a record, never a reason to stop)."""
+    --untracked-files=no`` lists a tracked file that differs from it (anywhere in the tree) or
+    an untracked, non-ignored ``.py`` file lies in the package or in a plug-in package beside it
+    (:data:`PLUGIN_PACKAGES`; other untracked files do not count). None where no work tree
+    tracks the package — outside one, or inside one that does not track it (a virtual
+    environment within another project's checkout) — and where git is missing or fails (the
+    versions are a record, never a reason to stop)."""
     if not any((d / ".git").exists() for d in (directory, *directory.parents)):
         return None
     try:
         _git(directory, "ls-files", "--error-unmatch", "__init__.py")
         commit = _git(directory, "rev-parse", "HEAD")
         changed = _git(directory, "status", "--porcelain", "--untracked-files=no")
+        untracked = _untracked_modules(directory)
     except (OSError, subprocess.SubprocessError):
         return None
-    return (commit, bool(changed)) if commit else None
+    return (commit, bool(changed or untracked)) if commit else None
+
+
+def _untracked_modules(directory: Path) -> str:
+    """The untracked, non-ignored ``.py`` files (``git ls-files --others --exclude-standard``),
+    one a line, of the package ``directory`` and, where the work tree holds its parent, of the
+    :data:`PLUGIN_PACKAGES` folders beside it."""
+    if (directory / ".git").exists():  # the package is the work tree's root
+        return _git(directory, "ls-files", "--others", "--exclude-standard", "--", "*.py")
+    folders = (directory.name, *PLUGIN_PACKAGES)
+    return _git(
+        directory.parent,
+        "ls-files", "--others", "--exclude-standard", "--", *(f"{f}/*.py" for f in folders),
+    )
 
 
 def _git(directory: Path, *args: str) -> str:

@@ -96,3 +96,28 @@ def test_a_work_tree_whose_tracked_files_differ_from_the_commit_is_recorded_dirt
     assert (record["git_commit"], record["git_dirty"]) == (head, True)
     _git(root, "commit", "-q", "-am", "two")
     assert git_state(package) == (_git(root, "rev-parse", "HEAD"), False) != (head, False)
+
+
+def test_an_untracked_module_in_the_packages_is_recorded_dirty(tmp_path, monkeypatch) -> None:
+    """``baselines/__init__.py`` imports every module of its folder: an untracked, non-ignored
+    ``.py`` file in the package or in baselines/ or agents/ beside it is code the commit does not
+    hold (it was recorded clean); one elsewhere, or ignored, is not."""
+    root = _repo(tmp_path / "project", "pkg/__init__.py", "baselines/__init__.py", ".gitignore")
+    (root / ".gitignore").write_text("baselines/ignored_*.py\n")
+    _git(root, "commit", "-q", "-am", "ignore")
+    package = root / "pkg"
+    head = _git(root, "rev-parse", "HEAD")
+    monkeypatch.setattr(imm_gym, "__file__", str(package / "__init__.py"))
+    (root / "scripts").mkdir()
+    (root / "scripts" / "mine.py").write_text("x = 1\n")
+    (root / "baselines" / "ignored_rule.py").write_text("x = 1\n")
+    (root / "agents").mkdir()
+    (root / "agents" / "notes.txt").write_text("not a module\n")
+    assert git_state(package) == (head, False)
+    for module in ("baselines/zz_mine.py", "agents/sub/policy.py", "pkg/extra.py"):
+        (root / module).parent.mkdir(parents=True, exist_ok=True)
+        (root / module).write_text("x = 1\n")
+        assert git_state(package) == (head, True), module
+        assert versions()["git_dirty"] is True
+        (root / module).unlink()
+    assert git_state(package) == (head, False)
