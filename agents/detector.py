@@ -210,8 +210,8 @@ def check_configs(
     """
     sizes = []
     for name, overrides in zip(files, configs, strict=True):
-        omegas = model_turn_rates(collection_config(overrides).bank)
         try:
+            omegas = model_turn_rates(collection_config(overrides).bank)
             turn_rate_order(omegas)  # type: ignore[arg-type]
         except ConfigError as err:
             raise ConfigError(f"env_config {str(name)!r}: {err}") from None

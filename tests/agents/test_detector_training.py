@@ -155,11 +155,15 @@ def test_what_every_file_and_the_output_need_is_refused_before_any_episode(
     monkeypatch.setattr("agents.detector.collect", no_work)
     paper = _bank_file(tmp_path / "paper.yaml", [4.0, -4.0])
     out = str(tmp_path / "d.safetensors")
+    hetero = tmp_path / "hetero.yaml"
+    hetero.write_text(json.dumps({"scenario": "random", "bank": "hetero"}))
     for files, extra, message in [
         ([paper, _bank_file(tmp_path / "two.yaml", [4.0])], [],
          r"env_config: the files' banks have \[3, 2\] models"),
         ([paper, _bank_file(tmp_path / "twice.yaml", [4.0, 4.0])], [],
          r"env_config '.*twice.yaml': detector 'learned' needs models of distinct turn rates"),
+        ([paper, str(hetero)], [],  # the file was not named
+         r"env_config '.*hetero.yaml': the learned detector needs a linear bank"),
         ([paper, paper, paper], ["--runs", "2"], r"runs must be at least the 3 --env-config"),
         ([paper, paper], ["--held-out-runs", "1"], r"held_out_runs must be at least the 2"),
     ]:
