@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.cli.evaluate import suite_configs
+from imm_gym.cli.evaluate import cannot_run, suite_configs
 from imm_gym.evaluation.priors import prior_core, run_priors
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.detectors import (
@@ -74,10 +74,11 @@ EKF_TURN_RATE_STD = np.radians(3.0)
 
 def ekf_turn_rates(core: TrackingCore, runs: int, yaw_noise: float) -> Array:
     """``(R, K + 1)`` the CT-omega EKF's turn rate after each measurement of the first ``runs``
-    slots (column 0: its prior, 0), started from the tracker's first estimate."""
+    slots (column 0: its prior, 0), started from the position and velocity of the tracker's
+    first estimate (``[x, y, vx, vy]``, without a CA bank's accelerations)."""
     ekf = HeteroIMM([HeteroModel("ct", (EKF_SPEED_NOISE, yaw_noise))], core.imm.sensor,
                     T=float(core.config.source.T))
-    state = ekf.init(core.state_a.x[:runs, 0], core.state_a.P[:runs, 0], np.ones(1))
+    state = ekf.init(core.state_a.x[:runs, 0, :4], core.state_a.P[:runs, 0, :4, :4], np.ones(1))
     state.P[:, 0, 4, 4] = EKF_TURN_RATE_STD**2
     rates = np.zeros((runs, core.horizon + 1))
     one = np.ones((runs, 1, 1))
@@ -210,13 +211,19 @@ def main(argv: Sequence[str] | None = None) -> None:
         DetectorNetwork.load(args.detector_weights or DEFAULT_WEIGHTS)
     except ConfigError as err:
         p.error(f"--detector-weights: {err}")
+    weights = str(args.detector_weights or DEFAULT_WEIGHTS)  # the learned rows' network
     for name, overrides in configs.items():  # every column's, before the first one's runs
         try:
-            bank = EnvConfig.build(dict(overrides)).bank
+            base = EnvConfig.build({**overrides, "detector_weights": weights})
         except ConfigError as err:
             p.error(f"{name}: {err}")
-        if model_turn_rates(bank) is None:
-            p.error(f"{name}: the turn-rate prior needs a linear bank (CV and CT models)")
+        # the baselines whose priors the rows run, checked as evaluate checks them
+        for row, policy in (("tracker (env)", "turn-rate-prior"),
+                            ("learned (env)", "learned-prior")):
+            reason = cannot_run(policy, base, args.seed)
+            if reason:
+                p.error(f"{name}: the turn-rate prior ({policy}, the {row!r} row) cannot run on "
+                        f"this configuration: {reason}")
     print(f"runs {args.seed}..{args.seed + args.runs - 1}; position ARMSE (m) / mode accuracy "
           f"(stay, share) of each detector's best prior on these runs")
     table: dict[str, list[str]] = {}

@@ -108,7 +108,16 @@ def test_files_of_one_name_in_other_folders_are_two_columns(
     (["--env-config", "no/such.yaml"], "--env-config: no/such.yaml: cannot read"),
     (["--detector-weights", "no/such.safetensors"], "--detector-weights: "),
     (["--env-config", str(EXAMPLES / "probes" / "hetero.yaml")],
-     "hetero.yaml: the turn-rate prior needs a linear bank"),
+     "hetero.yaml: the turn-rate prior (turn-rate-prior, the 'tracker (env)' row) cannot run on "
+     "this configuration: detector 'turn_rate' needs a linear bank"),
+    # banks the learned detector cannot read (its ConfigError after the earlier columns' runs)
+    (["--env-config", str(EXAMPLES / "probes" / "two_cv.yaml")],
+     "two_cv.yaml: the turn-rate prior (learned-prior, the 'learned (env)' row) cannot run on "
+     "this configuration: detector 'learned' needs models of distinct turn rates"),
+    (["--env-config", str(EXAMPLES / "probes" / "cv_ct.yaml")],
+     "cv_ct.yaml: the turn-rate prior (learned-prior, the 'learned (env)' row) cannot run on "
+     "this configuration: detector_weights: the network places beliefs on 3 models, the bank "
+     "has 2"),
 ])
 def test_bad_options_are_refused_before_any_work(
     option: list[str], message: str, capsys: pytest.CaptureFixture[str],
@@ -119,3 +128,20 @@ def test_bad_options_are_refused_before_any_work(
     with pytest.raises(SystemExit) as exit_:
         example.main(["--scenario", "paper", *option])
     assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_ekf_starts_from_the_position_and_velocity_of_a_ca_banks_state() -> None:
+    """A bank with a CA model (6-dimensional state) and distinct turn rates passes the checks;
+    its CT-omega EKF starts from ``[x, y, vx, vy]`` (the whole state was a ConfigError)."""
+    example = load_example("detector_headroom")
+    overrides = {"scenario": {"segments": [{"duration": 10}, {"duration": 10,
+                                                              "turn_rate_deg": 3.0}]},
+                 "bank": [{"kind": "ca", "noise": "continuous", "intensity": 0.05},
+                          {"kind": "ct", "turn_rate_deg": 3.0, "noise": "continuous",
+                           "intensity": 0.1},
+                          {"kind": "ct", "turn_rate_deg": -3.0, "noise": "continuous",
+                           "intensity": 0.1}]}
+    scores = example.detector_runs(overrides, [0], 1, 0)
+    assert {d for d, _, _ in scores} == {"true, 0 late", "tracker (env)", "CT-omega EKF",
+                                         "learned (env)"}
+    assert all(np.isfinite(armse) for armse, _ in scores.values())
