@@ -41,7 +41,7 @@ from agents.schema import (
 )
 from imm_gym.seeding import TRAIN_SEED_BASE, VALIDATION_SEED_BASE
 from imm_gym.sim.mixture import check_mixture
-from imm_gym.validation import ConfigError, load_yaml
+from imm_gym.validation import ConfigError, load_yaml, shown
 
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
 #: The training slots a run seed may have: run seed ``s``'s slot ``i`` is seeded with
@@ -119,7 +119,7 @@ def load_hyperparams(
 def _unit(where: str, value: Any) -> float:
     number = check_number(where, value)
     if not 0.0 < number <= 1.0:
-        raise ConfigError(f"{where} must be in (0, 1], got {value!r}")
+        raise ConfigError(f"{where} must be in (0, 1], got {shown(value)}")
     return number
 
 
@@ -134,11 +134,13 @@ def _rate(where: str, value: Any) -> float | str:
         if not 0 < initial < math.inf:
             raise ConfigError(
                 f"{where} must be a number or 'lin_<number>', the number finite and > 0, got "
-                f"{value!r}"
+                f"{shown(value)}"
             )
         return value
     if isinstance(value, str) or not check_number(where, value) > 0:
-        raise ConfigError(f"{where} must be a positive number or 'lin_<number>', got {value!r}")
+        raise ConfigError(
+            f"{where} must be a positive number or 'lin_<number>', got {shown(value)}"
+        )
     return value
 
 
@@ -147,7 +149,7 @@ def _positive(where: str, value: Any) -> float:
     or flips, and PPO climbs its loss; ``target_kl``: no update's KL is below 0)."""
     number = check_number(where, value)
     if not number > 0:
-        raise ConfigError(f"{where} must be a finite number > 0, got {value!r}")
+        raise ConfigError(f"{where} must be a finite number > 0, got {shown(value)}")
     return number
 
 
@@ -155,7 +157,7 @@ def _non_negative(where: str, value: Any) -> float:
     """A finite number >= 0 (``vf_coef``: below 0 the critic climbs its error)."""
     number = check_number(where, value)
     if not number >= 0:
-        raise ConfigError(f"{where} must be a finite number >= 0, got {value!r}")
+        raise ConfigError(f"{where} must be a finite number >= 0, got {shown(value)}")
     return number
 
 
@@ -165,21 +167,21 @@ def _optional(check: Callable[[str, Any], Any]) -> Callable[[str, Any], Any]:
 
 def _sde_sample_freq(where: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < -1:
-        raise ConfigError(f"{where} must be an integer >= -1, got {value!r}")
+        raise ConfigError(f"{where} must be an integer >= -1, got {shown(value)}")
     return value
 
 
 def _timesteps(where: str, value: Any) -> int:
     number = check_number(where, value)
     if number < 1 or not number.is_integer():
-        raise ConfigError(f"{where} must be a whole number >= 1, got {value!r}")
+        raise ConfigError(f"{where} must be a whole number >= 1, got {shown(value)}")
     return int(number)
 
 
 def _swa_start(where: str, value: Any) -> float | None:
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if value is not None and not (number and 0 <= value < 1):
-        raise ConfigError(f"{where} must be a fraction of the budget in [0, 1), got {value!r}")
+        raise ConfigError(f"{where} must be a fraction of the budget in [0, 1), got {shown(value)}")
     return value
 
 
@@ -190,7 +192,7 @@ def _n_envs(where: str, value: Any) -> int:
     if size > SLOTS_PER_SEED:
         raise ConfigError(
             f"{where} must be in [1, {SLOTS_PER_SEED}] (a run seed's slots are seeded from "
-            f"{SLOTS_PER_SEED} training seeds of its own), got {value!r}"
+            f"{SLOTS_PER_SEED} training seeds of its own), got {shown(value)}"
         )
     return size
 
@@ -201,14 +203,14 @@ def _frame_stack(where: str, value: Any) -> int:
     if size > MAX_FRAMES:
         raise ConfigError(
             f"{where} must be in [1, {MAX_FRAMES}] (the most frames an agent is loaded with), "
-            f"got {value!r}"
+            f"got {shown(value)}"
         )
     return size
 
 
 def _mapping(where: str, value: Any) -> dict[str, Any]:
     if not isinstance(value, dict):
-        raise ConfigError(f"{where} must be a mapping, got {value!r}")
+        raise ConfigError(f"{where} must be a mapping, got {shown(value)}")
     return value
 
 
@@ -274,7 +276,7 @@ def check_hyperparams(where: str, params: Any, algo: str, complete: bool = True)
     if "policy" in out and out["policy"] not in POLICIES[algo]:
         raise ConfigError(
             f"{where}: policy must be one of {list(POLICIES[algo])} for {algo}, got "
-            f"{out['policy']!r}"
+            f"{shown(out['policy'])}"
         )
     if out.get("critic_state") and algo != "ppo":
         raise ConfigError(f"{where}: critic_state: true needs --algo ppo, got --algo {algo}")

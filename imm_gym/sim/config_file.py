@@ -23,7 +23,7 @@ from typing import Any
 
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.presets import BANK_PRESETS
-from imm_gym.validation import ConfigError, load_yaml, unique_keys
+from imm_gym.validation import ConfigError, load_yaml, shown, unique_keys
 
 #: The fields that make the tracker (what a trained agent records as ``trained_on`` and the
 #: evaluation reports as ``evaluated_on``): the sensor, the bank, the filter and its TPM prior.
@@ -61,7 +61,7 @@ def expand_presets(data: Mapping[str, Any], where: str) -> dict[str, Any]:
         if bank not in BANK_PRESETS:
             raise ConfigError(
                 f"{where}: bank must be a list of models or one of {list(BANK_PRESETS)}, "
-                f"got {bank!r}"
+                f"got {shown(bank)}"
             )
         preset = plain(BANK_PRESETS[bank])
         del out["bank"]
@@ -128,7 +128,7 @@ def read_env_config(path: str | Path) -> dict[str, Any]:
             data = {**data, "detector_weights": str((path.parent / weights).resolve())}
         except (OSError, ValueError, RuntimeError) as err:  # a NUL byte, a loop of links
             raise ConfigError(
-                f"{path}: detector_weights {weights!r} is not a path ({err})"
+                f"{path}: detector_weights {shown(weights)} is not a path ({err})"
             ) from None
     return parse_env_config(data, str(path))
 

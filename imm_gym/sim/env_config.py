@@ -36,6 +36,7 @@ from imm_gym.validation import (
     check_range,
     check_sequence,
     from_dict,
+    shown,
     store,
 )
 
@@ -310,7 +311,7 @@ class EnvConfig:
         if self.detector_weights is not None:
             if not isinstance(self.detector_weights, str | Path):
                 raise ConfigError(f"detector_weights must be a file path or None, got "
-                                  f"{self.detector_weights!r}")
+                                  f"{shown(self.detector_weights)}")
             store(self, "detector_weights", str(self.detector_weights))
         if self.detector == "learned":
             turn_rate_order(omegas)  # distinct turn rates
@@ -324,7 +325,7 @@ class EnvConfig:
         store(self, "max_factor", check_range("max_factor", self.max_factor, 1.0, lo_open=True))
         store(self, "logit_scale", check_range("logit_scale", self.logit_scale, 0.0, lo_open=True))
         if not isinstance(self.parallel, bool):
-            raise ConfigError(f"parallel must be a bool, got {self.parallel!r}")
+            raise ConfigError(f"parallel must be a bool, got {shown(self.parallel)}")
         check_choice("shadow", self.shadow, SHADOWS)
         if self.detector == "shadow" and self.shadow == "none" and (
             self.detector_share > 0.0 or observed

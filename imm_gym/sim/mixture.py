@@ -25,7 +25,7 @@ from imm_gym.sim.actions import validate_action
 from imm_gym.sim.core import StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.model_order import model_roles
-from imm_gym.validation import ConfigError
+from imm_gym.validation import ConfigError, shown
 
 #: The fields every part of a mixture must share: the observation (its blocks and the models
 #: they are per), the action's meaning and the banks a feature reads.
@@ -71,19 +71,20 @@ def check_mixture(
     """
     if not isinstance(parts, (list, tuple)) or not parts:
         raise ConfigError(
-            f"{where} must be a non-empty list of {{env_kwargs, share}}, got {parts!r}"
+            f"{where} must be a non-empty list of {{env_kwargs, share}}, got {shown(parts)}"
         )
     kwargs, shares = [], []
     for i, part in enumerate(parts):
         if not isinstance(part, Mapping) or set(part) != {"env_kwargs", "share"}:
             raise ConfigError(
-                f"{where}[{i}] must be a mapping with the keys env_kwargs and share, got {part!r}"
+                f"{where}[{i}] must be a mapping with the keys env_kwargs and share, got "
+                f"{shown(part)}"
             )
         if not isinstance(part["env_kwargs"], Mapping):
             raise ConfigError(f"{where}[{i}].env_kwargs must be a mapping of EnvConfig fields")
         share = part["share"]
         if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0 < share < 1:
-            raise ConfigError(f"{where}[{i}].share must be a number in (0, 1), got {share!r}")
+            raise ConfigError(f"{where}[{i}].share must be a number in (0, 1), got {shown(share)}")
         kwargs.append(dict(part["env_kwargs"]))
         shares.append(float(share))
     if not sum(shares) < 1.0:
