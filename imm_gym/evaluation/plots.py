@@ -110,7 +110,8 @@ def tradeoff_figure(
     other policy as a point named in the legend (with its mode-probability total variation per
     step; a legend, not labels beside the points, which overlap where policies are close), all
     on the same runs. A policy or stay whose mode accuracy is None (no step's true model in the
-    bank) has no point; a total variation None (no two live steps in a row) reads "TV —".
+    bank) has no point; a total variation None (no two live steps in a row) reads "TV —". Where
+    none has a mode accuracy, the figure says so instead of showing empty axes.
 
     Args:
         policies: each policy's :func:`~imm_gym.evaluation.rollout.score`.
@@ -120,16 +121,23 @@ def tradeoff_figure(
     """
     fig = Figure(figsize=(8, 5.5))
     ax = fig.subplots()
+    title = (f"ARMSE vs mode integrity ({meta['scenario']}, {meta['runs']} runs, seeds "
+             f"{meta['seeds']})")
     stays = sorted(s for s in fixed if fixed[s]["mode_accuracy"] is not None)
+    points = {name: row for name, row in policies.items() if row["mode_accuracy"] is not None}
+    if not stays and not points:
+        ax.set_axis_off()
+        ax.set_title(title)
+        ax.text(0.5, 0.5, "no mode accuracy to plot:\nno step's true model is in the bank",
+                ha="center", va="center", transform=ax.transAxes)
+        return _save(fig, path)
     acc = [100.0 * fixed[s]["mode_accuracy"] for s in stays]
     err = [fixed[s]["armse_pos"] for s in stays]
     ax.plot(acc, err, "o-", color="0.55", lw=1, ms=4, label="fixed TPM (stay on the diagonal)")
     for s, a, e in zip(stays, acc, err, strict=True):
         ax.annotate(f"{s:.3g}", (a, e), textcoords="offset points", xytext=(4, -10), fontsize=7,
                     color="0.4")
-    for name, row in policies.items():
-        if row["mode_accuracy"] is None:
-            continue
+    for name, row in points.items():
         a, e = 100.0 * row["mode_accuracy"], row["armse_pos"]
         label = name if len(name) <= 28 else "…" + name[-27:]  # an agent's directory
         tv = "—" if row["mode_prob_tv"] is None else f"{row['mode_prob_tv']:.2f}"
@@ -137,8 +145,7 @@ def tradeoff_figure(
     ax.set(
         xlabel="mode accuracy (%): argmax of the mode probabilities = the true model",
         ylabel="position ARMSE (m)",
-        title=f"ARMSE vs mode integrity ({meta['scenario']}, {meta['runs']} runs, seeds "
-        f"{meta['seeds']})",
+        title=title,
     )
     ax.legend(loc="best", fontsize=8)
     ax.grid(alpha=0.3)

@@ -200,3 +200,22 @@ def test_the_tradeoff_figure_makes_its_missing_directories(tmp_path) -> None:
     path = tmp_path / "new" / "deeper" / "t.png"
     assert plots.tradeoff_figure(policies, fixed, path, META) == path
     assert path.is_file()
+
+
+def test_a_tradeoff_without_any_mode_accuracy_says_so(tmp_path, monkeypatch) -> None:
+    """No stay and no policy with a mode accuracy (no step's true model in the bank): the figure
+    says there is nothing to plot (it was empty axes, written silently)."""
+    from imm_gym.evaluation import plots
+
+    drawn = []
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or save(fig, path))
+    fixed = {0.9: {"mode_accuracy": None, "armse_pos": 25.0}}
+    policies = {"a": {"mode_accuracy": None, "armse_pos": 20.0, "mode_prob_tv": 0.1}}
+    assert plots.tradeoff_figure(policies, fixed, tmp_path / "t.png", META).is_file()
+    ax = drawn[0].axes[0]
+    assert not ax.get_lines() and not ax.axison
+    assert [t.get_text() for t in ax.texts] == [
+        "no mode accuracy to plot:\nno step's true model is in the bank"
+    ]
+    assert ax.get_title().startswith("ARMSE vs mode integrity (test, 2 runs")
