@@ -126,26 +126,11 @@ def documented_commands() -> Iterator[tuple[str, tuple[str, ...], list[str]]]:
 
 
 COMMANDS = list(documented_commands())
-#: Documented commands known not to run as shown, by the start of their ``where``: each fails its
-#: test (strict xfail: fixing the document makes the mark fail until it is removed here).
-KNOWN_BROKEN = {
-    "experiments.md: python examples/stay_selector.py --env-config examples/across_trackers.yaml "
-    "     examples/across_trackers_paper.yaml examples/across_trackers_field.yaml":
-    "usage brackets ([--fit-seed S] [--save DIR | --weights A B] ...) in a bash block",
-}
 
 
 def cases() -> list:
-    """:data:`COMMANDS` as test cases, those of :data:`KNOWN_BROKEN` marked."""
-    return [
-        pytest.param(
-            *command,
-            id=command[0][:80],
-            marks=[pytest.mark.xfail(reason=reason, strict=True)
-                   for start, reason in KNOWN_BROKEN.items() if command[0].startswith(start)],
-        )
-        for command in COMMANDS
-    ]
+    """:data:`COMMANDS` as test cases, named by their document and first line."""
+    return [pytest.param(*command, id=command[0][:80]) for command in COMMANDS]
 
 
 def test_the_documents_give_commands_of_every_tool() -> None:
