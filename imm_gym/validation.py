@@ -24,6 +24,7 @@ import math
 import numbers
 import re
 import reprlib
+import sys
 from collections.abc import Mapping, Sequence
 from typing import Any, TypeVar
 
@@ -244,7 +245,8 @@ def load_yaml(text: str) -> Any:
     field then refuses by name).
 
     Raises:
-        yaml.YAMLError: the text is not YAML, a mapping gives a key twice (with its line), or
+        yaml.YAMLError: the text is not YAML, a mapping gives a key twice or an integer has
+            more digits than Python reads (``sys.get_int_max_str_digits``; with its line), or
             the text nests deeper than Python's recursion limit lets it be built.
     """
     import yaml
@@ -269,7 +271,15 @@ def load_yaml(text: str) -> Any:
 
     def construct_int(loader: Any, node: Any) -> int:
         text = loader.construct_scalar(node)
-        return int(text, 0) if text[:2] in ("0o", "0x") else int(text, 10)
+        if text[:2] in ("0o", "0x"):
+            return int(text, 0)
+        try:
+            return int(text, 10)
+        except ValueError:  # more digits than Python turns into an integer
+            raise yaml.constructor.ConstructorError(
+                None, None, f"an integer of {len(text.lstrip('+-'))} digits, more than the "
+                f"{sys.get_int_max_str_digits()} Python reads", node.start_mark
+            ) from None
 
     Loader.yaml_implicit_resolvers = {
         first: [(tag, rx) for tag, rx in resolvers if tag not in _YAML11_TAGS]

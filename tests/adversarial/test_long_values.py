@@ -7,6 +7,8 @@ part must stay short and still name what was refused.
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from agents.training import check_hyperparams, read_yaml
@@ -71,3 +73,23 @@ def test_a_long_string_in_a_configuration_file_is_shown_shortened(yaml, message,
         read_env_config(path)
     assert str(err.value).startswith(f"{path}: {message}")
     assert len(str(err.value)) < SHORT
+
+
+def test_an_integer_of_more_digits_than_python_reads_is_refused_naming_the_file(tmp_path):
+    """Python reads at most ``sys.get_int_max_str_digits()`` (4300) decimal digits: more is a
+    ValueError while parsing, which must be the file's error with the integer's line."""
+    digits = "1" * 5000
+    path = tmp_path / "tracker.yaml"
+    path.write_text(f"p_min: 0.01\nsojourn: [1.0, {digits}]\n")
+    with pytest.raises(ConfigError) as err:
+        read_env_config(path)
+    assert str(err.value).startswith(
+        f"{path}: not valid YAML (an integer of 5000 digits, more than the 4300 Python reads"
+    )
+    assert "line 2, column 16" in str(err.value) and len(str(err.value)) < SHORT
+    config = tmp_path / "config.yml"
+    config.write_text(f"n_timesteps: -{digits}\n")
+    message = (f"{config}: not valid YAML (an integer of 5000 digits, more than the 4300 Python "
+               "reads at line 1, column 14)")
+    with pytest.raises(ConfigError, match=f"^{re.escape(message)}$"):
+        read_yaml(config)
