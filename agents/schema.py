@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from imm_gym.validation import ConfigError
+from imm_gym.validation import ConfigError, shown
 
 #: Activations by name (the ``torch.nn`` class of each): the only ones a hyperparameter file or
 #: an agent may ask for.
@@ -34,14 +34,14 @@ POLICY_CLASS_NAMES = ("MlpPolicy", "AsymmetricMlpPolicy", "PerModelPolicy", "Mlp
 def check_flag(where: str, value: Any) -> bool:
     """``value`` if it is a boolean (not 0/1, not a string); ``where`` names it."""
     if not isinstance(value, bool):
-        raise ConfigError(f"{where} must be true or false, got {value!r}")
+        raise ConfigError(f"{where} must be true or false, got {shown(value)}")
     return value
 
 
 def check_size(where: str, value: Any) -> int:
     """``value`` if it is an integer >= 1 (not a float, a boolean or a string)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ConfigError(f"{where} must be a positive integer, got {value!r}")
+        raise ConfigError(f"{where} must be a positive integer, got {shown(value)}")
     return value
 
 
@@ -79,7 +79,7 @@ def _bounded(where: str, value: Any, most: int) -> int:
 def check_count(where: str, value: Any) -> int:
     """``value`` if it is an integer >= 0 (not a float, a boolean or a string)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ConfigError(f"{where} must be a non-negative integer, got {value!r}")
+        raise ConfigError(f"{where} must be a non-negative integer, got {shown(value)}")
     return value
 
 
@@ -99,7 +99,7 @@ def check_number(where: str, value: Any) -> float:
     """``value`` as a float if it is a finite int or float (not a boolean or a string)."""
     number = finite_number(value)
     if number is None:
-        raise ConfigError(f"{where} must be a finite number, got {value!r}")
+        raise ConfigError(f"{where} must be a finite number, got {shown(value)}")
     return number
 
 
@@ -113,28 +113,28 @@ def _log_std(where: str, value: Any) -> float:
     number = check_number(where, value)
     if abs(number) > MAX_LOG_STD:
         raise ConfigError(
-            f"{where} must be in [{-MAX_LOG_STD:g}, {MAX_LOG_STD:g}], got {value!r}"
+            f"{where} must be in [{-MAX_LOG_STD:g}, {MAX_LOG_STD:g}], got {shown(value)}"
         )
     return number
 
 
 def _activation(where: str, value: Any) -> str:
     if not isinstance(value, str) or value not in ACTIVATIONS:
-        raise ConfigError(f"{where} must be one of {list(ACTIVATIONS)}, got {value!r}")
+        raise ConfigError(f"{where} must be one of {list(ACTIVATIONS)}, got {shown(value)}")
     return value
 
 
 def _layers(where: str, value: Any) -> list[int]:
     if not isinstance(value, list) or len(value) > MAX_LAYERS:
         raise ConfigError(
-            f"{where} must be a list of at most {MAX_LAYERS} layer sizes, got {value!r}"
+            f"{where} must be a list of at most {MAX_LAYERS} layer sizes, got {shown(value)}"
         )
     return [check_width(f"{where}[{i}]", n) for i, n in enumerate(value)]
 
 
 def _names(where: str, value: Any) -> list[str]:
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        raise ConfigError(f"{where} must be a list of names, got {value!r}")
+        raise ConfigError(f"{where} must be a list of names, got {shown(value)}")
     return list(value)
 
 
@@ -210,7 +210,7 @@ def check_policy_kwargs(where: str, value: Any, recurrent: bool) -> dict[str, An
     if not isinstance(value, Mapping):
         raise ConfigError(
             f"{where}: policy_kwargs must be a mapping in YAML (e.g. net_arch: {{pi: [64], "
-            f"vf: [64]}}, activation_fn: tanh), not {value!r}; Python expressions are not "
+            f"vf: [64]}}, activation_fn: tanh), not {shown(value)}; Python expressions are not "
             "evaluated"
         )
     allowed = [k for k in POLICY_KWARGS if recurrent or k not in LSTM_KEYS]
@@ -228,10 +228,12 @@ def check_spec(where: str, spec: Any) -> dict[str, Any]:
             wrong kind, or ``use_sde`` for a ``PerModelPolicy`` (:data:`NO_SDE`).
     """
     if not isinstance(spec, Mapping):
-        raise ConfigError(f"{where} must be a mapping, got {spec!r}")
+        raise ConfigError(f"{where} must be a mapping, got {shown(spec)}")
     name = spec.get("class")
     if name not in POLICY_CLASS_NAMES:
-        raise ConfigError(f"{where}.class must be one of {list(POLICY_CLASS_NAMES)}, got {name!r}")
+        raise ConfigError(
+            f"{where}.class must be one of {list(POLICY_CLASS_NAMES)}, got {shown(name)}"
+        )
     unknown = sorted(set(spec) - {"class", *_COMMON_KEYS, *_CLASS_KEYS[name]})
     if unknown:
         raise ConfigError(f"{where}: unknown keys {unknown} for a {name}")

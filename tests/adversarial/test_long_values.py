@@ -44,6 +44,12 @@ def test_an_env_config_field_of_nested_aliases_is_shown_shortened(field, message
      ("policy: BOMB", "policy must be one of ['MlpPolicy', 'PerModelPolicy'] for ppo, got [['lol'"),
      ("swa_start: BOMB", "swa_start must be a fraction of the budget in [0, 1), got [['lol'"),
      ("sde_sample_freq: BOMB", "sde_sample_freq must be an integer >= -1, got [['lol'"),
+     ("normalize: BOMB", "normalize must be true or false, got [['lol'"),
+     ("n_steps: BOMB", "n_steps must be a positive integer, got [['lol'"),
+     ("gamma: BOMB", "gamma must be a finite number, got [['lol'"),
+     ("policy_kwargs: BOMB", "policy_kwargs must be a mapping"),
+     ("policy_kwargs: {log_std_init: BOMB}", "policy_kwargs.log_std_init must be"),
+     ("policy_kwargs: {activation_fn: BOMB}", "policy_kwargs.activation_fn must be one of"),
      ("env_mixture: {x: BOMB}", "env_mixture must be a non-empty list of {env_kwargs, share}, "
                                 "got {'x': [['lol'"),
      ("env_mixture: [BOMB]", "env_mixture[0] must be a mapping with the keys env_kwargs and "
