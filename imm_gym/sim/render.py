@@ -250,12 +250,15 @@ class TrackFigure:
         self.heat = heat.imshow(
             np.eye(M), cmap="viridis", norm=colors.LogNorm(1e-3, 1.0), interpolation="nearest"
         )
-        # the stay probabilities written out (text is the costly part of a frame)
+        # the stay probabilities written out (text is the costly part of a frame), smaller
+        # where more models make the cells narrower than "0.980" at 6 points
         self.stays = [
-            heat.text(i, i, "", ha="center", va="center", fontsize=6) for i in range(M)
+            heat.text(i, i, "", ha="center", va="center", fontsize=6 * min(1.0, 3 / M))
+            for i in range(M)
         ]
         short = short_labels(self.labels)
-        heat.set_xticks(range(M), short)
+        # the column labels upright where side by side they would run together
+        heat.set_xticks(range(M), short, rotation=90 if M * max(map(len, short)) > 12 else 0)
         heat.set_yticks(range(M), short)
         heat.set_title("TPM used (row: from)", fontsize=7, pad=2)
         bar = fig.colorbar(self.heat, ax=heat, fraction=0.08, pad=0.04)

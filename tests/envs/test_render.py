@@ -484,3 +484,29 @@ def test_models_of_one_kind_are_told_apart_by_their_noise_or_index() -> None:
     assert model_labels(hetero) == ["NCV Q×1", "NCV Q×2", "CT"]
     assert model_labels(HeteroBank()) == ["NCV", "CT", "CTRA"]
     assert short_labels(["CV", "CT(+4°/s)", "CT(-4°/s)"]) == ["CV", "CT+", "CT−"]
+
+
+@pytest.mark.parametrize("labels", [
+    ["CV", "CT(+2°/s)", "CT(+6°/s)", "CT(-2.5°/s)", "CT(-6°/s)"],
+    ["CV q=0.05", "CV q=5", "CT(+3°/s)"],
+])
+def test_the_tpm_heatmaps_labels_and_stays_stand_apart(labels: list[str]) -> None:
+    """Five models, or three with long names: the column labels do not run together and each
+    stay's text stays inside its cell (they overlapped at 6 points side by side)."""
+    from imm_gym.sim.render import TrackView
+
+    M, k = len(labels), 5
+    path = np.column_stack([np.arange(k + 1) * 10.0, np.zeros(k + 1)])
+    tpm = np.full((M, M), 0.02 / (M - 1))
+    np.fill_diagonal(tpm, 0.98)
+    view = TrackView("test", k, 10, path, path + 1.0, np.eye(2), path, np.ones(k + 1, bool),
+                     np.zeros(k + 1, bool), np.full((k + 1, M), 1.0 / M),
+                     np.zeros(k + 1, np.int64), tpm, np.zeros(2), (-10.0, 60.0, -10.0, 10.0))
+    picture = TrackFigure(labels)
+    picture.frame(view)
+    renderer = picture.fig.canvas.get_renderer()
+    ticks = [t.get_window_extent(renderer) for t in picture.ax_tpm.get_xticklabels()]
+    assert all(a.x1 <= b.x0 for a, b in itertools.pairwise(ticks))
+    cell = picture.ax_tpm.get_window_extent(renderer).width / M
+    assert all(t.get_text() == "0.980" for t in picture.stays)
+    assert all(t.get_window_extent(renderer).width < cell for t in picture.stays)
