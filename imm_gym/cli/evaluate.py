@@ -1198,6 +1198,8 @@ def _main_system(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
         policy, sep, path = item.partition("=")
         if not sep or not policy or not path:
             parser.error(f"--tuned must be POLICY=FILE (e.g. bbsca=tuned.json), got {item!r}")
+        if policy in tuned:
+            parser.error(f"--tuned {policy} given twice: {tuned[policy]!r} and {path!r}")
         tuned[policy] = path
     started = versions(*OPTIONAL_PACKAGES)  # the code that runs, as evaluate's meta.versions
     try:

@@ -17,7 +17,10 @@ from imm_gym.papers.tuning import TunedBank, TunerConfig, bank_objective, tune
 from imm_gym.seeding import TRAIN_SEED_OFFSET
 from imm_gym.validation import ConfigError
 
-SYSTEM_POLICIES = ("fixed", "bbsca", "sca")
+#: The policies that load a tuned bank from a file (``tuned``, ``--tuned POLICY=FILE``).
+TUNED_POLICIES = ("bbsca", "sca")
+SYSTEM_POLICIES = ("fixed", *TUNED_POLICIES)
+
 
 def evaluate_system(
     name: str,
@@ -36,6 +39,12 @@ def evaluate_system(
     and ``generations`` generations. All policies are scored on the same runs (seeds
     ``seed .. seed + runs - 1``), with the held-out innovation objective ``J`` beside seed 002's
     metrics.
+
+    Raises:
+        ConfigError: before any run, a policy not of :data:`SYSTEM_POLICIES` or given twice, or
+            a key of ``tuned`` that is not a tuned policy (:data:`TUNED_POLICIES`) among
+            ``policies`` (its file would go unused); a tuned file that cannot be read or is for
+            another system.
     """
     imm, family, sensor, tpm = system_setup(name)
     for p in policies:
@@ -46,6 +55,14 @@ def evaluate_system(
             )
     if len(set(policies)) != len(policies):
         raise ConfigError(f"--policy given twice: {policies}")
+    asked = [p for p in policies if p in TUNED_POLICIES]
+    for key in tuned or {}:
+        if key not in asked:
+            raise ConfigError(
+                f"--tuned {key}=FILE: {key!r} is not a tuned policy evaluated here; the keys "
+                f"allowed are those of {list(TUNED_POLICIES)} given as --policy "
+                f"({list(policies)}): {asked or 'none'}"
+            )
     batch = draw(family, sensor, runs, seed)
     held_out = bank_objective(imm, batch, tpm, sensor.sigma)
     results: dict[str, object] = {}

@@ -503,3 +503,28 @@ def test_meta_records_the_code_state_read_as_the_run_starts(tmp_path, monkeypatc
     assert main([*argv, "--json", str(out)]) == 0
     assert state["git_commit"] == "committed mid-run"
     assert json.loads(out.read_text())["meta"]["versions"] == {"git_commit": "at start"}
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--policy", "fixed", "--tuned", "bbsca=/nonexistent.json"],
+         "--tuned bbsca=FILE: 'bbsca' is not a tuned policy evaluated here"),
+        (["--policy", "fixed", "--policy", "bbsca", "--tuned", "BBSCA=/x.json"],
+         "the keys allowed are those of ['bbsca', 'sca'] given as --policy (['fixed', 'bbsca']): "
+         "['bbsca']"),
+        (["--policy", "sca", "--tuned", "bogus=/x.json"], "'bogus' is not a tuned policy"),
+        (["--policy", "bbsca", "--tuned", "bbsca=/a.json", "--tuned", "bbsca=/b.json"],
+         "--tuned bbsca given twice: '/a.json' and '/b.json'"),
+    ],
+)
+def test_a_tuned_file_that_no_policy_loads_is_refused(argv, message, monkeypatch, capsys) -> None:
+    """A ``--tuned`` key that is not a tuned policy asked for (its file was silently unused) or
+    given twice is a usage error before any run."""
+    import imm_gym.papers.tuned_comparison as systems
+
+    monkeypatch.setattr(systems, "draw", lambda *a, **k: pytest.fail("a run started"))
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--scenario", "seed003", "--runs", "3", "--quiet"])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
