@@ -288,9 +288,19 @@ SYSTEM_COLUMNS = (
 )
 
 
+#: Under the seed-scenario table when a run failed (:func:`render_system_tables`).
+FAILED_NOTE = (
+    "failed: runs whose filter failed (an innovation covariance not positive definite, or a "
+    "non-finite estimate; JSON: failed). Their outputs are NaN, so the errors and means over them "
+    "are nan and NIS/NEES ≤ χ²95 count their NaN steps as outside the bound."
+)
+
+
 def render_system_tables(results: dict[str, object]) -> None:
     """Print the seed-scenario table (seed 002's paper row beside it) with rich; policy names
-    printed as given (escaped, not read as rich markup)."""
+    printed as given (escaped, not read as rich markup). Where a policy has a failed run
+    (``failed`` > 0), a column gives each policy's failed runs out of the runs and a note under
+    the table says what a failed run does to the other columns (:data:`FAILED_NOTE`)."""
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
@@ -305,13 +315,21 @@ def render_system_tables(results: dict[str, object]) -> None:
     for _, label, _ in SYSTEM_COLUMNS:
         table.add_column(label, justify="right")
     rows = dict(results["policies"])  # type: ignore[call-overload]
+    failed = any(r.get("failed") for r in rows.values())
+    if failed:
+        table.add_column("failed", justify="right")
+        table.caption = FAILED_NOTE
     paper = results.get("paper") or {}
     for name, r in rows.items():
-        table.add_row(escape(name), *(_cell(r, k, fmt) for k, _, fmt in SYSTEM_COLUMNS))
+        cells = [_cell(r, k, fmt) for k, _, fmt in SYSTEM_COLUMNS]
+        if failed:
+            cells.append(f"{r.get('failed', 0)}/{meta['runs']}")
+        table.add_row(escape(name), *cells)
     if paper:
         table.add_row(
             "seed 002 paper (their trajectory)",
             *(fmt.format(paper[k]) if k in paper else "—" for k, _, fmt in SYSTEM_COLUMNS),
+            *(["—"] if failed else []),
             style="dim",
         )
     console.print(table)
