@@ -352,7 +352,8 @@ def save_selector(
     first layer's) and load it back, checked.
 
     Raises:
-        ConfigError: the networks are of different widths (``selector.json`` holds one), before
+        ConfigError: the networks are of different widths (``selector.json`` holds one), or the
+            priors are not ones the environment's action reaches (:func:`check_priors`), before
             anything is written.
     """
     widths = sorted({net[0].out_features for net in nets})
@@ -361,6 +362,7 @@ def save_selector(
                           f"selector's directory holds networks of one width")
     hidden = widths[0]
     directory = Path(directory)
+    check_priors(str(directory / SELECTOR_FILE), priors, EnvConfig.build(dict(env_overrides)))
     directory.mkdir(parents=True, exist_ok=True)
     members = [f"net_{k}.safetensors" for k in range(len(nets))]
     for net, member in zip(nets, members, strict=True):

@@ -65,6 +65,7 @@ from numpy.typing import NDArray
 
 from agents.selector import (
     StaySelector,
+    check_priors,
     combine,
     load_selector,
     network,
@@ -483,6 +484,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         grid = core.stay_bank.stays[:, 0].copy()  # type: ignore[union-attr]
         priors = (np.stack([grid, np.full(len(grid), args.share)], axis=1) if args.shares is None
                   else np.array([(stay, v) for v in args.shares for stay in grid]))
+        try:  # priors the action cannot set would be refused when saved, after the fit
+            check_priors(f"--env-config {args.env_config[0]}", priors, core.config)
+        except ConfigError as err:
+            p.error(str(err))
         try:
             behaviour = (combine([load_selector(d) for d in args.behaviour]) if args.behaviour
                          else None)

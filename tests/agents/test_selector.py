@@ -286,11 +286,12 @@ def test_priors_the_action_cannot_reach_are_refused_naming_env_json(
     tmp_path: Path, env: dict[str, Any], priors: np.ndarray, message: str
 ) -> None:
     """The action clips to [-1, 1]: a prior beyond it at some belief would silently not be the
-    TPM the selector chose."""
+    TPM the selector chose. Saving refuses it before anything is written."""
     obs_size = core_of(env, 1).observe().shape[1]
     with pytest.raises(ConfigError, match=r"selector\.json") as err:
         save_selector(tmp_path / "sel", [network(obs_size, len(priors), 8)], priors, env)
     assert message in str(err.value)
+    assert not (tmp_path / "sel").exists()
 
 
 @pytest.mark.parametrize("mode", ["stay", "set"])

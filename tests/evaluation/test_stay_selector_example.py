@@ -140,6 +140,22 @@ def test_the_runs_seeds_and_files_are_refused_before_collecting(
     assert exit_.value.code == 2 and message in capsys.readouterr().err
 
 
+def test_priors_the_action_cannot_set_are_refused_before_collecting(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A stay the action does not reach at some belief (here at a smaller logit_scale than the
+    script's) was refused only when the selector was saved, after collecting and fitting."""
+    example = load_example("stay_selector")
+    monkeypatch.setattr(example, "collect", lambda *a, **k: pytest.fail("collected"))
+    monkeypatch.setattr(example, "GAIN", 4.0)
+    with pytest.raises(SystemExit) as exit_:
+        example.main(["--env-config", FILE, "--episodes", "1"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2
+    assert f"--env-config {FILE}: the stay action does not reach the stay" in err
+    assert "logit_scale >= 7.37" in err
+
+
 def test_the_shares_cores_replay_the_episodes_each_share_alone_gives() -> None:
     example = load_example("stay_selector")
     base = read_env_config(FILE)
