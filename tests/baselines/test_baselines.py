@@ -397,6 +397,8 @@ def test_paired_bootstrap_against_explicit_resampling() -> None:
     out = paired_bootstrap(a, b, n_boot=400, seed=3)
     armse = lambda e: np.sqrt(e.mean(axis=0)).mean()  # noqa: E731
     assert out["diff"] == pytest.approx(armse(a) - armse(b))
+    # relative to B, the reference the command line passes second (a is about 10 % below b)
+    assert out["relative"] == pytest.approx((armse(a) - armse(b)) / armse(b), rel=1e-12)
     w = np.random.default_rng(3).multinomial(40, np.full(40, 1 / 40), size=400)
     boots = [armse(np.repeat(a, c, axis=0)) - armse(np.repeat(b, c, axis=0)) for c in w]
     assert out["low"] == pytest.approx(np.quantile(boots, 0.025), rel=1e-9)
