@@ -190,3 +190,36 @@ def test_a_run_is_held_from_the_step_it_diverges_at_as_the_policies_are() -> Non
         for later in range(k, 4):
             expected = truth[r, later] + np.array([cap, cap, *velocity_error])
             np.testing.assert_allclose(held[r, later], expected, rtol=1e-15)
+
+
+def _held_by_hand(xs: np.ndarray, truth: np.ndarray, k: int, cap: float) -> np.ndarray:
+    """Run ``xs`` held from step ``k``: the position ``cap / sqrt(2)`` off the truth on x and on
+    y (``cap`` from the truth in all), the velocity error step ``k``'s."""
+    held = xs.copy()
+    off = cap / np.sqrt(2.0)
+    assert np.hypot(off, off) == pytest.approx(cap)
+    velocity_error = xs[k, 2:] - truth[k, 2:]
+    for later in range(k, len(xs)):
+        held[later] = [truth[later, 0] + off, truth[later, 1] + off,
+                       *(truth[later, 2:] + velocity_error)]
+    return held
+
+
+def test_a_position_error_above_the_cap_diverges_and_one_at_the_cap_does_not() -> None:
+    """A run diverges where its position error exceeds ``divergence_error`` (50 m here), however
+    little: 75 m off diverges, 50.5 m off diverges, exactly 50 m off (30 m, 40 m) does not."""
+    truth = np.arange(4 * 3 * 4, dtype=float).reshape(4, 3, 4)
+    xs = truth.copy()
+    Ps = np.broadcast_to(np.eye(4), (4, 3, 4, 4)).copy()
+    xs[0, 1, 0] += 75.0
+    xs[0, 1, 2] += 3.0  # its velocity error at the step it diverges at
+    xs[1, 2, :2] += (30.0, 40.0)  # exactly at the cap
+    xs[2, 1, 1] -= 50.5
+    xs[3, 0, :2] += (30.0, 40.5)  # just above it, at the first step
+    assert np.hypot(30.0, 40.0) == 50.0
+    held, diverged = hold_diverged(xs, Ps, truth, divergence_error=50.0, divergence_cov=100.0)
+    assert diverged.tolist() == [True, False, True, True]
+    np.testing.assert_allclose(held[0], _held_by_hand(xs[0], truth[0], 1, 50.0), rtol=1e-15)
+    np.testing.assert_array_equal(held[1], xs[1])
+    np.testing.assert_allclose(held[2], _held_by_hand(xs[2], truth[2], 1, 50.0), rtol=1e-15)
+    np.testing.assert_allclose(held[3], _held_by_hand(xs[3], truth[3], 0, 50.0), rtol=1e-15)
