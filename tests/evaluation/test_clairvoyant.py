@@ -223,3 +223,23 @@ def test_a_position_error_above_the_cap_diverges_and_one_at_the_cap_does_not() -
     np.testing.assert_array_equal(held[1], xs[1])
     np.testing.assert_allclose(held[2], _held_by_hand(xs[2], truth[2], 1, 50.0), rtol=1e-15)
     np.testing.assert_allclose(held[3], _held_by_hand(xs[3], truth[3], 0, 50.0), rtol=1e-15)
+
+
+def test_the_position_covariance_diverges_by_the_sum_of_its_diagonal() -> None:
+    """A finite estimate 1 m off the truth diverges where ``P_xx + P_yy`` exceeds
+    ``divergence_cov`` (100 m² here): ``P_yy`` alone above it; ``P_xx`` and ``P_yy`` each below
+    it (60 m²) with a sum above; not at a sum of exactly 100 m², nor by the velocity's
+    covariance."""
+    truth = np.arange(5 * 3 * 4, dtype=float).reshape(5, 3, 4)
+    xs = truth + 1.0
+    Ps = np.broadcast_to(np.eye(4), (5, 3, 4, 4)).copy()
+    Ps[0, 1, 1, 1] = 150.0  # P_yy only
+    Ps[1, 2, 0, 0] = Ps[1, 2, 1, 1] = 60.0  # each below the cap, their sum above
+    Ps[2, 1, 0, 0] = Ps[2, 1, 1, 1] = 50.0  # the sum at the cap
+    Ps[3, :, 2, 2] = Ps[3, :, 3, 3] = 1e6  # the velocity's
+    Ps[4, 0, 0, 0] = 150.0  # P_xx only, at the first step
+    held, diverged = hold_diverged(xs, Ps, truth, divergence_error=50.0, divergence_cov=100.0)
+    assert diverged.tolist() == [True, True, False, False, True]
+    for r, k in ((0, 1), (1, 2), (4, 0)):
+        np.testing.assert_allclose(held[r], _held_by_hand(xs[r], truth[r], k, 50.0), rtol=1e-15)
+    np.testing.assert_array_equal(held[2:4], xs[2:4])
