@@ -269,6 +269,16 @@ def test_amp_update_and_guard_by_hand() -> None:
     np.testing.assert_array_equal(amp.adapt(tpm, big), tpm)
 
 
+def test_amp_default_guard_is_seed_003s_0_6() -> None:
+    """Lambda = (1, 8, 1) gives rows 0 and 2 the diagonal 1 - 8·0.05 - 0.05 = 0.55, above 0.5 but
+    not above seed 003's 0.6: ``AMPIMM()`` keeps the TPM, a guard of 0.5 takes the update."""
+    tpm = np.array([[[0.9, 0.05, 0.05], [0.05, 0.9, 0.05], [0.05, 0.05, 0.9]]])
+    loglik = np.log(np.array([[1.0, 8.0, 1.0]]))
+    update = np.array([[0.55, 0.4, 0.05], [0.05 / 8, 1 - 0.1 / 8, 0.05 / 8], [0.05, 0.4, 0.55]])
+    np.testing.assert_array_equal(AMPIMM().adapt(tpm, loglik), tpm)
+    np.testing.assert_allclose(AMPIMM(guard=0.5).adapt(tpm, loglik)[0], update, rtol=1e-12)
+
+
 def test_amp_policy_applies_its_update_through_the_env() -> None:
     """What the policy sets is the guarded update of the TPM the environment ran, from the
     log-likelihoods (relative to the best model's, clipped) the tracker gave: read off the
