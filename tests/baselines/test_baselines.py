@@ -340,6 +340,21 @@ def test_window_estimate_by_hand_and_episode_reset() -> None:
     np.testing.assert_allclose(fresh[0], tpm_to_logits(prior[None], 4.0)[0].ravel())
 
 
+def test_window_defaults_by_hand() -> None:
+    """``SlidingWindowTPM()``: after one transition mu0 -> mu1, the TPM is
+    ``5 pi0 + outer(mu0, mu1)`` row-normalised, ``pi0`` the stay-0.9 TPM (kappa 5, prior stay
+    0.9), set as the row logits ``1 + (log pi - max_j log pi) / 4``."""
+    mu0, mu1 = np.array([0.6, 0.3, 0.1]), np.array([0.1, 0.8, 0.1])
+    w = SlidingWindowTPM()
+    _, state = w.predict(np.concatenate([mu0, mu0])[None], None, np.array([True]))
+    actions, _ = w.predict(np.concatenate([mu1, mu0])[None], state, np.array([False]))
+    pi0 = np.array([[0.9, 0.05, 0.05], [0.05, 0.9, 0.05], [0.05, 0.05, 0.9]])
+    expected = 5.0 * pi0 + mu0[:, None] * mu1[None, :]
+    expected /= expected.sum(axis=1, keepdims=True)
+    logits = 1.0 + (np.log(expected) - np.log(expected).max(axis=1, keepdims=True)) / 4.0
+    np.testing.assert_allclose(actions[0], logits.ravel(), rtol=1e-12)
+
+
 def test_episode_start_none_continues_the_episode_as_in_sb3_contrib() -> None:
     """``episode_start=None`` is no episode start (sb3-contrib's recurrent ``predict``), except on
     the first call (``state=None``), where every slot starts."""
