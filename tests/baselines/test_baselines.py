@@ -178,6 +178,24 @@ def test_best_fixed_rows_searches_the_first_models_stay_and_the_others() -> None
     assert len(notes["search"]) == len(STAY_GRID) ** 2
 
 
+@pytest.mark.parametrize(("sign", "stay"), [(-1.0, 0.999), (1.0, 1 / 3)], ids=["last", "first"])
+def test_best_fixed_rows_finds_the_last_and_the_first_pair_of_its_grid(sign, stay) -> None:
+    """The search's ends: the stickiest pair (0.999, 0.999), scored last, and the uniform TPM's
+    (1/3, 1/3), scored first, each found when it scores lowest."""
+
+    def train_armse_from(policy: FixedTPM, tpms: np.ndarray) -> np.ndarray:
+        stays = np.diagonal(tpms, axis1=1, axis2=2)
+        return sign * (stays[:, 0] + stays[:, 1])
+
+    def no_single_runs(policy: FixedTPM) -> float:
+        raise AssertionError("the search scores the grid in one roll-out")
+
+    context = BuildContext(PAPER, 1_000_000, 4, no_single_runs, train_armse_from)
+    policy, notes = REGISTRY["best-fixed-rows"].build(context)
+    assert policy.stay == pytest.approx((stay, stay, stay), rel=1e-15)
+    assert notes["stays"] == pytest.approx([stay] * 3, rel=1e-15)
+
+
 def test_best_fixed_rows_holds_its_tpm_on_the_environment() -> None:
     """The found stays are the TPM of every step (the zero ``scale`` action keeps it)."""
     policy = FixedTPM(3, (0.999, 1 / 3, 1 / 3))
