@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from imm_gym.cli.evaluate import evaluate
-from imm_gym.cli.tables import render_tables
+from imm_gym.cli.tables import divergence_note, render_tables
 from imm_gym.evaluation.metrics import maneuver_starts
 
 
@@ -19,3 +19,39 @@ def test_the_maneuver_response_title_counts_turn_ends_too(capsys) -> None:
     printed = " ".join(capsys.readouterr().out.split())
     assert "from each change of the true model (a maneuver's start or end)" in printed
     assert "after each maneuver starts" not in printed
+
+
+#: How diverged runs are scored, as the evaluation's meta gives it.
+DIVERGENCE = {"error_m": 5000.0, "scored": "held at the cap"}
+
+
+def _row(diverged: int = 0) -> dict:
+    """A hand-made policy row: NIS inside the bound 95 % of the time, NEES 40 %."""
+    return {
+        "armse_pos": 1.0, "armse_pos_x": 0.7, "armse_pos_y": 0.7, "armse_vel_x": 0.1,
+        "armse_vel_y": 0.2, "nis": {"inside": 0.95}, "nees": {"inside": 0.40},
+        "mode_accuracy": 0.8, "diverged": diverged, "mode_prob_tv": 0.1, "peak_error": 2.0,
+        "maneuver_response": 1.5,
+    }
+
+
+def _results(*diverged: int) -> dict:
+    meta = {"scenario": "random", "runs": 2, "seeds": "0..1", "steps": 10, "filter": "ukf",
+            "divergence": DIVERGENCE}
+    policies = {f"policy{i}": _row(d) for i, d in enumerate(diverged)}
+    return {"meta": meta, "policies": policies, "paired": {"differences": {}, "reference": "x"}}
+
+
+def test_the_divergence_note_only_when_a_run_diverged(capsys) -> None:
+    """The line on how diverged runs are scored is printed when a policy has a diverged run, not
+    when none has (nor without the meta's ``divergence``)."""
+    line = "Diverged runs (error above 5000 m): held at the cap."
+    meta = {"divergence": DIVERGENCE}
+    assert divergence_note(meta, [{"diverged": 0}, {"diverged": 0}]) is None
+    assert divergence_note(meta, []) is None
+    assert divergence_note(meta, [{"diverged": 0}, {"diverged": 1}]) == line
+    assert divergence_note({}, [{"diverged": 1}]) is None
+    render_tables(_results(0, 0))
+    assert "Diverged runs" not in capsys.readouterr().out
+    render_tables(_results(0, 2))
+    assert line in " ".join(capsys.readouterr().out.split())
