@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from imm_gym.cli.evaluate import evaluate
-from imm_gym.cli.tables import divergence_note, render_tables
+from imm_gym.cli.tables import divergence_note, render_suite_table, render_tables
 from imm_gym.evaluation.metrics import maneuver_starts
 
 
@@ -55,3 +55,39 @@ def test_the_divergence_note_only_when_a_run_diverged(capsys) -> None:
     assert "Diverged runs" not in capsys.readouterr().out
     render_tables(_results(0, 2))
     assert line in " ".join(capsys.readouterr().out.split())
+
+
+def _cells_under_headers(printed: str, header: str, first_cell: str) -> dict[str, str]:
+    """The cells of the row starting ``first_cell`` of the first table whose header row has
+    ``header``, keyed by their column's header (one header line, rich's box characters)."""
+    lines = printed.splitlines()
+    top = next(i for i, line in enumerate(lines) if line.startswith("┃") and header in line)
+    headers = [h.strip() for h in lines[top].strip("┃").split("┃")]
+    for line in lines[top + 1:]:
+        cells = [c.strip() for c in line.strip("│").split("│")]
+        if line.startswith("│") and cells[0] == first_cell:
+            assert len(cells) == len(headers)
+            return dict(zip(headers, cells, strict=True))
+    raise AssertionError(f"no row {first_cell!r} under {header!r}")
+
+
+def test_nis_and_nees_each_under_their_own_header(capsys) -> None:
+    """A policy whose NIS is inside its bound 95 % of the time and NEES 40 %: Table 2's layout
+    and the suite table print 95.0 % under "NIS ≤ χ²95" and 40.0 % under "NEES ≤ χ²95" (the
+    suite table only the NEES)."""
+    render_tables(_results(0))
+    cells = _cells_under_headers(capsys.readouterr().out, "NEES ≤ χ²95", "policy0")
+    assert cells["NIS ≤ χ²95"] == "95.0%" and cells["NEES ≤ χ²95"] == "40.0%"
+    assert cells["mode acc."] == "80.0%" and cells["pos (m)"] == "1.0000"
+    case = {
+        "meta": {"steps": 10, "divergence": DIVERGENCE},
+        "policies": {"fixed": _row(), "window": _row()},
+        "paired": {"differences": {"window": {"diff": 0.0, "low": -0.1, "high": 0.1}}},
+    }
+    suite = {"meta": {"suite": "s", "runs": 2, "seeds": "0..1", "reference": "fixed"},
+             "scenarios": {"paper": case}}
+    render_suite_table(suite)
+    cells = _cells_under_headers(capsys.readouterr().out, "NEES ≤ χ²95", "paper (10 steps)")
+    assert cells["policy"] == "fixed"
+    assert cells["NEES ≤ χ²95"] == "40.0%" and cells["mode acc."] == "80.0%"
+    assert "95.0%" not in cells.values()
