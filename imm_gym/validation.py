@@ -40,7 +40,18 @@ class ConfigError(ValueError):
 #: How a refused value is shown in a message: at most 6 entries of a list, tuple or mapping, 3
 #: levels deep, 60 characters of a string — a YAML file of nested aliases is a few hundred bytes
 #: whose value would print in gigabytes.
-_SHORT = reprlib.Repr()
+class _Short(reprlib.Repr):
+    """:class:`reprlib.Repr` that shows an integer too long to turn into text (Python refuses
+    more than ``sys.get_int_max_str_digits()`` digits) by its size, wherever it is nested."""
+
+    def repr_int(self, x: int, level: int) -> str:
+        try:
+            return super().repr_int(x, level)
+        except ValueError:
+            return f"an integer of {x.bit_length()} bits"
+
+
+_SHORT = _Short()
 _SHORT.maxlevel = 3
 _SHORT.maxtuple = _SHORT.maxlist = _SHORT.maxdict = _SHORT.maxset = _SHORT.maxfrozenset = 6
 _SHORT.maxstring = _SHORT.maxother = 60
@@ -52,10 +63,7 @@ SHOWN_CHARS = 200
 def shown(value: Any) -> str:
     """``repr(value)`` shortened for a message: entries past the sixth and nesting past the third
     level are ``...``, and the text is cut at :data:`SHOWN_CHARS` characters."""
-    try:
-        text = _SHORT.repr(value)
-    except ValueError:  # an integer of more digits than Python turns into text
-        return f"an integer of {value.bit_length()} bits"
+    text = _SHORT.repr(value)
     return text if len(text) <= SHOWN_CHARS else text[: SHOWN_CHARS - 3] + "..."
 
 

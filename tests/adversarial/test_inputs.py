@@ -36,7 +36,7 @@ from imm_gym.papers.tuning import TunerConfig
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM
 from imm_gym.tracking.imm import run
-from imm_gym.validation import check_int, load_yaml
+from imm_gym.validation import check_int, check_sequence, load_yaml
 
 #: Every real-valued field of EnvConfig and of its nested configurations, as the path a
 #: configuration mapping gives it and the name the error message must carry.
@@ -217,6 +217,10 @@ def test_an_integer_too_long_to_print_is_refused_naming_the_field() -> None:
         check_int("horizon", 10**5000, 1, 10)
     with pytest.raises(ConfigError, match=r"p_min must be .*beyond the floats \(16610 bits\)"):
         EnvConfig(p_min=10**5000)
+    # nested in a refused list too (repr raised ValueError, then the list had no bit_length)
+    nested = r"x must have 3 entries, got 2: \[1, an integer of 16610 bits\]$"
+    with pytest.raises(ConfigError, match=nested):
+        check_sequence("x", [1, 10**5000], 3)
 
 
 # --- configuration structure --------------------------------------------------------------------
