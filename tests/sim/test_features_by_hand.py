@@ -1,6 +1,6 @@
-"""Thirteen of the observation blocks (the others in their own modules' tests) recomputed by
-hand from the core's per-step quantities (mu, the models' log-likelihoods and NIS, the combined
-and shadow estimates' velocities): a
+"""Fourteen of the observation blocks (the others in their own modules' tests) recomputed by
+hand from the core's per-step quantities (mu, the models' log-likelihoods, NIS and whitened
+innovations, the combined and shadow estimates' velocities): a
 bank of CV, CA and two CT models at T = 2 s over four slots, random actions so that bank A and
 the shadow IMM differ, the memories carried from their documented starts."""
 
@@ -17,7 +17,7 @@ from imm_gym.sim.features import heading_rate
 FEATURES = (
     "loglik", "nis", "time", "turn_rate", "shadow_turn_rate", "turn_rate_ema", "prob_ema",
     "shadow_turn_rate_ema", "turn_magnitude_ema", "speed", "model_turn_rate", "model_kind",
-    "maneuver_snr",
+    "maneuver_snr", "innovation",
 )
 BANK = [
     {"kind": "cv", "noise": "continuous", "intensity": 0.1},
@@ -73,6 +73,7 @@ def test_every_block_by_hand_over_an_episode() -> None:
             np.tile([0.0, 0.0, 0.5, -1.0], (N, 1)),
             np.tile([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0], (N, 1)),
             np.clip(np.log10(np.maximum(offset, 1e-3)) / 3, -1, 1)[:, None],
+            np.clip(core.innovation, -5.0, 5.0).reshape(N, -1) / 5.0,
         ]
         expected = np.concatenate(blocks, axis=1)
         assert obs.shape == expected.shape
@@ -105,3 +106,51 @@ def test_the_observation_size_is_the_bounds_length_for_every_feature() -> None:
             assert observation_size((name,), M, dim_z) == bounds((name,), M, dim_z)[0].size
         every = tuple(FEATURES)
         assert observation_size(every, M, dim_z) == bounds(every, M, dim_z)[0].size
+
+
+def test_the_innovation_block_is_the_whitened_innovation_by_hand() -> None:
+    """Bank A's cycle by hand (mixing, prediction, the EKF's sonar residual): the block is each
+    model's ``L⁻¹ν`` (``S = L Lᵀ``) clipped to ±5 and divided by 5, model-major; the sonar's
+    outliers push some components past the clip."""
+    bank = [BANK[0], BANK[2], BANK[3]]
+    config = EnvConfig.build({"scenario": "random", "bank": bank, "filter": "ekf",
+                              "sensor": {"outlier_prob": 0.3, "outlier_scale": 30.0},
+                              "family": {"T": T, "turn_rate_deg": [8.0, 14.0]},
+                              "obs_features": ("innovation",)})
+    n_slots, n_models = 2, len(bank)
+    core = TrackingCore(config, n_slots)
+    core.reset(np.arange(n_slots), [21, 22])
+    F, Q, R = core.imm.F, core.imm.Q, np.diag([50.0**2, math.radians(0.05) ** 2])
+    rng = np.random.default_rng(1)
+    clipped = 0
+    for step in range(1, 16):
+        x, P, mu = core.state_a.x.copy(), core.state_a.P.copy(), core.mu.copy()
+        obs = core.step(rng.uniform(-1.0, 1.0, (n_slots, n_models**2))).obs
+        for s in range(n_slots):
+            white = np.empty((n_models, 2))
+            for j in range(n_models):
+                weights = core.tpm[s, :, j] * mu[s] / (core.tpm[s, :, j] @ mu[s])
+                x0 = weights @ x[s]
+                P0 = sum(w * (P[s, i] + np.outer(x[s, i] - x0, x[s, i] - x0))
+                         for i, w in enumerate(weights))
+                xp, Pp = F[j] @ x0, F[j] @ P0 @ F[j].T + Q[j]
+                r = math.hypot(xp[0], xp[1])
+                H = np.zeros((2, 4))
+                H[0, :2] = xp[0] / r, xp[1] / r
+                H[1, :2] = -xp[1] / r**2, xp[0] / r**2
+                z = core.z[s, step]
+                nu = np.array([z[0] - r, z[1] - math.atan2(xp[1], xp[0])])
+                nu[1] = (nu[1] + math.pi) % (2 * math.pi) - math.pi
+                S = H @ Pp @ H.T + R
+                # L⁻¹ν by forward substitution, L the Cholesky factor of the 2x2 S
+                l11 = math.sqrt(S[0, 0])
+                l21 = S[1, 0] / l11
+                l22 = math.sqrt(S[1, 1] - l21**2)
+                white[j] = nu[0] / l11, (nu[1] - l21 * nu[0] / l11) / l22
+            clipped += int(np.sum(np.abs(white) > 5.0))
+            np.testing.assert_allclose(core.innovation[s], white, rtol=1e-6, atol=1e-8,
+                                       err_msg=f"step {step}, slot {s}")
+            expected = np.clip(white, -5.0, 5.0).reshape(-1) / 5.0
+            np.testing.assert_allclose(obs[s, 2 * n_models:], expected, rtol=1e-5, atol=1e-6,
+                                       err_msg=f"step {step}, slot {s}")
+    assert clipped > 0
