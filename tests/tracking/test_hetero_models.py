@@ -117,15 +117,31 @@ def test_zero_speed_conversion_is_finite() -> None:
     assert np.all(np.isfinite(x)) and np.all(np.isfinite(P))
 
 
+def _in_space(x: np.ndarray, P: np.ndarray, src: str) -> tuple[np.ndarray, np.ndarray]:
+    """An NCV state ``(..., 4)`` and covariance in ``src``: as given for ``"ncv"``; for
+    ``"cart6"`` ``[x, 0, 0]`` and ``blockdiag(P, I_2)`` (a unit-variance acceleration)."""
+    if src == "ncv":
+        return x, P
+    x6 = np.concatenate([x, np.zeros((*x.shape[:-1], 2))], axis=-1)
+    P6 = np.zeros((*P.shape[:-2], 6, 6))
+    P6[..., :4, :4] = P
+    P6[..., 4, 4] = P6[..., 5, 5] = 1.0
+    return x6, P6
+
+
+@pytest.mark.parametrize("src", ["ncv", "cart6"])
 @pytest.mark.parametrize("dst", ["ct", "ctra"])
-def test_heading_variance_is_capped_where_the_speed_is_within_three_sigma(dst: str) -> None:
+def test_heading_variance_is_capped_where_the_speed_is_within_three_sigma(
+    src: str, dst: str
+) -> None:
     """Below ``v = 3 sqrt(lambda_max(P_v))`` the heading's variance is at most a uniform
-    heading's, ``pi^2 / 3``, and uncorrelated; above it the conversion is ``J P J^T``."""
+    heading's, ``pi^2 / 3``, and uncorrelated; above it the conversion is ``J P J^T`` (``J`` of
+    the NCV velocity: a CA source's acceleration does not enter CT/CTRA)."""
     P = np.diag([4.0, 4.0, 9.0, 4.0])
     P[0, 2] = P[2, 0] = 1.0
     for v in (0.0, 1e-3, 1.0, 8.9):
         x = np.array([1.0, 2.0, v * 0.6, v * 0.8])
-        _, Pc = convert(x, P, "ncv", dst)
+        _, Pc = convert(*_in_space(x, P, src), src, dst)
         _, J = conversion(x, "ncv", dst)
         raw = J @ P @ J.T
         assert Pc[3, 3] == pytest.approx(min(raw[3, 3], math.pi**2 / 3))
@@ -135,10 +151,11 @@ def test_heading_variance_is_capped_where_the_speed_is_within_three_sigma(dst: s
         np.testing.assert_allclose(Pc[np.ix_(keep, keep)], raw[np.ix_(keep, keep)])
     x = np.array([1.0, 2.0, 9.1 * 0.6, 9.1 * 0.8])  # 3 sigma = 9
     _, J = conversion(x, "ncv", dst)
-    np.testing.assert_array_equal(convert(x, P, "ncv", dst)[1], J @ P @ J.T)
+    np.testing.assert_allclose(convert(*_in_space(x, P, src), src, dst)[1], J @ P @ J.T,
+                               rtol=1e-14, atol=0.0)
     # a batch: only the slow rows are capped
     xs = np.array([[0.0, 0.0, 1e-4, 0.0], [0.0, 0.0, 30.0, 0.0]])
-    _, Pb = convert(xs, np.stack([P, P]), "ncv", dst)
+    _, Pb = convert(*_in_space(xs, np.stack([P, P]), src), src, dst)
     assert Pb[0, 3, 3] == pytest.approx(math.pi**2 / 3)
     assert Pb[1, 3, 3] == pytest.approx(4.0 / 900.0)
 
