@@ -30,6 +30,7 @@ from imm_gym.tracking.conversions import (
 )
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, HeteroModel, LinearModel, linear_models
 from imm_gym.tracking.imm import IMMState, run
+from imm_gym.tracking.models import MotionModel
 
 finite = st.floats(-50.0, 50.0, allow_nan=False)
 speed = st.floats(0.5, 30.0)
@@ -561,6 +562,23 @@ def test_initial_state_takes_the_banks_variances_and_probabilities() -> None:
     np.testing.assert_array_equal(state.x[0, 1, 4], 0.0)
     uniform = HeteroIMM(HeteroBank(models=("ncv", "ct")), sensor, T=0.1).init(x0, P0)
     np.testing.assert_array_equal(uniform.mu, [[0.5, 0.5]])
+
+
+def test_a_ca_model_starts_with_the_default_acceleration_variance_on_both_axes() -> None:
+    """A CA model (dim 6) beside a CT model, no :class:`HeteroBank`: the CA block of ``P0`` is
+    the Cartesian ``P0`` with the documented default ``accel_var`` = 1.0 on ``ax`` and ``ay``
+    and no cross-covariances; the CT model's ``omega`` gets the default ``turn_rate_var`` = 0.2."""
+    models = (LinearModel(MotionModel("ca", q=(0.1,) * 6), 6), HeteroModel("ct", (2.4, 0.6)))
+    x0 = np.array([[1.0, 2.0, 10.0, 0.0]])
+    P0 = np.diag([1.0, 2.0, 4.0, 5.0])
+    state = HeteroIMM(models, PositionSensor(sigma_pos=0.5, sigma_vel=0.5), T=1.0).init(x0, P0)
+    expected = np.zeros((6, 6))
+    expected[:4, :4] = P0
+    expected[4, 4] = expected[5, 5] = 1.0
+    np.testing.assert_array_equal(state.P[0, 0], expected)
+    np.testing.assert_array_equal(state.x[0, 0], [1.0, 2.0, 10.0, 0.0, 0.0, 0.0])
+    # the CT block at speed 10 along +x: heading variance P0_vy / v^2, omega 0.2
+    np.testing.assert_allclose(np.diag(state.P[0, 1, :5, :5]), [1.0, 2.0, 4.0, 0.05, 0.2])
 
 
 def test_a_finite_non_positive_definite_innovation_covariance_is_flagged() -> None:
