@@ -216,8 +216,11 @@ def test_the_pairs_grid_adds_per_model_priors_and_its_base_is_per_row() -> None:
     np.testing.assert_array_equal(stays[: 1 + len(EVIDENCE_STAYS)], np.repeat(
         np.array(STAYS)[:, None], M, axis=1))
     pairs = stays[1 + len(EVIDENCE_STAYS) :]
-    assert len(pairs) == 12 and np.all(pairs[:, 1] == pairs[:, 2])
-    assert {round(a, 3) for a in pairs[:, 0]} == {0.95, 0.99, 0.999}
+    # every (a, b) of a in (0.95, 0.99, 0.999) and b in (1/M, 0.6, 0.8, 0.9), a on the sticky row
+    literal = [[a, b, b] for a in (0.95, 0.99, 0.999) for b in (1 / 3, 0.6, 0.8, 0.9)]
+    np.testing.assert_array_equal(pairs, literal)
+    np.testing.assert_array_equal(grid_stays(M, "pairs", sticky=2)[1 + len(EVIDENCE_STAYS) :],
+                                  [[b, b, a] for a, b, _ in literal])
     plain, paired = stay_core(2, stay_base="evidence"), stay_core(2, stay_base="evidence",
                                                                   stay_grid="pairs")
     assert paired.obs_dim == plain.obs_dim and paired.stay_bank.S == len(stays)
