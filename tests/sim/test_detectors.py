@@ -12,7 +12,6 @@ from hypothesis.extra.numpy import arrays
 
 from imm_gym import EnvConfig
 from imm_gym.sim.detectors import (
-    TURN_RATE_FACTOR,
     model_turn_rates,
     true_turn_rates,
     turn_rate_belief,
@@ -85,15 +84,15 @@ def _core(n: int, **changes: object):
 
 
 def test_the_core_smooths_the_heading_rate_of_its_estimate() -> None:
+    """``w(t) = lam w(t-1) + (1 - lam) psi_dot(t)`` with the documented ``lam = 0.7`` (README,
+    ``detector: turn_rate``)."""
     core = _core(2)
     rate = np.zeros(2)
     velocity = core.velocity.copy()
     for _ in range(40):
         info = core.step(np.random.default_rng(0).uniform(-1, 1, (2, M))).info
         new = info["estimate"][:, 2:4]
-        rate = TURN_RATE_FACTOR * rate + (1.0 - TURN_RATE_FACTOR) * heading_rate(
-            velocity, new, 1.0
-        )
+        rate = 0.7 * rate + 0.3 * heading_rate(velocity, new, 1.0)
         velocity = new
         np.testing.assert_allclose(core.turn_rate_estimate, rate, rtol=1e-12, atol=1e-15)
     assert np.any(np.abs(rate) > 1e-3)
