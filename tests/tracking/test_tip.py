@@ -66,6 +66,12 @@ CASES = {
     "first_step": ([1 / 3, 1 / 3, 1 / 3], [0.5, 0.3, 0.2]),
     # mu_now ties between 0 and 1 -> model 0
     "tie_now": ([0.5, 0.3, 0.2], [0.4, 0.4, 0.2]),
+    # main model 0 decays; model 1 decays exactly as fast (Delta = -1/8, -1/8, +1/4, exact in
+    # binary): not "j decays faster", so literal (16) and intent (15) for model 1
+    "decay_tie": ([0.75, 0.125, 0.125], [0.625, 0.0, 0.375]),
+    # main model 0 holds (Delta_0 = 0 counts as growing: f_00 = alpha); model 1 grows -> (15),
+    # model 2 shrinks -> (16)
+    "steady_main": ([0.5, 0.25, 0.25], [0.5, 0.375, 0.125]),
 }
 
 
