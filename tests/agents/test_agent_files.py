@@ -269,3 +269,58 @@ def test_an_agent_recorded_as_normalizing_needs_its_normalizer(tmp_path: Path) -
         assert load_agent(old).obs_mean is None
     shutil.copy(shipped_agent() / "vecnormalize.json", old)
     assert load_agent(old).obs_mean is not None
+
+
+def test_a_shipped_agent_acts_as_sb3_normalizes_and_stacks_its_frames() -> None:
+    """Two episodes through one state (the second flagged by ``episode_start``, as a vector
+    env's reset) act as SB3's ``VecFrameStack(VecNormalize(env))`` built independently: each
+    frame ``clip((o - mean) / sqrt(var + epsilon), ±clip_obs)`` with vecnormalize.json's
+    statistics (the critic's entries zeros), stacked oldest first with zeros before an
+    episode's first frame (SB3's ``StackedObservations``), then the network's deterministic
+    action. Outliers push some entries past ``clip_obs``, so the clip is exercised."""
+    import numpy as np
+    from gymnasium import spaces
+    from stable_baselines3.common.vec_env.stacked_observations import StackedObservations
+
+    from imm_gym.envs.tpm_adapt import TPMAdaptEnv
+
+    member = shipped_agent()
+    policy = load_agent(member)
+    stats = json.loads((member / "vecnormalize.json").read_text())
+    mean, var = np.array(stats["mean"]), np.array(stats["var"])
+    clip, eps = stats["clip_obs"], stats["epsilon"]
+    frame = mean.size
+    assert policy.frame_stack > 1 and frame == policy.obs_size + policy.critic_dims
+    env = TPMAdaptEnv(EnvConfig.build({**policy.env_overrides, "sensor": {"outlier_prob": 0.1}}))
+    observations, actions, starts, state = [], [], [], None
+    for seed in (1, 2):
+        obs, _ = env.reset(seed=seed)
+        first = True
+        while True:
+            action, state = policy.predict(obs[None], state, np.array([first]))
+            observations.append(obs)
+            actions.append(action[0])
+            starts.append(first)
+            obs, _, terminated, truncated, _ = env.step(action[0])
+            first = False
+            if terminated or truncated:
+                break
+    full = np.concatenate(
+        [np.array(observations, np.float64), np.zeros((len(observations), policy.critic_dims))], 1
+    )
+    raw = (full - mean) / np.sqrt(var + eps)
+    assert np.any(np.abs(raw) > clip)  # the outliers reach past the clip
+    normalized = np.clip(raw, -clip, clip).astype(np.float32)
+    stacker = StackedObservations(
+        1, policy.frame_stack, spaces.Box(-np.inf, np.inf, (frame,), np.float32)
+    )
+    reference = []
+    for t, z in enumerate(normalized):
+        if t == 0:
+            stacked = stacker.reset(z[None])
+        else:
+            infos = [{"terminal_observation": normalized[t - 1]}] if starts[t] else [{}]
+            stacked, _ = stacker.update(z[None], np.array([starts[t]]), infos)
+        action, _ = policy.model.predict(stacked.copy(), deterministic=True)
+        reference.append(np.clip(action[0], -1.0, 1.0))
+    np.testing.assert_array_equal(np.array(actions), np.array(reference))
