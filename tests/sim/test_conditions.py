@@ -399,3 +399,26 @@ def test_the_conditions_are_drawn_in_their_documented_order() -> None:
     u = np.random.default_rng(7).uniform(size=2)
     assert got["speed"] == pytest.approx(100.0 * 2.0 ** u[0], rel=1e-12)
     assert got["q_scale"] == pytest.approx(0.5 * 4.0 ** u[1], rel=1e-12)
+
+
+def test_a_track_starts_at_the_first_measurement_with_the_true_velocity_at_t0() -> None:
+    """SPEC §6's filter start: the first measurement converted to a position (range and bearing
+    from the sensor's position) and the truth's velocity at t = 0, the scenario's own; a target
+    that turns from the first step with truth noise moves at another velocity at t = 1."""
+    from imm_gym.scenarios.segments import Scenario, Segment
+
+    velocity = (6.0, 15.0)
+    scenario = Scenario(
+        segments=(Segment(30, 3.0),),
+        position=(3000.0, 4000.0),
+        velocity=velocity,
+        truth_q=(0.0, 0.0, 0.5, 0.5),
+    )
+    sensor = Sonar(position=(100.0, -200.0))
+    batch = draw_batch(scenario, sensor, 6, 4)
+    np.testing.assert_array_equal(batch.truth.states[:, 0, 2:4], np.tile(velocity, (6, 1)))
+    assert np.all(np.abs(batch.truth.states[:, 1, 2:4] - velocity).max(axis=1) > 0.1)
+    np.testing.assert_array_equal(batch.x0[:, 2:4], np.tile(velocity, (6, 1)))
+    r, bearing = batch.measurements.z[:, 0, 0], batch.measurements.z[:, 0, 1]
+    np.testing.assert_allclose(batch.x0[:, 0], 100.0 + r * np.cos(bearing), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(batch.x0[:, 1], -200.0 + r * np.sin(bearing), rtol=0, atol=1e-9)
