@@ -184,6 +184,9 @@ def test_csv_sequences_come_back_in_the_input_order(tmp_path: Path) -> None:
          r"z.csv:4: vx, vy are the initial velocity, read from sequence 'a'"),
         ("sequence,z0,z1\na,1000,0\nb,,0\nb,1000,0\n", [],
          r"z.csv:3: the first row of sequence 'b' initiates the track"),
+        # numbers in the first row do not make it a detection: detected 0 cannot initiate
+        ("z0,z1,detected\n1000,0.1,0\n1010,0.1,1\n", [],
+         r"z.csv:2: the first row of sequence '0' initiates the track: .* and detected 1"),
         ("sequence,z0,z1,detected\na,1000,0,1\na,,0,1\n", [],
          r"z.csv:3: sequence 'a': a detection \(detected 1\) needs a number"),
         ("sequence,z0,z1\na,1000,0\nb,1000,0\na,1000,0\n", [], "sequence 'a' are not consecut"),
