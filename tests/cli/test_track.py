@@ -598,3 +598,15 @@ def test_tpm_columns_of_a_bank_of_more_than_ten_models_are_distinct() -> None:
     assert tpm_columns(3) == [f"tpm{i}{j}" for i in range(3) for j in range(3)]
     many = tpm_columns(12)
     assert len(set(many)) == 144 and "tpm1_10" in many and "tpm11_0" in many
+
+
+def test_velocity_flag_leaves_a_sequences_own_velocity(tmp_path: Path) -> None:
+    """``--velocity`` starts only the sequences that give no velocity: one whose vx, vy are
+    3, 4 starts at that velocity, not the flag's."""
+    (tmp_path / "z.csv").write_text(
+        "z0,z1,vx,vy\n1000,0.1,3,4\n1010,0.1,,\n1020,0.1,,\n"
+    )
+    assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                 "--velocity", "10", "-10", "--out", str(tmp_path / "o.npz")]) == 0
+    with np.load(tmp_path / "o.npz") as out:
+        np.testing.assert_array_equal(out["x0"][0, 2:4], [3.0, 4.0])
