@@ -610,3 +610,20 @@ def test_velocity_flag_leaves_a_sequences_own_velocity(tmp_path: Path) -> None:
                  "--velocity", "10", "-10", "--out", str(tmp_path / "o.npz")]) == 0
     with np.load(tmp_path / "o.npz") as out:
         np.testing.assert_array_equal(out["x0"][0, 2:4], [3.0, 4.0])
+
+
+def test_a_missed_rows_unused_cells_are_not_checked_for_units(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A bearing of 45 (degrees, likely) in a missed detection's row (detected 0) is never
+    tracked: no warning of detections outside the sensor's units; the same row as a detection
+    is told of."""
+    for flag, warned in (("0", False), ("1", True)):
+        (tmp_path / "z.csv").write_text(
+            f"z0,z1,detected\n1000,0.1,1\n1010,45,{flag}\n1020,0.1,1\n"
+        )
+        assert main(["--measurements", str(tmp_path / "z.csv"), "--policy", "fixed",
+                     "--out", str(tmp_path / f"o{flag}.csv")]) == 0
+        err = capsys.readouterr().err
+        assert ("outside the sensor's units" in err) is warned, err
+        assert ("z.csv:3" in err) is warned, err
