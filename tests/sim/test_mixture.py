@@ -251,3 +251,17 @@ def test_the_sb3_adapter_gives_each_slot_its_part_s_config() -> None:
     assert env.get_attr("num_envs", indices=[0, 3]) == [4, 4]
     with pytest.raises(IndexError, match=r"outside \[0, 4\)"):
         env.get_attr("config", indices=[4])
+
+
+def test_a_further_part_gets_its_own_share_and_the_last_slots() -> None:
+    """``MixtureCore.of``: the configuration keeps ``1 - 0.25`` of 8 slots, 6, and the first
+    ones; the further part (sensor outliers) its 0.25, 2, after them (equal shares could not
+    tell the parts' shares apart)."""
+    from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
+
+    mixture = [{"env_kwargs": {**POLICY, "sensor": {"outlier_prob": 0.1}}, "share": 0.25}]
+    core = MixtureCore.of(EnvConfig(**POLICY), mixture, {}, 8)
+    assert np.diff(core.starts).tolist() == [6, 2]
+    assert [c.config.sensor.outlier_prob for c in core.cores] == [0.0, 0.1]
+    env = TPMAdaptSB3VecEnv(8, config=POLICY, mixture=mixture)
+    assert [c.sensor.outlier_prob for c in env.get_attr("config")] == [0.0] * 6 + [0.1] * 2
