@@ -61,6 +61,10 @@ def test_the_key_ranks_kinds_rates_signs_then_noise() -> None:
     assert canonical_order(twins).tolist() == [1, 0, 2]
     hetero = HeteroBank(models=("ctra", "ncv", "ct"))
     assert canonical_order(hetero).tolist() == [1, 2, 0]
+    # q_scale stands for sigma_v, the last key, ascending: the kind first (NCV before CT),
+    # then among the NCVs the smaller scale 0.5 (model 2) before 4 (model 1)
+    scaled = HeteroBank(models=("ct", "ncv", "ncv"), q_scale=(1.0, 4.0, 0.5))
+    assert canonical_order(scaled).tolist() == [2, 1, 0]
 
 
 def test_the_roles_of_the_models_in_either_order() -> None:
