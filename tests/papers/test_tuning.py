@@ -22,6 +22,7 @@ from imm_gym.papers.tuning import (
     greedy_select,
     next_swarm,
     optimize,
+    sine_cosine_step,
     step_scale,
     tune,
 )
@@ -282,6 +283,41 @@ def test_the_optimizer_steps_by_its_own_schedule(method: str, monkeypatch) -> No
     optimize(sphere, 2, TunerConfig(method=method, generations=4, a=2.0, decay=4.0, seed=0))
     expected = [step_scale(method, t, 4, 2.0, 4.0) for t in range(4)]
     assert scales == pytest.approx(expected)
+
+
+def test_sine_cosine_step_is_the_sca_update_by_hand() -> None:
+    """Mirjalili's SCA update, per component: ``X + r_1 sin(r_2) |r_3 b - X|`` where
+    ``r_4 < 0.5``, else with ``cos``; ``r_2 ~ U(0, 2 pi)``, ``r_3 ~ U(0, 2)``, ``r_4 ~ U(0, 1)``,
+    drawn in that order (module docstring)."""
+    X = np.array([[0.3, -1.2, 2.0], [-0.5, 0.8, 1.1], [1.7, 0.0, -2.0], [0.2, 0.4, -0.9]])
+    best = np.array([0.9, -0.4, 1.5])
+    Y = sine_cosine_step(X, best, 1.3, np.random.default_rng(11))
+    rng = np.random.default_rng(11)
+    r2 = rng.random(X.shape) * 2 * np.pi
+    r3 = rng.random(X.shape) * 2.0
+    r4 = rng.random(X.shape)
+    expected = np.empty_like(X)
+    for i in range(X.shape[0]):
+        for j in range(X.shape[1]):
+            trig = np.sin(r2[i, j]) if r4[i, j] < 0.5 else np.cos(r2[i, j])
+            expected[i, j] = X[i, j] + 1.3 * trig * abs(r3[i, j] * best[j] - X[i, j])
+    assert np.any(r4 < 0.5) and np.any(r4 >= 0.5)  # both branches are checked
+    np.testing.assert_allclose(Y, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_sine_cosine_step_draws_r3_up_to_2() -> None:
+    """With every particle at 0, ``b = 1`` and ``r_1 = 1`` the step is ``trig(r_2) r_3``: for
+    ``r_3 ~ U(0, 2)`` and ``trig(r_2)`` of ``r_2 ~ U(0, 2 pi)``, ``E|Y| = (2 / pi) E r_3 = 2 / pi``,
+    ``E Y^2 = E trig^2 E r_3^2 = 1/2 * 4/3 = 2/3``, and ``|Y|`` reaches almost 2. From ``X = 1``
+    toward ``b = 0`` the step is ``1 + trig(r_2)``: mean 1, variance 1/2, within [0, 2]."""
+    Y = sine_cosine_step(np.zeros((40_000, 1)), np.array([1.0]), 1.0, np.random.default_rng(3))
+    assert np.abs(Y).mean() == pytest.approx(2.0 / np.pi, rel=0.02)
+    assert np.mean(Y**2) == pytest.approx(2.0 / 3.0, rel=0.03)
+    assert 1.9 < np.abs(Y).max() <= 2.0
+    Y = sine_cosine_step(np.ones((40_000, 1)), np.array([0.0]), 1.0, np.random.default_rng(4))
+    assert Y.mean() == pytest.approx(1.0, abs=0.02)
+    assert Y.var() == pytest.approx(0.5, rel=0.03)
+    assert Y.min() >= 0.0 and Y.max() <= 2.0
 
 
 def test_bare_bones_step_is_gaussian_between_the_best_and_a_particle() -> None:
