@@ -261,6 +261,26 @@ def test_particle_zero_is_the_untuned_point(bounds: tuple[float, float], start: 
     assert res.history[0] <= float(sphere(np.full(3, start))[0])
 
 
+@pytest.mark.parametrize("method", ["bbsca", "sca"])
+def test_every_proposal_stays_in_the_box(method: str) -> None:
+    """Proposals are clipped to ``[lo, hi]`` before they are evaluated: on a sphere centred at
+    (1.5, -3, 0.5), outside the box [-2, 2] in component 1, every evaluated particle and the best
+    lie in the box, the best on the bound -2 (the sphere's minimum over the box)."""
+    centre = np.array([1.5, -3.0, 0.5])
+    swarms: list[np.ndarray] = []
+
+    def recording(theta: np.ndarray) -> np.ndarray:
+        swarms.append(theta.copy())
+        return np.sum((theta - centre) ** 2, axis=-1)
+
+    res = optimize(recording, 3, TunerConfig(method=method, generations=30, seed=2))
+    evaluated = np.concatenate(swarms)
+    assert evaluated.shape == (10 * 31, 3)
+    assert evaluated.min() >= -2.0 and evaluated.max() <= 2.0
+    assert np.all((res.best >= -2.0) & (res.best <= 2.0))
+    assert res.best[1] == -2.0
+
+
 def test_step_scale_is_linear_for_sca_and_exponential_for_bbsca() -> None:
     """``r_1``: SCA ``a (1 - t / T)``, BBSCA ``a e^{-lambda t / T}`` (seed 003 §3.2.2 (i))."""
     for t in (0, 5, 10, 19):
