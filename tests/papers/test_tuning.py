@@ -365,6 +365,25 @@ def test_sca_moves_every_particle_and_bbsca_selects() -> None:
     np.testing.assert_array_equal(new_f, [1.0, 0.5])
 
 
+def test_tuning_without_r_keeps_the_sensor_r() -> None:
+    """``tune_r=False``: a particle holds only the M ``log10`` Q factors, and the tuned bank keeps
+    ``R`` as the sensor has it (``r_scale = 1``), not the last Q factor."""
+    tuned = TunedBank.from_theta("seed003", np.array([0.3, -0.5, 0.2]), 3)
+    assert tuned.q_scale == pytest.approx((10**0.3, 10**-0.5, 10**0.2))
+    assert tuned.r_scale == 1.0
+    with_r = TunedBank.from_theta("seed003", np.array([0.3, -0.5, 0.2, 1.0]), 3)
+    assert with_r.q_scale == pytest.approx(tuned.q_scale)
+    assert with_r.r_scale == pytest.approx(10.0)
+    sensor = bbsca_sensor()
+    imm = bbsca_imm(sensor)
+    batch = draw(ManeuverFamily(), sensor, 1, 2_000_000)
+    config = TunerConfig(particles=3, generations=1, bounds=(0.5, 1.5), seed=1)
+    tuned, res = tune(imm, batch, stay_tpm(3, 0.9), sensor.sigma, config, tune_r=False)
+    assert res.best.shape == (3,)
+    assert len(tuned.q_scale) == 3 and tuned.r_scale == 1.0
+    assert tuned.q_scale == pytest.approx(tuple(10.0**res.best))
+
+
 def test_optimizer_and_tuner_are_reproducible_by_seed() -> None:
     """The optimizer draws from ``default_rng(config.seed)``: the same seed repeats, another
     differs."""
