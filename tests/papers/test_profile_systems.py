@@ -227,6 +227,38 @@ def test_consistency_uses_the_one_sided_chi2_bound() -> None:
     assert masked["inside"] == 0.0
 
 
+def test_seed002_sensor_is_table_i() -> None:
+    """Seed 002 Table I: position measurement std. dev. sigma_p = 0.5 m, velocity measurement
+    std. dev. sigma_v,meas = 0.5 m/s; the seed-002 system measures with that sensor."""
+    from imm_gym.papers.systems import system_setup
+
+    sensor = hetero_ekf_sensor()
+    assert (sensor.sigma_pos, sensor.sigma_vel) == (0.5, 0.5)
+    np.testing.assert_allclose(sensor.R, np.diag([0.25, 0.25, 0.25, 0.25]))
+    used = system_setup("seed002")[2]
+    assert (used.sigma_pos, used.sigma_vel) == (0.5, 0.5)
+
+
+def test_score_run_nees_is_chi2_with_four_degrees_of_freedom() -> None:
+    """The NEES on ``[x, y, vx, vy]`` has 4 degrees of freedom: ``nees_inside`` is the share of
+    ``e^T P^-1 e`` (computed here by ``np.linalg.solve``) at most scipy's ``chi2.ppf(0.95, 4)``."""
+    from scipy import stats
+
+    from imm_gym.papers.systems import run_bank, score_run, system_setup
+
+    imm, family, sensor, tpm = system_setup("seed002")
+    batch = draw(family, sensor, 2, 0)
+    result = run_bank(imm, batch, tpm)
+    e = batch.truth.states[:, 1:, :4] - result.x[..., :4]
+    solved = np.linalg.solve(result.P[..., :4, :4], e[..., None])[..., 0]
+    values = np.einsum("rki,rki->rk", e, solved)
+    bound4, bound2 = stats.chi2.ppf(0.95, 4), stats.chi2.ppf(0.95, 2)
+    assert np.any((values > bound2) & (values <= bound4))  # the degrees of freedom matter here
+    m = score_run(result, batch, sensor.dim_z)
+    assert m["nees_inside"] == pytest.approx(np.mean(values <= bound4), abs=1e-12)
+    assert m["nees_mean"] == pytest.approx(values.mean(), rel=1e-9)
+
+
 def test_hetero_ekf_evaluation_takes_a_bank() -> None:
     from imm_gym.tracking.hetero import HeteroBank
 
