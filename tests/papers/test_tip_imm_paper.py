@@ -30,3 +30,21 @@ def test_paper_scenario_armse() -> None:
     assert clairvoyant["armse_pos"] == pytest.approx(CLAIRVOYANT_ARMSE, rel=0.03)
     assert clairvoyant["armse_pos"] < imm["armse_pos"]
     assert clairvoyant["armse_vel"] < imm["armse_vel"]
+
+
+def test_paper_table2_is_seed_000s_table_2() -> None:
+    """``PAPER_TABLE2`` holds the classical-IMM and TIP-IMM rows of seed 000's Table 2 (ARMSE:
+    overall position, X and Y position in m, X and Y velocity in m/s), transcribed here from
+    the paper's text (its digits grouped in threes: "18.360 0" is 18.3600)."""
+    from imm_gym.papers.tip_imm import PAPER_TABLE2
+
+    columns = ("armse_pos", "armse_pos_x", "armse_pos_y", "armse_vel_x", "armse_vel_y")
+    rows = {
+        "paper: classical IMM": "18.360 0 11.454 3 14.455 6 1.043 7 1.676 7",
+        "paper: TIP-IMM": "17.024 7 10.661 4 13.392 6 1.019 0 1.601 4",
+    }
+    assert set(PAPER_TABLE2) == set(rows)
+    for name, row in rows.items():
+        words = row.split()
+        values = [float(words[i] + words[i + 1]) for i in range(0, len(words), 2)]
+        assert PAPER_TABLE2[name] == dict(zip(columns, values, strict=True)), name
