@@ -214,6 +214,22 @@ def test_maneuver_family_keeps_the_turn_direction() -> None:
     assert np.all((scale[:, 0] >= 0.5) & (scale[:, 0] <= 1.5))
 
 
+def test_maneuver_family_draws_over_its_documented_ranges() -> None:
+    """Per run: the turn rate is the source's (135° in 20 s) times ``U(0.6, 1.4)``, the start
+    ``U(-20, 20)`` m per axis, the speed ``U(4, 6)`` m/s; 200 draws reach near each end."""
+    pt = ManeuverFamily().truth([np.random.default_rng(s) for s in range(200)])
+    scale = pt.turn_rate[:, 200] / (math.radians(135.0) / 20.0)  # 20 s, mid-turn (14-34 s)
+    assert scale.min() >= 0.6 and scale.max() <= 1.4
+    assert scale.min() < 0.65 and scale.max() > 1.35
+    start = pt.states[:, 0, :2]
+    assert start.min() >= -20.0 and start.max() <= 20.0
+    for axis in (0, 1):
+        assert start[:, axis].min() < -18.0 and start[:, axis].max() > 18.0
+    speed = np.linalg.norm(pt.states[:, 0, 2:4], axis=-1)
+    assert speed.min() >= 4.0 and speed.max() <= 6.0
+    assert speed.min() < 4.1 and speed.max() > 5.9
+
+
 def test_consistency_uses_the_one_sided_chi2_bound() -> None:
     """chi2(4) samples: 95 % inside the bound 9.4877 (seed 002's dashed line), mean 4."""
     from imm_gym.evaluation.metrics import consistency
