@@ -21,6 +21,7 @@ from imm_gym.sim.learned_detector import (
     FORMAT,
     DetectorNetwork,
     features_per_step,
+    step_features,
 )
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.hetero import make_tracker
@@ -70,6 +71,22 @@ def test_the_network_is_torch_s_mlp(seed: int, window: int) -> None:
     belief = net(x)
     np.testing.assert_allclose(belief, expected, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(belief.sum(axis=1), 1.0, atol=1e-12)
+
+
+def test_step_features_by_hand() -> None:
+    """A record is ``mu``, ``clip(loglik - max loglik, -20, 0) / 10``, ``min(NIS, 50) / 10``,
+    ``clip(rate / scale, -3, 3)``: gaps 0, -15, -20, -25 and -40 give 0, -1.5, -2, -2 and -2."""
+    mu = np.array([[0.98, 0.01, 0.01], [0.2, 0.5, 0.3], [0.1, 0.6, 0.3]])
+    loglik = np.array([[-3.0, -18.0, -43.0], [10.0, 10.0, -10.0], [-5.0, -1.0, -26.0]])
+    nis = np.array([2.0, 60.0, 0.0])
+    rate = np.array([0.05, -1.0, 0.7])
+    record = step_features(mu, loglik, nis, rate, 0.2)
+    expected = np.array([
+        [0.98, 0.01, 0.01, 0.0, -1.5, -2.0, 0.2, 0.25],
+        [0.2, 0.5, 0.3, 0.0, 0.0, -2.0, 5.0, -3.0],
+        [0.1, 0.6, 0.3, -0.4, 0.0, -2.0, 0.0, 3.0],
+    ])
+    np.testing.assert_allclose(record, expected, rtol=1e-12, atol=1e-15)
 
 
 def test_a_saved_network_loads_as_float32_data(tmp_path) -> None:
