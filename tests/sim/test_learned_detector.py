@@ -89,6 +89,19 @@ def test_step_features_by_hand() -> None:
     np.testing.assert_allclose(record, expected, rtol=1e-12, atol=1e-15)
 
 
+def test_the_softmax_is_finite_for_large_logits() -> None:
+    """Logits (800, 0) give the belief (1, 0), (-800, -810) give ``(1, e^-10) / (1 + e^-10)``:
+    finite, though ``e^800`` overflows and ``e^-800`` underflows."""
+    M2 = 2
+    zero = np.zeros((M2, features_per_step(M2)))
+    x = np.zeros((1, features_per_step(M2)))
+    net = DetectorNetwork((zero,), (np.array([800.0, 0.0]),), window=1)
+    np.testing.assert_array_equal(net(x), [[1.0, 0.0]])
+    net = DetectorNetwork((zero,), (np.array([-800.0, -810.0]),), window=1)
+    tail = np.exp(-10.0)
+    np.testing.assert_allclose(net(x), [[1.0 / (1.0 + tail), tail / (1.0 + tail)]], rtol=1e-12)
+
+
 def test_a_saved_network_loads_as_float32_data(tmp_path) -> None:
     net = random_network(0)
     net.save(tmp_path / "d.safetensors", {"runs": 3})
