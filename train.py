@@ -79,7 +79,7 @@ from types import FrameType, TracebackType
 from typing import Any, NoReturn
 
 from agents.training import DEFAULT_ENTRY, MAX_SEED, set_threads
-from imm_gym.cli.provenance import versions
+from imm_gym.cli.provenance import record_json, versions
 
 BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
 #: The strongest rules, compared too where the tracker admits them (a linear bank; the learned
@@ -1252,7 +1252,7 @@ def run_seed(
     else:
         results = evaluate_agent(agent_dir, args, run_dir, stop)
         entry.update(results)
-        (run_dir / "results.json").write_text(json.dumps(results, indent=2))
+        (run_dir / "results.json").write_text(record_json(results))
         write_report(
             run_dir / "report.md",
             results,
@@ -1435,7 +1435,7 @@ def write_summary(
     if all("paper" in entry for entry in seeds.values()):
         summary["across_seeds"] = _across_seeds(seeds)
         _write_summary_report(args.out / "report.md", summary)
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (args.out / "summary.json").write_text(record_json(summary))
 
 
 def _describe_selection(selected: dict[str, Any]) -> str:

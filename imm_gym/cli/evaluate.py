@@ -65,7 +65,7 @@ from numpy.typing import NDArray
 
 from agents.policy import agent_directory
 from baselines import REGISTRY, Baseline, BuildContext
-from imm_gym.cli.provenance import versions
+from imm_gym.cli.provenance import record_json, versions
 from imm_gym.cli.tables import render_tables
 from imm_gym.evaluation.clairvoyant import (
     clairvoyant_filter,
@@ -1219,4 +1219,4 @@ def _record(results: dict[str, Any], args: argparse.Namespace) -> None:
     path = args.json
     if path:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(results, indent=2))
+        path.write_text(record_json(results))

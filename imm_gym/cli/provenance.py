@@ -1,15 +1,19 @@
 """What a run's results depend on: the package's version and commit, Python's and the libraries'.
 
 Every command that writes results (``train.py``, ``python -m imm_gym.evaluate``) records
-:func:`versions` beside them, so that anyone can redo the run with the same code.
+:func:`versions` beside them, so that anyone can redo the run with the same code, and writes them
+as strict JSON (:func:`record_json`), which any JSON reader takes.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import platform
 import subprocess
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 #: Distributions recorded wherever a run is made (read from their metadata: nothing is imported).
 CORE_PACKAGES = ("numpy", "scipy", "gymnasium")
@@ -93,3 +97,20 @@ def _git(directory: Path, *args: str) -> str:
         check=True,
     )
     return done.stdout.strip()
+
+
+def record_json(results: Any) -> str:
+    """``results`` as indented JSON (RFC 8259), a number that is not finite written ``null``:
+    Python's ``json`` would write ``NaN`` and ``Infinity`` (a failed run's errors), which strict
+    readers (``jq``, a browser's ``JSON.parse``) refuse."""
+
+    def finite(value: Any) -> Any:
+        if isinstance(value, float):
+            return value if math.isfinite(value) else None
+        if isinstance(value, dict):
+            return {k: finite(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [finite(v) for v in value]
+        return value
+
+    return json.dumps(finite(results), indent=2, allow_nan=False)
