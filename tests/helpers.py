@@ -58,6 +58,16 @@ def stay_core(n: int, engine: str = "auto", **changes: object) -> TrackingCore:
     return core
 
 
+def printed_row(printed: str, first: str, after: str = "") -> list[str]:
+    """The cells of the first table row of ``printed`` (from the text ``after`` on) whose first
+    cell is ``first`` (rich's box characters)."""
+    for line in printed[printed.index(after):].splitlines():
+        cells = [c.strip() for c in line.strip().strip("│┃").split("│")]
+        if cells[0] == first:
+            return cells
+    raise AssertionError(f"no row {first!r} in\n{printed}")
+
+
 def shipped_agent() -> Path:
     """One trained agent of the shipped ``pretrained`` policy: the directory itself, or its
     first member when it is an ensemble (:mod:`agents.ensemble`)."""

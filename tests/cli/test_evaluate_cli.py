@@ -8,22 +8,13 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import printed_row
 
 from baselines import REGISTRY, BuildContext, FixedTPM, register
 from imm_gym.cli.evaluate import evaluate, main
 from imm_gym.evaluation.rollout import evaluation_config, rollout, score
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.validation import ConfigError
-
-
-def _printed_row(printed: str, first: str, after: str = "") -> list[str]:
-    """The cells of the first table row of ``printed`` (from the text ``after`` on) whose first
-    cell is ``first``."""
-    for line in printed[printed.index(after):].splitlines():
-        cells = [c.strip() for c in line.strip().strip("│").split("│")]
-        if cells[0] == first:
-            return cells
-    raise AssertionError(f"no row {first!r} in {printed}")
 
 
 def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:
@@ -73,10 +64,10 @@ def test_cli_json_layout_and_figures(tmp_path, capsys) -> None:
     keys = ("armse_pos", "armse_pos_x", "armse_pos_y", "armse_vel_x", "armse_vel_y")
     for name in ("fixed", "tip-imm"):
         row = data["policies"][name]
-        cells = _printed_row(printed, name)
+        cells = printed_row(printed, name)
         assert cells[1:6] == [f"{row[k]:.4f}" for k in keys]
         assert cells[8] == f"{100 * row['mode_accuracy']:.1f}%"
-    assert _printed_row(printed, "tip-imm", after="Position ARMSE minus")[1:] == [
+    assert printed_row(printed, "tip-imm", after="Position ARMSE minus")[1:] == [
         f"{d['diff']:+.3f}", f"[{d['low']:+.3f}, {d['high']:+.3f}]", f"{100 * d['relative']:+.2f}%"
     ]
     assert "clairvoyant (bound)" in printed and "maneuver response (m)" in printed

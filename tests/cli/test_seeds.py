@@ -8,7 +8,7 @@ import shutil
 
 import numpy as np
 import pytest
-from helpers import shipped_agent
+from helpers import printed_row, shipped_agent
 
 from imm_gym.cli.evaluate import main
 from imm_gym.cli.seeds import across_seeds, render_seeds, suite_across_seeds
@@ -27,15 +27,6 @@ def _result(armse: dict[str, float], accuracy: float = 0.6, ref: str = "best-fix
             },
         },
     }
-
-
-def _printed_row(printed: str, first: str) -> list[str]:
-    """The cells of the table row of ``printed`` whose first cell is ``first``."""
-    for line in printed.splitlines():
-        cells = [c.strip() for c in line.strip().strip("│").split("│")]
-        if cells[0] == first:
-            return cells
-    raise AssertionError(f"no row {first!r} in {printed}")
 
 
 def _expected_cells(s: dict) -> list[str]:
@@ -104,8 +95,8 @@ def test_over_a_suite_scenarios_are_the_strata(capsys) -> None:
     table = capsys.readouterr().out
     # the printed cells are the JSON's IQM [low, high] (10.5 - 9 m wide: low < IQM < high)
     for name in ("easy", "hard"):
-        assert _printed_row(table, name)[1:] == _expected_cells(out["scenarios"][name])
-    assert _printed_row(table, "easy")[1:3] == ["9.67 [9.00, 10.50]", "70.0% [50.0, 90.0]"]
+        assert printed_row(table, name)[1:] == _expected_cells(out["scenarios"][name])
+    assert printed_row(table, "easy")[1:3] == ["9.67 [9.00, 10.50]", "70.0% [50.0, 90.0]"]
     printed = " ".join(table.split())
     pooled = out["relative_vs_reference"]
     assert (
@@ -246,4 +237,4 @@ def test_seeds_without_a_mode_accuracy_have_no_iqm_of_it(capsys) -> None:
                                     "high": None}
     assert out["armse_pos"]["iqm"] == pytest.approx(18.5)
     render_seeds(out, "paper")
-    assert _printed_row(capsys.readouterr().out, "paper")[2] == "—"
+    assert printed_row(capsys.readouterr().out, "paper")[2] == "—"

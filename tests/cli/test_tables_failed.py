@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import math
 
+from helpers import printed_row
+
 from imm_gym.cli import evaluate
 from imm_gym.cli.provenance import record_json
 from imm_gym.cli.tables import SYSTEM_COLUMNS, render_system_tables
@@ -17,22 +19,14 @@ def _row(failed: int, value: float) -> dict[str, object]:
     return {**{key: value for key, _, _ in SYSTEM_COLUMNS}, "failed": failed}
 
 
-def _cells(printed: str, first: str) -> list[str]:
-    for line in printed.splitlines():
-        cells = [c.strip() for c in line.strip("│┃ ").split("│")]
-        if cells and cells[0] == first:
-            return cells
-    raise AssertionError(f"no row {first!r} in\n{printed}")
-
-
 def test_failed_runs_get_a_column_and_a_note(capsys) -> None:
     """Two failed runs gave only 'nan' cells (and a NIS share counting NaN as outside): the
     table gives each policy's failed runs out of the runs and says what they do to the rest."""
     policies = {"fixed": _row(0, 0.5), "bbsca": _row(2, math.nan)}
     render_system_tables({"meta": META, "policies": policies})
     printed = capsys.readouterr().out
-    assert _cells(printed, "fixed")[-1] == "0/2"
-    assert _cells(printed, "bbsca")[-1] == "2/2"
+    assert printed_row(printed, "fixed")[-1] == "0/2"
+    assert printed_row(printed, "bbsca")[-1] == "2/2"
     text = " ".join(printed.split())
     assert "failed: runs whose filter failed" in text
     assert "NIS/NEES ≤ χ²95 count their NaN steps as outside the bound" in text
@@ -41,7 +35,7 @@ def test_failed_runs_get_a_column_and_a_note(capsys) -> None:
 def test_no_failed_run_no_column(capsys) -> None:
     render_system_tables({"meta": META, "policies": {"fixed": _row(0, 0.5)}})
     printed = capsys.readouterr().out
-    assert "failed" not in printed and len(_cells(printed, "fixed")) == 1 + len(SYSTEM_COLUMNS)
+    assert "failed" not in printed and len(printed_row(printed, "fixed")) == 1 + len(SYSTEM_COLUMNS)
 
 
 def test_failed_runs_are_written_as_strict_json(tmp_path, capsys) -> None:

@@ -4,17 +4,10 @@ from __future__ import annotations
 
 import json
 
+from helpers import printed_row
+
 from imm_gym.cli.evaluate import evaluate
 from imm_gym.cli.tables import render_suite_table, render_system_tables, render_tables
-
-
-def _row(printed: str, first: str) -> list[str]:
-    """The cells of the first printed table row starting with ``first``."""
-    for line in printed.splitlines():
-        cells = [c.strip() for c in line.strip("│┃ ").split("│")]
-        if cells and cells[0] == first:
-            return cells
-    raise AssertionError(f"no row {first!r} in\n{printed}")
 
 
 def test_scores_without_values_print_as_a_dash(capsys) -> None:
@@ -25,14 +18,14 @@ def test_scores_without_values_print_as_a_dash(capsys) -> None:
         row[test]["inside"] = row[test]["mean"] = None
     row["mode_accuracy"] = row["mode_prob_tv"] = None
     render_tables(results)
-    cells = _row(capsys.readouterr().out, "fixed")
+    cells = printed_row(capsys.readouterr().out, "fixed")
     assert cells[6:9] == ["—", "—", "—"]
     suite = {
         "meta": {**results["meta"], "suite": "s", "reference": "fixed"},
         "scenarios": {"paper": results},
     }
     render_suite_table(suite)
-    assert _row(capsys.readouterr().out, "paper (150 steps)")[3:5] == ["—", "—"]
+    assert printed_row(capsys.readouterr().out, "paper (150 steps)")[3:5] == ["—", "—"]
 
 
 def test_the_system_table_prints_a_missing_consistency_as_a_dash(capsys) -> None:
@@ -41,4 +34,4 @@ def test_the_system_table_prints_a_missing_consistency_as_a_dash(capsys) -> None
            "nees_mean": None, "innovation_mse": 1.0}
     meta = {"scenario": "seed002", "runs": 1, "seeds": "0..0", "steps": 10}
     render_system_tables({"meta": meta, "policies": {"fixed": row}})
-    assert _row(capsys.readouterr().out, "fixed")[7:11] == ["—"] * 4
+    assert printed_row(capsys.readouterr().out, "fixed")[7:11] == ["—"] * 4
