@@ -51,6 +51,7 @@ from agents.network import load_tensors
 from agents.policy import ENV_FILE, read_env_file, read_manifest, read_trackers, write_env_file
 from agents.schema import MAX_WIDTH
 from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.features import observation_size
 from imm_gym.sim.stay_bank import detector_tpm_rows
 from imm_gym.tracking.tpm import apply_floor
 from imm_gym.validation import ConfigError
@@ -282,6 +283,34 @@ def is_selector(path: str | Path) -> bool:
     return path.name == SELECTOR_FILE or (path / SELECTOR_FILE).is_file()
 
 
+def check_member(
+    where: str, tensors: Mapping[str, torch.Tensor], obs_size: int, P: int, hidden: int
+) -> None:
+    """A member's tensors are the :func:`network`'s for an observation of ``obs_size`` entries,
+    ``P`` priors and width ``hidden``: the same names and shapes, every one float32.
+
+    Raises:
+        ConfigError: a tensor of another dtype, a name missing or extra, or another shape;
+            the message begins with ``where``.
+    """
+    other = sorted(name for name, t in tensors.items() if t.dtype != torch.float32)
+    if other:
+        raise ConfigError(f"{where}: tensors {other} are not float32")
+    with torch.device("meta"):  # the network's names and shapes, nothing allocated
+        expected = {name: tuple(t.shape)
+                    for name, t in network(obs_size, P, hidden).state_dict().items()}
+    shapes = {name: tuple(t.shape) for name, t in tensors.items()}
+    wrong = sorted(set(shapes) ^ set(expected)) or sorted(
+        name for name in shapes if shapes[name] != expected[name]
+    )
+    if wrong:
+        name = wrong[0]
+        raise ConfigError(f"{where} does not fit an observation of {obs_size} entries and {P} "
+                          f"priors at width {hidden} (tensor {name!r}: "
+                          f"{shapes.get(name, 'absent')} in the file, "
+                          f"{expected.get(name, 'absent')} in the network)")
+
+
 def load_selector(path: str | Path) -> StaySelector:
     """Load a selector from its directory (or its ``selector.json``), every file checked.
 
@@ -311,28 +340,13 @@ def load_selector(path: str | Path) -> StaySelector:
     selector = StaySelector([], data.get("priors"), env, obs_size, f"selector {str(file)!r}",
                             trained_across)
     P = len(selector.priors)
-    with torch.device("meta"):  # the members' names and shapes, nothing allocated
-        expected = {name: tuple(t.shape)
-                    for name, t in network(obs_size, P, hidden).state_dict().items()}
     for member in members:
         if not (directory / member).is_file():
             raise ConfigError(f"{file}: member {member!r} is not a file of the directory")
 
         def fits(declared: dict[str, torch.Tensor], member: str = member) -> None:
-            """The member's declared tensors: float32, the names and shapes of the network."""
-            other = sorted(name for name, t in declared.items() if t.dtype != torch.float32)
-            if other:
-                raise ConfigError(f"{file}: member {member!r}: tensors {other} are not float32")
-            shapes = {name: tuple(t.shape) for name, t in declared.items()}
-            wrong = sorted(set(shapes) ^ set(expected)) or sorted(
-                name for name in shapes if shapes[name] != expected[name]
-            )
-            if wrong:
-                name = wrong[0]
-                raise ConfigError(f"{file}: member {member!r} does not fit an observation of "
-                                  f"{obs_size} entries and {P} priors at width {hidden} "
-                                  f"(tensor {name!r}: {shapes.get(name, 'absent')} in the "
-                                  f"file, {expected.get(name, 'absent')} in the network)")
+            """The member's declared tensors: the network's names and shapes, float32."""
+            check_member(f"{file}: member {member!r}", declared, obs_size, P, hidden)
 
         # safetensors only, every number finite; names, dtypes and shapes checked from the
         # header before a tensor is read or the network built
@@ -352,9 +366,11 @@ def save_selector(
     first layer's) and load it back, checked.
 
     Raises:
-        ConfigError: the networks are of different widths (``selector.json`` holds one), or the
-            priors are not ones the environment's action reaches (:func:`check_priors`), before
-            anything is written.
+        ConfigError: the networks are of different widths (``selector.json`` holds one), the
+            priors are not ones the environment's action reaches (:func:`check_priors`), or a
+            network does not read the environment's observation into one prediction per prior
+            (:func:`check_member`) or holds NaN or infinite weights — before anything is
+            written.
     """
     widths = sorted({net[0].out_features for net in nets})
     if len(widths) > 1:
@@ -362,9 +378,17 @@ def save_selector(
                           f"selector's directory holds networks of one width")
     hidden = widths[0]
     directory = Path(directory)
-    check_priors(str(directory / SELECTOR_FILE), priors, EnvConfig.build(dict(env_overrides)))
-    directory.mkdir(parents=True, exist_ok=True)
+    config = EnvConfig.build(dict(env_overrides))
+    check_priors(str(directory / SELECTOR_FILE), priors, config)
+    obs_size = observation_size(config.obs_features, len(config.bank), config.sensor.dim_z)
     members = [f"net_{k}.safetensors" for k in range(len(nets))]
+    for net, member in zip(nets, members, strict=True):
+        where = f"{directory / member}"
+        check_member(where, net.state_dict(), obs_size, len(priors), hidden)
+        bad = [name for name, t in net.state_dict().items() if not bool(torch.isfinite(t).all())]
+        if bad:
+            raise ConfigError(f"{where}: tensors {bad} hold NaN or infinite values")
+    directory.mkdir(parents=True, exist_ok=True)
     for net, member in zip(nets, members, strict=True):
         save_file(net.state_dict(), str(directory / member))
     write_env_file(directory, env_overrides)

@@ -119,6 +119,30 @@ def test_networks_of_different_widths_are_refused_before_anything_is_written(
     assert not (tmp_path / "mixed").exists()
 
 
+@pytest.mark.parametrize("fault", ["observation", "priors", "nan"])
+def test_networks_that_would_not_load_are_refused_before_anything_is_written(
+    tmp_path: Path, fault: str
+) -> None:
+    """A network reading another observation, predicting for other priors or holding NaN would
+    be refused when loaded: saving refuses it first, naming the member and the shapes, and
+    leaves no directory behind."""
+    obs_size = core_of(STAY_ENV, 1).observe().shape[1]
+    net = network(obs_size + (fault == "observation"), len(GRID) + (fault == "priors"), 8)
+    if fault == "nan":
+        with torch.no_grad():
+            net[0].weight[0, 0] = float("nan")
+    message = {
+        "observation": rf"net_0\.safetensors does not fit an observation of {obs_size} "
+                       rf"entries and {len(GRID)} priors at width 8 \(tensor '0\.weight': "
+                       rf"\(8, {obs_size + 1}\) in the file, \(8, {obs_size}\)",
+        "priors": rf"net_0\.safetensors does not fit .* \(tensor '4\.bias': \({len(GRID) + 1},\)",
+        "nan": r"net_0\.safetensors: tensors \['0\.weight'\] hold NaN or infinite values",
+    }[fault]
+    with pytest.raises(ConfigError, match=message):
+        save_selector(tmp_path / "sel", [net], stay_priors(0.75), STAY_ENV)
+    assert not (tmp_path / "sel").exists()
+
+
 def test_the_evaluation_takes_a_selector_by_path(tmp_path: Path) -> None:
     core = core_of(SET_ENV, 1)
     torch.manual_seed(1)
