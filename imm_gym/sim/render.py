@@ -274,8 +274,7 @@ class TrackFigure:
         ]
         mu.set(ylim=(-0.03, 1.14), yticks=[0.0, 0.5, 1.0])
         mu.set_xlabel("step; mode probabilities, bar: the true model", fontsize=6, labelpad=1)
-        mu.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=M, fontsize=6,
-                  frameon=False, handlelength=1.5, borderaxespad=0.1)
+        self._mode_legend(M)
 
         self.moving = [
             self.title, *(line for lines in self.tracks for line in lines), self.sensor,
@@ -289,6 +288,21 @@ class TrackFigure:
         self._background: Any = None
         self._shown = False
         fig.canvas.mpl_connect("draw_event", self._on_draw)
+
+    def _mode_legend(self, M: int) -> None:
+        """The models' legend above the mode probabilities: one row, or where that would be
+        wider than the axes (five models and more at the default size), the fewest rows that
+        keep it within their width, filled evenly."""
+        mu = self.ax_mu
+
+        def legend(columns: int) -> Any:  # replaces the axes' legend
+            return mu.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=columns,
+                             fontsize=6, frameon=False, handlelength=1.5, borderaxespad=0.1)
+
+        width = mu.get_window_extent().width
+        columns = next((c for c in range(M, 1, -1) if legend(c).get_window_extent().width
+                        <= width), 1)
+        legend(math.ceil(M / math.ceil(M / columns)))
 
     def __getstate__(self) -> dict[str, Any]:
         """The constructor's arguments only: a copy (pickle, deepcopy) builds its own figure (a

@@ -510,3 +510,23 @@ def test_the_tpm_heatmaps_labels_and_stays_stand_apart(labels: list[str]) -> Non
     cell = picture.ax_tpm.get_window_extent(renderer).width / M
     assert all(t.get_text() == "0.980" for t in picture.stays)
     assert all(t.get_window_extent(renderer).width < cell for t in picture.stays)
+
+
+@pytest.mark.parametrize(("M", "rows"), [(3, 1), (4, 1), (5, 2), (9, 3)])
+def test_the_models_legend_stays_within_the_mode_probabilities_axes(M: int, rows: int) -> None:
+    """One row of legend for nine models ran past both edges of the figure; the legend takes as
+    few rows as keep it within the axes' width, one where it fits."""
+    from imm_gym.sim.render import model_labels
+    from imm_gym.tracking.models import MotionModel
+
+    rates = (2.0, -2.0, 5.0, -5.0, 8.0, -8.0, 1.0, -1.0)[: M - 1]
+    labels = model_labels([MotionModel("cv"), *(MotionModel("ct", r) for r in rates)])
+    picture = TrackFigure(labels)
+    picture.fig.canvas.draw()
+    legend = picture.ax_mu.get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == labels
+    box, axes = legend.get_window_extent(), picture.ax_mu.get_window_extent()
+    assert axes.x0 <= box.x0 and box.x1 <= axes.x1
+    heights = {round(t.get_window_extent().y0) for t in legend.get_texts()}
+    assert len(heights) == rows
+    picture.close()
