@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import shlex
 import shutil
@@ -78,13 +77,20 @@ from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any, NoReturn
 
+from agents.checkpoint import read_validation
+from agents.report import (
+    BASELINES_COMPARED,
+    across_seeds,
+    admitted_rules,
+    describe_selection,
+    evaluated_scenarios,
+    paired,
+    write_report,
+    write_summary_report,
+)
 from agents.training import DEFAULT_ENTRY, MAX_SEED, set_threads
 from imm_gym.cli.provenance import record_json, versions
 
-BASELINES_COMPARED = ("fixed", "tip-imm", "best-fixed")
-#: The strongest rules, compared too where the tracker admits them (a linear bank; the learned
-#: detector's network fitting it): an agent is judged against them, not only the classics.
-DETECTOR_RULES = ("turn-rate-prior", "learned-prior")
 ALGOS = ("ppo", "recurrent-ppo")
 ENGINES = ("sb3", "rllib")
 #: Where a run is written without ``--out`` (and without ``--resume``: then the checkpoint's run).
@@ -1115,9 +1121,9 @@ def evaluate_agent(
             extra={"learned": (policy, policy.env_overrides)},
             env_config=env_config,
         )
-        results["vs_tip_imm"] = _paired(rollouts, "learned", "tip-imm")
+        results["vs_tip_imm"] = paired(rollouts, "learned", "tip-imm")
         for rule in rules:
-            results[f"vs_{rule.replace('-', '_')}"] = _paired(rollouts, "learned", rule)
+            results[f"vs_{rule.replace('-', '_')}"] = paired(rollouts, "learned", rule)
         results["meta"]["scenario"] = scenario
         dropped = sorted(set(args.env_overrides) - set(env_config) - {"scenario"})
         if dropped:
@@ -1129,85 +1135,6 @@ def evaluate_agent(
         )
         out[scenario] = results
     return out
-
-
-def evaluated_scenarios(env_overrides: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The configuration the agent and the baselines run on in each scenario of
-    :func:`evaluate_agent`: the first ``--env-config`` file's (its ``scenario`` aside) on the
-    randomized family, and the same without ``vary`` on the paper scenario, whose targets fly at
-    its own sampling period and speeds (the conditions a file draws per episode apply to the
-    family's targets; the file's sensor and bank apply to both)."""
-    family = {k: v for k, v in env_overrides.items() if k != "scenario"}
-    return {"paper": {k: v for k, v in family.items() if k != "vary"}, "random": family}
-
-
-def admitted_rules(base: Any) -> tuple[str, ...]:
-    """The rules of :data:`DETECTOR_RULES` whose configuration the evaluated ``base`` (an
-    EnvConfig) admits (their detector needs a linear bank; the learned one, distinct turn rates
-    and as many models as its network)."""
-    from baselines import REGISTRY
-    from imm_gym.validation import ConfigError
-
-    admitted = []
-    for name in DETECTOR_RULES:
-        try:
-            REGISTRY[name].check(base)
-        except ConfigError:
-            continue
-        admitted.append(name)
-    return tuple(admitted)
-
-
-def _paired(rollouts: dict[str, Any], a: str, b: str) -> dict[str, float | None]:
-    """``a``'s position ARMSE minus ``b``'s with its paired bootstrap CI, as the evaluation's
-    differences (``low`` and ``high`` None for one run, where it is undefined)."""
-    from imm_gym.cli.evaluate import paired_difference
-
-    return paired_difference(rollouts[a].squared_position_error, rollouts[b].squared_position_error)
-
-
-def _ci(d: dict[str, Any]) -> str:
-    """A paired difference's 95 % CI, ``[low, high]`` in m, or ``undefined (1 run)``."""
-    return "undefined (1 run)" if d["low"] is None else f"[{d['low']:+.3f}, {d['high']:+.3f}]"
-
-
-def write_report(path: Path, results: dict[str, Any], header: list[str]) -> None:
-    lines = [*header, ""]
-    for scenario in ("paper", "random"):
-        if scenario not in results:
-            continue
-        r = results[scenario]
-        meta = r["meta"]
-        lines += [
-            f"## {scenario} scenario — {meta['runs']} runs, seeds {meta['seeds']}",
-            "",
-            "| policy | pos ARMSE (m) | X (m) | Y (m) | vel X (m/s) | vel Y (m/s) |",
-            "|---|---:|---:|---:|---:|---:|",
-        ]
-        for name, row in r["policies"].items():
-            lines.append(
-                f"| {name} | {row['armse_pos']:.3f} | {row['armse_pos_x']:.3f} | "
-                f"{row['armse_pos_y']:.3f} | {row['armse_vel_x']:.3f} | "
-                f"{row['armse_vel_y']:.3f} |"
-            )
-        c = r.get("clairvoyant", {})
-        if "armse_pos" in c:
-            lines.append(
-                f"| clairvoyant ({c['role']}) | {c['armse_pos']:.3f} | {c['armse_pos_x']:.3f} | "
-                f"{c['armse_pos_y']:.3f} | {c['armse_vel_x']:.3f} | {c['armse_vel_y']:.3f} |"
-            )
-        lines += ["", "Paired differences of position ARMSE (95 % bootstrap CI):", ""]
-        for name, d in r["paired"]["differences"].items():
-            lines.append(
-                f"- {name} − best-fixed: {d['diff']:+.3f} m {_ci(d)} ({100 * d['relative']:+.2f} %)"
-            )
-        for rule in ("tip-imm", *DETECTOR_RULES):
-            d = r.get(f"vs_{rule.replace('-', '_')}")
-            if d is not None:
-                relative = f"{100 * d['relative']:+.2f} %"
-                lines.append(f"- learned − {rule}: {d['diff']:+.3f} m {_ci(d)} ({relative})")
-        lines.append("")
-    path.write_text("\n".join(lines) + "\n")
 
 
 def run_seed(
@@ -1260,7 +1187,7 @@ def run_seed(
                 f"# {args.algo.upper()} on {args.env}, seed {seed}",
                 "",
                 f"Command: `{command}`. Training: {training_line(stats, _engine(args))}.",
-                f"Agent: {_describe_selection(stats['selected'])}.",
+                f"Agent: {describe_selection(stats['selected'])}.",
                 f"Versions: {versions}.",
             ],
         )
@@ -1433,108 +1360,9 @@ def write_summary(
             f"their actions (python -m imm_gym.evaluate --policy {file.parent})"
         )
     if all("paper" in entry for entry in seeds.values()):
-        summary["across_seeds"] = _across_seeds(seeds)
-        _write_summary_report(args.out / "report.md", summary)
+        summary["across_seeds"] = across_seeds(seeds)
+        write_summary_report(args.out / "report.md", summary)
     (args.out / "summary.json").write_text(record_json(summary))
-
-
-def _describe_selection(selected: dict[str, Any]) -> str:
-    """How the evaluated policy was obtained, from ``training.json``'s ``selected``."""
-    score = selected.get("armse_pos")
-    validation = "" if score is None else f", validation ARMSE {score:.3f} m"
-    if "swa_start" in selected:
-        return (
-            f"the mean of the weights after every update from step {selected['swa_start']} on "
-            f"({selected['snapshots']} updates){validation}"
-        )
-    if score is not None:
-        return f"the best validated checkpoint, at step {selected['timesteps']}{validation}"
-    return f"the last iterate, at step {selected['timesteps']}"
-
-
-def _across_seeds(seeds: dict[str, Any]) -> dict[str, Any]:
-    import numpy as np
-
-    out: dict[str, Any] = {}
-    for scenario in ("paper", "random"):
-        learned = [s[scenario]["policies"]["learned"]["armse_pos"] for s in seeds.values()]
-        vs_best = [
-            s[scenario]["paired"]["differences"]["learned"]["relative"] for s in seeds.values()
-        ]
-        vs_tip = [s[scenario]["vs_tip_imm"]["relative"] for s in seeds.values()]
-        out[scenario] = {
-            "armse_pos_mean": float(np.mean(learned)),
-            "armse_pos_std": float(np.std(learned, ddof=1)) if len(learned) > 1 else None,
-            "relative_vs_best_fixed_mean": float(np.mean(vs_best)),
-            "relative_vs_tip_imm_mean": float(np.mean(vs_tip)),
-            "per_seed_armse_pos": learned,
-        }
-    return out
-
-
-def _write_summary_report(path: Path, summary: dict[str, Any]) -> None:
-    lines = ["# Training summary", "", f"Command: `{summary['command']}`", ""]
-    for scenario, s in summary["across_seeds"].items():
-        spread = "one seed" if s["armse_pos_std"] is None else f"± {s['armse_pos_std']:.3f} m"
-        lines += [
-            f"## {scenario}",
-            "",
-            f"Learned position ARMSE over seeds: {s['armse_pos_mean']:.3f} m, {spread} (per "
-            f"seed: {', '.join(f'{v:.3f}' for v in s['per_seed_armse_pos'])}); mean relative "
-            f"difference vs best fixed {100 * s['relative_vs_best_fixed_mean']:+.2f} %, vs TIP-IMM "
-            f"{100 * s['relative_vs_tip_imm_mean']:+.2f} %.",
-            "",
-        ]
-    path.write_text("\n".join(lines))
-
-
-def read_validation(file: Path) -> dict[str, Any]:
-    """A run's ``best/validation.json``, which a resumed run continues: ``armse_pos`` (the best
-    validation ARMSE, or null before any), the ``timesteps`` it was reached at and the
-    ``history`` of ``{"timesteps", "armse_pos"}`` validations.
-
-    Raises:
-        ConfigError: the file is not such a record (naming it and what is wrong).
-    """
-    from imm_gym.validation import ConfigError, unique_keys
-
-    def refuse(problem: str) -> NoReturn:
-        raise ConfigError(f"{file}: {problem}")
-
-    def count(value: Any) -> bool:
-        return type(value) is int and value >= 0
-
-    def score(value: Any) -> bool:
-        return type(value) in (int, float) and math.isfinite(value) and value >= 0
-
-    try:
-        data = json.loads(file.read_bytes().decode("utf-8"), object_pairs_hook=unique_keys)
-    except (OSError, ValueError, RecursionError) as err:
-        refuse(f"not valid JSON ({' '.join(str(err).split()) or type(err).__name__})")
-    if not isinstance(data, dict):
-        refuse(f"must hold an object, got {type(data).__name__}")
-    unknown = sorted(set(data) - {"armse_pos", "timesteps", "history"})
-    if unknown:
-        refuse(f"unknown keys {unknown}")
-    if "armse_pos" not in data or not (data["armse_pos"] is None or score(data["armse_pos"])):
-        refuse(f"armse_pos must be null or a finite number >= 0, got {data.get('armse_pos')!r}")
-    if "timesteps" in data and not count(data["timesteps"]):
-        refuse(f"timesteps must be an integer >= 0, got {data['timesteps']!r}")
-    history = data.get("history", [])
-    if not isinstance(history, list):
-        refuse(f"history must be a list, got {type(history).__name__}")
-    for i, entry in enumerate(history):
-        if not (
-            isinstance(entry, dict)
-            and set(entry) == {"timesteps", "armse_pos"}
-            and count(entry["timesteps"])
-            and score(entry["armse_pos"])
-        ):
-            refuse(
-                f"history[{i}] must be {{\"timesteps\": an integer >= 0, \"armse_pos\": a finite "
-                f"number >= 0}}, got {entry!r}"
-            )
-    return data
 
 
 def _engine(args: argparse.Namespace) -> str:

@@ -24,9 +24,10 @@ renamed into place, so an existing checkpoint is never left half-written. SB3's 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -39,7 +40,7 @@ from agents.training import (
     find_normalizer,
     save_agent,
 )
-from imm_gym.validation import ConfigError
+from imm_gym.validation import ConfigError, unique_keys
 
 RESUME_FILE = "resume.json"
 TENSORS_FILE = "resume.safetensors"
@@ -481,3 +482,50 @@ def _optimizer_state(
                 f"{sorted(ADAM_STATE)}"
             )
     return state
+
+
+def read_validation(file: Path) -> dict[str, Any]:
+    """A run's ``best/validation.json``, which a resumed run continues: ``armse_pos`` (the best
+    validation ARMSE, or null before any), the ``timesteps`` it was reached at and the
+    ``history`` of ``{"timesteps", "armse_pos"}`` validations.
+
+    Raises:
+        ConfigError: the file is not such a record (naming it and what is wrong).
+    """
+    def refuse(problem: str) -> NoReturn:
+        raise ConfigError(f"{file}: {problem}")
+
+    def count(value: Any) -> bool:
+        return type(value) is int and value >= 0
+
+    def score(value: Any) -> bool:
+        return type(value) in (int, float) and math.isfinite(value) and value >= 0
+
+    try:
+        data = json.loads(file.read_bytes().decode("utf-8"), object_pairs_hook=unique_keys)
+    except (OSError, ValueError, RecursionError) as err:
+        refuse(f"not valid JSON ({' '.join(str(err).split()) or type(err).__name__})")
+    if not isinstance(data, dict):
+        refuse(f"must hold an object, got {type(data).__name__}")
+    unknown = sorted(set(data) - {"armse_pos", "timesteps", "history"})
+    if unknown:
+        refuse(f"unknown keys {unknown}")
+    if "armse_pos" not in data or not (data["armse_pos"] is None or score(data["armse_pos"])):
+        refuse(f"armse_pos must be null or a finite number >= 0, got {data.get('armse_pos')!r}")
+    if "timesteps" in data and not count(data["timesteps"]):
+        refuse(f"timesteps must be an integer >= 0, got {data['timesteps']!r}")
+    history = data.get("history", [])
+    if not isinstance(history, list):
+        refuse(f"history must be a list, got {type(history).__name__}")
+    for i, entry in enumerate(history):
+        if not (
+            isinstance(entry, dict)
+            and set(entry) == {"timesteps", "armse_pos"}
+            and count(entry["timesteps"])
+            and score(entry["armse_pos"])
+        ):
+            refuse(
+                f"history[{i}] must be {{\"timesteps\": an integer >= 0, \"armse_pos\": a finite "
+                f"number >= 0}}, got {entry!r}"
+            )
+    return data

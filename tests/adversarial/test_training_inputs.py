@@ -11,6 +11,7 @@ import pytest
 from helpers import SMALL
 
 import train
+from agents.checkpoint import read_validation
 from agents.training import read_yaml
 
 
@@ -237,7 +238,7 @@ def test_a_damaged_validation_record_is_refused_naming_it(content, message, tmp_
     file = tmp_path / "validation.json"
     file.write_text(content)
     with pytest.raises(ConfigError) as err:
-        train.read_validation(file)
+        read_validation(file)
     assert str(err.value).startswith(f"{file}: ") and message in str(err.value)
     assert "\n" not in str(err.value)
 
@@ -250,6 +251,6 @@ def test_a_validation_record_as_training_writes_it_is_read_back(tmp_path) -> Non
     }
     file = tmp_path / "validation.json"
     file.write_text(json.dumps(record, indent=2))
-    assert train.read_validation(file) == record
+    assert read_validation(file) == record
     file.write_text(json.dumps({"armse_pos": None}))
-    assert train.read_validation(file) == {"armse_pos": None}
+    assert read_validation(file) == {"armse_pos": None}

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import train
+from agents.report import admitted_rules
 from imm_gym.envs import PRESETS
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.env_config import EnvConfig
@@ -124,7 +125,7 @@ def test_train_py_evaluates_an_agent_of_a_configuration_file_against_every_rule(
     report = (tmp_path / "run" / "seed_0" / "report.md").read_text()
     assert "learned − learned-prior" in report and "learned − turn-rate-prior" in report
     hetero = EnvConfig.build({"scenario": "random", **BANK_PRESETS["hetero"]})
-    assert train.admitted_rules(hetero) == ()
+    assert admitted_rules(hetero) == ()
 
 
 def test_a_file_that_draws_conditions_is_evaluated_on_the_paper_scenario_without_them(
