@@ -123,3 +123,41 @@ def test_atan2_matches_numpy() -> None:
     x = np.concatenate([rng.normal(0, 1, 4000), rng.normal(0, 1e-3, 4000), [1.0, 0.0, 0.0, -1.0]])
     got = np.array([kernel._atan2(a, b) for a, b in zip(y, x, strict=True)])
     np.testing.assert_allclose(got, np.arctan2(y, x), rtol=4e-16, atol=1e-300)
+
+
+def test_an_unreachable_model_mixes_with_the_mode_probabilities_in_both_engines() -> None:
+    """A TPM whose last column is 0 makes model 2 unreachable (``cbar_2 = 0``, log-probability
+    -inf): both engines step without failing and agree to 1e-9, model 2 ends at probability 0, and
+    its mixed start is the documented fallback ``x0_2 = sum_i mu_i x_i``, ``P0_2 = sum_i mu_i
+    [P_i + (x_i - x0_2)(x_i - x0_2)^T]`` (mixing weights ``mu`` when ``cbar_j`` is 0), which a
+    missed detection carries through model 2's prediction ``F x0_2``, ``F P0_2 F^T + Q``,
+    computed here by hand from the models' spread states."""
+    N = 40
+    sensor = Sonar()
+    batch = draw_batch(RandomFamily(), sensor, N, 5)
+    rng = np.random.default_rng(12)
+    imms = [IMM(paper_bank(), sensor, "ukf", engine=e) for e in ("numpy", "compiled")]
+    # one ordinary step first, so that the models' estimates and probabilities differ
+    state, _ = imms[0].step(
+        imms[0].init(batch.x0, batch.P0), _random_tpm(rng, 3, N), batch.measurements.z[:, 1]
+    )
+    tpm = np.array([[0.9, 0.1, 0.0], [0.1, 0.9, 0.0], [0.5, 0.5, 0.0]])
+    det = rng.random(N) < 0.5
+    steps = [imm.step(state, tpm, batch.measurements.z[:, 2], det) for imm in imms]
+    (ref_state, ref), (got_state, got) = steps
+    assert not ref.failed.any() and not got.failed.any()
+    for f in FIELDS:
+        a, b = getattr(ref, f), getattr(got, f)
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * np.abs(a).max(), err_msg=f)
+    for a, b, f in ((ref_state.x, got_state.x, "state.x"), (ref_state.P, got_state.P, "state.P")):
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * np.abs(a).max(), err_msg=f)
+    assert np.all(ref.mode_probs[:, 2] == 0.0) and np.all(got.mode_probs[:, 2] == 0.0)
+    model = paper_bank()[2]
+    F, Q = model.transition_matrix(1.0, 4), model.noise_covariance(4, 1.0)
+    for n in np.flatnonzero(~det):
+        mu, x, P = state.mu[n], state.x[n], state.P[n]
+        x0 = sum(mu[i] * x[i] for i in range(3))
+        P0 = sum(mu[i] * (P[i] + np.outer(x[i] - x0, x[i] - x0)) for i in range(3))
+        for s in (ref_state, got_state):
+            np.testing.assert_allclose(s.x[n, 2], F @ x0, rtol=1e-9, atol=1e-6)
+            np.testing.assert_allclose(s.P[n, 2], F @ P0 @ F.T + Q, rtol=1e-9, atol=1e-6)
