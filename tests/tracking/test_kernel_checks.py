@@ -146,3 +146,18 @@ def test_a_tpm_of_more_than_three_axes_is_refused(n: int, check: bool) -> None:
     imm, state, z = _bank(n)
     with pytest.raises(ConfigError, match=r"tpm must have shape \(3, 3\) or \(N, 3, 3\)"):
         imm.step(state, stay_tpm(3, 0.9)[None, None], z, check=check)
+
+
+@pytest.mark.parametrize("engine", ["compiled", "numpy"])
+def test_a_small_negative_entry_in_rows_summing_to_1_is_refused(engine: str) -> None:
+    """A TPM whose rows sum to 1 but which holds the entry -1e-4 is no probability matrix (every
+    entry must be >= 0): the fast check does not call it clear, and ``IMM.step`` of three
+    trackers raises the validator's ConfigError, in both engines."""
+    tpm = np.array([[0.9501, -0.0001, 0.05], [0.025, 0.95, 0.025], [0.025, 0.025, 0.95]])
+    np.testing.assert_allclose(tpm.sum(axis=1), 1.0, rtol=0, atol=1e-15)
+    assert not kernel.clearly_stochastic(tpm, 0.5 * ROW_SUM_TOL)
+    imm = IMM(paper_bank(), Sonar(), engine=engine)
+    state = imm.init(np.array([[1000.0, 2000.0, 5.0, -3.0]] * 3), np.diag([100.0, 100.0, 4.0, 4.0]))
+    z = np.array([[2236.0, 1.107], [2237.0, 1.106], [2235.0, 1.108]])
+    with pytest.raises(ConfigError, match=">= 0"):
+        imm.step(state, tpm, z)
