@@ -14,7 +14,16 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from imm_gym import IMM, PositionSensor, Sonar, draw_batch, paper_bank, paper_scenario, stay_tpm
+from imm_gym import (
+    IMM,
+    PositionSensor,
+    RandomFamily,
+    Sonar,
+    draw_batch,
+    paper_bank,
+    paper_scenario,
+    stay_tpm,
+)
 from imm_gym.tracking.imm import IMMState, IMMStep, _new_state, _new_step
 from imm_gym.tracking.kernels import imm as kernel
 
@@ -238,3 +247,27 @@ def test_an_overflowing_covariance_is_failed(engine: str) -> None:
                       allow_failure=True)
     assert out.failed.tolist() == [False, True]
     assert np.isfinite(out.x[0]).all() and np.isnan(out.x[1]).all()
+
+
+@pytest.mark.parametrize("engine", ["compiled", "numpy"])
+def test_a_negative_definite_innovation_covariance_is_failed(engine: str) -> None:
+    """Tracker 2's model covariances are ``-1e6 I`` (a corrupted state): its innovation covariance
+    ``S = H P H^T + R`` is negative definite though its determinant is positive, so it is not
+    positive definite (a 2x2 matrix is so when ``S_00 > 0`` and ``det S > 0``): the tracker is
+    failed and its outputs NaN; the two others are not."""
+    sensor = PositionSensor(sigma_pos=30.0)
+    batch = draw_batch(RandomFamily(), sensor, 3, 5)
+    imm = IMM(paper_bank(), sensor, "kf", engine=engine)
+    state = imm.init(batch.x0, batch.P0)
+    P = state.P.copy()
+    P[2] = -1e6 * np.eye(4)
+    S = P[2, 0, :2, :2] + sensor.R[:2, :2]
+    assert S[0, 0] < 0 and np.linalg.det(S) > 0
+    with np.errstate(all="ignore"):
+        post, out = imm.step(
+            IMMState(state.x, P, state.mu), np.full((3, 3), 1 / 3), batch.measurements.z[:, 1],
+            allow_failure=True,
+        )
+    assert out.failed.tolist() == [False, False, True]
+    for a in (post.x, post.P, post.mu, out.x, out.P, out.mode_probs, out.loglik):
+        assert np.isnan(a[2]).all() and np.isfinite(a[:2]).all()
