@@ -271,3 +271,25 @@ def test_a_negative_definite_innovation_covariance_is_failed(engine: str) -> Non
     assert out.failed.tolist() == [False, False, True]
     for a in (post.x, post.P, post.mu, out.x, out.P, out.mode_probs, out.loglik):
         assert np.isnan(a[2]).all() and np.isfinite(a[:2]).all()
+
+
+@pytest.mark.parametrize("engine", ["compiled", "numpy"])
+def test_a_combined_covariance_that_overflows_alone_is_failed(engine: str) -> None:
+    """Tracker 2's model 1 moves at 1e154 m/s with probability 1e-200 (identity TPM, T = 5 s, a
+    missed detection): the mode probabilities and the combined estimate stay finite, but the
+    combined covariance's spread term ``mu_1 (x_1 - x)(x_1 - x)^T`` is 1e-200 times a square of
+    5e154 m, which overflows to inf. The combined variances are not finite, so the tracker is
+    failed with NaN outputs; the two others are not."""
+    batch = draw_batch(paper_scenario(), PositionSensor(), 3, 4)
+    imm = IMM(paper_bank(), PositionSensor(), "kf", T=5.0, engine=engine)
+    state = imm.init(batch.x0, batch.P0)
+    x, mu = state.x.copy(), np.tile([0.5, 1e-200, 0.5], (3, 1))
+    x[2, 1, 2] = 1e154
+    with np.errstate(all="ignore"):
+        _, out = imm.step(
+            IMMState(x, state.P, mu), np.eye(3), batch.measurements.z[:, 1],
+            detected=np.array([True, True, False]), allow_failure=True,
+        )
+    assert out.failed.tolist() == [False, False, True]
+    for a in (out.x, out.P, out.mode_probs):
+        assert np.isnan(a[2]).all() and np.isfinite(a[:2]).all()
