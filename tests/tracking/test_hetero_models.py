@@ -627,3 +627,28 @@ def test_seed_start_probabilities_follow_the_kinds_in_any_order(models: tuple[st
 def test_other_heterogeneous_banks_start_uniform() -> None:
     assert HeteroBank(models=("ncv", "ct")).probs == (0.5, 0.5)
     assert HeteroBank(models=("ncv", "ct", "ct")).probs == (1 / 3,) * 3
+
+
+@pytest.mark.parametrize("mu", [(0.1, 0.1, 0.8), (0.1, 0.8, 0.1)])
+def test_the_mixtures_predicted_bearing_is_wrapped_across_pi(mu: tuple[float, ...]) -> None:
+    """A target on the sonar's -x axis whose models predict bearings on both sides of +-pi
+    (identity TPM: ``cbar = mu``): the mixture's predicted measurement ``z_pred`` is the
+    ``cbar``-weighted mean of the models' predictions, the bearings averaged as wrapped
+    differences from model 0's, computed here by hand from the EKF's ``h(F_j x)``, and its
+    bearing lies in (-pi, pi]."""
+    sensor = Sonar()
+    bank = paper_bank()
+    imm = HeteroIMM(linear_models(bank), sensor, T=1.0)
+    x0 = np.array([-5000.0, 0.5, -300.0, 0.0])
+    state = imm.init(x0[None], np.diag([100.0, 100.0, 25.0, 25.0]), np.array(mu))
+    _, out = imm.step(state, np.eye(3), np.array([[5300.0, math.pi - 1e-4]]))
+    pred = [m.transition_matrix(1.0, 4) @ x0 for m in bank]
+    r = [math.hypot(p[0], p[1]) for p in pred]
+    b = [math.atan2(p[1], p[0]) for p in pred]
+    assert max(b) > 3.1 and min(b) < -3.1  # the models straddle +-pi
+    w = np.array(mu)
+    turn = 2.0 * math.pi
+    bearing = math.remainder(b[0] + w @ [math.remainder(bj - b[0], turn) for bj in b], turn)
+    assert -math.pi < out.z_pred[0, 1] <= math.pi
+    assert out.z_pred[0, 1] == pytest.approx(bearing, abs=1e-12)
+    assert out.z_pred[0, 0] == pytest.approx(w @ r, rel=1e-12)
