@@ -353,3 +353,24 @@ def test_initiate_refuses_misshapen_inputs_and_a_velocity_std_beyond_any_target(
         EnvConfig(velocity_std=1e160)
     x0, _ = initiate(Sonar(), np.array([5000.0, 0.0]), np.array([1.0, 2.0]), velocity_std=1e6)
     np.testing.assert_allclose(x0, [[5000.0, 0.0, 1.0, 2.0]])
+
+
+@pytest.mark.parametrize("sigma_vel", [None, 2.0])
+def test_position_sensor_initial_position_is_the_measured_position_and_r(
+    sigma_vel: float | None,
+) -> None:
+    """The start of a track on a position sensor is the measured position with covariance
+    ``R``'s position block ``sigma_pos^2 I`` (the variance, 900 m² for 30 m), and
+    ``initiate``'s ``P0`` carries it: ``P0[:2, :2] = R[:2, :2]``, velocity block
+    ``velocity_std^2 I``."""
+    sensor = PositionSensor(sigma_pos=30.0, sigma_vel=sigma_vel)
+    z = np.array([[100.0, 200.0, 1.0, 2.0], [-50.0, 70.0, 3.0, 4.0]])[:, : sensor.dim_z]
+    pos, cov = sensor.initial_position(z)
+    np.testing.assert_array_equal(pos, z[:, :2])
+    np.testing.assert_array_equal(cov, np.broadcast_to(900.0 * np.eye(2), (2, 2, 2)))
+    x0, P0 = initiate(sensor, z, np.array([5.0, 0.0]), velocity_std=3.0)
+    np.testing.assert_array_equal(x0, np.column_stack([z[:, :2], np.tile([5.0, 0.0], (2, 1))]))
+    for P in P0:
+        np.testing.assert_array_equal(P[:2, :2], sensor.R[:2, :2])
+        np.testing.assert_array_equal(P[2:, 2:], 9.0 * np.eye(2))
+        np.testing.assert_array_equal(P[:2, 2:], 0.0)
