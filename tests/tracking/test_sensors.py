@@ -374,3 +374,17 @@ def test_position_sensor_initial_position_is_the_measured_position_and_r(
         np.testing.assert_array_equal(P[:2, :2], sensor.R[:2, :2])
         np.testing.assert_array_equal(P[2:, 2:], 9.0 * np.eye(2))
         np.testing.assert_array_equal(P[:2, 2:], 0.0)
+
+
+def test_sonar_implausible_rows_are_a_negative_range_or_a_bearing_beyond_2_pi() -> None:
+    """``Sonar.implausible`` flags what its documented units exclude (a range >= 0 m, a bearing in
+    rad with ``|bearing| <= 2 pi``): bearings of 4 and -3.5 rad (beyond pi, within 2 pi: a
+    bearing in [0, 2 pi)) and -6.28 rad are plausible, 6.3 and 45 (degrees, likely) and a
+    negative range are not, and a NaN row is not flagged."""
+    sonar = Sonar()
+    assert sonar.measurement_units == "a range >= 0 m and a bearing in rad, |bearing| <= 2 pi"
+    z = np.array(
+        [[1000.0, 4.0], [1000.0, -3.5], [1000.0, -6.28], [1000.0, 2.0 * PI], [1000.0, 6.3],
+         [1000.0, 45.0], [-5.0, 0.1], [np.nan, np.nan]]
+    )  # fmt: skip
+    assert sonar.implausible(z).tolist() == [False, False, False, False, True, True, True, False]
