@@ -398,3 +398,20 @@ def test_kernel_wrap_equals_wrap_angle() -> None:
     # the same angle: at the boundary one ulp above pi is -pi + ulp here, pi in numpy's modulo
     np.testing.assert_allclose(np.sin(got), np.sin(expected), atol=1e-12)
     np.testing.assert_allclose(np.cos(got), np.cos(expected), atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sym_eig_of_a_covariance_whose_squares_underflow(seed: int) -> None:
+    """A 4x4 covariance scaled by 1e-150: its rotations' roots ``sqrt(d^2 + 4 a_pq^2)`` fall below
+    the 1e-140 under which squares may underflow, so they are retaken as ``hypot(a_qq - a_pp,
+    2 a_pq)``. The eigenvalues still equal 1e-150 times LAPACK's of the unscaled matrix to
+    1e-12, and ``U diag(s) U^T`` rebuilds the matrix with orthonormal ``U``."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(4, 4))
+    A = A @ A.T + np.eye(4)
+    P = 1e-150 * A
+    s, U = sym_eig(P)
+    np.testing.assert_allclose(np.sort(s), 1e-150 * np.linalg.eigvalsh(A), rtol=1e-12, atol=0)
+    recon = U @ np.diag(s) @ U.T
+    np.testing.assert_allclose(recon, P, rtol=0, atol=1e-13 * np.abs(P).max())
+    np.testing.assert_allclose(U.T @ U, np.eye(4), atol=1e-12)
