@@ -123,3 +123,32 @@ def test_the_engines_agree_within_a_micrometre_under_outliers(seed: int) -> None
         for core in (fused, general):
             core.reset(done, [None] * done.size)
     assert ends >= 4  # whole episodes, then new ones
+
+
+def test_the_covariance_divergence_flag_is_the_trace_of_the_position_covariance() -> None:
+    """A track diverges when the trace of its position covariance, P_xx + P_yy, passes
+    ``divergence_cov``: with half the detections missed that trace passes 1500 m² in some steps
+    and not in others; both engines flag exactly the steps where P_xx + P_yy of the returned
+    ``info["covariance"]`` exceeds it (the position error can not end an episode here)."""
+    cov = 1500.0
+    config = EnvConfig(divergence_cov=cov, divergence_error=1e6, sensor={"detection_prob": 0.5})
+    fused, general = _engines(config)
+    for core in (fused, general):
+        core.reset(np.arange(N), [1, 2, 3])
+    rng = np.random.default_rng(0)
+    diverged = kept = 0
+    for _ in range(100):
+        action = rng.uniform(-1.0, 1.0, (N, fused.action_dim))
+        a, b = fused.step(action), general.step(action)
+        P = b.info["covariance"]
+        expected = P[:, 0, 0] + P[:, 1, 1] > cov
+        for out in (a, b):
+            np.testing.assert_array_equal(out.terminated, expected)
+            np.testing.assert_array_equal(out.info["diverged"], expected)
+        np.testing.assert_allclose(a.info["covariance"], P, rtol=1e-10, atol=1e-10)
+        diverged += int(expected.sum())
+        kept += int((~expected).sum())
+        done = np.flatnonzero(a.terminated | a.truncated)
+        for core in (fused, general):
+            core.reset(done, [None] * done.size)
+    assert diverged >= 5 and kept >= 100  # the threshold is crossed in some steps, not all
