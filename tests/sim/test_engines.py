@@ -29,26 +29,9 @@ def _assert_close(a: object, b: object, key: str) -> None:
         np.testing.assert_array_equal(a, b, err_msg=key)
 
 
-@pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
-@pytest.mark.parametrize("parallel", [False, True])
-@pytest.mark.parametrize("shadow", ["fixed", "none"])
-def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, shadow: str) -> None:
-    features = (
-        FEATURES
-        + (SHADOW_FEATURES if shadow == "fixed" else ())
-        + (("bank_b",) if parallel else ())
-    )
-    config = EnvConfig(
-        action_mode=mode,
-        parallel=parallel,
-        shadow=shadow,
-        reward="advantage" if shadow == "fixed" else "error",
-        p_min=0.01,
-        obs_features=features,
-        sensor={"detection_prob": 0.8},
-        family={"horizon": 60, "n_segments": (2, 4)},
-        divergence_error=60.0,  # a few episodes end as diverged
-    )
+def _assert_the_engines_agree(config: EnvConfig) -> None:
+    """200 steps of random actions on both engines, with resets of the ended episodes: equal
+    observations, flags, rewards, infos and bank states (to 1e-10; observations to 1e-6)."""
     fused, general = _engines(config)
     rng = np.random.default_rng(3)
     for core in (fused, general):
@@ -77,6 +60,47 @@ def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, sh
         for core in (fused, general):
             core.reset(done, [None] * done.size)
     assert ends >= N and diverged >= 1  # whole episodes, divergences, then new episodes
+
+
+@pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
+@pytest.mark.parametrize("parallel", [False, True])
+@pytest.mark.parametrize("shadow", ["fixed", "none"])
+def test_fused_step_equals_the_numpy_orchestration(mode: str, parallel: bool, shadow: str) -> None:
+    features = (
+        FEATURES
+        + (SHADOW_FEATURES if shadow == "fixed" else ())
+        + (("bank_b",) if parallel else ())
+    )
+    config = EnvConfig(
+        action_mode=mode,
+        parallel=parallel,
+        shadow=shadow,
+        reward="advantage" if shadow == "fixed" else "error",
+        p_min=0.01,
+        obs_features=features,
+        sensor={"detection_prob": 0.8},
+        family={"horizon": 60, "n_segments": (2, 4)},
+        divergence_error=60.0,  # a few episodes end as diverged
+    )
+    _assert_the_engines_agree(config)
+
+
+def test_the_shadow_runs_its_own_tpm_in_both_engines() -> None:
+    """A shadow stay of 0.6 (the trackers' initial and fixed TPMs keep 0.995): the shadow's
+    probabilities, evidence, error and the advantage reward of the compiled engine equal the
+    numpy engine's, which steps the shadow IMM with ``config.shadow_tpm``."""
+    config = EnvConfig(
+        shadow="fixed",
+        shadow_stay=0.6,
+        reward="advantage",
+        obs_features=FEATURES + SHADOW_FEATURES,
+        sensor={"detection_prob": 0.8},
+        family={"horizon": 60, "n_segments": (2, 4)},
+        divergence_error=60.0,  # a few episodes end as diverged
+    )
+    T = config.source.T
+    assert not np.allclose(config.shadow_tpm(T), config.initial_tpm(T))
+    _assert_the_engines_agree(config)
 
 
 @pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
