@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from imm_gym import IMM, IMMState, Sonar, combine, draw_batch, paper_bank, stay_tpm
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
+from imm_gym.sim.kernels import _fuse_into
 from imm_gym.tracking.fusion import entropy, fuse
 
 
@@ -61,6 +62,30 @@ def test_fuse_edge_cases() -> None:
     np.testing.assert_allclose(fuse(u, u), u, rtol=1e-15)
     v = np.array([[0.1, 0.1, 0.8]])
     np.testing.assert_allclose(fuse(u, v), fuse(v, u), rtol=1e-15)
+
+
+def test_compiled_fusion_equals_fuse_on_the_edge_cases() -> None:
+    """The compiled engine's fusion (kernels._fuse_into, slot by slot) against :func:`fuse` on
+    the edge cases above and on a vector with an exact zero (0 log 0 = 0): two certain banks
+    get equal weights, a zero probability adds no entropy."""
+    e = np.eye(3)
+    u, v = [0.6, 0.3, 0.1], [0.1, 0.1, 0.8]
+    pairs = [
+        (e[0], e[1]), (e[2], e[2]), (e[0], [0.2, 0.5, 0.3]), ([0.2, 0.5, 0.3], e[1]), (u, u),
+        (u, v), (v, u), ([0.7, 0.3, 0.0], [0.2, 0.3, 0.5]), ([0.2, 0.3, 0.5], [0.0, 0.4, 0.6]),
+    ]
+    u_a = np.array([a for a, _ in pairs], dtype=float)
+    u_b = np.array([b for _, b in pairs], dtype=float)
+    got = np.empty_like(u_a)
+    for t in range(len(pairs)):
+        _fuse_into(t, u_a, u_b, got)
+    expected = fuse(u_a, u_b)
+    np.testing.assert_allclose(got, expected, rtol=1e-15, atol=0)
+    np.testing.assert_array_equal(got[0], [0.5, 0.5, 0.0])
+    # eq. 19 by hand for the zero entry: H(0.7, 0.3, 0) weighs u_b, H(0.2, 0.3, 0.5) u_a
+    h_a, h_b = h_bits([0.7, 0.3]), h_bits([0.2, 0.3, 0.5])
+    by_hand = (h_b * u_a[7] + h_a * u_b[7]) / (h_a + h_b)
+    np.testing.assert_allclose(got[7], by_hand, rtol=1e-14)
 
 
 @settings(max_examples=100, deadline=None)
