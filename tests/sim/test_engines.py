@@ -116,10 +116,17 @@ def test_compiled_tpm_from_action_equals_the_numpy_one(mode: str, p_min: float) 
     code = ACTION_MODE_CODES[mode]
     got = tpm_from_action(action, tpm, code, gain, p_min, core.fixed_tpms)
     np.testing.assert_allclose(got, core.tpm_from_action(action, tpm), rtol=1e-13, atol=1e-16)
-    # the zero scale action keeps a valid TPM bit for bit
+    # the zero action keeps a valid TPM bit for bit: the current one (scale, stay_step) or the
+    # trackers' own (stay; its identity row 0 is floored first)
+    zero = np.zeros((64, core.action_dim))
     if mode == "scale":
-        zero = np.zeros((64, 9))
         assert np.array_equal(tpm_from_action(zero, tpm, code, gain, p_min, tpm), tpm)
+    elif mode in ("stay", "stay_step"):
+        own = core.fixed_tpms if mode == "stay" else tpm
+        source = apply_floor(own, p_min)
+        assert np.array_equal(source[1:], own[1:])  # the floor keeps the valid TPMs
+        got = tpm_from_action(zero, tpm, code, gain, p_min, core.fixed_tpms)
+        assert np.array_equal(got, source)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
