@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.special
 import scipy.stats
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -12,6 +13,7 @@ from hypothesis.extra.numpy import arrays
 from imm_gym import ActionError, ConfigError, EnvConfig, TrackingCore
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
+from imm_gym.sim import kernels
 from imm_gym.tracking.tpm import DIVERGENCE_FLOOR, apply_floor, row_divergence, stay_tpm
 
 _CORES: dict[tuple, TrackingCore] = {}
@@ -65,6 +67,24 @@ def test_set_mode_at_a_large_logit_scale_saturates_without_overflow() -> None:
     for tpm in tpms:
         np.testing.assert_allclose(np.diag(tpm), 1 - 2e-3, rtol=1e-14)
         np.testing.assert_allclose(tpm[~np.eye(3, dtype=bool)], 1e-3, rtol=1e-14)
+
+
+def test_compiled_set_mode_at_a_large_logit_scale_is_the_softmax() -> None:
+    """The compiled set mode (kernels.tpm_from_action, two slots, no floor) at logit_scale 1000
+    against scipy's softmax of the logits: rows whose logits exp overflows (1000, 999) or
+    underflows to 0 (-1000, -999) are finite probability vectors, not NaN."""
+    action = np.array([
+        (2 * np.eye(3) - 1).ravel(),
+        [1.0, 0.999, -1.0, 0.2, 1.0, 0.9995, -1.0, -1.0, -0.999],
+    ])
+    uniform = np.full((2, 3, 3), 1 / 3)
+    got = kernels.tpm_from_action(action, uniform, kernels.SET, 1000.0, 0.0, uniform)
+    expected = scipy.special.softmax(1000.0 * action.reshape(2, 3, 3), axis=2)
+    assert np.all(np.isfinite(got))
+    np.testing.assert_allclose(got.sum(axis=2), 1.0, rtol=1e-15)
+    np.testing.assert_allclose(got, expected, rtol=1e-14, atol=1e-300)
+    np.testing.assert_allclose(got[1, 2], np.array([1 / np.e, 1 / np.e, 1.0]) / (1 + 2 / np.e),
+                               rtol=1e-14)  # logits -1000, -1000, -999 by hand
 
 
 @pytest.mark.parametrize("mode", ["scale", "set", "stay", "stay_step"])
