@@ -158,3 +158,23 @@ def test_the_uniform_base_is_the_detector_s_prior_alone() -> None:
     # every row is the same prediction q: the mode redrawn each step from the detector's lean
     np.testing.assert_allclose(tpm[:, 0], tpm[:, 2], rtol=0, atol=1e-15)
     assert TrackingCore(EnvConfig(action_mode="stay", stay_base="uniform")).stay_bank is None
+
+
+def test_the_tracker_base_keeps_the_tracker_s_stays_of_at_least_one_over_m() -> None:
+    """``stay_base="tracker"`` with a share: the base is :func:`detector_tpm_rows` of the
+    tracker's own stays raised to 1/M, by hand from ``initial_stay`` (0.9 and 0.6 kept, 0.2
+    raised to 1/3): at the reset, whose shadow probabilities are uniform, its diagonal is those
+    stays; later, the rows of those stays leaning toward the shadow's probabilities."""
+    config = EnvConfig(action_mode="stay", detector_share=0.5, initial_stay=(0.9, 0.2, 0.6))
+    core = TrackingCore(config, 2)
+    core.reset(np.arange(2), [0, 1])
+    fixed = np.diagonal(core.fixed_tpms, axis1=1, axis2=2)
+    np.testing.assert_array_equal(fixed, np.tile([0.9, 0.2, 0.6], (2, 1)))
+    stays = np.tile([0.9, 1.0 / M, 0.6], (2, 1))
+    base = np.diagonal(core.stay_base_tpms, axis1=1, axis2=2)
+    np.testing.assert_allclose(base, stays, rtol=1e-14)
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        core.step(rng.uniform(-1, 1, (2, M)))
+        expected = detector_tpm_rows(stays, core.mu_s, 0.5)
+        np.testing.assert_allclose(core.stay_base_tpms, expected, rtol=0, atol=1e-15)
