@@ -285,16 +285,20 @@ def test_a_sojourn_tpm_replaces_the_stay_and_is_checked() -> None:
 
 def test_the_measurement_reward_scale_is_each_episode_accuracy() -> None:
     """``reward_scale="measurement"``: the advantage in units of the slot's first-measurement
-    position accuracy sqrt(tr P0_pos / 2)."""
+    position accuracy sqrt(tr P0_pos / 2), by hand from the track start's covariance, at
+    every step of random actions (a zero action makes the advantage 0 whatever the scale)."""
     config = broad_config(reward_scale="measurement")
     core = TrackingCore(config, 4)
     core.reset(np.arange(4), [5, 6, 7, 8])
     P0 = core.state_a.P[:, 0]
     scale = np.sqrt(0.5 * (P0[:, 0, 0] + P0[:, 1, 1]))
     assert np.ptp(scale) > 1.0
-    result = core.step(np.zeros((4, 9)))
-    advantage = result.info["shadow_position_error"] - result.info["position_error"]
-    np.testing.assert_allclose(result.reward, advantage / scale, rtol=1e-12)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        result = core.step(rng.uniform(-1, 1, (4, 9)))
+        advantage = result.info["shadow_position_error"] - result.info["position_error"]
+        assert np.all(np.abs(advantage) > 1e-9)
+        np.testing.assert_allclose(result.reward, advantage / scale, rtol=1e-12)
     with pytest.raises(ConfigError, match="reward_scale"):
         EnvConfig(reward_scale="sensor")
 
