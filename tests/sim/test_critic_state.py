@@ -20,13 +20,16 @@ SCALE = np.array([50.0, 50.0, 5.0, 5.0])
 @pytest.mark.parametrize("bank", [None, CV_CA_CT])
 def test_the_critic_sees_the_errors_of_the_tracker_and_the_shadow(bank) -> None:
     # x̂ = Σ_j μ_j x̂_j over each model's state, position and velocity only (a CA model's
-    # common state is 6-d: x, y, vx, vy, ax, ay)
+    # common state is 6-d: x, y, vx, vy, ax, ay); random actions, so that the tracker's mode
+    # probabilities are not the shadow's and each block is told from the other
     changes = {"family": {"horizon": 60}, "action_mode": "stay", "shadow": "fixed"}
     config = EnvConfig.build(changes if bank is None else {**changes, "bank": bank})
     core = TrackingCore(config, 3)
     core.reset(np.arange(3), [5, 6, 7])
+    rng = np.random.default_rng(0)
     for _ in range(12):
-        core.step(np.zeros((3, len(config.bank))))
+        core.step(rng.uniform(-1, 1, (3, len(config.bank))))
+    assert np.abs(core.mu - core.mu_s).max() > 0.01
     state = core.critic_state()
     assert state.shape == (3, critic_state_size(len(config.bank)))
     rows = np.arange(3)
