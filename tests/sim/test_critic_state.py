@@ -70,3 +70,19 @@ def test_the_critic_sees_no_model_where_none_of_the_bank_matches() -> None:
             break
         core.step(np.zeros((8, 3)))
     assert seen, "no right turn in these episodes: choose others"
+
+
+def test_a_step_reports_the_model_the_critic_saw_coming() -> None:
+    # info["true_model"] of the step from k to k + 1 is the episode's true_model[k], the model
+    # of the interval the step ends, the one-hot the critic saw before it
+    core = TrackingCore(EnvConfig.build({"family": {"horizon": 60}}), 3)
+    core.reset(np.arange(3), [3, 4, 5])
+    rows = np.arange(3)
+    reported = []
+    while not core.done.any():
+        coming = core.true_model[rows, core.k]
+        np.testing.assert_array_equal(core.critic_state()[:, 8:], _one_hot(coming, 3))
+        reported.append(core.step(np.zeros((3, 9))).info["true_model"])
+        np.testing.assert_array_equal(reported[-1], coming)
+    np.testing.assert_array_equal(np.array(reported).T, core.true_model)
+    assert np.count_nonzero(np.diff(core.true_model, axis=1)) >= 3  # the models switch
