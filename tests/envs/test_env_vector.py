@@ -262,6 +262,24 @@ def test_terminated_is_not_the_info_s_diverged() -> None:
     assert info["diverged"].all()
 
 
+def test_an_episode_diverging_at_its_last_step_is_terminated_not_truncated() -> None:
+    # one-step episodes: no first estimate is within 1 m of the truth, so every sub-env diverges
+    # at the horizon and is terminated only; under the default bound each is truncated there
+    one_step = {"scenario": {"segments": [{"duration": 1}]}}
+    venv = TPMAdaptVectorEnv(2, config={**one_step, "divergence_error": 1.0})
+    venv.reset(seed=0)
+    _, _, terminated, truncated, info = venv.step(np.zeros((2, 9)))
+    assert info["diverged"].all() and (info["step"] == 1).all()
+    np.testing.assert_array_equal(terminated, [True, True])
+    np.testing.assert_array_equal(truncated, [False, False])
+    venv = TPMAdaptVectorEnv(2, config=one_step)
+    venv.reset(seed=0)
+    _, _, terminated, truncated, info = venv.step(np.zeros((2, 9)))
+    assert not info["diverged"].any() and (info["step"] == 1).all()
+    np.testing.assert_array_equal(terminated, [False, False])
+    np.testing.assert_array_equal(truncated, [True, True])
+
+
 @pytest.mark.parametrize(
     "key",
     ["mode_probs", "tpm", "step", "loglik", "model_nis"],
