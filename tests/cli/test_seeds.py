@@ -238,3 +238,19 @@ def test_seeds_without_a_mode_accuracy_have_no_iqm_of_it(capsys) -> None:
     assert out["armse_pos"]["iqm"] == pytest.approx(18.5)
     render_seeds(out, "paper")
     assert printed_row(capsys.readouterr().out, "paper")[2] == "—"
+
+
+def test_a_seed_without_a_mode_accuracy_leaves_the_others_without_an_iqm_of_it() -> None:
+    """One seed of three without a mode accuracy (None) and the others with one: the seeds have
+    no common IQM of it, so it is None with its CI (strict JSON), never NaN; the per-seed values
+    are kept as given and the position ARMSE's IQM is the plain mean of the three (n = 3: nothing
+    cut, floor(3 / 4) = 0), worked by hand: (18 + 19 + 21) / 3."""
+    armse = {"best-fixed": 20.0, "s0": 18.0, "s1": 19.0, "s2": 21.0}
+    result = _result(armse)
+    for seed, accuracy in (("s0", 0.5), ("s1", None), ("s2", 0.7)):
+        result["policies"][seed]["mode_accuracy"] = accuracy
+    out = across_seeds(result, ["s0", "s1", "s2"])
+    assert out["mode_accuracy"] == {"per_seed": [0.5, None, 0.7], "iqm": None, "low": None,
+                                    "high": None}
+    assert out["armse_pos"]["iqm"] == pytest.approx(58.0 / 3.0, rel=1e-12)
+    json.dumps(out, allow_nan=False)
