@@ -12,6 +12,31 @@ from imm_gym import ConfigError, Sonar
 from imm_gym.tracking.initiation import initiate
 
 
+def test_a_sonar_track_starts_at_the_converted_position_with_j_r_j_t_by_hand() -> None:
+    """Two first measurements of a sonar away from the origin, each with its own velocity: ``x0``
+    is ``(p_x + r cos t, p_y + r sin t, v_x, v_y)`` and ``P0`` is ``blockdiag(J R J^T, s^2 I)``
+    with ``J R J^T`` multiplied out by hand for ``R = diag(sr^2, st^2)``:
+    ``[[c^2 sr^2 + r^2 s^2 st^2, c s (sr^2 - r^2 st^2)], [., s^2 sr^2 + r^2 c^2 st^2]]``."""
+    sonar = Sonar(sigma_r=7.0, sigma_theta_deg=2.0, position=(100.0, -50.0))
+    sr2, st2 = 49.0, math.radians(2.0) ** 2
+    z0 = np.array([[3000.0, 0.4], [1500.0, -2.0]])
+    velocity = np.array([[4.0, -3.0], [-1.0, 6.0]])
+    x0, P0 = initiate(sonar, z0, velocity, velocity_std=2.5)
+    assert x0.shape == (2, 4) and P0.shape == (2, 4, 4)
+    for row in range(2):
+        r, t = z0[row]
+        c, s = math.cos(t), math.sin(t)
+        np.testing.assert_allclose(
+            x0[row], [100.0 + r * c, -50.0 + r * s, *velocity[row]], rtol=1e-14, atol=1e-9
+        )
+        expected = np.zeros((4, 4))
+        expected[0, 0] = c * c * sr2 + r * r * s * s * st2
+        expected[1, 1] = s * s * sr2 + r * r * c * c * st2
+        expected[0, 1] = expected[1, 0] = c * s * (sr2 - r * r * st2)
+        expected[2, 2] = expected[3, 3] = 6.25
+        np.testing.assert_allclose(P0[row], expected, rtol=1e-12, atol=1e-9)
+
+
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
 @pytest.mark.parametrize("where", ["z0", "velocity"])
 def test_a_non_finite_measurement_or_velocity_is_refused(where: str, bad: float) -> None:
