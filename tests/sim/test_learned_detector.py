@@ -394,3 +394,26 @@ def test_a_configuration_file_names_its_network_relative_to_itself(tmp_path, mon
     assert config.detector_weights == str(tmp_path / "cfg" / "mine.safetensors")
     core = TrackingCore(config, 1)
     assert core.learned_detector.network.window == 4
+
+
+def test_a_restarted_filter_s_heading_rate_starts_from_the_fallback_s_velocity(tmp_path) -> None:
+    """A slot whose uniform IMM fails (a NaN measurement) restarts from the fallback posterior:
+    its last velocity is then the fallback's combined one, ``sum_j mu_j x_j[2:4]`` worked here
+    by hand, so the next step's heading-rate record is ``heading_rate(that, v_k, T) / scale``,
+    finite and not 0 (keeping the failed estimate's NaN velocity left it 0)."""
+    core = learned_core(3, tmp_path, random_network(5))
+    for _ in range(3):
+        core.step(np.zeros((3, M)))
+    detector = core.learned_detector
+    fallback = core.state_a
+    z = core.z[np.arange(3), core.k + 1].copy()
+    z[1] = np.nan
+    detector.step(z, np.ones(3, dtype=bool), fallback, core.sampling_period)
+    by_hand = sum(fallback.mu[1, j] * fallback.x[1, j, 2:4] for j in range(M))
+    np.testing.assert_allclose(detector.velocity[1], by_hand, rtol=1e-12)
+    before = detector.velocity.copy()
+    core.step(np.zeros((3, M)))  # the detector's next step, on slot 1's next measurement
+    rate = heading_rate(before, detector.velocity, core.sampling_period)
+    expected = np.clip(rate / detector.scale, -3.0, 3.0)
+    np.testing.assert_allclose(detector.window[:, -1, -1], expected, rtol=1e-9, atol=1e-12)
+    assert abs(expected[1]) > 1e-4
