@@ -417,3 +417,17 @@ def test_a_restarted_filter_s_heading_rate_starts_from_the_fallback_s_velocity(t
     expected = np.clip(rate / detector.scale, -3.0, 3.0)
     np.testing.assert_allclose(detector.window[:, -1, -1], expected, rtol=1e-9, atol=1e-12)
     assert abs(expected[1]) > 1e-4
+
+
+def test_parameter_count_counts_weights_and_biases_as_torch_does() -> None:
+    """The numbers a network holds (what :data:`MAX_PARAMETERS` bounds) count its biases: by
+    hand ``(120 + 1) 16 + (16 + 1) 8 + (8 + 1) 3 = 2099`` for 120 -> 16 -> 8 -> 3, and torch's
+    ``numel`` of the same layers for other widths (weights alone undercount by the widths)."""
+    from imm_gym.sim.learned_detector import parameter_count
+
+    assert parameter_count([120, 16, 8, 3]) == 2099
+    assert parameter_count([5, 2]) == 12
+    for widths in ([7, 3], [40, 64, 32, 5], [1, 1, 1]):
+        layers = [torch.nn.Linear(a, b) for a, b in pairwise(widths)]
+        assert parameter_count(widths) == sum(p.numel() for lay in layers
+                                              for p in lay.parameters())
