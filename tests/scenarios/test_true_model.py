@@ -1,0 +1,37 @@
+"""The true model of each step (``true_model_index``) by hand: which model of a bank a segment's
+motion names, for banks that hold several CT models of one sign, a CA model, or no model of
+the motion at all."""
+
+from __future__ import annotations
+
+from imm_gym import MotionModel, Scenario, Segment, generate_truth
+from imm_gym.scenarios.segments import true_model_index
+
+
+def _index(scenario: Scenario, bank) -> list[int]:
+    """The true model of every step of ``scenario``, one entry per segment (checked constant)."""
+    idx = true_model_index(generate_truth([scenario]), bank)[0]
+    out, k = [], 0
+    for seg in scenario.segments:
+        assert len(set(idx[k:k + seg.duration].tolist())) == 1
+        out.append(int(idx[k]))
+        k += seg.duration
+    return out
+
+
+def test_a_turn_names_the_ct_model_of_its_sign_nearest_its_rate() -> None:
+    """Three CT models turning left (0.5, 2, 6 °/s) and one right (-2 °/s): a left turn names the
+    left model whose rate is nearest, by hand |1.0 - 0.5| = 0.5 < |1.0 - 2| = 1 (model 1),
+    |2.5 - 2| = 0.5 < |2.5 - 6| (model 2), |5.0 - 6| = 1 < |5.0 - 2| = 3 (model 3); a right turn
+    of any rate the one right model (4); straight flight the CV model (0)."""
+    bank = (
+        MotionModel("cv"),
+        MotionModel("ct", 0.5),
+        MotionModel("ct", 2.0),
+        MotionModel("ct", 6.0),
+        MotionModel("ct", -2.0),
+    )
+    table = (Segment(3), Segment(4, 1.0), Segment(2, 2.5), Segment(5, 5.0), Segment(3, -5.0),
+             Segment(2, -0.3), Segment(2))
+    scenario = Scenario(table, (0.0, 0.0), (10.0, 0.0))
+    assert _index(scenario, bank) == [0, 1, 2, 3, 4, 4, 0]
