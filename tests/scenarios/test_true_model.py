@@ -4,6 +4,8 @@ the motion at all."""
 
 from __future__ import annotations
 
+import math
+
 from imm_gym import MotionModel, Scenario, Segment, generate_truth
 from imm_gym.scenarios.segments import true_model_index
 
@@ -35,3 +37,17 @@ def test_a_turn_names_the_ct_model_of_its_sign_nearest_its_rate() -> None:
              Segment(2, -0.3), Segment(2))
     scenario = Scenario(table, (0.0, 0.0), (10.0, 0.0))
     assert _index(scenario, bank) == [0, 1, 2, 3, 4, 4, 0]
+
+
+def test_speeding_up_or_slowing_down_names_the_ca_model() -> None:
+    """A tangential acceleration of either sign is the CA model's motion (SPEC: acceleration ->
+    the first CA model): +2 m/s² and then -1.5 m/s² (from 20 m/s: 20 + 2*5 - 1.5*4 = 24 m/s,
+    never below 0) both name the CA model (2), the straight stretches around them the CV model
+    (0), the turn the CT model (1)."""
+    bank = (MotionModel("cv"), MotionModel("ct", 3.0), MotionModel("ca", q=(0.1,) * 6))
+    table = (Segment(3), Segment(5, accel=2.0), Segment(2), Segment(4, accel=-1.5),
+             Segment(3, 3.0), Segment(2))
+    scenario = Scenario(table, (0.0, 0.0), (20.0, 0.0))
+    assert _index(scenario, bank) == [0, 2, 0, 2, 1, 0]
+    states = generate_truth([scenario]).states[0]
+    assert math.isclose(math.hypot(*states[14, 2:]), 24.0, rel_tol=1e-12)
