@@ -8,6 +8,7 @@ import math
 
 from imm_gym import MotionModel, Scenario, Segment, generate_truth
 from imm_gym.scenarios.segments import true_model_index
+from imm_gym.tracking.hetero import HeteroBank
 
 
 def _index(scenario: Scenario, bank) -> list[int]:
@@ -51,3 +52,14 @@ def test_speeding_up_or_slowing_down_names_the_ca_model() -> None:
     assert _index(scenario, bank) == [0, 2, 0, 2, 1, 0]
     states = generate_truth([scenario]).states[0]
     assert math.isclose(math.hypot(*states[14, 2:]), 24.0, rel_tol=1e-12)
+
+
+def test_a_heterogeneous_bank_without_a_ctra_model_has_no_model_of_an_acceleration() -> None:
+    """A heterogeneous NCV/CT bank: straight -> NCV (0), turn -> CT (1), and an acceleration,
+    whose model is CTRA, is no model of this bank (-1), not the NCV model of straight flight."""
+    bank = HeteroBank(models=("ncv", "ct"))
+    table = (Segment(3), Segment(4, accel=1.0), Segment(3, -2.0), Segment(4, accel=-0.5))
+    scenario = Scenario(table, (0.0, 0.0), (15.0, 0.0))
+    assert _index(scenario, bank) == [0, -1, 1, -1]
+    full = HeteroBank(models=("ncv", "ct", "ctra"))
+    assert _index(scenario, full) == [0, 2, 1, 2]
