@@ -431,3 +431,19 @@ def test_parameter_count_counts_weights_and_biases_as_torch_does() -> None:
         layers = [torch.nn.Linear(a, b) for a, b in pairwise(widths)]
         assert parameter_count(widths) == sum(p.numel() for lay in layers
                                               for p in lay.parameters())
+
+
+def test_the_window_s_bounds_1_and_1000_are_accepted_and_1001_refused(tmp_path) -> None:
+    """The header's window is an integer in [1, 1000], both ends included: a one-layer network
+    of ``window * (2 M + 2)`` inputs loads at 1 and at 1000 (8000 inputs for M = 3) with that
+    window, and one of 1001 windows is refused."""
+    for window in (1, 1000):
+        net = DetectorNetwork((np.zeros((M, window * features_per_step(M))),), (np.zeros(M),),
+                              window)
+        net.save(tmp_path / f"w{window}")
+        assert DetectorNetwork.load(tmp_path / f"w{window}").window == window
+    tensors = {"layer0.weight": np.zeros((M, 1001 * features_per_step(M))),
+               "layer0.bias": np.zeros(M)}
+    path = _write(tmp_path / "w1001", tensors, {"format": FORMAT, "window": "1001"})
+    with pytest.raises(ConfigError, match="header window must be an integer in"):
+        DetectorNetwork.load(path)
