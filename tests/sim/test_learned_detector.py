@@ -447,3 +447,16 @@ def test_the_window_s_bounds_1_and_1000_are_accepted_and_1001_refused(tmp_path) 
     path = _write(tmp_path / "w1001", tensors, {"format": FORMAT, "window": "1001"})
     with pytest.raises(ConfigError, match="header window must be an integer in"):
         DetectorNetwork.load(path)
+
+
+def test_record_entries_below_tiny_are_exactly_zero() -> None:
+    """Entries of a record below TINY = 1e-12 in magnitude are 0, not kept (subnormal numbers
+    slow the network's products): a mode probability of 1e-300 and a rate of 1e-13 scale units
+    give 0, while 1e-11 is kept. By hand, the other entries as in the module docstring."""
+    mu = np.array([[1.0 - 1e-11, 1e-11, 1e-300]])
+    loglik = np.array([[0.0, -5.0, -30.0]])
+    record = step_features(mu, loglik, np.array([3.0]), np.array([2e-14]), 0.2)
+    np.testing.assert_array_equal(
+        record, [[1.0 - 1e-11, 1e-11, 0.0, 0.0, -0.5, -2.0, 0.3, 0.0]]
+    )
+    assert record[0, 2] == 0.0 and record[0, 7] == 0.0
