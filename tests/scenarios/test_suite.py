@@ -123,3 +123,23 @@ def test_a_period_or_duration_out_of_range_is_refused_by_name(table, T, message)
     nothing; a duration of 0 s or below was "not a multiple of T" (a plain ValueError)."""
     with pytest.raises(ConfigError, match=message):
         timed_scenario(table, (0.0, 0.0), (1.0, 0.0), T)
+
+
+@pytest.mark.parametrize(
+    ("T", "table", "steps"),
+    [
+        (0.1, [(0.3, 0.0), (0.7, 2.0), (0.2, 0.0)], [3, 7, 2]),
+        (0.2, [(0.6, 0.0), (1.4, -1.0)], [3, 7]),
+    ],
+)
+def test_a_duration_that_is_a_multiple_of_T_only_in_decimal_is_its_whole_steps(
+    T, table, steps
+) -> None:
+    """Durations that are whole multiples of T on paper but not in binary floating point
+    (0.3 / 0.1 = 2.9999999999999996, 0.7 / 0.1 = 6.999999999999999, 0.1 * 7 =
+    0.7000000000000001) last their whole number of periods worked by hand, 0.3 s / 0.1 s = 3
+    steps, and are not refused as "not a multiple of T"."""
+    scenario = timed_scenario(table, (0.0, 0.0), (1.0, 0.0), T)
+    assert [s.duration for s in scenario.segments] == steps
+    assert [s.turn_rate_deg for s in scenario.segments] == [w for _, w in table]
+    assert scenario.horizon == sum(steps)
