@@ -254,3 +254,24 @@ def test_a_seed_without_a_mode_accuracy_leaves_the_others_without_an_iqm_of_it()
                                     "high": None}
     assert out["armse_pos"]["iqm"] == pytest.approx(58.0 / 3.0, rel=1e-12)
     json.dumps(out, allow_nan=False)
+
+
+def test_a_suite_table_with_an_iqm_names_the_cases_the_seeds_did_not_run_on(capsys) -> None:
+    """With an IQM over the suite, the caption gives it and also names the cases left out (a
+    bank the seeds cannot read): 'not run on five' after the pooled interval. The pooled IQM of
+    the relative differences (-0.1, -0.05, 0.1, 0.2; n = 4, one cut at each end) is by hand
+    (-0.05 + 0.1) / 2 = +2.50 %."""
+    seeds = ["a", "b"]
+    results = {
+        "scenarios": {
+            "easy": _result({"best-fixed": 10.0, "a": 9.0, "b": 9.5}),
+            "five": _result({"best-fixed": 30.0}),
+            "hard": _result({"best-fixed": 50.0, "a": 55.0, "b": 60.0}),
+        }
+    }
+    out = suite_across_seeds(results, seeds)
+    assert out["relative_vs_reference"]["iqm"] == pytest.approx(0.025, rel=1e-12)
+    render_seeds(out)
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "all scenarios, relative Δ vs the reference, best-fixed: +2.50% [" in printed
+    assert "; not run on five" in printed
