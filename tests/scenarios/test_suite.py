@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from imm_gym import ConfigError
-from imm_gym.scenarios.catalog import SCENARIOS, SUITES, timed_scenario
+from imm_gym.scenarios.catalog import SCENARIOS, SUITES, register, timed_scenario
+from imm_gym.scenarios.segments import paper_scenario
 
 #: name: (T, start position, start speed, start heading (deg), [(seconds, turn rate (deg/s))])
 TABLES = {
@@ -143,3 +144,11 @@ def test_a_duration_that_is_a_multiple_of_T_only_in_decimal_is_its_whole_steps(
     assert [s.duration for s in scenario.segments] == steps
     assert [s.turn_rate_deg for s in scenario.segments] == [w for _, w in table]
     assert scenario.horizon == sum(steps)
+
+
+def test_the_randomized_family_name_cannot_be_registered() -> None:
+    """``"random"`` names the configuration's family: registering a scenario under it is refused
+    like a name already taken, and leaves the registry without it."""
+    with pytest.raises(ValueError, match="already defined"):
+        register("random", paper_scenario)
+    assert "random" not in SCENARIOS
