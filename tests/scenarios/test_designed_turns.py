@@ -205,3 +205,20 @@ def test_a_designed_family_without_its_tracker_is_a_config_error() -> None:
         family.sample(np.random.default_rng(0))
     with pytest.raises(ConfigError, match=r"designed_share"):
         draw_batch(family, Sonar(), 2, 0, variation=Variation(speed=(5.0, 50.0)))
+
+
+def test_a_band_at_rest_is_the_family_range_and_in_flight_its_closed_form() -> None:
+    """``designed_band`` by hand: at 0 m/s no lateral acceleration bounds a turn, so every
+    model's band is the family's whole range (0.5, 3) °/s; at 50 m/s a CT model of 2 °/s with
+    0.5 m/s² of noise, c = 2, spans 2 ± 2 * 0.5 / 50 rad/s = 2 ± 1.1459 °/s, clipped to
+    (0.8541, 3); one of -0.6 °/s with 1 m/s² spans 0.6 ± 2.2918 °/s, clipped to (0.5, 2.8918)."""
+    family = RandomFamily(turn_rate_deg=(0.5, 3.0), designed_share=1.0, designed_width=2.0)
+    rate = np.radians([2.0, -0.6])
+    accel_std = np.array([0.5, 1.0])
+    low, high = family.designed_band(rate, accel_std, 0.0)
+    np.testing.assert_array_equal(low, [0.5, 0.5])
+    np.testing.assert_array_equal(high, [3.0, 3.0])
+    half = 2.0 * accel_std / 50.0 * 180.0 / math.pi
+    low, high = family.designed_band(rate, accel_std, 50.0)
+    np.testing.assert_allclose(low, [2.0 - half[0], 0.5], rtol=1e-12)
+    np.testing.assert_allclose(high, [3.0, 0.6 + half[1]], rtol=1e-12)
