@@ -336,3 +336,21 @@ def test_invalid_scenario(kwargs: dict, field: str) -> None:
 def test_numpy_integers_are_accepted_as_durations() -> None:
     assert Segment(np.int64(7)).duration == 7
     assert RandomFamily(horizon=np.int32(150)).horizon == 150
+
+
+@pytest.mark.parametrize(
+    ("speed", "accel", "steps", "T"),
+    [(0.3, -0.3, 10, 0.1), (0.3, -0.6, 5, 0.1), (0.3, -0.3, 5, 0.2)],
+)
+def test_stopping_exactly_in_decimal_is_a_target(speed, accel, steps, T) -> None:
+    """An acceleration that stops the target exactly on paper, ``speed + a n T = 0``, but a few
+    ulps below 0 in floating point (0.3 - 0.3 * 10 * 0.1 = -5.6e-17) is a target, not a speed
+    driven below 0; it stops where the constant-deceleration formula ``v t + a t² / 2`` worked
+    by hand puts it (0.3 * 1 - 0.3 / 2 = 0.15 m; 0.3 * 0.5 - 0.6 * 0.25 / 2 = 0.075 m; 0.3 * 1
+    - 0.3 / 2 = 0.15 m) and stays there."""
+    assert speed + accel * steps * T < 0.0  # the rounding the check must tolerate
+    scenario = Scenario((Segment(steps, accel=accel), Segment(3)), velocity=(speed, 0.0), T=T)
+    t = steps * T
+    states = generate_truth([scenario]).states[0]
+    np.testing.assert_allclose(states[steps:, 0], speed * t + accel * t * t / 2, rtol=1e-12)
+    np.testing.assert_allclose(states[steps:, 2:], 0.0, atol=1e-15)
