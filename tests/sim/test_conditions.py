@@ -426,3 +426,22 @@ def test_a_track_starts_at_the_first_measurement_with_the_true_velocity_at_t0() 
     r, bearing = batch.measurements.z[:, 0, 0], batch.measurements.z[:, 0, 1]
     np.testing.assert_allclose(batch.x0[:, 0], 100.0 + r * np.cos(bearing), rtol=0, atol=1e-9)
     np.testing.assert_allclose(batch.x0[:, 1], -200.0 + r * np.sin(bearing), rtol=0, atol=1e-9)
+
+
+def test_a_period_that_does_not_vary_is_the_configured_one() -> None:
+    """Varying the sensor alone leaves every run at the configured period: a family at
+    T = 2.5 s draws runs at 2.5 s, whose straight steps cover ``|v| * 2.5`` m by hand (and the
+    conditions' T is 2.5 for every run, not the default 1 s)."""
+    variation = Variation(sigma_r=(10.0, 100.0))
+    family = RandomFamily(T=2.5, horizon=40, n_segments=(1, 3))
+    rngs = [np.random.default_rng(s) for s in range(5)]
+    np.testing.assert_array_equal(draw_conditions(variation, 2.5, Sonar(), rngs).T, 2.5)
+    batch = draw_batch(family, Sonar(), 5, 3, variation=variation)
+    truth = batch.truth
+    np.testing.assert_array_equal(truth.T, 2.5)
+    np.testing.assert_array_equal(batch.conditions.T, 2.5)
+    straight = truth.turn_rate == 0.0
+    step = np.linalg.norm(np.diff(truth.states[:, :, :2], axis=1), axis=-1)
+    speed = np.linalg.norm(truth.states[:, :-1, 2:], axis=-1)
+    assert straight.any()
+    np.testing.assert_allclose(step[straight], 2.5 * speed[straight], rtol=1e-12)
