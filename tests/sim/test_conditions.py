@@ -445,3 +445,12 @@ def test_a_period_that_does_not_vary_is_the_configured_one() -> None:
     speed = np.linalg.norm(truth.states[:, :-1, 2:], axis=-1)
     assert straight.any()
     np.testing.assert_allclose(step[straight], 2.5 * speed[straight], rtol=1e-12)
+
+
+def test_the_track_start_prior_left_unset_is_the_configurations_default() -> None:
+    """``draw_conditions`` without ``velocity_std`` gives every run that does not vary it the
+    configuration's default prior, ``EnvConfig().velocity_std`` (5 m/s), as ``draw_batch`` does."""
+    rngs = [np.random.default_rng(s) for s in range(4)]
+    c = draw_conditions(Variation(sigma_r=(10.0, 100.0)), 1.0, Sonar(), rngs)
+    assert EnvConfig().velocity_std == 5.0
+    np.testing.assert_array_equal(c.velocity_std, EnvConfig().velocity_std)
