@@ -383,9 +383,9 @@ def save_selector(
     obs_size = observation_size(config.obs_features, len(config.bank), config.sensor.dim_z)
     members = [f"net_{k}.safetensors" for k in range(len(nets))]
     for net, member in zip(nets, members, strict=True):
-        where = f"{directory / member}"
-        check_member(where, net.state_dict(), obs_size, len(priors), hidden)
-        bad = [name for name, t in net.state_dict().items() if not bool(torch.isfinite(t).all())]
+        where, tensors = f"{directory / member}", net.state_dict()
+        check_member(where, tensors, obs_size, len(priors), hidden)
+        bad = [name for name, t in tensors.items() if not bool(torch.isfinite(t).all())]
         if bad:
             raise ConfigError(f"{where}: tensors {bad} hold NaN or infinite values")
     directory.mkdir(parents=True, exist_ok=True)
