@@ -224,3 +224,15 @@ def test_an_adapting_policy_records_the_tpm_each_step_used() -> None:
         np.testing.assert_array_equal(run.tpm[:, k], info["tpm"], f"step {k}")
     changed = np.any(run.tpm[:, 1:] != run.tpm[:, :-1], axis=(2, 3))
     assert changed.mean() > 0.5  # a TPM one step late would differ on these steps
+
+
+def test_diverged_at_counts_the_steps_from_1(diverging: Rollout) -> None:
+    """``diverged_at`` (the step the figures and the animation mark) is the first step recorded
+    at the cap, counted 1..K as the roll-out counts them: step index ``d`` (0-based, found from
+    the errors) is step ``d + 1``; a run that never diverged has none."""
+    steps = _divergence_steps(diverging)
+    assert steps and min(steps.values()) >= 0
+    for r, d in steps.items():
+        assert diverging.diverged_at(r) == d + 1
+    kept = np.flatnonzero(~diverging.diverged)
+    assert all(diverging.diverged_at(int(r)) is None for r in kept)
