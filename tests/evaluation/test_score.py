@@ -137,3 +137,15 @@ def test_nis_counts_the_detections_only_against_chi2_of_the_measurement_dimensio
     assert s["nis"]["bound"] == pytest.approx(bound, rel=1e-12)
     assert s["nis"]["mean"] == pytest.approx(sum(counted) / 6, rel=1e-12)
     assert s["nis"]["inside"] == pytest.approx(4 / 6, rel=1e-12)  # 1, 3, 0.5, 2.5
+
+
+def test_nees_counts_the_missed_detections_of_a_live_run() -> None:
+    """A missed detection leaves no NIS but the estimate and its covariance are still the
+    tracker's: its NEES counts (the live steps, not the detections). By hand, with ``P = I``,
+    the NEES is the squared position error: 1, 16, 1, 16 m² on run 0 with the 16s missed."""
+    errors = np.array([[1.0, 4.0, 1.0, 4.0], [1.0, 1.0, 1.0, 1.0]])
+    run = _rollout(np.zeros((2, 4), dtype=np.int64), errors, np.full((2, 4, 2), 0.5))
+    detected = np.array([[True, False, True, False], [True, True, True, True]])
+    s = score(replace(run, detected=detected, nis=np.where(detected, 1.0, 0.0)))
+    assert s["nees"]["mean"] == pytest.approx((1 + 16 + 1 + 16 + 4 * 1) / 8, rel=1e-12)
+    assert s["nees"]["inside"] == pytest.approx(6 / 8, rel=1e-12)  # 16 > chi2(4)'s 9.49
