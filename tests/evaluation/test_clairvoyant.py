@@ -59,6 +59,16 @@ def test_unsupported_names_acceleration_and_missing_models() -> None:
     assert "NCV/CT/CTRA" in str(unsupported(straight_turn, hetero))
 
 
+def test_a_decelerating_run_is_unsupported_as_an_accelerating_one() -> None:
+    """A tangential deceleration (a negative ``accel``: 11.2 m/s slowed by 0.5 m/s² for 5 s) is
+    motion the CV/CT transitions cannot follow, as a positive one: 1 of 2 runs named."""
+    slowing = _scenario(Segment(5), Segment(5, accel=-0.5))
+    truth = generate_truth([_scenario(Segment(10)), slowing])
+    assert (truth.accel < 0).any() and not (truth.accel > 0).any()
+    reason = unsupported(truth, paper_bank())
+    assert reason is not None and "1 of 2 runs have acceleration segments" in reason
+
+
 def _ct_by_hand(omega: float, T: float) -> np.ndarray:
     """The exact transition of a turn at ``omega`` rad/s over ``T`` (CV at 0)."""
     if omega == 0.0:
