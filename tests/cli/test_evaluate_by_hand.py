@@ -6,6 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from imm_gym.cli.evaluate import evaluate
+from imm_gym.evaluation.clairvoyant import clairvoyant_filter, hold_diverged
+from imm_gym.evaluation.metrics import tracking_errors
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.episodes import draw_batch
 
 
 def _armse(err2: np.ndarray) -> float:
@@ -25,3 +29,28 @@ def test_the_reference_is_fixed_wherever_it_is_listed() -> None:
     d = paired["differences"]["window"]
     assert abs(d["diff"] - (window - fixed)) < 1e-9
     assert abs(d["relative"] - (window - fixed) / fixed) < 1e-12
+
+
+def test_the_clairvoyant_filter_tracks_the_policies_runs() -> None:
+    """The clairvoyant row is the filter run on the very measurements the policies' trackers
+    were given (the roll-out's record, steps 1..K, missed detections predicted through): its
+    errors recomputed from the ``fixed`` roll-out's truth and measurements equal the row's. Run
+    on other seeds, or on the measurements of steps 0..K-1, it would differ."""
+    env = {"sensor": {"detection_prob": 0.8}}
+    runs, seed = 3, 9
+    results, rollouts = evaluate(["fixed"], "paper", runs, seed, env_config=env)
+    run = rollouts["fixed"]
+    base = EnvConfig.build({**env, "scenario": "paper"})
+    z = run.measurements[:, 1:]
+    detected = ~np.isnan(z).any(axis=-1)
+    assert not detected.all() and detected.any()
+    # the start (x0, P0) and the truth's turn rates: the run's own draw, seed + r
+    batch = draw_batch(base.source, base.sensor, runs, seed, base.velocity_std,
+                       bank=base.linear_bank)
+    np.testing.assert_array_equal(batch.truth.states[:, 1:], run.truth)
+    xs, Ps = clairvoyant_filter(batch.truth, np.nan_to_num(z), base.sensor, base.bank,
+                                batch.x0, batch.P0, base.filter, detected)
+    xs, _ = hold_diverged(xs, Ps, run.truth, base.divergence_error, base.divergence_cov)
+    expected = tracking_errors(xs, run.truth)
+    for key in ("armse_pos", "armse_pos_x", "armse_vel_y"):
+        assert abs(results["clairvoyant"][key] - expected[key]) < 1e-9, key
