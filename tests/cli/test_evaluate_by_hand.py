@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+import imm_gym.cli.evaluate as cli
 from imm_gym.cli.evaluate import evaluate
 from imm_gym.evaluation.clairvoyant import clairvoyant_filter, hold_diverged
 from imm_gym.evaluation.metrics import tracking_errors
@@ -54,3 +55,19 @@ def test_the_clairvoyant_filter_tracks_the_policies_runs() -> None:
     expected = tracking_errors(xs, run.truth)
     for key in ("armse_pos", "armse_pos_x", "armse_vel_y"):
         assert abs(results["clairvoyant"][key] - expected[key]) < 1e-9, key
+
+
+def test_a_tuner_trains_on_its_own_seeds(monkeypatch) -> None:
+    """``best-fixed``'s search rolls out on training seeds ``seed + 1_000_000 + r`` (SPEC: never
+    the evaluation's ``seed + r``): every roll-out the tuner starts begins at 1_000_005 for
+    ``--seed 5``."""
+    calls = []
+    real = cli.rollout
+
+    def recording(policy, config, runs, seed, **kwargs):
+        calls.append((runs, seed))
+        return real(policy, config, runs, seed, **kwargs)
+
+    monkeypatch.setattr(cli, "rollout", recording)
+    cli.make_policy("best-fixed", EnvConfig(scenario="paper"), 5, train_runs=2)
+    assert calls and all(c == (2, 1_000_005) for c in calls)
