@@ -71,3 +71,20 @@ def test_a_tuner_trains_on_its_own_seeds(monkeypatch) -> None:
     monkeypatch.setattr(cli, "rollout", recording)
     cli.make_policy("best-fixed", EnvConfig(scenario="paper"), 5, train_runs=2)
     assert calls and all(c == (2, 1_000_005) for c in calls)
+
+
+def test_a_ci_whose_upper_bound_is_zero_is_level() -> None:
+    """The tally's "below" needs the CI's upper bound below zero: a policy whose errors are the
+    reference's, run for run (a difference and a CI of exactly 0, as a tuner that picks the
+    reference's TPM gives), or a CI ending at 0, includes zero: level, not below (nor above)."""
+    err2 = np.random.default_rng(0).gamma(2.0, 50.0, (6, 5))
+    same = cli.paired_difference(err2, err2)
+    assert same["diff"] == same["low"] == same["high"] == 0.0
+    ending_at_zero = {"diff": -0.5, "low": -1.0, "high": 0.0}
+    scenarios = {
+        "same": {"paired": {"differences": {"p": same}}},
+        "edge": {"paired": {"differences": {"p": ending_at_zero}}},
+    }
+    assert cli.suite_tally(scenarios, ["p"]) == {
+        "p": {"below": [], "level": ["same", "edge"], "above": [], "skipped": []}
+    }
