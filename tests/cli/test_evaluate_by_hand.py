@@ -88,3 +88,16 @@ def test_a_ci_whose_upper_bound_is_zero_is_level() -> None:
     assert cli.suite_tally(scenarios, ["p"]) == {
         "p": {"below": [], "level": ["same", "edge"], "above": [], "skipped": []}
     }
+
+
+def test_one_run_has_no_confidence_interval_and_two_have_one() -> None:
+    """With R = 1 every resample is the one run, so the interval is undefined: ``low`` and
+    ``high`` are None (JSON null), the difference itself the ARMSEs' by hand; with R = 2 they
+    are numbers around it."""
+    rng = np.random.default_rng(1)
+    a, b = rng.gamma(2.0, 50.0, (2, 7)), rng.gamma(2.0, 50.0, (2, 7))
+    one = cli.paired_difference(a[:1], b[:1])
+    assert one["low"] is None and one["high"] is None
+    assert abs(one["diff"] - (_armse(a[:1]) - _armse(b[:1]))) < 1e-9
+    two = cli.paired_difference(a, b)
+    assert two["low"] is not None and two["low"] <= two["diff"] <= two["high"]
