@@ -236,3 +236,24 @@ def test_diverged_at_counts_the_steps_from_1(diverging: Rollout) -> None:
         assert diverging.diverged_at(r) == d + 1
     kept = np.flatnonzero(~diverging.diverged)
     assert all(diverging.diverged_at(int(r)) is None for r in kept)
+
+
+def test_the_policy_is_told_an_episode_starts_at_its_first_step_only() -> None:
+    """SB3's contract: ``episode_start`` True at an episode's first step, False after (a
+    windowed rule or a recurrent agent clears its memory where it is True): over K steps of R
+    runs the policy sees one all-True start, then K - 1 all-False ones."""
+    inner = FixedTPM(3)
+    seen = []
+
+    class Recording:
+        env_overrides = inner.env_overrides
+
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            seen.append(np.array(episode_start, dtype=bool))
+            return inner.predict(obs, state=state, episode_start=episode_start,
+                                 deterministic=deterministic)
+
+    run = rollout(Recording(), evaluation_config(EnvConfig(), inner.env_overrides), 3, 0)
+    K = run.truth.shape[1]
+    assert len(seen) == K and all(s.shape == (3,) for s in seen)
+    assert seen[0].all() and not np.any(seen[1:])
