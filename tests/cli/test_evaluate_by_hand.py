@@ -101,3 +101,16 @@ def test_one_run_has_no_confidence_interval_and_two_have_one() -> None:
     assert abs(one["diff"] - (_armse(a[:1]) - _armse(b[:1]))) < 1e-9
     two = cli.paired_difference(a, b)
     assert two["low"] is not None and two["low"] <= two["diff"] <= two["high"]
+
+
+def test_the_clairvoyant_filter_is_skipped_where_conditions_vary() -> None:
+    """Runs drawn at other sampling periods (``vary: {T: ...}``) are not the one sensor and
+    period the filter runs: the row is skipped, naming what varies, not computed on runs drawn
+    without the variation (other runs than the policies')."""
+    results, _ = evaluate(["fixed"], "random", 2, 0, bank="cv-ct-continuous",
+                          env_config={"vary": {"T": (0.5, 2.0)}})
+    assert results["clairvoyant"] == {
+        "role": "skipped",
+        "note": "skipped: conditions vary per run (T); the filter runs one sensor and sampling "
+        "period",
+    }
