@@ -4,6 +4,7 @@ on which runs the clairvoyant filter runs, and which seeds the tuners train on."
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import imm_gym.cli.evaluate as cli
 from imm_gym.cli.evaluate import evaluate
@@ -11,6 +12,7 @@ from imm_gym.evaluation.clairvoyant import clairvoyant_filter, hold_diverged
 from imm_gym.evaluation.metrics import tracking_errors
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
+from imm_gym.validation import ConfigError
 
 
 def _armse(err2: np.ndarray) -> float:
@@ -114,3 +116,28 @@ def test_the_clairvoyant_filter_is_skipped_where_conditions_vary() -> None:
         "note": "skipped: conditions vary per run (T); the filter runs one sensor and sampling "
         "period",
     }
+
+
+def test_a_bar_policy_a_case_does_not_admit_is_refused_before_any_work(
+    tmp_path, monkeypatch
+) -> None:
+    """A policy of ``--bar`` must run on every case (the bar is the better of them there): the
+    learned detector rule on a bank with two models of rate zero is refused, naming the case,
+    before any roll-out (not skipped there, leaving the case without its bar)."""
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    (folder / "ca.yaml").write_text(
+        "scenario: random\n"
+        "bank: [{kind: cv, noise: continuous, intensity: 0.1},\n"
+        "       {kind: ca, noise: continuous, intensity: 0.05},\n"
+        "       {kind: ct, turn_rate_deg: 4.0, noise: continuous, intensity: 0.05}]\n"
+    )
+    (folder / "paper.yaml").write_text("scenario: random\n")
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a roll-out ran before the error")
+
+    monkeypatch.setattr(cli, "rollout", refuse)
+    with pytest.raises(ConfigError, match="ca: a policy of --bar, learned-prior, cannot run"):
+        cli.evaluate_suite(["fixed", "learned-prior"], str(folder), 2, 0, clairvoyant=False,
+                           bar=["learned-prior"])
