@@ -147,3 +147,36 @@ def test_critic_state_with_a_recurrent_agent_is_rejected(tmp_path, capsys) -> No
         train.main([*argv, "--no-eval", "--no-progress"])
     assert exit_info.value.code == 2
     assert "critic_state" in capsys.readouterr().err
+
+
+def test_the_actor_and_critic_are_the_mlps_worked_by_hand() -> None:
+    """In numpy from the network's weights, 2 frames of 4 entries with 1 critic-only entry
+    each: the actor's latent is tanh(W2 tanh(W1 x_a + b1) + b2) of x_a = entries 0, 1, 2, 4, 5,
+    6, the critic's tanh(V1 x + c1) of all 8, the action mean the action layer of the first,
+    the value the value layer of the second."""
+    space = spaces.Box(-10.0, 10.0, (8,), dtype=np.float32)
+    policy = AsymmetricActorCriticPolicy(
+        space, spaces.Box(-1.0, 1.0, (2,), dtype=np.float32), lambda _: 1e-3,
+        net_arch=dict(pi=[5, 3], vf=[4]), activation_fn=torch.nn.Tanh, critic_dims=1,
+        frame_stack=2,
+    )
+    torch.manual_seed(1)
+    with torch.no_grad():
+        for p in policy.parameters():
+            p.normal_(0.0, 0.5)
+    obs = np.random.default_rng(1).normal(size=(5, 8)).astype(np.float32)
+    with torch.no_grad():
+        mean = policy.get_distribution(torch.as_tensor(obs)).distribution.mean.numpy()
+        value = policy.predict_values(torch.as_tensor(obs)).numpy()
+    w = {k: v.detach().numpy().astype(np.float64) for k, v in policy.state_dict().items()}
+    x = obs.astype(np.float64)
+    a = x[:, [0, 1, 2, 4, 5, 6]]
+    for i in (0, 2):
+        layer = f"mlp_extractor.policy_net.{i}"
+        a = np.tanh(a @ w[f"{layer}.weight"].T + w[f"{layer}.bias"])
+    v = np.tanh(x @ w["mlp_extractor.value_net.0.weight"].T + w["mlp_extractor.value_net.0.bias"])
+    np.testing.assert_allclose(mean, a @ w["action_net.weight"].T + w["action_net.bias"],
+                               rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(value, v @ w["value_net.weight"].T + w["value_net.bias"],
+                               rtol=1e-4, atol=1e-5)
+
