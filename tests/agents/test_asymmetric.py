@@ -180,3 +180,17 @@ def test_the_actor_and_critic_are_the_mlps_worked_by_hand() -> None:
     np.testing.assert_allclose(value, v @ w["value_net.weight"].T + w["value_net.bias"],
                                rtol=1e-4, atol=1e-5)
 
+
+def test_the_policy_saved_by_sb3_loads_with_its_frames(tmp_path) -> None:
+    """SB3's own save and load (the earlier pickled format that agents/export.py converts)
+    rebuild the network with its critic_dims and frame_stack: the actor skips entries 6 and 13
+    of the 2 frames of 7 again, and its means are the saved network's."""
+    policy = _policy(7, 2, 1)
+    policy.save(str(tmp_path / "policy.pt"))
+    loaded = AsymmetricActorCriticPolicy.load(str(tmp_path / "policy.pt"), device="cpu")
+    assert (loaded.critic_dims, loaded.frame_stack) == (1, 2)
+    assert loaded.mlp_extractor.index.tolist() == [0, 1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 12]
+    obs = torch.as_tensor(np.random.default_rng(3).normal(size=(2, 14)).astype(np.float32))
+    with torch.no_grad():
+        assert torch.equal(policy.get_distribution(obs).distribution.mean,
+                           loaded.get_distribution(obs).distribution.mean)
