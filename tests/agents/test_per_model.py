@@ -526,3 +526,45 @@ def test_gsde_is_refused_for_the_per_model_policy_before_training(tmp_path, caps
     # an entry's use_sde under a --config file's policy: the merged entry is checked
     with pytest.raises(ConfigError, match="use_sde must be false for a PerModelPolicy"):
         check_policy({"policy": "PerModelPolicy", "use_sde": True}, [])
+
+
+def _hand_policy_spec(**extra) -> dict:
+    """A PerModelPolicy of 3 models, 2 frames of loglik, innovation and speed (16 entries:
+    mu(t), mu(t-1), loglik, innovation (2 per model), speed) and the critic's 11 entries."""
+    return check_spec("test", {
+        "class": "PerModelPolicy", "observation_size": 2 * (16 + 11), "action_size": 3,
+        "net_arch": {"pi": [6, 5], "vf": [4]}, "activation_fn": "tanh", "critic_dims": 11,
+        "frame_stack": 2, "obs_features": ["loglik", "innovation", "speed"], "dim_z": 2,
+        **extra,
+    })
+
+
+def test_the_actor_is_the_deep_set_of_its_docstring_worked_by_hand() -> None:
+    """a_j = w . psi([e_j, mean_i e_i]) + b with e_j = phi([x_j, g]), in numpy from the
+    network's weights: model j's token x_j is, in each of the 2 frames of 27 entries (oldest
+    first), its entries j, 3 + j, 6 + j, 9 + 2 j, 10 + 2 j written out from the frame's layout,
+    g the speed (entry 15) of each frame; the critic's 11 entries are read by no model."""
+    policy = build_policy(_hand_policy_spec(), "test")
+    torch.manual_seed(5)
+    with torch.no_grad():
+        for p in policy.parameters():
+            p.normal_(0.0, 0.5)
+    obs = np.random.default_rng(5).normal(size=(4, 54)).astype(np.float32)
+    with torch.no_grad():
+        mean = policy.get_distribution(torch.as_tensor(obs)).distribution.mean.numpy()
+    w = {k: v.detach().numpy().astype(np.float64) for k, v in policy.state_dict().items()}
+    x = obs.astype(np.float64)
+    tokens = np.stack([
+        np.concatenate([x[:, [27 * f + j, 27 * f + 3 + j, 27 * f + 6 + j, 27 * f + 9 + 2 * j,
+                              27 * f + 10 + 2 * j]] for f in range(2)], axis=1)
+        for j in range(3)
+    ], axis=1)  # (4, 3, 10)
+    g = x[:, [15, 27 + 15]]
+    inputs = np.concatenate([tokens, np.repeat(g[:, None, :], 3, axis=1)], axis=-1)
+    e = np.tanh(inputs @ w["mlp_extractor.phi.0.weight"].T + w["mlp_extractor.phi.0.bias"])
+    context = np.repeat(e.mean(axis=1, keepdims=True), 3, axis=1)
+    h = np.tanh(np.concatenate([e, context], axis=-1) @ w["mlp_extractor.psi.0.weight"].T
+                + w["mlp_extractor.psi.0.bias"])
+    by_hand = (h @ w["action_net.linear.weight"].T)[..., 0] + w["action_net.linear.bias"]
+    np.testing.assert_allclose(mean, by_hand, rtol=1e-4, atol=1e-5)
+
