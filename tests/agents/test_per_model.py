@@ -568,3 +568,17 @@ def test_the_actor_is_the_deep_set_of_its_docstring_worked_by_hand() -> None:
     by_hand = (h @ w["action_net.linear.weight"].T)[..., 0] + w["action_net.linear.bias"]
     np.testing.assert_allclose(mean, by_hand, rtol=1e-4, atol=1e-5)
 
+
+def test_the_shared_action_head_starts_small_and_the_log_std_at_log_std_init() -> None:
+    """As SB3's action layer: orthogonal with gain 0.01 (a 1 x 5 orthogonal matrix has a row
+    of norm 1, so 0.01 here) and a zero bias; one log standard deviation, log_std_init's, so
+    every model's action has standard deviation exp(-0.7)."""
+    policy = build_policy(_hand_policy_spec(log_std_init=-0.7), "test")
+    weight = policy.action_net.linear.weight.detach().numpy()
+    assert np.linalg.norm(weight) == pytest.approx(0.01, rel=1e-5)
+    assert policy.action_net.linear.bias.detach().numpy() == pytest.approx([0.0])
+    obs = torch.zeros((2, 54))
+    with torch.no_grad():
+        std = policy.get_distribution(obs).distribution.stddev.numpy()
+    assert std == pytest.approx(np.full((2, 3), np.exp(-0.7)), rel=1e-6)
+
