@@ -582,3 +582,18 @@ def test_the_shared_action_head_starts_small_and_the_log_std_at_log_std_init() -
         std = policy.get_distribution(obs).distribution.stddev.numpy()
     assert std == pytest.approx(np.full((2, 3), np.exp(-0.7)), rel=1e-6)
 
+
+def test_the_policy_saved_by_sb3_loads_with_its_layout(tmp_path) -> None:
+    """SB3's own save and load (an earlier agent's pickled format) rebuild the same network:
+    the layout arguments survive, and the loaded actor's means equal the saved one's."""
+    from agents.per_model import PerModelActorCriticPolicy
+
+    policy = build_policy(_hand_policy_spec(), "test")
+    policy.save(str(tmp_path / "policy.pt"))
+    loaded = PerModelActorCriticPolicy.load(str(tmp_path / "policy.pt"), device="cpu")
+    assert (loaded.obs_features, loaded.dim_z, loaded.frame_stack, loaded.critic_dims) == (
+        ["loglik", "innovation", "speed"], 2, 2, 11)
+    obs = torch.as_tensor(np.random.default_rng(2).normal(size=(3, 54)).astype(np.float32))
+    with torch.no_grad():
+        assert torch.equal(policy.get_distribution(obs).distribution.mean,
+                           loaded.get_distribution(obs).distribution.mean)
