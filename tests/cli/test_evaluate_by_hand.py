@@ -141,3 +141,23 @@ def test_a_bar_policy_a_case_does_not_admit_is_refused_before_any_work(
     with pytest.raises(ConfigError, match="ca: a policy of --bar, learned-prior, cannot run"):
         cli.evaluate_suite(["fixed", "learned-prior"], str(folder), 2, 0, clairvoyant=False,
                            bar=["learned-prior"])
+
+
+def test_with_a_bar_the_tally_sorts_the_cases_by_the_difference_against_it(tmp_path) -> None:
+    """With ``bar`` the tally is against the bar, not the reference: the reference ``fixed``
+    itself is tallied (run on every case, never skipped), each case sorted by hand from its
+    bar difference's CI (high < 0 below, low > 0 above, else level)."""
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    (folder / "one.yaml").write_text("scenario: random\n")
+    (folder / "two.yaml").write_text("scenario: paper\n")
+    suite = cli.evaluate_suite(["fixed", "window", "tip-imm"], str(folder), 3, 0,
+                               clairvoyant=False, bar=["tip-imm"])
+    assert set(suite["tally"]) == {"fixed", "window"}
+    for name in ("fixed", "window"):
+        expected = {"below": [], "level": [], "above": [], "skipped": []}
+        for case in ("one", "two"):
+            d = suite["scenarios"][case]["bar"]["differences"][name]
+            where = "below" if d["high"] < 0 else "above" if d["low"] > 0 else "level"
+            expected[where].append(case)
+        assert suite["tally"][name] == expected
