@@ -83,3 +83,23 @@ def test_a_selector_member_declaring_an_extra_tensor_is_refused_before_it_is_rea
     assert "member 'net_0.safetensors' does not fit" in message
     assert "tensor 'junk': (268435456,) in the file, absent in the network" in message
     assert growth < ALLOWED, f"{growth / 2**20:.0f} MiB"
+
+
+def test_weights_of_another_dtype_are_refused_naming_the_tensor(tmp_path: Path) -> None:
+    """The shipped agent's tensors rewritten as float64 (the same names and shapes, twice the
+    bytes) are refused, the first float tensor named with the dtype the network needs: torch
+    would cast them on loading, the file is not the network agent.json describes."""
+    from safetensors.torch import load_file, save_file
+
+    from agents.policy import load_agent
+    from imm_gym.validation import ConfigError
+
+    agent = Path(shutil.copytree(shipped_agent(), tmp_path / "agent"))
+    file = agent / "policy.safetensors"
+    tensors = load_file(str(file))
+    save_file({k: v.double() if v.is_floating_point() else v for k, v in tensors.items()},
+              str(file))
+    with pytest.raises(ConfigError, match=r"is torch\.float64 \(.*\), the network of agent\.json "
+                                          r"needs torch\.float32"):
+        load_agent(agent)
+
