@@ -103,3 +103,21 @@ def test_weights_of_another_dtype_are_refused_naming_the_tensor(tmp_path: Path) 
                                           r"needs torch\.float32"):
         load_agent(agent)
 
+
+def test_a_file_of_one_to_four_bytes_a_parameter_is_refused_as_too_small(tmp_path: Path) -> None:
+    """A description of c parameters beside the shipped weights file of s bytes with
+    c <= s < 4 c (float32 parameters take 4 bytes each) is refused by its size, before the
+    names are compared."""
+    agent = Path(shutil.copytree(shipped_agent(), tmp_path / "agent"))
+    meta = json.loads((agent / "agent.json").read_text())
+    meta["policy"]["net_arch"] = {"pi": [256, 256], "vf": [256, 256]}
+    (agent / "agent.json").write_text(json.dumps(meta))
+    count = parameter_count(check_spec("agent.json", meta["policy"]))
+    size = (agent / "policy.safetensors").stat().st_size
+    assert count <= size < 4 * count
+    from agents.policy import load_agent
+    from imm_gym.validation import ConfigError
+
+    with pytest.raises(ConfigError, match=f"{size} bytes, fewer than the {4 * count} of the "
+                                          f"{count} float32 parameters"):
+        load_agent(agent)
