@@ -4,12 +4,15 @@ checks of the hyperparameters."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from agents.training import (
+    check_hyperparams,
     set_threads,
 )
+from imm_gym.validation import ConfigError
 
 
 def test_set_threads_limits_torch_and_the_blas_to_one_thread(monkeypatch) -> None:
@@ -32,4 +35,35 @@ def test_set_threads_limits_torch_and_the_blas_to_one_thread(monkeypatch) -> Non
 
     assert os.environ["OMP_NUM_THREADS"] == os.environ["MKL_NUM_THREADS"] == "1"
     assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
+
+
+
+@pytest.mark.parametrize(
+    "given",
+    [{"n_envs": 10_000}, {"gamma": 1.0, "gae_lambda": 1.0}, {"swa_start": 0},
+     {"learning_rate": "lin_1e-9"}, {"n_timesteps": 1}],
+)
+def test_the_hyperparameters_take_the_ends_of_their_ranges(given) -> None:
+    """The closed ends: 10 000 slots (a run seed's own seeds), gamma and gae_lambda 1 (no
+    discount), averaging from step 0, the smallest positive schedule, a budget of one step."""
+    assert check_hyperparams("f", given, "ppo", complete=False) == given
+
+
+
+@pytest.mark.parametrize(
+    ("given", "message"),
+    [({"n_envs": 10_001}, r"n_envs must be in \[1, 10000\]"),
+     ({"gamma": 1.0 + 1e-12}, r"gamma must be in \(0, 1\]"),
+     ({"learning_rate": "lin_0"}, "learning_rate must be .*, the number finite and > 0"),
+     ({"clip_range": "lin_0.0"}, "clip_range must be .*, the number finite and > 0"),
+     ({"swa_start": -1e-9}, r"swa_start must be a fraction of the budget in \[0, 1\)"),
+     ({"swa_start": 1}, r"swa_start must be a fraction of the budget in \[0, 1\)"),
+     ({"n_timesteps": 0}, "n_timesteps must be a whole number >= 1")],
+)
+def test_the_hyperparameters_just_outside_their_ranges_are_refused(given, message) -> None:
+    """One past each end: a slot beyond a run seed's 10 000 seeds, a discount above 1, a
+    linear schedule from 0 (no learning at all), averaging before the start or from the end,
+    a budget of no step."""
+    with pytest.raises(ConfigError, match=f"f: {message}"):
+        check_hyperparams("f", given, "ppo", complete=False)
 
