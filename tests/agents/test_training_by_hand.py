@@ -9,6 +9,7 @@ import torch
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from agents.training import (
+    check_batches,
     check_hyperparams,
     set_threads,
 )
@@ -66,4 +67,13 @@ def test_the_hyperparameters_just_outside_their_ranges_are_refused(given, messag
     a budget of no step."""
     with pytest.raises(ConfigError, match=f"f: {message}"):
         check_hyperparams("f", given, "ppo", complete=False)
+
+
+
+def test_an_entry_without_n_steps_has_sb3_s_rollout_of_2048_steps() -> None:
+    """One slot and SB3's default n_steps (2048) is a rollout of 2048 samples, enough to
+    normalize the advantages; one slot of one step is not."""
+    check_batches({"n_envs": 1})
+    with pytest.raises(ConfigError, match=r"n_envs \* n_steps must be >= 2"):
+        check_batches({"n_envs": 1, "n_steps": 1})
 
