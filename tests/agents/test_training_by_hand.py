@@ -4,6 +4,8 @@ checks of the hyperparameters."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import pytest
 import torch
 from threadpoolctl import threadpool_info, threadpool_limits
@@ -11,6 +13,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 from agents.training import (
     check_batches,
     check_hyperparams,
+    check_input_size,
     set_threads,
 )
 from imm_gym.validation import ConfigError
@@ -77,3 +80,20 @@ def test_an_entry_without_n_steps_has_sb3_s_rollout_of_2048_steps() -> None:
     with pytest.raises(ConfigError, match=r"n_envs \* n_steps must be >= 2"):
         check_batches({"n_envs": 1, "n_steps": 1})
 
+
+
+def test_the_critic_s_entries_count_in_the_input_only_with_critic_state() -> None:
+    """A frame of loglik, innovation and speed for 3 models and a 2-d measurement is 16
+    entries (mu(t) 3, mu(t-1) 3, loglik 3, innovation 6, speed 1), 27 with the critic's 11
+    (two 4-d errors and the coming model one-hot): the deepest stack is MAX_INPUT // 16 frames
+    without the critic's entries and MAX_INPUT // 27 with them."""
+    from agents.schema import MAX_INPUT
+
+    config = SimpleNamespace(bank=[None] * 3, obs_features=["loglik", "innovation", "speed"],
+                             sensor=SimpleNamespace(dim_z=2))
+    check_input_size({"frame_stack": MAX_INPUT // 16}, config)
+    with pytest.raises(ConfigError, match=rf"frame_stack must be in \[1, {MAX_INPUT // 16}\]"):
+        check_input_size({"frame_stack": MAX_INPUT // 16 + 1}, config)
+    check_input_size({"frame_stack": MAX_INPUT // 27, "critic_state": True}, config)
+    with pytest.raises(ConfigError, match=rf"frame_stack must be in \[1, {MAX_INPUT // 27}\]"):
+        check_input_size({"frame_stack": MAX_INPUT // 27 + 1, "critic_state": True}, config)
