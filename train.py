@@ -344,9 +344,9 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dic
 def check_runs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Refuse (usage error) run counts whose seeds would reach another range
     (:mod:`imm_gym.seeding`): the evaluation's ``0 .. R - 1`` below the tuners' training seeds
-    (:data:`imm_gym.cli.evaluate.MAX_RUNS`), the validation's ``VALIDATION_SEED_BASE + r``
+    (:data:`imm_gym.cli.arguments.MAX_RUNS`), the validation's ``VALIDATION_SEED_BASE + r``
     below the agents' training slots (``TRAIN_SEED_BASE``)."""
-    from imm_gym.cli.evaluate import MAX_RUNS
+    from imm_gym.cli.arguments import MAX_RUNS
     from imm_gym.seeding import TRAIN_SEED_BASE, VALIDATION_SEED_BASE
 
     most = TRAIN_SEED_BASE - VALIDATION_SEED_BASE
@@ -1094,10 +1094,10 @@ def evaluate_agent(
 ) -> dict[str, Any]:
     """Paper scenario and held-out random scenarios, learned agent vs the baselines (and the
     detector rules the tracker admits) on the first configuration (what the agent is trained as
-    is its own: :func:`imm_gym.cli.evaluate.evaluate`); a stop request is honoured before each
+    is its own: :func:`imm_gym.cli.comparison.evaluate`); a stop request is honoured before each
     scenario (the agent is saved by then)."""
     from agents.policy import load_agent
-    from imm_gym.cli.evaluate import evaluate, evaluated_config
+    from imm_gym.cli.comparison import evaluate, evaluated_config
     from imm_gym.cli.tables import render_tables
     from imm_gym.evaluation.plots import write_figures
 

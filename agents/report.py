@@ -4,7 +4,7 @@ and the reports of a seed (``OUT/seed_S/report.md``) and of a run (``OUT/report.
 
 An agent is compared with the classics (:data:`BASELINES_COMPARED`) and with the strongest rules
 its tracker admits (:data:`DETECTOR_RULES`), on the paper scenario and on held-out runs of the
-randomized family, by the evaluation's own code (:func:`imm_gym.cli.evaluate.evaluate`: common
+randomized family, by the evaluation's own code (:func:`imm_gym.cli.comparison.evaluate`: common
 random numbers, paired bootstrap CIs).
 """
 
@@ -50,7 +50,7 @@ def admitted_rules(base: Any) -> tuple[str, ...]:
 def paired(rollouts: dict[str, Any], a: str, b: str) -> dict[str, float | None]:
     """``a``'s position ARMSE minus ``b``'s with its paired bootstrap CI, as the evaluation's
     differences (``low`` and ``high`` None for one run, where it is undefined)."""
-    from imm_gym.cli.evaluate import paired_difference
+    from imm_gym.cli.comparison import paired_difference
 
     return paired_difference(rollouts[a].squared_position_error, rollouts[b].squared_position_error)
 

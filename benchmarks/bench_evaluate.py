@@ -1,6 +1,6 @@
 """Time of the Monte-Carlo evaluation of the five baselines of issue #19, one core.
 
-Times ``imm_gym.cli.evaluate.evaluate`` on the paper scenario (100 runs) for each of them (fixed,
+Times ``imm_gym.cli.comparison.evaluate`` on the paper scenario (100 runs) for each of them (fixed,
 tip-imm, best-fixed, amp-imm, window) alone and for all of them together (the best fixed TPM
 includes its search over 12 stay probabilities on 100 training runs), plus the clairvoyant bound:
 the median over ``--repeats`` repeats (each timing in turn, so that a change in the machine's
@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     repeats = harness.count(args.repeats, False, 5, 5, "--repeats")
     t0, c0 = time.perf_counter(), time.process_time()
-    from imm_gym.cli.evaluate import evaluate, load_source
+    from imm_gym.cli.comparison import evaluate, load_source
     from imm_gym.validation import ConfigError
 
     t_import, c_import = time.perf_counter() - t0, time.process_time() - c0

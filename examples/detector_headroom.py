@@ -47,7 +47,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.cli.evaluate import cannot_run, suite_configs
+from imm_gym.cli.policies import cannot_run
+from imm_gym.cli.suite import suite_configs
 from imm_gym.evaluation.priors import prior_core, run_priors
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.detectors import (

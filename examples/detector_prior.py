@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from imm_gym.cli.evaluate import suite_configs
+from imm_gym.cli.suite import suite_configs
 from imm_gym.evaluation.priors import prior_core, run_priors
 from imm_gym.sim.stay_bank import detector_tpm_rows
 from imm_gym.validation import ConfigError

@@ -3,7 +3,7 @@ motion, and the TPM's stays while each motion lasts.
 
 One ARMSE per scenario hides where it comes from. This scores policies with the evaluation's own
 code on the same runs of each scenario of the benchmark suite (common random numbers,
-:func:`imm_gym.cli.evaluate.evaluate`) and prints, per policy:
+:func:`imm_gym.cli.comparison.evaluate`) and prints, per policy:
 
 * the RMS position error over the steps whose true motion is each model of the bank
   (:math:`\\sqrt{\\operatorname{mean}_{r,k:\\, m^*_{rk} = j} \\lVert \\hat p_{rk} - p_{rk}
@@ -34,8 +34,11 @@ from typing import Any
 
 import numpy as np
 
+from baselines import REGISTRY
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.cli.evaluate import REGISTRY, evaluate, load_trained, make_policy, suite_configs
+from imm_gym.cli.comparison import evaluate
+from imm_gym.cli.policies import load_trained, make_policy
+from imm_gym.cli.suite import suite_configs
 from imm_gym.evaluation.rollout import Rollout, armse_from_squared
 
 

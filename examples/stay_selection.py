@@ -28,7 +28,7 @@ import numpy as np
 
 from baselines.best_fixed import stay_grid
 from imm_gym import EnvConfig, TrackingCore, stay_tpm
-from imm_gym.cli.evaluate import suite_configs
+from imm_gym.cli.suite import suite_configs
 from imm_gym.evaluation.rollout import armse_from_squared
 from imm_gym.tracking.imm import measurement_loglik
 from imm_gym.validation import ConfigError

@@ -74,7 +74,9 @@ from agents.selector import (
     stay_action,
 )
 from agents.training import set_threads
-from imm_gym.cli.evaluate import cannot_run, evaluate, evaluated_config, suite_configs
+from imm_gym.cli.comparison import evaluate, evaluated_config
+from imm_gym.cli.policies import cannot_run
+from imm_gym.cli.suite import suite_configs
 from imm_gym.evaluation.metrics import mode_accuracy, mode_prob_tv
 from imm_gym.evaluation.rollout import armse_from_squared, paired_bootstrap
 from imm_gym.sim.config_file import read_env_config, tracker_of

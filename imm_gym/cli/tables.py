@@ -188,7 +188,7 @@ def render_suite_table(results: dict[str, Any]) -> None:
     χ²(4), the diverged runs and the paired difference of the position ARMSE against the
     reference with its 95 % bootstrap CI; the clairvoyant row by its role; a policy not run on a
     case, and why. Then each policy's tally against the bar, else the reference
-    (:func:`~imm_gym.cli.evaluate.suite_tally`). Names, scenarios and notes are printed as given
+    (:func:`~imm_gym.cli.suite.suite_tally`). Names, scenarios and notes are printed as given
     (escaped, not read as rich markup)."""
     from rich.console import Console
     from rich.markup import escape

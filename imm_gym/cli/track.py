@@ -12,7 +12,7 @@ probabilities and the TPM used. ``--policy`` is a baseline's name, ``pretrained`
 ``pretrained-per-model`` (a bank of any size) or a trained agent's directory, resolved as
 ``python -m imm_gym.evaluate`` resolves them (a tuned baseline such as ``best-fixed`` is tuned on
 simulated runs of the configuration, seeds from ``--seed``: 0 to
-:data:`~imm_gym.cli.evaluate.MAX_SEED`, as for ``python -m imm_gym.evaluate``).
+:data:`~imm_gym.cli.arguments.MAX_SEED`, as for ``python -m imm_gym.evaluate``).
 ``--env-config FILE`` (YAML or JSON, :mod:`imm_gym.sim.config_file`) is a mapping of
 EnvConfig fields: the sensor (whose components ``z`` are), the bank, the filter, the TPM settings,
 the scenario (its sampling period); what it says an agent is trained as
@@ -76,14 +76,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from baselines import REGISTRY
-from imm_gym.cli.evaluate import (
-    MAX_SEED,
-    agent_overrides,
-    evaluated_config,
-    make_policy,
-    output_problem,
-    seed_problem,
-)
+from imm_gym.cli.arguments import MAX_SEED, output_problem, seed_problem
+from imm_gym.cli.comparison import evaluated_config
+from imm_gym.cli.policies import agent_overrides, make_policy
 from imm_gym.cli.tables import models_differ_note
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig

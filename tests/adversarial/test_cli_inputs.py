@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 
 import imm_gym.cli.evaluate as cli
+from imm_gym.cli.arguments import output_problem
+from imm_gym.cli.comparison import load_source
 from imm_gym.validation import ConfigError
 
 
@@ -78,8 +80,8 @@ def test_output_in_an_unwritable_place(tmp_path, capsys, no_evaluation) -> None:
 
 def test_outputs_in_new_directories_are_accepted(tmp_path) -> None:
     out, figs = tmp_path / "a" / "b" / "res.json", tmp_path / "c" / "figs"
-    assert cli.output_problem(out, "file") is None
-    assert cli.output_problem(figs, "directory") is None
+    assert output_problem(out, "file") is None
+    assert output_problem(figs, "directory") is None
     assert not (tmp_path / "a").exists() and not (tmp_path / "c").exists()  # nothing created
 
 
@@ -102,7 +104,7 @@ def scenario_error(tmp_path: Path, content: object, capsys) -> tuple[str, str]:
     path = tmp_path / "scen.json"
     path.write_text(content if isinstance(content, str) else json.dumps(content))
     with pytest.raises(ConfigError) as exc:
-        cli.load_source(str(path))
+        load_source(str(path))
     assert str(exc.value).startswith(f"scenario file {path}: ")
     err = usage_error(["--policy", "fixed", "--scenario", str(path)], capsys)
     assert f"scenario file {path}: " in err
@@ -164,7 +166,7 @@ def test_scenario_file_nested_too_deeply(tmp_path, capsys, no_evaluation) -> Non
 def test_scenario_file_with_integral_float_durations_is_evaluated(tmp_path) -> None:
     path = tmp_path / "scen.json"
     path.write_text(json.dumps({"segments": [{"duration": 30.0}, {"duration": 20}]}))
-    scenario = cli.load_source(str(path))
+    scenario = load_source(str(path))
     assert scenario.horizon == 50 and type(scenario.segments[0].duration) is int
     assert cli.main(["--policy", "fixed", "--scenario", str(path), "--runs", "2", "--quiet"]) == 0
 

@@ -15,7 +15,7 @@ from agents import PRETRAINED_PER_MODEL
 from agents.ensemble import write_ensemble
 from agents.policy import load_agent
 from imm_gym import EnvConfig
-from imm_gym.cli.evaluate import agent_overrides
+from imm_gym.cli.policies import agent_overrides
 from imm_gym.evaluation.rollout import evaluation_config
 from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.presets import BANK_PRESETS

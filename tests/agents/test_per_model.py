@@ -31,7 +31,8 @@ from agents.training import (
     read_yaml,
 )
 from imm_gym import EnvConfig, TrackingCore
-from imm_gym.cli.evaluate import cannot_run, evaluate
+from imm_gym.cli.comparison import evaluate
+from imm_gym.cli.policies import cannot_run
 from imm_gym.cli.track import main as track_main
 from imm_gym.sim.core import critic_state_size
 from imm_gym.sim.features import FEATURES, model_kinds, model_turn_rates

@@ -24,7 +24,7 @@ from agents.selector import (
     set_action,
     stay_action,
 )
-from imm_gym.cli.evaluate import evaluate
+from imm_gym.cli.comparison import evaluate
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.stay_bank import detector_tpm_rows

@@ -443,7 +443,7 @@ def test_run_counts_whose_seeds_reach_another_range_are_refused(
     flag, most, beyond, tmp_path, capsys
 ) -> None:
     """Validation seeds 50,000,000 + r stay below the training slots, evaluation seeds
-    0 .. R - 1 below the tuners' (imm_gym.seeding, imm_gym.cli.evaluate.MAX_RUNS)."""
+    0 .. R - 1 below the tuners' (imm_gym.seeding, imm_gym.cli.arguments.MAX_RUNS)."""
     parser = train.build_parser()
     out = ["--out", str(tmp_path / "out")]
     train.check_args(parser, parser.parse_args([flag, str(most), *out]))

@@ -484,7 +484,7 @@ def test_uniform_tpm_is_the_best_fixed_choice_on_the_paper_scenario(paper_fixed)
 def test_best_fixed_rows_on_real_runs_contains_the_single_stay_search() -> None:
     """On the same training runs the pairs (a, a) score what ``best-fixed`` scores for a, so
     the per-row search is never worse on them."""
-    from imm_gym.cli.evaluate import make_policy
+    from imm_gym.cli.policies import make_policy
 
     base = EnvConfig(scenario="random")
     _, _, single = make_policy("best-fixed", base, seed=5, train_runs=3)

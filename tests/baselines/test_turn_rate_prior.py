@@ -64,7 +64,7 @@ def test_its_tpm_is_the_stay_leaned_toward_the_estimated_turn_rate() -> None:
 
 
 def test_the_search_on_real_runs_scores_what_each_candidate_scores_alone() -> None:
-    from imm_gym.cli.evaluate import make_policy
+    from imm_gym.cli.policies import make_policy
 
     base = EnvConfig(scenario="random")
     policy, _, notes = make_policy("turn-rate-prior", base, seed=5, train_runs=3)

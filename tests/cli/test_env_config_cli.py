@@ -12,7 +12,9 @@ import pytest
 import yaml
 
 import imm_gym.cli.evaluate as cli
-from imm_gym.cli.evaluate import evaluate, evaluate_suite, main
+from imm_gym.cli.comparison import evaluate
+from imm_gym.cli.evaluate import main
+from imm_gym.cli.suite import evaluate_suite
 from imm_gym.sim.config_file import read_env_config
 from imm_gym.sim.env_config import EnvConfig
 
@@ -273,7 +275,7 @@ def test_the_bar_applies_to_a_suite(capsys) -> None:
 
 
 def test_the_tally_sorts_the_cases_by_the_paired_ci() -> None:
-    from imm_gym.cli.evaluate import suite_tally
+    from imm_gym.cli.suite import suite_tally
 
     def case(low, high) -> dict:
         d = {"diff": 0.0 if low is None else (low + high) / 2, "low": low, "high": high}
@@ -376,7 +378,7 @@ def test_the_suite_refuses_per_scenario_flags(capsys, flag) -> None:
 def test_an_agent_trained_on_varied_conditions_runs_on_a_named_scenario() -> None:
     """The training distribution (``vary``, ``sojourn``) stays with the training: the evaluated
     configuration's tracker and conditions apply, and the difference is reported."""
-    from imm_gym.cli.evaluate import agent_overrides
+    from imm_gym.cli.policies import agent_overrides
     from imm_gym.sim.presets import CONTINUOUS_BANK
 
     recorded = {
@@ -394,7 +396,7 @@ def test_an_agent_trained_on_varied_conditions_runs_on_a_named_scenario() -> Non
 def test_an_agent_is_scored_with_the_evaluation_s_divergence_cap() -> None:
     """An agent trained with another divergence threshold (or engine) is capped as every other
     policy of the evaluation is: those settings are the evaluation's, not the agent's."""
-    from imm_gym.cli.evaluate import agent_overrides
+    from imm_gym.cli.policies import agent_overrides
 
     recorded = {"action_mode": "stay", "divergence_error": 40.0, "divergence_cov": 1e6,
                 "engine": "numpy"}
@@ -407,7 +409,7 @@ def test_an_agent_starts_its_tracks_as_the_rules_do() -> None:
     velocity estimate) does not follow it to the evaluation: every policy's tracks start from
     the same prior and so give the same estimates (it did, and the agents trained across
     trackers started with a velocity prior twice as wide as the rules' on the suite)."""
-    from imm_gym.cli.evaluate import evaluate
+    from imm_gym.cli.comparison import evaluate
 
     class Zero:
         def predict(self, obs, state=None, episode_start=None, deterministic=True):

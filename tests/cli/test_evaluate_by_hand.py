@@ -6,8 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import imm_gym.cli.evaluate as cli
-from imm_gym.cli.evaluate import evaluate
+import imm_gym.cli.comparison as comparison
+import imm_gym.cli.policies as policies
+from imm_gym.cli.comparison import evaluate, paired_difference
+from imm_gym.cli.suite import evaluate_suite, suite_tally
 from imm_gym.evaluation.clairvoyant import clairvoyant_filter, hold_diverged
 from imm_gym.evaluation.metrics import tracking_errors
 from imm_gym.sim.env_config import EnvConfig
@@ -64,14 +66,14 @@ def test_a_tuner_trains_on_its_own_seeds(monkeypatch) -> None:
     the evaluation's ``seed + r``): every roll-out the tuner starts begins at 1_000_005 for
     ``--seed 5``."""
     calls = []
-    real = cli.rollout
+    real = policies.rollout
 
     def recording(policy, config, runs, seed, **kwargs):
         calls.append((runs, seed))
         return real(policy, config, runs, seed, **kwargs)
 
-    monkeypatch.setattr(cli, "rollout", recording)
-    cli.make_policy("best-fixed", EnvConfig(scenario="paper"), 5, train_runs=2)
+    monkeypatch.setattr(policies, "rollout", recording)
+    policies.make_policy("best-fixed", EnvConfig(scenario="paper"), 5, train_runs=2)
     assert calls and all(c == (2, 1_000_005) for c in calls)
 
 
@@ -80,14 +82,14 @@ def test_a_ci_whose_upper_bound_is_zero_is_level() -> None:
     reference's, run for run (a difference and a CI of exactly 0, as a tuner that picks the
     reference's TPM gives), or a CI ending at 0, includes zero: level, not below (nor above)."""
     err2 = np.random.default_rng(0).gamma(2.0, 50.0, (6, 5))
-    same = cli.paired_difference(err2, err2)
+    same = paired_difference(err2, err2)
     assert same["diff"] == same["low"] == same["high"] == 0.0
     ending_at_zero = {"diff": -0.5, "low": -1.0, "high": 0.0}
     scenarios = {
         "same": {"paired": {"differences": {"p": same}}},
         "edge": {"paired": {"differences": {"p": ending_at_zero}}},
     }
-    assert cli.suite_tally(scenarios, ["p"]) == {
+    assert suite_tally(scenarios, ["p"]) == {
         "p": {"below": [], "level": ["same", "edge"], "above": [], "skipped": []}
     }
 
@@ -98,10 +100,10 @@ def test_one_run_has_no_confidence_interval_and_two_have_one() -> None:
     are numbers around it."""
     rng = np.random.default_rng(1)
     a, b = rng.gamma(2.0, 50.0, (2, 7)), rng.gamma(2.0, 50.0, (2, 7))
-    one = cli.paired_difference(a[:1], b[:1])
+    one = paired_difference(a[:1], b[:1])
     assert one["low"] is None and one["high"] is None
     assert abs(one["diff"] - (_armse(a[:1]) - _armse(b[:1]))) < 1e-9
-    two = cli.paired_difference(a, b)
+    two = paired_difference(a, b)
     assert two["low"] is not None and two["low"] <= two["diff"] <= two["high"]
 
 
@@ -137,9 +139,10 @@ def test_a_bar_policy_a_case_does_not_admit_is_refused_before_any_work(
     def refuse(*args, **kwargs):
         raise AssertionError("a roll-out ran before the error")
 
-    monkeypatch.setattr(cli, "rollout", refuse)
+    for module in (comparison, policies):
+        monkeypatch.setattr(module, "rollout", refuse)
     with pytest.raises(ConfigError, match="ca: a policy of --bar, learned-prior, cannot run"):
-        cli.evaluate_suite(["fixed", "learned-prior"], str(folder), 2, 0, clairvoyant=False,
+        evaluate_suite(["fixed", "learned-prior"], str(folder), 2, 0, clairvoyant=False,
                            bar=["learned-prior"])
 
 
@@ -151,7 +154,7 @@ def test_with_a_bar_the_tally_sorts_the_cases_by_the_difference_against_it(tmp_p
     folder.mkdir()
     (folder / "one.yaml").write_text("scenario: random\n")
     (folder / "two.yaml").write_text("scenario: paper\n")
-    suite = cli.evaluate_suite(["fixed", "window", "tip-imm"], str(folder), 3, 0,
+    suite = evaluate_suite(["fixed", "window", "tip-imm"], str(folder), 3, 0,
                                clairvoyant=False, bar=["tip-imm"])
     assert set(suite["tally"]) == {"fixed", "window"}
     for name in ("fixed", "window"):

@@ -11,7 +11,8 @@ import pytest
 from helpers import printed_row
 
 from baselines import REGISTRY, BuildContext, FixedTPM, register
-from imm_gym.cli.evaluate import evaluate, main
+from imm_gym.cli.comparison import evaluate
+from imm_gym.cli.evaluate import main
 from imm_gym.evaluation.rollout import evaluation_config, rollout, score
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.validation import ConfigError
@@ -89,7 +90,7 @@ def test_roll_outs_of_other_targets_are_not_paired(monkeypatch) -> None:
     """The evaluation checks that every policy met the same targets before it pairs them."""
     import dataclasses
 
-    import imm_gym.cli.evaluate as cli
+    import imm_gym.cli.comparison as comparison
 
     calls = []
 
@@ -102,7 +103,7 @@ def test_roll_outs_of_other_targets_are_not_paired(monkeypatch) -> None:
             out = dataclasses.replace(out, truth=truth)
         return out
 
-    monkeypatch.setattr(cli, "rollout", moved)
+    monkeypatch.setattr(comparison, "rollout", moved)
     with pytest.raises(ValueError, match=r"'window' was rolled out on other targets .*\[1\]"):
         evaluate(["fixed", "window"], "random", 3, 0, clairvoyant=False)
 
@@ -249,8 +250,8 @@ def test_a_reference_not_evaluated_is_refused_before_any_work(monkeypatch) -> No
     def no_work(*args, **kwargs):
         raise AssertionError("work done before the reference was checked")
 
-    monkeypatch.setattr("imm_gym.cli.evaluate.make_policy", no_work)
-    monkeypatch.setattr("imm_gym.cli.evaluate.rollout", no_work)
+    monkeypatch.setattr("imm_gym.cli.comparison.make_policy", no_work)
+    monkeypatch.setattr("imm_gym.cli.comparison.rollout", no_work)
     with pytest.raises(ConfigError, match="--reference 'tip-imm' is not among the evaluated"):
         evaluate(["fixed", "best-fixed"], "paper", 200, 0, reference="tip-imm")
 
@@ -462,7 +463,9 @@ def test_meta_records_the_code_state_read_as_the_run_starts(tmp_path, monkeypatc
     """``meta.versions`` is read once, before any roll-out (it was read after them: a commit made
     while the evaluation ran was recorded as the code run), for one scenario, a suite (its meta
     and every case's) and a seed system."""
+    import imm_gym.cli.comparison as comparison
     import imm_gym.cli.evaluate as cli
+    import imm_gym.cli.suite as suite_module
     import imm_gym.papers.tuned_comparison as systems
 
     state = {"git_commit": "at start"}
@@ -474,8 +477,9 @@ def test_meta_records_the_code_state_read_as_the_run_starts(tmp_path, monkeypatc
 
         return wrapped
 
-    monkeypatch.setattr(cli, "versions", lambda *optional: dict(state))
-    monkeypatch.setattr(cli, "rollout", commit_while_running(cli.rollout))
+    for module in (comparison, suite_module, cli):
+        monkeypatch.setattr(module, "versions", lambda *optional: dict(state))
+    monkeypatch.setattr(comparison, "rollout", commit_while_running(comparison.rollout))
     monkeypatch.setattr(systems, "run_bank", commit_while_running(systems.run_bank))
     results, _ = evaluate(["fixed"], "paper", 2, 0, clairvoyant=False)
     assert results["meta"]["versions"] == {"git_commit": "at start"}
@@ -484,7 +488,7 @@ def test_meta_records_the_code_state_read_as_the_run_starts(tmp_path, monkeypatc
     folder.mkdir()
     for name in ("a", "b"):
         (folder / f"{name}.yaml").write_text("scenario: paper\n")
-    suite = cli.evaluate_suite(["fixed"], str(folder), 2, 0, clairvoyant=False)
+    suite = suite_module.evaluate_suite(["fixed"], str(folder), 2, 0, clairvoyant=False)
     assert suite["meta"]["versions"] == {"git_commit": "at start"}
     cases = [r["meta"]["versions"] for r in suite["scenarios"].values()]
     assert cases == [{"git_commit": "at start"}] * 2

@@ -7,7 +7,7 @@ import json
 import pytest
 
 import imm_gym.cli.evaluate as cli
-from imm_gym.cli.evaluate import evaluate
+from imm_gym.cli.comparison import evaluate
 from imm_gym.cli.tables import render_suite_table, render_tables
 
 

@@ -6,7 +6,7 @@ import json
 
 from helpers import printed_row
 
-from imm_gym.cli.evaluate import evaluate
+from imm_gym.cli.comparison import evaluate
 from imm_gym.cli.tables import render_suite_table, render_system_tables, render_tables
 
 

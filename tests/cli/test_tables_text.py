@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imm_gym.cli.evaluate import evaluate
+from imm_gym.cli.comparison import evaluate
 from imm_gym.cli.tables import divergence_note, render_suite_table, render_tables
 from imm_gym.evaluation.metrics import maneuver_starts
 

@@ -18,7 +18,8 @@ from agents import PRETRAINED
 from agents.ensemble import load_policy
 from baselines import make_baseline
 from imm_gym import EnvConfig, Sonar, TrackingCore
-from imm_gym.cli.evaluate import MAX_SEED, agent_overrides
+from imm_gym.cli.arguments import MAX_SEED
+from imm_gym.cli.policies import agent_overrides
 from imm_gym.cli.track import main
 
 SEEDS = [5, 6]

@@ -8,7 +8,7 @@ import json
 import pytest
 
 import train
-from imm_gym.cli.evaluate import evaluate
+from imm_gym.cli.comparison import evaluate
 from imm_gym.sim.config_file import read_env_config
 
 SMALL = "n_envs: 8\nn_steps: 32\nbatch_size: 128\nn_epochs: 1\n"

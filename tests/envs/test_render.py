@@ -462,7 +462,7 @@ def test_models_of_one_kind_are_told_apart_by_their_noise_or_index() -> None:
     """The shipped probes' two CVs (q 0.05 and q 5) were both ``CV`` in every legend and tick; a
     name no other model has stays as it is."""
     from imm_gym import EnvConfig
-    from imm_gym.cli.evaluate import read_env_config
+    from imm_gym.sim.config_file import read_env_config
     from imm_gym.sim.render import model_labels, short_labels
     from imm_gym.tracking.hetero import HeteroBank
     from imm_gym.tracking.models import MotionModel

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from helpers import load_example
 
-from imm_gym.cli.evaluate import evaluate, suite_configs
+from imm_gym.cli.comparison import evaluate
+from imm_gym.cli.suite import suite_configs
 from imm_gym.evaluation.rollout import armse_from_squared
 
 

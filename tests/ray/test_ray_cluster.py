@@ -51,7 +51,7 @@ def cluster():
 def test_evaluation_split_across_both_nodes_is_bit_identical(cluster):
     from agents import PRETRAINED
     from agents.ensemble import load_policy
-    from imm_gym.cli.evaluate import evaluate
+    from imm_gym.cli.comparison import evaluate
     from imm_gym.evaluation.distributed import ShardPool
 
     pool = ShardPool()
@@ -137,7 +137,7 @@ def test_more_env_runners_than_the_cluster_has_cpus_are_refused(
 def test_hetero_bank_evaluation_with_a_one_run_chunk_is_bit_identical(cluster):
     """3 runs on two shards: chunks of 2 and 1; the heterogeneous bank's mixture NIS of the run
     alone in its core equals its NIS among the others."""
-    from imm_gym.cli.evaluate import evaluate
+    from imm_gym.cli.comparison import evaluate
     from imm_gym.evaluation.distributed import ShardPool
 
     pool = ShardPool()
