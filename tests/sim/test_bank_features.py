@@ -5,6 +5,8 @@ turns the CT models absorb."""
 from __future__ import annotations
 
 import math
+import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ from imm_gym.seeding import streams
 from imm_gym.sim.conditions import draw_conditions
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.features import TURN_RATE_SCALE, bank_turn_rate
+from imm_gym.sim.features import TURN_RATE_SCALE, bank_turn_rate, turn_band
 from imm_gym.sim.presets import BANK_PRESETS, CONTINUOUS_BANK
 from imm_gym.tracking.models import MotionModel
 from imm_gym.validation import ConfigError
@@ -164,3 +166,52 @@ def test_the_features_of_the_shadows_estimate_need_the_shadow() -> None:
             EnvConfig(obs_features=(name,), shadow="none", reward="error")
     for name in ("turn_rate_bank", "maneuver_snr", "turn_rate"):
         EnvConfig(obs_features=(name,), shadow="none", reward="error")
+
+
+#: CT models of unequal noise at T = 2 s
+UNEQUAL = (
+    {"kind": "cv", "noise": "continuous", "intensity": 0.1},
+    {"kind": "ct", "turn_rate_deg": 4.0, "noise": "continuous", "intensity": 0.02},
+    {"kind": "ct", "turn_rate_deg": -4.0, "noise": "continuous", "intensity": 0.5},
+)
+
+
+def test_the_turn_band_is_the_ct_models_mean_noise() -> None:
+    """CT models of intensities 0.02 and 0.5 at T = 2 s absorb ``sqrt(0.02 / 2)`` and
+    ``sqrt(0.5 / 2)`` of acceleration: the band is their mean, 0.3 m/s², over ``|v| ω``."""
+    config = EnvConfig(bank=UNEQUAL, family={"T": 2.0}, obs_features=("turn_band",))
+    core = TrackingCore(config, 3)
+    core.reset(np.arange(3), [5, 6, 7])
+    for _ in range(3):
+        obs = core.step(np.zeros((3, 9))).obs[:, 6]
+        speed = np.hypot(core.velocity[:, 0], core.velocity[:, 1])
+        expected = np.log10(0.3 / (speed * math.radians(4.0))) / 2
+        assert np.all(np.abs(expected) < 1.0)  # no slot at the clip
+        np.testing.assert_allclose(obs, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_the_features_of_the_shadows_estimate_need_the_shadow() -> None:
+    """Without the shadow IMM (``shadow="none"``) a feature computed from its estimate is
+    refused; the combined estimate's are not."""
+    shadows = ("shadow_turn_rate_bank", "turn_magnitude_bank_ema", "shadow_turn_rate",
+               "shadow_turn_rate_ema", "turn_magnitude_ema", "shadow_probs", "shadow_evidence",
+               "stay_evidence")
+    for name in shadows:
+        with pytest.raises(ConfigError, match=f"'{name}' needs shadow 'fixed'"):
+            EnvConfig(obs_features=(name,), shadow="none", reward="error")
+    for name in ("turn_rate_bank", "maneuver_snr", "turn_rate"):
+        EnvConfig(obs_features=(name,), shadow="none", reward="error")
+
+
+def test_the_turn_band_of_a_target_at_rest_is_its_top_without_a_warning() -> None:
+    """At zero estimated speed a turn takes no acceleration: any noise absorbs it, the band is
+    at its top, 1, with no division by zero (slot 1 moving: the band by hand)."""
+    view = SimpleNamespace(
+        config=EnvConfig(bank=CONTINUOUS_BANK), sampling_period=np.array([1.0, 1.0]),
+        velocity_noise=np.full((2, 3), 0.3), velocity=np.array([[0.0, 0.0], [100.0, 0.0]]),
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        band = turn_band(view)
+    assert band[0] == 1.0
+    np.testing.assert_allclose(band[1], math.log10(0.3 / (100.0 * math.radians(4.0))) / 2)
