@@ -133,63 +133,6 @@ def test_the_turn_band_is_the_ct_models_mean_noise() -> None:
         np.testing.assert_allclose(obs, expected, rtol=1e-5, atol=1e-6)
 
 
-#: CT models of unequal noise at T = 2 s
-UNEQUAL = (
-    {"kind": "cv", "noise": "continuous", "intensity": 0.1},
-    {"kind": "ct", "turn_rate_deg": 4.0, "noise": "continuous", "intensity": 0.02},
-    {"kind": "ct", "turn_rate_deg": -4.0, "noise": "continuous", "intensity": 0.5},
-)
-
-
-def test_the_turn_band_is_the_ct_models_mean_noise() -> None:
-    """CT models of intensities 0.02 and 0.5 at T = 2 s absorb ``sqrt(0.02 / 2)`` and
-    ``sqrt(0.5 / 2)`` of acceleration: the band is their mean, 0.3 m/s², over ``|v| ω``."""
-    config = EnvConfig(bank=UNEQUAL, family={"T": 2.0}, obs_features=("turn_band",))
-    core = TrackingCore(config, 3)
-    core.reset(np.arange(3), [5, 6, 7])
-    for _ in range(3):
-        obs = core.step(np.zeros((3, 9))).obs[:, 6]
-        speed = np.hypot(core.velocity[:, 0], core.velocity[:, 1])
-        expected = np.log10(0.3 / (speed * math.radians(4.0))) / 2
-        assert np.all(np.abs(expected) < 1.0)  # no slot at the clip
-        np.testing.assert_allclose(obs, expected, rtol=1e-5, atol=1e-6)
-
-
-def test_the_features_of_the_shadows_estimate_need_the_shadow() -> None:
-    """Without the shadow IMM (``shadow="none"``) a feature computed from its estimate is
-    refused; the combined estimate's are not."""
-    shadows = ("shadow_turn_rate_bank", "turn_magnitude_bank_ema", "shadow_turn_rate",
-               "shadow_turn_rate_ema", "turn_magnitude_ema", "shadow_probs", "shadow_evidence",
-               "stay_evidence")
-    for name in shadows:
-        with pytest.raises(ConfigError, match=f"'{name}' needs shadow 'fixed'"):
-            EnvConfig(obs_features=(name,), shadow="none", reward="error")
-    for name in ("turn_rate_bank", "maneuver_snr", "turn_rate"):
-        EnvConfig(obs_features=(name,), shadow="none", reward="error")
-
-
-#: CT models of unequal noise at T = 2 s
-UNEQUAL = (
-    {"kind": "cv", "noise": "continuous", "intensity": 0.1},
-    {"kind": "ct", "turn_rate_deg": 4.0, "noise": "continuous", "intensity": 0.02},
-    {"kind": "ct", "turn_rate_deg": -4.0, "noise": "continuous", "intensity": 0.5},
-)
-
-
-def test_the_turn_band_is_the_ct_models_mean_noise() -> None:
-    """CT models of intensities 0.02 and 0.5 at T = 2 s absorb ``sqrt(0.02 / 2)`` and
-    ``sqrt(0.5 / 2)`` of acceleration: the band is their mean, 0.3 m/s², over ``|v| ω``."""
-    config = EnvConfig(bank=UNEQUAL, family={"T": 2.0}, obs_features=("turn_band",))
-    core = TrackingCore(config, 3)
-    core.reset(np.arange(3), [5, 6, 7])
-    for _ in range(3):
-        obs = core.step(np.zeros((3, 9))).obs[:, 6]
-        speed = np.hypot(core.velocity[:, 0], core.velocity[:, 1])
-        expected = np.log10(0.3 / (speed * math.radians(4.0))) / 2
-        assert np.all(np.abs(expected) < 1.0)  # no slot at the clip
-        np.testing.assert_allclose(obs, expected, rtol=1e-5, atol=1e-6)
-
-
 def test_the_features_of_the_shadows_estimate_need_the_shadow() -> None:
     """Without the shadow IMM (``shadow="none"``) a feature computed from its estimate is
     refused; the combined estimate's are not."""
