@@ -15,7 +15,7 @@ from imm_gym.seeding import streams
 from imm_gym.sim.conditions import draw_conditions
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
-from imm_gym.sim.features import TURN_RATE_SCALE, bank_turn_rate, turn_band
+from imm_gym.sim.features import TURN_RATE_SCALE, bank_turn_rate, log_decades, turn_band
 from imm_gym.sim.presets import BANK_PRESETS, CONTINUOUS_BANK
 from imm_gym.tracking.models import MotionModel
 from imm_gym.validation import ConfigError
@@ -158,3 +158,13 @@ def test_the_turn_band_of_a_target_at_rest_is_its_top_without_a_warning() -> Non
         band = turn_band(view)
     assert band[0] == 1.0
     np.testing.assert_allclose(band[1], math.log10(0.3 / (100.0 * math.radians(4.0))) / 2)
+
+
+def test_a_ratio_on_a_log_scale_reaches_both_ends() -> None:
+    """``log10 x / d`` clipped to [-1, 1]: ``d = 3`` decades either side of 1 are resolved, a
+    ratio of 10³ or more is 1, one of 10⁻³ or less (0 too) is -1."""
+    x = np.array([0.0, 1e-5, 1e-3, 0.1, 1.0, 10.0, 1e3, 1e5])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = log_decades(x, 3.0)
+    np.testing.assert_allclose(got, [-1.0, -1.0, -1.0, -1 / 3, 0.0, 1 / 3, 1.0, 1.0], atol=1e-15)
