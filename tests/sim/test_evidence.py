@@ -20,6 +20,7 @@ from imm_gym.sim.features import (
     EVIDENCE_STAYS,
     EVIDENCE_STEP_CLIP,
     STAY_EVIDENCE_FACTOR,
+    shadow_evidence_step,
     stay_evidence_step,
     stay_tpms,
 )
@@ -146,3 +147,22 @@ def test_the_stay_evidence_points_to_the_stay_that_tracks_better() -> None:
             core.step(np.zeros((16, core.action_dim)))
         best = stays[core.memories["stay_evidence"].argmax(axis=1)]
         assert np.mean(best <= 0.8 if low else best >= 0.9) >= 0.8, (name, best)
+
+
+def test_one_step_moves_the_shadow_evidence_by_at_most_the_clip_either_way() -> None:
+    """Bank A sure of model 0, the shadow of model 2: a measurement that fits model 0 (slot 0,
+    log-likelihoods 0, -20, -20) is evidence against the shadow's TPM, one that fits model 2
+    (slot 1) for it, each of about 20 nats, floored and capped at ``±EVIDENCE_STEP_CLIP``; a
+    measurement that fits every model alike (slot 2) is evidence of ``log 1 = 0``, and one that
+    fits models 0 and 1 (slot 3) is ``log 0.5`` against the shadow (which weighs them 0.5)."""
+    cbar = np.array([[1.0, 1e-12, 1e-12]] * 4)
+    cbar_s = np.array([[1e-12, 1e-12, 1.0]] * 3 + [[0.25, 0.25, 0.5]])
+    loglik = np.array([[0.0, -20.0, -20.0], [-20.0, -20.0, 0.0], [-1.0] * 3, [-1.0, -1.0, -30.0]])
+    view = SimpleNamespace(loglik=loglik, cbar=cbar, loglik_s=loglik, cbar_s=cbar_s)
+    by_hand = np.log(np.sum(cbar_s * np.exp(loglik), axis=1)) - np.log(
+        np.sum(cbar * np.exp(loglik), axis=1)
+    )
+    assert by_hand[0] < -19.0 and by_hand[1] > 19.0
+    expected = [-EVIDENCE_STEP_CLIP, EVIDENCE_STEP_CLIP, 0.0, by_hand[3]]
+    np.testing.assert_allclose(by_hand[3], np.log(0.5), atol=1e-6)
+    np.testing.assert_allclose(shadow_evidence_step(view), expected, rtol=1e-9, atol=1e-9)
