@@ -19,6 +19,7 @@ from imm_gym.sim.features import (
     EVIDENCE_SCALE,
     EVIDENCE_STAYS,
     EVIDENCE_STEP_CLIP,
+    FEATURES,
     STAY_EVIDENCE_FACTOR,
     shadow_evidence_step,
     stay_evidence_step,
@@ -166,3 +167,20 @@ def test_one_step_moves_the_shadow_evidence_by_at_most_the_clip_either_way() -> 
     expected = [-EVIDENCE_STEP_CLIP, EVIDENCE_STEP_CLIP, 0.0, by_hand[3]]
     np.testing.assert_allclose(by_hand[3], np.log(0.5), atol=1e-6)
     np.testing.assert_allclose(shadow_evidence_step(view), expected, rtol=1e-9, atol=1e-9)
+
+
+def test_the_stay_evidence_is_discounted_by_0_97_a_step() -> None:
+    """The memory's advance by hand (the feature's documented λ = 0.97): a measurement every
+    model fits alike adds nothing, so ``-1`` becomes ``-0.97``; the measurement of the clip's
+    example adds each stay's floored evidence."""
+    advance = FEATURES["stay_evidence"].memory.advance
+    even = SimpleNamespace(mu_s_prev=np.array([[0.2, 0.3, 0.5]]), loglik_s=np.full((1, M), -4.0))
+    np.testing.assert_allclose(advance(np.full((1, 7), -1.0), even), np.full((1, 7), -0.97),
+                               rtol=1e-12)
+    view = SimpleNamespace(mu_s_prev=np.array([[0.0, 0.0, 1.0]]),
+                           loglik_s=np.array([[-2.0, -2.0, -80.0]]))
+    stays = np.array([1 / 3, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995])
+    e = np.logaddexp(np.log1p(-stays) - 2.0, np.log(stays) - 80.0)
+    before = np.linspace(-2.0, 0.0, 7)[None]
+    np.testing.assert_allclose(advance(before, view), 0.97 * before + np.maximum(e - e.max(), -3),
+                               rtol=1e-12, atol=1e-12)
