@@ -79,3 +79,13 @@ def test_a_registered_scenario_is_a_scenario_name(straight: str) -> None:
     assert steps == 30
     with pytest.raises(ValueError, match="already"):
         catalog.register(straight, lambda: Scenario((Segment(5),)))
+
+
+def test_a_feature_name_is_registered_once() -> None:
+    # a second "tpm" would silently replace the built-in block of every configuration using it
+    builtin = features.FEATURES["tpm"]
+    with pytest.raises(ValueError, match="'tpm' is already registered"):
+        features.register(
+            Feature("tpm", "another", lambda M, m: 1, 0.0, 1.0, lambda v: v.mu[:, :1])
+        )
+    assert features.FEATURES["tpm"] is builtin
