@@ -89,3 +89,15 @@ def test_a_feature_name_is_registered_once() -> None:
             Feature("tpm", "another", lambda M, m: 1, 0.0, 1.0, lambda v: v.mu[:, :1])
         )
     assert features.FEATURES["tpm"] is builtin
+
+
+def test_the_datasheet_gives_each_block_its_bounds() -> None:
+    """The table's min and max columns are the observation space's bounds of each block (the
+    relative log-likelihood ``loglik`` lies in [-1, 0], the turn rate in [-1, 1])."""
+    rows = {row.split(" | ")[0][2:]: row for row in datasheet_table().splitlines()}
+    assert rows["``loglik``"].endswith(" | -1 | 0 |")
+    assert rows["``turn_rate``"].endswith(" | -1 | 1 |")
+    for name in features.FEATURES:
+        low, high = features.bounds((name,), 3, 2)
+        cells = rows[f"``{name}``"].split(" | ")
+        assert (float(cells[-2]), float(cells[-1].rstrip(" |"))) == (low[-1], high[-1]), name
