@@ -228,6 +228,11 @@ def test_a_rejected_step_leaves_every_part_as_it_was() -> None:
         ([{"env_kwargs": {}}], "keys env_kwargs and share"),
         ([{"env_kwargs": [], "share": 0.5}], "must be a mapping"),
         ([{"env_kwargs": {}, "share": 1.0}], r"share must be a number in \(0, 1\)"),
+        # a share of 0 (no slot) and a part with a key besides the two (a misspelled one)
+        ([{"env_kwargs": {}, "share": 0.2}, {"env_kwargs": {}, "share": 0}],
+         r"env_mixture\[1\].share must be a number in \(0, 1\), got 0"),
+        ([{"env_kwargs": {}, "share": 0.5, "shares": 0.2}],
+         r"env_mixture\[0\] must be a mapping with the keys env_kwargs and share"),
         ([{"env_kwargs": {}, "share": 0.6}, {"env_kwargs": {}, "share": 0.4}], "sum to 1"),
     ],
 )
