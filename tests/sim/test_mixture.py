@@ -135,6 +135,18 @@ def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
         MixtureCore([PAPER, two], [0.5, 0.5], 4)
 
 
+@pytest.mark.parametrize(
+    ("field", "value"), [("loglik_clip", 10.0), ("p_min", 1e-2), ("logit_scale", 2.0)]
+)
+def test_parts_that_scale_what_the_policy_reads_or_writes_otherwise_are_refused(
+    field, value
+) -> None:
+    # the loglik block divided by 10 in one part and by 20 (the default) in the other, or an
+    # action bounded or scaled otherwise, would not mean one thing to one network
+    with pytest.raises(ConfigError, match=rf"part 1 differs from part 0 in \['{field}'\]"):
+        MixtureCore([PAPER, SCALED.replace(**{field: value})], [0.5, 0.5], 4)
+
+
 def test_the_parts_give_each_entry_the_same_kind_of_model() -> None:
     """model_order bank: entry j is model j of each part's bank, so a part listing CT(-4), CV,
     CT(+4) would read and write CV's entry as CT(-4)'s; the canonical order reorders it. Banks
