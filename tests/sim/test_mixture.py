@@ -282,3 +282,15 @@ def test_a_further_part_gets_its_own_share_and_the_last_slots() -> None:
     assert [c.config.sensor.outlier_prob for c in core.cores] == [0.0, 0.1]
     env = TPMAdaptSB3VecEnv(8, config=POLICY, mixture=mixture)
     assert [c.sensor.outlier_prob for c in env.get_attr("config")] == [0.0] * 6 + [0.1] * 2
+
+
+def test_each_further_part_gets_its_own_share_in_order() -> None:
+    """Two further parts of shares 0.25 and 0.125 of 8 slots: the configuration keeps
+    ``(1 - 0.375) 8 = 5``, then 2 and 1 slots, in the order listed (outliers 0.1, then 0.2)."""
+    mixture = [
+        {"env_kwargs": {**POLICY, "sensor": {"outlier_prob": 0.1}}, "share": 0.25},
+        {"env_kwargs": {**POLICY, "sensor": {"outlier_prob": 0.2}}, "share": 0.125},
+    ]
+    core = MixtureCore.of(EnvConfig(**POLICY), mixture, {}, 8)
+    assert np.diff(core.starts).tolist() == [5, 2, 1]
+    assert [c.config.sensor.outlier_prob for c in core.cores] == [0.0, 0.1, 0.2]
