@@ -294,3 +294,12 @@ def test_each_further_part_gets_its_own_share_in_order() -> None:
     core = MixtureCore.of(EnvConfig(**POLICY), mixture, {}, 8)
     assert np.diff(core.starts).tolist() == [5, 2, 1]
     assert [c.config.sensor.outlier_prob for c in core.cores] == [0.0, 0.1, 0.2]
+
+
+@pytest.mark.parametrize("n", [4, 6])
+def test_the_streams_are_one_pair_per_slot(n) -> None:
+    # one pair too many was dropped silently, one too few blamed on the last part's 3 slots
+    mixture = MixtureCore([PAPER, SCALED], [0.4, 0.6], 5)
+    pairs = [(np.random.default_rng(s), np.random.default_rng(s + 100)) for s in range(n)]
+    with pytest.raises(ValueError, match=f"{n} stream pairs for 5 slots"):
+        mixture.set_streams(pairs)
