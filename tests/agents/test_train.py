@@ -391,9 +391,9 @@ def test_config_policy_kwargs_apply_key_by_key_over_the_entrys(tmp_path) -> None
 
 
 def test_a_config_restating_the_mixture_keeps_its_own(tmp_path) -> None:
-    from agents.training import load_hyperparams
+    from agents.training import DEFAULT_ENTRY, load_hyperparams
 
-    mixture = load_hyperparams(train.DEFAULT_ENTRY)[0]["env_mixture"]
+    mixture = load_hyperparams(DEFAULT_ENTRY)[0]["env_mixture"]
     mixture = [{**p, "env_kwargs": {**p["env_kwargs"], "mode_reward": 0.2}} for p in mixture]
     given = {"env_kwargs": {"mode_reward": 0.0}, "env_mixture": mixture}
     params = _hyperparams(tmp_path, json.dumps(given))
