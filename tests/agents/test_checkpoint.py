@@ -436,3 +436,17 @@ def test_resume_tensors_declaring_an_extra_tensor_are_refused_before_they_are_re
         )
         assert f"{TENSORS_FILE}: {message}" in refusal
         assert growth < 100 * 2**20, f"{name}: {growth / 2**20:.0f} MiB"
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("seed", True), ("num_timesteps", False), ("n_updates", True), ("episode_num", True),
+     ("episode_num", -1), ("episode_num", "3"), ("episode_num", 2.0)],
+)
+def test_a_counter_that_is_no_count_is_refused(saved, tmp_path, key, value) -> None:
+    """JSON's true and false are Python ints, 1 and 0: a seed or counter written as a boolean
+    was taken as one; the episode count (SB3's ``_episode_num``) was not checked at all."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _edit(directory, **{key: value})
+    with pytest.raises(ConfigError, match=rf"resume\.json: {key} must be a non-negative integer"):
+        read_checkpoint(directory)
