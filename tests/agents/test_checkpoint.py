@@ -450,3 +450,17 @@ def test_a_counter_that_is_no_count_is_refused(saved, tmp_path, key, value) -> N
     _edit(directory, **{key: value})
     with pytest.raises(ConfigError, match=rf"resume\.json: {key} must be a non-negative integer"):
         read_checkpoint(directory)
+
+
+def test_the_largest_seed_numpy_takes_is_kept(saved, tmp_path) -> None:
+    """The run seeds numpy's global generator, which takes 0 to 2**32 - 1: the last one is a
+    checkpoint's seed, the next is refused."""
+    np.random.RandomState().seed(2**32 - 1)
+    with pytest.raises(ValueError):
+        np.random.RandomState().seed(2**32)
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _edit(directory, seed=2**32 - 1)
+    assert read_checkpoint(directory)["seed"] == 4_294_967_295
+    _edit(directory, seed=2**32)
+    with pytest.raises(ConfigError, match=r"resume\.json: seed must be at most 4294967295"):
+        read_checkpoint(directory)
