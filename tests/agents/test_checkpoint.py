@@ -464,3 +464,14 @@ def test_the_largest_seed_numpy_takes_is_kept(saved, tmp_path) -> None:
     _edit(directory, seed=2**32)
     with pytest.raises(ConfigError, match=r"resume\.json: seed must be at most 4294967295"):
         read_checkpoint(directory)
+
+
+def test_a_reward_normalizer_of_variance_zero_is_kept(saved, tmp_path) -> None:
+    """Returns all alike have variance 0 (>= 0 is the bound; SB3 divides by sqrt(var + eps)),
+    a variance below it is refused."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _reward(var=0.0)(directory)
+    assert read_checkpoint(directory)["reward_normalizer"]["var"] == 0.0
+    _reward(var=-1e-12)(directory)
+    with pytest.raises(ConfigError, match=r"resume\.json: reward_normalizer must be null or"):
+        read_checkpoint(directory)
