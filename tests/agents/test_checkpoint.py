@@ -475,3 +475,13 @@ def test_a_reward_normalizer_of_variance_zero_is_kept(saved, tmp_path) -> None:
     _reward(var=-1e-12)(directory)
     with pytest.raises(ConfigError, match=r"resume\.json: reward_normalizer must be null or"):
         read_checkpoint(directory)
+
+
+@pytest.mark.parametrize("name", ["policy/action_net.weight", "optimizers/0/step", "rng/numpy"])
+def test_a_tensor_under_another_prefix_is_refused(saved, tmp_path, name) -> None:
+    """Only ``optimizer/...``, ``rng/torch`` and ``swa/...``: a name under another prefix, or
+    ``rng/`` with another generator, is no tensor of a checkpoint."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _tensors(directory, lambda t: t.__setitem__(name, torch.zeros(2)))
+    with pytest.raises(ConfigError, match=re.escape(f"{TENSORS_FILE}: {name!r} is no tensor")):
+        read_checkpoint(directory)
