@@ -485,3 +485,17 @@ def test_a_tensor_under_another_prefix_is_refused(saved, tmp_path, name) -> None
     _tensors(directory, lambda t: t.__setitem__(name, torch.zeros(2)))
     with pytest.raises(ConfigError, match=re.escape(f"{TENSORS_FILE}: {name!r} is no tensor")):
         read_checkpoint(directory)
+
+
+@pytest.mark.parametrize("kind", ["shape", "dtype"])
+def test_a_torch_generator_state_of_another_shape_or_dtype_is_refused(saved, tmp_path, kind):
+    """``rng/torch`` is refused when either its shape or its dtype is not that of
+    ``torch.get_rng_state()`` (a uint8 vector of 5056 bytes for the CPU's Mersenne Twister),
+    before training, not only when both differ."""
+    own = torch.get_rng_state()
+    assert own.dtype == torch.uint8 and own.dim() == 1
+    state = torch.zeros(7, dtype=torch.uint8) if kind == "shape" else own.float()
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _tensors(directory, lambda t: t.__setitem__("rng/torch", state))
+    with pytest.raises(ConfigError, match=rf"{TENSORS_FILE}: 'rng/torch' is torch\.\w+ \("):
+        read_checkpoint(directory)
