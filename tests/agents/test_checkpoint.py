@@ -499,3 +499,19 @@ def test_a_torch_generator_state_of_another_shape_or_dtype_is_refused(saved, tmp
     _tensors(directory, lambda t: t.__setitem__("rng/torch", state))
     with pytest.raises(ConfigError, match=rf"{TENSORS_FILE}: 'rng/torch' is torch\.\w+ \("):
         read_checkpoint(directory)
+
+
+def test_a_slightly_negative_second_moment_is_refused(saved, tmp_path) -> None:
+    """Adam takes the square root of ``exp_avg_sq``: one entry at -1e-6 is NaN in the first
+    update, as one at -10 is."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+
+    def dent(t: torch.Tensor) -> torch.Tensor:
+        t = t.clone()
+        t.view(-1)[0] = -1e-6
+        return t
+
+    _tensors(directory, _optimizer("exp_avg_sq", dent))
+    assert torch.isnan(torch.sqrt(torch.tensor(-1e-6)))
+    with pytest.raises(ConfigError, match=r"'optimizer/0/exp_avg_sq' holds negative values"):
+        read_checkpoint(directory)
