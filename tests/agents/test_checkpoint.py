@@ -515,3 +515,15 @@ def test_a_slightly_negative_second_moment_is_refused(saved, tmp_path) -> None:
     assert torch.isnan(torch.sqrt(torch.tensor(-1e-6)))
     with pytest.raises(ConfigError, match=r"'optimizer/0/exp_avg_sq' holds negative values"):
         read_checkpoint(directory)
+
+
+def test_one_update_needs_adams_state_none_needs_none(saved, tmp_path) -> None:
+    """A run that updated its weights once has Adam's moments for every parameter (a resumed
+    run without them would restart them silently); one before its first update has none."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    _tensors(directory, lambda t: [t.pop(k) for k in list(t) if k.startswith("optimizer/")])
+    _edit(directory, n_updates=1)
+    with pytest.raises(ConfigError, match=r"optimizer state for 0 of \d+ parameters \(n_updates 1"):
+        read_checkpoint(directory)
+    _edit(directory, n_updates=0)
+    assert read_checkpoint(directory)["n_updates"] == 0
