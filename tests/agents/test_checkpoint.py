@@ -527,3 +527,16 @@ def test_one_update_needs_adams_state_none_needs_none(saved, tmp_path) -> None:
         read_checkpoint(directory)
     _edit(directory, n_updates=0)
     assert read_checkpoint(directory)["n_updates"] == 0
+
+
+def test_restore_sets_the_recorded_episode_count(saved, tmp_path) -> None:
+    """Each counter from its own entry of ``resume.json`` (the next checkpoint writes it back)."""
+    directory = Path(shutil.copytree(saved.directory, tmp_path / "latest"))
+    recorded = json.loads((directory / "resume.json").read_text())
+    _edit(directory, episode_num=recorded["n_updates"] + 5)
+    state = read_checkpoint(directory)
+    model, env = build(saved.params)
+    restore(directory, state, model, env, WeightAverage(0))
+    assert model._episode_num == recorded["n_updates"] + 5
+    assert model._n_updates == recorded["n_updates"]
+    assert model.num_timesteps == recorded["num_timesteps"]
