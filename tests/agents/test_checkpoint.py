@@ -540,3 +540,16 @@ def test_restore_sets_the_recorded_episode_count(saved, tmp_path) -> None:
     assert model._episode_num == recorded["n_updates"] + 5
     assert model._n_updates == recorded["n_updates"]
     assert model.num_timesteps == recorded["num_timesteps"]
+
+
+def test_a_validation_score_of_zero_is_read_back(tmp_path) -> None:
+    """An ARMSE is >= 0: 0 (a perfect track) is a score, best or in the history; below is not."""
+    from agents.checkpoint import read_validation
+
+    record = {"armse_pos": 0, "timesteps": 0, "history": [{"timesteps": 0, "armse_pos": 0.0}]}
+    file = tmp_path / "validation.json"
+    file.write_text(json.dumps(record))
+    assert read_validation(file) == record
+    file.write_text(json.dumps({**record, "armse_pos": -0.5}))
+    with pytest.raises(ConfigError, match="armse_pos must be null or a finite number >= 0"):
+        read_validation(file)
