@@ -553,3 +553,19 @@ def test_a_validation_score_of_zero_is_read_back(tmp_path) -> None:
     file.write_text(json.dumps({**record, "armse_pos": -0.5}))
     with pytest.raises(ConfigError, match="armse_pos must be null or a finite number >= 0"):
         read_validation(file)
+
+
+@pytest.mark.parametrize(
+    "content",
+    ['{"armse_pos": 1.0, "timesteps": 1.5}', '{"armse_pos": 1.0, "timesteps": true}',
+     '{"armse_pos": 1.0, "history": [{"timesteps": 5, "armse_pos": 1.0, "step": 5}]}'],
+)
+def test_a_validation_record_of_another_shape_is_refused(content, tmp_path) -> None:
+    """A step count that is not an integer, or a history entry with a key besides
+    ``timesteps`` and ``armse_pos`` (a misspelt or foreign record), is refused naming the file."""
+    from agents.checkpoint import read_validation
+
+    file = tmp_path / "validation.json"
+    file.write_text(content)
+    with pytest.raises(ConfigError, match=re.escape(f"{file}: ")):
+        read_validation(file)
