@@ -569,3 +569,18 @@ def test_a_validation_record_of_another_shape_is_refused(content, tmp_path) -> N
     file.write_text(content)
     with pytest.raises(ConfigError, match=re.escape(f"{file}: ")):
         read_validation(file)
+
+
+def test_a_checkpoint_before_the_average_begins_records_none(saved, tmp_path) -> None:
+    """A run whose weight average has no snapshot yet (its start not reached) writes ``swa``
+    null and no ``swa/...`` tensors, and resumes; an empty average recorded would be refused."""
+    params, model, env = saved.params, saved.model, saved.env
+    target = tmp_path / "latest"
+    run = {"algo": "ppo", "env_id": ENV, "seed": 0, "hyperparams": jsonable(params)}
+    meta = {"critic_dims": 11, "num_timesteps": model.num_timesteps}
+    waiting = WeightAverage(10**9)
+    assert waiting.snapshots == 0
+    save_checkpoint(target, model, env, run, meta, waiting)
+    assert json.loads((target / "resume.json").read_text())["swa"] is None
+    assert not [name for name in load_file(target / TENSORS_FILE) if name.startswith("swa/")]
+    assert read_checkpoint(target)["swa"] is None
