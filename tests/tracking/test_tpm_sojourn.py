@@ -206,3 +206,17 @@ def test_an_empty_batch_of_tpms_is_valid() -> None:
     assert validate_tpm(np.zeros((0, 3, 3)), 3).shape == (0, 3, 3)
     core = TrackingCore(EnvConfig(scenario="paper"), 2)
     core.reset(np.array([], dtype=int), [], initial_tpms=np.zeros((0, 3, 3)))
+
+
+def test_a_model_never_reentered_keeps_exact_zeros() -> None:
+    """Model 0 (0.5 s) is left for model 1, and models 1 and 2 (2 s each) only swap: nothing
+    returns to model 0, so ``Π_10 = Π_20 = 0``. ``expm`` rounds them to about ``-1e-16``; they are
+    set to 0, not refused as negative entries. By hand: ``Π_00 = e^{-T/0.5}``, and the pair 1-2
+    is the two-model chain with ``a = b = 1/2``: ``Π_11 = (1 + e^{-T}) / 2``."""
+    T = 4.0
+    tpm = tpm_from_sojourn([0.5, 2.0, 2.0], T, [[0, 1, 0], [0, 0, 1], [0, 1, 0]])
+    np.testing.assert_array_equal(tpm[1:, 0], [0.0, 0.0])
+    assert tpm.min() == 0.0
+    assert tpm[0, 0] == pytest.approx(math.exp(-T / 0.5), rel=1e-9)
+    np.testing.assert_allclose(np.diag(tpm)[1:], (1 + math.exp(-T)) / 2, rtol=1e-12)
+    np.testing.assert_allclose(tpm[1:, 1:].sum(axis=1), 1.0, rtol=0, atol=1e-15)
