@@ -220,3 +220,12 @@ def test_a_model_never_reentered_keeps_exact_zeros() -> None:
     assert tpm[0, 0] == pytest.approx(math.exp(-T / 0.5), rel=1e-9)
     np.testing.assert_allclose(np.diag(tpm)[1:], (1 + math.exp(-T)) / 2, rtol=1e-12)
     np.testing.assert_allclose(tpm[1:, 1:].sum(axis=1), 1.0, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("shape", [(3,), (2, 3), (3, 2), (4, 3, 2), (3, 3, 3, 1)])
+def test_validate_tpm_refuses_a_matrix_that_is_not_m_by_m(shape: tuple[int, ...]) -> None:
+    """Only the last two axes ``(M, M)`` make a TPM: rows of the right length are not enough
+    (``(2, 3)`` entries of 1/3 have rows summing to 1)."""
+    with pytest.raises(ConfigError, match=r"tpm must have shape \(\.\.\., 3, 3\)"):
+        validate_tpm(np.full(shape, 1.0 / shape[-1]), 3)
+    assert validate_tpm(np.full((4, 3, 3), 1.0 / 3), 3).shape == (4, 3, 3)
