@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from imm_gym import ConfigError, EnvConfig, TrackingCore
 from imm_gym.tracking.tpm import (
     MAX_T_OVER_SOJOURN,
+    row_divergence,
     sojourn_generator,
     stay_tpm,
     tpm_from_sojourn,
@@ -229,3 +230,15 @@ def test_validate_tpm_refuses_a_matrix_that_is_not_m_by_m(shape: tuple[int, ...]
     with pytest.raises(ConfigError, match=r"tpm must have shape \(\.\.\., 3, 3\)"):
         validate_tpm(np.full(shape, 1.0 / shape[-1]), 3)
     assert validate_tpm(np.full((4, 3, 3), 1.0 / 3), 3).shape == (4, 3, 3)
+
+
+def test_probability_moved_onto_a_zero_entry_costs_27_6_nats() -> None:
+    """The documented ceiling: a reference entry 0 counts as 1e-12, so each unit of probability
+    moved onto it costs ``-ln 1e-12 = 12 ln 10 = 27.63`` nats. Every row of the swap moves all of
+    its probability onto a zero of the identity; half of it in ``[[0.5, 0.5], [0, 1]]``'s row 0."""
+    swap = np.array([[0.0, 1.0], [1.0, 0.0]])
+    assert row_divergence(swap, np.eye(2)) == pytest.approx(12 * math.log(10), rel=1e-12)
+    assert 27.6 < row_divergence(swap, np.eye(2)) < 27.7
+    half = np.array([[0.5, 0.5], [0.0, 1.0]])
+    by_hand = (0.5 * math.log(0.5) + 0.5 * math.log(0.5 / 1e-12)) / 2  # row 1 is the reference's
+    assert row_divergence(half, np.eye(2)) == pytest.approx(by_hand, rel=1e-12)
