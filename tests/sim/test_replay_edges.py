@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from baselines import make_baseline
+from imm_gym import EnvConfig
 from imm_gym.sim.replay import run_policy
 
 #: A target straight ahead on the x axis, 1000 m out (bearing 0), closing at 10 m/s.
@@ -28,3 +29,21 @@ def test_the_start_without_a_velocity_by_hand() -> None:
     np.testing.assert_array_equal(given.x0, [[1000.0, 0.0, -10.0, 0.0]])
     np.testing.assert_allclose(given.P0[0], np.diag([50.0**2, across**2, 25.0, 25.0]),
                                rtol=1e-12, atol=1e-12)
+
+
+def test_a_track_diverges_above_the_cap_not_at_it() -> None:
+    """Ten missed detections after the start: the position variance P_xx + P_yy grows each
+    step. A cap equal to step 4's is not exceeded there (diverged from step 5); a cap a hair
+    below it is (diverged from step 4) though P_xx alone stays below it; the estimates do not
+    depend on the cap."""
+    z = np.concatenate([Z[:1], np.full((10, 2), np.nan)])
+    free = run_policy(z, make_baseline("fixed"))
+    P = free.covariance[0]
+    var = P[:, 0, 0] + P[:, 1, 1]
+    assert np.all(np.diff(var) > 0) and not free.diverged[0]
+    assert P[4, 0, 0] < 0.99 * var[4] and var[3] < 0.99 * var[4]
+    for cap, at in ((var[4], 5), (var[4] * (1 - 1e-9), 4)):
+        out = run_policy(z, make_baseline("fixed"), EnvConfig(divergence_cov=float(cap)))
+        assert out.diverged_at.tolist() == [at], cap
+        assert out.diverged[0]
+        np.testing.assert_array_equal(out.estimate, free.estimate)
