@@ -6,9 +6,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from baselines import make_baseline
-from imm_gym import EnvConfig
+from imm_gym import ConfigError, EnvConfig
 from imm_gym.sim.replay import run_policy
 
 #: A target straight ahead on the x axis, 1000 m out (bearing 0), closing at 10 m/s.
@@ -47,3 +48,11 @@ def test_a_track_diverges_above_the_cap_not_at_it() -> None:
         assert out.diverged_at.tolist() == [at], cap
         assert out.diverged[0]
         np.testing.assert_array_equal(out.estimate, free.estimate)
+
+
+def test_one_row_is_no_track() -> None:
+    """A sequence of one row is the track's start without a step: refused (K >= 1)."""
+    with pytest.raises(ConfigError, match=r"z must be \(N, K\+1, 2\) with K >= 1"):
+        run_policy(Z[:1], make_baseline("fixed"))
+    with pytest.raises(ConfigError, match=r"with K >= 1"):
+        run_policy(np.stack([Z[:1], Z[:1]]), make_baseline("fixed"))
