@@ -56,3 +56,12 @@ def test_one_row_is_no_track() -> None:
         run_policy(Z[:1], make_baseline("fixed"))
     with pytest.raises(ConfigError, match=r"with K >= 1"):
         run_policy(np.stack([Z[:1], Z[:1]]), make_baseline("fixed"))
+
+
+def test_every_sequence_starts_with_a_detection() -> None:
+    """Two sequences, the second's first row a missed detection: refused, though the first's
+    is a detection."""
+    z = np.stack([Z, Z])
+    z[1, 0] = np.nan
+    with pytest.raises(ConfigError, match=r"z\[:, 0\] initiates the track"):
+        run_policy(z, make_baseline("fixed"))
