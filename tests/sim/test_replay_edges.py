@@ -65,3 +65,15 @@ def test_every_sequence_starts_with_a_detection() -> None:
     z[1, 0] = np.nan
     with pytest.raises(ConfigError, match=r"z\[:, 0\] initiates the track"):
         run_policy(z, make_baseline("fixed"))
+
+
+def test_flags_as_floats_zero_and_one_are_taken() -> None:
+    """detected as 1.0/0.0 floats is the same missed detection as booleans."""
+    flags = np.array([1.0, 1.0, 0.0, 1.0, 1.0, 1.0])
+    as_floats = run_policy(Z, make_baseline("fixed"), detected=flags)
+    as_bools = run_policy(Z, make_baseline("fixed"), detected=flags.astype(bool))
+    np.testing.assert_array_equal(as_floats.estimate, as_bools.estimate)
+    missed = Z.copy()
+    missed[2] = np.nan
+    np.testing.assert_array_equal(run_policy(missed, make_baseline("fixed")).estimate,
+                                  as_floats.estimate)
