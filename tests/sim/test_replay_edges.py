@@ -77,3 +77,25 @@ def test_flags_as_floats_zero_and_one_are_taken() -> None:
     missed[2] = np.nan
     np.testing.assert_array_equal(run_policy(missed, make_baseline("fixed")).estimate,
                                   as_floats.estimate)
+
+
+class _TimeWatcher:
+    """The fixed TPM observing the time feature k / K: it keeps each observation it is given."""
+
+    def __init__(self) -> None:
+        self.fixed = make_baseline("fixed")
+        self.env_overrides = {**self.fixed.env_overrides, "obs_features": ("time",)}
+        self.seen: list[np.ndarray] = []
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        self.seen.append(obs.copy())
+        return self.fixed.predict(obs, state, episode_start, deterministic)
+
+
+def test_the_time_feature_counts_the_steps() -> None:
+    """A policy observing the time feature (the observation's last entry) of an 80-step
+    horizon sees 0, 1/80, ..., 4/80 before the five steps of six measurements."""
+    policy = _TimeWatcher()
+    run_policy(Z, policy, EnvConfig(family={"horizon": 80}))
+    seen = np.array([obs[0, -1] for obs in policy.seen])
+    np.testing.assert_allclose(seen, np.arange(5) / 80.0, rtol=1e-6, atol=0.0)
