@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from imm_gym.cli.track import main, tpm_columns
@@ -35,3 +37,21 @@ def test_eleven_diverged_tracks_name_ten_and_count_the_rest(
     assert "warning: 11 track(s) diverged" in err
     assert f"1 from then on): {listed} and 1 more" in err, err
     assert "'s10'" not in err
+
+
+def test_an_npz_with_a_velocity_and_x0_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """x0 and P0 start the track themselves: a velocity beside them would be ignored, so the
+    file is refused naming it."""
+    z = np.array([[1000.0, 0.1], [1010.0, 0.1], [1020.0, 0.1]])
+    np.savez(tmp_path / "z.npz", z=z, x0=np.array([995.0, 99.8, 0.0, 0.0]),
+             P0=100.0 * np.eye(4), velocity=np.array([3.0, -4.0]))
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--measurements", str(tmp_path / "z.npz"), "--policy", "fixed",
+              "--out", str(tmp_path / "out.npz")])
+    assert exit_info.value.code == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert re.search(r"z.npz: a track starts from velocity, or from x0 and P0 together, got "
+                     r"velocity, x0, P0", err), err
+    assert not (tmp_path / "out.npz").exists()
