@@ -184,3 +184,14 @@ def test_the_stay_evidence_is_discounted_by_0_97_a_step() -> None:
     before = np.linspace(-2.0, 0.0, 7)[None]
     np.testing.assert_allclose(advance(before, view), 0.97 * before + np.maximum(e - e.max(), -3),
                                rtol=1e-12, atol=1e-12)
+
+
+def test_the_shadow_evidence_is_discounted_by_0_9_and_0_97_a_step() -> None:
+    """The memory's advance by hand (the feature's documented λ = 0.9, 0.97): a shadow that
+    predicts the measurement as bank A does adds nothing, so ``[2, -2]`` becomes
+    ``[1.8, -1.94]``."""
+    advance = FEATURES["shadow_evidence"].memory.advance
+    loglik, cbar = np.array([[-3.0, -1.0, -7.0]]), np.array([[0.2, 0.3, 0.5]])
+    view = SimpleNamespace(loglik=loglik, cbar=cbar, loglik_s=loglik, cbar_s=cbar)
+    np.testing.assert_allclose(advance(np.array([[2.0, -2.0]]), view), [[1.8, -1.94]],
+                               rtol=1e-12)
