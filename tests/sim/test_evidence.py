@@ -4,6 +4,7 @@ a grid of stays, on the shadow's probabilities and likelihoods)."""
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -195,3 +196,17 @@ def test_the_shadow_evidence_is_discounted_by_0_9_and_0_97_a_step() -> None:
     view = SimpleNamespace(loglik=loglik, cbar=cbar, loglik_s=loglik, cbar_s=cbar)
     np.testing.assert_allclose(advance(np.array([[2.0, -2.0]]), view), [[1.8, -1.94]],
                                rtol=1e-12)
+
+
+def test_the_evidence_blocks_are_tanh_of_a_quarter_of_the_sums() -> None:
+    """4 nats of evidence read tanh(1) ≈ 0.76: the shadow's sums ``[4, -8]`` are
+    ``tanh(1), tanh(-2)``; the stays' sums are taken from the best's first, so ``[-1, 3, -5]``
+    reads ``tanh(-1), 0, tanh(-2)``."""
+    shadow = FEATURES["shadow_evidence"].observe(
+        SimpleNamespace(memories={"shadow_evidence": np.array([[4.0, -8.0]])})
+    )
+    np.testing.assert_allclose(shadow, [[math.tanh(1.0), math.tanh(-2.0)]], rtol=1e-12)
+    stays = FEATURES["stay_evidence"].observe(
+        SimpleNamespace(memories={"stay_evidence": np.array([[-1.0, 3.0, -5.0]])})
+    )
+    np.testing.assert_allclose(stays, [[math.tanh(-1.0), 0.0, math.tanh(-2.0)]], rtol=1e-12)
