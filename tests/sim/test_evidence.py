@@ -22,6 +22,7 @@ from imm_gym.sim.features import (
     EVIDENCE_STEP_CLIP,
     FEATURES,
     STAY_EVIDENCE_FACTOR,
+    evidence_stays,
     shadow_evidence_step,
     stay_evidence_step,
     stay_tpms,
@@ -210,3 +211,14 @@ def test_the_evidence_blocks_are_tanh_of_a_quarter_of_the_sums() -> None:
         SimpleNamespace(memories={"stay_evidence": np.array([[-1.0, 3.0, -5.0]])})
     )
     np.testing.assert_allclose(stays, [[math.tanh(-1.0), 0.0, math.tanh(-2.0)]], rtol=1e-12)
+
+
+def test_the_stays_weighed_are_the_documented_grid() -> None:
+    """The uniform stay ``1/M``, then 0.6, 0.8, 0.9, 0.95, 0.98 and 0.995 (the features'
+    descriptions); each TPM spreads the rest of its rows evenly."""
+    grid = [1 / 4, 0.6, 0.8, 0.9, 0.95, 0.98, 0.995]
+    np.testing.assert_allclose(evidence_stays(4), grid, rtol=1e-15)
+    tpms = stay_tpms(4)
+    off = 0.005 / 3
+    np.testing.assert_allclose(tpms[-1], np.full((4, 4), off) + np.eye(4) * (0.995 - off),
+                               rtol=1e-12)
