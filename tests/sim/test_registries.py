@@ -101,3 +101,14 @@ def test_the_datasheet_gives_each_block_its_bounds() -> None:
         low, high = features.bounds((name,), 3, 2)
         cells = rows[f"``{name}``"].split(" | ")
         assert (float(cells[-2]), float(cells[-1].rstrip(" |"))) == (low[-1], high[-1]), name
+
+
+def test_the_datasheet_names_what_a_block_needs() -> None:
+    # the meaning cell ends with what the block is computed from beyond bank A
+    meanings = {row.split(" | ")[0][2:]: row.split(" | ")[1]
+                for row in datasheet_table().splitlines() if row.startswith("| ``")}
+    needs = {"shadow_probs": " [shadow]", "stay_evidence": " [shadow]", "bank_b": " [parallel]",
+             "stay_bank_evidence": " [stay bank]", "tracking_index": " [linear bank]",
+             "loglik": " by it (M)"}
+    for name, end in needs.items():
+        assert meanings[f"``{name}``"].endswith(end), name
