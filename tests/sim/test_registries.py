@@ -112,3 +112,10 @@ def test_the_datasheet_names_what_a_block_needs() -> None:
              "loglik": " by it (M)"}
     for name, end in needs.items():
         assert meanings[f"``{name}``"].endswith(end), name
+
+
+def test_the_shadow_features_are_those_computed_from_the_shadow() -> None:
+    assert features.shadow_features() == (
+        "shadow_probs", "shadow_turn_rate", "shadow_turn_rate_ema", "turn_magnitude_ema",
+        "shadow_turn_rate_bank", "turn_magnitude_bank_ema", "shadow_evidence", "stay_evidence",
+    )
