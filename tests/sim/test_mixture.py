@@ -136,13 +136,16 @@ def test_the_parts_share_what_the_policy_reads_and_writes() -> None:
 
 
 @pytest.mark.parametrize(
-    ("field", "value"), [("loglik_clip", 10.0), ("p_min", 1e-2), ("logit_scale", 2.0)]
+    ("field", "value"),
+    [("loglik_clip", 10.0), ("p_min", 1e-2), ("logit_scale", 2.0),
+     ("detector_weights", "other.safetensors")],
 )
 def test_parts_that_scale_what_the_policy_reads_or_writes_otherwise_are_refused(
     field, value
 ) -> None:
     # the loglik block divided by 10 in one part and by 20 (the default) in the other, or an
-    # action bounded or scaled otherwise, would not mean one thing to one network
+    # action bounded or scaled otherwise, or another detector network's beliefs, would not
+    # mean one thing to one network
     with pytest.raises(ConfigError, match=rf"part 1 differs from part 0 in \['{field}'\]"):
         MixtureCore([PAPER, SCALED.replace(**{field: value})], [0.5, 0.5], 4)
 
