@@ -306,3 +306,9 @@ def test_the_streams_are_one_pair_per_slot(n) -> None:
     pairs = [(np.random.default_rng(s), np.random.default_rng(s + 100)) for s in range(n)]
     with pytest.raises(ValueError, match=f"{n} stream pairs for 5 slots"):
         mixture.set_streams(pairs)
+
+
+def test_the_mixture_is_its_first_part_s_configuration() -> None:
+    # what an agent trained on the mixture records as its settings
+    assert MixtureCore([PAPER, SCALED], [0.5, 0.5], 4).config is PAPER
+    assert MixtureCore([SCALED, PAPER], [0.5, 0.5], 4).config is SCALED
