@@ -312,3 +312,10 @@ def test_the_mixture_is_its_first_part_s_configuration() -> None:
     # what an agent trained on the mixture records as its settings
     assert MixtureCore([PAPER, SCALED], [0.5, 0.5], 4).config is PAPER
     assert MixtureCore([SCALED, PAPER], [0.5, 0.5], 4).config is SCALED
+
+
+def test_one_share_per_configuration() -> None:
+    with pytest.raises(ConfigError, match="2 mixture configurations for 1 shares"):
+        MixtureCore([PAPER, SCALED], [1.0], 4)
+    with pytest.raises(ConfigError, match="1 mixture configurations for 2 shares"):
+        MixtureCore([PAPER], [0.5, 0.5], 4)
