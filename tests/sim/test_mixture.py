@@ -319,3 +319,18 @@ def test_one_share_per_configuration() -> None:
         MixtureCore([PAPER, SCALED], [1.0], 4)
     with pytest.raises(ConfigError, match="1 mixture configurations for 2 shares"):
         MixtureCore([PAPER], [0.5, 0.5], 4)
+
+
+def test_a_config_file_s_reward_reaches_every_part() -> None:
+    """What an agent is trained as (its reward and reward scale, costs) given by a ``--config``
+    file applies to every part of the entry's mixture; each part's tracker (its sensor) stays
+    its own."""
+    from agents.train_setup import with_config
+
+    params = {"env_kwargs": {"scenario": "random"},
+              "env_mixture": [{"env_kwargs": {"sensor": {"sigma_r": 30.0}}, "share": 0.5}]}
+    extra = {"env_kwargs": {"reward": "error", "reward_scale": 5.0, "tpm_cost": 0.1,
+                            "sensor": {"sigma_r": 80.0}}}
+    part = with_config(params, extra)["env_mixture"][0]
+    assert part == {"share": 0.5, "env_kwargs": {"sensor": {"sigma_r": 30.0}, "reward": "error",
+                                                 "reward_scale": 5.0, "tpm_cost": 0.1}}
