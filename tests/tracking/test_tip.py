@@ -72,6 +72,12 @@ CASES = {
     # main model 0 holds (Delta_0 = 0 counts as growing: f_00 = alpha); model 1 grows -> (15),
     # model 2 shrinks -> (16)
     "steady_main": ([0.5, 0.25, 0.25], [0.5, 0.375, 0.125]),
+    # main model 0 grows; model 1 grows exactly as fast (Delta = 1/8, 1/8, -1/4): not "grows
+    # faster", so (16) for model 1 in both readings
+    "grow_tie": ([0.5, 0.25, 0.25], [0.625, 0.375, 0.0]),
+    # nothing moves (Delta = 0 everywhere): the main model counts as growing (f_00 = alpha), no
+    # other grows faster, so (16) for both in both readings
+    "steady_all": ([0.5, 0.25, 0.25], [0.5, 0.25, 0.25]),
 }
 
 
@@ -100,6 +106,17 @@ def test_hand_worked_values_of_the_spec_example() -> None:
     tpm = _core().tpm_from_action(_as_action(f, 2.0), np.array([TPM]))[0]
     np.testing.assert_allclose(tpm, expected, rtol=1e-12)
     np.testing.assert_allclose(tpm[0], [0.88 / 1.06, 0.09 / 1.06, 0.09 / 1.06], rtol=1e-12)
+
+
+def test_ties_with_the_main_models_change_take_eq16() -> None:
+    """``Delta_j = Delta_i`` is not ``Delta_j > Delta_i``: (16), ``f_ij = beta, f_ji = alpha``,
+    whether the main model grows (1/8 each) or holds (all 0), in both readings."""
+    for name in ("grow_tie", "steady_all"):
+        mu_prev, mu_now = CASES[name]
+        for reading in ("literal", "intent"):
+            f = tip_factors(np.array([mu_now]), np.array([mu_prev]), reading=reading)[0]
+            expected = [[ALPHA, BETA, BETA], [ALPHA, 1.0, 1.0], [ALPHA, 1.0, 1.0]]
+            np.testing.assert_array_equal(f, expected)
 
 
 def test_main_model_changed_gives_all_ones_and_keeps_the_tpm() -> None:
