@@ -324,3 +324,29 @@ def test_a_shipped_agent_acts_as_sb3_normalizes_and_stacks_its_frames() -> None:
         action, _ = policy.model.predict(stacked.copy(), deterministic=True)
         reference.append(np.clip(action[0], -1.0, 1.0))
     np.testing.assert_array_equal(np.array(actions), np.array(reference))
+
+
+def _with_network(source: Path, target: Path, policy: dict, **changes: object) -> Path:
+    """A copy of an agent directory whose agent.json describes the network ``policy`` (with
+    ``changes`` to its other entries) and whose weights are that network's, freshly built."""
+    from agents.network import build_policy, save_weights
+    from agents.schema import check_spec
+
+    directory = _copy(source, target, "agent.json", policy=policy, **changes)
+    save_weights(build_policy(check_spec("test", policy), "test"), directory)
+    return directory
+
+
+def test_a_network_writing_another_action_size_is_refused(tmp_path: Path) -> None:
+    """The shipped agent acts on a bank of 3 models with one stay logit each (env.json): its
+    network rebuilt as is loads, one writing 4 entries is refused though it reads the right
+    observation."""
+    shipped = load_agent(shipped_agent())
+    config = EnvConfig.build(shipped.env_overrides)
+    assert (len(config.bank), config.action_mode) == (3, "stay")
+    policy = json.loads((shipped_agent() / "agent.json").read_text())["policy"]
+    assert load_agent(_with_network(shipped_agent(), tmp_path / "same", policy)).obs_size == 44
+    agent = _with_network(shipped_agent(), tmp_path / "wide", {**policy, "action_size": 4})
+    with pytest.raises(ConfigError, match=r"writes 4, but the environment of .*env\.json gives "
+                       r"4 frames of 55 entries and takes 3"):
+        load_agent(agent)
