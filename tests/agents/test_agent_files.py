@@ -350,3 +350,17 @@ def test_a_network_writing_another_action_size_is_refused(tmp_path: Path) -> Non
     with pytest.raises(ConfigError, match=r"writes 4, but the environment of .*env\.json gives "
                        r"4 frames of 55 entries and takes 3"):
         load_agent(agent)
+
+
+def test_a_recurrent_agent_with_critic_only_entries_is_refused(tmp_path: Path) -> None:
+    """RecurrentPPO has no asymmetric critic: an LSTM network whose input holds the critic's
+    entries (4 frames of 44 + 11, the sizes agreeing) would act on the zeros put in their
+    place; it is refused naming critic_dims."""
+    lstm = {
+        "class": "MlpLstmPolicy", "observation_size": 4 * (44 + 11), "action_size": 3,
+        "net_arch": [8], "activation_fn": "tanh", "lstm_hidden_size": 4, "n_lstm_layers": 1,
+        "shared_lstm": False, "enable_critic_lstm": False,
+    }
+    agent = _with_network(shipped_agent(), tmp_path / "a", lstm, algo="recurrent-ppo")
+    with pytest.raises(ConfigError, match=r"agent\.json: critic_dims 11 with algo 'recurrent-ppo'"):
+        load_agent(agent)
