@@ -364,3 +364,21 @@ def test_a_recurrent_agent_with_critic_only_entries_is_refused(tmp_path: Path) -
     agent = _with_network(shipped_agent(), tmp_path / "a", lstm, algo="recurrent-ppo")
     with pytest.raises(ConfigError, match=r"agent\.json: critic_dims 11 with algo 'recurrent-ppo'"):
         load_agent(agent)
+
+
+def test_an_agent_json_without_critic_dims_has_no_critic_only_entries(tmp_path: Path) -> None:
+    """``critic_dims`` may be absent (a plain MlpPolicy agent): it is 0, the network reads the
+    environment's 4 frames of 44 entries, and it acts on them."""
+    import numpy as np
+
+    mlp = {"class": "MlpPolicy", "observation_size": 4 * 44, "action_size": 3, "net_arch": [8],
+           "activation_fn": "tanh"}
+    agent = _with_network(shipped_agent(), tmp_path / "a", mlp, normalize=False)
+    (agent / "vecnormalize.json").unlink()
+    meta = json.loads((agent / "agent.json").read_text())
+    del meta["critic_dims"]
+    (agent / "agent.json").write_text(json.dumps(meta))
+    policy = load_agent(agent)
+    assert (policy.critic_dims, policy.obs_size, policy.frame_stack) == (0, 44, 4)
+    action, _ = policy.predict(np.zeros((2, 44)))
+    assert action.shape == (2, 3)
