@@ -382,3 +382,12 @@ def test_an_agent_json_without_critic_dims_has_no_critic_only_entries(tmp_path: 
     assert (policy.critic_dims, policy.obs_size, policy.frame_stack) == (0, 44, 4)
     action, _ = policy.predict(np.zeros((2, 44)))
     assert action.shape == (2, 3)
+
+
+@pytest.mark.parametrize("key", ["seed", "num_timesteps"])
+def test_a_boolean_seed_or_step_count_is_refused(tmp_path: Path, key: str) -> None:
+    """JSON's true is Python's 1: agent.json's seed or step count written as a boolean is
+    refused, not taken as 1 (an export would name the member seed_True)."""
+    agent = _copy(shipped_agent(), tmp_path / "a", "agent.json", **{key: True})
+    with pytest.raises(ConfigError, match=rf"agent\.json: {key} must be an integer >= 0, got True"):
+        load_agent(agent)
