@@ -391,3 +391,12 @@ def test_a_boolean_seed_or_step_count_is_refused(tmp_path: Path, key: str) -> No
     agent = _copy(shipped_agent(), tmp_path / "a", "agent.json", **{key: True})
     with pytest.raises(ConfigError, match=rf"agent\.json: {key} must be an integer >= 0, got True"):
         load_agent(agent)
+
+
+def test_an_unknown_key_of_the_weight_average_record_is_refused(tmp_path: Path) -> None:
+    """agent.json's swa holds swa_start and snapshots only: a misspelt key with a valid count
+    is refused, not recorded silently."""
+    agent = _copy(shipped_agent(), tmp_path / "a", "agent.json",
+                  swa={"swa_start": 3_000_000, "snapshot": 245})
+    with pytest.raises(ConfigError, match=r"agent\.json: swa must map swa_start and snapshots"):
+        load_agent(agent)
