@@ -400,3 +400,12 @@ def test_an_unknown_key_of_the_weight_average_record_is_refused(tmp_path: Path) 
                   swa={"swa_start": 3_000_000, "snapshot": 245})
     with pytest.raises(ConfigError, match=r"agent\.json: swa must map swa_start and snapshots"):
         load_agent(agent)
+
+
+@pytest.mark.parametrize("key", ["count", "clip_obs", "epsilon"])
+def test_a_normalizer_count_clip_or_epsilon_of_zero_is_refused(tmp_path: Path, key: str) -> None:
+    """Each is positive: a clip of 0 clips every normalized entry to 0 (the agent would act
+    blind), an epsilon of 0 divides by a zero variance, a count of 0 is no statistic."""
+    agent = _copy(shipped_agent(), tmp_path / "a", "vecnormalize.json", **{key: 0.0})
+    with pytest.raises(ConfigError, match=rf"vecnormalize\.json: {key} must be a positive number"):
+        load_agent(agent)
