@@ -483,3 +483,22 @@ def test_a_tuned_file_is_typed_and_matches_its_policy(tmp_path) -> None:
         evaluate_system("seed003", ["bbsca"], runs=1, seed=0, tuned={"bbsca": str(sca)})
     rows = evaluate_system("seed003", ["sca"], runs=1, seed=0, tuned={"sca": str(sca)})
     assert rows["policies"]["sca"]["train_objective"] == 1.2
+
+
+@pytest.mark.parametrize("method", ["bbsca", "sca"])
+def test_failed_particles_of_the_first_swarm_count_as_infinite(method: str) -> None:
+    """A NaN value (a failed tracker) counts as ``inf`` from the first swarm on: the best is the
+    best finite particle, so a NaN never becomes the best, and every history entry is finite. On
+    the sphere centred at 0.7, NaN wherever ``theta_0 > 0.2``, the best has ``theta_0 <= 0.2``."""
+    swarms: list[np.ndarray] = []
+
+    def half_failed(theta: np.ndarray) -> np.ndarray:
+        swarms.append(theta.copy())
+        return np.where(theta[:, 0] > 0.2, np.nan, sphere(theta))
+
+    res = optimize(half_failed, 2, TunerConfig(method=method, generations=10, seed=3))
+    assert np.any(swarms[0][:, 0] > 0.2)  # the first swarm has failed particles
+    assert res.history[0] <= float(sphere(np.zeros(2))[0])  # particle 0, theta = 0, is finite
+    assert np.all(np.isfinite(res.history)) and np.all(np.diff(res.history) <= 0)
+    assert res.best[0] <= 0.2
+    assert res.value == pytest.approx(float(sphere(res.best)[0]))
