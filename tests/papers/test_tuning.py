@@ -20,6 +20,7 @@ from imm_gym.papers.tuning import (
     bank_objective,
     bare_bones_step,
     greedy_select,
+    innovation_mse,
     next_swarm,
     optimize,
     sine_cosine_step,
@@ -502,3 +503,17 @@ def test_failed_particles_of_the_first_swarm_count_as_infinite(method: str) -> N
     assert np.all(np.isfinite(res.history)) and np.all(np.diff(res.history) <= 0)
     assert res.best[0] <= 0.2
     assert res.value == pytest.approx(float(sphere(res.best)[0]))
+
+
+def test_innovation_mse_by_hand_and_inf_for_a_failed_tracker() -> None:
+    """``J = mean_{k, i} (nu / sigma)^2`` over the detected steps: tracker 0's residuals (3, 4)
+    and (1, 2) on sigma (1, 2) give (9 + 4 + 1 + 1) / 4; tracker 1 has the same finite residuals
+    but failed: ``inf``, not a number that could look good; tracker 2 detected nothing: NaN;
+    tracker 3 only its second step: (1 + 1) / 2."""
+    residual = np.tile(np.array([[3.0, 4.0], [1.0, 2.0]]), (4, 1, 1))
+    failed = np.array([False, True, False, False])
+    detected = np.array([[True, True], [True, True], [False, False], [False, True]])
+    J = innovation_mse(residual, np.array([1.0, 2.0]), failed, detected)
+    assert J[0] == 15.0 / 4 and J[1] == np.inf and np.isnan(J[2]) and J[3] == 1.0
+    every_step = innovation_mse(residual, np.array([1.0, 2.0]), failed)  # detected: all
+    np.testing.assert_array_equal(every_step, [15.0 / 4, np.inf, 15.0 / 4, 15.0 / 4])
