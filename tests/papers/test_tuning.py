@@ -517,3 +517,17 @@ def test_innovation_mse_by_hand_and_inf_for_a_failed_tracker() -> None:
     assert J[0] == 15.0 / 4 and J[1] == np.inf and np.isnan(J[2]) and J[3] == 1.0
     every_step = innovation_mse(residual, np.array([1.0, 2.0]), failed)  # detected: all
     np.testing.assert_array_equal(every_step, [15.0 / 4, np.inf, 15.0 / 4, 15.0 / 4])
+
+
+def test_a_tuned_bank_records_its_training_set_and_budget(tmp_path) -> None:
+    """``tune``'s notes name the training runs, the budget (P (G + 1) = 3 x 2 = 6 evaluations)
+    and the optimizer's settings, and a saved file keeps them under those keys."""
+    sensor = bbsca_sensor()
+    imm = bbsca_imm(sensor)
+    batch = draw(ManeuverFamily(), sensor, 2, 2_000_000)
+    config = TunerConfig(particles=3, generations=1, bounds=(-0.5, 0.5), seed=4)
+    tuned, _ = tune(imm, batch, stay_tpm(3, 0.9), sensor.sigma, config, bank="seed003")
+    expected = {"train_runs": 2, "evaluations": 6, "particles": 3, "generations": 1, "seed": 4}
+    assert tuned.notes == expected
+    tuned.save(tmp_path / "tuned.json")
+    assert TunedBank.load(tmp_path / "tuned.json").notes == expected
