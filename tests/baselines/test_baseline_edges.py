@@ -1,0 +1,44 @@
+"""Baselines at settings other than their defaults, worked by hand: a window longer than two,
+a ``logit_scale`` other than 4, AMP-IMM's own likelihood clip, the refusals at the edges of the
+parameters' ranges."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baselines import (
+    FixedTPM,
+    Registry,
+)
+from imm_gym import ConfigError, EnvConfig, TrackingCore
+
+
+def _set_core(policy, seed: int = 0) -> TrackingCore:
+    """A one-slot core of the paper scenario with the policy's settings."""
+    core = TrackingCore(EnvConfig.build({"scenario": "paper", **policy.env_overrides}), 1)
+    core.reset(np.array([0]), [seed])
+    return core
+
+
+def test_a_registered_class_is_checked_by_its_settings_on_the_banks_size() -> None:
+    """A class's check builds it for the configuration's bank (``cls(M)``) and applies its
+    settings: one stay per model fits a two-model bank; a floor above ``1/M`` is refused."""
+    registry = Registry()
+
+    @registry.register("per-model", help="one stay per model")
+    class PerModel(FixedTPM):
+        def __init__(self, n_models: int = 3) -> None:
+            super().__init__(n_models, (0.9,) * n_models)
+
+    @registry.register("high-floor", help="a floor no TPM of three models can keep")
+    class HighFloor(FixedTPM):
+        def __init__(self, n_models: int = 3) -> None:
+            super().__init__(n_models)
+            self.env_overrides["p_min"] = 0.4
+
+    two = EnvConfig.build({"bank": [{"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 3.0}]})
+    registry["per-model"].check(two)
+    registry["per-model"].check(EnvConfig())
+    with pytest.raises(ConfigError, match="p_min"):
+        registry["high-floor"].check(EnvConfig())
