@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 from baselines import (
+    REGISTRY,
     FixedTPM,
     Registry,
 )
 from imm_gym import ConfigError, EnvConfig, TrackingCore
+from imm_gym.sim.presets import BANK_PRESETS
 
 
 def _set_core(policy, seed: int = 0) -> TrackingCore:
@@ -42,3 +44,17 @@ def test_a_registered_class_is_checked_by_its_settings_on_the_banks_size() -> No
     registry["per-model"].check(EnvConfig())
     with pytest.raises(ConfigError, match="p_min"):
         registry["high-floor"].check(EnvConfig())
+
+
+def test_the_tuned_baselines_refuse_what_they_cannot_run_before_any_tuning() -> None:
+    """``bbsca`` refuses varied conditions, the detector priors a heterogeneous bank: their
+    registered checks, which the command line runs before any policy is tuned."""
+    varied = EnvConfig.build({**BANK_PRESETS["cv-ct-continuous"], "vary": {"T": (0.5, 2.0)}})
+    with pytest.raises(ConfigError, match="does not take varied conditions"):
+        REGISTRY["bbsca"].check(varied)
+    hetero = EnvConfig.build(dict(BANK_PRESETS["hetero"]))
+    for name in ("turn-rate-prior", "learned-prior"):
+        with pytest.raises(ConfigError, match="needs a linear bank"):
+            REGISTRY[name].check(hetero)
+    REGISTRY["best-fixed"].check(varied)  # a tuned baseline without a check admits both
+    REGISTRY["best-fixed"].check(hetero)
