@@ -9,6 +9,7 @@ import pytest
 
 from baselines import (
     REGISTRY,
+    BuildContext,
     FixedTPM,
     Registry,
 )
@@ -58,3 +59,10 @@ def test_the_tuned_baselines_refuse_what_they_cannot_run_before_any_tuning() -> 
             REGISTRY[name].check(hetero)
     REGISTRY["best-fixed"].check(varied)  # a tuned baseline without a check admits both
     REGISTRY["best-fixed"].check(hetero)
+
+
+def test_the_seeds_of_the_first_training_runs() -> None:
+    context = BuildContext(EnvConfig(), 100, 40, train_armse=lambda policy: 0.0)
+    assert context.train_seeds() == "100..139"
+    assert context.train_seeds(8) == "100..107"
+    assert context.train_seeds(1) == "100..100"
