@@ -409,3 +409,21 @@ def test_a_normalizer_count_clip_or_epsilon_of_zero_is_refused(tmp_path: Path, k
     agent = _copy(shipped_agent(), tmp_path / "a", "vecnormalize.json", **{key: 0.0})
     with pytest.raises(ConfigError, match=rf"vecnormalize\.json: {key} must be a positive number"):
         load_agent(agent)
+
+
+def test_the_normalizer_divides_by_its_files_epsilon(tmp_path: Path) -> None:
+    """vecnormalize.json's epsilon, not SB3's default 1e-8: an entry one above its mean with
+    variance 0.25 and epsilon 0.75 normalizes to 1 / sqrt(0.25 + 0.75) = 1, and with variance 0
+    to 1 / sqrt(0.75)."""
+    import numpy as np
+
+    stats = json.loads((shipped_agent() / "vecnormalize.json").read_text())
+    var = np.full(len(stats["var"]), 0.25)
+    var[::2] = 0.0
+    agent = _copy(shipped_agent(), tmp_path / "a", "vecnormalize.json", epsilon=0.75,
+                  var=var.tolist())
+    policy = load_agent(agent)
+    assert policy.epsilon == 0.75
+    z = policy.normalize(np.array(stats["mean"])[None] + 1.0)[0]
+    expected = np.where(var == 0.0, 1.0 / np.sqrt(0.75), 1.0)
+    np.testing.assert_allclose(z, expected, rtol=1e-6)
