@@ -66,3 +66,17 @@ def test_the_seeds_of_the_first_training_runs() -> None:
     assert context.train_seeds() == "100..139"
     assert context.train_seeds(8) == "100..107"
     assert context.train_seeds(1) == "100..100"
+
+
+def test_a_class_is_built_for_the_contexts_bank() -> None:
+    """``REGISTRY[name].build(context)`` of a class on a five-model bank: a policy of five
+    models, acting with 25 entries."""
+    five = EnvConfig.build(
+        {"bank": [{"kind": "cv"}, *[{"kind": "ct", "turn_rate_deg": w} for w in (2, -2, 5, -5)]]}
+    )
+    context = BuildContext(five, 0, 1, train_armse=lambda policy: 0.0)
+    for name in ("fixed", "window"):
+        policy, notes = REGISTRY[name].build(context)
+        assert (policy.n_models, notes) == (5, {})
+        actions, _ = policy.predict(np.full((2, 10), 0.2), None, np.ones(2, bool))
+        assert actions.shape == (2, 25)
