@@ -14,6 +14,7 @@ from baselines import (
     Registry,
 )
 from imm_gym import ConfigError, EnvConfig, TrackingCore
+from imm_gym.evaluation.rollout import evaluation_config
 from imm_gym.sim.presets import BANK_PRESETS
 
 
@@ -80,3 +81,16 @@ def test_a_class_is_built_for_the_contexts_bank() -> None:
         assert (policy.n_models, notes) == (5, {})
         actions, _ = policy.predict(np.full((2, 10), 0.2), None, np.ones(2, bool))
         assert actions.shape == (2, 25)
+
+
+def test_the_fixed_policy_keeps_a_configured_tpm_below_the_default_floor() -> None:
+    """Stay 0.9995: entries 0.00025, below the default ``p_min`` 1e-3; ``FixedTPM()`` (no stay
+    of its own) runs that TPM at every step, not one floored at 1e-3."""
+    policy = FixedTPM()
+    base = EnvConfig.build({"scenario": "paper", "initial_stay": 0.9995})
+    core = TrackingCore(evaluation_config(base, policy.env_overrides), 1)
+    core.reset(np.array([0]), [1])
+    expected = np.full((3, 3), 0.00025) + np.eye(3) * (0.9995 - 0.00025)
+    for _ in range(5):
+        result = core.step(policy.predict(core.observe())[0])
+        np.testing.assert_allclose(result.info["tpm"][0], expected, rtol=1e-12)
