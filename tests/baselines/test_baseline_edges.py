@@ -94,3 +94,16 @@ def test_the_fixed_policy_keeps_a_configured_tpm_below_the_default_floor() -> No
     for _ in range(5):
         result = core.step(policy.predict(core.observe())[0])
         np.testing.assert_allclose(result.info["tpm"][0], expected, rtol=1e-12)
+
+
+def test_a_fixed_stay_replaces_a_configured_sojourn() -> None:
+    """On a base whose initial TPM comes from mean sojourns, ``FixedTPM(3, 0.8)`` runs the
+    stay-0.8 TPM (0.1 off the diagonal), not the sojourns' TPM."""
+    policy = FixedTPM(3, 0.8)
+    base = EnvConfig.build({"scenario": "paper", "sojourn": [60.0, 20.0, 20.0]})
+    core = TrackingCore(evaluation_config(base, policy.env_overrides), 1)
+    core.reset(np.array([0]), [1])
+    expected = np.full((3, 3), 0.1) + np.eye(3) * 0.7
+    for _ in range(3):
+        result = core.step(policy.predict(core.observe())[0])
+        np.testing.assert_allclose(result.info["tpm"][0], expected, rtol=1e-12)
