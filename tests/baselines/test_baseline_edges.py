@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from baselines import (
+    AMPIMM,
     REGISTRY,
     BuildContext,
     FixedTPM,
@@ -16,6 +17,7 @@ from baselines import (
 from imm_gym import ConfigError, EnvConfig, TrackingCore
 from imm_gym.evaluation.rollout import evaluation_config
 from imm_gym.sim.presets import BANK_PRESETS
+from imm_gym.tracking.tpm import apply_floor
 
 
 def _set_core(policy, seed: int = 0) -> TrackingCore:
@@ -23,6 +25,38 @@ def _set_core(policy, seed: int = 0) -> TrackingCore:
     core = TrackingCore(EnvConfig.build({"scenario": "paper", **policy.env_overrides}), 1)
     core.reset(np.array([0]), [seed])
     return core
+
+
+def test_amp_imm_with_its_own_clip_and_logit_scale_applies_its_update() -> None:
+    """``AMPIMM(guard=0.5, loglik_clip=3, logit_scale=5)``: the environment runs the clip and
+    the logit scale of the policy, and the TPM it applies is the guarded update computed from the
+    tracker's log-likelihoods (relative to the best model's, clipped to ``[-3, 0]``)."""
+    amp = AMPIMM(guard=0.5, loglik_clip=3.0, logit_scale=5.0)
+    core = TrackingCore(EnvConfig.build({"scenario": "paper", **amp.env_overrides}), 2)
+    assert (core.config.loglik_clip, core.config.logit_scale) == (3.0, 5.0)
+    core.reset(np.arange(2), [3, 4])
+    # keep the initial stay-0.995 TPM: row logits 1 + log(pi / max pi) / 5
+    logits = 1.0 + np.log(np.where(np.eye(3, dtype=bool), 1.0, 0.005 / 2 / 0.995)) / 5.0
+    result = core.step(np.tile(logits.ravel(), (2, 1)))
+    adapted = clipped = 0
+    for _ in range(40):
+        before = core.tpm.copy()
+        relative = result.info["loglik"] - result.info["loglik"].max(axis=-1, keepdims=True)
+        clipped += int(np.sum(relative < -3.0))
+        lam = np.exp(np.maximum(relative, -3.0))  # Lambda_j, up to a common factor
+        expected = before.copy()
+        for n in range(2):
+            update = before[n] * (lam[n][None, :] / lam[n][:, None])
+            np.fill_diagonal(update, 0.0)
+            np.fill_diagonal(update, 1.0 - update.sum(axis=1))
+            if np.all(np.diag(update) > 0.5):
+                expected[n] = update
+        expected = apply_floor(expected, core.config.p_min)
+        action, _ = amp.predict(result.obs)
+        result = core.step(action)
+        np.testing.assert_allclose(core.tpm, expected, rtol=1e-6, atol=1e-9)
+        adapted += int(np.abs(expected - before).max() > 1e-6)
+    assert adapted >= 10 and clipped >= 1
 
 
 def test_a_registered_class_is_checked_by_its_settings_on_the_banks_size() -> None:
