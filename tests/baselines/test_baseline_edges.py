@@ -141,3 +141,16 @@ def test_a_fixed_stay_replaces_a_configured_sojourn() -> None:
     for _ in range(3):
         result = core.step(policy.predict(core.observe())[0])
         np.testing.assert_allclose(result.info["tpm"][0], expected, rtol=1e-12)
+
+
+def test_the_amp_guard_takes_a_diagonal_above_it_only() -> None:
+    """A diagonal equal to the guard is refused (seed 003: every diagonal entry *exceeds* it);
+    a guard just below the diagonal takes the update."""
+    tpm = np.array([[[0.8, 0.1, 0.1], [0.1, 0.8, 0.1], [0.1, 0.1, 0.8]]])
+    loglik = np.log(np.array([[1.0, 2.0, 2.0]]))
+    update = AMPIMM(guard=0.0).adapt(tpm, loglik)[0]
+    lowest = float(np.diag(update).min())
+    assert lowest == pytest.approx(0.6, rel=1e-12)  # row 0: 1 - 2 (2 * 0.1)
+    np.testing.assert_array_equal(AMPIMM(guard=lowest).adapt(tpm, loglik), tpm)
+    below = float(np.nextafter(lowest, 0.0))
+    np.testing.assert_array_equal(AMPIMM(guard=below).adapt(tpm, loglik)[0], update)
