@@ -242,3 +242,11 @@ def test_probability_moved_onto_a_zero_entry_costs_27_6_nats() -> None:
     half = np.array([[0.5, 0.5], [0.0, 1.0]])
     by_hand = (0.5 * math.log(0.5) + 0.5 * math.log(0.5 / 1e-12)) / 2  # row 1 is the reference's
     assert row_divergence(half, np.eye(2)) == pytest.approx(by_hand, rel=1e-12)
+
+
+@pytest.mark.parametrize("stay", [0.0, 0.5, 0.9, 1.0, (0.3,)])
+def test_one_model_always_stays(stay: float | tuple[float]) -> None:
+    """With one model there is nowhere to switch: the TPM is ``[[1]]`` whatever the stay."""
+    tpm = stay_tpm(1, stay)
+    np.testing.assert_array_equal(tpm, [[1.0]])
+    validate_tpm(tpm, 1)
