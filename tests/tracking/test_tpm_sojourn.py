@@ -250,3 +250,9 @@ def test_one_model_always_stays(stay: float | tuple[float]) -> None:
     tpm = stay_tpm(1, stay)
     np.testing.assert_array_equal(tpm, [[1.0]])
     validate_tpm(tpm, 1)
+
+
+@pytest.mark.parametrize("n_models", [0, -1])
+def test_stay_tpm_needs_a_model(n_models: int) -> None:
+    with pytest.raises(ConfigError, match="n_models"):
+        stay_tpm(n_models, 0.9)
