@@ -14,6 +14,7 @@ from baselines import (
     FixedTPM,
     Registry,
 )
+from baselines.amp_imm import tpm_to_logits
 from imm_gym import ConfigError, EnvConfig, TrackingCore
 from imm_gym.evaluation.rollout import evaluation_config
 from imm_gym.sim.presets import BANK_PRESETS
@@ -154,3 +155,15 @@ def test_the_amp_guard_takes_a_diagonal_above_it_only() -> None:
     np.testing.assert_array_equal(AMPIMM(guard=lowest).adapt(tpm, loglik), tpm)
     below = float(np.nextafter(lowest, 0.0))
     np.testing.assert_array_equal(AMPIMM(guard=below).adapt(tpm, loglik)[0], update)
+
+
+def test_set_actions_carry_entries_down_to_a_lower_floor() -> None:
+    """With ``p_min = 1e-4`` the environment applies rows with entries 5e-4, 6e-4, 8e-4 as
+    given (above exp(-8) times their row's largest, what the actions can express):
+    ``tpm_to_logits`` raises no entry to a floor of its own."""
+    cfg = EnvConfig(scenario="paper", action_mode="set", p_min=1e-4)
+    core = TrackingCore(cfg, 1)
+    core.reset(np.array([0]), [0])
+    target = np.array([[[0.9987, 5e-4, 8e-4], [0.05, 0.9, 0.05], [6e-4, 0.2, 0.7994]]])
+    got = core.tpm_from_action(tpm_to_logits(target, cfg.logit_scale).reshape(1, -1))
+    np.testing.assert_allclose(got, target, rtol=1e-12)
