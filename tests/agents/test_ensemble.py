@@ -296,3 +296,14 @@ def test_a_failed_ensemble_creates_no_directory(members, tmp_path, capsys) -> No
     assert exit_.value.code == 2
     assert "no trained agent" in capsys.readouterr().err
     assert not (tmp_path / "e").exists()
+
+
+def test_the_trackers_trained_across_are_listed_once(members, tmp_path) -> None:
+    """Two members trained across one tracker: the ensemble lists it once (the evaluation's
+    notes name each tracker any member was trained on, not one per member)."""
+    member = load_agent(members[0])
+    assert len(member.trained_across) == 1
+    ensemble = load_policy(write(tmp_path / "e", {
+        "format": "imm_gym-ensemble", "members": [str(m) for m in members],
+    }))
+    assert ensemble.trained_across == member.trained_across
