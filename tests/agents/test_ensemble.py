@@ -307,3 +307,21 @@ def test_the_trackers_trained_across_are_listed_once(members, tmp_path) -> None:
         "format": "imm_gym-ensemble", "members": [str(m) for m in members],
     }))
     assert ensemble.trained_across == member.trained_across
+
+
+def test_an_ensemble_shares_the_models_only_when_every_member_does() -> None:
+    """One member reading the models by position (a network not shared by them) makes the
+    ensemble read them by position: the evaluation then notes models that differ."""
+    import copy
+
+    from agents import PRETRAINED_PER_MODEL
+
+    shipped = load_policy(PRETRAINED_PER_MODEL)
+    member = shipped.members[0] if isinstance(shipped, EnsemblePolicy) else shipped
+    assert member.shares_models
+    positional = copy.copy(member)
+    positional.spec = {**member.spec, "class": "MlpPolicy"}
+    assert not positional.shares_models
+    assert EnsemblePolicy([member, member]).shares_models
+    assert not EnsemblePolicy([member, positional]).shares_models
+    assert not EnsemblePolicy([positional, member]).shares_models
