@@ -1,0 +1,53 @@
+"""Each printed cell holds its own figure: hand-made results with a distinct value per column
+print those values, in their own columns, formatted as said."""
+
+from __future__ import annotations
+
+from helpers import printed_row
+
+from imm_gym.cli.tables import (
+    render_tables,
+)
+
+#: How diverged runs are scored, as the evaluation's meta gives it.
+DIVERGENCE = {"error_m": 5000.0, "scored": "held at the cap"}
+
+
+def _row(**changes: object) -> dict:
+    """A policy row whose every figure differs from the others."""
+    row = {
+        "armse_pos": 1.25, "armse_pos_x": 0.6, "armse_pos_y": 0.8, "armse_vel_x": 0.11,
+        "armse_vel_y": 0.22, "nis": {"inside": 0.95}, "nees": {"inside": 0.40},
+        "mode_accuracy": 0.8, "diverged": 2, "mode_prob_tv": 0.0125, "peak_error": 3.5,
+        "maneuver_response": 1.75,
+    }
+    return {**row, **changes}
+
+
+def _results() -> dict:
+    """Two policies, the second 1.5 m below the reference (95 % CI -2 to -1 m)."""
+    meta = {"scenario": "random", "runs": 4, "seeds": "0..3", "steps": 10, "filter": "ukf",
+            "divergence": DIVERGENCE,
+            "bootstrap": {"paired": {"resamples": 2000, "seed": 7, "level": 0.95}}}
+    policies = {"fixed": _row(), "tip-imm": _row(armse_pos=-0.25)}
+    differences = {"tip-imm": {"diff": -1.5, "low": -2.0, "high": -1.0, "relative": -0.125}}
+    return {"meta": meta, "policies": policies,
+            "paired": {"reference": "fixed", "differences": differences}}
+
+
+def _cells(printed: str, header: str, first: str) -> dict[str, str]:
+    """The cells of row ``first`` of the table whose header row has ``header``, by column."""
+    lines = printed.splitlines()
+    top = next(i for i, line in enumerate(lines) if line.startswith("┃") and header in line)
+    headers = [h.strip() for h in lines[top].strip("┃").split("┃")]
+    cells = printed_row("\n".join(lines[top + 1:]), first)
+    assert len(cells) == len(headers)
+    return dict(zip(headers, cells, strict=True))
+
+
+def test_the_armse_table_counts_each_policys_diverged_runs(capsys) -> None:
+    """A policy with 2 diverged runs prints 2 under "diverged", its other cells beside it."""
+    render_tables(_results())
+    cells = _cells(capsys.readouterr().out, "NEES ≤ χ²95", "fixed")
+    assert cells["diverged"] == "2"
+    assert cells["pos (m)"] == "1.2500" and cells["mode acc."] == "80.0%"
