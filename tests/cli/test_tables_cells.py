@@ -51,3 +51,10 @@ def test_the_armse_table_counts_each_policys_diverged_runs(capsys) -> None:
     cells = _cells(capsys.readouterr().out, "NEES ≤ χ²95", "fixed")
     assert cells["diverged"] == "2"
     assert cells["pos (m)"] == "1.2500" and cells["mode acc."] == "80.0%"
+
+
+def test_the_behaviour_table_formats_each_score(capsys) -> None:
+    render_tables(_results())
+    cells = _cells(capsys.readouterr().out, "maneuver response (m)", "fixed")
+    assert cells == {"policy": "fixed", "mode acc.": "80.0%", "mode-prob. TV / step": "0.0125",
+                     "peak error (m)": "3.500", "maneuver response (m)": "1.750"}
