@@ -6,6 +6,7 @@ from __future__ import annotations
 from helpers import printed_row
 
 from imm_gym.cli.tables import (
+    render_suite_table,
     render_tables,
 )
 
@@ -58,3 +59,23 @@ def test_the_behaviour_table_formats_each_score(capsys) -> None:
     cells = _cells(capsys.readouterr().out, "maneuver response (m)", "fixed")
     assert cells == {"policy": "fixed", "mode acc.": "80.0%", "mode-prob. TV / step": "0.0125",
                      "peak error (m)": "3.500", "maneuver response (m)": "1.750"}
+
+
+def test_the_suite_table_delta_and_tally(capsys) -> None:
+    """The suite's row gives the difference and its CI low to high; the tally line counts each
+    kind of case under its own name, the cases not run, and names the bar's policies."""
+    case = {**_results(), "meta": {"steps": 10, "divergence": DIVERGENCE}}
+    tally = {"tip-imm": {"below": ["a", "b"], "level": [], "above": ["c"], "skipped": ["d"]}}
+    suite = {"meta": {"suite": "s", "runs": 4, "seeds": "0..3", "reference": "fixed"},
+             "scenarios": {"paper": case}, "tally": tally}
+    render_suite_table(suite)
+    printed = capsys.readouterr().out
+    cells = printed_row(printed, "", "paper (10 steps)")
+    assert cells[1] == "tip-imm" and cells[-1] == "-1.50 [-2.00, -1.00]"
+    text = " ".join(printed.split())
+    assert ("tip-imm against fixed (1 cases, paired 95% CIs): below on 2, level on 0, above on 1; "
+            "not run on 1") in text
+    suite["meta"]["bar"] = ["tip-imm", "best-fixed"]
+    render_suite_table(suite)
+    text = " ".join(capsys.readouterr().out.split())
+    assert "tip-imm against the better of tip-imm and best-fixed (1 cases" in text
