@@ -79,3 +79,12 @@ def test_the_suite_table_delta_and_tally(capsys) -> None:
     render_suite_table(suite)
     text = " ".join(capsys.readouterr().out.split())
     assert "tip-imm against the better of tip-imm and best-fixed (1 cases" in text
+
+
+def test_a_policy_on_another_tracker_names_every_field(capsys) -> None:
+    results = _results()
+    results["policies"]["tip-imm"]["tracker_differs"] = ["sensor", "filter"]
+    render_tables(results)
+    text = " ".join(capsys.readouterr().out.split())
+    assert "tip-imm was trained on another tracker than the evaluated one (sensor, filter differ" \
+        in text
