@@ -6,6 +6,7 @@ from __future__ import annotations
 from helpers import printed_row
 
 from imm_gym.cli.tables import (
+    paper_setting,
     render_suite_table,
     render_tables,
 )
@@ -88,3 +89,11 @@ def test_a_policy_on_another_tracker_names_every_field(capsys) -> None:
     text = " ".join(capsys.readouterr().out.split())
     assert "tip-imm was trained on another tracker than the evaluated one (sensor, filter differ" \
         in text
+
+
+def test_the_papers_rows_not_beside_a_configuration_file() -> None:
+    """Table 2's rows are beside the paper's setting only: not when a configuration file set the
+    tracker, though the scenario, bank and filter are the paper's."""
+    meta = {"scenario": "paper", "env_config": None, "bank": "paper", "filter": "ukf"}
+    assert paper_setting(meta)
+    assert not paper_setting({**meta, "env_config": {"sensor": {"sigma_r": 20.0}}})
