@@ -6,8 +6,10 @@ from __future__ import annotations
 from helpers import printed_row
 
 from imm_gym.cli.tables import (
+    SYSTEM_COLUMNS,
     paper_setting,
     render_suite_table,
+    render_system_tables,
     render_tables,
 )
 
@@ -97,3 +99,19 @@ def test_the_papers_rows_not_beside_a_configuration_file() -> None:
     meta = {"scenario": "paper", "env_config": None, "bank": "paper", "filter": "ukf"}
     assert paper_setting(meta)
     assert not paper_setting({**meta, "env_config": {"sensor": {"sigma_r": 20.0}}})
+
+
+def test_the_system_table_shares_and_the_papers_row(capsys) -> None:
+    """NIS inside its bound 95 % of the time prints as 95.0 %; the seed-002 paper row gives the
+    paper's figures it has and "—" for the others."""
+    row = {key: 0.5 for key, _, _ in SYSTEM_COLUMNS}
+    row["nis_inside"], row["nees_inside"] = 0.95, 0.4
+    meta = {"scenario": "seed002", "runs": 1, "seeds": "0..0", "steps": 10}
+    render_system_tables({"meta": meta, "policies": {"fixed": row},
+                          "paper": {"pos_rmse": 1.23456}})
+    printed = capsys.readouterr().out
+    cells = _cells(printed, "pos RMSE (m)", "fixed")
+    assert cells["NIS ≤ χ²95"] == "95.0%" and cells["NEES ≤ χ²95"] == "40.0%"
+    paper = _cells(printed, "pos RMSE (m)", "seed 002 paper (their trajectory)")
+    assert paper["pos RMSE (m)"] == "1.2346"
+    assert [v for k, v in paper.items() if k not in ("policy", "pos RMSE (m)")] == ["—"] * 10
