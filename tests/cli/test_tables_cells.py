@@ -8,6 +8,7 @@ from helpers import printed_row
 from imm_gym.cli.tables import (
     SYSTEM_COLUMNS,
     paper_setting,
+    policy_label,
     render_suite_table,
     render_system_tables,
     render_tables,
@@ -115,3 +116,11 @@ def test_the_system_table_shares_and_the_papers_row(capsys) -> None:
     paper = _cells(printed, "pos RMSE (m)", "seed 002 paper (their trajectory)")
     assert paper["pos RMSE (m)"] == "1.2346"
     assert [v for k, v in paper.items() if k not in ("policy", "pos RMSE (m)")] == ["—"] * 10
+
+
+def test_a_found_stay_keeps_three_significant_digits() -> None:
+    """A stay of 0.995 prints as 0.995, not rounded to another stay (0.99)."""
+    assert policy_label("best-fixed", {"stay": 0.995}) == "best-fixed (stay 0.995)"
+    assert policy_label("best-fixed-rows", {"stays": [0.995, 0.5]}) == (
+        "best-fixed-rows (stays 0.995/0.5)"
+    )
