@@ -531,3 +531,16 @@ def test_a_tuned_bank_records_its_training_set_and_budget(tmp_path) -> None:
     assert tuned.notes == expected
     tuned.save(tmp_path / "tuned.json")
     assert TunedBank.load(tmp_path / "tuned.json").notes == expected
+
+
+def test_a_tuned_file_giving_a_field_twice_is_refused(tmp_path) -> None:
+    """JSON keeps the last of two equal keys; a tuned file with ``bank`` or ``q_scale`` twice is
+    ambiguous, and refused naming the key instead of tuning the bank with the second factors."""
+    for body, key in (
+        ('{"bank": "seed003", "bank": "seed002", "q_scale": [1, 1, 1]}', "bank"),
+        ('{"bank": "seed003", "q_scale": [1, 1, 1], "q_scale": [2, 2, 2]}', "q_scale"),
+    ):
+        twice = tmp_path / f"{key}.json"
+        twice.write_text(body)
+        with pytest.raises(ConfigError, match=rf"cannot read.*key '{key}' given twice"):
+            TunedBank.load(twice)
