@@ -544,3 +544,14 @@ def test_a_tuned_file_giving_a_field_twice_is_refused(tmp_path) -> None:
         twice.write_text(body)
         with pytest.raises(ConfigError, match=rf"cannot read.*key '{key}' given twice"):
             TunedBank.load(twice)
+
+
+def test_the_step_scale_and_its_decay_must_be_positive() -> None:
+    """``a = 0`` or ``lambda = 0`` would be no step or no decay of BBSCA's exponential schedule:
+    both refused naming the field; the smallest positive values are kept."""
+    for field in ("a", "decay"):
+        with pytest.raises(ConfigError, match=rf"tuner\.{field}"):
+            TunerConfig(**{field: 0.0})
+        with pytest.raises(ConfigError, match=rf"tuner\.{field}"):
+            TunerConfig(**{field: -1.0})
+        assert getattr(TunerConfig(**{field: 1e-9}), field) == 1e-9
