@@ -13,6 +13,7 @@ from baselines import (
     BuildContext,
     FixedTPM,
     Registry,
+    SlidingWindowTPM,
 )
 from baselines.amp_imm import tpm_to_logits
 from imm_gym import ConfigError, EnvConfig, TrackingCore
@@ -26,6 +27,36 @@ def _set_core(policy, seed: int = 0) -> TrackingCore:
     core = TrackingCore(EnvConfig.build({"scenario": "paper", **policy.env_overrides}), 1)
     core.reset(np.array([0]), [seed])
     return core
+
+
+def test_a_window_of_three_counts_the_last_three_transitions_at_its_logit_scale() -> None:
+    """Window 3, kappa 2, prior stay 0.7, logit_scale 2 after five transitions: the TPM the
+    environment applies is ``2 pi0 + sum of the last three outer(mu(t-1), mu(t))``, rows
+    normalised (the oldest two transitions have left the window)."""
+    w = SlidingWindowTPM(window=3, kappa=2.0, prior_stay=0.7, logit_scale=2.0)
+    mu = np.array(
+        [
+            [0.6, 0.3, 0.1],
+            [0.5, 0.4, 0.1],
+            [0.2, 0.7, 0.1],
+            [0.1, 0.1, 0.8],
+            [0.3, 0.3, 0.4],
+            [0.9, 0.05, 0.05],
+        ]
+    )
+    _, state = w.predict(np.concatenate([mu[0], mu[0]])[None], None, np.array([True]))
+    for k in range(5):
+        actions, state = w.predict(
+            np.concatenate([mu[k + 1], mu[k]])[None], state, np.array([False])
+        )
+    prior = np.array([[0.7, 0.15, 0.15], [0.15, 0.7, 0.15], [0.15, 0.15, 0.7]])
+    expected = 2.0 * prior
+    for k in (2, 3, 4):
+        expected += np.outer(mu[k], mu[k + 1])
+    expected /= expected.sum(axis=1, keepdims=True)
+    assert w.env_overrides["logit_scale"] == 2.0
+    got = _set_core(w).tpm_from_action(actions)
+    np.testing.assert_allclose(got[0], expected, rtol=1e-12)
 
 
 def test_amp_imm_with_its_own_clip_and_logit_scale_applies_its_update() -> None:
