@@ -10,6 +10,7 @@ import pytest
 from baselines import (
     AMPIMM,
     REGISTRY,
+    TIPIMM,
     BuildContext,
     FixedTPM,
     Registry,
@@ -173,6 +174,26 @@ def test_a_fixed_stay_replaces_a_configured_sojourn() -> None:
     for _ in range(3):
         result = core.step(policy.predict(core.observe())[0])
         np.testing.assert_allclose(result.info["tpm"][0], expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("build", "message"),
+    [
+        (lambda: TIPIMM(beta=0.4), r"max_factor must be at least alpha and 1/beta \(2\.5\)"),
+        (lambda: TIPIMM(alpha=1.5, beta=0.5, max_factor=1.8), r"1/beta \(2\.0\)"),
+        (lambda: TIPIMM(floor=1 / 3), r"floor must be in \[0\.0, 0\.333\d*\)"),
+        (lambda: TIPIMM(alpha=1.0), r"alpha must be in \(1\.0, inf\)"),
+        (lambda: SlidingWindowTPM(window=0), r"window must be an integer in \[1, inf\)"),
+        (lambda: AMPIMM(logit_scale=0.0), r"logit_scale must be in \(0\.0, inf\)"),
+        (lambda: SlidingWindowTPM(logit_scale=-1.0), r"logit_scale must be in \(0\.0, inf\)"),
+    ],
+)
+def test_the_edges_of_the_parameters_ranges_are_refused(build, message: str) -> None:
+    """At the open ends of the ranges: a shrink factor ``1/beta`` the scale range cannot express,
+    a floor of ``1/M`` (the uniform TPM, no rule left), ``alpha = 1`` (no growth), an empty
+    window, a logit scale of zero or below."""
+    with pytest.raises(ConfigError, match=message):
+        build()
 
 
 def test_the_amp_guard_takes_a_diagonal_above_it_only() -> None:
