@@ -20,7 +20,7 @@ from baselines.amp_imm import tpm_to_logits
 from imm_gym import ConfigError, EnvConfig, TrackingCore
 from imm_gym.evaluation.rollout import evaluation_config
 from imm_gym.sim.presets import BANK_PRESETS
-from imm_gym.tracking.tpm import apply_floor
+from imm_gym.tracking.tpm import apply_floor, stay_tpm
 
 
 def _set_core(policy, seed: int = 0) -> TrackingCore:
@@ -207,6 +207,24 @@ def test_the_amp_guard_takes_a_diagonal_above_it_only() -> None:
     np.testing.assert_array_equal(AMPIMM(guard=lowest).adapt(tpm, loglik), tpm)
     below = float(np.nextafter(lowest, 0.0))
     np.testing.assert_array_equal(AMPIMM(guard=below).adapt(tpm, loglik)[0], update)
+
+
+def test_predict_leaves_the_state_it_was_given_unchanged() -> None:
+    """The window's state passed to ``predict`` is not overwritten: predicting twice from the
+    same state, once as an episode start, gives the continued episode the window's counts."""
+    w = SlidingWindowTPM(window=4, kappa=1.0, prior_stay=0.8)
+    mu0, mu1 = np.array([0.6, 0.3, 0.1]), np.array([0.1, 0.8, 0.1])
+    _, state = w.predict(np.concatenate([mu0, mu0])[None], None, np.array([True]))
+    _, state = w.predict(np.concatenate([mu1, mu0])[None], state, np.array([False]))
+    kept = state.copy()
+    obs = np.concatenate([mu1, mu1])[None]
+    w.predict(obs, state, np.array([True]))
+    np.testing.assert_array_equal(state, kept)
+    continued, _ = w.predict(obs, state, np.array([False]))
+    expected = stay_tpm(3, 0.8) + np.outer(mu0, mu1) + np.outer(mu1, mu1)
+    expected /= expected.sum(axis=1, keepdims=True)
+    got = 1.0 + (np.log(expected) - np.log(expected).max(axis=1, keepdims=True)) / 4.0
+    np.testing.assert_allclose(continued[0], got.ravel(), rtol=1e-12)
 
 
 def test_set_actions_carry_entries_down_to_a_lower_floor() -> None:
