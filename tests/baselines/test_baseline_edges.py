@@ -227,6 +227,15 @@ def test_predict_leaves_the_state_it_was_given_unchanged() -> None:
     np.testing.assert_allclose(continued[0], got.ravel(), rtol=1e-12)
 
 
+def test_the_searched_baselines_refuse_a_context_without_the_grid_scorer() -> None:
+    """``best-fixed``, ``best-fixed-rows`` and the detector priors score their grid in one
+    roll-out: a context without ``train_armse_from`` is refused by name, before any run."""
+    context = BuildContext(EnvConfig(), 0, 2, train_armse=lambda policy: pytest.fail("a run"))
+    for name in ("best-fixed", "best-fixed-rows", "turn-rate-prior", "learned-prior"):
+        with pytest.raises(ConfigError, match="offers train_armse_from"):
+            REGISTRY[name].build(context)
+
+
 def test_set_actions_carry_entries_down_to_a_lower_floor() -> None:
     """With ``p_min = 1e-4`` the environment applies rows with entries 5e-4, 6e-4, 8e-4 as
     given (above exp(-8) times their row's largest, what the actions can express):
