@@ -15,6 +15,7 @@ from baselines import (
     FixedTPM,
     Registry,
     SlidingWindowTPM,
+    stay_grid,
 )
 from baselines.amp_imm import tpm_to_logits
 from imm_gym import ConfigError, EnvConfig, TrackingCore
@@ -234,6 +235,13 @@ def test_the_searched_baselines_refuse_a_context_without_the_grid_scorer() -> No
     for name in ("best-fixed", "best-fixed-rows", "turn-rate-prior", "learned-prior"):
         with pytest.raises(ConfigError, match="offers train_armse_from"):
             REGISTRY[name].build(context)
+
+
+def test_the_stays_searched_for_three_models_are_the_documented_twelve() -> None:
+    """The README's grid: 1/M (the uniform TPM) to 0.999, twelve stays for three models."""
+    expected = (1 / 3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999)
+    assert stay_grid(3) == pytest.approx(expected, rel=1e-15)
+    assert stay_grid(2) == pytest.approx(expected[2:], rel=1e-15)  # 0.5 first, no stay below
 
 
 def test_set_actions_carry_entries_down_to_a_lower_floor() -> None:
