@@ -244,6 +244,22 @@ def test_the_stays_searched_for_three_models_are_the_documented_twelve() -> None
     assert stay_grid(2) == pytest.approx(expected[2:], rel=1e-15)  # 0.5 first, no stay below
 
 
+def test_the_learned_prior_searches_and_runs_with_the_learned_detector() -> None:
+    """``learned-prior`` is ``turn-rate-prior`` led by the network: every candidate scored and
+    the policy found read the ``learned`` detector, under their own name."""
+    detectors: set[tuple[str, str]] = set()
+
+    def train_armse_from(policy, tpms: np.ndarray) -> np.ndarray:
+        detectors.add((policy.name, policy.env_overrides["detector"]))
+        return np.abs(np.diagonal(tpms, axis1=1, axis2=2)[:, 0] - 0.9) + policy.share
+
+    context = BuildContext(EnvConfig(), 0, 3, lambda policy: pytest.fail("a run"), train_armse_from)
+    policy, notes = REGISTRY["learned-prior"].build(context)
+    assert detectors == {("learned-prior", "learned")}
+    assert (policy.name, policy.env_overrides["detector"]) == ("learned-prior", "learned")
+    assert (policy.stay, policy.share) == (0.9, 0.25) == (notes["stay"], notes["share"])
+
+
 def test_set_actions_carry_entries_down_to_a_lower_floor() -> None:
     """With ``p_min = 1e-4`` the environment applies rows with entries 5e-4, 6e-4, 8e-4 as
     given (above exp(-8) times their row's largest, what the actions can express):
