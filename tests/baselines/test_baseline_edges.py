@@ -260,6 +260,15 @@ def test_the_learned_prior_searches_and_runs_with_the_learned_detector() -> None
     assert (policy.stay, policy.share) == (0.9, 0.25) == (notes["stay"], notes["share"])
 
 
+def test_the_learned_prior_refuses_a_bank_its_network_does_not_read() -> None:
+    """The shipped network places beliefs on three models: a two-model bank is refused for
+    ``learned-prior`` and taken by ``turn-rate-prior``."""
+    two = EnvConfig.build({"bank": [{"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 3.0}]})
+    REGISTRY["turn-rate-prior"].check(two)
+    with pytest.raises(ConfigError, match="the network places beliefs on 3 models, the bank has 2"):
+        REGISTRY["learned-prior"].check(two)
+
+
 def test_set_actions_carry_entries_down_to_a_lower_floor() -> None:
     """With ``p_min = 1e-4`` the environment applies rows with entries 5e-4, 6e-4, 8e-4 as
     given (above exp(-8) times their row's largest, what the actions can express):
