@@ -325,3 +325,15 @@ def test_an_ensemble_shares_the_models_only_when_every_member_does() -> None:
     assert EnsemblePolicy([member, member]).shares_models
     assert not EnsemblePolicy([member, positional]).shares_models
     assert not EnsemblePolicy([positional, member]).shares_models
+
+
+def test_an_ensemble_is_loaded_by_its_file_as_by_its_directory(members, tmp_path) -> None:
+    """``--policy E/ensemble.json`` names the ensemble of ``E``, as ``E/agent.json`` names an
+    agent: the same members, acting alike."""
+    directory = write(tmp_path / "e", {
+        "format": "imm_gym-ensemble", "members": [str(m) for m in members],
+    })
+    by_file = load_policy(directory / ENSEMBLE_FILE)
+    assert isinstance(by_file, EnsemblePolicy) and len(by_file.members) == 2
+    frames = observations(by_file.members[0])
+    np.testing.assert_array_equal(roll(by_file, frames), roll(load_policy(directory), frames))
