@@ -337,3 +337,8 @@ def test_an_ensemble_is_loaded_by_its_file_as_by_its_directory(members, tmp_path
     assert isinstance(by_file, EnsemblePolicy) and len(by_file.members) == 2
     frames = observations(by_file.members[0])
     np.testing.assert_array_equal(roll(by_file, frames), roll(load_policy(directory), frames))
+
+
+def test_an_ensemble_of_no_member_is_refused() -> None:
+    with pytest.raises(ConfigError, match="an ensemble needs at least one member"):
+        EnsemblePolicy([], source="mine")
