@@ -3,14 +3,18 @@ bank it hands the environment (the optimizer itself is replaced by a fake, so th
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 import baselines.bbsca as bbsca
 from baselines import REGISTRY, BuildContext
-from imm_gym import EnvConfig, paper_bank
+from baselines.bbsca import scaled_bank
+from imm_gym import ConfigError, EnvConfig, paper_bank
 from imm_gym.papers.tuning import OptimResult, TunedBank, TunerConfig
 from imm_gym.sim.episodes import draw_batch
+from imm_gym.tracking.hetero import HeteroBank
 
 PAPER = EnvConfig(scenario="paper")
 FACTORS = (2.0, 0.5, 1.5)
@@ -50,3 +54,14 @@ def test_bbsca_tunes_on_the_first_fifth_of_the_training_runs(calls) -> None:
     assert policy.env_overrides["bank"] == tuple(
         m.scaled(s) for m, s in zip(bank, FACTORS, strict=True)
     )
+
+
+def test_the_factors_multiply_a_heterogeneous_banks_own() -> None:
+    """A heterogeneous bank's ``q_scale`` (0.5, 1, 2) times the factors (2, 3, 4) is
+    (1, 3, 8); a factor of zero or below, or one too few, is refused naming it."""
+    bank = dataclasses.replace(HeteroBank(), q_scale=(0.5, 1.0, 2.0))
+    assert scaled_bank(bank, (2.0, 3.0, 4.0)).q_scale == pytest.approx((1.0, 3.0, 8.0))
+    with pytest.raises(ConfigError, match=r"q_scale\[1\] must be in \(0\.0, inf\), got 0\.0"):
+        scaled_bank(paper_bank(), (1.0, 0.0, 1.0))
+    with pytest.raises(ConfigError, match=r"q_scale must have 3 entries \(one per model\)"):
+        scaled_bank(paper_bank(), (1.0, 1.0))
