@@ -10,7 +10,7 @@ import pytest
 
 import baselines.bbsca as bbsca
 from baselines import REGISTRY, BuildContext
-from baselines.bbsca import scaled_bank
+from baselines.bbsca import BBSCATunedIMM, scaled_bank
 from imm_gym import ConfigError, EnvConfig, paper_bank
 from imm_gym.papers.tuning import OptimResult, TunedBank, TunerConfig
 from imm_gym.sim.episodes import draw_batch
@@ -65,3 +65,9 @@ def test_the_factors_multiply_a_heterogeneous_banks_own() -> None:
         scaled_bank(paper_bank(), (1.0, 0.0, 1.0))
     with pytest.raises(ConfigError, match=r"q_scale must have 3 entries \(one per model\)"):
         scaled_bank(paper_bank(), (1.0, 1.0))
+
+
+def test_a_tuned_imm_with_a_stay_of_its_own_runs_that_stay() -> None:
+    policy = BBSCATunedIMM(paper_bank(), FACTORS, stay=0.8)
+    assert policy.stay == 0.8 and policy.env_overrides["initial_stay"] == 0.8
+    assert policy.env_overrides["bank"] == scaled_bank(paper_bank(), FACTORS)
