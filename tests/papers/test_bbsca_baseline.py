@@ -14,7 +14,8 @@ from baselines.bbsca import BBSCATunedIMM, scaled_bank
 from imm_gym import ConfigError, EnvConfig, paper_bank
 from imm_gym.papers.tuning import OptimResult, TunedBank, TunerConfig
 from imm_gym.sim.episodes import draw_batch
-from imm_gym.tracking.hetero import HeteroBank
+from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, linear_models
+from imm_gym.tracking.imm import run
 
 PAPER = EnvConfig(scenario="paper")
 FACTORS = (2.0, 0.5, 1.5)
@@ -54,6 +55,21 @@ def test_bbsca_tunes_on_the_first_fifth_of_the_training_runs(calls) -> None:
     assert policy.env_overrides["bank"] == tuple(
         m.scaled(s) for m, s in zip(bank, FACTORS, strict=True)
     )
+
+
+def test_the_untuned_objective_is_the_innovations_of_the_untuned_bank(calls) -> None:
+    """``untuned_train_objective``: the mean squared innovation, in units of the sensor's
+    standard deviations, of the untuned bank over the training runs' detected steps."""
+    _, notes = bbsca.tune_classical(PAPER, 2, 7, TunerConfig(particles=3, generations=1))
+    ((batch, tpm, config, _),) = calls
+    assert (config.particles, config.generations) == (3, 1)
+    plain = HeteroIMM(linear_models(paper_bank()), PAPER.sensor, T=PAPER.source.T)
+    z = batch.measurements.z[:, 1:]
+    detected = batch.measurements.detected[:, 1:]
+    result = run(plain, z, tpm, batch.x0, batch.P0, detected=detected, allow_failure=True)
+    e = PAPER.sensor.residual(z, result.z_pred) / np.asarray(PAPER.sensor.sigma)
+    assert notes["untuned_train_objective"] == pytest.approx(np.mean((e * e)[detected]), rel=1e-9)
+    assert notes["train_seeds"] == "7..8"
 
 
 def test_the_factors_multiply_a_heterogeneous_banks_own() -> None:
