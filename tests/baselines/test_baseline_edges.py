@@ -279,3 +279,11 @@ def test_set_actions_carry_entries_down_to_a_lower_floor() -> None:
     target = np.array([[[0.9987, 5e-4, 8e-4], [0.05, 0.9, 0.05], [6e-4, 0.2, 0.7994]]])
     got = core.tpm_from_action(tpm_to_logits(target, cfg.logit_scale).reshape(1, -1))
     np.testing.assert_allclose(got, target, rtol=1e-12)
+
+
+@pytest.mark.parametrize("max_factor", [1.0, 0.5, "2"])
+def test_a_scale_range_of_one_or_less_is_refused_naming_its_range(max_factor) -> None:
+    """TIP-IMM's ``max_factor`` of 1 or less (no factor to express) or not a number is refused
+    as such, before it is compared with ``alpha`` and ``1/beta``."""
+    with pytest.raises(ConfigError, match=r"max_factor must be (a real number )?in \(1\.0, inf\)"):
+        TIPIMM(max_factor=max_factor)
