@@ -103,3 +103,12 @@ def test_from_pickle_needs_a_target(
     assert exc.value.code == 2
     assert "--from-pickle needs --to NEW_DIR" in capsys.readouterr().err
     assert not (shipped / AGENT_FILE).exists()
+
+
+def test_a_file_as_the_target_is_refused_and_kept(tmp_path: Path) -> None:
+    target = tmp_path / "shipped"
+    target.write_text("mine")
+    with pytest.raises(ConfigError, match=r"shipped: the export replaces its target, .*not a file"):
+        export(shipped_agent(), target)
+    assert target.read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shipped"]
