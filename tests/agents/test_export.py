@@ -112,3 +112,21 @@ def test_a_file_as_the_target_is_refused_and_kept(tmp_path: Path) -> None:
         export(shipped_agent(), target)
     assert target.read_text() == "mine"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shipped"]
+
+
+def test_a_policy_exported_with_its_detector_is_replaced_by_another(tmp_path: Path) -> None:
+    """An agent of the learned detector is exported with the detector's network beside it
+    (detector.safetensors); exporting again over it replaces that file too."""
+    from agents.export import DETECTOR_FILE
+    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+
+    agent = Path(shutil.copytree(shipped_agent(), tmp_path / "agent"))
+    env = json.loads((agent / "env.json").read_text())
+    env.update(detector="learned", detector_share=0.5, detector_weights=str(DEFAULT_WEIGHTS))
+    (agent / "env.json").write_text(json.dumps(env))
+    target = tmp_path / "shipped"
+    export(agent, target)
+    assert (target / DETECTOR_FILE).read_bytes() == DEFAULT_WEIGHTS.read_bytes()
+    export(agent, target)
+    export(shipped_agent(), target)
+    assert not (target / DETECTOR_FILE).exists()
