@@ -130,3 +130,16 @@ def test_a_policy_exported_with_its_detector_is_replaced_by_another(tmp_path: Pa
     export(agent, target)
     export(shipped_agent(), target)
     assert not (target / DETECTOR_FILE).exists()
+
+
+def test_a_directory_of_a_users_files_named_like_an_agents_is_not_replaced(
+    tmp_path: Path,
+) -> None:
+    """Without agent.json a directory is no exported agent: its env.json (a user's
+    configuration, say) is not the export's to delete."""
+    target = tmp_path / "configs"
+    target.mkdir()
+    (target / "env.json").write_text("{}")
+    with pytest.raises(ConfigError, match=r"it holds \['env\.json'\]"):
+        export(shipped_agent(), target)
+    assert (target / "env.json").read_text() == "{}"
