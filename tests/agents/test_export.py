@@ -143,3 +143,16 @@ def test_a_directory_of_a_users_files_named_like_an_agents_is_not_replaced(
     with pytest.raises(ConfigError, match=r"it holds \['env\.json'\]"):
         export(shipped_agent(), target)
     assert (target / "env.json").read_text() == "{}"
+
+
+def test_a_converted_agent_that_does_not_load_replaces_nothing(
+    pickled: Path, tmp_path: Path
+) -> None:
+    """The converted files are loaded before they replace the target: an old agent without
+    its env.json converts into no agent, and the target stays."""
+    (pickled / "env.json").unlink()
+    target = Path(shutil.copytree(shipped_agent(), tmp_path / "target"))
+    before = sorted((p.name, p.read_bytes()) for p in target.iterdir())
+    with pytest.raises(ConfigError, match=r"env\.json: missing"):
+        convert_pickled(pickled, target)
+    assert sorted((p.name, p.read_bytes()) for p in target.iterdir()) == before
