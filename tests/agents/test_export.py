@@ -156,3 +156,20 @@ def test_a_converted_agent_that_does_not_load_replaces_nothing(
     with pytest.raises(ConfigError, match=r"env\.json: missing"):
         convert_pickled(pickled, target)
     assert sorted((p.name, p.read_bytes()) for p in target.iterdir()) == before
+
+
+def test_an_ensembles_members_are_exported_under_their_seeds(tmp_path: Path) -> None:
+    """Members of seeds 7 and 3 are copied to seed_7/ and seed_3/, in the order listed."""
+    from agents.ensemble import write_ensemble
+
+    members = []
+    for seed in (7, 3):
+        member = Path(shutil.copytree(shipped_agent(), tmp_path / f"run_{seed}"))
+        meta = json.loads((member / AGENT_FILE).read_text())
+        (member / AGENT_FILE).write_text(json.dumps({**meta, "seed": seed}))
+        members.append(member)
+    write_ensemble(tmp_path / "ensemble", members)
+    export(tmp_path / "ensemble", tmp_path / "shipped")
+    listed = json.loads((tmp_path / "shipped" / "ensemble.json").read_text())["members"]
+    assert listed == ["seed_7", "seed_3"]
+    assert [m.name for m in member_paths(tmp_path / "shipped")] == ["seed_7", "seed_3"]
