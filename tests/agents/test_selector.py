@@ -343,3 +343,20 @@ def test_the_reach_is_the_action_unclipped_at_a_certain_belief(tmp_path: Path, m
         largest = (np.abs(stay_action(s, certain, 0.75, gain)) if mode == "stay"
                    else np.abs(set_action(s, v, np.eye(3)[:1], gain, 1e-4))).max()
         assert 1 - 1e-5 < largest <= 1
+
+
+def test_a_selector_exported_with_its_detector_is_replaced_by_another(tmp_path: Path) -> None:
+    """The export of a selector of the learned detector writes detector.safetensors beside it:
+    exporting again over it replaces that file with the rest, nothing refused."""
+    from agents.export import DETECTOR_FILE, export
+    from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+
+    directory = write_selector(tmp_path)
+    shutil.copy2(DEFAULT_WEIGHTS, directory / "turn.safetensors")
+    env = json.loads((directory / "env.json").read_text())
+    (directory / "env.json").write_text(json.dumps({**env, "detector_weights": "turn.safetensors"}))
+    target = tmp_path / "shipped"
+    export(directory, target)
+    export(directory, target)
+    assert (target / DETECTOR_FILE).read_bytes() == DEFAULT_WEIGHTS.read_bytes()
+    assert isinstance(load_selector(target), StaySelector)
