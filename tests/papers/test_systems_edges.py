@@ -11,9 +11,11 @@ from imm_gym.papers.systems import (
     bbsca_imm,
     bbsca_models,
     bbsca_sensor,
+    draw,
     system_setup,
 )
 from imm_gym.scenarios.profiles import ManeuverFamily
+from imm_gym.seeding import streams
 
 
 def _tpm(stay: float) -> np.ndarray:
@@ -37,3 +39,17 @@ def test_seed003_is_the_documented_bank_sensor_and_tpm() -> None:
     assert isinstance(family, ManeuverFamily) and (used.sigma_pos, used.sigma_vel) == (1.0, 0.5)
     assert imm.T == 0.1 and bbsca_imm().T == 0.1
     np.testing.assert_allclose(tpm, _tpm(0.9), rtol=1e-12)
+
+
+def test_a_batch_draws_run_r_from_seed_plus_r_and_starts_at_the_first_measurement() -> None:
+    """Run 1 of a batch seeded 5 is the family's trajectory and the sensor's noise of the streams
+    of seed 6; the track starts at the first measurement with ``P0 = R``."""
+    family, sensor = ManeuverFamily(), bbsca_sensor()
+    batch = draw(family, sensor, 2, 5)
+    scen, noise = streams(6)
+    truth = family.truth([scen])
+    np.testing.assert_array_equal(batch.truth.states[1], truth.states[0])
+    meas = sensor.measure(truth.states, [noise])
+    np.testing.assert_array_equal(batch.measurements.z[1], meas.z[0])
+    np.testing.assert_array_equal(batch.x0, batch.measurements.z[:, 0, :4])
+    np.testing.assert_array_equal(batch.P0, np.stack([np.diag([1.0, 1.0, 0.25, 0.25])] * 2))
