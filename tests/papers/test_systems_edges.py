@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from imm_gym import ConfigError
 from imm_gym.papers.systems import (
     bbsca_imm,
     bbsca_models,
@@ -53,3 +54,26 @@ def test_a_batch_draws_run_r_from_seed_plus_r_and_starts_at_the_first_measuremen
     np.testing.assert_array_equal(batch.measurements.z[1], meas.z[0])
     np.testing.assert_array_equal(batch.x0, batch.measurements.z[:, 0, :4])
     np.testing.assert_array_equal(batch.P0, np.stack([np.diag([1.0, 1.0, 0.25, 0.25])] * 2))
+
+
+@pytest.mark.parametrize(
+    ("policies", "tuned", "message"),
+    [
+        (["fixed", "tip-imm"], None, r"the policies are \['fixed', 'bbsca', 'sca'\].*'tip-imm'"),
+        (["fixed", "fixed"], None, r"--policy given twice: \['fixed', 'fixed'\]"),
+        (["fixed"], {"sca": "x.json"}, r"'sca' is not a tuned policy evaluated here"),
+        (["bbsca"], {"bbsca": "two"}, r"tuned bank has 2 Q scales for 3 models"),
+    ],
+)
+def test_a_system_comparison_refuses_before_any_run(policies, tuned, message, tmp_path) -> None:
+    """An unknown policy, one given twice, a tuned file no policy loads, a bank of two factors
+    for seed 003's three models: refused by name."""
+    from imm_gym.papers.tuned_comparison import evaluate_system
+    from imm_gym.papers.tuning import TunedBank
+
+    if tuned and tuned.get("bbsca") == "two":
+        path = tmp_path / "two.json"
+        TunedBank("seed003", (1.0, 2.0)).save(path)
+        tuned = {"bbsca": str(path)}
+    with pytest.raises(ConfigError, match=message):
+        evaluate_system("seed003", policies, runs=1, seed=0, tuned=tuned)
