@@ -150,6 +150,10 @@ def same_detector(a: EnvConfig, b: EnvConfig) -> bool:
     )
 
 
+#: The files that make a directory a policy's: an agent's, an ensemble's, a stay selector's.
+POLICY_FILES = (AGENT_FILE, ENSEMBLE_FILE, SELECTOR_FILE)
+
+
 def is_ensemble(path: str | Path) -> bool:
     """Whether ``path`` is an ensemble's directory (or its ``ensemble.json``)."""
     path = Path(path)
@@ -215,7 +219,20 @@ def load_ensemble(path: str | Path) -> EnsemblePolicy:
 
 def load_policy(path: str | Path) -> LearnedPolicy | EnsemblePolicy | StaySelector:
     """A trained agent, an ensemble of them or a stay selector (:mod:`agents.selector`),
-    whichever ``path`` holds."""
+    whichever ``path`` holds: a directory, or its policy file (``agent.json``,
+    ``ensemble.json``, ``selector.json``).
+
+    Raises:
+        ConfigError: ``path`` is a directory holding two or more policy files (put there by
+            hand, or a policy saved into another's directory: :func:`write_ensemble` refuses
+            to), which would load one of its policies for another; name the file to load.
+    """
+    held = [f for f in POLICY_FILES if (Path(path) / f).is_file()]
+    if len(held) > 1:
+        raise ConfigError(
+            f"{path}: holds {' and '.join(held)}, a policy each: name the one to load "
+            f"({Path(path) / held[0]}, ...)"
+        )
     if is_selector(path):
         return load_selector(path)
     return load_ensemble(path) if is_ensemble(path) else load_agent(path)

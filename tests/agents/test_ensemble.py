@@ -342,3 +342,25 @@ def test_an_ensemble_is_loaded_by_its_file_as_by_its_directory(members, tmp_path
 def test_an_ensemble_of_no_member_is_refused() -> None:
     with pytest.raises(ConfigError, match="an ensemble needs at least one member"):
         EnsemblePolicy([], source="mine")
+
+
+@pytest.mark.parametrize("second", [ENSEMBLE_FILE, "selector.json"])
+def test_a_directory_of_two_policies_is_refused_until_one_is_named(
+    members, tmp_path, second
+) -> None:
+    """A directory holding agent.json beside ensemble.json (or selector.json) loaded whichever
+    file load_policy tried first, silently; it is refused naming both, and each file named
+    loads its own policy."""
+    agent, other = members
+    out = Path(shutil.copytree(agent, tmp_path / "both"))
+    if second == ENSEMBLE_FILE:
+        (out / ENSEMBLE_FILE).write_text(json.dumps({
+            "format": "imm_gym-ensemble", "members": [str(agent), str(other)],
+        }))
+    else:
+        shutil.copy(out / "agent.json", out / second)
+    with pytest.raises(ConfigError, match=rf"both: holds agent.json and {second}, a policy each"):
+        load_policy(out)
+    assert isinstance(load_policy(out / "agent.json"), LearnedPolicy)
+    if second == ENSEMBLE_FILE:
+        assert len(load_policy(out / ENSEMBLE_FILE).members) == 2
