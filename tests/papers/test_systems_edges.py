@@ -88,6 +88,37 @@ def test_the_metrics_of_a_bank_run_with_missed_detections_by_hand() -> None:
     assert m["failed"] == 0
 
 
+def test_a_system_comparison_reports_each_row_and_its_runs(tmp_path) -> None:
+    """``fixed`` is the untuned bank's run (factors 1, no training objective); a loaded bank's
+    row reports its file, factors and objective; the meta names the runs; seed 003 has no
+    published figures to stand beside."""
+    from imm_gym.papers.tuned_comparison import evaluate_system
+    from imm_gym.papers.tuning import TunedBank
+
+    path = tmp_path / "bb.json"
+    TunedBank("seed003", (2.0, 0.5, 1.5), 1.3, objective=0.8).save(path)
+    out = evaluate_system("seed003", ["fixed", "bbsca"], runs=1, seed=2, tuned={"bbsca": str(path)})
+    imm, family, sensor, tpm = system_setup("seed003")
+    batch = draw(family, sensor, 1, 2)
+    plain = score_run(run_bank(imm, batch, tpm), batch, sensor.dim_z)
+    fixed, tuned = out["policies"]["fixed"], out["policies"]["bbsca"]
+    assert fixed["pos_rmse"] == pytest.approx(plain["pos_rmse"], rel=1e-12)
+    assert fixed["nis_mean"] == pytest.approx(plain["nis_mean"], rel=1e-12)
+    assert (fixed["q_scale"], fixed["r_scale"], fixed["train_objective"]) == ([1.0] * 3, 1.0, None)
+    assert (tuned["q_scale"], tuned["r_scale"]) == ([2.0, 0.5, 1.5], 1.3)
+    assert (tuned["train_objective"], tuned["tuned_file"]) == (0.8, str(path))
+    steps = batch.truth.states.shape[1] - 1
+    assert out["meta"] == {
+        "scenario": "seed003",
+        "runs": 1,
+        "seed": 2,
+        "seeds": "2..2",
+        "steps": steps,
+        "filter": "ekf",
+    }
+    assert out["paper"] == {}
+
+
 @pytest.mark.parametrize(
     ("policies", "tuned", "message"),
     [
