@@ -19,7 +19,7 @@ from imm_gym.papers.systems import (
     score_run,
     system_setup,
 )
-from imm_gym.scenarios.profiles import ManeuverFamily
+from imm_gym.scenarios.profiles import DrivingFamily, ManeuverFamily
 from imm_gym.seeding import streams
 from imm_gym.tracking.imm import run
 from imm_gym.tracking.sensors import PositionSensor
@@ -46,6 +46,15 @@ def test_seed003_is_the_documented_bank_sensor_and_tpm() -> None:
     assert isinstance(family, ManeuverFamily) and (used.sigma_pos, used.sigma_vel) == (1.0, 0.5)
     assert imm.T == 0.1 and bbsca_imm().T == 0.1
     np.testing.assert_allclose(tpm, _tpm(0.9), rtol=1e-12)
+
+
+def test_seed002_runs_table_is_tpm() -> None:
+    """Seed 002 Table I: TPM 0.90 on the diagonal, 0.05 off it."""
+    _, family, _, tpm = system_setup("seed002")
+    assert isinstance(family, DrivingFamily)
+    np.testing.assert_allclose(tpm, _tpm(0.9), rtol=1e-12)
+    with pytest.raises(ConfigError, match=r"scenario must be one of \['seed002', 'seed003'\]"):
+        system_setup("seed001")
 
 
 def test_a_batch_draws_run_r_from_seed_plus_r_and_starts_at_the_first_measurement() -> None:
