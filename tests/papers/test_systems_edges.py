@@ -4,6 +4,7 @@ missed detections."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -149,3 +150,16 @@ def test_a_system_comparison_refuses_before_any_run(policies, tuned, message, tm
         tuned = {"bbsca": str(path)}
     with pytest.raises(ConfigError, match=message):
         evaluate_system("seed003", policies, runs=1, seed=0, tuned=tuned)
+
+
+def test_a_failed_run_is_counted() -> None:
+    """A run whose measurements jump to 1e200 m fails (flagged, not raised): the metrics count
+    one failed run of two."""
+    imm, family, sensor, tpm = system_setup("seed003")
+    batch = draw(family, sensor, 2, 1)
+    z = batch.measurements.z.copy()
+    z[0, 5:8] = 1e200
+    broken = dataclasses.replace(batch, measurements=dataclasses.replace(batch.measurements, z=z))
+    result = run_bank(imm, broken, tpm)
+    assert result.failed.tolist() == [True, False]
+    assert score_run(result, broken, sensor.dim_z)["failed"] == 1
