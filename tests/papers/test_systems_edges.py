@@ -72,6 +72,19 @@ def test_a_batch_draws_run_r_from_seed_plus_r_and_starts_at_the_first_measuremen
     np.testing.assert_array_equal(batch.P0, np.stack([np.diag([1.0, 1.0, 0.25, 0.25])] * 2))
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ((PositionSensor(sigma_pos=1.0), 2, 0), "position\\+velocity sensor"),
+        ((bbsca_sensor(), 2, -1), "seed"),
+        ((bbsca_sensor(), 0, 0), "runs"),
+    ],
+)
+def test_a_batch_refuses_a_sensor_without_velocity_and_bad_counts(args, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        draw(ManeuverFamily(), *args)
+
+
 def test_the_metrics_of_a_bank_run_with_missed_detections_by_hand() -> None:
     """Seed 003's bank with a sensor detecting 70 % of the time: the run is the engine's on the
     steps after the first measurement, missed ones flagged; the metrics are computed on those
