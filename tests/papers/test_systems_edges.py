@@ -16,6 +16,7 @@ from imm_gym.papers.systems import (
     bbsca_models,
     bbsca_sensor,
     draw,
+    hetero_ekf_evaluation,
     run_bank,
     score_run,
     system_setup,
@@ -109,6 +110,20 @@ def test_the_metrics_of_a_bank_run_with_missed_detections_by_hand() -> None:
     assert m["yaw_rmse_deg"] == pytest.approx(math.degrees(np.sqrt(np.mean(yaw**2))), rel=1e-9)
     assert m["nis_mean"] == pytest.approx(result.nis[detected].mean(), rel=1e-12)
     assert m["failed"] == 0
+
+
+def test_the_seed002_evaluation_reports_its_runs() -> None:
+    """One run seeded 4: seeds ``4..4``, the steps after the first measurement, the mean mode
+    probabilities over the steps (summing to 1)."""
+    out = hetero_ekf_evaluation(runs=1, seed=4)
+    imm, family, sensor, tpm = system_setup("seed002")
+    batch = draw(family, sensor, 1, 4)
+    result = run_bank(imm, batch, tpm)
+    assert out["meta"] == {"runs": 1, "seeds": "4..4", "steps": batch.truth.states.shape[1] - 1}
+    probs = result.mode_probs.reshape(-1, 3).mean(axis=0)
+    np.testing.assert_allclose(out["mean_mode_probs"], probs, rtol=1e-12)
+    assert sum(out["mean_mode_probs"]) == pytest.approx(1.0)
+    assert out["paper"]["nis_inside"] == 0.9416 and out["paper"]["pos_rmse"] == 0.3117
 
 
 def test_a_system_comparison_reports_each_row_and_its_runs(tmp_path) -> None:
