@@ -34,14 +34,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.policy import AGENT_FILE, LearnedPolicy, agent_directory, load_agent, read_manifest
+from agents.policy import (
+    AGENT_FILE,
+    ENSEMBLE_FILE,
+    LearnedPolicy,
+    agent_directory,
+    load_agent,
+    read_manifest,
+    refuse_other_policy,
+)
 from agents.selector import SELECTOR_FILE, StaySelector, is_selector, load_selector
 from imm_gym.sim.config_file import plain
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.mixture import POLICY_FIELDS
 from imm_gym.validation import ConfigError
 
-ENSEMBLE_FILE = "ensemble.json"
 FORMAT = "imm_gym-ensemble"
 #: How the members' actions are combined (the only rule so far).
 COMBINE = ("mean_action",)
@@ -224,8 +231,9 @@ def load_policy(path: str | Path) -> LearnedPolicy | EnsemblePolicy | StaySelect
 
     Raises:
         ConfigError: ``path`` is a directory holding two or more policy files (put there by
-            hand, or a policy saved into another's directory: :func:`write_ensemble` refuses
-            to), which would load one of its policies for another; name the file to load.
+            hand: :func:`write_ensemble` and :func:`~agents.selector.save_selector` refuse to
+            write into another policy's directory), which would load one of its policies for
+            another; name the file to load.
     """
     held = [f for f in POLICY_FILES if (Path(path) / f).is_file()]
     if len(held) > 1:
@@ -251,11 +259,7 @@ def write_ensemble(directory: str | Path, members: Sequence[str | Path]) -> Path
         FileNotFoundError: a member is not a trained agent's directory.
     """
     directory = Path(directory)
-    for policy_file in (AGENT_FILE, SELECTOR_FILE):
-        if (directory / policy_file).exists():
-            raise ConfigError(f"{directory}: holds {policy_file}, a policy of its own: an "
-                              f"ensemble's directory must hold neither {AGENT_FILE} nor "
-                              f"{SELECTOR_FILE} (loading it would take one policy for another)")
+    refuse_other_policy(directory, "an ensemble", (AGENT_FILE, SELECTOR_FILE))
     resolved = [agent_directory(m).resolve() for m in members]
     if len(set(resolved)) != len(resolved):
         raise ConfigError(f"a member is given twice: {[str(m) for m in members]}")

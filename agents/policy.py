@@ -42,6 +42,9 @@ from imm_gym.validation import ConfigError, unique_keys
 ALGOS = ("ppo", "recurrent-ppo")
 #: The files of an agent directory (``vecnormalize.json`` only when trained with a normalizer).
 AGENT_FILE, ENV_FILE, NORMALIZER_FILE = "agent.json", "env.json", "vecnormalize.json"
+#: An ensemble's file (:mod:`agents.ensemble`), named beside the agent's for the writers that
+#: must not write a policy into another's directory (:func:`refuse_other_policy`).
+ENSEMBLE_FILE = "ensemble.json"
 #: The keys of ``agent.json`` (``policy``, ``algo`` and ``frame_stack`` required; ``normalize``
 #: written by :func:`agents.training.save_agent` since it is read).
 AGENT_KEYS = (
@@ -229,6 +232,23 @@ class LearnedPolicy:
             actions, _ = self.model.predict(x, deterministic=deterministic)
         actions = np.clip(actions, -1.0, 1.0)
         return (actions[0] if single else actions), (stack, lstm)
+
+
+def refuse_other_policy(directory: Path, kind: str, files: tuple[str, ...]) -> None:
+    """Refuse writing a ``kind`` (an ensemble, a selector) into ``directory`` where it holds one
+    of ``files``, the file of a policy of its own: loading the directory would take one policy
+    for the other.
+
+    Raises:
+        ConfigError: naming the file found.
+    """
+    for policy_file in files:
+        if (directory / policy_file).exists():
+            raise ConfigError(
+                f"{directory}: holds {policy_file}, a policy of its own: {kind}'s directory must "
+                f"hold neither {' nor '.join(files)} (loading it would take one policy for "
+                "another)"
+            )
 
 
 def agent_directory(path: str | Path) -> Path:

@@ -48,7 +48,16 @@ from numpy.typing import NDArray
 from safetensors.torch import save_file
 
 from agents.network import load_tensors
-from agents.policy import ENV_FILE, read_env_file, read_manifest, read_trackers, write_env_file
+from agents.policy import (
+    AGENT_FILE,
+    ENSEMBLE_FILE,
+    ENV_FILE,
+    read_env_file,
+    read_manifest,
+    read_trackers,
+    refuse_other_policy,
+    write_env_file,
+)
 from agents.schema import MAX_WIDTH
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.features import observation_size
@@ -369,7 +378,8 @@ def save_selector(
         ConfigError: the networks are of different widths (``selector.json`` holds one), the
             priors are not ones the environment's action reaches (:func:`check_priors`), or a
             network does not read the environment's observation into one prediction per prior
-            (:func:`check_member`) or holds NaN or infinite weights — before anything is
+            (:func:`check_member`) or holds NaN or infinite weights, or ``directory`` holds
+            an agent's or an ensemble's file (a policy of its own) — before anything is
             written.
     """
     widths = sorted({net[0].out_features for net in nets})
@@ -378,6 +388,7 @@ def save_selector(
                           f"selector's directory holds networks of one width")
     hidden = widths[0]
     directory = Path(directory)
+    refuse_other_policy(directory, "a selector", (AGENT_FILE, ENSEMBLE_FILE))
     config = EnvConfig.build(dict(env_overrides))
     check_priors(str(directory / SELECTOR_FILE), priors, config)
     obs_size = observation_size(config.obs_features, len(config.bank), config.sensor.dim_z)

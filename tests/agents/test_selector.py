@@ -119,6 +119,22 @@ def test_networks_of_different_widths_are_refused_before_anything_is_written(
     assert not (tmp_path / "mixed").exists()
 
 
+@pytest.mark.parametrize("policy_file", ["agent.json", "ensemble.json"])
+def test_a_selector_is_not_written_into_another_policys_directory(
+    tmp_path: Path, policy_file: str
+) -> None:
+    """save_selector wrote selector.json beside an agent's or an ensemble's file, a directory
+    that then loaded one policy for the other; it is refused, the directory left as it was."""
+    obs_size = core_of(STAY_ENV, 1).observe().shape[1]
+    directory = tmp_path / "taken"
+    directory.mkdir()
+    (directory / policy_file).write_text("{}")
+    with pytest.raises(ConfigError, match=rf"taken: holds {policy_file}, a policy of its own: "
+                                          "a selector's directory must hold neither"):
+        save_selector(directory, [network(obs_size, len(GRID), 8)], stay_priors(0.75), STAY_ENV)
+    assert [p.name for p in directory.iterdir()] == [policy_file]
+
+
 @pytest.mark.parametrize("fault", ["observation", "priors", "nan"])
 def test_networks_that_would_not_load_are_refused_before_anything_is_written(
     tmp_path: Path, fault: str
