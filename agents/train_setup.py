@@ -13,9 +13,9 @@ import os
 from pathlib import Path
 from typing import Any
 
+from agents.policy import ALGOS
 from agents.training import DEFAULT_ENTRY, MAX_SEED
 
-ALGOS = ("ppo", "recurrent-ppo")
 ENGINES = ("sb3", "rllib")
 #: Where a run is written without ``--out`` (and without ``--resume``: then the checkpoint's run).
 DEFAULT_OUT = Path("runs/default")
