@@ -115,6 +115,15 @@ def test_each_layout_reads_every_entry_once_in_canonical_order(M, seed, dim_z, k
     np.testing.assert_array_equal(back.ravel(), np.arange(M * M))
 
 
+def test_an_unknown_per_model_layout_is_refused_by_name() -> None:
+    """A feature declaring a layout the order does not know (a typo of ``"kM"``) is refused,
+    not read in the bank's order: its entries would silently stay unreordered."""
+    order = np.array([2, 0, 1], dtype=np.intp)
+    for models in ("Mk", "mM", "m"):
+        with pytest.raises(ValueError, match=f"unknown per-model layout '{models}'"):
+            block_index(models, order, 6, 2)
+
+
 def test_the_observation_index_covers_the_declared_features() -> None:
     features = PER_MODEL + GLOBAL
     order = np.array([2, 0, 1], dtype=np.intp)
