@@ -129,3 +129,23 @@ def test_a_core_without_priors_or_runs_is_refused(field: str) -> None:
     sizes = {"n_priors": 2, "runs": 3, field: 0}
     with pytest.raises(ConfigError, match=f"{field} must be an integer >= 1, got 0"):
         prior_core({"scenario": "paper"}, sizes["n_priors"], sizes["runs"], SEED)
+
+
+def test_every_prior_s_scores_are_its_own_runs_evaluation() -> None:
+    """Each prior's ARMSE, mode accuracy and total variation are the evaluation's of a fixed
+    TPM on the same runs, its own diverged steps left out: random targets (every run its own
+    modes) and a tight cap (the priors lose other runs)."""
+    over = {"scenario": "random", "divergence_error": 60.0, "sensor": {"detection_prob": 0.7}}
+    stays = (0.98, 0.5)
+    slots = prior_core(over, len(stays), 8, 3)
+    tpms = np.repeat(np.stack([stay_tpm(3, s) for s in stays]), 8, axis=0)
+    result = run_priors(slots, lambda k, info: tpms)
+    assert not np.array_equal(result.live[0], result.live[1])  # the priors lose other runs
+    assert len({tuple(m) for m in result.true_model}) > 1  # the runs switch differently
+    for p, stay in enumerate(stays):
+        policy = FixedTPM(3, stay)
+        run = rollout(policy, evaluation_config(EnvConfig.build(over), policy.env_overrides), 8, 3)
+        armse, accuracy, tv = result.scores(p)
+        assert armse == pytest.approx(armse_from_squared(run.squared_position_error), rel=1e-9)
+        assert accuracy == pytest.approx(mode_accuracy(run.mode_probs, run.true_model), rel=1e-9)
+        assert tv == pytest.approx(mode_prob_tv(run.mode_probs, run.live), rel=1e-9)
