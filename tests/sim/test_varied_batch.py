@@ -119,3 +119,23 @@ def test_generator_lists_of_different_lengths_are_refused(variation: Variation |
     noise = [streams(s)[1] for s in range(2)]
     with pytest.raises(ConfigError, match="3 scenario_rngs and 2 noise_rngs"):
         draw_episodes(RandomFamily(), Sonar(), scenario, noise, variation=variation)
+
+
+@pytest.mark.parametrize(
+    ("runs", "seed", "message"),
+    [
+        (0, 0, "runs must be an integer in \\[1, inf\\), got 0"),
+        (2, -1, "seed must be an integer in \\[0, inf\\), got -1"),
+        (2, 2.5, "seed must be an integer in \\[0, inf\\), got 2.5"),
+    ],
+)
+def test_no_runs_or_a_seed_that_is_not_a_count_is_refused_by_name(runs, seed, message) -> None:
+    """draw_batch refuses an empty batch and a seed that is not a non-negative integer, naming
+    it (a seed of 2.5 silently drew the runs of seed 2); an integral float seed is that seed:
+    run r the streams of seed 3 + r."""
+    with pytest.raises(ConfigError, match=message):
+        draw_batch(RandomFamily(horizon=20, n_segments=(1, 2)), Sonar(), runs, seed)
+    batch = draw_batch(RandomFamily(horizon=20, n_segments=(1, 2)), Sonar(), 2, 3.0)
+    scen, noise = zip(streams(3), streams(4), strict=True)
+    alone = draw_episodes(RandomFamily(horizon=20, n_segments=(1, 2)), Sonar(), scen, noise)
+    np.testing.assert_array_equal(batch.measurements.z, alone.measurements.z)
