@@ -139,3 +139,21 @@ def test_no_runs_or_a_seed_that_is_not_a_count_is_refused_by_name(runs, seed, me
     scen, noise = zip(streams(3), streams(4), strict=True)
     alone = draw_episodes(RandomFamily(horizon=20, n_segments=(1, 2)), Sonar(), scen, noise)
     np.testing.assert_array_equal(batch.measurements.z, alone.measurements.z)
+
+
+def test_a_source_without_truth_is_refused_by_name() -> None:
+    """A scenario's name or None in place of a truth source is refused naming its type (it
+    failed with an AttributeError deep inside the draw)."""
+    for source, name in (("paper", "str"), (None, "NoneType")):
+        with pytest.raises(ConfigError, match=f"truth source, got {name}"):
+            draw_batch(source, Sonar(), 2, 0)
+
+
+@pytest.mark.parametrize("variation", [None, Variation(sigma_r=(10.0, 100.0))])
+def test_a_designed_family_without_the_bank_is_refused_asking_for_it(variation) -> None:
+    """A family that draws its turns for the tracker (designed_share > 0) needs the tracker's
+    bank: without it the draw asks for ``bank=...`` (not a complaint about a bank of no CT
+    model), on the fixed and the varied path."""
+    family = RandomFamily(horizon=20, n_segments=(1, 2), designed_share=0.5)
+    with pytest.raises(ConfigError, match=r"designed_share .*pass its bank \(bank=\.\.\.\)"):
+        draw_batch(family, Sonar(), 2, 0, variation=variation)
