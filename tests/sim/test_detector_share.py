@@ -33,6 +33,19 @@ def test_the_rows_by_hand() -> None:
     assert rows[0, 2, 0] > rows[0, 2, 1]  # a row leaves toward the detector's mode
 
 
+
+def test_one_share_per_prior_by_hand() -> None:
+    """``share`` may be one per prior: prior 0 at v = 0 is the evenly spread stay row, prior 1
+    at v = 1 redraws from the belief alone, prior 2 at v = 0.75 is the row by hand above (the
+    shares are not spread over the models' columns)."""
+    belief = np.array([[0.6, 0.3, 0.1], [0.2, 0.5, 0.3], [0.6, 0.3, 0.1]])
+    rows = detector_tpm_rows(np.full(3, 0.8), belief, np.array([0.0, 1.0, 0.75]))
+    np.testing.assert_allclose(rows[0], stay_tpm_rows(np.array([0.8]), M)[0], rtol=1e-14)
+    np.testing.assert_allclose(rows[1], 0.3 * np.tile(belief[1], (3, 1)) + 0.7 * np.eye(3),
+                               rtol=1e-14)
+    q = np.array([0.25 / 3 + 0.45, 0.25 / 3 + 0.225, 0.25 / 3 + 0.075])
+    np.testing.assert_allclose(rows[2], 0.3 * np.tile(q, (3, 1)) + 0.7 * np.eye(3), rtol=1e-14)
+
 @settings(max_examples=200, deadline=None)
 @given(
     stays=arrays(np.float64, 4, elements=st.floats(1.0 / M, 1.0)),
