@@ -227,3 +227,22 @@ def test_the_episodes_seeds_are_the_detector_s_block(tmp_path, monkeypatch, caps
         notes = json.loads(f.metadata()["notes"])
     assert notes["seeds"] == [first, first + 4]
     assert notes["held_out_seeds"] == [first + 2**60, first + 2**60 + 1]
+
+
+def test_the_episodes_are_collected_in_batches_of_batch_runs(monkeypatch) -> None:
+    # each file's share of the episodes in batches of BATCH_RUNS, the last batch the rest: as
+    # many episodes as asked, each seed once
+    import agents.detector
+
+    seen = []
+
+    def spy(overrides, seeds, window=WINDOW):
+        seen.append(list(seeds))
+        return collect(overrides, seeds, window)
+
+    monkeypatch.setattr(agents.detector, "collect", spy)
+    monkeypatch.setattr(agents.detector, "BATCH_RUNS", 2)
+    family = {"scenario": "random", "family": {"horizon": 30, "min_duration": 5}}
+    samples = collect_runs([family, family], 5, 100)
+    assert seen == [[100, 101], [102], [103, 104]]
+    assert len(samples.inputs) == len(samples.targets) == 5 * 30
