@@ -246,3 +246,24 @@ def test_the_episodes_are_collected_in_batches_of_batch_runs(monkeypatch) -> Non
     samples = collect_runs([family, family], 5, 100)
     assert seen == [[100, 101], [102], [103, 104]]
     assert len(samples.inputs) == len(samples.targets) == 5 * 30
+
+
+def test_a_network_just_above_the_file_s_bound_and_a_negative_seed_are_refused(
+    tmp_path, monkeypatch
+) -> None:
+    # 34 M numbers were refused, 17 M were not checked against the 16 777 216 bound; a negative
+    # seed's episodes would be below the detector's block
+    monkeypatch.setattr("agents.detector.collect", None)  # no episode may run
+    config = tmp_path / "paper.yaml"
+    config.write_text("scenario: random\n")
+    out = str(tmp_path / "d.safetensors")
+    # window 10 of 2 M + 2 = 8 entries, two layers of 4096, 3 models: weights and biases
+    count = (160 + 1) * 4096 + (4096 + 1) * 4096 + (4096 + 1) * 3
+    assert count == 17453059
+    with pytest.raises(ConfigError, match=rf"hidden: a network of {count} numbers for 3 models"):
+        main(["--env-config", str(config), "--hidden", "4096", "4096", "--out", out])
+    # 16 660 003 numbers are within the bound: refused only for the output that is a directory
+    with pytest.raises(ConfigError, match=r"out: '.*' is a directory"):
+        main(["--env-config", str(config), "--hidden", "4000", "4000", "--out", str(tmp_path)])
+    with pytest.raises(ConfigError, match=r"seed must be an integer in \[0, "):
+        main(["--env-config", str(config), "--seed", "-1", "--out", out])
