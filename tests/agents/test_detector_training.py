@@ -267,3 +267,17 @@ def test_a_network_just_above_the_file_s_bound_and_a_negative_seed_are_refused(
         main(["--env-config", str(config), "--hidden", "4000", "4000", "--out", str(tmp_path)])
     with pytest.raises(ConfigError, match=r"seed must be an integer in \[0, "):
         main(["--env-config", str(config), "--seed", "-1", "--out", out])
+
+
+def test_an_output_directory_it_may_not_write_is_refused_before_any_episode(
+    tmp_path, monkeypatch
+) -> None:
+    # the permission bits, as a user other than root sees a read-only directory
+    import agents.detector
+
+    monkeypatch.setattr("agents.detector.collect", None)  # no episode may run
+    monkeypatch.setattr(agents.detector.os, "access", lambda path, mode: False)
+    config = tmp_path / "paper.yaml"
+    config.write_text("scenario: random\n")
+    with pytest.raises(ConfigError, match=r"out: cannot write .* is not a writable directory"):
+        main(["--env-config", str(config), "--out", str(tmp_path / "d.safetensors")])
