@@ -281,3 +281,22 @@ def test_an_output_directory_it_may_not_write_is_refused_before_any_episode(
     config.write_text("scenario: random\n")
     with pytest.raises(ConfigError, match=r"out: cannot write .* is not a writable directory"):
         main(["--env-config", str(config), "--out", str(tmp_path / "d.safetensors")])
+
+
+def test_a_diverged_episode_s_steps_after_it_ended_are_left_out() -> None:
+    # a cap of 5 m ends every episode within a few steps; the steps after were recorded
+    from agents.detector import collection_config
+
+    family = {"horizon": 30, "min_duration": 5}
+    over = {"scenario": "random", "divergence_error": 5.0, "family": family}
+    samples = collect(over, [5, 6, 7])
+    core = TrackingCore(collection_config(over), 3)  # the tracker the collection runs
+    core.reset(np.arange(3), [5, 6, 7])
+    steps = 0
+    for _ in range(30):
+        live = ~core.done
+        steps += int(live.sum())
+        if live.any():
+            core.step(np.zeros((3, core.action_dim)), active=live)
+    assert core.done.all() and steps < 3 * 30
+    assert len(samples.inputs) == len(samples.targets) == steps
