@@ -300,3 +300,22 @@ def test_a_diverged_episode_s_steps_after_it_ended_are_left_out() -> None:
             core.step(np.zeros((3, core.action_dim)), active=live)
     assert core.done.all() and steps < 3 * 30
     assert len(samples.inputs) == len(samples.targets) == steps
+
+
+def test_the_constant_belief_is_the_training_episodes_mean(tmp_path, capsys) -> None:
+    # the score's baseline: the training targets' mean belief, scored on the held-out targets
+    config = tmp_path / "family.yaml"
+    config.write_text("scenario: random\nfamily: {horizon: 30, min_duration: 5}\n")
+    out = tmp_path / "d.safetensors"
+    main(["--env-config", str(config), "--runs", "4", "--held-out-runs", "2", "--epochs", "1",
+          "--hidden", "4", "--seed", "3", "--out", str(out)])
+    with safe_open(str(out), framework="np") as f:
+        notes = json.loads(f.metadata()["notes"])
+    family = {"scenario": "random", "family": {"horizon": 30, "min_duration": 5}}
+    first, held = notes["seeds"][0], notes["held_out_seeds"][0]
+    train = collect(family, range(first, first + 4)).targets.astype(np.float64)
+    held_out = collect(family, range(held, held + 2)).targets.astype(np.float64)
+    mean = train.mean(axis=0)
+    expected = -np.mean(held_out @ np.log(mean))
+    assert notes["constant_cross_entropy"] == pytest.approx(expected, rel=1e-5)
+    assert not np.allclose(held_out.mean(axis=0), mean, rtol=1e-2)  # the two means differ
