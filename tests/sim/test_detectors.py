@@ -4,6 +4,8 @@ configuration's errors."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -130,6 +132,15 @@ def test_the_configuration_names_what_the_detector_needs() -> None:
                        detector="turn_rate", shadow="none", reward="error")
     np.testing.assert_allclose(model_turn_rates(config.bank), PAPER_RATES)
 
+
+
+@pytest.mark.parametrize("name", ["turn-rate", "Shadow", "x"])
+def test_a_misspelled_detector_is_refused_listing_the_three(name: str) -> None:
+    """The refusal lists exactly the three detectors the module docstring documents (shadow,
+    turn_rate, learned), and no other name is accepted."""
+    listed = re.escape("['shadow', 'turn_rate', 'learned']")
+    with pytest.raises(ConfigError, match=rf"detector must be one of {listed}, got '{name}'"):
+        EnvConfig(action_mode="stay", stay_base="evidence", detector_share=0.5, detector=name)
 
 def test_the_tracker_base_leans_stays_of_at_least_one_in_m() -> None:
     """A tracker TPM whose stay is below 1/M gives the detector's rows at the stay 1/M (a
