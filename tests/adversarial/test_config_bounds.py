@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from imm_gym import ConfigError, MotionModel
+from imm_gym import ConfigError, EnvConfig, MotionModel
 from imm_gym.tracking.hetero import LinearModel
-from imm_gym.validation import check_int
+from imm_gym.validation import SHOWN_CHARS, check_int, shown
 
 
 def test_an_integer_interval_includes_its_upper_end() -> None:
@@ -19,3 +19,14 @@ def test_an_integer_interval_includes_its_upper_end() -> None:
     assert LinearModel(MotionModel("cv"), dim=6).dim == 6
     with pytest.raises(ConfigError, match=r"model\.dim .* must be an integer in \[4, 6\], got 7"):
         LinearModel(MotionModel("cv"), dim=7)
+
+
+def test_a_long_refused_value_is_shown_in_at_most_shown_chars_characters() -> None:
+    value = ["x" * 100] * 10  # six shortened entries of about 60 characters: far past 200
+    text = shown(value)
+    assert len(text) == SHOWN_CHARS == 200
+    assert text.endswith("...") and text.startswith("['xxx")
+    with pytest.raises(ConfigError) as err:
+        EnvConfig(filter=value)  # type: ignore[arg-type]
+    got = str(err.value).split(", got ", 1)[1]
+    assert len(got) == 200
