@@ -30,3 +30,11 @@ def test_a_long_refused_value_is_shown_in_at_most_shown_chars_characters() -> No
         EnvConfig(filter=value)  # type: ignore[arg-type]
     got = str(err.value).split(", got ", 1)[1]
     assert len(got) == 200
+
+
+def test_a_refused_value_is_shown_three_levels_deep() -> None:
+    # written out: the fourth level of nesting is '...', past the sixth entry too
+    assert shown([[[["a"]]]]) == "[[[[...]]]]"
+    assert shown(list(range(10))) == "[0, 1, 2, 3, 4, 5, ...]"
+    with pytest.raises(ConfigError, match=r"filter must be one of .*, got \[\[\[\[\.\.\.\]\]\]\]$"):
+        EnvConfig(filter=[[[["ukf"]]]])  # type: ignore[arg-type]
