@@ -38,3 +38,30 @@ def test_a_refused_value_is_shown_three_levels_deep() -> None:
     assert shown(list(range(10))) == "[0, 1, 2, 3, 4, 5, ...]"
     with pytest.raises(ConfigError, match=r"filter must be one of .*, got \[\[\[\[\.\.\.\]\]\]\]$"):
         EnvConfig(filter=[[[["ukf"]]]])  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"initial_stay": 1.5}, r"initial_stay must be in \[0\.0, 1\.0\], got 1\.5"),
+        ({"initial_stay": 1.0 + 1e-12}, r"initial_stay must be in \[0\.0, 1\.0\]"),
+        ({"initial_stay": (-0.5, 0.9, 0.9)}, r"initial_stay\[0\] must be in \[0\.0, 1\.0\]"),
+        ({"initial_stay": (0.9, 0.9, -1e-12)}, r"initial_stay\[2\] must be in \[0\.0, 1\.0\]"),
+        ({"sojourn": (0.0, 20.0, 20.0)}, r"sojourn\[0\] must be in \(0\.0, inf\), got 0\.0"),
+        ({"sojourn": (60.0, -0.5, 20.0)}, r"sojourn\[1\] must be in \(0\.0, inf\), got -0\.5"),
+        ({"stay_base": "evidence"}, r"stay_base 'evidence' needs action_mode 'stay'"),
+        ({"stay_base": "uniform", "action_mode": "set"}, r"needs action_mode 'stay', got 'set'"),
+        ({"detector_share": 0.5}, r"detector_share > 0 needs action_mode 'stay'.*got 'scale'"),
+    ],
+)
+def test_a_stay_sojourn_or_stay_setting_out_of_its_range_is_refused(
+    overrides: dict, message: str
+) -> None:
+    with pytest.raises(ConfigError, match=message):
+        EnvConfig.build(overrides)
+
+
+def test_stays_and_sojourns_at_their_edges_are_accepted() -> None:
+    assert EnvConfig(initial_stay=1.0).initial_stay == 1.0
+    assert EnvConfig(initial_stay=(0.0, 1.0, 0.5)).initial_stay == (0.0, 1.0, 0.5)
+    assert EnvConfig(action_mode="stay", stay_base="evidence").stay_base == "evidence"
