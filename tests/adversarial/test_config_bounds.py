@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from imm_gym import ConfigError, EnvConfig, MotionModel
-from imm_gym.tracking.hetero import LinearModel
+from imm_gym.tracking.hetero import SONAR_HETERO_BANK, LinearModel
 from imm_gym.validation import SHOWN_CHARS, check_int, shown
 
 
@@ -65,3 +65,50 @@ def test_stays_and_sojourns_at_their_edges_are_accepted() -> None:
     assert EnvConfig(initial_stay=1.0).initial_stay == 1.0
     assert EnvConfig(initial_stay=(0.0, 1.0, 0.5)).initial_stay == (0.0, 1.0, 0.5)
     assert EnvConfig(action_mode="stay", stay_base="evidence").stay_base == "evidence"
+
+
+NO_CT = [{"kind": "cv"}, {"kind": "cv", "noise": "continuous", "intensity": 1.0}]
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (
+            {"mode_reward": 0.5, "shadow": "none", "reward": "error"},
+            r"mode_reward > 0 needs shadow 'fixed'",
+        ),
+        (
+            {"obs_features": ("turn_band",), "bank": NO_CT},
+            r"obs_features 'turn_band' needs a linear bank with a CT model",
+        ),
+        (
+            {"family": {"designed_share": 0.5}, "bank": NO_CT},
+            r"family\.designed_share needs a linear bank with a CT model",
+        ),
+        (
+            {"bank": dict(SONAR_HETERO_BANK), "filter": "ukf"},
+            r"heterogeneous bank \(NCV/CT/CTRA\) needs filter 'ekf'",
+        ),
+        (
+            {"stay_grid": "pairs", "action_mode": "stay"},
+            r"stay_grid 'pairs' needs stay_base 'evidence' or 'evidence_best'.*got 'tracker'",
+        ),
+        (
+            {"detector": "turn_rate"},
+            r"detector 'turn_rate' places .*detector_share must be in \(0, 1\], got 0",
+        ),
+    ],
+)
+def test_a_setting_without_what_it_needs_is_refused_naming_both(
+    overrides: dict, message: str
+) -> None:
+    with pytest.raises(ConfigError, match=message):
+        EnvConfig.build(overrides)
+
+
+def test_the_settings_with_what_they_need_are_accepted() -> None:
+    EnvConfig.build({"obs_features": ("turn_band",)})
+    EnvConfig.build({"family": {"designed_share": 0.5}})
+    EnvConfig.build({"bank": dict(SONAR_HETERO_BANK), "filter": "ekf"})
+    EnvConfig.build({"stay_grid": "pairs", "action_mode": "stay", "stay_base": "evidence"})
+    EnvConfig.build({"detector": "turn_rate", "detector_share": 0.5, "action_mode": "stay"})
