@@ -112,3 +112,10 @@ def test_the_settings_with_what_they_need_are_accepted() -> None:
     EnvConfig.build({"bank": dict(SONAR_HETERO_BANK), "filter": "ekf"})
     EnvConfig.build({"stay_grid": "pairs", "action_mode": "stay", "stay_base": "evidence"})
     EnvConfig.build({"detector": "turn_rate", "detector_share": 0.5, "action_mode": "stay"})
+
+
+def test_a_config_mapping_updates_the_preset_it_is_built_on() -> None:
+    preset = {"scenario": "random", "p_min": 0.05, "parallel": True}
+    config = EnvConfig.build({"p_min": 0.01}, preset=preset)
+    assert config.p_min == 0.01 and config.parallel is True
+    assert EnvConfig.build(None, preset=preset).p_min == 0.05
