@@ -1,0 +1,19 @@
+"""Configuration files: what a bank preset name stands for, which keys win, which keys an
+evaluated agent leaves to the evaluated configuration."""
+
+from __future__ import annotations
+
+import pytest
+
+from imm_gym.sim.config_file import read_env_config
+from imm_gym.validation import ConfigError
+
+
+def test_a_filter_given_in_the_file_wins_over_the_presets(tmp_path) -> None:
+    file = tmp_path / "h.yaml"
+    file.write_text("bank: hetero\n")
+    assert read_env_config(file)["filter"] == "ekf"  # the preset's filter
+    # the file's filter wins: the heterogeneous bank with the UKF is refused, naming the file
+    file.write_text("bank: hetero\nfilter: ukf\n")
+    with pytest.raises(ConfigError, match=r"h\.yaml: .*heterogeneous bank .* needs filter 'ekf'"):
+        read_env_config(file)
