@@ -3,9 +3,12 @@ evaluated agent leaves to the evaluated configuration."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
-from imm_gym.sim.config_file import read_env_config
+from imm_gym.sim.config_file import env_config_dict, read_env_config
+from imm_gym.sim.env_config import EnvConfig
 from imm_gym.validation import ConfigError
 
 
@@ -17,3 +20,14 @@ def test_a_filter_given_in_the_file_wins_over_the_presets(tmp_path) -> None:
     file.write_text("bank: hetero\nfilter: ukf\n")
     with pytest.raises(ConfigError, match=r"h\.yaml: .*heterogeneous bank .* needs filter 'ekf'"):
         read_env_config(file)
+
+
+def test_the_paper_preset_stands_for_the_paper_bank_written_out(tmp_path) -> None:
+    # 'bank: paper' gives the bank a file listing the paper bank's models gives (an evaluation
+    # records either as a bank from the configuration file)
+    listed = tmp_path / "listed.json"
+    listed.write_text(json.dumps({"bank": env_config_dict(EnvConfig())["bank"]}))
+    named = tmp_path / "named.yaml"
+    named.write_text("bank: paper\n")
+    assert read_env_config(named) == read_env_config(listed)
+    assert "bank" in read_env_config(named)
