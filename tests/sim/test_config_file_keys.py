@@ -31,3 +31,10 @@ def test_the_paper_preset_stands_for_the_paper_bank_written_out(tmp_path) -> Non
     named.write_text("bank: paper\n")
     assert read_env_config(named) == read_env_config(listed)
     assert "bank" in read_env_config(named)
+
+
+def test_a_yml_file_is_read_as_yaml(tmp_path) -> None:
+    file = tmp_path / "c.yml"
+    file.write_text("p_min: 1e-2\nsensor: {sigma_r: 20.0}\n")
+    config = EnvConfig.build(read_env_config(file))
+    assert config.p_min == 0.01 and config.sensor.sigma_r == 20.0
