@@ -7,6 +7,7 @@ import json
 
 import pytest
 
+from imm_gym.cli.policies import agent_overrides
 from imm_gym.sim.config_file import env_config_dict, read_env_config
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.validation import ConfigError
@@ -38,3 +39,27 @@ def test_a_yml_file_is_read_as_yaml(tmp_path) -> None:
     file.write_text("p_min: 1e-2\nsensor: {sigma_r: 20.0}\n")
     config = EnvConfig.build(read_env_config(file))
     assert config.p_min == 0.01 and config.sensor.sigma_r == 20.0
+
+
+def test_an_evaluated_agent_keeps_only_its_own_settings() -> None:
+    # written out: the tracker, the targets (with the first velocity's prior) and how the
+    # evaluation runs (divergence cap, engine) are the evaluated configuration's
+    recorded = {
+        "sensor": {"sigma_r": 20.0},
+        "filter": "ekf",
+        "initial_stay": 0.9,
+        "sojourn": None,
+        "scenario": "paper",
+        "family": {"min_duration": 5},
+        "vary": {},
+        "velocity_std": 20.0,
+        "divergence_error": 100.0,
+        "divergence_cov": 1e6,
+        "engine": "numpy",
+        "action_mode": "set",
+        "p_min": 0.01,
+        "obs_features": ("speed",),
+    }
+    kept, notes = agent_overrides(object(), recorded, EnvConfig())
+    assert kept == {"action_mode": "set", "p_min": 0.01, "obs_features": ("speed",)}
+    assert notes["trained_on"]["filter"] == "ekf" and notes["evaluated_on"]["filter"] == "ukf"
