@@ -8,7 +8,7 @@ import json
 import pytest
 
 from imm_gym.cli.policies import agent_overrides
-from imm_gym.sim.config_file import env_config_dict, read_env_config
+from imm_gym.sim.config_file import env_config_dict, read_env_config, write_env_config
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.validation import ConfigError
 
@@ -63,3 +63,10 @@ def test_an_evaluated_agent_keeps_only_its_own_settings() -> None:
     kept, notes = agent_overrides(object(), recorded, EnvConfig())
     assert kept == {"action_mode": "set", "p_min": 0.01, "obs_features": ("speed",)}
     assert notes["trained_on"]["filter"] == "ekf" and notes["evaluated_on"]["filter"] == "ukf"
+
+
+def test_writing_a_file_of_another_kind_is_refused_naming_it(tmp_path) -> None:
+    file = tmp_path / "c.toml"
+    with pytest.raises(ConfigError, match=r"c\.toml: a configuration file ends in \.yaml"):
+        write_env_config(EnvConfig(), file)
+    assert not file.exists()
