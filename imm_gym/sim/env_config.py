@@ -46,16 +46,12 @@ STAY_BASES = ("tracker", "evidence", "evidence_best", "uniform")
 #: The stay bank's grids (:func:`imm_gym.sim.stay_bank.grid_stays`): one stay for every row, or
 #: also the per-model pairs.
 STAY_GRIDS = ("stays", "pairs")
-#: The built-in reward terms (the registry, :data:`imm_gym.sim.rewards.REWARD_TERMS`, is what
-#: ``reward`` is checked against).
-REWARDS = tuple(REWARD_TERMS)
 ENGINES = ("auto", "compiled", "numpy")
 #: The built-in optional observation blocks (the registry, :data:`imm_gym.sim.features.FEATURES`,
 #: is what ``obs_features`` is checked against).
 OBS_FEATURES = tuple(FEATURES)
 #: The built-in observation features computed from the shadow IMM (they need ``shadow="fixed"``).
 SHADOW_FEATURES = shadow_features()
-TIP_READINGS = ("literal", "intent")
 #: The per-episode reward scales ``reward_scale`` may name instead of a number of metres.
 REWARD_SCALES = ("measurement",)
 #: The least number of metres ``reward_scale`` may be (a micrometre): far below any tracker's
