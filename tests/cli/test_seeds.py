@@ -275,3 +275,16 @@ def test_a_suite_table_with_an_iqm_names_the_cases_the_seeds_did_not_run_on(caps
     printed = " ".join(capsys.readouterr().out.split())
     assert "all scenarios, relative Δ vs the reference, best-fixed: +2.50% [" in printed
     assert "; not run on five" in printed
+
+
+def test_a_suite_where_no_case_ran_every_seed_names_no_seed_as_its_reference() -> None:
+    """With no case that ran every seed there is no aggregate: the reference it names is the
+    one of the cases' paired differences ('best-fixed') or None, never one of the seeds."""
+    results = {
+        "scenarios": {
+            "three": _result({"best-fixed": 10.0, "a": 9.0}),
+            "four": _result({"best-fixed": 10.0, "b": 9.5}),
+        }
+    }
+    out = suite_across_seeds(results, ["a", "b"])
+    assert out["reference"] in (None, "best-fixed")
