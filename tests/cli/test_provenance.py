@@ -121,3 +121,19 @@ def test_an_untracked_module_in_the_packages_is_recorded_dirty(tmp_path, monkeyp
         assert versions()["git_dirty"] is True
         (root / module).unlink()
     assert git_state(package) == (head, False)
+
+
+def test_a_package_at_the_root_of_its_work_tree_records_its_commit_and_modules(
+    tmp_path, monkeypatch
+) -> None:
+    """The package directory is the work tree itself (its own ``.git``): its commit is recorded,
+    an untracked ``.py`` file in it makes the record dirty, an untracked text file does not."""
+    package = _repo(tmp_path / "pkg", "__init__.py")
+    head = _git(package, "rev-parse", "HEAD")
+    monkeypatch.setattr(imm_gym, "__file__", str(package / "__init__.py"))
+    (package / "notes.txt").write_text("untracked\n")
+    assert git_state(package) == (head, False)
+    (package / "extra.py").write_text("x = 1\n")
+    assert git_state(package) == (head, True)
+    record = versions()
+    assert (record["git_commit"], record["git_dirty"]) == (head, True)
