@@ -137,3 +137,17 @@ def test_a_package_at_the_root_of_its_work_tree_records_its_commit_and_modules(
     assert git_state(package) == (head, True)
     record = versions()
     assert (record["git_commit"], record["git_dirty"]) == (head, True)
+
+
+def test_without_git_the_record_has_no_commit_and_the_run_goes_on(tmp_path, monkeypatch) -> None:
+    """git not installed (not on ``PATH``) in a work tree: no ``git_commit`` and no error (the
+    versions are a record, never a reason to stop)."""
+    root = _repo(tmp_path / "project", "pkg/__init__.py")
+    monkeypatch.setattr(imm_gym, "__file__", str(root / "pkg" / "__init__.py"))
+    empty = tmp_path / "no-git"
+    empty.mkdir()
+    monkeypatch.setenv("PATH", str(empty))
+    assert git_state(root / "pkg") is None
+    record = versions()
+    assert "git_commit" not in record and "git_dirty" not in record
+    assert record["numpy"] == np.__version__
