@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 import platform
 import re
 import subprocess
@@ -11,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 import imm_gym
-from imm_gym.cli.provenance import git_state, versions
+from imm_gym.cli.provenance import git_state, record_json, versions
 
 
 def test_the_record_names_the_package_python_and_the_core_libraries() -> None:
@@ -151,3 +153,13 @@ def test_without_git_the_record_has_no_commit_and_the_run_goes_on(tmp_path, monk
     record = versions()
     assert "git_commit" not in record and "git_dirty" not in record
     assert record["numpy"] == np.__version__
+
+
+def test_record_json_writes_a_number_that_is_not_finite_in_a_tuple_as_null() -> None:
+    """A tuple (an interval, a shape) holding NaN or an infinity, at any depth: null, as in a
+    list (json.dumps refused it, allow_nan=False, and no results were written)."""
+    results = {"ci": (math.nan, 1.5), "deep": [{"range": (-math.inf, (math.inf, 2))}]}
+    assert json.loads(record_json(results)) == {
+        "ci": [None, 1.5],
+        "deep": [{"range": [None, [None, 2]]}],
+    }
