@@ -219,3 +219,44 @@ def test_a_tradeoff_without_any_mode_accuracy_says_so(tmp_path, monkeypatch) -> 
         "no mode accuracy to plot:\nno step's true model is in the bank"
     ]
     assert ax.get_title().startswith("ARMSE vs mode integrity (test, 2 runs")
+
+
+def test_two_policies_each_have_their_estimate_mode_panel_and_rmse_curve_named() -> None:
+    """Two policies on one scenario: the trajectory draws each one's run-0 estimate under its
+    name, the mode probabilities take one panel per policy (titled by it, probabilities 0..1
+    in view, the time axis named under the bottom panel), the RMSE one curve per policy named
+    by it; the titles name the scenario, the runs and the seeds of ``meta``."""
+    scenario = {"segments": [{"duration": 10}, {"duration": 10, "turn_rate_deg": 3.0}],
+                "position": [3000.0, 4500.0], "velocity": [20.0, 15.0]}
+    config = EnvConfig.build({"scenario": scenario})
+    runs = {}
+    for name in ("fixed", "tip-imm"):
+        policy, _ = REGISTRY[name].build(BuildContext(config, 0, 1, None))
+        runs[name] = rollout(policy, evaluation_config(config, policy.env_overrides), 2, 0)
+    assert not any(r.diverged.any() for r in runs.values())
+    assert not np.allclose(runs["fixed"].estimate, runs["tip-imm"].estimate)
+    meta = {"scenario": "short turn", "runs": 2, "seeds": "0..1"}
+    figs = figures(runs, meta, config)
+
+    ax = figs["trajectory"].axes[0]
+    _, *estimates = ax.get_lines()
+    assert [line.get_label() for line in ax.get_lines()] == ["truth", "fixed", "tip-imm"]
+    for line, name in zip(estimates, runs, strict=True):
+        np.testing.assert_array_equal(line.get_xydata(), runs[name].estimate[0, :, :2])
+    assert ax.get_title() == "Trajectory, run 0 (short turn)"
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["truth", "fixed", "tip-imm"]
+
+    top, bottom = figs["mode_probs"].axes[:2]
+    for ax, name in ((top, "fixed"), (bottom, "tip-imm")):
+        assert ax.get_title() == name
+        low, high = ax.get_ylim()
+        assert low < 0.0 and high > 1.0  # a probability of 1 is in view
+        for j, line in enumerate(ax.get_lines()):
+            np.testing.assert_array_equal(line.get_ydata(), runs[name].mode_probs[0, :, j])
+    assert bottom.get_xlabel() == "time (s)" and top.get_xlabel() == ""
+
+    ax = figs["rmse"].axes[0]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["fixed", "tip-imm"]
+    assert ax.get_title() == "RMSE over time (short turn, 2 runs, seeds 0..1)"
+    assert ax.get_ylabel() == "position RMSE (m)"
+
