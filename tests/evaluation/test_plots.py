@@ -260,3 +260,33 @@ def test_two_policies_each_have_their_estimate_mode_panel_and_rmse_curve_named()
     assert ax.get_title() == "RMSE over time (short turn, 2 runs, seeds 0..1)"
     assert ax.get_ylabel() == "position RMSE (m)"
 
+
+def test_the_tradeoff_figure_names_the_stays_and_the_policies_in_its_legend(
+    tmp_path, monkeypatch
+) -> None:
+    """Each stay written beside its point of the curve (three significant digits), each policy
+    in the legend with its total variation (two decimals), a long name (an agent's directory)
+    cut to its last 27 characters after an ellipsis, and the axes named."""
+    from imm_gym.evaluation import plots
+
+    drawn = []
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or save(fig, path))
+    fixed = {0.975: {"mode_accuracy": 0.8, "armse_pos": 30.0},
+             0.9: {"mode_accuracy": 0.7, "armse_pos": 25.0}}
+    agent = "runs/agents/2026-12-07/ppo-long-directory-name/best"
+    policies = {"a": {"mode_accuracy": 0.85, "armse_pos": 20.0, "mode_prob_tv": 0.1234},
+                agent: {"mode_accuracy": 0.6, "armse_pos": 40.0, "mode_prob_tv": 0.2}}
+    plots.tradeoff_figure(policies, fixed, tmp_path / "t.png", META)
+    ax = drawn[0].axes[0]
+    stays = {t.get_text(): t.xy for t in ax.texts}
+    assert stays == {"0.9": (70.0, 25.0), "0.975": (80.0, 30.0)}
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [
+        "fixed TPM (stay on the diagonal)",
+        "a (TV 0.12)",
+        "…po-long-directory-name/best (TV 0.20)",  # 51 characters: the last 27 kept
+    ]
+    assert ax.get_xlabel().startswith("mode accuracy (%)")
+    assert ax.get_ylabel() == "position ARMSE (m)"
+    assert ax.get_title() == "ARMSE vs mode integrity (test, 2 runs, seeds 0..1)"
+
