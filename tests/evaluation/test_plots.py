@@ -10,6 +10,7 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
+import pytest
 
 from baselines import REGISTRY, BuildContext
 from imm_gym import EnvConfig
@@ -290,3 +291,25 @@ def test_the_tradeoff_figure_names_the_stays_and_the_policies_in_its_legend(
     assert ax.get_ylabel() == "position ARMSE (m)"
     assert ax.get_title() == "ARMSE vs mode integrity (test, 2 runs, seeds 0..1)"
 
+
+@pytest.mark.parametrize("which", ["stays only", "policies only"])
+def test_a_tradeoff_with_only_stays_or_only_policies_draws_them(
+    tmp_path, monkeypatch, which
+) -> None:
+    """Mode accuracies for the stays but none for the policies (or the reverse): what has one is
+    drawn; "no mode accuracy to plot" is for a figure where nothing has one."""
+    from imm_gym.evaluation import plots
+
+    drawn = []
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or save(fig, path))
+    stays_have = which == "stays only"
+    fixed = {0.9: {"mode_accuracy": 0.7 if stays_have else None, "armse_pos": 25.0}}
+    policies = {"a": {"mode_accuracy": None if stays_have else 0.85, "armse_pos": 20.0,
+                      "mode_prob_tv": 0.1}}
+    plots.tradeoff_figure(policies, fixed, tmp_path / "t.png", META)
+    ax = drawn[0].axes[0]
+    assert ax.axison
+    assert not any("no mode accuracy" in t.get_text() for t in ax.texts)
+    points = [line.get_xydata().tolist() for line in ax.get_lines() if len(line.get_xdata())]
+    assert points == ([[[70.0, 25.0]]] if stays_have else [[[85.0, 20.0]]])
