@@ -1,0 +1,65 @@
+"""Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
+(a window only for ``"human"``, drawn at every reset and step, released by ``close``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import imm_gym.envs.tpm_adapt as tpm_adapt
+from imm_gym.envs import TPMAdaptEnv
+from imm_gym.envs.render import CoreRenderer
+
+SHORT = {
+    "scenario": "random",
+    "family": {"horizon": 20, "n_segments": (1, 2), "min_duration": 10},
+}
+
+
+@pytest.fixture
+def renderer_calls(monkeypatch) -> list:
+    """What the scalar env asks of its renderer: ``("window", bool)`` when it is built, then
+    ``"show"`` and ``"close"`` in order (the renderer still draws as it would)."""
+    calls: list = []
+
+    class Spy(CoreRenderer):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            calls.append(("window", self.window))
+
+        def show(self, slot: int = 0) -> None:
+            calls.append("show")
+            super().show(slot)
+
+        def close(self) -> None:
+            calls.append("close")
+            super().close()
+
+    monkeypatch.setattr(tpm_adapt, "CoreRenderer", Spy)
+    return calls
+
+
+def test_human_mode_draws_a_window_at_every_reset_and_step_and_close_releases_it(
+    renderer_calls: list,
+) -> None:
+    env = TPMAdaptEnv(config=SHORT, render_mode="human")
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(np.zeros(9, dtype=np.float32))
+    assert env.render() is None
+    env.reset()
+    env.close()
+    # one picture per reset (2) and per step (3), into a window, then released
+    assert renderer_calls == [("window", True), *["show"] * 5, "close"]
+
+
+def test_rgb_array_mode_draws_off_screen_only_when_asked_and_close_releases_it(
+    renderer_calls: list,
+) -> None:
+    env = TPMAdaptEnv(config=SHORT, render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(np.zeros(9, dtype=np.float32))
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3
+    env.close()
+    assert renderer_calls == [("window", False), "close"]
