@@ -1,7 +1,10 @@
 """Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
-(a window only for ``"human"``, drawn at every reset and step, released by ``close``)."""
+(a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
+action check off the compiled solo step."""
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import pytest
@@ -9,6 +12,7 @@ import pytest
 import imm_gym.envs.tpm_adapt as tpm_adapt
 from imm_gym.envs import TPMAdaptEnv
 from imm_gym.envs.render import CoreRenderer
+from imm_gym.sim.actions import ActionError
 
 SHORT = {
     "scenario": "random",
@@ -63,3 +67,25 @@ def test_rgb_array_mode_draws_off_screen_only_when_asked_and_close_releases_it(
     assert frame.dtype == np.uint8 and frame.ndim == 3
     env.close()
     assert renderer_calls == [("window", False), "close"]
+
+
+@pytest.mark.parametrize(
+    ("overrides", "render_mode"),
+    [({}, None), ({"obs_features": ("tpm",)}, None), ({}, "rgb_array")],
+    ids=["solo", "features", "rendered"],
+)
+def test_the_scalar_env_names_its_own_action_shape_on_every_path(
+    overrides: dict, render_mode: str | None
+) -> None:
+    """A ``(1, 9)`` action (a batch of one) is refused as the scalar env's ``(9,)`` action, also
+    where the step is the core's (an observation feature, a render mode) and not the compiled
+    solo step's."""
+    env = TPMAdaptEnv(config={**SHORT, **overrides}, render_mode=render_mode)
+    assert (env._solo is not None) == (overrides == {} and render_mode is None)
+    env.reset(seed=0)
+    for bad in (np.zeros((1, 9)), np.zeros((3, 3)), np.zeros(3)):
+        shape = re.escape(str(bad.shape))
+        with pytest.raises(ActionError, match=rf"action must have shape \(9,\), got {shape}"):
+            env.step(bad)
+    env.step(np.zeros(9))  # the refused actions consumed nothing
+    env.close()
