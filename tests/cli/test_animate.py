@@ -14,6 +14,7 @@ from PIL import Image
 import imm_gym.cli.evaluate as cli
 from baselines import REGISTRY, BuildContext
 from imm_gym.evaluation.animation import (
+    check_animation_path,
     gif_palette,
     rollout_view,
     side_by_side_frames,
@@ -23,6 +24,7 @@ from imm_gym.evaluation.rollout import evaluation_config, rollout
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.episodes import draw_batch
 from imm_gym.sim.render import TrackFigure, model_labels
+from imm_gym.validation import ConfigError
 
 #: 20 steps with a turn, outliers and missed detections
 SCENARIO = {
@@ -173,3 +175,11 @@ def test_the_view_of_run_1_is_that_runs_step_and_its_picture_draws_it() -> None:
         }
         assert last == {int(tip.true_model[1, t - 1])}
     assert moved >= 15
+
+
+@pytest.mark.parametrize("name", ["episode.GIF", "episode.Gif"])
+def test_an_upper_case_gif_suffix_is_accepted(name: str, tmp_path) -> None:
+    """The suffix is read whatever its case (a .GIF is written as a GIF)."""
+    check_animation_path(tmp_path / name)
+    with pytest.raises(ConfigError, match="must end in"):
+        check_animation_path(tmp_path / "episode.GIFF")
