@@ -183,3 +183,37 @@ def test_an_upper_case_gif_suffix_is_accepted(name: str, tmp_path) -> None:
     check_animation_path(tmp_path / name)
     with pytest.raises(ConfigError, match="must end in"):
         check_animation_path(tmp_path / "episode.GIFF")
+
+
+def test_the_view_of_run_1_draws_that_runs_sensor_draws_and_scene() -> None:
+    """Run 1 of a random family with outliers and misses: the detections, outliers and measured
+    positions are run 1's own (its non-outlier measurements within a few noise deviations of
+    its truth, its flags not run 0's), its track starts at its first measurement, and the scene
+    holds its whole path and the sensor."""
+    family = EnvConfig(
+        scenario="random", family={"horizon": 30, "n_segments": [1, 3]},
+        sensor={"outlier_prob": 0.2, "detection_prob": 0.7},
+    )
+    tip = _rollouts(family, 0, names=("tip-imm",))["tip-imm"]
+    batch = draw_batch(family.source, family.sensor, 2, 0, family.velocity_std, family.vary)
+    K = 30
+    view = rollout_view(tip, batch, family.sensor, "tip-imm", K, run=1)
+    truth = batch.truth.states[1, :, :2]
+    assert np.linalg.norm(truth - batch.truth.states[0, :, :2], axis=1).min() > 500.0
+    flags = batch.measurements
+    assert np.any(flags.detected[0] != flags.detected[1])
+    assert np.any(flags.outlier[0] != flags.outlier[1])
+    np.testing.assert_array_equal(view.detected, flags.detected[1])
+    np.testing.assert_array_equal(view.outlier, flags.outlier[1])
+    # range-bearing noise: sigma_r and the bearing's arc at the target's range
+    sensor = family.sensor
+    rng = np.linalg.norm(truth - np.asarray(sensor.position), axis=1)
+    bound = 5.0 * np.hypot(sensor.sigma_r, rng * np.radians(sensor.sigma_theta_deg))
+    clean = view.detected & ~view.outlier
+    assert clean.sum() >= 10
+    miss = np.linalg.norm(view.measurements - truth, axis=1)
+    assert np.all(miss[clean] < bound[clean])
+    np.testing.assert_allclose(view.estimate[0], view.measurements[0], atol=1e-9)
+    x_min, x_max, y_min, y_max = view.extent
+    for x, y in (*truth, sensor.position):
+        assert x_min < x < x_max and y_min < y < y_max
