@@ -217,3 +217,15 @@ def test_the_view_of_run_1_draws_that_runs_sensor_draws_and_scene() -> None:
     x_min, x_max, y_min, y_max = view.extent
     for x, y in (*truth, sensor.position):
         assert x_min < x < x_max and y_min < y < y_max
+
+
+def test_a_rollout_of_another_bank_is_refused() -> None:
+    """A roll-out of a three-model bank drawn as the configuration's two-model bank: refused by
+    name (it drew three curves under two names)."""
+    two = EnvConfig(
+        scenario=SCENARIO,
+        bank=[{"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 3.0}],
+    )
+    rollouts = _rollouts(EnvConfig(scenario=SCENARIO), 7, names=("fixed",))
+    with pytest.raises(ValueError, match="not of the configured bank"):
+        next(side_by_side_frames(rollouts, two, 7))
