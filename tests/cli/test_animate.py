@@ -229,3 +229,14 @@ def test_a_rollout_of_another_bank_is_refused() -> None:
     rollouts = _rollouts(EnvConfig(scenario=SCENARIO), 7, names=("fixed",))
     with pytest.raises(ValueError, match="not of the configured bank"):
         next(side_by_side_frames(rollouts, two, 7))
+
+
+def test_the_palette_holds_each_colour_blended_with_white() -> None:
+    """The antialiased edges of a C0..C9 artist: the colour at 75, 50 and 25 % over white,
+    ``a c + (1 - a)``, worked out here (to a unit of rounding)."""
+    palette = gif_palette().astype(np.int64)
+    for i in range(10):
+        c = np.array(to_rgb(f"C{i}"))
+        for a in (0.75, 0.5, 0.25):
+            blend = (a * c + 1.0 - a) * 255.0
+            assert np.abs(palette - blend).max(axis=1).min() <= 1.0, (i, a)
