@@ -4,6 +4,7 @@ numbers, and the errors raised before any evaluation."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from PIL import Image
 
 import imm_gym.cli.evaluate as cli
 from baselines import REGISTRY, BuildContext
+from imm_gym.evaluation import animation
 from imm_gym.evaluation.animation import (
     check_animation_path,
     gif_palette,
@@ -240,3 +242,34 @@ def test_the_palette_holds_each_colour_blended_with_white() -> None:
         for a in (0.75, 0.5, 0.25):
             blend = (a * c + 1.0 - a) * 255.0
             assert np.abs(palette - blend).max(axis=1).min() <= 1.0, (i, a)
+
+
+def test_the_mp4_writer_writes_every_frame_as_drawn(monkeypatch) -> None:
+    """Each frame grabbed is the frame given, pixel for pixel (a writer that kept showing the
+    first frame wrote a still MP4)."""
+    import contextlib
+
+    import matplotlib.animation
+
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 256, (20, 30, 3), dtype=np.uint8) for _ in range(4)]
+    grabbed = []
+
+    class Writer:
+        def __init__(self, fps: float) -> None:
+            pass
+
+        @contextlib.contextmanager
+        def saving(self, fig, path, dpi):
+            self.fig = fig
+            yield
+
+        def grab_frame(self) -> None:
+            self.fig.canvas.draw()
+            grabbed.append(np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy())
+
+    monkeypatch.setattr(matplotlib.animation, "FFMpegWriter", Writer)
+    assert animation._write_mp4(iter(frames), Path("unused.mp4"), 10) == 4
+    assert len(grabbed) == 4
+    for written, frame in zip(grabbed, frames, strict=True):
+        np.testing.assert_array_equal(written, frame)
