@@ -273,3 +273,22 @@ def test_the_mp4_writer_writes_every_frame_as_drawn(monkeypatch) -> None:
     assert len(grabbed) == 4
     for written, frame in zip(grabbed, frames, strict=True):
         np.testing.assert_array_equal(written, frame)
+
+
+def test_the_title_names_the_step_of_the_horizon_and_a_divergence_from_its_step() -> None:
+    """The paper's scenario has 150 steps: the picture's title reads ``t = k / 150``; run 2 of
+    these settings diverges at step 77, whose estimate is already missing: from that step on
+    the title says so, the step before it does not."""
+    config = EnvConfig.build({"scenario": "paper", "divergence_error": 60.0})
+    policy, _ = REGISTRY["fixed"].build(BuildContext(config, 0, 1, None))
+    run = rollout(policy, evaluation_config(config, policy.env_overrides), 3, 0)
+    assert run.diverged_at(2) == 77
+    batch = draw_batch(config.source, config.sensor, 3, 0, config.velocity_std)
+    picture = TrackFigure(model_labels(config.bank))
+    before = rollout_view(run, batch, config.sensor, "fixed", 76, 2)
+    at = rollout_view(run, batch, config.sensor, "fixed", 77, 2)
+    assert np.isfinite(before.estimate).all() and np.isnan(at.estimate[77]).all()
+    assert (before.title, at.title) == ("fixed", "fixed, diverged at step 77")
+    assert before.horizon == at.horizon == 150
+    picture.update(at)
+    assert picture.title.get_text() == "fixed, diverged at step 77   t = 77 / 150"
