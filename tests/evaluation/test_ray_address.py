@@ -46,3 +46,10 @@ def test_a_malformed_port_is_named(address) -> None:
     assert unreachable(address) == (
         f"not HOST:PORT with a port in [1, 65535]: {address!r}"
     )
+
+
+def test_the_highest_port_is_a_port() -> None:
+    """65535 is in [1, 65535]: the address is tried (nothing answers, or something does), not
+    refused as malformed."""
+    reason = unreachable("127.0.0.1:65535", timeout=2.0)
+    assert reason is None or reason.startswith("nothing answers at 127.0.0.1:65535 within 2 s")
