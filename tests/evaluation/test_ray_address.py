@@ -53,3 +53,17 @@ def test_the_highest_port_is_a_port() -> None:
     refused as malformed."""
     reason = unreachable("127.0.0.1:65535", timeout=2.0)
     assert reason is None or reason.startswith("nothing answers at 127.0.0.1:65535 within 2 s")
+
+
+def test_an_ipv6_address_in_brackets_is_reached() -> None:
+    """``[::1]:PORT``: the brackets are the URL form of an IPv6 host, not part of its name."""
+    try:
+        server = socket.create_server(("::1", 0), family=socket.AF_INET6)
+    except OSError:
+        pytest.skip("no IPv6 loopback here")
+    with server:
+        port = server.getsockname()[1]
+        assert unreachable(f"[::1]:{port}") is None
+        assert unreachable(f"ray://[::1]:{port}") is None
+    reason = unreachable(f"[::1]:{port}", timeout=2.0)
+    assert reason is not None and reason.startswith(f"nothing answers at ::1:{port} within 2 s")
