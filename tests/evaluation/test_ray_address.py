@@ -41,7 +41,10 @@ def test_an_address_without_a_port_of_its_own_is_left_to_ray(address) -> None:
 
 
 @pytest.mark.parametrize("address", ["127.0.0.1:0", "127.0.0.1:65536", "host:port", ":6379",
-                                     "127.0.0.1:+80", "127.0.0.1:"])
+                                     "127.0.0.1:+80", "127.0.0.1:",
+                                     # digits that are not ASCII: int() reads the first as 6379,
+                                     # the second (a superscript) raises
+                                     "127.0.0.1:\uff16\uff13\uff17\uff19", "127.0.0.1:80\u00b2"])
 def test_a_malformed_port_is_named(address) -> None:
     assert unreachable(address) == (
         f"not HOST:PORT with a port in [1, 65535]: {address!r}"
