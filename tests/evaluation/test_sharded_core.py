@@ -10,7 +10,7 @@ import types
 import numpy as np
 import pytest
 
-from imm_gym.evaluation.distributed import Shard, ShardedCore, chunk_sizes
+from imm_gym.evaluation.distributed import Shard, ShardedCore, cause, chunk_sizes
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 
@@ -85,3 +85,26 @@ def test_the_sharded_core_steps_as_one_core(local_ray, runs, shards) -> None:
     np.testing.assert_array_equal(sharded.observe(), local.observe())
     np.testing.assert_array_equal(sharded.truth, local.truth)
 
+
+@pytest.mark.parametrize(
+    ("message", "said"),
+    [
+        # Ray's message of an actor whose creation raised: the traceback, then the exception
+        (
+            "The actor died because of an error raised in its creation task, "
+            "ray::Shard.__init__() (pid=7, ip=10.0.0.2)\n  File \"x.py\", line 3, in __init__\n"
+            "ImportError: no imm_gym on this node. Check the node's environment.\n",
+            "ImportError: no imm_gym on this node",
+        ),
+        (
+            "The actor is dead because its worker process has died. Worker exit type: "
+            "SYSTEM_ERROR Worker exit detail: the node ended.",
+            "The actor is dead because its worker process has died",
+        ),
+        ("ended.", "ended"),
+        ("", "RayActorError"),
+    ],
+)
+def test_the_cause_of_a_dead_shard_is_the_first_sentence_of_rays_last_line(message, said):
+    error = type("RayActorError", (Exception,), {})(message)
+    assert cause(error) == said
