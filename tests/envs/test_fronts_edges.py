@@ -1,6 +1,7 @@
 """Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
-action check off the compiled solo step."""
+action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
+and an autoreset in a one-step episode."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 import imm_gym.envs.tpm_adapt as tpm_adapt
-from imm_gym.envs import TPMAdaptEnv
+from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.render import CoreRenderer
 from imm_gym.sim.actions import ActionError
 
@@ -89,3 +90,8 @@ def test_the_scalar_env_names_its_own_action_shape_on_every_path(
             env.step(bad)
     env.step(np.zeros(9))  # the refused actions consumed nothing
     env.close()
+
+
+def test_the_vector_env_refuses_a_bool_number_of_envs() -> None:
+    with pytest.raises(ValueError, match="num_envs must be a positive integer, got True"):
+        TPMAdaptVectorEnv(True, config=SHORT)
