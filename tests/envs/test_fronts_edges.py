@@ -9,6 +9,7 @@ import re
 
 import numpy as np
 import pytest
+from gymnasium.utils.seeding import np_random
 
 import imm_gym.envs.tpm_adapt as tpm_adapt
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
@@ -95,3 +96,14 @@ def test_the_scalar_env_names_its_own_action_shape_on_every_path(
 def test_the_vector_env_refuses_a_bool_number_of_envs() -> None:
     with pytest.raises(ValueError, match="num_envs must be a positive integer, got True"):
         TPMAdaptVectorEnv(True, config=SHORT)
+
+
+def test_the_vector_env_seeds_its_own_generator_as_gymnasium_does() -> None:
+    """``reset(seed=s)`` seeds ``np_random`` as Gymnasium's ``VectorEnv.reset`` does (its
+    ``seeding.np_random(s)``), so the vector env's own draws repeat with the seed."""
+    venv = TPMAdaptVectorEnv(2, config=SHORT)
+    for seed in (7, 123):
+        venv.reset(seed=seed)
+        assert venv.np_random_seed == seed
+        expected, _ = np_random(seed)
+        np.testing.assert_array_equal(venv.np_random.random(5), expected.random(5))
