@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import re
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.seeding import np_random
+from gymnasium.vector import AutoresetMode
 
 import imm_gym.envs.tpm_adapt as tpm_adapt
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
@@ -107,3 +109,26 @@ def test_the_vector_env_seeds_its_own_generator_as_gymnasium_does() -> None:
         assert venv.np_random_seed == seed
         expected, _ = np_random(seed)
         np.testing.assert_array_equal(venv.np_random.random(5), expected.random(5))
+
+
+def test_a_one_step_episode_autoresets_with_neither_flag_set() -> None:
+    """Episodes of one step: every other step ends them (truncated), and the step between
+    restarts them (reward 0, neither flag), as Gymnasium's ``SyncVectorEnv`` of scalar envs."""
+    config = {
+        "scenario": {"segments": [{"duration": 1}], "position": [3000.0, 0.0], "velocity": [0, 10]}
+    }
+    venv = TPMAdaptVectorEnv(2, config=config)
+    sync = gym.vector.SyncVectorEnv(
+        [lambda: TPMAdaptEnv(config=config)] * 2, autoreset_mode=AutoresetMode.NEXT_STEP
+    )
+    np.testing.assert_array_equal(venv.reset(seed=3)[0], sync.reset(seed=3)[0])
+    for t in range(6):
+        obs, reward, terminated, truncated, _ = venv.step(np.zeros((2, 9)))
+        expected = sync.step(np.zeros((2, 9)))
+        ends = t % 2 == 0
+        np.testing.assert_array_equal(truncated, [ends, ends])
+        np.testing.assert_array_equal(terminated, [False, False])
+        if not ends:
+            np.testing.assert_array_equal(reward, [0.0, 0.0])
+        for got, want in zip((obs, reward, terminated, truncated), expected[:4], strict=True):
+            np.testing.assert_array_equal(got, want)
