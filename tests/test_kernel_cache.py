@@ -152,3 +152,30 @@ def test_the_folder_is_the_one_numba_uses(package: Path) -> None:
     source = package / "sub" / "body.py"
     expected = UserProvidedCacheLocator.get_suitable_cache_subpath(str(source))
     assert kernel_cache.numba_folder(source.parent) == expected
+
+
+@pytest.mark.parametrize(
+    "numba_import",
+    [
+        "from numba import njit\n",
+        "from numba.extending import overload\n",
+        "import numba as nb\n",
+        "def lazy():\n    import numba\n",
+        "try:\n    from numba import njit\nexcept ImportError:\n    pass\n",
+    ],
+    ids=["from", "from-submodule", "as", "in-a-function", "indented-from"],
+)
+def test_every_form_of_a_numba_import_makes_a_compiled_source(package: Path, numba_import):
+    """A module that imports numba in any form (``from numba import``, indented in a function
+    or a ``try``), imported by no other numba module, is compiled; the constants it reads are
+    then compiled into it and a change of theirs drops the caches."""
+    (package / "solo.py").write_text(numba_import + "from imm_gym.limits import CAP\n")
+    (package / "limits.py").write_text("CAP = 1.0\n")
+    names = [p.relative_to(package).as_posix() for p in compiled_sources(package)]
+    assert {"solo.py", "limits.py"} <= set(names)
+    assert refresh(package)
+    caches = _caches(package)
+    (package / "limits.py").write_text("CAP = 2.0\n")
+    assert refresh(package)
+    assert not any(p.exists() for p in caches)
+
