@@ -179,3 +179,17 @@ def test_every_form_of_a_numba_import_makes_a_compiled_source(package: Path, num
     assert refresh(package)
     assert not any(p.exists() for p in caches)
 
+
+def test_numba_cache_dir_is_read_from_the_environment(package: Path, tmp_path, monkeypatch):
+    """``refresh()`` as run on import (no argument) takes ``NUMBA_CACHE_DIR`` from the
+    environment: the caches numba keeps there are dropped and their digest recorded beside
+    them."""
+    cache_dir = tmp_path / "numba-env-cache"
+    folder = cache_dir / kernel_cache.numba_folder(package)
+    folder.mkdir(parents=True)
+    (folder / "kernels.run-10.py311.nbi").write_text("machine code")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache_dir))
+    assert refresh(package)
+    assert not (folder / "kernels.run-10.py311.nbi").exists()
+    stamp = cache_dir / (kernel_cache.numba_folder(package) + ".sha256")
+    assert stamp.read_text() == kernel_cache.source_digest(package)
