@@ -78,6 +78,8 @@ def test_runner_env_seeds_its_sub_envs_once_and_returns_no_infos():
         ({"target_kl": 0.02}, "target_kl"),
         ({"clip_range_vf": 0.1}, "clip_range_vf"),
         ({"use_sde": True}, "use_sde"),
+        # RLlib always normalizes the advantages (over the iteration's batch)
+        ({"normalize_advantage": False}, "normalize_advantage"),
         ({"policy_kwargs": {"net_arch": {"pi": [64], "vf": [128]}}}, "net_arch"),
         ({"policy_kwargs": {"activation_fn": "gelu"}}, "activation_fn"),
         ({"policy": "PerModelPolicy"}, "PerModelPolicy"),
