@@ -178,3 +178,21 @@ def test_a_filter_entry_that_never_varies_exports_as_a_normalizer_the_loader_tak
     x = np.array([1.0, 1.0, 1.0])
     np.testing.assert_allclose((x - m) / np.sqrt(var + eps),
                                (x - mean) / (std + np.float32(1e-6)), rtol=1e-6)
+
+
+def test_rllib_says_every_sb3_setting_of_the_entry_it_trains_without():
+    """The default entry sets the asymmetric critic, the weight average and the normalization
+    (its YAML: critic_state true, swa_start 0.75, normalize true) and leaves the advantage
+    normalization and ortho_init at SB3's defaults (on): all five are said; without the first
+    three, only the last two."""
+    from agents.rllib import NOT_PORTED, not_ported
+    from agents.training import load_hyperparams
+
+    params, _ = load_hyperparams(ENV_ID)
+    assert params["critic_state"] and params["swa_start"] == 0.75 and params["normalize"]
+    said = not_ported(params)
+    assert set(said) == {"critic_state", "swa_start", "normalize", "normalize_advantage",
+                         "ortho_init"}
+    assert said == {k: NOT_PORTED[k] for k in said}
+    plain = {k: v for k, v in params.items() if k not in ("critic_state", "swa_start", "normalize")}
+    assert set(not_ported(plain)) == {"normalize_advantage", "ortho_init"}
