@@ -196,3 +196,15 @@ def test_rllib_says_every_sb3_setting_of_the_entry_it_trains_without():
     assert said == {k: NOT_PORTED[k] for k in said}
     plain = {k: v for k, v in params.items() if k not in ("critic_state", "swa_start", "normalize")}
     assert set(not_ported(plain)) == {"normalize_advantage", "ortho_init"}
+
+
+def test_runner_env_kwargs_override_the_preset_and_keep_its_other_fields():
+    """An id whose preset the entry's ``env_kwargs`` contradict (``--env
+    imm_gym/TPMAdaptPaper-v0`` trained with the default entry's ``scenario: random``): the
+    runner's env has the kwargs' value; the preset's fields they leave alone stay (the parallel
+    id's ``parallel``)."""
+    paper = RLlibVectorEnv(2, "imm_gym/TPMAdaptPaper-v0", {"scenario": "random"})
+    assert paper.config == EnvConfig.build({"scenario": "random"})
+    assert paper.config != EnvConfig.build({"scenario": "paper"})
+    parallel = RLlibVectorEnv(2, "imm_gym/TPMAdaptParallel-v0", {"p_min": 0.1})
+    assert parallel.config.parallel and parallel.config.p_min == 0.1
