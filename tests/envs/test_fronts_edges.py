@@ -1,7 +1,7 @@
 """Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
 action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
-and an autoreset in a one-step episode."""
+and an autoreset in a one-step episode; the SB3 adapter's bounds of the critic's entries."""
 
 from __future__ import annotations
 
@@ -16,7 +16,9 @@ from gymnasium.vector import AutoresetMode
 import imm_gym.envs.tpm_adapt as tpm_adapt
 from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.render import CoreRenderer
+from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.actions import ActionError
+from imm_gym.sim.core import CRITIC_CLIP, critic_state_size
 
 SHORT = {
     "scenario": "random",
@@ -132,3 +134,26 @@ def test_a_one_step_episode_autoresets_with_neither_flag_set() -> None:
             np.testing.assert_array_equal(reward, [0.0, 0.0])
         for got, want in zip((obs, reward, terminated, truncated), expected[:4], strict=True):
             np.testing.assert_array_equal(got, want)
+
+
+def test_the_critic_entries_are_bounded_on_both_sides_and_hold_what_they_bound() -> None:
+    """The critic's ground-truth entries (signed errors, clipped to ``±CRITIC_CLIP``) get the
+    bounds ``[-CRITIC_CLIP, CRITIC_CLIP]`` behind the actor's, and every observation of an
+    episode lies in the space (the errors go negative)."""
+    venv = TPMAdaptSB3VecEnv(num_envs=3, config=SHORT, critic_state=True)
+    plain = TPMAdaptSB3VecEnv(num_envs=3, config=SHORT)
+    n, extra = plain.observation_space.shape[0], critic_state_size(3)
+    space = venv.observation_space
+    assert space.shape == (n + extra,)
+    np.testing.assert_array_equal(space.low[:n], plain.observation_space.low)
+    np.testing.assert_array_equal(space.high[:n], plain.observation_space.high)
+    np.testing.assert_array_equal(space.low[n:], np.full(extra, -CRITIC_CLIP, np.float32))
+    np.testing.assert_array_equal(space.high[n:], np.full(extra, CRITIC_CLIP, np.float32))
+    venv.seed(0)
+    obs = [venv.reset()]
+    rng = np.random.default_rng(0)
+    for _ in range(25):  # past the 20-step horizon: the reset observations too
+        obs.append(venv.step(rng.uniform(-1, 1, (3, 9)).astype(np.float32))[0])
+    obs = np.concatenate(obs)
+    assert (obs[:, n:] < 0).any()
+    assert all(space.contains(o) for o in obs)
