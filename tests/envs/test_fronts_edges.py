@@ -1,7 +1,8 @@
 """Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
 action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
-and an autoreset in a one-step episode; the SB3 adapter's bounds of the critic's entries."""
+and an autoreset in a one-step episode; the SB3 adapter's bounds of the critic's entries and its
+per-step infos."""
 
 from __future__ import annotations
 
@@ -157,3 +158,41 @@ def test_the_critic_entries_are_bounded_on_both_sides_and_hold_what_they_bound()
     obs = np.concatenate(obs)
     assert (obs[:, n:] < 0).any()
     assert all(space.contains(o) for o in obs)
+
+
+@pytest.mark.parametrize(
+    ("reward", "keys"),
+    [
+        ("advantage", ()),
+        ("bank_advantage", ("stay_bank_position_error", "reward_bank_advantage")),
+    ],
+)
+def test_the_sb3_infos_are_the_vector_env_s_step_infos(reward: str, keys: tuple) -> None:
+    """Each sub-env's info holds the errors, the reward terms and the divergence flag, each the
+    number the Gymnasium vector env gives for the same seeds and actions (the stay bank's two
+    where the reward runs it)."""
+    expected_keys = {
+        "position_error",
+        "shadow_position_error",
+        "reward_error",
+        "reward_advantage",
+        "reward_squared_advantage",
+        "diverged",
+        *keys,
+    }
+    config = {**SHORT, "reward": reward}
+    sb3 = TPMAdaptSB3VecEnv(num_envs=2, config=config)
+    venv = TPMAdaptVectorEnv(2, config=config)
+    sb3.seed(5)
+    sb3.reset()
+    venv.reset(seed=5)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        actions = rng.uniform(-1, 1, (2, 9)).astype(np.float32)
+        _, _, _, infos = sb3.step(actions)
+        _, _, _, _, info = venv.step(actions)
+        for i, sub_info in enumerate(infos):
+            assert set(sub_info) == expected_keys
+            for key in expected_keys:
+                assert sub_info[key] == info[key][i], key
+    assert any(sub_info["reward_advantage"] != 0.0 for sub_info in infos)
