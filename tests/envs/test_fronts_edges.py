@@ -1,8 +1,8 @@
 """Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
 action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
-and an autoreset in a one-step episode; the SB3 adapter's bounds of the critic's entries and its
-per-step infos."""
+and an autoreset in a one-step episode; the SB3 adapter's critic bounds, per-step infos and its
+refusal of a ``step_wait`` without its own ``step_async``."""
 
 from __future__ import annotations
 
@@ -196,3 +196,17 @@ def test_the_sb3_infos_are_the_vector_env_s_step_infos(reward: str, keys: tuple)
             for key in expected_keys:
                 assert sub_info[key] == info[key][i], key
     assert any(sub_info["reward_advantage"] != 0.0 for sub_info in infos)
+
+
+def test_every_sb3_step_wait_needs_its_own_step_async() -> None:
+    """``step_wait`` without ``step_async`` is refused, also after a step: the actions given are
+    used for one step only, never again."""
+    venv = TPMAdaptSB3VecEnv(num_envs=2, config=SHORT)
+    venv.reset()
+    message = "step_wait called without step_async"
+    with pytest.raises(RuntimeError, match=message):
+        venv.step_wait()
+    venv.step_async(np.zeros((2, 9), dtype=np.float32))
+    venv.step_wait()
+    with pytest.raises(RuntimeError, match=message):
+        venv.step_wait()
