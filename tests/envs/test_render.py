@@ -530,3 +530,31 @@ def test_the_models_legend_stays_within_the_mode_probabilities_axes(M: int, rows
     heights = {round(t.get_window_extent().y0) for t in legend.get_texts()}
     assert len(heights) == rows
     picture.close()
+
+
+def test_the_first_picture_draws_the_tracks_start() -> None:
+    """At reset (``t = 0``) the picture holds the track's start as the sensor's first
+    measurement initiated it (:func:`draw_batch`'s ``x0``, ``P0``: its position, the position
+    block of its covariance as the 95 % ellipse) and the tracker's first mode probabilities
+    (a heterogeneous bank's 0.90, 0.08, 0.02, not uniform), drawn at step 0."""
+    config = {**CLUTTER, "bank": {"models": ["ncv", "ct", "ctra"]}, "filter": "ekf"}
+    env = TPMAdaptEnv(config=config, render_mode="rgb_array")
+    env.reset(seed=3)
+    env.render()
+    cfg = env.config
+    batch = draw_batch(cfg.source, cfg.sensor, 1, 3, cfg.velocity_std)
+    view = env._renderer.view(0)
+    np.testing.assert_allclose(view.estimate[0], batch.x0[0, :2], atol=1e-9)
+    np.testing.assert_allclose(view.covariance, batch.P0[0, :2, :2], rtol=1e-9)
+    np.testing.assert_allclose(view.mode_probs[0], [0.90, 0.08, 0.02], atol=1e-12)
+    figure = env._renderer.figure(0)
+    p = batch.truth.states[0, 0, :2]
+    lam = np.linalg.eigvalsh(batch.P0[0, :2, :2])
+    assert figure.ellipse.get_visible()
+    assert figure.ellipse.width == pytest.approx(2 * math.sqrt(CHI2_2_95 * lam[1]))
+    assert figure.ellipse.height == pytest.approx(2 * math.sqrt(CHI2_2_95 * lam[0]))
+    np.testing.assert_allclose(figure.ellipse.get_center(), batch.x0[0, :2] - p, atol=1e-9)
+    np.testing.assert_allclose(_xy(figure.tracks[1][1]), [batch.x0[0, :2]], atol=1e-9)
+    for line, value in zip(figure.mu_lines, (0.90, 0.08, 0.02), strict=True):
+        assert list(line.get_xdata()) == [0] and line.get_ydata()[0] == pytest.approx(value)
+
