@@ -558,3 +558,21 @@ def test_the_first_picture_draws_the_tracks_start() -> None:
     for line, value in zip(figure.mu_lines, (0.90, 0.08, 0.02), strict=True):
         assert list(line.get_xdata()) == [0] and line.get_ydata()[0] == pytest.approx(value)
 
+
+def test_the_measurements_drawn_are_the_sensors_draws_at_their_steps() -> None:
+    """Each step's measured position is that step's draw of the sensor (polar to Cartesian,
+    worked out here from :func:`draw_batch`'s ranges and bearings), drawn where detected."""
+    env = TPMAdaptEnv(config=CLUTTER, render_mode="rgb_array")
+    env.reset(seed=3)
+    for _ in range(25):
+        env.step(np.zeros(9, dtype=np.float32))
+    env.render()
+    cfg = env.config
+    z = draw_batch(cfg.source, cfg.sensor, 1, 3, cfg.velocity_std).measurements.z[0]
+    position = np.asarray(cfg.sensor.position)
+    xy = position + z[:, :1] * np.column_stack([np.cos(z[:, 1]), np.sin(z[:, 1])])
+    view = env._renderer.view(0)
+    np.testing.assert_allclose(view.measurements, xy, rtol=1e-12, atol=1e-6)
+    drawn = _xy(env._renderer.figure(0).tracks[1][2])
+    np.testing.assert_allclose(drawn[view.detected], xy[view.detected], atol=1e-6)
+
