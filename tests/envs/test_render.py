@@ -576,3 +576,23 @@ def test_the_measurements_drawn_are_the_sensors_draws_at_their_steps() -> None:
     drawn = _xy(env._renderer.figure(0).tracks[1][2])
     np.testing.assert_allclose(drawn[view.detected], xy[view.detected], atol=1e-6)
 
+
+def test_the_title_names_the_scenario_the_sub_env_and_the_step() -> None:
+    """The scalar env's picture is titled by its scenario, a vector env's by the scenario and
+    the sub-env drawn; both say the step of the horizon (the paper's 150 steps)."""
+    env = gym.make(PAPER, render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(np.zeros(9, dtype=np.float32))
+    env.render()
+    assert env.unwrapped._renderer.figure(0).title.get_text() == "paper scenario   t = 1 / 150"
+    venv = TPMAdaptVectorEnv(3, config={"scenario": "paper"}, render_mode="rgb_array",
+                             render_envs=[2])
+    venv.reset(seed=0)
+    venv.render()
+    assert venv._renderer.figure(2).title.get_text() == (
+        "paper scenario, sub-env 2   t = 0 / 150"
+    )
+    custom = TPMAdaptEnv(config=CLUTTER, render_mode="rgb_array")
+    custom.reset(seed=0)
+    custom.render()
+    assert custom._renderer.figure(0).title.get_text() == "custom scenario   t = 0 / 25"
