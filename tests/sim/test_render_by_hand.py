@@ -1,0 +1,40 @@
+"""The picture of a hand-made :class:`TrackView`, read from its artists and pixels against values
+worked out here: the scene's box, the title and error texts, the zoom's box on the scene, the
+sensor, the stays' text colours, the TPM's colours in the frame, the models' legend filled
+evenly, an ellipse of a covariance with a rounding-negative eigenvalue, and a needle ellipse
+far longer than the panel left out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imm_gym.sim.render import TrackView, scene_extent
+
+LABELS = ["CV", "CT(+4°/s)", "CT(-4°/s)"]
+K = 3
+#: the true target moves 10 m a step along x; the estimate is 3 m east and 4 m north of it
+TRUTH = np.column_stack([np.arange(K + 1) * 10.0, np.zeros(K + 1)])
+SENSOR = np.array([0.0, -500.0])
+
+
+def _view(tpm: np.ndarray | None = None) -> TrackView:
+    if tpm is None:
+        tpm = np.full((3, 3), 0.01)
+        np.fill_diagonal(tpm, 0.98)
+    return TrackView(
+        title="policy", step=K, horizon=10, truth=TRUTH, estimate=TRUTH + np.array([3.0, 4.0]),
+        covariance=np.diag([400.0, 100.0]), measurements=TRUTH,
+        detected=np.ones(K + 1, dtype=bool), outlier=np.zeros(K + 1, dtype=bool),
+        mode_probs=np.full((K + 1, 3), 1 / 3), true_model=np.zeros(K + 1, dtype=np.int64),
+        tpm=tpm, sensor=SENSOR, extent=scene_extent(TRUTH, SENSOR),
+    )
+
+
+def test_the_scene_extent_holds_the_path_and_the_sensor_with_a_margin() -> None:
+    """x from 0 to 30, y from −500 (the sensor) to 0: 8 % of the larger side (500 m) on every
+    side; a path and sensor on one point get 8 % of 1 m."""
+    assert scene_extent(TRUTH, SENSOR) == pytest.approx((-40.0, 70.0, -540.0, 40.0))
+    assert scene_extent(TRUTH, SENSOR, margin=0.1) == pytest.approx((-50.0, 80.0, -550.0, 50.0))
+    point = np.array([[5.0, 7.0]])
+    assert scene_extent(point, [5.0, 7.0]) == pytest.approx((4.92, 5.08, 6.92, 7.08))
