@@ -6,10 +6,12 @@ far longer than the panel left out."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
-from imm_gym.sim.render import TrackView, scene_extent
+from imm_gym.sim.render import CHI2_2_95, TrackFigure, TrackView, scene_extent
 
 LABELS = ["CV", "CT(+4°/s)", "CT(-4°/s)"]
 K = 3
@@ -38,3 +40,23 @@ def test_the_scene_extent_holds_the_path_and_the_sensor_with_a_margin() -> None:
     assert scene_extent(TRUTH, SENSOR, margin=0.1) == pytest.approx((-50.0, 80.0, -550.0, 50.0))
     point = np.array([[5.0, 7.0]])
     assert scene_extent(point, [5.0, 7.0]) == pytest.approx((4.92, 5.08, 6.92, 7.08))
+
+
+def test_the_figure_draws_the_views_texts_boxes_and_sensor() -> None:
+    """The title says the step of the horizon; the error is |(3, 4)| = 5 m; the scene is the
+    square around the extent's centre (15, −250) of half-side 290 m (the larger side); the zoom's
+    box on the scene is 300 m wide around the true target (30, 0); the sensor sits at (0, −500);
+    the 95 % ellipse is around the estimate (3, 4) from the target."""
+    figure = TrackFigure(LABELS, zoom=150.0)
+    figure.frame(_view())
+    assert figure.title.get_text() == "policy   t = 3 / 10"
+    assert figure.error.get_text() == "error 5 m"
+    assert figure.ax_scene.get_xlim() == pytest.approx((-275.0, 305.0))
+    assert figure.ax_scene.get_ylim() == pytest.approx((-540.0, 40.0))
+    box = figure.box
+    assert (box.get_x(), box.get_y()) == pytest.approx((30.0 - 150.0, -150.0))
+    assert (box.get_width(), box.get_height()) == pytest.approx((300.0, 300.0))
+    np.testing.assert_array_equal(figure.sensor.get_xydata(), [[0.0, -500.0]])
+    assert figure.ellipse.get_center() == pytest.approx((3.0, 4.0))
+    assert figure.ellipse.width == pytest.approx(2 * math.sqrt(CHI2_2_95 * 400.0))
+    assert figure.ellipse.height == pytest.approx(2 * math.sqrt(CHI2_2_95 * 100.0))
