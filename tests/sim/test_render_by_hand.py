@@ -60,3 +60,13 @@ def test_the_figure_draws_the_views_texts_boxes_and_sensor() -> None:
     assert figure.ellipse.get_center() == pytest.approx((3.0, 4.0))
     assert figure.ellipse.width == pytest.approx(2 * math.sqrt(CHI2_2_95 * 400.0))
     assert figure.ellipse.height == pytest.approx(2 * math.sqrt(CHI2_2_95 * 100.0))
+
+
+def test_a_stays_text_is_black_on_a_light_cell_and_white_on_a_dark_one() -> None:
+    """Viridis on a log scale: a stay of 0.98 is a yellow cell (black text), a stay of 0.05 a
+    dark one (white text)."""
+    tpm = np.array([[0.98, 0.01, 0.01], [0.5, 0.05, 0.45], [0.01, 0.01, 0.98]])
+    figure = TrackFigure(LABELS)
+    figure.frame(_view(tpm))
+    assert [t.get_text() for t in figure.stays] == ["0.980", "0.050", "0.980"]
+    assert [t.get_color() for t in figure.stays] == ["k", "w", "k"]
