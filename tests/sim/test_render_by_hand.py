@@ -70,3 +70,20 @@ def test_a_stays_text_is_black_on_a_light_cell_and_white_on_a_dark_one() -> None
     figure.frame(_view(tpm))
     assert [t.get_text() for t in figure.stays] == ["0.980", "0.050", "0.980"]
     assert [t.get_color() for t in figure.stays] == ["k", "w", "k"]
+
+
+def test_the_frame_shows_the_tpm_cells_in_their_colours() -> None:
+    """The frame is RGB: the 0.98 stays' cells are viridis at ``log(0.98 / 1e-3) / log(1e3)``
+    of its range and the 0.01 cells at 1/3 (the log scale from 1e-3 to 1), whole cells of
+    pixels of those colours; white around the panels."""
+    from matplotlib import colormaps
+
+    frame = TrackFigure(LABELS).frame(_view())
+    assert frame.shape == (400, 640, 3) and frame.dtype == np.uint8
+    assert np.all(frame[2, 2] == 255)
+    pixels = frame.reshape(-1, 3).astype(np.int64)
+    for value, cells in ((0.98, 3), (0.01, 6)):
+        position = math.log(value / 1e-3) / math.log(1e3)
+        colour = np.round(np.array(colormaps["viridis"](position)[:3]) * 255.0)
+        near = np.abs(pixels - colour).max(axis=1) <= 1
+        assert near.sum() > 20 * cells, value  # a cell is some 10 x 10 pixels or more
