@@ -87,3 +87,19 @@ def test_the_frame_shows_the_tpm_cells_in_their_colours() -> None:
         colour = np.round(np.array(colormaps["viridis"](position)[:3]) * 255.0)
         near = np.abs(pixels - colour).max(axis=1) <= 1
         assert near.sum() > 20 * cells, value  # a cell is some 10 x 10 pixels or more
+
+
+@pytest.mark.parametrize(("M", "rows"), [(5, (3, 2)), (9, (3, 3, 3))])
+def test_the_models_legend_fills_its_rows_evenly(M: int, rows: tuple[int, ...]) -> None:
+    """Where the legend takes more than one row, its rows hold as many models as they can
+    evenly (five: 3 + 2, not 4 + 1; nine: 3 + 3 + 3, not 4 + 4 + 1)."""
+    from imm_gym.sim.render import model_labels
+    from imm_gym.tracking.models import MotionModel
+
+    rates = (2.0, -2.0, 5.0, -5.0, 8.0, -8.0, 1.0, -1.0)[: M - 1]
+    labels = model_labels([MotionModel("cv"), *(MotionModel("ct", r) for r in rates)])
+    picture = TrackFigure(labels)
+    picture.fig.canvas.draw()
+    heights = [round(t.get_window_extent().y0) for t in picture.ax_mu.get_legend().get_texts()]
+    counts = tuple(heights.count(h) for h in sorted(set(heights), reverse=True))
+    assert counts == rows
