@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from imm_gym.sim.render import CHI2_2_95, TrackFigure, TrackView, scene_extent
+from imm_gym.sim.render import CHI2_2_95, TrackFigure, TrackView, ellipse_axes, scene_extent
 
 LABELS = ["CV", "CT(+4°/s)", "CT(-4°/s)"]
 K = 3
@@ -103,3 +103,13 @@ def test_the_models_legend_fills_its_rows_evenly(M: int, rows: tuple[int, ...]) 
     heights = [round(t.get_window_extent().y0) for t in picture.ax_mu.get_legend().get_texts()]
     counts = tuple(heights.count(h) for h in sorted(set(heights), reverse=True))
     assert counts == rows
+
+
+def test_an_ellipse_of_a_rounding_negative_eigenvalue_is_a_line() -> None:
+    """``[[1, 1], [1, 1 − 1e-12]]`` is singular up to rounding (eigenvalues 2 and about
+    −5e-13): the ellipse is a segment of length ``2 √(χ² · 2)`` along the diagonal, no error."""
+    width, height, angle = ellipse_axes(np.array([[1.0, 1.0], [1.0, 1.0 - 1e-12]]))
+    assert np.linalg.eigvalsh(np.array([[1.0, 1.0], [1.0, 1.0 - 1e-12]]))[0] < 0.0
+    assert width == pytest.approx(2 * math.sqrt(CHI2_2_95 * 2.0))
+    assert height == pytest.approx(0.0, abs=1e-5)
+    assert angle % 180.0 == pytest.approx(45.0)
