@@ -113,3 +113,15 @@ def test_an_ellipse_of_a_rounding_negative_eigenvalue_is_a_line() -> None:
     assert width == pytest.approx(2 * math.sqrt(CHI2_2_95 * 2.0))
     assert height == pytest.approx(0.0, abs=1e-5)
     assert angle % 180.0 == pytest.approx(45.0)
+
+
+def test_a_needle_ellipse_far_longer_than_the_panel_is_not_drawn() -> None:
+    """A 95 % ellipse 1e9 m long and a few metres wide covers the zoom panel's width many times
+    over, dash by dash: left out like a large round one (its larger axis decides)."""
+    view = _view()
+    needle = TrackView(**{**vars(view), "covariance": np.diag([1e17, 1.0])})
+    figure = TrackFigure(LABELS, zoom=150.0)
+    figure.update(needle)  # only moved: drawing it would take the time it guards against
+    assert not figure.ellipse.get_visible()
+    figure.update(view)
+    assert figure.ellipse.get_visible()
