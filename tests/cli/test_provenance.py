@@ -163,3 +163,11 @@ def test_record_json_writes_a_number_that_is_not_finite_in_a_tuple_as_null() -> 
         "ci": [None, 1.5],
         "deep": [{"range": [None, [None, 2]]}],
     }
+
+
+def test_record_json_is_indented_two_spaces_a_value_a_line() -> None:
+    """The results file reads line by line (RFC 8259 JSON, indented by two spaces), written out
+    here by hand."""
+    assert record_json({"a": 1, "b": [2.5, math.nan]}) == (
+        '{\n  "a": 1,\n  "b": [\n    2.5,\n    null\n  ]\n}'
+    )
