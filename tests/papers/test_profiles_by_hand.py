@@ -1,0 +1,30 @@
+"""The profile truth's edges worked by hand: a Cartesian step's recorded turn rate and
+tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
+accelerates along its heading)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from imm_gym.scenarios.profiles import profile_truth
+
+
+def test_a_cartesian_step_records_its_mean_turn_rate_and_tangential_acceleration() -> None:
+    """v = (10, 0) m/s pushed by a = (0, 10) m/s² for T = 0.1 s ends at v = (10, 1): the step
+    turns by atan(1/10) and speeds up by √101 − 10, so it records ``Δψ/T`` and ``Δ|v|/T``."""
+    T = 0.1
+    pt = profile_truth(
+        np.zeros((1, 1)),
+        np.zeros((1, 1)),
+        np.zeros((1, 2)),
+        np.array([10.0]),
+        np.array([0.0]),
+        T,
+        np.array([[[0.0, 10.0]]]),
+    )
+    np.testing.assert_allclose(pt.states[0, 1], [1.0, 0.05, 10.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(pt.turn_rate[0, 0], math.atan(0.1) / T, rtol=1e-12)
+    np.testing.assert_allclose(pt.accel[0, 0], (math.sqrt(101.0) - 10.0) / T, rtol=1e-12)
+    np.testing.assert_allclose(pt.heading[0], [0.0, math.atan(0.1)], atol=1e-15)
