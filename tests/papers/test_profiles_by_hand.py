@@ -7,7 +7,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
+from imm_gym import ConfigError
 from imm_gym.scenarios.profiles import profile_truth
 
 
@@ -28,3 +30,23 @@ def test_a_cartesian_step_records_its_mean_turn_rate_and_tangential_acceleration
     np.testing.assert_allclose(pt.turn_rate[0, 0], math.atan(0.1) / T, rtol=1e-12)
     np.testing.assert_allclose(pt.accel[0, 0], (math.sqrt(101.0) - 10.0) / T, rtol=1e-12)
     np.testing.assert_allclose(pt.heading[0], [0.0, math.atan(0.1)], atol=1e-15)
+
+
+def _one_step(accel: float, cart_accel: tuple[float, float] = (0.0, 0.0)):
+    """One 0.1 s step from the origin at 1 m/s heading east, no turn."""
+    return profile_truth(
+        np.zeros((1, 1)),
+        np.full((1, 1), accel),
+        np.zeros((1, 2)),
+        np.array([1.0]),
+        np.array([0.0]),
+        0.1,
+        np.array([[cart_accel]]),
+    )
+
+
+def test_a_speed_driven_below_zero_is_refused() -> None:
+    """1 m/s braked at 15 m/s² for 0.1 s would end at −0.5 m/s; 10 m/s² stops it exactly."""
+    with pytest.raises(ConfigError, match="drives the speed below 0"):
+        _one_step(-15.0)
+    np.testing.assert_allclose(_one_step(-10.0).states[0, 1], [0.05, 0.0, 0.0, 0.0], atol=1e-12)
