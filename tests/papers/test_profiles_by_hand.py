@@ -50,3 +50,13 @@ def test_a_speed_driven_below_zero_is_refused() -> None:
     with pytest.raises(ConfigError, match="drives the speed below 0"):
         _one_step(-15.0)
     np.testing.assert_allclose(_one_step(-10.0).states[0, 1], [0.05, 0.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_a_cartesian_step_that_also_accelerates_along_its_heading_is_refused() -> None:
+    with pytest.raises(ConfigError, match="Cartesian acceleration must have omega = accel = 0"):
+        _one_step(2.0, (0.0, 1.0))
+    # either acceleration alone is a step
+    np.testing.assert_allclose(_one_step(2.0).states[0, 1], [0.11, 0.0, 1.2, 0.0], atol=1e-12)
+    np.testing.assert_allclose(
+        _one_step(0.0, (0.0, 1.0)).states[0, 1], [0.1, 0.005, 1.0, 0.1], atol=1e-12
+    )
