@@ -56,8 +56,9 @@ def test_chunk_sizes_split_the_runs_into_nearly_equal_contiguous_chunks(runs, ch
 def test_the_sharded_core_steps_as_one_core(local_ray, runs, shards) -> None:
     """Resets (all slots, then one), steps (an action per slot, a mask) and the infos of the
     sharded core equal those of one core of ``runs`` slots; the shards beyond the runs hold
-    none."""
-    config = EnvConfig()
+    none. Missed detections (a sensor detecting 80 %) and a TPM of each slot's own at a reset
+    reach every chunk."""
+    config = EnvConfig(sensor={"detection_prob": 0.8, "outlier_prob": 0.2})
     actors = [_InProcess() for _ in range(shards)]
     sharded = ShardedCore(actors, config, runs)
     local = TrackingCore(config, n_envs=runs)
@@ -84,6 +85,21 @@ def test_the_sharded_core_steps_as_one_core(local_ray, runs, shards) -> None:
         core.reset(np.array([last]), [99])
     np.testing.assert_array_equal(sharded.observe(), local.observe())
     np.testing.assert_array_equal(sharded.truth, local.truth)
+    # every slot again, each from its own TPM: stays 0.5 .. 0.9, the rest shared equally
+    M = local.M
+    stays = np.linspace(0.5, 0.9, runs)
+    off = (1.0 - stays)[:, None, None] / (M - 1) * (1.0 - np.eye(M))
+    tpms = off + stays[:, None, None] * np.eye(M)
+    for core in (sharded, local):
+        core.reset(np.arange(runs), [7 + i for i in range(runs)], tpms)
+    for _ in range(20):
+        action = rng.uniform(-1.0, 1.0, (runs, local.action_dim))
+        a, b = sharded.step(action), local.step(action)
+        np.testing.assert_array_equal(a.obs, b.obs)
+        np.testing.assert_array_equal(a.reward, b.reward)
+    assert not sharded.detected.all()
+    np.testing.assert_array_equal(sharded.detected, local.detected)
+    np.testing.assert_array_equal(sharded.z, local.z)
 
 
 @pytest.mark.parametrize(
