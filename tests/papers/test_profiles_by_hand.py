@@ -1,6 +1,6 @@
 """The profile truth's edges worked by hand: a Cartesian step's recorded turn rate and
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
-accelerates along its heading)."""
+accelerates along its heading); the families' ranges, whose lower ends must be above 0."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from imm_gym import ConfigError
-from imm_gym.scenarios.profiles import profile_truth
+from imm_gym.scenarios.profiles import DrivingFamily, ManeuverFamily, profile_truth
 
 
 def test_a_cartesian_step_records_its_mean_turn_rate_and_tangential_acceleration() -> None:
@@ -60,3 +60,24 @@ def test_a_cartesian_step_that_also_accelerates_along_its_heading_is_refused() -
     np.testing.assert_allclose(
         _one_step(0.0, (0.0, 1.0)).states[0, 1], [0.1, 0.005, 1.0, 0.1], atol=1e-12
     )
+
+
+@pytest.mark.parametrize(
+    ("family", "name", "low"),
+    [
+        (DrivingFamily, "cruise", 11.0),  # the curve and turn speeds stay below cruise
+        (DrivingFamily, "curve", 1e-6),
+        (DrivingFamily, "turn", 1e-6),
+        (DrivingFamily, "s_rate", 1e-6),
+        (ManeuverFamily, "rate_scale", 1e-6),
+        (ManeuverFamily, "accel_scale", 1e-6),
+        (ManeuverFamily, "speed", 1e-6),
+    ],
+)
+def test_a_family_range_starting_at_zero_is_refused(family, name: str, low: float) -> None:
+    """A speed, rate or scale drawn from ``[0, high]`` could be 0 (a target standing still, a
+    turn that does not turn): the low end must be above 0; above it is accepted."""
+    high = getattr(family(), name)[1]
+    with pytest.raises(ConfigError, match=rf"^family\.{name}\[0\] must be in \(0\.0, inf\)"):
+        family(**{name: (0.0, high)})
+    assert getattr(family(**{name: (low, high)}), name) == (low, high)
