@@ -4,10 +4,12 @@ near rest, the heading cap at 3 standard deviations of the speed."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
-from imm_gym.tracking.conversions import g_integrals
+from imm_gym.tracking.conversions import conversion, g_integrals
 
 
 def _gauss_legendre_g(n: int, theta: float) -> complex:
@@ -31,3 +33,27 @@ def test_g_integrals_are_accurate_to_rounding_on_both_sides_of_the_series_radius
     loses ``n`` factors ``1 / theta``: 5e-12 at ``theta = 0.02``)."""
     for n, g in enumerate(g_integrals(np.array(theta))):
         assert abs(complex(g) - _gauss_legendre_g(n, theta)) < 1e-14, (n, theta)
+
+
+@pytest.mark.parametrize("v", [1e-4, 3e-5, 2e-6])
+def test_heading_row_of_the_jacobian_is_one_over_the_speed_above_v_min(v: float) -> None:
+    """Eq. (9) at a slow but moving target (``v`` above ``V_MIN = 1e-6`` m/s): ``d psi / d v_x =
+    -v_y / v^2``, ``d psi / d v_y = v_x / v^2`` by hand, and a central difference of ``atan2``
+    agrees."""
+    ux, uy = 0.6, 0.8
+    x = np.array([10.0, -4.0, v * ux, v * uy])
+    _, J = conversion(x, "ncv", "ct")
+    assert J[3, 2] == pytest.approx(-uy / v, rel=1e-12)
+    assert J[3, 3] == pytest.approx(ux / v, rel=1e-12)
+    eps = 1e-3 * v
+    d_vx = (math.atan2(x[3], x[2] + eps) - math.atan2(x[3], x[2] - eps)) / (2 * eps)
+    d_vy = (math.atan2(x[3] + eps, x[2]) - math.atan2(x[3] - eps, x[2])) / (2 * eps)
+    np.testing.assert_allclose(J[3, 2:], [d_vx, d_vy], rtol=1e-5)
+
+
+def test_heading_row_of_the_jacobian_stops_at_v_min_below_it() -> None:
+    """Below ``V_MIN = 1e-6`` m/s the heading row is ``(-u_y, u_x) / 1e-6``, finite whatever the
+    speed (module docstring), with ``u`` the unit velocity direction."""
+    for v in (1e-9, 1e-12):
+        _, J = conversion(np.array([0.0, 0.0, 0.0, -v]), "ncv", "ctra")
+        np.testing.assert_allclose(J[3, 2:], [1e6, 0.0], rtol=1e-12)
