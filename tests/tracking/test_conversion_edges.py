@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from imm_gym.tracking.conversions import conversion, g_integrals
+from imm_gym.tracking.conversions import conversion, convert, g_integrals
 
 
 def _gauss_legendre_g(n: int, theta: float) -> complex:
@@ -57,3 +57,20 @@ def test_heading_row_of_the_jacobian_stops_at_v_min_below_it() -> None:
     for v in (1e-9, 1e-12):
         _, J = conversion(np.array([0.0, 0.0, 0.0, -v]), "ncv", "ctra")
         np.testing.assert_allclose(J[3, 2:], [1e6, 0.0], rtol=1e-12)
+
+
+def test_a_speed_of_exactly_three_standard_deviations_is_not_capped() -> None:
+    """The heading is capped where the speed is *within* 3 standard deviations of 0
+    (``v < 3 sqrt(lambda_max(P_v))``): at ``v = 3`` m/s with ``P_v = I`` the conversion is the
+    first-order ``J P J^T``, its heading still correlated with ``y`` (``P_y,vy = 0.5``); a hair
+    slower, capped and uncorrelated."""
+    P = np.eye(4)
+    P[1, 3] = P[3, 1] = 0.5
+    for v, capped in ((3.0, False), (math.nextafter(3.0, 0.0), True)):
+        x = np.array([0.0, 0.0, v, 0.0])
+        _, P_ct = convert(x, P, "ncv", "ct")
+        _, J = conversion(x, "ncv", "ct")
+        raw = J @ P @ J.T
+        assert raw[1, 3] == pytest.approx(0.5 / v, rel=1e-12)  # d psi / d v_y = 1 / v
+        assert P_ct[1, 3] == (0.0 if capped else raw[1, 3])
+        assert P_ct[3, 3] == pytest.approx(1.0 / v**2, rel=1e-12)
