@@ -1,6 +1,7 @@
 """The profile truth's edges worked by hand: a Cartesian step's recorded turn rate and
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
-accelerates along its heading); the families' ranges, whose lower ends must be above 0."""
+accelerates along its heading); the families' ranges, whose lower ends must be above 0, and the driving
+family's longest period."""
 
 from __future__ import annotations
 
@@ -81,3 +82,11 @@ def test_a_family_range_starting_at_zero_is_refused(family, name: str, low: floa
     with pytest.raises(ConfigError, match=rf"^family\.{name}\[0\] must be in \(0\.0, inf\)"):
         family(**{name: (0.0, high)})
     assert getattr(family(**{name: (low, high)}), name) == (low, high)
+
+
+def test_the_driving_family_s_period_is_at_most_half_a_second() -> None:
+    """1 s divides every driving segment (8, 4, 5, 3, 6 s) but is above the family's 0.5 s
+    limit; 0.5 s gives 67 s / 0.5 s = 134 steps."""
+    with pytest.raises(ConfigError, match=r"^family\.T must be in \(0\.0, 0\.5\], got 1\.0"):
+        DrivingFamily(T=1.0)
+    assert DrivingFamily(T=0.5).horizon == 134
