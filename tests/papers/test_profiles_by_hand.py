@@ -1,7 +1,7 @@
 """The profile truth's edges worked by hand: a Cartesian step's recorded turn rate and
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
-accelerates along its heading); the families' ranges, whose lower ends must be above 0, and the driving
-family's longest period."""
+accelerates along its heading); the families' ranges, whose lower ends must be above 0, and the
+driving family's longest period."""
 
 from __future__ import annotations
 
