@@ -4,10 +4,12 @@ velocity noise of a ``Q``."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
-from imm_gym.tracking.models import turn_noise_ratios
+from imm_gym.tracking.models import turn_noise_ratios, velocity_noise, white_acceleration_noise
 
 
 def _ratios_by_quadrature(u: float) -> tuple[float, float]:
@@ -34,3 +36,17 @@ def test_turn_noise_ratios_keep_their_digits_on_both_sides_of_the_series_thresho
     r1, r2 = _ratios_by_quadrature(u)
     assert float(s1) == pytest.approx(r1, rel=1e-13, abs=0.0)
     assert float(s2) == pytest.approx(r2, rel=1e-13, abs=0.0)
+
+
+def test_velocity_noise_is_the_rms_of_both_velocity_variances() -> None:
+    """``sqrt((Q_vxvx + Q_vyvy) / 2)`` by hand for a ``Q`` whose axes differ, over any leading
+    axes, and ``sqrt(q T)`` for white-noise acceleration of intensity ``q``."""
+    Q = np.diag([1.0, 1.0, 0.02, 0.18])
+    assert float(velocity_noise(Q)) == pytest.approx(math.sqrt(0.1), rel=1e-15)
+    Qs = np.stack([Q, np.diag([5.0, 5.0, 0.5, 0.0]), np.diag([0.1, 0.1, 0.12, 0.12])])
+    np.testing.assert_allclose(
+        velocity_noise(Qs[None]), [[math.sqrt(0.1), 0.5, math.sqrt(0.12)]], rtol=1e-15
+    )
+    for omega, T, q in ((0.0, 1.0, 0.12), (math.radians(4.0), 5.0, 0.3), (-0.2, 0.1, 2.0)):
+        Qc = white_acceleration_noise(omega, T, q)
+        assert float(velocity_noise(Qc)) == pytest.approx(math.sqrt(q * T), rel=1e-14)
