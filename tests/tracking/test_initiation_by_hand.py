@@ -4,6 +4,7 @@ conversion and its covariance worked by hand, and the inputs it refuses."""
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -54,3 +55,22 @@ def test_a_velocity_of_transposed_shape_is_refused() -> None:
     z0 = np.array([[3000.0, 0.4], [1500.0, -2.0], [800.0, 1.0]])
     with pytest.raises(ConfigError, match=r"velocity must have shape \(2,\) or \(3, 2\)"):
         initiate(Sonar(), z0, np.zeros((2, 3)))
+
+
+@pytest.mark.parametrize("std", [0.0, -2.5, 1e-160, 1.001e6, math.nan, math.inf])
+def test_a_velocity_std_outside_its_range_is_refused(std: float) -> None:
+    """``velocity_std`` in ``[sqrt(smallest normal float64), 1e6]`` m/s: 0 (a singular ``P0``),
+    negatives, a std whose square is not a normal float, and beyond 1e6 are refused by name."""
+    with pytest.raises(ConfigError, match=r"^velocity_std must be in \["):
+        initiate(Sonar(), np.array([3000.0, 0.4]), np.zeros(2), velocity_std=std)
+
+
+def test_velocity_std_at_the_ends_of_its_range_and_by_default() -> None:
+    """The ends are allowed (``P0``'s velocity block is their square); the default is 5 m/s
+    (``P0`` velocity block ``25 I``)."""
+    z0, v = np.array([3000.0, 0.4]), np.zeros(2)
+    for std in (math.sqrt(sys.float_info.min), 1e6):
+        _, P0 = initiate(Sonar(), z0, v, velocity_std=std)
+        np.testing.assert_array_equal(np.diag(P0[0])[2:], [std**2, std**2])
+    _, P0 = initiate(Sonar(), z0, v)
+    np.testing.assert_array_equal(P0[0, 2:, 2:], 25.0 * np.eye(2))
