@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from imm_gym import ConfigError, Sonar
+from imm_gym import ConfigError, PositionSensor, Sonar
 from imm_gym.tracking.initiation import initiate
 
 
@@ -74,3 +74,19 @@ def test_velocity_std_at_the_ends_of_its_range_and_by_default() -> None:
         np.testing.assert_array_equal(np.diag(P0[0])[2:], [std**2, std**2])
     _, P0 = initiate(Sonar(), z0, v)
     np.testing.assert_array_equal(P0[0, 2:, 2:], 25.0 * np.eye(2))
+
+
+@pytest.mark.parametrize(
+    ("sensor", "z0"),
+    [
+        (Sonar(), np.array([[3000.0, 0.4, 1.0]])),
+        (Sonar(), np.array([3000.0])),
+        (PositionSensor(sigma_pos=5.0, sigma_vel=1.0), np.array([[3000.0, 4000.0]])),
+    ],
+)
+def test_a_first_measurement_of_another_width_is_refused(sensor, z0: np.ndarray) -> None:
+    """A first measurement must have the sensor's ``dim_z`` components (2 for the sonar, 4 for a
+    position+velocity sensor): a third component is not dropped silently."""
+    m = sensor.dim_z
+    with pytest.raises(ConfigError, match=rf"z0 must have shape \({m},\) or \(N, {m}\)"):
+        initiate(sensor, z0, np.zeros(2))
