@@ -90,3 +90,17 @@ def test_a_first_measurement_of_another_width_is_refused(sensor, z0: np.ndarray)
     m = sensor.dim_z
     with pytest.raises(ConfigError, match=rf"z0 must have shape \({m},\) or \(N, {m}\)"):
         initiate(sensor, z0, np.zeros(2))
+
+
+def test_a_first_position_covariance_float64_cannot_factor_is_refused_naming_the_noise() -> None:
+    """A range accuracy of 1e-12 m beside a cross-range one of 3000 m x 0.05°: ``J R J^T`` is
+    positive definite in exact arithmetic, its standard deviations 2.6e12 apart, beyond float64's
+    Cholesky. Refused with the sonar's noise settings named; 1e-6 m (2.6e6 apart) still starts."""
+    with pytest.raises(
+        ConfigError,
+        match=r"^sensor\.sigma_r = 1e-12, sensor\.sigma_theta_deg = 0\.05: the "
+        r"covariance of the first measurement's position is not positive definite in float64",
+    ):
+        initiate(Sonar(sigma_r=1e-12), np.array([3000.0, 0.4]), np.zeros(2))
+    _, P0 = initiate(Sonar(sigma_r=1e-6), np.array([3000.0, 0.4]), np.zeros(2))
+    np.linalg.cholesky(P0[0])
