@@ -2,7 +2,7 @@
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
 action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
 and an autoreset in a one-step episode; the SB3 adapter's critic bounds, per-step infos and its
-refusal of a ``step_wait`` without its own ``step_async``."""
+refusal of a ``step_wait`` without its own ``step_async``; the registered ids' env checker."""
 
 from __future__ import annotations
 
@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 from gymnasium.utils.seeding import np_random
 from gymnasium.vector import AutoresetMode
+from gymnasium.wrappers import PassiveEnvChecker
 
 import imm_gym.envs.tpm_adapt as tpm_adapt
-from imm_gym.envs import TPMAdaptEnv, TPMAdaptVectorEnv
+from imm_gym.envs import PRESETS, TPMAdaptEnv, TPMAdaptVectorEnv
 from imm_gym.envs.render import CoreRenderer
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.actions import ActionError
@@ -210,3 +211,15 @@ def test_every_sb3_step_wait_needs_its_own_step_async() -> None:
     venv.step_wait()
     with pytest.raises(RuntimeError, match=message):
         venv.step_wait()
+
+
+@pytest.mark.parametrize("env_id", sorted(PRESETS))
+def test_make_wraps_every_registered_id_in_gymnasium_s_passive_checker(env_id: str) -> None:
+    """Every id is registered with Gymnasium's env checker on (its default), so ``gym.make``
+    checks the spaces and the first reset and step of the env it builds."""
+    assert gym.spec(env_id).disable_env_checker is False
+    env, wrappers = gym.make(env_id), []
+    while isinstance(env, gym.Wrapper):
+        wrappers.append(type(env))
+        env = env.env
+    assert PassiveEnvChecker in wrappers and isinstance(env, TPMAdaptEnv)
