@@ -1,0 +1,39 @@
+"""What the heterogeneous bank (:mod:`imm_gym.tracking.hetero`) refuses, each refusal naming the
+setting: a bank, a model, the engine's construction and start, the tracker factory."""
+
+from __future__ import annotations
+
+import pytest
+
+from imm_gym import ConfigError, PositionSensor
+from imm_gym.tracking.hetero import HeteroBank, HeteroModel
+
+SENSOR = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"models": ("ncv",)}, r"bank\.models must hold at least 2 models"),
+        ({"initial_probs": (0.5, 0.3, 0.1)}, r"bank\.initial_probs must have 3 non-negative"),
+        ({"initial_probs": (0.6, 0.3, 0.2)}, r"bank\.initial_probs must have 3 non-negative"),
+        ({"turn_rate_var": 0.0}, r"bank\.turn_rate_var must be in \(0\.0, inf\)"),
+        ({"accel_var": 0.0}, r"bank\.accel_var must be in \(0\.0, inf\)"),
+        ({"sigma_ncv": -0.6}, r"bank\.sigma_ncv must be in \[0\.0, inf\)"),
+        ({"sigma_ncv": float("nan")}, r"bank\.sigma_ncv"),
+    ],
+)
+def test_a_bank_out_of_range_is_refused(kwargs: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        HeteroBank(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kind", "sigma"), [("ncv", (-0.6,)), ("ct", (2.4, -0.6)), ("ctra", (float("inf"), 3.0))]
+)
+def test_a_model_with_a_negative_or_infinite_noise_is_refused(
+    kind: str, sigma: tuple[float, ...]
+) -> None:
+    """A negative standard deviation squares to the same ``Q``: refused all the same, by name."""
+    with pytest.raises(ConfigError, match=r"model\.sigma must be in \[0\.0, inf\)"):
+        HeteroModel(kind, sigma)
