@@ -3,10 +3,11 @@ setting: a bank, a model, the engine's construction and start, the tracker facto
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from imm_gym import ConfigError, PositionSensor
-from imm_gym.tracking.hetero import HeteroBank, HeteroModel
+from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, HeteroModel
 
 SENSOR = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
 
@@ -37,3 +38,18 @@ def test_a_model_with_a_negative_or_infinite_noise_is_refused(
     """A negative standard deviation squares to the same ``Q``: refused all the same, by name."""
     with pytest.raises(ConfigError, match=r"model\.sigma must be in \[0\.0, inf\)"):
         HeteroModel(kind, sigma)
+
+
+def test_the_engine_refuses_a_bank_without_models() -> None:
+    with pytest.raises(ConfigError, match="models must contain at least one motion model"):
+        HeteroIMM([], SENSOR)
+
+
+def test_the_start_refuses_a_covariance_not_positive_definite_and_negative_probabilities() -> None:
+    imm = HeteroIMM(HeteroBank(), SENSOR, T=1.0)
+    x0 = np.array([0.0, 0.0, 5.0, 0.0])
+    for P0 in (np.diag([1.0, 1.0, 1.0, 0.0]), np.diag([1.0, -1.0, 1.0, 1.0])):
+        with pytest.raises(ConfigError, match="P0 must be positive definite"):
+            imm.init(x0, P0)
+    with pytest.raises(ConfigError, match="mode_probs must be non-negative and sum to 1"):
+        imm.init(x0, np.eye(4), np.array([-0.2, 0.6, 0.6]))
