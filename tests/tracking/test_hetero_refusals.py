@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imm_gym import ConfigError, PositionSensor
-from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, HeteroModel
+from imm_gym import ConfigError, PositionSensor, Sonar
+from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, HeteroModel, make_tracker
 
 SENSOR = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
 
@@ -53,3 +53,12 @@ def test_the_start_refuses_a_covariance_not_positive_definite_and_negative_proba
             imm.init(x0, P0)
     with pytest.raises(ConfigError, match="mode_probs must be non-negative and sum to 1"):
         imm.init(x0, np.eye(4), np.array([-0.2, 0.6, 0.6]))
+
+
+@pytest.mark.parametrize("name", ["ukf", "ukf-cholesky", "kf"])
+def test_the_tracker_of_a_heterogeneous_bank_refuses_another_filter(name: str) -> None:
+    """``make_tracker`` with a :class:`HeteroBank` and a filter other than the EKF: refused, not
+    run as an EKF under the filter's name."""
+    with pytest.raises(ConfigError, match=r"runs an EKF only \(filter 'ekf'\)"):
+        make_tracker(HeteroBank(), Sonar(), name, 1.0)
+    assert isinstance(make_tracker(HeteroBank(), Sonar(), "ekf", 1.0), HeteroIMM)
