@@ -1,7 +1,7 @@
 """The profile truth's edges worked by hand: a Cartesian step's recorded turn rate and
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
-accelerates along its heading); the families' ranges, whose lower ends must be above 0, and the
-driving family's longest period."""
+accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
+driving family's longest period and the spread of its draws."""
 
 from __future__ import annotations
 
@@ -90,3 +90,16 @@ def test_the_driving_family_s_period_is_at_most_half_a_second() -> None:
     with pytest.raises(ConfigError, match=r"^family\.T must be in \(0\.0, 0\.5\], got 1\.0"):
         DrivingFamily(T=1.0)
     assert DrivingFamily(T=0.5).horizon == 134
+
+
+def test_the_driving_family_starts_anywhere_in_its_square_at_any_heading() -> None:
+    """Per run: start ``U(-50, 50)`` m per axis and heading ``U(-π, π)``; 200 draws reach near
+    each end."""
+    pt = DrivingFamily().truth([np.random.default_rng(s) for s in range(200)])
+    start = pt.states[:, 0, :2]
+    assert start.min() >= -50.0 and start.max() <= 50.0
+    for axis in (0, 1):
+        assert start[:, axis].min() < -45.0 and start[:, axis].max() > 45.0
+    heading = pt.heading[:, 0]
+    assert heading.min() >= -math.pi and heading.max() <= math.pi
+    assert heading.min() < -2.9 and heading.max() > 2.9
