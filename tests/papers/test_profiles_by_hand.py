@@ -1,7 +1,8 @@
 """The profile truth's edges worked by hand: a Cartesian step's recorded turn rate and
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
-driving family's longest period and the spread of its draws."""
+driving family's longest period and the spread of its draws; the maneuver family's scaled
+accelerations."""
 
 from __future__ import annotations
 
@@ -103,3 +104,18 @@ def test_the_driving_family_starts_anywhere_in_its_square_at_any_heading() -> No
     heading = pt.heading[:, 0]
     assert heading.min() >= -math.pi and heading.max() <= math.pi
     assert heading.min() < -2.9 and heading.max() > 2.9
+
+
+def test_the_maneuver_family_scales_both_accelerations_by_one_draw() -> None:
+    """Per run one ``U(0.5, 1.5)`` scale ``s`` multiplies the 10-14 s Cartesian acceleration
+    (``|Δv| = 4 s |(0.25, 1)|`` m/s, whatever the rotation) and the 34-38 s tangential one
+    (``Δ|v| = 4 s (8 − √2) / 4`` m/s); 200 draws reach near each end of the range."""
+    pt = ManeuverFamily().truth([np.random.default_rng(s) for s in range(200)])
+    velocity = pt.states[..., 2:]
+    cartesian = np.linalg.norm(velocity[:, 140] - velocity[:, 100], axis=-1)
+    cartesian /= 4.0 * math.hypot(0.25, 1.0)
+    speed = np.linalg.norm(velocity, axis=-1)
+    tangential = (speed[:, 380] - speed[:, 340]) / (8.0 - math.sqrt(2.0))
+    np.testing.assert_allclose(tangential, cartesian, rtol=1e-9)
+    assert cartesian.min() >= 0.5 and cartesian.max() <= 1.5
+    assert cartesian.min() < 0.55 and cartesian.max() > 1.45
