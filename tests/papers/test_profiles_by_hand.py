@@ -2,7 +2,7 @@
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
 driving family's longest period and the spread of its draws; the maneuver family's scaled
-accelerations."""
+accelerations and the runs of the seed-003 truth."""
 
 from __future__ import annotations
 
@@ -12,7 +12,12 @@ import numpy as np
 import pytest
 
 from imm_gym import ConfigError
-from imm_gym.scenarios.profiles import DrivingFamily, ManeuverFamily, profile_truth
+from imm_gym.scenarios.profiles import (
+    DrivingFamily,
+    ManeuverFamily,
+    maneuver_truth,
+    profile_truth,
+)
 
 
 def test_a_cartesian_step_records_its_mean_turn_rate_and_tangential_acceleration() -> None:
@@ -119,3 +124,9 @@ def test_the_maneuver_family_scales_both_accelerations_by_one_draw() -> None:
     np.testing.assert_allclose(tangential, cartesian, rtol=1e-9)
     assert cartesian.min() >= 0.5 and cartesian.max() <= 1.5
     assert cartesian.min() < 0.55 and cartesian.max() > 1.45
+
+
+def test_the_seed_003_truth_needs_at_least_one_run() -> None:
+    with pytest.raises(ConfigError, match=r"^runs must be an integer in \[1, inf\), got 0"):
+        maneuver_truth(0)
+    assert maneuver_truth(1).states.shape == (1, 431, 4)
