@@ -1,8 +1,8 @@
 """The profile truth's edges worked by hand: a Cartesian step's recorded turn rate and
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
-driving family's longest period and the spread of its draws; the maneuver family's scaled
-accelerations and the runs of the seed-003 truth."""
+driving family's longest period, the spread of its draws and its turns' directions; the
+maneuver family's scaled accelerations and the runs of the seed-003 truth."""
 
 from __future__ import annotations
 
@@ -130,3 +130,13 @@ def test_the_seed_003_truth_needs_at_least_one_run() -> None:
     with pytest.raises(ConfigError, match=r"^runs must be an integer in \[1, inf\), got 0"):
         maneuver_truth(0)
     assert maneuver_truth(1).states.shape == (1, 431, 4)
+
+
+def test_each_sharp_driving_turn_goes_either_way() -> None:
+    """The two 90° turns (36-40 s and 53-57 s) turn at ``±(π/2) / 4 s``, each direction drawn on
+    its own: 40 draws show all four pairs of directions."""
+    pt = DrivingFamily().truth([np.random.default_rng(s) for s in range(40)])
+    rates = pt.turn_rate[:, [365, 545]]  # mid-turn steps at T = 0.1 s
+    np.testing.assert_allclose(np.abs(rates), math.pi / 8.0, rtol=1e-12)
+    pairs = {(int(a), int(b)) for a, b in np.sign(rates)}
+    assert pairs == {(-1, -1), (-1, 1), (1, -1), (1, 1)}
