@@ -2,7 +2,7 @@
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
 driving family's longest period, the spread of its draws and its turns' directions; the
-maneuver family's scaled accelerations and the runs of the seed-003 truth."""
+maneuver family's scaled accelerations and headings, and the runs of the seed-003 truth."""
 
 from __future__ import annotations
 
@@ -140,3 +140,11 @@ def test_each_sharp_driving_turn_goes_either_way() -> None:
     np.testing.assert_allclose(np.abs(rates), math.pi / 8.0, rtol=1e-12)
     pairs = {(int(a), int(b)) for a, b in np.sign(rates)}
     assert pairs == {(-1, -1), (-1, 1), (1, -1), (1, 1)}
+
+
+def test_the_maneuver_family_starts_at_any_heading() -> None:
+    """Per run the source's trajectory is rotated to a heading ``U(-π, π)``: 200 draws reach near
+    each end."""
+    heading = ManeuverFamily().truth([np.random.default_rng(s) for s in range(200)]).heading[:, 0]
+    assert heading.min() >= -math.pi and heading.max() <= math.pi
+    assert heading.min() < -2.9 and heading.max() > 2.9
