@@ -1,6 +1,7 @@
 """State conversions and the CT/CTRA closed form (:mod:`imm_gym.tracking.conversions`) where
 their special cases switch: the G integrals across the series radius, the Jacobian's heading row
-near rest, the heading cap at 3 standard deviations of the speed."""
+near rest, the heading cap at 3 standard deviations of the speed (and none between the Cartesian
+spaces)."""
 
 from __future__ import annotations
 
@@ -74,3 +75,22 @@ def test_a_speed_of_exactly_three_standard_deviations_is_not_capped() -> None:
         assert raw[1, 3] == pytest.approx(0.5 / v, rel=1e-12)  # d psi / d v_y = 1 / v
         assert P_ct[1, 3] == (0.0 if capped else raw[1, 3])
         assert P_ct[3, 3] == pytest.approx(1.0 / v**2, rel=1e-12)
+
+
+@pytest.mark.parametrize("v", [(0.0, 0.0), (0.01, -0.02), (-30.0, 0.5), (2.0, -40.0)])
+def test_ncv_and_cart6_convert_by_selection_whatever_the_speed(v: tuple[float, float]) -> None:
+    """Between the Cartesian spaces there is no heading to cap: ``cart6 -> ncv`` keeps the first
+    four components and their covariance block, ``ncv -> cart6`` pads with zeros, at rest, slow or
+    moving towards -x (a speed test on ``v_x`` would take ``v_y`` for a heading)."""
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(6, 6))
+    P6 = A @ A.T + 0.1 * np.eye(6)
+    x6 = np.array([100.0, -50.0, *v, 0.3, -0.2])
+    x4, P4 = convert(x6, P6, "cart6", "ncv")
+    np.testing.assert_array_equal(x4, x6[:4])
+    np.testing.assert_allclose(P4, P6[:4, :4], rtol=1e-14, atol=0.0)
+    x6b, P6b = convert(x6[:4], P6[:4, :4], "ncv", "cart6")
+    np.testing.assert_array_equal(x6b, [*x6[:4], 0.0, 0.0])
+    expected = np.zeros((6, 6))
+    expected[:4, :4] = P6[:4, :4]
+    np.testing.assert_allclose(P6b, expected, rtol=1e-14, atol=0.0)
