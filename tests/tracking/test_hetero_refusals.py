@@ -62,3 +62,27 @@ def test_the_tracker_of_a_heterogeneous_bank_refuses_another_filter(name: str) -
     with pytest.raises(ConfigError, match=r"runs an EKF only \(filter 'ekf'\)"):
         make_tracker(HeteroBank(), Sonar(), name, 1.0)
     assert isinstance(make_tracker(HeteroBank(), Sonar(), "ekf", 1.0), HeteroIMM)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"q_scale": (1.0, 2.0)}, r"bank\.q_scale \(one entry per model\)"),
+        ({"q_scale": (1.0, 2.0, 3.0, 4.0)}, r"bank\.q_scale \(one entry per model\)"),
+        (
+            {"initial_probs": (-0.5, 1.0, 0.5)},
+            r"bank\.initial_probs\[0\] must be in \[0\.0, 1\.0\]",
+        ),
+        (
+            {"initial_probs": (0.5, 1.5, -1.0)},
+            r"bank\.initial_probs\[1\] must be in \[0\.0, 1\.0\]",
+        ),
+    ],
+)
+def test_a_bank_of_per_model_settings_of_the_wrong_length_or_sign_is_refused(
+    kwargs: dict, match: str
+) -> None:
+    """One ``q_scale`` per model, and start probabilities each in [0, 1] even when they sum to
+    1: refused when the bank is built, not when it first runs."""
+    with pytest.raises(ConfigError, match=match):
+        HeteroBank(**kwargs)
