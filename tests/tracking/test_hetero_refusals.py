@@ -86,3 +86,15 @@ def test_a_bank_of_per_model_settings_of_the_wrong_length_or_sign_is_refused(
     1: refused when the bank is built, not when it first runs."""
     with pytest.raises(ConfigError, match=match):
         HeteroBank(**kwargs)
+
+
+def test_a_step_refuses_detection_flags_and_measurements_of_another_shape() -> None:
+    imm = HeteroIMM(HeteroBank(), SENSOR, T=1.0)
+    state = imm.init(np.tile([0.0, 0.0, 5.0, 0.0], (2, 1)), np.eye(4))
+    tpm, z = np.full((3, 3), 1 / 3), np.zeros((2, 4))
+    for detected in (np.ones(3, dtype=bool), np.ones(1, dtype=bool), np.ones((2, 1), dtype=bool)):
+        with pytest.raises(ConfigError, match=r"detected must have shape \(2,\)"):
+            imm.step(state, tpm, z, detected=detected)
+    for bad in (np.zeros((2, 2)), np.zeros((1, 4)), np.zeros(4)):
+        with pytest.raises(ConfigError, match=r"z must have shape \(2, 4\)"):
+            imm.step(state, tpm, bad)
