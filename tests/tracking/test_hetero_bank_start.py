@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from imm_gym import PositionSensor
-from imm_gym.tracking.hetero import HeteroBank, HeteroIMM
+from imm_gym import PositionSensor, paper_bank
+from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, HeteroModel, linear_models
 
 SENSOR = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
 X0, P0 = np.array([[1.0, 2.0, 3.0, 4.0]]), np.diag([0.5, 0.6, 1.0, 1.0])
@@ -25,3 +25,20 @@ def test_given_start_probabilities_replace_seed_002s() -> None:
         assert bank.probs == probs
         state = HeteroIMM(bank, SENSOR, T=0.1).init(X0, P0)
         np.testing.assert_array_equal(state.mu, [probs])
+
+
+def test_a_bare_list_of_models_starts_uniform() -> None:
+    """Without a :class:`HeteroBank` (and no ``mode_probs``) every model starts at ``1 / M``."""
+    for models in (
+        linear_models(paper_bank()),
+        (HeteroModel("ncv", (0.6,)), HeteroModel("ct", (2.4, 0.6))),
+        (
+            HeteroModel("ncv", (0.6,)),
+            HeteroModel("ct", (2.4, 0.6)),
+            HeteroModel("ctra", (20, 3)),
+            HeteroModel("ncv", (2.0,)),
+        ),
+    ):
+        state = HeteroIMM(models, SENSOR, T=0.1).init(np.tile(X0, (2, 1)), P0)
+        M = len(models)
+        np.testing.assert_allclose(state.mu, np.full((2, M), 1.0 / M), rtol=1e-15)
