@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from imm_gym import PositionSensor, paper_bank
+from imm_gym.sim.render import model_labels
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM, HeteroModel, linear_models
 
 SENSOR = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
@@ -42,3 +43,10 @@ def test_a_bare_list_of_models_starts_uniform() -> None:
         state = HeteroIMM(models, SENSOR, T=0.1).init(np.tile(X0, (2, 1)), P0)
         M = len(models)
         np.testing.assert_allclose(state.mu, np.full((2, M), 1.0 / M), rtol=1e-15)
+
+
+def test_model_labels_are_the_names_the_renderer_gives_the_bank() -> None:
+    """``HeteroModel.label`` names a model as the renderer's legend does (``NCV``, ``CT``,
+    ``CTRA``, from the bank's kinds)."""
+    bank = HeteroBank(models=("ctra", "ncv", "ct"))
+    assert [m.label for m in bank.build()] == model_labels(bank) == ["CTRA", "NCV", "CT"]
