@@ -1,0 +1,26 @@
+"""The seed ranges of :mod:`imm_gym.seeding` as the README and the command line state them, with
+literal numbers: RLlib's sub-env seeds, the evaluation's and the tuners' ranges, and the refusal
+of a negative seed."""
+
+from __future__ import annotations
+
+import pytest
+
+from imm_gym.seeding import rllib_seed
+
+
+@pytest.mark.parametrize(
+    ("seed", "runner", "sub_env", "generation"),
+    [(0, 0, 0, 0), (3, 1, 2, 1), (7, 65_535, 65_535, 65_535)],
+)
+def test_rllib_seeds_follow_the_readme_s_formula(seed, runner, sub_env, generation) -> None:
+    """README: ``rllib_seed(seed, w, i, g) = 2⁶² + ((seed·2¹⁶ + g)·2¹⁶ + w)·2¹⁶ + i``."""
+    expected = 2**62 + ((seed * 65_536 + generation) * 65_536 + runner) * 65_536 + sub_env
+    assert rllib_seed(seed, runner, sub_env, generation) == expected
+
+
+@pytest.mark.parametrize("field", ["runner", "sub_env", "generation"])
+def test_an_rllib_seed_field_of_two_to_the_sixteen_is_refused(field: str) -> None:
+    fields = {"runner": 0, "sub_env": 0, "generation": 0, field: 65_536}
+    with pytest.raises(ValueError, match=rf"^{field} must be below 65536, got 65536"):
+        rllib_seed(0, **fields)
