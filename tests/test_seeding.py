@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pytest
 
+from imm_gym.cli.arguments import seed_problem
 from imm_gym.seeding import rllib_seed
 
 
@@ -24,3 +25,13 @@ def test_an_rllib_seed_field_of_two_to_the_sixteen_is_refused(field: str) -> Non
     fields = {"runner": 0, "sub_env": 0, "generation": 0, field: 65_536}
     with pytest.raises(ValueError, match=rf"^{field} must be below 65536, got 65536"):
         rllib_seed(0, **fields)
+
+
+def test_the_evaluation_s_runs_and_seeds_end_where_the_cli_says() -> None:
+    """Runs up to the tuners' offset of 1 000 000 (their training seeds start at ``--seed +
+    1 000 000``) and ``--seed`` up to 48 999 900 (50 000 000 − 1 000 000 − 100 training runs,
+    below the agents' validation seeds)."""
+    assert seed_problem(0, 1_000_000) is None
+    assert "--runs must be in [1, 1000000]" in seed_problem(0, 1_000_001)
+    assert seed_problem(48_999_900, 1) is None
+    assert "--seed must be in [0, 48999900]" in seed_problem(48_999_901, 1)
