@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from imm_gym.cli.arguments import seed_problem
-from imm_gym.seeding import rllib_seed
+from imm_gym.seeding import rllib_seed, streams
 
 
 @pytest.mark.parametrize(
@@ -35,3 +35,8 @@ def test_the_evaluation_s_runs_and_seeds_end_where_the_cli_says() -> None:
     assert "--runs must be in [1, 1000000]" in seed_problem(0, 1_000_001)
     assert seed_problem(48_999_900, 1) is None
     assert "--seed must be in [0, 48999900]" in seed_problem(48_999_901, 1)
+
+
+def test_a_negative_seed_is_refused_naming_seed() -> None:
+    with pytest.raises(ValueError, match=r"^seed must be a non-negative integer, got -1$"):
+        streams(-1)
