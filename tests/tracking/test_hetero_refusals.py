@@ -98,3 +98,25 @@ def test_a_step_refuses_detection_flags_and_measurements_of_another_shape() -> N
     for bad in (np.zeros((2, 2)), np.zeros((1, 4)), np.zeros(4)):
         with pytest.raises(ConfigError, match=r"z must have shape \(2, 4\)"):
             imm.step(state, tpm, bad)
+
+
+def test_the_start_refuses_a_state_of_another_shape_or_not_finite() -> None:
+    """``x0`` is Cartesian ``(N, 4)`` with ``P0`` ``(N, 4, 4)`` or ``(4, 4)``, both finite: a 5- or
+    6-component state, a batch of covariances of another size or count, NaN or infinity are
+    refused by name."""
+    imm = HeteroIMM(HeteroBank(), SENSOR, T=1.0)
+    shape = r"x0 must be \(N, 4\) Cartesian and P0 \(N, 4, 4\)"
+    for x0, P0 in (
+        (np.zeros((1, 5)), np.eye(5)[None]),
+        (np.array([[0.0, 0.0, 5.0, 0.0, 0.0, 0.0]]), np.eye(4)[None]),
+        (np.array([[0.0, 0.0, 5.0, 0.0]]), np.eye(6)[None]),
+        (np.tile([0.0, 0.0, 5.0, 0.0], (2, 1)), np.stack([np.eye(4)] * 3)),
+    ):
+        with pytest.raises(ConfigError, match=shape):
+            imm.init(x0, P0)
+    x0 = np.array([0.0, 0.0, 5.0, 0.0])
+    for bad_x, bad_P in ((np.nan, 1.0), (np.inf, 1.0), (0.0, np.nan), (0.0, np.inf)):
+        P0 = np.eye(4)
+        P0[0, 0] = bad_P
+        with pytest.raises(ConfigError, match="x0 and P0 must be finite"):
+            imm.init(x0 + np.array([bad_x, 0.0, 0.0, 0.0]), P0)
