@@ -120,3 +120,24 @@ def test_the_start_refuses_a_state_of_another_shape_or_not_finite() -> None:
         P0[0, 0] = bad_P
         with pytest.raises(ConfigError, match="x0 and P0 must be finite"):
             imm.init(x0 + np.array([bad_x, 0.0, 0.0, 0.0]), P0)
+
+
+@pytest.mark.parametrize(
+    ("tpm", "match"),
+    [
+        (np.full((3, 3), 0.3), r"tpm rows must sum to 1"),
+        (
+            np.array([[1.2, -0.2, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+            r"tpm entries must be >= 0",
+        ),
+        (np.full((2, 2), 0.5), r"tpm must have shape \(\.\.\., 3, 3\)"),
+        (np.full((3, 3), np.nan), r"tpm must be finite"),
+    ],
+)
+def test_a_step_refuses_a_tpm_that_is_not_a_stochastic_matrix(tpm: np.ndarray, match: str) -> None:
+    """The engine checks the TPM it mixes with: rows summing to 1, entries >= 0, one row and
+    column per model, finite."""
+    imm = HeteroIMM(HeteroBank(), SENSOR, T=1.0)
+    state = imm.init(np.array([0.0, 0.0, 5.0, 0.0]), np.eye(4))
+    with pytest.raises(ConfigError, match=match):
+        imm.step(state, tpm, np.zeros((1, 4)))
