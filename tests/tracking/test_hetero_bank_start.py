@@ -50,3 +50,20 @@ def test_model_labels_are_the_names_the_renderer_gives_the_bank() -> None:
     ``CTRA``, from the bank's kinds)."""
     bank = HeteroBank(models=("ctra", "ncv", "ct"))
     assert [m.label for m in bank.build()] == model_labels(bank) == ["CTRA", "NCV", "CT"]
+
+
+def test_run_starts_from_the_given_mode_probabilities() -> None:
+    """``HeteroIMM.run(..., mode_probs)`` equals ``init`` with those probabilities and ``step``
+    after ``step``; starting elsewhere changes the run."""
+    rng = np.random.default_rng(2)
+    imm = HeteroIMM(HeteroBank(), SENSOR, T=0.1)
+    z = rng.normal(size=(1, 12, 4)) * 0.5 + np.array([1.0, 2.0, 3.0, 4.0])
+    tpm, mu0 = np.full((3, 3), 1 / 3) * 0.3 + 0.7 * np.eye(3), np.array([0.05, 0.15, 0.8])
+    out = imm.run(z, tpm, X0, P0, mode_probs=mu0)
+    state = imm.init(X0, P0, mu0)
+    for k in range(12):
+        state, step = imm.step(state, tpm, z[:, k])
+        np.testing.assert_allclose(out.mode_probs[0, k], step.mode_probs[0], rtol=1e-13)
+        np.testing.assert_allclose(out.x[0, k], step.x[0], rtol=1e-13, atol=1e-13)
+    default = imm.run(z, tpm, X0, P0)
+    assert np.abs(default.mode_probs[0, 0] - out.mode_probs[0, 0]).max() > 1e-3
