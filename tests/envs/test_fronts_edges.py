@@ -1,8 +1,9 @@
 """Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
 action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
-and an autoreset in a one-step episode; the SB3 adapter's critic bounds, per-step infos and its
-refusal of a ``step_wait`` without its own ``step_async``; the registered ids' env checker."""
+and an autoreset in a one-step episode; the SB3 adapter's critic bounds, per-step infos, its
+refusal of a ``step_wait`` without its own ``step_async`` and of ``set_attr``; the registered
+ids' env checker."""
 
 from __future__ import annotations
 
@@ -223,3 +224,12 @@ def test_make_wraps_every_registered_id_in_gymnasium_s_passive_checker(env_id: s
         wrappers.append(type(env))
         env = env.env
     assert PassiveEnvChecker in wrappers and isinstance(env, TPMAdaptEnv)
+
+
+def test_the_sb3_adapter_refuses_set_attr_naming_it() -> None:
+    """The sub-envs share one core: setting an attribute of "one" of them is refused, naming it,
+    and changes nothing."""
+    venv = TPMAdaptSB3VecEnv(num_envs=3, config=SHORT)
+    with pytest.raises(AttributeError, match="share one core; cannot set 'critic_state'"):
+        venv.set_attr("critic_state", True, indices=[1])
+    assert venv.get_attr("critic_state") == [False] * 3
