@@ -2,8 +2,8 @@
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
 action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
 and an autoreset in a one-step episode; the SB3 adapter's critic bounds, per-step infos, its
-refusal of a ``step_wait`` without its own ``step_async`` and of ``set_attr``; the registered
-ids' env checker."""
+refusal of a ``step_wait`` without its own ``step_async`` and of ``set_attr``, and its images;
+the registered ids' env checker."""
 
 from __future__ import annotations
 
@@ -233,3 +233,9 @@ def test_the_sb3_adapter_refuses_set_attr_naming_it() -> None:
     with pytest.raises(AttributeError, match="share one core; cannot set 'critic_state'"):
         venv.set_attr("critic_state", True, indices=[1])
     assert venv.get_attr("critic_state") == [False] * 3
+
+
+def test_the_sb3_adapter_gives_one_absent_image_per_sub_env() -> None:
+    """``get_images`` (what SB3's ``VecEnv.render`` tiles) has one entry per sub-env, None: the
+    adapter draws nothing."""
+    assert TPMAdaptSB3VecEnv(num_envs=3, config=SHORT).get_images() == [None, None, None]
