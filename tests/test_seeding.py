@@ -1,13 +1,14 @@
 """The seed ranges of :mod:`imm_gym.seeding` as the README and the command line state them, with
 literal numbers: RLlib's sub-env seeds, the evaluation's and the tuners' ranges, and the refusal
-of a negative seed."""
+of a negative seed; a clone of a generator of any of numpy's bit generators."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from imm_gym.cli.arguments import seed_problem
-from imm_gym.seeding import rllib_seed, streams
+from imm_gym.seeding import clone, rllib_seed, streams
 
 
 @pytest.mark.parametrize(
@@ -40,3 +41,17 @@ def test_the_evaluation_s_runs_and_seeds_end_where_the_cli_says() -> None:
 def test_a_negative_seed_is_refused_naming_seed() -> None:
     with pytest.raises(ValueError, match=r"^seed must be a non-negative integer, got -1$"):
         streams(-1)
+
+
+@pytest.mark.parametrize(
+    "bit_generator",
+    [np.random.PCG64, np.random.Philox, np.random.MT19937, np.random.SFC64, np.random.PCG64DXSM],
+)
+def test_a_clone_of_any_bit_generator_draws_the_same_numbers_independently(bit_generator) -> None:
+    original = np.random.Generator(bit_generator(11))
+    original.random(3)
+    twin = clone(original)
+    assert type(twin.bit_generator) is bit_generator
+    expected = np.random.Generator(bit_generator(11)).random(8)[3:]
+    np.testing.assert_array_equal(twin.random(5), expected)
+    np.testing.assert_array_equal(original.random(5), expected)  # not moved by the twin
