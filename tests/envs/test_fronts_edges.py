@@ -2,8 +2,8 @@
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
 action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
 and an autoreset in a one-step episode; the SB3 adapter's critic bounds, per-step infos, its
-refusal of a ``step_wait`` without its own ``step_async`` and of ``set_attr``, and its images;
-the registered ids' env checker."""
+refusal of a ``step_wait`` without its own ``step_async`` and of ``set_attr``, its images and a
+mixture's parts over an id's preset; the registered ids' env checker."""
 
 from __future__ import annotations
 
@@ -239,3 +239,18 @@ def test_the_sb3_adapter_gives_one_absent_image_per_sub_env() -> None:
     """``get_images`` (what SB3's ``VecEnv.render`` tiles) has one entry per sub-env, None: the
     adapter draws nothing."""
     assert TPMAdaptSB3VecEnv(num_envs=3, config=SHORT).get_images() == [None, None, None]
+
+
+def test_a_mixture_s_parts_build_on_the_env_id_s_preset() -> None:
+    """With ``env_id``, each further part's ``env_kwargs`` are fields over that id's preset (the
+    parallel id: a parallel bank, ``p_min = 0.05``, the ``bank_b`` feature), as ``config``'s
+    are."""
+    venv = TPMAdaptSB3VecEnv(
+        4,
+        env_id="imm_gym/TPMAdaptParallel-v0",
+        mixture=[{"env_kwargs": {"sensor": {"outlier_prob": 0.1}}, "share": 0.5}],
+    )
+    configs = venv.get_attr("config")
+    assert [c.sensor.outlier_prob for c in configs] == [0.0, 0.0, 0.1, 0.1]
+    for c in configs:
+        assert (c.parallel, c.p_min, c.obs_features) == (True, 0.05, ("bank_b",))
