@@ -2,7 +2,8 @@
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
 driving family's longest period, the spread of its draws and its turns' directions; the
-maneuver family's scaled accelerations and headings, and the runs of the seed-003 truth."""
+maneuver family's scaled accelerations and headings, the runs of the seed-003 truth, and a
+single run's profile given as ``(K,)``."""
 
 from __future__ import annotations
 
@@ -148,3 +149,14 @@ def test_the_maneuver_family_starts_at_any_heading() -> None:
     heading = ManeuverFamily().truth([np.random.default_rng(s) for s in range(200)]).heading[:, 0]
     assert heading.min() >= -math.pi and heading.max() <= math.pi
     assert heading.min() < -2.9 and heading.max() > 2.9
+
+
+def test_a_single_run_s_profile_may_be_given_without_its_run_axis() -> None:
+    """``(K,)`` turn rates and accelerations are one run's: the truth of the ``(1, K)`` ones."""
+    omega, accel = np.array([0.0, 0.1, -0.05]), np.array([0.5, 0.0, -0.2])
+    start = (np.zeros((1, 2)), np.array([4.0]), np.array([0.3]), 0.5)
+    flat = profile_truth(omega, accel, *start)
+    batched = profile_truth(omega[None], accel[None], *start)
+    assert flat.states.shape == (1, 4, 4)
+    np.testing.assert_array_equal(flat.states, batched.states)
+    np.testing.assert_array_equal(flat.turn_rate, [omega])
