@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imm_gym import Sonar, stay_tpm
+from imm_gym import PositionSensor, Sonar, stay_tpm
 from imm_gym.tracking.hetero import HeteroBank, HeteroIMM
 
 ROWS = (
@@ -46,3 +46,19 @@ def test_a_failure_past_the_checks_leaves_the_others_their_own_tpms() -> None:
             assert out.failed.tolist() == [False, True, False]
             assert np.isnan(out.x[1]).all() and np.isnan(out.z_pred[1]).all()
     assert failed_at is not None
+
+
+def test_a_tracker_flagged_by_the_pre_check_has_no_predicted_measurement() -> None:
+    """A finite innovation covariance that is not positive definite (a negative-definite ``P``)
+    flags its tracker: every output NaN, the predicted measurement too (the tuner's objective
+    reads it), while the other tracker's stays finite."""
+    sensor = PositionSensor(sigma_pos=0.5, sigma_vel=0.5)
+    imm = HeteroIMM(HeteroBank(), sensor, T=0.1)
+    state = imm.init(np.tile([0.0, 0.0, 5.0, 0.0], (2, 1)), np.eye(4))
+    state.P[1] = -1e3 * np.eye(state.P.shape[-1])
+    _, out = imm.step(state, stay_tpm(3, 0.9), np.zeros((2, 4)), allow_failure=True)
+    assert out.failed.tolist() == [False, True]
+    for field in ("x", "P", "mode_probs", "nis", "z_pred"):
+        value = getattr(out, field)
+        assert np.isnan(value[1]).all(), field
+        assert np.isfinite(value[0]).all(), field
