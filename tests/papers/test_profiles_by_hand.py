@@ -2,8 +2,8 @@
 tangential acceleration, and its refusals (a speed driven below 0, a Cartesian step that also
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
 driving family's longest period, the spread of its draws and its turns' directions; the
-maneuver family's scaled accelerations and headings, the runs of the seed-003 truth, and a
-single run's profile given as ``(K,)``."""
+maneuver family's scaled accelerations and headings, the runs of the seed-003 truth and of a
+family's truth, and a single run's profile given as ``(K,)``."""
 
 from __future__ import annotations
 
@@ -160,3 +160,10 @@ def test_a_single_run_s_profile_may_be_given_without_its_run_axis() -> None:
     assert flat.states.shape == (1, 4, 4)
     np.testing.assert_array_equal(flat.states, batched.states)
     np.testing.assert_array_equal(flat.turn_rate, [omega])
+
+
+@pytest.mark.parametrize("family", [DrivingFamily, ManeuverFamily])
+def test_a_family_s_truth_needs_at_least_one_generator(family) -> None:
+    with pytest.raises(ConfigError, match=rf"^{family.__name__}\.truth needs at least one"):
+        family().truth([])
+    assert family().truth([np.random.default_rng(0)]).states.shape[0] == 1
