@@ -409,7 +409,8 @@ class HeteroIMM:
         """
         x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
         P0 = np.asarray(P0, dtype=np.float64)
-        P0 = np.broadcast_to(P0, (x0.shape[0], 4, 4)) if P0.ndim == 2 else P0
+        if P0.shape == (4, 4):  # one covariance for every run
+            P0 = np.broadcast_to(P0, (x0.shape[0], 4, 4))
         if x0.shape[-1] != 4 or P0.shape != (x0.shape[0], 4, 4):
             raise ConfigError(
                 f"x0 must be (N, 4) Cartesian and P0 (N, 4, 4), got {x0.shape} and {P0.shape}"

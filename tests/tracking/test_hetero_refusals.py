@@ -102,14 +102,17 @@ def test_a_step_refuses_detection_flags_and_measurements_of_another_shape() -> N
 
 def test_the_start_refuses_a_state_of_another_shape_or_not_finite() -> None:
     """``x0`` is Cartesian ``(N, 4)`` with ``P0`` ``(N, 4, 4)`` or ``(4, 4)``, both finite: a 5- or
-    6-component state, a batch of covariances of another size or count, NaN or infinity are
-    refused by name."""
+    6-component state, a covariance or a batch of covariances of another size or count, NaN or
+    infinity are refused by name (a single 6 x 6 or 3 x 3 covariance was numpy's broadcast
+    error)."""
     imm = HeteroIMM(HeteroBank(), SENSOR, T=1.0)
     shape = r"x0 must be \(N, 4\) Cartesian and P0 \(N, 4, 4\)"
     for x0, P0 in (
         (np.zeros((1, 5)), np.eye(5)[None]),
         (np.array([[0.0, 0.0, 5.0, 0.0, 0.0, 0.0]]), np.eye(4)[None]),
         (np.array([[0.0, 0.0, 5.0, 0.0]]), np.eye(6)[None]),
+        (np.array([0.0, 0.0, 5.0, 0.0]), np.eye(6)),  # one covariance of another size
+        (np.array([0.0, 0.0, 5.0, 0.0]), np.eye(3)),
         (np.tile([0.0, 0.0, 5.0, 0.0], (2, 1)), np.stack([np.eye(4)] * 3)),
     ):
         with pytest.raises(ConfigError, match=shape):
