@@ -1,9 +1,10 @@
 """Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
-(a window only for ``"human"``, drawn at every reset and step, released by ``close``) and its
-action check off the compiled solo step; the vector env's ``num_envs`` check, its own generator
-and an autoreset in a one-step episode; the SB3 adapter's critic bounds, per-step infos, its
-refusal of a ``step_wait`` without its own ``step_async`` and of ``set_attr``, its images and a
-mixture's parts over an id's preset; the registered ids' env checker."""
+(a window only for ``"human"``, drawn at every reset and step, released by ``close``), its
+action check off the compiled solo step and its datasheet's observation table; the vector env's
+``num_envs`` check, its own generator and an autoreset in a one-step episode; the SB3 adapter's
+critic bounds, per-step infos, its refusal of a ``step_wait`` without its own ``step_async`` and
+of ``set_attr``, its images and a mixture's parts over an id's preset; the registered ids' env
+checker."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from imm_gym.envs.render import CoreRenderer
 from imm_gym.envs.sb3 import TPMAdaptSB3VecEnv
 from imm_gym.sim.actions import ActionError
 from imm_gym.sim.core import CRITIC_CLIP, critic_state_size
+from imm_gym.sim.env_config import OBS_FEATURES
 
 SHORT = {
     "scenario": "random",
@@ -254,3 +256,18 @@ def test_a_mixture_s_parts_build_on_the_env_id_s_preset() -> None:
     assert [c.sensor.outlier_prob for c in configs] == [0.0, 0.0, 0.1, 0.1]
     for c in configs:
         assert (c.parallel, c.p_min, c.obs_features) == (True, 0.05, ("bank_b",))
+
+
+def test_the_scalar_env_s_datasheet_lists_every_observation_entry() -> None:
+    """``help(TPMAdaptEnv)`` shows the observation table (index, meaning, min, max): a row per
+    optional feature and the two rows of model probabilities, bounded as the space is."""
+    doc = TPMAdaptEnv.__doc__
+    assert "{observation_table}" not in doc
+    rows = [line.strip() for line in doc.splitlines() if line.strip().startswith("| ")]
+    for feature in OBS_FEATURES:
+        assert any(row.startswith(f"| ``{feature}`` |") for row in rows), feature
+    space = TPMAdaptEnv(config=SHORT).observation_space
+    assert (space.shape, float(space.low.min()), float(space.high.max())) == ((6,), 0.0, 1.0)
+    probability_rows = [row for row in rows if "model probabilities" in row]
+    assert len(probability_rows) >= 2
+    assert all(row.endswith("| 0 | 1 |") for row in probability_rows[:2])
