@@ -3,7 +3,8 @@ tangential acceleration, and its refusals (a speed driven below 0, a Cartesian s
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
 driving family's longest period, the spread of its draws and its turns' directions; the
 maneuver family's scaled accelerations and headings, the runs of the seed-003 truth and of a
-family's truth, and a single run's profile given as ``(K,)``."""
+family's truth, a single run's profile given as ``(K,)`` and the first of several non-finite
+entries named."""
 
 from __future__ import annotations
 
@@ -167,3 +168,12 @@ def test_a_family_s_truth_needs_at_least_one_generator(family) -> None:
     with pytest.raises(ConfigError, match=rf"^{family.__name__}\.truth needs at least one"):
         family().truth([])
     assert family().truth([np.random.default_rng(0)]).states.shape[0] == 1
+
+
+def test_the_first_of_several_non_finite_entries_is_named() -> None:
+    omega = np.zeros((2, 4))
+    omega[0, 3], omega[1, 1] = np.inf, np.nan
+    with pytest.raises(
+        ConfigError, match=r"^omega must be finite everywhere, got inf at index \[0, 3\]"
+    ):
+        profile_truth(omega, np.zeros((2, 4)), np.zeros((2, 2)), np.ones(2), np.zeros(2), 1.0)
