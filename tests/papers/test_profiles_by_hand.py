@@ -3,8 +3,8 @@ tangential acceleration, and its refusals (a speed driven below 0, a Cartesian s
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
 driving family's longest period, the spread of its draws and its turns' directions; the
 maneuver family's scaled accelerations and headings, the runs of the seed-003 truth and of a
-family's truth, a single run's profile given as ``(K,)`` and the first of several non-finite
-entries named."""
+family's truth, a single run's profile given as ``(K,)`` the first of several non-finite
+entries named and a Cartesian profile of another number of runs refused."""
 
 from __future__ import annotations
 
@@ -177,3 +177,12 @@ def test_the_first_of_several_non_finite_entries_is_named() -> None:
         ConfigError, match=r"^omega must be finite everywhere, got inf at index \[0, 3\]"
     ):
         profile_truth(omega, np.zeros((2, 4)), np.zeros((2, 2)), np.ones(2), np.zeros(2), 1.0)
+
+
+def test_a_cartesian_profile_of_another_number_of_runs_is_refused() -> None:
+    args = (np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 2)), np.ones(1), np.zeros(1), 1.0)
+    with pytest.raises(
+        ConfigError, match=r"cart_accel has shape \(2, 3, 2\), expected \(1, 3, 2\)"
+    ):
+        profile_truth(*args, np.zeros((2, 3, 2)))
+    assert profile_truth(*args, np.zeros((3, 2))).states.shape == (1, 4, 4)  # one run's (K, 2)
