@@ -3,7 +3,7 @@ tangential acceleration, and its refusals (a speed driven below 0, a Cartesian s
 accelerates along its heading); the families' ranges, whose lower ends must be above 0, the
 driving family's longest period, the spread of its draws and its turns' directions; the
 maneuver family's scaled accelerations and headings, the runs of the seed-003 truth and of a
-family's truth, a single run's profile given as ``(K,)`` the first of several non-finite
+family's truth, a single run's profile given as ``(K,)``, the first of several non-finite
 entries named and a Cartesian profile of another number of runs refused."""
 
 from __future__ import annotations
