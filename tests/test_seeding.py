@@ -1,6 +1,7 @@
 """The seed ranges of :mod:`imm_gym.seeding` as the README and the command line state them, with
-literal numbers: RLlib's sub-env seeds, the evaluation's and the tuners' ranges, and the refusal
-of a negative seed; a clone of a generator of any of numpy's bit generators."""
+literal numbers: RLlib's sub-env seeds, the evaluation's and the tuners' ranges, the agents'
+validation and training seeds, and the refusal of a negative seed; a clone of a generator of
+any of numpy's bit generators."""
 
 from __future__ import annotations
 
@@ -55,3 +56,11 @@ def test_a_clone_of_any_bit_generator_draws_the_same_numbers_independently(bit_g
     expected = np.random.Generator(bit_generator(11)).random(8)[3:]
     np.testing.assert_array_equal(twin.random(5), expected)
     np.testing.assert_array_equal(original.random(5), expected)  # not moved by the twin
+
+
+def test_the_agents_validation_and_training_seeds_start_where_the_cli_says() -> None:
+    """The agents' validation seeds start at 50 000 000 and their training slots at
+    100 000 000 (``TRAIN_SEED_BASE + 10 000 s + i``): an evaluation seed past its most is
+    refused naming both."""
+    message = seed_problem(48_999_901, 1)
+    assert "validation seeds (50000000+) and training slots (100000000+)" in message
