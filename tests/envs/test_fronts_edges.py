@@ -1,10 +1,10 @@
 """Edges of the env fronts that the lock-step tests do not reach: the scalar env's render modes
 (a window only for ``"human"``, drawn at every reset and step, released by ``close``), its
 action check off the compiled solo step and its datasheet's observation table; the vector env's
-``num_envs`` check, its own generator and an autoreset in a one-step episode; the SB3 adapter's
-critic bounds, per-step infos, its refusal of a ``step_wait`` without its own ``step_async`` and
-of ``set_attr``, its images and a mixture's parts over an id's preset; the registered ids' env
-checker."""
+``num_envs`` check, its own generator, an autoreset in a one-step episode and its render
+warning; the SB3 adapter's critic bounds, per-step infos, its refusal of a ``step_wait``
+without its own ``step_async`` and of ``set_attr``, its images and a mixture's parts over an
+id's preset; the registered ids' env checker."""
 
 from __future__ import annotations
 
@@ -271,3 +271,10 @@ def test_the_scalar_env_s_datasheet_lists_every_observation_entry() -> None:
     probability_rows = [row for row in rows if "model probabilities" in row]
     assert len(probability_rows) >= 2
     assert all(row.endswith("| 0 | 1 |") for row in probability_rows[:2])
+
+
+def test_the_vector_env_warns_when_rendered_without_a_render_mode() -> None:
+    venv = TPMAdaptVectorEnv(2, config=SHORT)
+    venv.reset(seed=0)
+    with pytest.warns(UserWarning, match="render_mode='rgb_array'"):
+        assert venv.render() is None
