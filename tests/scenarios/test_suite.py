@@ -152,3 +152,15 @@ def test_the_randomized_family_name_cannot_be_registered() -> None:
     with pytest.raises(ValueError, match="already defined"):
         register("random", paper_scenario)
     assert "random" not in SCENARIOS
+
+
+@pytest.mark.parametrize(
+    ("table", "T"),
+    [([(26, 0.0)], 5.0), ([(10, 0.0), (10.00001, 1.0)], 1.0), ([(10.5, 0.0)], 1.0)],
+)
+def test_a_duration_a_little_off_a_multiple_of_T_is_refused(table, T) -> None:
+    """26 s at T = 5 s is 5.2 periods, 10.00001 s at T = 1 s a hundred-thousandth of a period
+    over 10, 10.5 s half a period: none is a whole number of periods, so none is silently
+    rounded to the nearest (25 s, 10 s, 10 s) but refused, naming the row."""
+    with pytest.raises(ConfigError, match=r"^table\[\d\] duration_s must be a positive multiple"):
+        timed_scenario(table, (0.0, 0.0), (1.0, 0.0), T)
