@@ -354,3 +354,32 @@ def test_stopping_exactly_in_decimal_is_a_target(speed, accel, steps, T) -> None
     states = generate_truth([scenario]).states[0]
     np.testing.assert_allclose(states[steps:, 0], speed * t + accel * t * t / 2, rtol=1e-12)
     np.testing.assert_allclose(states[steps:, 2:], 0.0, atol=1e-15)
+
+
+def test_the_default_family_draws_the_spec_ranges() -> None:
+    """SPEC §6's randomized family, read off the truth a user gets from ``RandomFamily()``: start
+    range U(3, 8) km, speed U(5, 25) m/s (constant), 150 steps of T = 1 s, 3-6 segments of at
+    least 10 steps (a segment ends where the turn rate changes: straight and turn alternate),
+    straight first, turn rates ±U(0.5, 3) °/s; 400 runs reach within a few percent of each end."""
+    truth = RandomFamily().truth([np.random.default_rng(s) for s in range(400)])
+    assert truth.states.shape == (400, 151, 4) and truth.T == 1.0
+    ranges = np.linalg.norm(truth.states[:, 0, :2], axis=-1)
+    assert ranges.min() >= 3000.0 and ranges.max() <= 8000.0
+    assert ranges.min() < 3100.0 and ranges.max() > 7900.0
+    speeds = np.linalg.norm(truth.states[:, :, 2:], axis=-1)
+    assert np.all(np.abs(speeds - speeds[:, :1]) <= 1e-12 * speeds[:, :1])
+    assert speeds.min() >= 5.0 and speeds.max() <= 25.0
+    assert speeds.min() < 5.5 and speeds.max() > 24.5
+    rates = np.degrees(np.abs(truth.turn_rate))
+    turning = rates[rates > 0]
+    assert turning.min() >= 0.5 and turning.max() <= 3.0
+    assert turning.min() < 0.55 and turning.max() > 2.95
+    counts, shortest = [], []
+    for omega in truth.turn_rate:
+        edges = np.flatnonzero(np.diff(omega)) + 1
+        durations = np.diff(np.concatenate([[0], edges, [omega.size]]))
+        assert omega[0] == 0.0
+        counts.append(durations.size)
+        shortest.append(durations.min())
+    assert set(counts) == {3, 4, 5, 6}
+    assert min(shortest) == 10
