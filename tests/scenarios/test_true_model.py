@@ -6,7 +6,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from imm_gym import MotionModel, Scenario, Segment, generate_truth
+from imm_gym.scenarios.profiles import profile_truth
 from imm_gym.scenarios.segments import true_model_index
 from imm_gym.tracking.hetero import HeteroBank
 
@@ -63,3 +66,28 @@ def test_a_heterogeneous_bank_without_a_ctra_model_has_no_model_of_an_accelerati
     assert _index(scenario, bank) == [0, -1, 1, -1]
     full = HeteroBank(models=("ncv", "ct", "ctra"))
     assert _index(scenario, full) == [0, 2, 1, 2]
+
+
+def test_a_step_that_turns_and_accelerates_at_once_names_the_acceleration_model() -> None:
+    """A profile source (:func:`profile_truth`) turns and speeds up in one step: 3 straight steps,
+    4 at +3 °/s and +1 m/s², 3 straight at +0.5 m/s², 2 at -2 °/s. By the docstring's rule
+    (acceleration -> the first CA model, turning or not, else the turn's CT model; heterogeneous:
+    acceleration -> CTRA) worked per segment: a CV/CT/CT/CA bank names CA (3) for both
+    accelerations; without the CA model the turning acceleration is the +3 °/s CT model (1) and
+    the straight one no model (-1), not CV; NCV/CT/CTRA names CTRA (2) for both, NCV/CT none."""
+    durations = [3, 4, 3, 2]
+    omega = np.repeat(np.radians([0.0, 3.0, 0.0, -2.0]), durations)[None]
+    accel = np.repeat([0.0, 1.0, 0.5, 0.0], durations)[None]
+    truth = profile_truth(omega, accel, np.zeros((1, 2)), np.array([10.0]), np.zeros(1), 1.0)
+    np.testing.assert_array_equal(truth.turn_rate, omega)
+    np.testing.assert_array_equal(truth.accel, accel)
+    cv, ct_left, ct_right = MotionModel("cv"), MotionModel("ct", 3.0), MotionModel("ct", -2.0)
+    banks = [
+        ((cv, ct_left, ct_right, MotionModel("ca", q=(0.1,) * 6)), [0, 3, 3, 2]),
+        ((cv, ct_left, ct_right), [0, 1, -1, 2]),
+        (HeteroBank(models=("ncv", "ct", "ctra")), [0, 2, 2, 1]),
+        (HeteroBank(models=("ncv", "ct")), [0, -1, -1, 1]),
+    ]
+    for bank, per_segment in banks:
+        expected = np.repeat(per_segment, durations)[None]
+        np.testing.assert_array_equal(true_model_index(truth, bank), expected)
