@@ -454,3 +454,34 @@ def test_the_track_start_prior_left_unset_is_the_configurations_default() -> Non
     c = draw_conditions(Variation(sigma_r=(10.0, 100.0)), 1.0, Sonar(), rngs)
     assert EnvConfig().velocity_std == 5.0
     np.testing.assert_array_equal(c.velocity_std, EnvConfig().velocity_std)
+
+
+#: A range for every condition of DRAWS, in its order; the log-uniform ones span decades.
+EVERY = {
+    "T": (0.5, 5.0),
+    "sigma_r": (10.0, 100.0),
+    "sigma_theta_deg": (0.02, 0.5),
+    "sigma_pos": (1.0, 50.0),
+    "outlier_prob": (0.0, 0.1),
+    "detection_prob": (0.1, 1.0),
+    "speed": (5.0, 300.0),
+    "q_scale": (0.3, 30.0),
+    "q_maneuver": (0.5, 50.0),
+    "velocity_std": (2.0, 40.0),
+}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_every_condition_is_drawn_by_its_documented_law(seed: int) -> None:
+    """One uniform ``u`` per condition from the episode's generator, in the order of the module
+    docstring's list; a scale (T, the noise deviations, speed, the noise factors, the track
+    start's spread) is log-uniform, ``lo (hi / lo)^u``, a probability uniform, ``lo + (hi - lo)
+    u`` (a detection probability of 0.1-1 drawn log-uniformly is below 0.55 three times in four,
+    uniformly half the time)."""
+    got = Variation(**EVERY).draw(np.random.default_rng(seed))
+    u = np.random.default_rng(seed).uniform(size=len(EVERY))
+    probabilities = ("outlier_prob", "detection_prob")
+    assert list(got) == list(EVERY)
+    for (name, (lo, hi)), ui in zip(EVERY.items(), u, strict=True):
+        expected = lo + (hi - lo) * ui if name in probabilities else lo * (hi / lo) ** ui
+        assert got[name] == pytest.approx(expected, rel=1e-12), name
