@@ -485,3 +485,34 @@ def test_every_condition_is_drawn_by_its_documented_law(seed: int) -> None:
     for (name, (lo, hi)), ui in zip(EVERY.items(), u, strict=True):
         expected = lo + (hi - lo) * ui if name in probabilities else lo * (hi / lo) ** ui
         assert got[name] == pytest.approx(expected, rel=1e-12), name
+
+
+def test_draw_conditions_gives_each_run_its_drawn_values_and_keeps_the_rest() -> None:
+    """Run r's conditions are the values worked by hand from ``default_rng(r)``'s uniforms in the
+    documented order (T, sigma_r, speed, q_scale, q_maneuver, velocity_std, each log-uniform);
+    the sensor keeps its fields that do not vary. A variation of the sensor alone leaves every
+    run's T, factors and spread at the configured ones and has no speed (None)."""
+    vary = {name: EVERY[name] for name in
+            ("T", "sigma_r", "speed", "q_scale", "q_maneuver", "velocity_std")}
+    runs = 5
+    rngs = [np.random.default_rng(r) for r in range(runs)]
+    c = draw_conditions(Variation(**vary), 1.0, Sonar(), rngs)
+    by_hand = np.array([
+        [lo * (hi / lo) ** u for (lo, hi), u in
+         zip(vary.values(), np.random.default_rng(r).uniform(size=6), strict=True)]
+        for r in range(runs)
+    ])
+    np.testing.assert_allclose(c.T, by_hand[:, 0], rtol=1e-12)
+    np.testing.assert_allclose([s.sigma_r for s in c.sensors], by_hand[:, 1], rtol=1e-12)
+    np.testing.assert_allclose(c.speed, by_hand[:, 2], rtol=1e-12)
+    np.testing.assert_allclose(c.q_scale, by_hand[:, 3], rtol=1e-12)
+    np.testing.assert_allclose(c.q_maneuver, by_hand[:, 4], rtol=1e-12)
+    np.testing.assert_allclose(c.velocity_std, by_hand[:, 5], rtol=1e-12)
+    assert all(s.sigma_theta_deg == Sonar().sigma_theta_deg for s in c.sensors)
+    rngs = [np.random.default_rng(r) for r in range(runs)]
+    sensor_only = draw_conditions(Variation(sigma_r=(10.0, 100.0)), 2.0, Sonar(), rngs, 7.0)
+    assert sensor_only.speed is None
+    np.testing.assert_array_equal(sensor_only.T, 2.0)
+    np.testing.assert_array_equal(sensor_only.q_scale, 1.0)
+    np.testing.assert_array_equal(sensor_only.q_maneuver, 1.0)
+    np.testing.assert_array_equal(sensor_only.velocity_std, 7.0)
