@@ -516,3 +516,21 @@ def test_draw_conditions_gives_each_run_its_drawn_values_and_keeps_the_rest() ->
     np.testing.assert_array_equal(sensor_only.q_scale, 1.0)
     np.testing.assert_array_equal(sensor_only.q_maneuver, 1.0)
     np.testing.assert_array_equal(sensor_only.velocity_std, 7.0)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"sigma_theta_deg": (1.0, 200.0)}, "vary.sigma_theta_deg[1] must be in [1.0, 180.0]"),
+        ({"detection_prob": (0.5, 1.5)}, "vary.detection_prob[1] must be in [0.5, 1.0]"),
+        ({"velocity_std": (5.0, 2e6)}, "vary.velocity_std[1] must be in [5.0, 1000000.0]"),
+        ({"share": 0.0, "sigma_r": (10.0, 100.0)}, "vary.share must be in (0.0, 1.0]"),
+    ],
+)
+def test_a_range_past_its_conditions_limit_is_refused_when_configured(changes, message) -> None:
+    """A bearing noise above 180°, a detection probability above 1, a track-start spread above
+    the initiation's 1e6 m/s and a share of 0 (no episode would vary) are refused by the
+    configuration, naming the end, not by some later episode's sensor (or never)."""
+    with pytest.raises(ConfigError) as err:
+        Variation(**changes)
+    assert message in str(err.value)
