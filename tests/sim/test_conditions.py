@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import imm_gym  # noqa: F401  (registers the envs)
+from imm_gym import paper_bank
 from imm_gym.scenarios.segments import RandomFamily
 from imm_gym.seeding import streams
 from imm_gym.sim.conditions import Variation, bank_noise, draw_conditions, maneuver_factors
@@ -534,3 +535,12 @@ def test_a_range_past_its_conditions_limit_is_refused_when_configured(changes, m
     with pytest.raises(ConfigError) as err:
         Variation(**changes)
     assert message in str(err.value)
+
+
+def test_a_varied_period_needs_every_model_of_the_bank_continuous() -> None:
+    """A bank whose CV model has continuous-time noise but whose CT models keep the paper's
+    per-step ``Q`` is right at one T only: ``vary.T`` is refused naming the first such model."""
+    bank = (CONTINUOUS_BANK[0], *paper_bank()[1:])
+    with pytest.raises(ConfigError) as err:
+        EnvConfig(bank=bank, vary={"T": (0.5, 5.0)})
+    assert "bank[1] has per-step noise" in str(err.value)
