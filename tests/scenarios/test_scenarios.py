@@ -258,6 +258,21 @@ def test_segment_turn_and_accel() -> None:
         Segment(10, turn_rate_deg=1.0, accel=1.0)
 
 
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"turn_rate_deg": math.nan}, r"^segment\.turn_rate_deg must be finite, got nan"),
+        ({"turn_rate_deg": -math.inf}, r"^segment\.turn_rate_deg must be finite, got -inf"),
+        ({"accel": math.nan}, r"^segment\.accel must be finite, got nan"),
+        ({"accel": math.inf}, r"^segment\.accel must be finite, got inf"),
+    ],
+)
+def test_a_turn_rate_or_acceleration_that_is_not_finite_is_refused(fields, message) -> None:
+    """A NaN or infinite turn rate or acceleration would fly a truth of NaNs: refused by name."""
+    with pytest.raises(ConfigError, match=message):
+        Segment(10, **fields)
+
+
 @pytest.mark.parametrize("T", [0.5, 1.0, 2.5])
 @pytest.mark.parametrize(
     ("segments", "speed", "message"),
