@@ -326,6 +326,7 @@ def test_generate_truth_empty() -> None:
         ({"turn_rate_deg": (1.0, 0.5)}, r"family\.turn_rate_deg\[1\]"),
         ({"horizon": 0}, r"family\.horizon"),
         ({"T": 0.0}, r"family\.T"),
+        ({"truth_q": (1.0, -1.0, 1.0, 1.0)}, r"family\.truth_q must be in \[0\.0, inf\)"),
     ],
 )
 def test_invalid_family(kwargs: dict, field: str) -> None:
