@@ -300,6 +300,21 @@ def test_segment_from_mapping() -> None:
     assert sc.segments == (Segment(5, 1.0), Segment(3))
 
 
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ({"duration": 0}, r"^scenario\.segments\[1\]: segment\.duration must be an integer"),
+        ({"duration": 3, "turn_rate_deg": math.nan},
+         r"^scenario\.segments\[1\]: segment\.turn_rate_deg must be finite"),
+        ({"duraton": 3}, r"^scenario\.segments\[1\]: unknown key"),
+    ],
+)
+def test_a_bad_segment_mapping_is_refused_naming_its_entry(entry, message) -> None:
+    """A scenario file's segments are mappings: an error names the entry of the list it is in."""
+    with pytest.raises(ConfigError, match=message):
+        Scenario(({"duration": 5}, entry))  # type: ignore[arg-type]
+
+
 def test_mixed_horizons_in_one_batch() -> None:
     with pytest.raises(ConfigError, match="horizon"):
         generate_truth([Scenario((Segment(10),)), Scenario((Segment(11),))])
