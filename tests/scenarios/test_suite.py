@@ -117,6 +117,8 @@ def test_a_duration_that_is_not_a_multiple_of_T_is_refused() -> None:
         ([(12, 0.0)], 5.0, r"^table\[0\] duration_s must be a positive multiple of T = 5.0 s"),
         ([(10, 0.0), (10,)], 1.0, r"^table\[1\] \(duration_s, turn_rate_deg\) must have 2"),
         ([(10, 0.0), 10], 1.0, r"^table\[1\] \(duration_s, turn_rate_deg\) must be a list"),
+        ([(10, 0.0), (10, "1.0")], 1.0,
+         r"^segment\.turn_rate_deg must be a finite real number, got '1\.0' \(str\)"),
     ],
 )
 def test_a_period_or_duration_out_of_range_is_refused_by_name(table, T, message) -> None:
