@@ -340,6 +340,7 @@ def test_generate_truth_empty() -> None:
         ({"range_m": (-1.0, 5.0)}, r"family\.range_m\[0\]"),
         ({"turn_rate_deg": (1.0, 0.5)}, r"family\.turn_rate_deg\[1\]"),
         ({"horizon": 0}, r"family\.horizon"),
+        ({"min_duration": 0}, r"family\.min_duration must be an integer in \[1, inf\)"),
         ({"T": 0.0}, r"family\.T"),
         ({"truth_q": (1.0, -1.0, 1.0, 1.0)}, r"family\.truth_q must be in \[0\.0, inf\)"),
     ],
