@@ -239,6 +239,15 @@ def test_truth_noise_needs_generators() -> None:
         generate_truth([sc])
 
 
+@pytest.mark.parametrize("n_rngs", [1, 3])
+def test_truth_noise_needs_one_generator_per_scenario(n_rngs: int) -> None:
+    """Two noisy runs with one generator, or three: refused, not an IndexError or a generator
+    silently left over."""
+    sc = Scenario((Segment(10),), truth_q=(1.0, 1.0, 1.0, 1.0))
+    with pytest.raises(ConfigError, match="one generator per scenario"):
+        generate_truth([sc, sc], [np.random.default_rng(s) for s in range(n_rngs)])
+
+
 # --------------------------------------------------------------------------- validation
 
 
