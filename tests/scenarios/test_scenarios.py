@@ -186,6 +186,14 @@ def test_family_truth_equals_the_truth_of_its_samples(fam: RandomFamily) -> None
     assert truth.T == ref.T == fam.T
 
 
+def test_a_noisy_family_cannot_draw_noise_free_varied_runs() -> None:
+    """``varied_truth`` draws noise-free runs: a family with truth noise is refused, not flown
+    without its noise."""
+    family = RandomFamily(truth_q=(1.0, 1.0, 0.1, 0.1))
+    with pytest.raises(ConfigError, match="truth_q"):
+        family.varied_truth([np.random.default_rng(0)], T=np.array([2.0]))
+
+
 def test_generate_truth_follows_ct_transition() -> None:
     fam = RandomFamily()
     sc = fam.sample(np.random.default_rng(8))
