@@ -41,8 +41,8 @@ def timed_scenario(
 
     Raises:
         ConfigError: ``T`` is not positive, a row is not a ``(duration_s, turn_rate_deg)`` pair,
-            a duration is not finite, not positive or not a multiple of ``T`` (the error, a
-            ``ValueError``, names the row ``table[i]``).
+            a duration is not finite, not positive or not a multiple of ``T``, or a turn rate is
+            not a finite number (the error, a ``ValueError``, names the row ``table[i]``).
     """
     check_range("T", T, 0.0, lo_open=True)
     segments = []
@@ -50,7 +50,8 @@ def timed_scenario(
         duration_s, turn_rate_deg = check_sequence(
             f"table[{i}] (duration_s, turn_rate_deg)", row, 2
         )
-        segments.append(Segment(_steps(f"table[{i}] duration_s", duration_s, T), turn_rate_deg))
+        steps = _steps(f"table[{i}] duration_s", duration_s, T)
+        segments.append(Segment(steps, check_finite(f"table[{i}] turn_rate_deg", turn_rate_deg)))
     return Scenario(tuple(segments), position, velocity, T)
 
 

@@ -118,12 +118,14 @@ def test_a_duration_that_is_not_a_multiple_of_T_is_refused() -> None:
         ([(10, 0.0), (10,)], 1.0, r"^table\[1\] \(duration_s, turn_rate_deg\) must have 2"),
         ([(10, 0.0), 10], 1.0, r"^table\[1\] \(duration_s, turn_rate_deg\) must be a list"),
         ([(10, 0.0), (10, "1.0")], 1.0,
-         r"^segment\.turn_rate_deg must be a finite real number, got '1\.0' \(str\)"),
+         r"^table\[1\] turn_rate_deg must be a finite real number, got '1\.0' \(str\)"),
+        ([(10, 0.0), (10, math.nan)], 1.0, r"^table\[1\] turn_rate_deg must be finite"),
     ],
 )
 def test_a_period_or_duration_out_of_range_is_refused_by_name(table, T, message) -> None:
     """Division by zero, NaN or infinite durations and malformed rows were Python's errors naming
-    nothing; a duration of 0 s or below was "not a multiple of T" (a plain ValueError)."""
+    nothing; a duration of 0 s or below was "not a multiple of T" (a plain ValueError); a bad
+    turn rate named ``segment.turn_rate_deg``, not its row."""
     with pytest.raises(ConfigError, match=message):
         timed_scenario(table, (0.0, 0.0), (1.0, 0.0), T)
 
