@@ -257,3 +257,16 @@ def test_the_policy_is_told_an_episode_starts_at_its_first_step_only() -> None:
     K = run.truth.shape[1]
     assert len(seen) == K and all(s.shape == (3,) for s in seen)
     assert seen[0].all() and not np.any(seen[1:])
+
+
+def test_a_starting_tpm_below_the_policys_floor_is_used_as_given() -> None:
+    """``initial_tpms`` start as given even below the policy's floor: ``FixedTPM(3, 0.9)`` runs
+    with ``p_min = 1e-3`` and a scale action of 1, so a starting stay of 0.999 (off-diagonal
+    5e-4) would be floored to 1e-3 at its first step were ``p_min`` not lowered to 5e-4; the
+    records hold the starting TPM, unchanged, at every step."""
+    policy = FixedTPM(3, 0.9)
+    config = evaluation_config(EnvConfig(scenario="paper"), policy.env_overrides)
+    assert config.p_min == 1e-3
+    start = np.array([[0.999, 5e-4, 5e-4], [5e-4, 0.999, 5e-4], [5e-4, 5e-4, 0.999]])
+    run = rollout(policy, config, 2, 0, initial_tpms=start[None])
+    np.testing.assert_array_equal(run.tpm, np.broadcast_to(start, run.tpm.shape))
