@@ -3,7 +3,9 @@ results' ``meta`` against the roll-outs themselves, and the configuration every 
 
 from __future__ import annotations
 
-from imm_gym.cli.comparison import evaluate
+from imm_gym.cli.comparison import evaluate, evaluated_config
+from imm_gym.sim.env_config import EnvConfig
+from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
 
 
 def test_meta_records_the_steps_the_seeds_and_the_env_config_it_ran() -> None:
@@ -20,3 +22,22 @@ def test_meta_records_the_steps_the_seeds_and_the_env_config_it_ran() -> None:
     assert "clairvoyant" not in results
     bare, _ = evaluate(["fixed"], "paper", 1, 0, clairvoyant=False)
     assert bare["meta"]["env_config"] is None and "clairvoyant" not in bare
+
+
+def test_the_shared_configuration_drops_what_an_agent_is_trained_as_but_its_detector() -> None:
+    """Action mode, features and reward are each policy's own and dropped from the shared
+    configuration (EnvConfig's defaults there); a detector network it names is kept."""
+    given = {
+        "detector_weights": str(DEFAULT_WEIGHTS),
+        "action_mode": "stay",
+        "obs_features": ["mode_probs"],
+        "reward": "nis",
+    }
+    config = evaluated_config("paper", given)
+    default = EnvConfig()
+    assert config.detector_weights == str(DEFAULT_WEIGHTS)
+    assert (config.action_mode, config.obs_features, config.reward) == (
+        default.action_mode,
+        default.obs_features,
+        default.reward,
+    )
