@@ -6,6 +6,7 @@ from __future__ import annotations
 from imm_gym.cli.comparison import evaluate, evaluated_config
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
+from imm_gym.sim.presets import BANK_PRESETS
 
 
 def test_meta_records_the_steps_the_seeds_and_the_env_config_it_ran() -> None:
@@ -41,3 +42,18 @@ def test_the_shared_configuration_drops_what_an_agent_is_trained_as_but_its_dete
         default.obs_features,
         default.reward,
     )
+
+
+def test_the_bank_preset_replaces_the_env_config_bank() -> None:
+    """``bank``'s preset is applied over ``env_config``: a file's own bank (discrete noise,
+    ±3°/s) gives way to ``cv-ct-continuous``'s (continuous noise, ±4°/s)."""
+    own = [
+        {"kind": "cv"},
+        {"kind": "ct", "turn_rate_deg": 3.0},
+        {"kind": "ct", "turn_rate_deg": -3.0},
+    ]
+    config = evaluated_config("paper", {"bank": own}, "cv-ct-continuous")
+    preset = EnvConfig.build(BANK_PRESETS["cv-ct-continuous"])
+    assert config.bank == preset.bank
+    assert [m.turn_rate_deg for m in config.bank] == [0.0, 4.0, -4.0]
+    assert {m.noise for m in config.bank} == {"continuous"}
