@@ -3,7 +3,14 @@ that gives none runs, and a named suite's file that names another scenario than 
 
 from __future__ import annotations
 
+import shutil
+
+import pytest
+
+import imm_gym.cli.suite as suite
 from imm_gym.cli.suite import suite_configs
+from imm_gym.scenarios.catalog import SUITE_CONFIGS
+from imm_gym.validation import ConfigError
 
 
 def test_a_directory_file_without_a_scenario_runs_the_paper_scenario(tmp_path) -> None:
@@ -15,3 +22,19 @@ def test_a_directory_file_without_a_scenario_runs_the_paper_scenario(tmp_path) -
     assert configs["plain"]["scenario"] == "paper"
     assert configs["plain"]["sensor"]["sigma_r"] == 10.0
     assert configs["own"]["scenario"] == "atc"
+
+
+def test_a_named_suites_file_gives_its_own_scenario_or_none(tmp_path, monkeypatch) -> None:
+    """The benchmark's files (copied here): ``random.yaml`` giving no scenario (only the default
+    filter) runs the randomized family, its case's; ``paper.yaml`` naming ``atc`` is refused,
+    not run as the ``paper`` case."""
+    folder = tmp_path / "suite"
+    shutil.copytree(SUITE_CONFIGS, folder)
+    monkeypatch.setattr(suite, "SUITE_CONFIGS", folder)
+    random = folder / "random.yaml"
+    random.write_text("filter: ukf\n")
+    assert suite_configs("benchmark")["random"]["scenario"] == "random"
+    paper = folder / "paper.yaml"
+    paper.write_text(paper.read_text().replace("scenario: paper\n", "scenario: atc\n"))
+    with pytest.raises(ConfigError, match=r"paper\.yaml: scenario must be 'paper'"):
+        suite_configs("benchmark")
