@@ -173,3 +173,19 @@ def test_an_ensembles_members_are_exported_under_their_seeds(tmp_path: Path) -> 
     listed = json.loads((tmp_path / "shipped" / "ensemble.json").read_text())["members"]
     assert listed == ["seed_7", "seed_3"]
     assert [m.name for m in member_paths(tmp_path / "shipped")] == ["seed_7", "seed_3"]
+
+
+def test_the_command_line_reports_the_files_written_and_their_size_in_kib(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``python -m agents.export`` prints how many files it wrote and their total size in KiB
+    (units of 1024 bytes), as the directory it wrote holds them."""
+    import os
+
+    target = tmp_path / "shipped"
+    assert export_main([str(shipped_agent()), "--to", str(target)]) == 0
+    sizes = [os.path.getsize(os.path.join(root, name))
+             for root, _, names in os.walk(target) for name in names]
+    assert len(sizes) >= 3 and sum(sizes) > 20 * 1024  # 1000 and 1024 round apart
+    out = capsys.readouterr().out
+    assert out == f"exported {len(sizes)} files ({round(sum(sizes) / 1024)} KiB) to {target}\n"
