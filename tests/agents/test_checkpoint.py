@@ -584,3 +584,20 @@ def test_a_checkpoint_before_the_average_begins_records_none(saved, tmp_path) ->
     assert json.loads((target / "resume.json").read_text())["swa"] is None
     assert not [name for name in load_file(target / TENSORS_FILE) if name.startswith("swa/")]
     assert read_checkpoint(target)["swa"] is None
+
+
+def test_a_checkpoint_records_the_episode_count_of_the_model(saved, tmp_path) -> None:
+    """resume.json's ``episode_num`` is the model's episodes, not another counter (a resumed
+    run would report its episodes from it)."""
+    model = saved.model
+    run = {"algo": "ppo", "env_id": ENV, "seed": 0, "hyperparams": jsonable(saved.params)}
+    meta = {"critic_dims": 11, "num_timesteps": model.num_timesteps}
+    episodes = model._episode_num
+    model._episode_num = model._n_updates + 13
+    try:
+        save_checkpoint(tmp_path / "latest", model, saved.env, run, meta, saved.swa)
+    finally:
+        model._episode_num = episodes
+    recorded = json.loads((tmp_path / "latest" / "resume.json").read_text())
+    assert recorded["episode_num"] == recorded["n_updates"] + 13 == model._n_updates + 13
+
