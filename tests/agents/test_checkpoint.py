@@ -601,3 +601,12 @@ def test_a_checkpoint_records_the_episode_count_of_the_model(saved, tmp_path) ->
     recorded = json.loads((tmp_path / "latest" / "resume.json").read_text())
     assert recorded["episode_num"] == recorded["n_updates"] + 13 == model._n_updates + 13
 
+
+def test_fewer_streams_than_slots_are_refused_naming_the_file(saved) -> None:
+    """A checkpoint's 4 streams for 8 slots: refused as a ConfigError naming resume.json, not
+    the core's ValueError."""
+    directory, params = saved.directory, saved.params
+    recorded = json.loads((directory / "resume.json").read_text())["streams"]
+    env = build({**params, "n_envs": 8})[1]
+    with pytest.raises(ConfigError, match=r"resume\.json: 4 streams for 8 training slots"):
+        restore_streams(env.unwrapped, recorded, directory / "resume.json")
