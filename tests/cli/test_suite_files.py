@@ -38,3 +38,14 @@ def test_a_named_suites_file_gives_its_own_scenario_or_none(tmp_path, monkeypatc
     paper.write_text(paper.read_text().replace("scenario: paper\n", "scenario: atc\n"))
     with pytest.raises(ConfigError, match=r"paper\.yaml: scenario must be 'paper'"):
         suite_configs("benchmark")
+
+
+def test_a_suites_meta_names_the_seeds_its_runs_used(tmp_path) -> None:
+    """Two runs from ``seed 7`` are seeds 7 and 8: ``meta.seeds`` says ``7..8``, the suite's
+    and each case's, beside the reference (``fixed``) and no bar."""
+    (tmp_path / "one.yaml").write_text("scenario: paper\n")
+    out = suite.evaluate_suite(["fixed", "window"], str(tmp_path), 2, 7, clairvoyant=False)
+    meta = out["meta"]
+    assert (meta["runs"], meta["seed"], meta["seeds"]) == (2, 7, "7..8")
+    assert (meta["reference"], meta["bar"]) == ("fixed", [])
+    assert out["scenarios"]["one"]["meta"]["seeds"] == "7..8"
