@@ -157,6 +157,17 @@ def test_a_system_comparison_reports_each_row_and_its_runs(tmp_path) -> None:
     assert out["paper"] == {}
 
 
+def test_a_seed002_comparison_stands_beside_the_published_figures() -> None:
+    """On seed 002 the comparison's ``paper`` entry is the heterogeneous-EKF paper's table
+    (position RMSE 0.3117 m, 94.16 % of the NIS inside its interval), not seed 003's empty
+    one."""
+    from imm_gym.papers.tuned_comparison import evaluate_system
+
+    out = evaluate_system("seed002", ["fixed"], runs=1, seed=0)
+    assert out["paper"]["pos_rmse"] == 0.3117 and out["paper"]["nis_inside"] == 0.9416
+    assert out["paper"]["nees_mean"] == 5.5006 and len(out["paper"]) == 10
+
+
 @pytest.mark.parametrize(
     ("policies", "tuned", "message"),
     [
