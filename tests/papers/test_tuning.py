@@ -460,6 +460,28 @@ def test_tuned_policies_train_on_the_training_seeds_with_the_run_seed(monkeypatc
     assert rows["policies"]["bbsca"]["train_seeds"] == f"{first}..{last}"
 
 
+def test_a_loaded_policy_beside_one_tuned_on_the_fly(tmp_path, monkeypatch) -> None:
+    """``--tuned bbsca=FILE`` with ``sca`` also asked: bbsca's row is the file's bank, and sca,
+    having no file, is tuned (once, by SCA) on the training runs, not read from bbsca's file."""
+    import imm_gym.papers.tuned_comparison as tc
+
+    methods: list[str] = []
+
+    def fake_tune(imm, batch, tpm, sigma, cfg, bank="custom"):  # type: ignore[no-untyped-def]
+        methods.append(cfg.method)
+        return TunedBank(bank, (0.5, 0.5, 0.5), 0.9, method=cfg.method), None
+
+    monkeypatch.setattr(tc, "tune", fake_tune)
+    path = tmp_path / "bb.json"
+    TunedBank("seed003", (2.0, 0.5, 1.5), 1.3).save(path)
+    rows = tc.evaluate_system("seed003", ["bbsca", "sca"], runs=1, seed=3, train_runs=2,
+                              tuned={"bbsca": str(path)})["policies"]
+    assert methods == ["sca"]
+    assert (rows["bbsca"]["q_scale"], rows["bbsca"]["tuned_file"]) == ([2.0, 0.5, 1.5], str(path))
+    assert (rows["sca"]["q_scale"], rows["sca"]["r_scale"]) == ([0.5, 0.5, 0.5], 0.9)
+    assert "tuned_file" not in rows["sca"] and "train_seeds" in rows["sca"]
+
+
 def test_a_tuned_file_is_typed_and_matches_its_policy(tmp_path) -> None:
     """``bank`` is a string, ``objective`` a finite number, ``notes`` a mapping; a file tuned by
     SCA is refused for the ``bbsca`` policy (and the other way round)."""
