@@ -183,3 +183,23 @@ def test_the_covariance_divergence_flag_is_the_trace_of_the_position_covariance(
         for core in (fused, general):
             core.reset(done, [None] * done.size)
     assert diverged >= 5 and kept >= 100  # the threshold is crossed in some steps, not all
+
+
+@pytest.mark.parametrize("engine", ["numpy", "compiled"])
+def test_a_failed_filter_s_position_error_is_the_cap(engine: str) -> None:
+    """A NaN measurement fails slot 1's filters (bank A and the shadow): its position errors
+    are then ``divergence_error`` (60 m), not NaN, its episode ends as diverged and the
+    advantage reward stays finite; slot 0 runs on."""
+    config = EnvConfig(engine=engine, shadow="fixed", reward="advantage", divergence_error=60.0)
+    core = TrackingCore(config, 2)
+    core.reset(np.arange(2), [1, 2])
+    for _ in range(3):
+        core.step(np.zeros((2, core.action_dim)))
+    core.z[1, core.k + 1] = np.nan
+    core.detected[1, core.k + 1] = True
+    out = core.step(np.zeros((2, core.action_dim)))
+    assert out.info["position_error"][1] == 60.0
+    assert out.info["shadow_position_error"][1] == 60.0
+    assert out.terminated.tolist() == [False, True]
+    assert np.isfinite(out.reward).all() and out.info["position_error"][0] < 60.0
+
