@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imm_gym import EnvConfig, TrackingCore
+from imm_gym import ConfigError, EnvConfig, TrackingCore
 from imm_gym.sim.kernels import ACTION_MODE_CODES, tpm_from_action
 from imm_gym.tracking.tpm import apply_floor
 
@@ -203,3 +203,26 @@ def test_a_failed_filter_s_position_error_is_the_cap(engine: str) -> None:
     assert out.terminated.tolist() == [False, True]
     assert np.isfinite(out.reward).all() and out.info["position_error"][0] < 60.0
 
+
+def test_auto_is_the_compiled_engine_where_the_tracker_has_one() -> None:
+    """``engine="auto"`` (the default) runs the compiled engine for a built-in bank, bit for bit
+    (the numpy engine's numbers part from it by rounding, about 1e-11 m), and the numpy engine
+    for the heterogeneous bank, which has no kernel; asking for ``"compiled"`` there is
+    refused by name."""
+    from imm_gym.sim.presets import BANK_PRESETS
+
+    estimates = {}
+    for engine in ("auto", "compiled", "numpy"):
+        core = TrackingCore(EnvConfig(engine=engine, sensor={"detection_prob": 0.8}), N)
+        core.reset(np.arange(N), [4, 5, 6])
+        rng = np.random.default_rng(0)
+        estimates[engine] = np.array([
+            core.step(rng.uniform(-1, 1, (N, core.action_dim))).info["estimate"]
+            for _ in range(40)
+        ])
+    np.testing.assert_array_equal(estimates["auto"], estimates["compiled"])
+    np.testing.assert_allclose(estimates["auto"], estimates["numpy"], rtol=0, atol=1e-6)
+    hetero = EnvConfig(**BANK_PRESETS["hetero"])
+    assert TrackingCore(hetero, 1).imm.kernel_args is None  # auto: the numpy engine
+    with pytest.raises(ConfigError, match="engine 'compiled' needs a tracker with a compiled"):
+        TrackingCore(hetero.replace(engine="compiled"), 1)
