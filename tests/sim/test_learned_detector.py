@@ -460,3 +460,22 @@ def test_record_entries_below_tiny_are_exactly_zero() -> None:
         record, [[1.0 - 1e-11, 1e-11, 0.0, 0.0, -0.5, -2.0, 0.3, 0.0]]
     )
     assert record[0, 2] == 0.0 and record[0, 7] == 0.0
+
+
+def test_the_heading_rate_is_in_units_of_the_fastest_turn_of_either_sign(tmp_path) -> None:
+    """The heading-rate record is divided by the bank's fastest turn in magnitude: for turn
+    rates 0, +2 and -5 °/s that is 5 °/s (the largest rate, 2 °/s, would inflate it 2.5
+    times), so the record is ``clip(heading_rate(v_{k-1}, v_k, T) / 5 °/s, -3, 3)``."""
+    bank = [{"kind": "cv"}, {"kind": "ct", "turn_rate_deg": 2.0},
+            {"kind": "ct", "turn_rate_deg": -5.0}]
+    core = learned_core(3, tmp_path, random_network(7), bank=bank)
+    detector = core.learned_detector
+    turned = 0.0
+    for _ in range(25):
+        before = detector.velocity.copy()
+        core.step(np.zeros((3, M)))
+        rate = heading_rate(before, detector.velocity, core.sampling_period)
+        expected = np.clip(rate / np.radians(5.0), -3.0, 3.0)
+        np.testing.assert_allclose(detector.window[:, -1, -1], expected, rtol=1e-9, atol=1e-12)
+        turned = max(turned, float(np.max(np.abs(expected))))
+    assert turned > 1e-3  # heading changes among them
