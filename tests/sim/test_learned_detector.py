@@ -479,3 +479,24 @@ def test_the_heading_rate_is_in_units_of_the_fastest_turn_of_either_sign(tmp_pat
         np.testing.assert_allclose(detector.window[:, -1, -1], expected, rtol=1e-9, atol=1e-12)
         turned = max(turned, float(np.max(np.abs(expected))))
     assert turned > 1e-3  # heading changes among them
+
+
+def test_the_layer_count_and_width_bounds_are_inclusive(tmp_path) -> None:
+    """A network of :data:`MAX_LAYERS` = 8 layers, and one whose hidden layer is
+    :data:`MAX_WIDTH` = 4096 wide, load; 9 layers and a width of 4097 are refused by name
+    (window 1, 3 models: 8 inputs)."""
+
+    def network(widths: list[int]) -> DetectorNetwork:
+        weights = tuple(np.zeros((b, a)) for a, b in pairwise(widths))
+        return DetectorNetwork(weights, tuple(np.zeros(b) for b in widths[1:]), 1)
+
+    inputs = features_per_step(M)
+    for name, widths in (("eight", [inputs, *[4] * 7, M]), ("wide", [inputs, 4096, M])):
+        network(widths).save(tmp_path / name)
+        assert len(DetectorNetwork.load(tmp_path / name).weights) == len(widths) - 1
+    network([inputs, *[4] * 8, M]).save(tmp_path / "nine")
+    with pytest.raises(ConfigError, match=r"\(1 to 8 layers\), got \['layer0\.bias'"):
+        DetectorNetwork.load(tmp_path / "nine")
+    network([inputs, 4097, M]).save(tmp_path / "wider")
+    with pytest.raises(ConfigError, match=r"layer0 has weight \(4097, 8\).*must chain"):
+        DetectorNetwork.load(tmp_path / "wider")
