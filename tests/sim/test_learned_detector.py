@@ -500,3 +500,16 @@ def test_the_layer_count_and_width_bounds_are_inclusive(tmp_path) -> None:
     network([inputs, 4097, M]).save(tmp_path / "wider")
     with pytest.raises(ConfigError, match=r"layer0 has weight \(4097, 8\).*must chain"):
         DetectorNetwork.load(tmp_path / "wider")
+
+
+def test_the_parameter_bound_is_inclusive(tmp_path) -> None:
+    """A detector may hold :data:`MAX_PARAMETERS` = 2^24 numbers, not one more (declared in
+    the header, the data a sparse hole): one layer of 4096 x 4095 weights and 4096 biases holds
+    exactly 2^24 and passes that check (it is then refused for its input, 4095 not
+    ``2 (2 M + 2)``); 673 x 24928 weights and 673 biases hold ``24929 * 673 = 2^24 + 1``."""
+    _declare_huge(tmp_path / "exact", (4096, 4095))
+    with pytest.raises(ConfigError, match=r"the input must be window \* \(2 M \+ 2\) = 16388"):
+        DetectorNetwork.load(tmp_path / "exact")
+    _declare_huge(tmp_path / "over", (673, 24928))
+    with pytest.raises(ConfigError, match=r"the layers hold 16777217 numbers, above the 16777216"):
+        DetectorNetwork.load(tmp_path / "over")
