@@ -513,3 +513,21 @@ def test_the_parameter_bound_is_inclusive(tmp_path) -> None:
     _declare_huge(tmp_path / "over", (673, 24928))
     with pytest.raises(ConfigError, match=r"the layers hold 16777217 numbers, above the 16777216"):
         DetectorNetwork.load(tmp_path / "over")
+
+
+@pytest.mark.parametrize(
+    "names",
+    [
+        ("layer0.weight", "layer0.bias", "layer1.weight", "extra.bias"),
+        ("layer0.weight", "layer0.bias", "layer2.weight", "layer2.bias"),
+    ],
+)
+def test_tensors_of_other_names_are_refused_naming_them(tmp_path, names) -> None:
+    """Four tensors that are not ``layer0.weight, layer0.bias, layer1.weight, layer1.bias`` (a
+    foreign name, a missing layer 1) are refused listing the names, not a KeyError."""
+    shapes = [(4, 2 * features_per_step(M)), (4,), (M, 4), (M,)]
+    tensors = {name: np.zeros(shape) for name, shape in zip(names, shapes, strict=True)}
+    path = _write(tmp_path / "named", tensors, {"format": FORMAT, "window": "2"})
+    refused = r"tensors must be layer0\.weight, .*, got \[.*'layer0\.weight'"
+    with pytest.raises(ConfigError, match=refused):
+        DetectorNetwork.load(path)
