@@ -531,3 +531,19 @@ def test_tensors_of_other_names_are_refused_naming_them(tmp_path, names) -> None
     refused = r"tensors must be layer0\.weight, .*, got \[.*'layer0\.weight'"
     with pytest.raises(ConfigError, match=refused):
         DetectorNetwork.load(path)
+
+
+def test_a_saved_network_s_notes_are_json_in_its_header(tmp_path) -> None:
+    """The notes given to ``save`` (what the training records of itself) are the header's
+    ``notes`` entry as JSON, read back by safetensors itself; no notes are ``{}``."""
+    from safetensors import safe_open
+
+    notes = {"runs": 3, "seed": 7, "share": [0.5, 0.25]}
+    random_network(0).save(tmp_path / "noted", notes)
+    random_network(0).save(tmp_path / "plain")
+    with safe_open(str(tmp_path / "noted"), framework="np") as f:
+        header = f.metadata()
+    assert json.loads(header["notes"]) == notes
+    assert header["format"] == FORMAT and header["window"] == "4"
+    with safe_open(str(tmp_path / "plain"), framework="np") as f:
+        assert json.loads(f.metadata()["notes"]) == {}
