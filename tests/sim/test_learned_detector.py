@@ -547,3 +547,19 @@ def test_a_saved_network_s_notes_are_json_in_its_header(tmp_path) -> None:
     assert header["format"] == FORMAT and header["window"] == "4"
     with safe_open(str(tmp_path / "plain"), framework="np") as f:
         assert json.loads(f.metadata()["notes"]) == {}
+
+
+def test_the_input_is_the_window_s_records_oldest_first(tmp_path) -> None:
+    """The network reads each slot's window flattened record by record, oldest first (the layout
+    the shipped network was trained on): the input is the records ``window[:, 0], window[:, 1],
+    ...`` side by side, and the belief is the network's on that concatenation."""
+    core = learned_core(2, tmp_path, random_network(8))
+    detector = core.learned_detector
+    for _ in range(6):
+        core.step(np.zeros((2, M)))
+    window = detector.window
+    x = np.concatenate([window[:, k] for k in range(window.shape[1])], axis=1)
+    assert x.shape == (2, 4 * features_per_step(M)) and np.any(x[:, -1] != 0.0)
+    np.testing.assert_array_equal(detector.inputs(), x)
+    order = np.argsort(PAPER_RATES)
+    np.testing.assert_allclose(detector.belief[:, order], detector.network(x), rtol=1e-15)
