@@ -563,3 +563,20 @@ def test_the_input_is_the_window_s_records_oldest_first(tmp_path) -> None:
     np.testing.assert_array_equal(detector.inputs(), x)
     order = np.argsort(PAPER_RATES)
     np.testing.assert_allclose(detector.belief[:, order], detector.network(x), rtol=1e-15)
+
+
+def test_an_inactive_slot_keeps_the_velocity_its_next_heading_rate_starts_from(tmp_path) -> None:
+    """A slot left out of a step keeps its uniform IMM's last velocity, so its next record's
+    heading rate is ``heading_rate(v before the skipped step, v after the next one, T)``."""
+    core = learned_core(3, tmp_path, random_network(3))
+    for _ in range(6):
+        core.step(np.zeros((3, M)))
+    d = core.learned_detector
+    kept = d.velocity.copy()
+    core.step(np.zeros((3, M)), active=np.array([True, False, True]))
+    np.testing.assert_array_equal(d.velocity[1], kept[1])
+    before = d.velocity.copy()
+    core.step(np.zeros((3, M)))
+    rate = heading_rate(before, d.velocity, core.sampling_period)
+    expected = np.clip(rate / np.radians(4.0), -3.0, 3.0)
+    np.testing.assert_allclose(d.window[:, -1, -1], expected, rtol=1e-9, atol=1e-12)
