@@ -253,3 +253,23 @@ def test_the_position_covariance_diverges_by_the_sum_of_its_diagonal() -> None:
     for r, k in ((0, 1), (1, 2), (4, 0)):
         np.testing.assert_allclose(held[r], _held_by_hand(xs[r], truth[r], k, 50.0), rtol=1e-15)
     np.testing.assert_array_equal(held[2:4], xs[2:4])
+
+
+def test_a_velocity_that_is_not_finite_diverges_with_a_finite_position() -> None:
+    """An estimate whose vx is NaN at step 1 diverges there even with its position on the truth
+    and its covariance ``I`` (the policies' rule: an estimate not finite): held from step 1,
+    its velocity error that of vx = 0 and of its vy (2 m/s off), not NaN in every later error;
+    the other run, finite throughout, is kept."""
+    truth = np.arange(2 * 3 * 4, dtype=float).reshape(2, 3, 4) + 1.0
+    xs = truth.copy()
+    xs[0, 1, 2] = np.nan
+    xs[0, 1, 3] += 2.0
+    Ps = np.broadcast_to(np.eye(4), (2, 3, 4, 4)).copy()
+    held, diverged = hold_diverged(xs, Ps, truth, divergence_error=50.0, divergence_cov=100.0)
+    assert diverged.tolist() == [True, False]
+    off = 50.0 / np.sqrt(2.0)
+    np.testing.assert_array_equal(held[0, 0], xs[0, 0])
+    for later in (1, 2):
+        expected = truth[0, later] + np.array([off, off, -truth[0, 1, 2], 2.0])
+        np.testing.assert_allclose(held[0, later], expected, rtol=1e-15)
+    np.testing.assert_array_equal(held[1], xs[1])
