@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from baselines import TIPIMM, FixedTPM
-from imm_gym.evaluation.rollout import Rollout, evaluation_config, rollout
+from imm_gym.evaluation.rollout import Rollout, evaluation_config, rollout, score
 from imm_gym.sim.core import INFINITY_STAND_IN, StepResult, TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.tracking.tpm import stay_tpm
@@ -270,3 +270,11 @@ def test_a_starting_tpm_below_the_policys_floor_is_used_as_given() -> None:
     start = np.array([[0.999, 5e-4, 5e-4], [5e-4, 0.999, 5e-4], [5e-4, 5e-4, 0.999]])
     run = rollout(policy, config, 2, 0, initial_tpms=start[None])
     np.testing.assert_array_equal(run.tpm, np.broadcast_to(start, run.tpm.shape))
+
+
+def test_the_score_counts_every_diverged_run(diverging: Rollout) -> None:
+    """``score``'s ``diverged`` is the number of runs recorded at the cap (40 m) from some step
+    on, found from the errors (several here), not whether any run diverged."""
+    capped = np.isclose(np.sqrt(diverging.squared_position_error), 40.0).any(axis=1)
+    assert capped.sum() >= 5
+    assert score(diverging)["diverged"] == int(capped.sum())
