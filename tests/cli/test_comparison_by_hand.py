@@ -57,3 +57,9 @@ def test_the_bank_preset_replaces_the_env_config_bank() -> None:
     assert config.bank == preset.bank
     assert [m.turn_rate_deg for m in config.bank] == [0.0, 4.0, -4.0]
     assert {m.noise for m in config.bank} == {"continuous"}
+
+
+def test_meta_records_the_filter_the_policies_ran() -> None:
+    """``meta.filter`` is the configuration's: ``ekf`` where ``env_config`` asks for it."""
+    results, _ = evaluate(["fixed"], "paper", 1, 0, clairvoyant=False, env_config={"filter": "ekf"})
+    assert results["meta"]["filter"] == "ekf"
