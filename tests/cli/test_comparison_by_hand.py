@@ -3,10 +3,13 @@ results' ``meta`` against the roll-outs themselves, and the configuration every 
 
 from __future__ import annotations
 
+import pytest
+
 from imm_gym.cli.comparison import evaluate, evaluated_config
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
 from imm_gym.sim.presets import BANK_PRESETS
+from imm_gym.validation import ConfigError
 
 
 def test_meta_records_the_steps_the_seeds_and_the_env_config_it_ran() -> None:
@@ -63,3 +66,9 @@ def test_meta_records_the_filter_the_policies_ran() -> None:
     """``meta.filter`` is the configuration's: ``ekf`` where ``env_config`` asks for it."""
     results, _ = evaluate(["fixed"], "paper", 1, 0, clairvoyant=False, env_config={"filter": "ekf"})
     assert results["meta"]["filter"] == "ekf"
+
+
+def test_an_unknown_bank_preset_is_refused_naming_the_presets() -> None:
+    """``bank`` outside the presets is a ConfigError naming them, not a KeyError."""
+    with pytest.raises(ConfigError, match=r"--bank must be one of \['paper'.*got 'nope'"):
+        evaluate(["fixed"], "paper", 1, 0, bank="nope")
