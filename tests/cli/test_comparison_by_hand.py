@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from imm_gym.cli.comparison import evaluate, evaluated_config
+from imm_gym.cli.comparison import evaluate, evaluated_config, load_source
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.learned_detector import DEFAULT_WEIGHTS
 from imm_gym.sim.presets import BANK_PRESETS
@@ -72,3 +72,12 @@ def test_an_unknown_bank_preset_is_refused_naming_the_presets() -> None:
     """``bank`` outside the presets is a ConfigError naming them, not a KeyError."""
     with pytest.raises(ConfigError, match=r"--bank must be one of \['paper'.*got 'nope'"):
         evaluate(["fixed"], "paper", 1, 0, bank="nope")
+
+
+def test_a_scenario_file_giving_a_key_twice_is_refused(tmp_path) -> None:
+    """A scenario file that gives ``segments`` twice is refused (JSON would keep the last one
+    silently), naming the file and the key."""
+    path = tmp_path / "twice.json"
+    path.write_text('{"segments": [{"duration": 5}], "segments": [{"duration": 9}]}')
+    with pytest.raises(ConfigError, match=r"scenario file .*twice\.json: not valid JSON.*segments"):
+        load_source(str(path))
