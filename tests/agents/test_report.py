@@ -1,0 +1,77 @@
+"""``agents.report``: what a user reads of a training run — each seed's ``report.md`` table and
+paired differences, how the agent was selected, and the run's statistics across seeds — checked
+against numbers worked by hand, not through a training run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from agents.report import (
+    write_report,
+)
+
+
+def _row(pos: float, x: float, y: float, vx: float, vy: float) -> dict[str, float]:
+    return {"armse_pos": pos, "armse_pos_x": x, "armse_pos_y": y, "armse_vel_x": vx,
+            "armse_vel_y": vy}
+
+
+def _difference(diff: float, low: float | None, high: float | None, relative: float) -> dict:
+    return {"diff": diff, "low": low, "high": high, "relative": relative}
+
+
+def _scenario(runs: int) -> dict:
+    """One scenario of ``train.evaluate_agent``'s results, every number distinct."""
+    one = runs == 1
+    return {
+        "meta": {"runs": runs, "seeds": "1000-1001"},
+        "policies": {"learned": _row(11.0, 7.25, 8.5, 3.125, 4.75),
+                     "best-fixed": _row(12.0, 9.0, 7.0, 5.5, 6.5)},
+        "clairvoyant": {"role": "bound", **_row(9.5, 6.0, 7.125, 2.25, 1.5)},
+        "paired": {"differences": {"learned": _difference(
+            -1.0, None if one else -1.5, None if one else -0.25, -1.0 / 12.0)}},
+        "vs_tip_imm": _difference(0.5, None if one else 0.125, None if one else 0.875, 0.05),
+        "vs_turn_rate_prior": _difference(2.0, None if one else 1.0, None if one else 3.0, 0.25),
+    }
+
+
+def _cells(report: str, policy: str) -> list[str]:
+    (line,) = [line for line in report.splitlines() if line.startswith(f"| {policy} |")]
+    return [cell.strip() for cell in line.strip("|").split("|")][1:]
+
+
+def test_a_seeds_report_puts_each_number_in_its_column(tmp_path: Path) -> None:
+    """The policies' and the clairvoyant filter's position, X, Y, velocity X and Y ARMSE each
+    under its heading, the heading giving the runs and their seeds."""
+    path = tmp_path / "report.md"
+    write_report(path, {"paper": _scenario(2)}, ["# Seed 0"])
+    report = path.read_text()
+    assert report.startswith("# Seed 0\n\n## paper scenario — 2 runs, seeds 1000-1001\n")
+    assert _cells(report, "learned") == ["11.000", "7.250", "8.500", "3.125", "4.750"]
+    assert _cells(report, "best-fixed") == ["12.000", "9.000", "7.000", "5.500", "6.500"]
+    assert _cells(report, "clairvoyant (bound)") == ["9.500", "6.000", "7.125", "2.250", "1.500"]
+    assert "## random" not in report
+
+
+def test_a_seeds_report_gives_each_paired_difference_with_its_interval_and_percentage(
+    tmp_path: Path,
+) -> None:
+    """Difference, CI low before high and the relative difference in per cent (relative 0.05
+    is +5.00 %), for best-fixed, TIP-IMM and each detector rule the results hold."""
+    path = tmp_path / "report.md"
+    write_report(path, {"random": _scenario(2)}, [])
+    lines = [line for line in path.read_text().splitlines() if line.startswith("- ")]
+    assert lines == [
+        "- learned − best-fixed: -1.000 m [-1.500, -0.250] (-8.33 %)",
+        "- learned − tip-imm: +0.500 m [+0.125, +0.875] (+5.00 %)",
+        "- learned − turn-rate-prior: +2.000 m [+1.000, +3.000] (+25.00 %)",
+    ]
+
+
+def test_one_run_gives_no_interval_in_a_seeds_report(tmp_path: Path) -> None:
+    path = tmp_path / "report.md"
+    write_report(path, {"paper": _scenario(1), "random": _scenario(1)}, [])
+    report = path.read_text()
+    lines = [line for line in report.splitlines() if line.startswith("- ")]
+    assert len(lines) == 6 and "## random scenario — 1 runs" in report
+    assert lines[1] == "- learned − tip-imm: +0.500 m undefined (1 run) (+5.00 %)"
