@@ -6,7 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from agents.report import (
+    describe_selection,
     write_report,
 )
 
@@ -75,3 +78,18 @@ def test_one_run_gives_no_interval_in_a_seeds_report(tmp_path: Path) -> None:
     lines = [line for line in report.splitlines() if line.startswith("- ")]
     assert len(lines) == 6 and "## random scenario — 1 runs" in report
     assert lines[1] == "- learned − tip-imm: +0.500 m undefined (1 run) (+5.00 %)"
+
+
+@pytest.mark.parametrize(
+    ("selected", "text"),
+    [
+        ({"swa_start": 2048, "snapshots": 6, "timesteps": 4096, "armse_pos": 10.25},
+         "the mean of the weights after every update from step 2048 on (6 updates), validation "
+         "ARMSE 10.250 m"),
+        ({"timesteps": 3072, "armse_pos": 9.5},
+         "the best validated checkpoint, at step 3072, validation ARMSE 9.500 m"),
+        ({"timesteps": 4096, "armse_pos": None}, "the last iterate, at step 4096"),
+    ],
+)
+def test_the_selection_is_described_by_how_the_policy_was_obtained(selected, text) -> None:
+    assert describe_selection(selected) == text
