@@ -5,6 +5,7 @@ against numbers worked by hand, not through a training run."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,6 +13,8 @@ import pytest
 from agents.report import (
     across_seeds,
     describe_selection,
+    evaluated_scenarios,
+    paired,
     write_report,
     write_summary_report,
 )
@@ -135,3 +138,25 @@ def test_a_runs_report_gives_the_spread_and_the_percentages(tmp_path: Path) -> N
         "Learned position ARMSE over seeds: 12.000 m, ± 2.500 m (per seed: 10.250, 13.750); "
         "mean relative difference vs best fixed -1.25 %, vs TIP-IMM +3.10 %."
     ) in path.read_text()
+
+
+def test_paired_is_the_first_policys_armse_minus_the_seconds() -> None:
+    """ARMSE averages over time the root of the mean over runs: errors 3 and 4 m at the first
+    step, 5 and 0 m at the second give sqrt((9 + 16) / 2) and sqrt((25 + 0) / 2), 5 / sqrt(2) m;
+    against half those errors (5 / sqrt(2) / 2 m) learned minus the reference is +100 %."""
+    err2 = np.array([[9.0, 25.0], [16.0, 0.0]])
+    rollouts = {"learned": SimpleNamespace(squared_position_error=err2),
+                "ref": SimpleNamespace(squared_position_error=err2 / 4.0)}
+    d = paired(rollouts, "learned", "ref")
+    assert d["diff"] == pytest.approx(5.0 / np.sqrt(2) / 2.0)
+    assert d["relative"] == pytest.approx(1.0)
+    assert d["low"] <= d["diff"] <= d["high"]
+
+
+def test_the_paper_scenario_runs_the_files_configuration_without_its_drawn_conditions() -> None:
+    overrides = {"scenario": "random", "vary": {"speed": [100.0, 300.0]},
+                 "sensor": {"sigma_r": 50.0}}
+    assert evaluated_scenarios(overrides) == {
+        "paper": {"sensor": {"sigma_r": 50.0}},
+        "random": {"vary": {"speed": [100.0, 300.0]}, "sensor": {"sigma_r": 50.0}},
+    }
