@@ -81,3 +81,15 @@ def test_a_scenario_file_giving_a_key_twice_is_refused(tmp_path) -> None:
     path.write_text('{"segments": [{"duration": 5}], "segments": [{"duration": 9}]}')
     with pytest.raises(ConfigError, match=r"scenario file .*twice\.json: not valid JSON.*segments"):
         load_source(str(path))
+
+
+def test_the_paired_differences_name_the_reference_they_are_against() -> None:
+    """``--reference tip-imm``: ``paired.reference`` says ``tip-imm`` (not ``fixed``, evaluated
+    too), and the differences are the others' minus its ARMSE."""
+    results, _ = evaluate(
+        ["fixed", "tip-imm"], "paper", 2, 0, reference="tip-imm", clairvoyant=False
+    )
+    paired = results["paired"]
+    assert paired["reference"] == "tip-imm" and set(paired["differences"]) == {"fixed"}
+    fixed, tip = (results["policies"][n]["armse_pos"] for n in ("fixed", "tip-imm"))
+    assert abs(paired["differences"]["fixed"]["diff"] - (fixed - tip)) < 1e-9
