@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from imm_gym.evaluation.rollout import paired_bootstrap
 
@@ -23,3 +24,12 @@ def test_the_paired_ci_is_the_2_5_and_97_5_percentiles_of_the_resampled_differen
     # at the 80 % level the tails (10 %) pass the extreme atoms: the interval is inside [0, 20]
     d80 = paired_bootstrap(a, b, level=0.8)
     assert 0.0 < d80["low"] < d80["high"] < 20.0
+
+
+def test_errors_of_other_runs_or_steps_are_refused() -> None:
+    """Paired errors are of the same runs and steps: (3, 4) against (3, 5) squared errors (whose
+    resampled means would still subtract, step counts apart) is refused."""
+    rng = np.random.default_rng(2)
+    a, b = rng.gamma(2.0, 50.0, (3, 4)), rng.gamma(2.0, 50.0, (3, 5))
+    with pytest.raises(ValueError, match=r"same shape: \(3, 4\), \(3, 5\)"):
+        paired_bootstrap(a, b)
