@@ -44,6 +44,8 @@ def test_a_reward_that_needs_the_shadow_is_turned_off_with_it(overrides: dict[st
         ({"action_mode": "stay", "detector_share": 0.5, "reward": "squared_advantage"}, "fixed"),
         # a feature computed from the shadow
         ({"obs_features": ("shadow_probs",), "tpm_cost": 0.1}, "fixed"),
+        # ... among features that are not (any one of them needs it)
+        ({"obs_features": ("nis", "shadow_probs", "tpm")}, "fixed"),
         # another detector's belief needs no shadow
         ({"action_mode": "stay", "detector": "turn_rate", "detector_share": 0.5,
           "obs_features": ("detector_belief",), "mode_reward": 0.05}, "none"),
