@@ -42,10 +42,12 @@ def test_a_named_suites_file_gives_its_own_scenario_or_none(tmp_path, monkeypatc
 
 def test_a_suites_meta_names_the_seeds_its_runs_used(tmp_path) -> None:
     """Two runs from ``seed 7`` are seeds 7 and 8: ``meta.seeds`` says ``7..8``, the suite's
-    and each case's, beside the reference (``fixed``) and no bar."""
+    and each case's, beside the reference (``fixed``) and no bar; ``clairvoyant=False`` leaves
+    each case's clairvoyant row out."""
     (tmp_path / "one.yaml").write_text("scenario: paper\n")
     out = suite.evaluate_suite(["fixed", "window"], str(tmp_path), 2, 7, clairvoyant=False)
     meta = out["meta"]
     assert (meta["runs"], meta["seed"], meta["seeds"]) == (2, 7, "7..8")
     assert (meta["reference"], meta["bar"]) == ("fixed", [])
     assert out["scenarios"]["one"]["meta"]["seeds"] == "7..8"
+    assert "clairvoyant" not in out["scenarios"]["one"]
