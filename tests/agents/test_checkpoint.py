@@ -610,3 +610,14 @@ def test_fewer_streams_than_slots_are_refused_naming_the_file(saved) -> None:
     env = build({**params, "n_envs": 8})[1]
     with pytest.raises(ConfigError, match=r"resume\.json: 4 streams for 8 training slots"):
         restore_streams(env.unwrapped, recorded, directory / "resume.json")
+
+
+def test_a_validation_record_with_a_misspelt_key_is_refused(tmp_path) -> None:
+    """``timestep`` for ``timesteps``: refused naming the key, not read as a record without
+    its step."""
+    from agents.checkpoint import read_validation
+
+    file = tmp_path / "validation.json"
+    file.write_text('{"armse_pos": 1.0, "timestep": 5}')
+    with pytest.raises(ConfigError, match=re.escape(f"{file}: unknown keys ['timestep']")):
+        read_validation(file)
