@@ -189,3 +189,12 @@ def test_the_command_line_reports_the_files_written_and_their_size_in_kib(
     assert len(sizes) >= 3 and sum(sizes) > 20 * 1024  # 1000 and 1024 round apart
     out = capsys.readouterr().out
     assert out == f"exported {len(sizes)} files ({round(sum(sizes) / 1024)} KiB) to {target}\n"
+
+
+def test_a_pickled_agent_without_its_policy_file_is_named_missing(
+    pickled: Path, tmp_path: Path
+) -> None:
+    (pickled / "policy.pt").unlink()
+    with pytest.raises(ConfigError, match=r"policy\.pt: missing"):
+        convert_pickled(pickled, tmp_path / "new")
+    assert not (tmp_path / "new").exists()
