@@ -198,3 +198,23 @@ def test_a_pickled_agent_without_its_policy_file_is_named_missing(
     with pytest.raises(ConfigError, match=r"policy\.pt: missing"):
         convert_pickled(pickled, tmp_path / "new")
     assert not (tmp_path / "new").exists()
+
+
+def test_members_without_a_seed_each_are_exported_by_their_position(tmp_path: Path) -> None:
+    """A member whose agent.json gives no seed beside one of seed 3: member_0/ and member_1/,
+    no seed_None/."""
+    from agents.ensemble import write_ensemble
+
+    members = []
+    for k, seed in enumerate((None, 3)):
+        member = Path(shutil.copytree(shipped_agent(), tmp_path / f"run_{k}"))
+        meta = json.loads((member / AGENT_FILE).read_text())
+        meta.pop("seed", None)
+        if seed is not None:
+            meta["seed"] = seed
+        (member / AGENT_FILE).write_text(json.dumps(meta))
+        members.append(member)
+    write_ensemble(tmp_path / "ensemble", members)
+    export(tmp_path / "ensemble", tmp_path / "shipped")
+    listed = json.loads((tmp_path / "shipped" / "ensemble.json").read_text())["members"]
+    assert listed == ["member_0", "member_1"]
