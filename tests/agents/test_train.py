@@ -454,6 +454,25 @@ def test_run_counts_whose_seeds_reach_another_range_are_refused(
     assert f"{flag} must be in [1, {most}], got {most + 1}: " in line and beyond in line
 
 
+@pytest.mark.parametrize(
+    ("flag", "least", "extra"),
+    [("--checkpoint-every", 1, []), ("--validate-every", 0, []), ("--jobs", 1, [])],
+)
+def test_step_and_job_counts_are_refused_just_below_their_least(
+    flag, least, extra, tmp_path, capsys
+) -> None:
+    """The least value each count takes is taken (check_args returns), one below it is a usage
+    error naming the flag and the value."""
+    parser = train.build_parser()
+    out = ["--out", str(tmp_path / "out"), *extra]
+    assert train.check_args(parser, parser.parse_args([flag, str(least), *out])) is None
+    with pytest.raises(SystemExit) as exc:
+        train.check_args(parser, parser.parse_args([flag, str(least - 1), *out]))
+    assert exc.value.code == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"{flag} must be >= {least}, got {least - 1}" in line
+
+
 def test_the_largest_seed_allowed_trains_and_validates(tmp_path) -> None:
     """Seed 2**32 - 1: every seed derived from it (the training slots' 100,000,000 + 10,000 s + i,
     the constructor's s + i) is one the streams take; 2**32 is refused (test_bad_arguments)."""
