@@ -473,6 +473,22 @@ def test_step_and_job_counts_are_refused_just_below_their_least(
     assert f"{flag} must be >= {least}, got {least - 1}" in line
 
 
+def test_rllib_env_runners_take_zero_and_refuse_below(tmp_path, capsys) -> None:
+    """--env-runners 0 (the driver samples) passes the count check; -1 is a usage error. Without
+    Ray the zero goes on to the refusal that names Ray, not the count."""
+    parser = train.build_parser()
+    argv = ["--engine", "rllib", "--out", str(tmp_path / "out"), "--env-runners"]
+    with pytest.raises(SystemExit) as exc:
+        train.check_args(parser, parser.parse_args([*argv, "-1"]))
+    assert exc.value.code == 2
+    assert "--env-runners must be >= 0, got -1" in capsys.readouterr().err
+    try:
+        train.check_args(parser, parser.parse_args([*argv, "0"]))
+    except SystemExit as refused:
+        assert refused.code == 2
+        assert "--engine rllib needs Ray" in capsys.readouterr().err.strip().splitlines()[-1]
+
+
 def test_the_largest_seed_allowed_trains_and_validates(tmp_path) -> None:
     """Seed 2**32 - 1: every seed derived from it (the training slots' 100,000,000 + 10,000 s + i,
     the constructor's s + i) is one the streams take; 2**32 is refused (test_bad_arguments)."""
