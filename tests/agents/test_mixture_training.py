@@ -152,6 +152,7 @@ def test_a_file_that_draws_conditions_is_evaluated_on_the_paper_scenario_without
         (["--env-shares", "1", "1"], "one weight per --env-config file"),
         (["--env-config", "X", "Y", "--env-shares", "1", "0"], "positive numbers"),
         (["--env-config", "X", "Y", "--env-shares", "1"], "2 file(s)"),
+        (["--env-config", "X", "--env-shares", "1"], "got 1 weights for 1 file(s)"),
     ],
 )
 def test_bad_mixtures_on_the_command_line(extra, message, capsys) -> None:
