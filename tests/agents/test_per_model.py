@@ -598,3 +598,24 @@ def test_the_policy_saved_by_sb3_loads_with_its_layout(tmp_path) -> None:
     with torch.no_grad():
         assert torch.equal(policy.get_distribution(obs).distribution.mean,
                            loaded.get_distribution(obs).distribution.mean)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        # 5 ground-truth entries a frame, the observation sized for them: the critic's are 11
+        ({"critic_dims": 5, "observation_size": 2 * (16 + 5)},
+         "critic_dims must be 0 or 11 for 3 models, got 5"),
+        # one entry more or two than the 2 frames of 16 + 11 entries the layout reads
+        ({"observation_size": 55},
+         "a PerModelPolicy of 3 models reads 54 entries .*, the observation has 55"),
+        ({"observation_size": 56},
+         "a PerModelPolicy of 3 models reads 54 entries .*, the observation has 56"),
+    ],
+)
+def test_a_description_whose_sizes_disagree_with_its_layout_is_refused(changes, message) -> None:
+    """The actor reads each model's entries by their place in a frame of 16 + 11 entries: an
+    observation of another size, or ground-truth entries other than the critic's 11 for 3
+    models, would make it read other entries as a model's; the network is not built."""
+    with pytest.raises(ConfigError, match=f"SB3 cannot build this network \\({message}"):
+        build_policy(_hand_policy_spec(**changes), "test")
