@@ -30,3 +30,35 @@ def test_a_tradeoff_png_suffix_in_any_case_is_admitted(tmp_path, stub_evaluation
     with pytest.raises(_Reached):
         main(["--policy", "fixed", "--runs", "2", "--quiet", "--tradeoff", str(tmp_path / name)])
     assert stub_evaluation == [(["fixed"], 2, 0)]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        # Ray runs the tracking of one scenario's roll-outs; the seed systems run their own
+        (["--ray", "auto"], "--ray does not apply to --scenario seed003"),
+        (["--ray"], "--ray does not apply to --scenario seed003"),
+        # the seed systems compare the tuned banks with the classical IMM-EKF, no paired reference
+        (["--reference", "fixed"], "--reference does not apply to --scenario seed003"),
+        (
+            ["--tuned", "bbsca="],
+            "--tuned must be POLICY=FILE (e.g. bbsca=tuned.json), got 'bbsca='",
+        ),
+        (
+            ["--tuned", "=t.json"],
+            "--tuned must be POLICY=FILE (e.g. bbsca=tuned.json), got '=t.json'",
+        ),
+    ],
+)
+def test_a_seed_system_refuses_what_it_does_not_take(
+    argv, message, capsys, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Refused as usage errors (exit 2) before the seed system is evaluated."""
+    monkeypatch.setattr(
+        "imm_gym.papers.tuned_comparison.evaluate_system",
+        lambda *a, **kw: pytest.fail("the seed system was evaluated"),
+    )
+    with pytest.raises(SystemExit) as exc:
+        main(["--scenario", "seed003", "--policy", "bbsca", "--runs", "1", "--quiet", *argv])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
