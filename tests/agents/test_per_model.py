@@ -619,3 +619,21 @@ def test_a_description_whose_sizes_disagree_with_its_layout_is_refused(changes, 
     models, would make it read other entries as a model's; the network is not built."""
     with pytest.raises(ConfigError, match=f"SB3 cannot build this network \\({message}"):
         build_policy(_hand_policy_spec(**changes), "test")
+
+
+def test_refitting_keeps_the_actor_and_refuses_an_actor_tensor_of_another_shape() -> None:
+    """A network of 3 models carried to one of 5: the actor's tensors are the trained ones, the
+    critic's first layer (it reads the whole observation) the new network's; a target whose
+    phi reads tokens of another width is refused naming the tensor, not filled in."""
+    from agents.per_model import refit_state
+
+    trained = build_policy(_hand_policy_spec(), "test").state_dict()
+    five = _hand_policy_spec(action_size=5, observation_size=2 * (26 + 13), critic_dims=13)
+    target = build_policy(five, "test").state_dict()
+    out = refit_state(trained, target)
+    assert torch.equal(out["mlp_extractor.phi.0.weight"], trained["mlp_extractor.phi.0.weight"])
+    assert out["mlp_extractor.value_net.0.weight"] is target["mlp_extractor.value_net.0.weight"]
+    wider = build_policy(_hand_policy_spec(obs_features=["loglik", "innovation"],
+                                           observation_size=2 * (15 + 11)), "test").state_dict()
+    with pytest.raises(ConfigError, match=r"tensor 'mlp_extractor\.phi\.0\.weight' depends on"):
+        refit_state(trained, wider)
