@@ -637,3 +637,18 @@ def test_refitting_keeps_the_actor_and_refuses_an_actor_tensor_of_another_shape(
                                            observation_size=2 * (15 + 11)), "test").state_dict()
     with pytest.raises(ConfigError, match=r"tensor 'mlp_extractor\.phi\.0\.weight' depends on"):
         refit_state(trained, wider)
+
+
+def test_the_policy_saved_by_sb3_keeps_a_three_dimensional_measurement(tmp_path) -> None:
+    """dim_z 3 (an innovation of 3 entries a model: frames of 19 + 11 entries) is not the
+    default 2: SB3's load rebuilds it with its own, and acts as the saved network does."""
+    from agents.per_model import PerModelActorCriticPolicy
+
+    policy = build_policy(_hand_policy_spec(dim_z=3, observation_size=2 * (19 + 11)), "test")
+    policy.save(str(tmp_path / "policy.pt"))
+    loaded = PerModelActorCriticPolicy.load(str(tmp_path / "policy.pt"), device="cpu")
+    assert loaded.dim_z == 3
+    obs = torch.as_tensor(np.random.default_rng(3).normal(size=(2, 60)).astype(np.float32))
+    with torch.no_grad():
+        assert torch.equal(policy.get_distribution(obs).distribution.mean,
+                           loaded.get_distribution(obs).distribution.mean)
