@@ -62,3 +62,38 @@ def test_a_seed_system_refuses_what_it_does_not_take(
         main(["--scenario", "seed003", "--policy", "bbsca", "--runs", "1", "--quiet", *argv])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def _meta(tmp_path, monkeypatch: pytest.MonkeyPatch, argv: list[str]) -> dict:
+    """The JSON's meta the command line writes around an evaluation (a stub that names the
+    scenario 'file' when it came from the --env-config file, as the evaluation does)."""
+    import json
+
+    def evaluate(policies, scenario, runs, seed, **kw):
+        named = scenario if isinstance(scenario, str) else "file"
+        return {"policies": {}, "meta": {"scenario": named}}, {}
+
+    monkeypatch.setattr("imm_gym.cli.evaluate.evaluate", evaluate)
+    monkeypatch.setattr("imm_gym.cli.evaluate.render_tables", lambda results: None)
+    out = tmp_path / "r.json"
+    assert main(["--policy", "fixed", "--runs", "1", "--quiet", "--json", str(out), *argv]) == 0
+    return json.loads(out.read_text())["meta"]
+
+
+def test_meta_names_the_bank_and_scenario_the_command_line_chose(
+    tmp_path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """meta.bank: --bank's preset, else 'env-config' where the file gives the bank, else
+    'paper'; meta.scenario: --scenario, else the file's scenario name, else the file's path
+    where the file gives the scenario itself."""
+    bank = tmp_path / "bank.yaml"
+    bank.write_text("bank: hetero\nscenario: atc\n")
+    meta = _meta(tmp_path, monkeypatch, ["--env-config", str(bank)])
+    assert (meta["bank"], meta["scenario"]) == ("env-config", "atc")
+    meta = _meta(tmp_path, monkeypatch, ["--env-config", str(bank), "--bank", "paper"])
+    assert meta["bank"] == "paper"
+    assert _meta(tmp_path, monkeypatch, [])["bank"] == "paper"
+    own = tmp_path / "own.yaml"
+    own.write_text("scenario: {segments: [{duration: 10}]}\n")
+    meta = _meta(tmp_path, monkeypatch, ["--env-config", str(own)])
+    assert meta["scenario"] == str(own)
