@@ -97,3 +97,33 @@ def test_meta_names_the_bank_and_scenario_the_command_line_chose(
     own.write_text("scenario: {segments: [{duration: 10}]}\n")
     meta = _meta(tmp_path, monkeypatch, ["--env-config", str(own)])
     assert meta["scenario"] == str(own)
+
+
+def _evaluated_on(monkeypatch: pytest.MonkeyPatch, argv: list[str]):
+    """The EnvConfig the command line hands the evaluation (stopped there)."""
+    from imm_gym.sim.env_config import EnvConfig
+
+    seen = []
+
+    def evaluate(policies, scenario, runs, seed, env_config=None, **kw):
+        seen.append(EnvConfig.build({**(env_config or {}), "scenario": scenario}))
+        raise _Reached
+
+    monkeypatch.setattr("imm_gym.cli.evaluate.evaluate", evaluate)
+    with pytest.raises(_Reached):
+        main(["--policy", "fixed", "--runs", "1", "--quiet", *argv])
+    (config,) = seen
+    return config
+
+
+def test_bank_replaces_the_env_config_files_filter_too(
+    tmp_path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--bank paper is the paper's CV/CT bank with its SVD-UKF (help), whatever filter the
+    file named; without --bank the file's filter runs."""
+    path = tmp_path / "c.yaml"
+    path.write_text("filter: ekf\n")
+    assert _evaluated_on(monkeypatch, ["--env-config", str(path)]).filter == "ekf"
+    assert (
+        _evaluated_on(monkeypatch, ["--env-config", str(path), "--bank", "paper"]).filter == "ukf"
+    )
