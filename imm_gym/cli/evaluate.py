@@ -81,7 +81,7 @@ from imm_gym.evaluation.distributed import ShardError
 from imm_gym.evaluation.rollout import Rollout, evaluation_config, rollout, score
 from imm_gym.papers.systems import SYSTEMS
 from imm_gym.scenarios.catalog import SCENARIOS, SUITES
-from imm_gym.sim.config_file import expand_presets, read_env_config
+from imm_gym.sim.config_file import bank_name, expand_presets, read_env_config
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.presets import BANK_PRESETS
@@ -283,7 +283,7 @@ def _run(
         )
     except ConfigError as err:
         parser.error(str(err))
-    results["meta"]["bank"] = args.bank or ("env-config" if "bank" in overrides else "paper")
+    results["meta"]["bank"] = bank_name(overrides)
     results["meta"]["env_config"] = config_record(args.env_config, file_config)
     if args.scenario is not None:
         results["meta"]["scenario"] = args.scenario

@@ -25,7 +25,7 @@ from imm_gym.cli.comparison import (
 from imm_gym.cli.policies import cannot_run
 from imm_gym.cli.provenance import versions
 from imm_gym.scenarios.catalog import SUITE_CONFIGS, SUITES
-from imm_gym.sim.config_file import read_env_config
+from imm_gym.sim.config_file import bank_name, read_env_config
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.env_config import EnvConfig
 from imm_gym.validation import ConfigError
@@ -119,8 +119,9 @@ def evaluate_suite(
     harder to meet.
 
     Returns:
-        ``{"scenarios": {CASE: evaluate's results (``meta.bank``: ``env-config`` where the case's
-        file gives a bank, as with ``--env-config``; ``meta.env_config``: the file and its
+        ``{"scenarios": {CASE: evaluate's results (``meta.bank``: the bank preset's name, or
+        ``env-config`` where the case's file gives a bank of its own, as with ``--env-config``,
+        :func:`~imm_gym.sim.config_file.bank_name`; ``meta.env_config``: the file and its
         overrides, :func:`~imm_gym.cli.comparison.config_record`), with "skipped": {POLICY:
         reason}} and, with ``bar``, "bar": {"policy": NAME, "differences": {POLICY: paired
         difference}}},
@@ -173,7 +174,7 @@ def evaluate_suite(
             make_core=make_core,
         )
         results["meta"]["env_config"] = config_record(files[case], overrides)
-        results["meta"]["bank"] = "env-config" if "bank" in env_config else "paper"
+        results["meta"]["bank"] = bank_name(env_config)
         results["meta"]["versions"] = started
         results["skipped"] = skipped[case]
         if bar:

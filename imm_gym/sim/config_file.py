@@ -71,6 +71,18 @@ def expand_presets(data: Mapping[str, Any], where: str) -> dict[str, Any]:
     return out
 
 
+def bank_name(overrides: Mapping[str, Any]) -> str:
+    """The name a run's bank is recorded by (``meta.bank``): the preset of
+    :data:`~imm_gym.sim.presets.BANK_PRESETS` whose bank the checked ``overrides`` build (by
+    name or written out, compared as built: a model's unwritten fields at their defaults;
+    ``"paper"`` where they give none), else ``"env-config"``: a bank of the file's own."""
+    bank = plain(EnvConfig.build(overrides).bank)
+    for name in BANK_PRESETS:
+        if plain(EnvConfig.build(expand_presets({"bank": name}, "bank")).bank) == bank:
+            return name
+    return "env-config"
+
+
 def parse_env_config(data: Any, where: str) -> dict[str, Any]:
     """The checked overrides of a file's parsed content (plain data, bank presets expanded).
 

@@ -433,7 +433,7 @@ def test_a_file_with_an_agent_s_settings_evaluates_every_policy_on_its_tracker()
 
 
 def test_each_case_of_a_suite_names_its_bank(tmp_path) -> None:
-    """A case whose file gives a bank is labelled ``env-config`` in its meta, as
+    """A case whose file gives a bank of its own is labelled ``env-config`` in its meta, as
     ``--env-config FILE`` is (it was always ``paper``: the benchmark's ``atc`` runs CV and
     CT(±2°/s) with continuous noise); a case without one runs the paper's bank."""
     folder = _directory_suite(tmp_path)

@@ -83,16 +83,26 @@ def _meta(tmp_path, monkeypatch: pytest.MonkeyPatch, argv: list[str]) -> dict:
 def test_meta_names_the_bank_and_scenario_the_command_line_chose(
     tmp_path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """meta.bank: --bank's preset, else 'env-config' where the file gives the bank, else
-    'paper'; meta.scenario: --scenario, else the file's scenario name, else the file's path
-    where the file gives the scenario itself."""
+    """meta.bank: the preset the run's bank is (--bank's, or the file's by name or written out
+    in full), else 'env-config' for a bank of the file's own, and 'paper' without one;
+    meta.scenario: --scenario, else the file's scenario name, else the file's path where the
+    file gives the scenario itself."""
     bank = tmp_path / "bank.yaml"
     bank.write_text("bank: hetero\nscenario: atc\n")
     meta = _meta(tmp_path, monkeypatch, ["--env-config", str(bank)])
-    assert (meta["bank"], meta["scenario"]) == ("env-config", "atc")
+    assert (meta["bank"], meta["scenario"]) == ("hetero", "atc")
     meta = _meta(tmp_path, monkeypatch, ["--env-config", str(bank), "--bank", "paper"])
     assert meta["bank"] == "paper"
     assert _meta(tmp_path, monkeypatch, [])["bank"] == "paper"
+    paper = tmp_path / "paper.yaml"
+    paper.write_text("bank: paper\n")
+    assert _meta(tmp_path, monkeypatch, ["--env-config", str(paper)])["bank"] == "paper"
+    ct = "{kind: ct, turn_rate_deg: %s, noise: continuous, intensity: 0.06}"
+    for rates, name in ((("4.0", "-4.0"), "cv-ct-continuous"), (("4.0", "-3.0"), "env-config")):
+        written = tmp_path / "written.yaml"
+        models = ", ".join(ct % rate for rate in rates)
+        written.write_text(f"bank: [{{kind: cv, noise: continuous, intensity: 0.12}}, {models}]\n")
+        assert _meta(tmp_path, monkeypatch, ["--env-config", str(written)])["bank"] == name
     own = tmp_path / "own.yaml"
     own.write_text("scenario: {segments: [{duration: 10}]}\n")
     meta = _meta(tmp_path, monkeypatch, ["--env-config", str(own)])
