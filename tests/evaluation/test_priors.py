@@ -149,3 +149,12 @@ def test_every_prior_s_scores_are_its_own_runs_evaluation() -> None:
         assert armse == pytest.approx(armse_from_squared(run.squared_position_error), rel=1e-9)
         assert accuracy == pytest.approx(mode_accuracy(run.mode_probs, run.true_model), rel=1e-9)
         assert tv == pytest.approx(mode_prob_tv(run.mode_probs, run.live), rel=1e-9)
+
+
+@pytest.mark.parametrize(("field", "value"), [("n_priors", True), ("runs", 2.0), ("runs", "3")])
+def test_a_count_that_is_not_an_integer_is_refused(field: str, value: Any) -> None:
+    """True is not a count of 1 (nor 2.0 one of 2): the sizes are integers or refused."""
+    sizes: dict[str, Any] = {"n_priors": 2, "runs": 3, field: value}
+    with pytest.raises(ConfigError, match=f"{field} must be an integer >= 1, got {value!r}"):
+        prior_core({"scenario": "paper"}, sizes["n_priors"], sizes["runs"], SEED)
+
