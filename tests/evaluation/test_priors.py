@@ -158,3 +158,33 @@ def test_a_count_that_is_not_an_integer_is_refused(field: str, value: Any) -> No
     with pytest.raises(ConfigError, match=f"{field} must be an integer >= 1, got {value!r}"):
         prior_core({"scenario": "paper"}, sizes["n_priors"], sizes["runs"], SEED)
 
+
+def test_a_lost_run_s_rows_are_not_read_and_the_others_still_checked() -> None:
+    """From the step a run's tracker diverged at, its slot is no longer stepped and its rows are
+    not read: NaN rows there give the very result of valid ones. The slots still tracking are
+    checked to the end: a row of theirs not summing to 1 is refused after other runs were lost.
+    """
+    over = {"scenario": "random", "divergence_error": 60.0, "sensor": {"detection_prob": 0.7}}
+    stays = (0.98, 0.5)
+    tpms = np.repeat(np.stack([stay_tpm(3, s) for s in stays]), 8, axis=0)
+    clean = run_priors(prior_core(over, len(stays), 8, 3), lambda k, info: tpms)
+    live = clean.live.reshape(len(tpms), -1)  # (P * R, K), slot p * R + r
+    lost_at = int(np.flatnonzero(~live.all(axis=0))[0])  # the first step a run was lost at
+    assert lost_at < live.shape[1] - 2 and live[:, lost_at + 1].any()
+
+    def nan_when_lost(k: int, info: dict[str, Any] | None) -> np.ndarray:
+        rows = tpms.copy()
+        if k > 0:
+            rows[~live[:, k - 1]] = np.nan
+        return rows
+
+    result = run_priors(prior_core(over, len(stays), 8, 3), nan_when_lost)
+    np.testing.assert_array_equal(result.live, clean.live)
+    np.testing.assert_array_equal(result.squared_error, clean.squared_error)
+    np.testing.assert_array_equal(result.mode_probs, clean.mode_probs)
+
+    def unnormalized_after_a_loss(k: int, info: dict[str, Any] | None) -> np.ndarray:
+        return 5.0 * tpms if k == lost_at + 1 else tpms
+
+    with pytest.raises(ConfigError, match=rf"rows\({lost_at + 1}\) rows must sum to 1"):
+        run_priors(prior_core(over, len(stays), 8, 3), unnormalized_after_a_loss)
