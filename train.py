@@ -855,7 +855,8 @@ def write_summary(
 ) -> None:
     """``OUT/summary.json`` of ``seeds`` (their ``summary.json`` entries by seed): with several,
     ``OUT/ensemble/`` of their agents; where every seed was evaluated, the statistics across
-    them and ``OUT/report.md``."""
+    them and ``OUT/report.md``, else no ``OUT/report.md`` (an earlier one gathered seeds this
+    summary no longer holds as evaluated: a resumed or added seed's ``--no-eval``)."""
     summary: dict[str, Any] = {"command": command, "versions": versions, "seeds": seeds}
     if len(seeds) > 1:
         from agents.ensemble import write_ensemble
@@ -870,6 +871,9 @@ def write_summary(
     if all("paper" in entry for entry in seeds.values()):
         summary["across_seeds"] = across_seeds(seeds)
         write_summary_report(args.out / "report.md", summary)
+    elif (args.out / "report.md").is_file():
+        (args.out / "report.md").unlink()
+        print(f"removed {args.out / 'report.md'}: it gathered seeds evaluated before this run")
     (args.out / "summary.json").write_text(record_json(summary))
 
 

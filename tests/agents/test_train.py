@@ -167,7 +167,7 @@ def test_a_new_run_into_an_earlier_runs_directory_is_refused_before_training(tmp
 def test_a_resumed_run_continues_its_own_directory_and_validation_record(trained, tmp_path):
     """--resume into the checkpoint's own run is allowed: its validation record continues from
     the checkpoint's step (what was kept after it is not this run's past) and an evaluation of
-    the agent it replaces is removed (--no-eval)."""
+    the agent it replaces is removed (--no-eval), the seed's and the seeds' gathered one."""
     out, _ = trained
     run = tmp_path / "seed_0"
     shutil.copytree(out / "seed_0" / "checkpoints", run / "checkpoints")
@@ -176,12 +176,15 @@ def test_a_resumed_run_continues_its_own_directory_and_validation_record(trained
     record = {"armse_pos": 1.0, "timesteps": 512, "history": history}
     (run / "best" / "validation.json").write_text(json.dumps(record))
     (run / "report.md").write_text("the earlier agent's\n")
+    (tmp_path / "report.md").write_text("the earlier agents' across seeds\n")
     argv = ["--resume", str(run / "checkpoints" / "step_256"), "--timesteps", "512", "--no-eval"]
     argv += ["--no-progress", "--validate-every", "256", "--validation-runs", "2"]
     assert train.main(argv) == 0
     stats = json.loads((run / "training.json").read_text())
     assert [v["timesteps"] for v in stats["validation"]] == [256, 512]
     assert stats["validation"][0]["armse_pos"] == 30.0 and not (run / "report.md").exists()
+    assert not (tmp_path / "report.md").exists()
+    assert "across_seeds" not in json.loads((tmp_path / "summary.json").read_text())
 
 
 @pytest.mark.parametrize(
