@@ -1,0 +1,91 @@
+"""``python train.py``'s setup called directly (:mod:`agents.train_setup`), no step trained: each
+refusal of an argument by the function that makes it (``check_args``: a usage error, status 2;
+``hyperparams``: a ConfigError), so that a refusal lost is seen at once rather than after a full
+training run; the merge of a ``--config`` file over the entry, the run a checkpoint belongs to
+and what an ``--out`` holding an earlier run says."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pytest
+
+from agents.train_setup import (
+    build_parser,
+    check_args,
+)
+from agents.training import (
+    DEFAULT_ENTRY,
+    MAX_SEED,
+)
+
+
+def parsed(argv: list[str], tmp_path: Path) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
+    """The parser and ``argv`` parsed, ``--out TMP/out`` unless ``argv`` gives its own."""
+    parser = build_parser()
+    out = [] if "--out" in argv else ["--out", str(tmp_path / "out")]
+    return parser, parser.parse_args([*argv, *out])
+
+
+def refusal(argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> str:
+    """``check_args`` of ``argv``: a usage error (status 2), nothing made; its message."""
+    parser, args = parsed(argv, tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        check_args(parser, args)
+    assert exc.value.code == 2
+    assert not (tmp_path / "out").exists()
+    return capsys.readouterr().err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--timesteps", "0"], "--timesteps must be >= 1, got 0"),
+        (["--timesteps", "-256"], "--timesteps must be >= 1, got -256"),
+        (["--seed", "-1"], f"--seed values must be distinct integers in [0, {2**32 - 1}]"),
+        (["--seed", str(2**32)], f"integers in [0, {2**32 - 1}] (2**32 - 1: numpy's global"),
+        (["--seed", "3", "1", "3"], "--seed values must be distinct integers in [0, "),
+        (["--env", "CartPole-v1"], "--env 'CartPole-v1' is not an imm_gym environment; availa"),
+        (["--env", "imm_gym/Nope-v0"], "--env 'imm_gym/Nope-v0' is not registered; available:"),
+        (["--resume", "does/not/exist"], "--resume does/not/exist is not a checkpoint"),
+        (["--config", "missing.yml"], "--config file 'missing.yml' does not exist"),
+        (["--jobs", "0"], "--jobs must be >= 1, got 0"),
+        (["--jobs", "2", "--engine", "rllib"], "--jobs is for --engine sb3; RLlib runs its own"),
+        (["--checkpoint-every", "0"], "--checkpoint-every must be >= 1, got 0"),
+        (["--validate-every", "-1"], "--validate-every must be >= 0, got -1"),
+        (["--validation-runs", "0"], "--validation-runs must be in [1, 50000000], got 0: "),
+        (["--paper-runs", "0"], "--paper-runs must be in [1, 1000000], got 0: the evaluation"),
+        (["--random-runs", "0"], "--random-runs must be in [1, 1000000], got 0: the evaluation"),
+        (["--paper-runs", "-3"], "--paper-runs must be in [1, 1000000], got -3"),
+        (["--ray-address", "auto"], "--ray-address and --env-runners apply to --engine rllib"),
+        (["--env-runners", "2"], "--ray-address and --env-runners apply to --engine rllib"),
+        (["--engine", "rllib", "--algo", "recurrent-ppo"], "--engine rllib trains --algo ppo"),
+        (["--env-shares", "1", "1"], "--env-shares gives one weight per --env-config file"),
+        (["--env-config", "X", "Y", "--env-shares", "1", "0"], "must be positive numbers, got"),
+    ],
+)
+def test_each_bad_argument_is_refused_by_check_args(argv, message, tmp_path, capsys) -> None:
+    """The refusals ``train.main`` makes before any work, each by ``check_args`` itself: none of
+    them reaches the hyperparameters, let alone a training step."""
+    assert message in refusal(argv, tmp_path, capsys)
+
+
+def test_an_algorithm_outside_the_choices_is_refused_by_the_parser(capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        build_parser().parse_args(["--algo", "dqn"])
+    assert exc.value.code == 2
+    assert "argument --algo: invalid choice: 'dqn'" in capsys.readouterr().err
+
+
+def test_every_count_is_taken_at_its_least_and_the_seeds_at_their_ends(tmp_path) -> None:
+    """One step, one run of each evaluation, one validation run, checkpoints every step, no
+    validation, one job, and the seeds 0 and 2**32 - 1 together pass; the omitted --env,
+    --algo and --out are filled in."""
+    argv = ["--timesteps", "1", "--seed", "0", str(MAX_SEED), "--paper-runs", "1"]
+    argv += ["--random-runs", "1", "--validation-runs", "1", "--checkpoint-every", "1"]
+    argv += ["--validate-every", "0", "--jobs", "1"]
+    parser, args = parsed(argv, tmp_path)
+    assert check_args(parser, args) is None
+    assert (args.env, args.algo, args.seed) == (DEFAULT_ENTRY, "ppo", [0, 2**32 - 1])
+    assert args.out == tmp_path / "out" and not args.out.exists()
