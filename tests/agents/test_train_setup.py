@@ -14,6 +14,7 @@ import pytest
 from agents.train_setup import (
     build_parser,
     check_args,
+    with_config,
 )
 from agents.training import (
     DEFAULT_ENTRY,
@@ -89,3 +90,47 @@ def test_every_count_is_taken_at_its_least_and_the_seeds_at_their_ends(tmp_path)
     assert check_args(parser, args) is None
     assert (args.env, args.algo, args.seed) == (DEFAULT_ENTRY, "ppo", [0, 2**32 - 1])
     assert args.out == tmp_path / "out" and not args.out.exists()
+
+
+# --- a --config file over the entry ----------------------------------------------------------
+
+ENTRY = {
+    "n_envs": 8,
+    "gamma": 0.9,
+    "env_kwargs": {"reward": "error", "sensor": {"sigma_r": 30.0}},
+    "policy_kwargs": {"net_arch": [64, 64], "log_std_init": -1.0},
+    "env_mixture": [
+        {"env_kwargs": {"sensor": {"sigma_r": 80.0}, "reward": "error"}, "share": 0.25},
+    ],
+}
+
+
+def test_a_config_file_changes_the_keys_it_gives_and_keeps_the_entrys_others() -> None:
+    """By hand: gamma replaced, n_envs kept; env_kwargs and policy_kwargs key by key (the
+    entry's sensor and net_arch stay beside the file's); the file's reward reaches the mixture's
+    part, whose own tracker (its sensor) stays."""
+    extra = {"gamma": 0.5, "env_kwargs": {"reward": "measurement", "tpm_cost": 0.1},
+             "policy_kwargs": {"log_std_init": 0.0}}
+    assert with_config(ENTRY, extra) == {
+        "n_envs": 8,
+        "gamma": 0.5,
+        "env_kwargs": {"reward": "measurement", "sensor": {"sigma_r": 30.0}, "tpm_cost": 0.1},
+        "policy_kwargs": {"net_arch": [64, 64], "log_std_init": 0.0},
+        "env_mixture": [
+            {"env_kwargs": {"sensor": {"sigma_r": 80.0}, "reward": "measurement",
+                            "tpm_cost": 0.1}, "share": 0.25},
+        ],
+    }
+    assert ENTRY["env_kwargs"]["reward"] == "error"  # the entry itself is left as it was
+
+
+def test_a_config_file_giving_its_own_mixture_keeps_it_as_it_stands() -> None:
+    mixture = [{"env_kwargs": {"reward": "error"}, "share": 0.5}]
+    extra = {"env_kwargs": {"reward": "measurement"}, "env_mixture": mixture}
+    updated = with_config(ENTRY, extra)
+    assert updated["env_mixture"] == mixture
+    assert updated["env_kwargs"]["reward"] == "measurement"
+
+
+def test_a_config_file_without_env_kwargs_leaves_the_entrys_whole() -> None:
+    assert with_config(ENTRY, {"n_envs": 16}) == {**ENTRY, "n_envs": 16}
