@@ -14,6 +14,7 @@ import pytest
 from agents.train_setup import (
     build_parser,
     check_args,
+    checkpoint_run,
     with_config,
 )
 from agents.training import (
@@ -134,3 +135,21 @@ def test_a_config_file_giving_its_own_mixture_keeps_it_as_it_stands() -> None:
 
 def test_a_config_file_without_env_kwargs_leaves_the_entrys_whole() -> None:
     assert with_config(ENTRY, {"n_envs": 16}) == {**ENTRY, "n_envs": 16}
+
+
+# --- the run a checkpoint belongs to ---------------------------------------------------------
+
+
+def test_the_run_of_a_checkpoint_is_the_directory_above_its_seed(tmp_path, monkeypatch) -> None:
+    """OUT/seed_S/checkpoints/NAME of seed S belongs to OUT (relative where it lies below the
+    working directory); a checkpoint of another seed's directory, or not in checkpoints/, to
+    no run."""
+    run = tmp_path / "a" / "run"
+    assert checkpoint_run(run / "seed_3" / "checkpoints" / "latest", 3) == run
+    assert checkpoint_run(run / "seed_3" / "checkpoints" / "step_256", 3) == run
+    assert checkpoint_run(run / "seed_3" / "checkpoints" / "latest", 4) is None
+    assert checkpoint_run(run / "seed_3" / "saved" / "latest", 3) is None
+    assert checkpoint_run(run / "checkpoints" / "latest", 3) is None
+    monkeypatch.chdir(tmp_path)
+    relative = checkpoint_run(Path("a/run/seed_3/checkpoints/latest"), 3)
+    assert relative == Path("a/run") and not relative.is_absolute()
