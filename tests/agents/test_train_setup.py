@@ -153,3 +153,65 @@ def test_the_run_of_a_checkpoint_is_the_directory_above_its_seed(tmp_path, monke
     monkeypatch.chdir(tmp_path)
     relative = checkpoint_run(Path("a/run/seed_3/checkpoints/latest"), 3)
     assert relative == Path("a/run") and not relative.is_absolute()
+
+
+# --- an --out that holds an earlier run -----------------------------------------------------
+
+
+def test_an_out_holding_a_seed_s_run_is_refused_with_the_command_to_continue_it(
+    tmp_path, capsys
+) -> None:
+    """Where the earlier run left checkpoints/latest/resume.json the refusal ends with the
+    command that continues it; where it did not, it names only the directory to remove."""
+    out = tmp_path / "runs"
+    latest = out / "seed_1" / "checkpoints" / "latest"
+    latest.mkdir(parents=True)
+    argv = ["--out", str(out), "--seed", "0", "1"]
+    line = refusal(argv, tmp_path, capsys)
+    assert line.endswith(f"give another --out, or remove {out / 'seed_1'}")
+    (latest / "resume.json").write_text("{}")
+    line = refusal(argv, tmp_path, capsys)
+    assert line.endswith(
+        f"or remove {out / 'seed_1'}; to continue that run: python train.py --resume {latest}"
+    )
+    assert not (out / "seed_0").exists()
+    parser, args = parsed(["--out", str(out), "--seed", "0", "2"], tmp_path)
+    assert check_args(parser, args) is None  # seed_1 is not one of these seeds
+
+
+# --- --resume: a checkpoint's record stood in for -------------------------------------------
+
+
+@pytest.fixture
+def resumed(monkeypatch: pytest.MonkeyPatch) -> dict:
+    """The record ``check_args`` reads from any ``--resume`` checkpoint: a 256-step run of seed
+    3 of the default entry with a small PPO."""
+    import agents.checkpoint
+
+    record = {
+        "env_id": DEFAULT_ENTRY, "algo": "ppo", "seed": 3, "num_timesteps": 256,
+        "evaluation_config": None,
+        "hyperparams": {"n_envs": 8, "n_timesteps": 256, "policy": "MlpPolicy", "n_steps": 32,
+                        "batch_size": 128, "n_epochs": 1, "gamma": 0.9, "env_kwargs": {}},
+    }
+    monkeypatch.setattr(agents.checkpoint, "read_checkpoint", lambda directory: dict(record))
+    return record
+
+
+def test_a_resumed_run_may_write_to_its_own_run_but_not_to_another_holding_its_seed(
+    resumed, tmp_path, capsys
+) -> None:
+    """--resume A/seed_3/checkpoints/latest continues A (its seed_3/ is its own), but --out B
+    whose seed_3/ is another run is refused, without the hint to resume B (a --resume is
+    given)."""
+    own = tmp_path / "A" / "seed_3" / "checkpoints" / "latest"
+    own.mkdir(parents=True)
+    (own / "resume.json").write_text("{}")
+    parser, args = parsed(["--resume", str(own), "--out", str(tmp_path / "A")], tmp_path)
+    assert check_args(parser, args) == resumed
+    assert args.seed == [3] and args.out == tmp_path / "A"
+    other = tmp_path / "B" / "seed_3" / "checkpoints" / "latest"
+    other.mkdir(parents=True)
+    (other / "resume.json").write_text("{}")
+    line = refusal(["--resume", str(own), "--out", str(tmp_path / "B")], tmp_path, capsys)
+    assert line.endswith(f"give another --out, or remove {tmp_path / 'B' / 'seed_3'}")
