@@ -15,12 +15,14 @@ from agents.train_setup import (
     build_parser,
     check_args,
     checkpoint_run,
+    hyperparams,
     with_config,
 )
 from agents.training import (
     DEFAULT_ENTRY,
     MAX_SEED,
 )
+from imm_gym.validation import ConfigError
 
 
 def parsed(argv: list[str], tmp_path: Path) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
@@ -215,3 +217,29 @@ def test_a_resumed_run_may_write_to_its_own_run_but_not_to_another_holding_its_s
     (other / "resume.json").write_text("{}")
     line = refusal(["--resume", str(own), "--out", str(tmp_path / "B")], tmp_path, capsys)
     assert line.endswith(f"give another --out, or remove {tmp_path / 'B' / 'seed_3'}")
+
+
+def test_a_resumed_run_takes_a_larger_budget_only(resumed, tmp_path) -> None:
+    """The checkpoint's 256 steps: --timesteps 257 trains on, 256 and the checkpoint's own
+    budget are refused naming what gave the budget."""
+    def budget(*argv: str) -> int:
+        parser, args = parsed(["--resume", "ckpt", *argv], tmp_path)
+        return hyperparams(args, check_args(parser, args))["n_timesteps"]
+
+    assert budget("--timesteps", "257") == 257
+    with pytest.raises(ConfigError, match=r"^--timesteps 256 is not above the 256 steps the "):
+        budget("--timesteps", "256")
+    with pytest.raises(ConfigError, match=r"^the budget 256 \(n_timesteps of the checkpoint\) "):
+        budget()
+    config = tmp_path / "budget.yml"
+    config.write_text("n_timesteps: 200\n")
+    with pytest.raises(ConfigError, match=r"^the budget 200 \(n_timesteps of --config\) is not"):
+        budget("--config", str(config))
+    config.write_text("n_timesteps: 512\n")
+    assert budget("--config", str(config)) == 512
+    config.write_text("gamma: 0.9\n")  # the checkpoint's own: the budget is still the checkpoint's
+    with pytest.raises(ConfigError, match=r"^the budget 256 \(n_timesteps of the checkpoint\) "):
+        budget("--config", str(config))
+    config.write_text("n_timesteps: 512\ngamma: 0.5\n")
+    with pytest.raises(ConfigError, match=r"changes \['gamma'\] of the resumed run"):
+        budget("--config", str(config))
