@@ -219,6 +219,25 @@ def test_a_resumed_run_may_write_to_its_own_run_but_not_to_another_holding_its_s
     assert line.endswith(f"give another --out, or remove {tmp_path / 'B' / 'seed_3'}")
 
 
+def test_a_resumed_run_is_evaluated_on_the_configuration_it_recorded(resumed, tmp_path) -> None:
+    """The --env-config file a run was started with (its recorded evaluation_config) is the
+    resumed run's without being given again; a run started without one has none."""
+    parser, args = parsed(["--resume", "ckpt"], tmp_path)
+    check_args(parser, args)
+    assert args.env_overrides == {} and args.env_mixture == []
+    resumed["evaluation_config"] = {"sensor": {"sigma_r": 40.0}}
+    parser, args = parsed(["--resume", "ckpt"], tmp_path)
+    check_args(parser, args)
+    assert args.env_overrides == {"sensor": {"sigma_r": 40.0}}
+
+
+def test_a_resumed_run_is_refused_to_rllib(resumed, tmp_path, capsys) -> None:
+    """RLlib writes no checkpoints and reads none: --resume with --engine rllib is a usage error
+    (before any question of Ray)."""
+    line = refusal(["--resume", "ckpt", "--engine", "rllib"], tmp_path, capsys)
+    assert line.endswith("--resume continues SB3 runs; --engine rllib writes no checkpoints")
+
+
 def test_a_resumed_run_takes_a_larger_budget_only(resumed, tmp_path) -> None:
     """The checkpoint's 256 steps: --timesteps 257 trains on, 256 and the checkpoint's own
     budget are refused naming what gave the budget."""
