@@ -181,6 +181,38 @@ def test_an_out_holding_a_seed_s_run_is_refused_with_the_command_to_continue_it(
     assert check_args(parser, args) is None  # seed_1 is not one of these seeds
 
 
+# --- the hyperparameters: refusals without training -------------------------------------------
+
+
+def config_refusal(yaml: str, tmp_path: Path) -> str:
+    """``hyperparams`` of a run with ``yaml`` as ``--config``: a ConfigError; its message."""
+    config = tmp_path / "c.yml"
+    config.write_text(yaml)
+    parser, args = parsed(["--config", str(config)], tmp_path)
+    resume = check_args(parser, args)
+    with pytest.raises(ConfigError) as err:
+        hyperparams(args, resume)
+    return str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("yaml", "message"),
+    [
+        ("batch_size: 1\n", "batch_size must be >= 2 with normalize_advantage"),
+        ("n_envs: 1\nn_steps: 1\n", "n_envs * n_steps must be >= 2 with normalize_advantage"),
+        ("learning_rate: lin_inf\n", "learning_rate must be a number or 'lin_<number>', the "),
+        ("frame_stack: 65\n", "frame_stack must be in [1, 64]"),
+        ("vf_coef: -1.0\n", "vf_coef must be a finite number >= 0, got -1.0"),
+        ("sde_sample_freq: -2\n", "sde_sample_freq must be an integer >= -1, got -2"),
+        ("critic_state: 'yes'\n", "critic_state must be true or false, got 'yes'"),
+        ("n_timesteps: 0\n", "n_timesteps must be a whole number >= 1, got 0"),
+        ("n_timesteps: 1.5\n", "n_timesteps must be a whole number >= 1, got 1.5"),
+    ],
+)
+def test_a_bad_config_value_is_refused_by_hyperparams(yaml, message, tmp_path) -> None:
+    assert message in config_refusal(yaml, tmp_path)
+
+
 # --- --resume: a checkpoint's record stood in for -------------------------------------------
 
 
