@@ -16,6 +16,7 @@ from agents.train_setup import (
     check_args,
     checkpoint_run,
     hyperparams,
+    on_preset,
     with_config,
 )
 from agents.training import (
@@ -294,3 +295,21 @@ def test_a_resumed_run_takes_a_larger_budget_only(resumed, tmp_path) -> None:
     config.write_text("n_timesteps: 512\ngamma: 0.5\n")
     with pytest.raises(ConfigError, match=r"changes \['gamma'\] of the resumed run"):
         budget("--config", str(config))
+
+
+# --- the hyperparameter entries and their values ---------------------------------------------
+
+
+def test_an_id_without_an_entry_keeps_the_entrys_features_and_adds_its_presets_after() -> None:
+    """TPMAdaptParallel-v0's preset observes bank_b: after the entry's features, once; the
+    entry's reward stays, its tracker (sensor) and mixture give way to the preset's."""
+    entry = {"n_envs": 8, "env_mixture": [{"env_kwargs": {}, "share": 0.5}],
+             "env_kwargs": {"obs_features": ["loglik", "speed"], "reward": "error",
+                            "sensor": {"sigma_r": 30.0}}}
+    params = on_preset(entry, "imm_gym/TPMAdaptParallel-v0")
+    assert params == {"n_envs": 8, "env_kwargs": {
+        "obs_features": ["loglik", "speed", "bank_b"], "reward": "error", "scenario": "random",
+        "parallel": True, "p_min": 0.05}}
+    entry["env_kwargs"]["obs_features"] = ["bank_b", "loglik"]
+    features = on_preset(entry, "imm_gym/TPMAdaptParallel-v0")["env_kwargs"]["obs_features"]
+    assert features == ["bank_b", "loglik"]
