@@ -22,6 +22,7 @@ from agents.train_setup import (
 from agents.training import (
     DEFAULT_ENTRY,
     MAX_SEED,
+    check_hyperparams,
 )
 from imm_gym.validation import ConfigError
 
@@ -313,3 +314,17 @@ def test_an_id_without_an_entry_keeps_the_entrys_features_and_adds_its_presets_a
     entry["env_kwargs"]["obs_features"] = ["bank_b", "loglik"]
     features = on_preset(entry, "imm_gym/TPMAdaptParallel-v0")["env_kwargs"]["obs_features"]
     assert features == ["bank_b", "loglik"]
+
+
+@pytest.mark.parametrize("value", [-1, 0, 4])
+def test_sde_sample_freq_takes_minus_one_and_up(value) -> None:
+    """-1: gSDE's noise drawn once a rollout (SB3's value for that), 0 or more: every N steps."""
+    assert check_hyperparams("f", {"sde_sample_freq": value}, "ppo", complete=False) == {
+        "sde_sample_freq": value
+    }
+
+
+@pytest.mark.parametrize("value", [-2, True, 1.5, "4"])
+def test_sde_sample_freq_refuses_other_values(value) -> None:
+    with pytest.raises(ConfigError, match=r"^f: sde_sample_freq must be an integer >= -1, got "):
+        check_hyperparams("f", {"sde_sample_freq": value}, "ppo", complete=False)
