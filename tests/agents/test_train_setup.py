@@ -328,3 +328,12 @@ def test_sde_sample_freq_takes_minus_one_and_up(value) -> None:
 def test_sde_sample_freq_refuses_other_values(value) -> None:
     with pytest.raises(ConfigError, match=r"^f: sde_sample_freq must be an integer >= -1, got "):
         check_hyperparams("f", {"sde_sample_freq": value}, "ppo", complete=False)
+
+
+def test_critic_state_is_a_flag_for_ppo_only() -> None:
+    assert check_hyperparams("f", {"critic_state": True}, "ppo", complete=False)
+    with pytest.raises(ConfigError, match=r"^f: critic_state must be true or false, got 1$"):
+        check_hyperparams("f", {"critic_state": 1}, "ppo", complete=False)
+    with pytest.raises(ConfigError, match=r"^f: critic_state: true needs --algo ppo, got --algo r"):
+        check_hyperparams("f", {"critic_state": True}, "recurrent-ppo", complete=False)
+    assert check_hyperparams("f", {"critic_state": False}, "recurrent-ppo", complete=False)
