@@ -23,6 +23,7 @@ from agents.training import (
     DEFAULT_ENTRY,
     MAX_SEED,
     check_hyperparams,
+    load_hyperparams,
 )
 from imm_gym.validation import ConfigError
 
@@ -337,3 +338,21 @@ def test_critic_state_is_a_flag_for_ppo_only() -> None:
     with pytest.raises(ConfigError, match=r"^f: critic_state: true needs --algo ppo, got --algo r"):
         check_hyperparams("f", {"critic_state": True}, "recurrent-ppo", complete=False)
     assert check_hyperparams("f", {"critic_state": False}, "recurrent-ppo", complete=False)
+
+
+def test_an_id_takes_its_own_entry_and_else_the_default_one(tmp_path) -> None:
+    """A file with entries for the default id and for TPMAdaptPaper-v0: each id its own, another
+    id the default's; a file without the default entry names both missing."""
+    small = "n_envs: 8, n_timesteps: 256, policy: MlpPolicy"
+    file = tmp_path / "h.yml"
+    file.write_text(f"{DEFAULT_ENTRY}: {{{small}}}\nimm_gym/TPMAdaptPaper-v0: {{{small}, "
+                    "gamma: 0.5}\n")
+    paper = load_hyperparams("imm_gym/TPMAdaptPaper-v0", path=file)
+    assert paper == ({"n_envs": 8, "n_timesteps": 256, "policy": "MlpPolicy", "gamma": 0.5},
+                     "imm_gym/TPMAdaptPaper-v0")
+    assert load_hyperparams("imm_gym/TPMAdaptHetero-v0", path=file)[1] == DEFAULT_ENTRY
+    assert "gamma" not in load_hyperparams(DEFAULT_ENTRY, path=file)[0]
+    file.write_text(f"imm_gym/TPMAdaptPaper-v0: {{{small}}}\n")
+    with pytest.raises(ConfigError, match=f"no entry for 'imm_gym/TPMAdaptHetero-v0' nor "
+                                          f"'{DEFAULT_ENTRY}'"):
+        load_hyperparams("imm_gym/TPMAdaptHetero-v0", path=file)
