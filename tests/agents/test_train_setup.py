@@ -22,6 +22,7 @@ from agents.train_setup import (
 from agents.training import (
     DEFAULT_ENTRY,
     MAX_SEED,
+    algo_kwargs,
     check_hyperparams,
     load_hyperparams,
 )
@@ -356,3 +357,17 @@ def test_an_id_takes_its_own_entry_and_else_the_default_one(tmp_path) -> None:
     with pytest.raises(ConfigError, match=f"no entry for 'imm_gym/TPMAdaptHetero-v0' nor "
                                           f"'{DEFAULT_ENTRY}'"):
         load_hyperparams("imm_gym/TPMAdaptHetero-v0", path=file)
+
+
+def test_each_rl_zoo_schedule_string_becomes_a_linear_schedule() -> None:
+    """learning_rate, clip_range and clip_range_vf of 'lin_X' each fall from X at the start
+    (1.0 of the training left) to 0 at the end: halfway, X / 2; a number stays a number."""
+    given = {"learning_rate": "lin_3e-4", "clip_range": "lin_0.2", "clip_range_vf": "lin_10"}
+    kwargs = algo_kwargs({**given, "n_envs": 8, "gamma": 0.9})
+    assert kwargs.pop("gamma") == 0.9 and "n_envs" not in kwargs
+    expected = {"learning_rate": [3e-4, 1.5e-4, 0.0], "clip_range": [0.2, 0.1, 0.0],
+                "clip_range_vf": [10.0, 5.0, 0.0]}
+    assert sorted(kwargs) == sorted(expected)
+    for key, values in expected.items():
+        assert [kwargs[key](left) for left in (1.0, 0.5, 0.0)] == pytest.approx(values)
+    assert algo_kwargs({"clip_range_vf": 0.5}) == {"clip_range_vf": 0.5}
