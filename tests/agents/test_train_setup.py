@@ -359,6 +359,18 @@ def test_an_id_takes_its_own_entry_and_else_the_default_one(tmp_path) -> None:
         load_hyperparams("imm_gym/TPMAdaptHetero-v0", path=file)
 
 
+@pytest.mark.parametrize("key", ["learning_rate", "clip_range", "clip_range_vf"])
+def test_only_lin_and_a_positive_finite_number_is_a_schedule(key) -> None:
+    """'lin_' then a number float() reads, above 0 and finite; anything else that starts alike
+    would pass the check and fail the run once it is built (algo_kwargs parses value[4:])."""
+    for good in ("lin_3e-4", "lin_1", "lin_0.5"):
+        assert check_hyperparams("f", {key: good}, "ppo", complete=False) == {key: good}
+        assert algo_kwargs({key: good})[key](1.0) == pytest.approx(float(good[4:]))
+    for bad in ("lin-3e-4", "linX1", "lin__3", "lin_", "lin_-1", "lin_nan", "lin_0"):
+        with pytest.raises(ConfigError, match=rf"^f: {key} must be a "):
+            check_hyperparams("f", {key: bad}, "ppo", complete=False)
+
+
 def test_each_rl_zoo_schedule_string_becomes_a_linear_schedule() -> None:
     """learning_rate, clip_range and clip_range_vf of 'lin_X' each fall from X at the start
     (1.0 of the training left) to 0 at the end: halfway, X / 2; a number stays a number."""
