@@ -383,3 +383,14 @@ def test_each_rl_zoo_schedule_string_becomes_a_linear_schedule() -> None:
     for key, values in expected.items():
         assert [kwargs[key](left) for left in (1.0, 0.5, 0.0)] == pytest.approx(values)
     assert algo_kwargs({"clip_range_vf": 0.5}) == {"clip_range_vf": 0.5}
+
+
+@pytest.mark.parametrize("key", ["n_envs", "n_timesteps", "policy"])
+def test_an_entry_without_its_slots_budget_or_policy_is_refused(key) -> None:
+    """An entry must say how many slots, how many steps and which policy; a --config file
+    (complete=False) need not."""
+    entry = {"n_envs": 8, "n_timesteps": 256, "policy": "MlpPolicy"}
+    del entry[key]
+    with pytest.raises(ConfigError, match=rf"^f: missing \['{key}'\]$"):
+        check_hyperparams("f", entry, "ppo")
+    assert check_hyperparams("f", entry, "ppo", complete=False) == entry
