@@ -394,3 +394,11 @@ def test_an_entry_without_its_slots_budget_or_policy_is_refused(key) -> None:
     with pytest.raises(ConfigError, match=rf"^f: missing \['{key}'\]$"):
         check_hyperparams("f", entry, "ppo")
     assert check_hyperparams("f", entry, "ppo", complete=False) == entry
+
+
+@pytest.mark.parametrize("key", ["gamma", "gae_lambda"])
+def test_a_discount_of_zero_is_refused_and_one_taken(key) -> None:
+    """gamma and gae_lambda in (0, 1]: 0 would weigh no reward beyond the step's own."""
+    with pytest.raises(ConfigError, match=rf"^f: {key} must be in \(0, 1\], got 0.0$"):
+        check_hyperparams("f", {key: 0.0}, "ppo", complete=False)
+    assert check_hyperparams("f", {key: 1e-9}, "ppo", complete=False) == {key: 1e-9}
