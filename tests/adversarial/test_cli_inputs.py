@@ -85,6 +85,25 @@ def test_outputs_in_new_directories_are_accepted(tmp_path) -> None:
     assert not (tmp_path / "a").exists() and not (tmp_path / "c").exists()  # nothing created
 
 
+def test_an_existing_file_that_cannot_be_written_is_refused(tmp_path, monkeypatch) -> None:
+    """The permission is asked of the file itself (root would write through its bits: os.access
+    answers as for a user whom they stop); its directory being writable does not do."""
+    out = tmp_path / "res.json"
+    out.write_text("{}")
+    access = os.access
+    asked: list[tuple[Path, int]] = []
+
+    def no_write(path: object, mode: int, *args: object, **kwargs: object) -> bool:
+        asked.append((Path(path), mode))
+        return mode != os.W_OK and access(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(os, "access", no_write)
+    assert output_problem(out, "file") == "is not writable"
+    assert (out, os.W_OK) in asked
+    assert output_problem(tmp_path / "new.json", "file") is None  # a new file: its directory's
+    assert out.read_text() == "{}"
+
+
 # --- one run --------------------------------------------------------------------------------------
 
 
