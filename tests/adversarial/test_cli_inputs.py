@@ -104,6 +104,35 @@ def test_an_existing_file_that_cannot_be_written_is_refused(tmp_path, monkeypatc
     assert out.read_text() == "{}"
 
 
+def test_the_write_test_of_an_existing_directory_is_made_in_it(tmp_path, monkeypatch) -> None:
+    """An existing output directory is tried by a temporary file in it, not in its parent: an
+    unwritable directory in a writable parent is refused, a writable one in an unwritable parent
+    taken (``tempfile.TemporaryFile`` stands in for the permission bits root ignores)."""
+    import errno
+    import tempfile
+
+    temporary = tempfile.TemporaryFile
+    locked: list[Path] = []
+    tried: list[Path] = []
+
+    def temporary_file(*args: object, dir: object = None, **kwargs: object) -> object:
+        tried.append(Path(dir))
+        if Path(dir) in locked:
+            raise PermissionError(errno.EACCES, "Permission denied")
+        return temporary(*args, dir=dir, **kwargs)
+
+    monkeypatch.setattr(tempfile, "TemporaryFile", temporary_file)
+    figs = tmp_path / "figs"
+    figs.mkdir()
+    locked[:] = [figs]
+    assert output_problem(figs, "directory") == f"cannot write in {figs} (Permission denied)"
+    assert tried == [figs]
+    locked[:] = [tmp_path]
+    assert output_problem(figs, "directory") is None
+    assert output_problem(figs / "new", "directory") is None  # the nearest existing ancestor
+    assert "Permission denied" in output_problem(tmp_path / "other", "directory")
+
+
 # --- one run --------------------------------------------------------------------------------------
 
 
