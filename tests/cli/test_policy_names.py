@@ -10,8 +10,13 @@ import numpy as np
 import pytest
 
 from agents import PRETRAINED
+from baselines import REGISTRY, BuildContext, register
+from baselines.fixed import FixedTPM
 from imm_gym import EnvConfig
 from imm_gym.cli.policies import make_policy
+from imm_gym.evaluation.rollout import evaluation_config, rollout, score
+from imm_gym.sim.core import TrackingCore
+from imm_gym.tracking.tpm import stay_tpm
 
 PAPER = EnvConfig(scenario="paper")
 
@@ -38,3 +43,37 @@ def test_a_policy_file_is_its_directory_s_policy(directory: Path, file: str) -> 
 def test_a_shipped_name_is_its_directory_named_in_the_notes() -> None:
     _, _, notes = make_policy("pretrained", PAPER, 0)
     assert notes == {"path": str(PRETRAINED)}
+
+
+def test_a_tuned_rule_scores_on_the_training_runs_and_the_cores_it_is_given() -> None:
+    """A registry entry's ``train_armse`` and ``train_armse_from`` are the rollouts of the
+    training runs (seeds ``seed + 1_000_000 + r``) on the cores ``make_core`` builds."""
+    built: list[int] = []
+
+    def make_core(config: EnvConfig, n_envs: int) -> TrackingCore:
+        built.append(n_envs)
+        return TrackingCore(config, n_envs)
+
+    got: dict[str, Any] = {}
+    stays = (0.9, 0.995)
+
+    @register("probe", help="test only: scores two fixed TPMs on the training runs")
+    def build(context: BuildContext) -> tuple[FixedTPM, dict[str, object]]:
+        got["one"] = context.train_armse(FixedTPM(3, 0.8))
+        tpms = np.stack([stay_tpm(3, s) for s in stays])
+        got["from"] = context.train_armse_from(FixedTPM(3), tpms)
+        return FixedTPM(3), {}
+
+    try:
+        make_policy("probe", PAPER, 5, train_runs=3, make_core=make_core)
+    finally:
+        REGISTRY.unregister("probe")
+    assert built == [3, 3 * len(stays)]
+
+    def alone(stay: float) -> float:
+        policy = FixedTPM(3, stay)
+        cfg = evaluation_config(PAPER, policy.env_overrides)
+        return score(rollout(policy, cfg, 3, 1_000_005))["armse_pos"]
+
+    assert got["one"] == pytest.approx(alone(0.8), rel=1e-9)
+    np.testing.assert_allclose(got["from"], [alone(s) for s in stays], rtol=1e-9)
