@@ -4,16 +4,18 @@ trains on, and the notes and refusals of a trained agent evaluated on a tracker.
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
+from gymnasium import spaces
 
 from agents import PRETRAINED
 from baselines import REGISTRY, BuildContext, register
 from baselines.fixed import FixedTPM
 from imm_gym import EnvConfig
-from imm_gym.cli.policies import make_policy
+from imm_gym.cli.policies import UnreadableTracker, agent_overrides, make_policy
 from imm_gym.evaluation.rollout import evaluation_config, rollout, score
 from imm_gym.sim.core import TrackingCore
 from imm_gym.tracking.tpm import stay_tpm
@@ -77,3 +79,22 @@ def test_a_tuned_rule_scores_on_the_training_runs_and_the_cores_it_is_given() ->
 
     assert got["one"] == pytest.approx(alone(0.8), rel=1e-9)
     np.testing.assert_allclose(got["from"], [alone(s) for s in stays], rtol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("recorded", "writes", "takes"),
+    [({}, 6, 9), ({}, 12, 9), ({"action_mode": "stay"}, 9, 3), ({"action_mode": "stay"}, 2, 3)],
+)
+def test_an_agent_writing_actions_of_another_size_is_refused(
+    recorded: dict[str, Any], writes: int, takes: int
+) -> None:
+    """A bank of 3 models takes 3 × 3 entries (``scale``, the default) or 3 (a stay mode):
+    an agent's network writing more or fewer is refused, before any roll-out."""
+    space = spaces.Box(-1.0, 1.0, (writes,), np.float32)
+    agent = SimpleNamespace(model=SimpleNamespace(action_space=space))
+    with pytest.raises(UnreadableTracker, match=f"writes actions of {writes} entries") as err:
+        agent_overrides(agent, recorded, PAPER)
+    reason = f"writes {writes} action entries, the tracker takes {takes} (3 models)"
+    assert err.value.reason == reason
+    right = SimpleNamespace(model=SimpleNamespace(action_space=spaces.Box(-1.0, 1.0, (takes,))))
+    assert agent_overrides(right, recorded, PAPER)[0] == recorded
