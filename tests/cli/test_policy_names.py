@@ -17,6 +17,7 @@ from baselines.fixed import FixedTPM
 from imm_gym import EnvConfig
 from imm_gym.cli.policies import UnreadableTracker, agent_overrides, make_policy
 from imm_gym.evaluation.rollout import evaluation_config, rollout, score
+from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.core import TrackingCore
 from imm_gym.tracking.tpm import stay_tpm
 
@@ -98,3 +99,9 @@ def test_an_agent_writing_actions_of_another_size_is_refused(
     assert err.value.reason == reason
     right = SimpleNamespace(model=SimpleNamespace(action_space=spaces.Box(-1.0, 1.0, (takes,))))
     assert agent_overrides(right, recorded, PAPER)[0] == recorded
+
+
+def test_an_agent_of_one_tracker_lists_no_trackers_trained_across() -> None:
+    _, notes = agent_overrides(SimpleNamespace(trained_across=()), {}, PAPER)
+    assert "trained_across" not in notes and "models_differ" not in notes
+    assert notes["trained_on"] == notes["evaluated_on"] == tracker_of({})
