@@ -19,6 +19,7 @@ from imm_gym.cli.policies import UnreadableTracker, agent_overrides, make_policy
 from imm_gym.evaluation.rollout import evaluation_config, rollout, score
 from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.core import TrackingCore
+from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.tpm import stay_tpm
 
 PAPER = EnvConfig(scenario="paper")
@@ -105,3 +106,29 @@ def test_an_agent_of_one_tracker_lists_no_trackers_trained_across() -> None:
     _, notes = agent_overrides(SimpleNamespace(trained_across=()), {}, PAPER)
     assert "trained_across" not in notes and "models_differ" not in notes
     assert notes["trained_on"] == notes["evaluated_on"] == tracker_of({})
+
+
+#: Three tracker fields off the evaluated paper tracker (sensor, initial_stay, sojourn).
+FAR = {"sensor": {"sigma_r": 20.0}, "initial_stay": 0.9, "sojourn": (60.0, 20.0, 20.0)}
+HETERO = tracker_of(BANK_PRESETS["hetero"])  # two off (bank, filter): the closer one
+
+
+def test_the_models_that_differ_are_the_closest_trained_tracker_s() -> None:
+    """An agent trained across the paper bank (three other fields) and the heterogeneous one
+    (two), evaluated on the paper bank in reverse: the notes compare the evaluated models with
+    the closest trained tracker's (the heterogeneous bank's), not the first one's."""
+    reverse = PAPER.replace(bank=PAPER.bank[::-1])
+    agent = SimpleNamespace(trained_across=(HETERO,))
+    _, notes = agent_overrides(agent, FAR, reverse)
+    assert notes["trained_on"] == HETERO and notes["tracker_differs"] == ["bank", "filter"]
+    assert notes["models_differ"] == {
+        "trained": ["NCV", "CT", "CTRA"], "evaluated": ["CT(−)", "CT(+)", "CV"]
+    }
+    assert notes["trained_across"] == [tracker_of(FAR), HETERO]
+
+
+def test_models_of_any_trained_tracker_do_not_differ() -> None:
+    """The evaluated bank's models are those of one tracker trained on (the paper bank), though
+    another (the heterogeneous one) is closer: nothing is said to differ."""
+    _, notes = agent_overrides(SimpleNamespace(trained_across=(HETERO,)), FAR, PAPER)
+    assert notes["trained_on"] == HETERO and "models_differ" not in notes
