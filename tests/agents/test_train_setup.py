@@ -402,3 +402,17 @@ def test_a_discount_of_zero_is_refused_and_one_taken(key) -> None:
     with pytest.raises(ConfigError, match=rf"^f: {key} must be in \(0, 1\], got 0.0$"):
         check_hyperparams("f", {key: 0.0}, "ppo", complete=False)
     assert check_hyperparams("f", {key: 1e-9}, "ppo", complete=False) == {key: 1e-9}
+
+
+def test_an_empty_or_comment_only_config_file_changes_nothing(tmp_path) -> None:
+    """A --config file with no key (empty, or comments only: YAML's null) is no change, not a
+    refusal; the run's hyperparameters are the entry's."""
+    from agents.training import read_yaml
+
+    config = tmp_path / "c.yml"
+    for text in ("", "# nothing changed yet\n"):
+        config.write_text(text)
+        assert read_yaml(config) == {}
+        parser, args = parsed(["--config", str(config)], tmp_path)
+        params = hyperparams(args, check_args(parser, args))
+        assert params == load_hyperparams(DEFAULT_ENTRY)[0]
