@@ -416,3 +416,8 @@ def test_an_empty_or_comment_only_config_file_changes_nothing(tmp_path) -> None:
         parser, args = parsed(["--config", str(config)], tmp_path)
         params = hyperparams(args, check_args(parser, args))
         assert params == load_hyperparams(DEFAULT_ENTRY)[0]
+
+
+def test_an_algorithm_without_a_hyperparameter_file_is_refused_by_name() -> None:
+    with pytest.raises(ConfigError, match=r"^algo must be one of \['ppo', 'recurrent-ppo'\], "):
+        load_hyperparams(DEFAULT_ENTRY, "dqn")
