@@ -421,3 +421,12 @@ def test_an_empty_or_comment_only_config_file_changes_nothing(tmp_path) -> None:
 def test_an_algorithm_without_a_hyperparameter_file_is_refused_by_name() -> None:
     with pytest.raises(ConfigError, match=r"^algo must be one of \['ppo', 'recurrent-ppo'\], "):
         load_hyperparams(DEFAULT_ENTRY, "dqn")
+
+
+@pytest.mark.parametrize("key", ["learning_rate", "clip_range", "clip_range_vf"])
+def test_a_rate_of_zero_is_refused_and_a_small_one_taken(key) -> None:
+    """A learning rate or clip range of 0 would train nothing: refused, as lin_0 is."""
+    for zero in (0, 0.0, -1e-9):
+        with pytest.raises(ConfigError, match=rf"^f: {key} must be a positive number or 'lin_"):
+            check_hyperparams("f", {key: zero}, "ppo", complete=False)
+    assert check_hyperparams("f", {key: 1e-9}, "ppo", complete=False) == {key: 1e-9}
