@@ -21,6 +21,7 @@ from imm_gym.sim.config_file import tracker_of
 from imm_gym.sim.core import TrackingCore
 from imm_gym.sim.presets import BANK_PRESETS
 from imm_gym.tracking.tpm import stay_tpm
+from imm_gym.validation import ConfigError
 
 PAPER = EnvConfig(scenario="paper")
 
@@ -47,6 +48,18 @@ def test_a_policy_file_is_its_directory_s_policy(directory: Path, file: str) -> 
 def test_a_shipped_name_is_its_directory_named_in_the_notes() -> None:
     _, _, notes = make_policy("pretrained", PAPER, 0)
     assert notes == {"path": str(PRETRAINED)}
+
+
+def test_an_unknown_name_is_refused_naming_every_policy_there_is(tmp_path: Path) -> None:
+    """A name that is no rule, no shipped agent and no path is refused with the names a user
+    can give instead: every registered rule, the shipped agents and a directory."""
+    for name in ("nope", str(tmp_path / "no_such_run")):
+        with pytest.raises(ConfigError, match=f"unknown policy {name!r}") as err:
+            make_policy(name, PAPER, 0)
+        message = str(err.value)
+        for known in [*REGISTRY, "'pretrained'", "'pretrained-per-model'"]:
+            assert known in message
+        assert message.endswith("or a trained agent's directory")
 
 
 def test_a_tuned_rule_scores_on_the_training_runs_and_the_cores_it_is_given() -> None:
