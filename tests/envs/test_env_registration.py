@@ -166,3 +166,28 @@ def test_spaces_of_a_two_model_bank() -> None:
     obs, _ = env.reset(seed=0)
     obs, *_ = env.step(np.zeros(4, np.float32))
     assert env.observation_space.contains(obs)
+
+
+def test_each_id_makes_the_configuration_it_stands_for() -> None:
+    """What ``gym.make(ID)`` tracks, field for field, written out here (README, "The environments"):
+    the default configuration on the randomized family or the paper's scenario; with bank B,
+    entropy fusion, TIP-IMM's floor 0.05 and bank B's probabilities observed; with source 002's
+    heterogeneous bank, run by the EKF it needs."""
+    from imm_gym.tracking.hetero import SONAR_HETERO_BANK
+
+    expected = {
+        "imm_gym/TPMAdapt-v0": EnvConfig(scenario="random"),
+        "imm_gym/TPMAdaptPaper-v0": EnvConfig(scenario="paper"),
+        "imm_gym/TPMAdaptParallel-v0": EnvConfig(
+            scenario="random", parallel=True, p_min=0.05, obs_features=("bank_b",)
+        ),
+        "imm_gym/TPMAdaptHetero-v0": EnvConfig.build(
+            {"scenario": "random", "bank": dict(SONAR_HETERO_BANK), "filter": "ekf"}
+        ),
+    }
+    assert IDS == sorted(expected)
+    for env_id, config in expected.items():
+        env = gym.make(env_id)
+        assert env.unwrapped.config == config, env_id
+        env.close()
+
