@@ -191,3 +191,16 @@ def test_each_id_makes_the_configuration_it_stands_for() -> None:
         assert env.unwrapped.config == config, env_id
         env.close()
 
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_make_wraps_every_id_in_the_passive_checker(env_id: str) -> None:
+    """``gym.make`` by id runs Gymnasium's passive checker (the spec does not disable it), so a
+    user's first reset and step are checked."""
+    from gymnasium.wrappers import PassiveEnvChecker
+
+    assert gym.spec(env_id).disable_env_checker is False
+    env, layers = gym.make(env_id), []
+    while isinstance(env, gym.Wrapper):
+        layers.append(type(env))
+        env = env.env
+    assert PassiveEnvChecker in layers
