@@ -1,7 +1,8 @@
-"""The package's face: the names ``from imm_gym import *`` gives."""
+"""The package's face: the names ``from imm_gym import *`` gives and the version it reports."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import inspect
 
 import imm_gym
@@ -21,3 +22,8 @@ def test_every_public_name_the_package_holds_is_exported() -> None:
     exec("from imm_gym import *", namespace)
     assert public <= set(namespace)
 
+
+def test_the_version_is_the_installed_distribution_s() -> None:
+    """``imm_gym.__version__`` (what results record as the package's version) is the version
+    pyproject.toml gives the installed distribution."""
+    assert imm_gym.__version__ == importlib.metadata.version("imm_gym")
