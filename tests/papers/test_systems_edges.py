@@ -202,3 +202,16 @@ def test_a_failed_run_is_counted() -> None:
     result = run_bank(imm, broken, tpm)
     assert result.failed.tolist() == [True, False]
     assert score_run(result, broken, sensor.dim_z)["failed"] == 1
+
+
+def test_every_failed_run_is_counted() -> None:
+    """Two runs of three broken (measurements jumping to 1e200 m): ``failed`` counts both, not
+    whether any failed."""
+    imm, family, sensor, tpm = system_setup("seed003")
+    batch = draw(family, sensor, 3, 1)
+    z = batch.measurements.z.copy()
+    z[[0, 2], 5:8] = 1e200
+    broken = dataclasses.replace(batch, measurements=dataclasses.replace(batch.measurements, z=z))
+    result = run_bank(imm, broken, tpm)
+    assert result.failed.tolist() == [True, False, True]
+    assert score_run(result, broken, sensor.dim_z)["failed"] == 2
