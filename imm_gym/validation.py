@@ -37,6 +37,17 @@ class ConfigError(ValueError):
     """A configuration field or an input array is invalid; the message names it."""
 
 
+#: The largest distance (m) a configuration may place anything at, or give as a sensor's noise:
+#: 1e9 m, 2.6 times the Moon's distance, beyond any sensor's reach. Within it a position in
+#: float64 resolves 1e-7 m, so that an error taken from two positions — a diverged run's held
+#: estimate, the truth plus the divergence cap — keeps its metres (at 1e19 m the cap would round
+#: away and a lost track score 0 m).
+MAX_DISTANCE = 1e9
+#: The largest target speed (m/s) a configuration may give, or drift to by its accelerations:
+#: 1e5 m/s, thirteen times a low orbit's, beyond any tracked target.
+MAX_SPEED = 1e5
+
+
 #: How a refused value is shown in a message: at most 6 entries of a list, tuple or mapping, 3
 #: levels deep, 60 characters of a string — a YAML file of nested aliases is a few hundred bytes
 #: whose value would print in gigabytes.

@@ -19,6 +19,8 @@ from numpy.typing import NDArray
 from imm_gym.tracking.hetero import HeteroBank
 from imm_gym.tracking.models import MotionModel, ct_ratios, ct_transition
 from imm_gym.validation import (
+    MAX_DISTANCE,
+    MAX_SPEED,
     ConfigError,
     check_finite,
     check_int,
@@ -118,9 +120,13 @@ class Scenario:
         if not segs:
             raise ConfigError("scenario.segments must contain at least one segment")
         store(self, "segments", segs)
-        for name in ("position", "velocity"):
+        for name, extent in (("position", MAX_DISTANCE), ("velocity", MAX_SPEED)):
             value = check_sequence(f"scenario.{name}", getattr(self, name), 2)
-            store(self, name, tuple(check_finite(f"scenario.{name}", v) for v in value))
+            store(
+                self,
+                name,
+                tuple(check_range(f"scenario.{name}", v, -extent, extent) for v in value),
+            )
         store(self, "T", check_range("scenario.T", self.T, 0.0, lo_open=True))
         self._check_speeds()
         if self.truth_q is not None:
@@ -129,9 +135,13 @@ class Scenario:
 
     def _check_speeds(self) -> None:
         """An acceleration segment acts along the heading: it needs a moving target and must not
-        drive the speed below 0 (the speed after it is ``|v| + accel duration T``; turns keep
-        it)."""
+        drive the speed below 0 nor above :data:`~imm_gym.validation.MAX_SPEED` (the speed after
+        it is ``|v| + accel duration T``; turns keep it)."""
         speed = math.hypot(*self.velocity)
+        if speed > MAX_SPEED:
+            raise ConfigError(
+                f"scenario.velocity: the speed |v| must be in [0, {MAX_SPEED}] m/s, got {speed:.6g}"
+            )
         for i, seg in enumerate(self.segments):
             if seg.accel == 0.0:
                 continue
@@ -147,6 +157,12 @@ class Scenario:
                     f"{where}: {seg.accel} m/s² for {seg.duration} steps of {self.T} s drives the "
                     f"speed from {speed:.6g} m/s below 0 ({end:.6g} m/s); it may at most stop "
                     f"the target (accel >= {-speed / (seg.duration * self.T):.6g})"
+                )
+            if end > MAX_SPEED:
+                raise ConfigError(
+                    f"{where}: {seg.accel} m/s² for {seg.duration} steps of {self.T} s drives the "
+                    f"speed from {speed:.6g} m/s above {MAX_SPEED} m/s ({end:.6g} m/s; accel <= "
+                    f"{(MAX_SPEED - speed) / (seg.duration * self.T):.6g})"
                 )
             speed = max(end, 0.0)
 
@@ -224,10 +240,11 @@ class RandomFamily:
     def __post_init__(self) -> None:
         store(self, "horizon", check_int("family.horizon", self.horizon, 1))
         store(self, "min_duration", check_int("family.min_duration", self.min_duration, 1))
-        for name in ("range_m", "speed", "turn_rate_deg"):
+        extents = {"range_m": MAX_DISTANCE, "speed": MAX_SPEED, "turn_rate_deg": math.inf}
+        for name, extent in extents.items():
             lo, hi = check_sequence(f"family.{name} (low, high)", getattr(self, name), 2)
-            lo = check_range(f"family.{name}[0]", lo, 0.0)
-            store(self, name, (lo, check_range(f"family.{name}[1]", hi, lo)))
+            lo = check_range(f"family.{name}[0]", lo, 0.0, extent)
+            store(self, name, (lo, check_range(f"family.{name}[1]", hi, lo, extent)))
         n_lo, n_hi = check_sequence("family.n_segments (low, high)", self.n_segments, 2)
         n_lo = check_int("family.n_segments[0]", n_lo, 1)
         store(self, "n_segments", (n_lo, check_int("family.n_segments[1]", n_hi, n_lo)))

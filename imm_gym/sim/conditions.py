@@ -32,7 +32,14 @@ from imm_gym.scenarios.segments import TurnDesign
 from imm_gym.sim.model_order import canonical_order
 from imm_gym.tracking.initiation import MAX_VELOCITY_STD, MIN_VELOCITY_STD
 from imm_gym.tracking.models import MotionModel, bank_dim, velocity_noise
-from imm_gym.validation import ConfigError, check_range, check_sequence, store
+from imm_gym.validation import (
+    MAX_DISTANCE,
+    MAX_SPEED,
+    ConfigError,
+    check_range,
+    check_sequence,
+    store,
+)
 
 Array = NDArray[np.float64]
 
@@ -53,12 +60,12 @@ DRAWS: dict[str, str] = {
 #: Each condition's allowed range (the sensor's own checks apply to a drawn sensor too).
 LIMITS: dict[str, tuple[float, float]] = {
     "T": (0.0, math.inf),
-    "sigma_r": (0.0, math.inf),
+    "sigma_r": (0.0, MAX_DISTANCE),
     "sigma_theta_deg": (0.0, 180.0),
-    "sigma_pos": (0.0, math.inf),
+    "sigma_pos": (0.0, MAX_DISTANCE),
     "outlier_prob": (0.0, 1.0),
     "detection_prob": (0.0, 1.0),
-    "speed": (0.0, math.inf),
+    "speed": (0.0, MAX_SPEED),
     "q_scale": (0.0, math.inf),
     "q_maneuver": (0.0, math.inf),
     "velocity_std": (MIN_VELOCITY_STD, MAX_VELOCITY_STD),

@@ -18,7 +18,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.tracking.linalg import wrap_angle
-from imm_gym.validation import ConfigError, check_finite, check_range, check_sequence, store
+from imm_gym.validation import (
+    MAX_DISTANCE,
+    MAX_SPEED,
+    ConfigError,
+    check_range,
+    check_sequence,
+    store,
+)
 
 Array = NDArray[np.float64]
 
@@ -116,14 +123,19 @@ class Sonar(_Clutter):
     }
 
     def __post_init__(self) -> None:
-        store(self, "sigma_r", check_range("sensor.sigma_r", self.sigma_r, 0.0, lo_open=True))
+        sigma_r = check_range("sensor.sigma_r", self.sigma_r, 0.0, MAX_DISTANCE, lo_open=True)
+        store(self, "sigma_r", sigma_r)
         store(
             self,
             "sigma_theta_deg",
             check_range("sensor.sigma_theta_deg", self.sigma_theta_deg, 0.0, 180.0, lo_open=True),
         )
         position = check_sequence("sensor.position", self.position, 2)
-        store(self, "position", tuple(check_finite("sensor.position", v) for v in position))
+        store(
+            self,
+            "position",
+            tuple(check_range("sensor.position", v, -MAX_DISTANCE, MAX_DISTANCE) for v in position),
+        )
         self._check_clutter("sensor")
 
     @property
@@ -222,10 +234,14 @@ class PositionSensor(_Clutter):
     noise_fields: ClassVar[dict[str, str]] = {"sigma_pos": "position_sensor.sigma_pos"}
 
     def __post_init__(self) -> None:
-        sigma_pos = check_range("position_sensor.sigma_pos", self.sigma_pos, 0.0, lo_open=True)
+        sigma_pos = check_range(
+            "position_sensor.sigma_pos", self.sigma_pos, 0.0, MAX_DISTANCE, lo_open=True
+        )
         store(self, "sigma_pos", sigma_pos)
         if self.sigma_vel is not None:
-            sigma_vel = check_range("position_sensor.sigma_vel", self.sigma_vel, 0.0, lo_open=True)
+            sigma_vel = check_range(
+                "position_sensor.sigma_vel", self.sigma_vel, 0.0, MAX_SPEED, lo_open=True
+            )
             store(self, "sigma_vel", sigma_vel)
         self._check_clutter("position_sensor")
 

@@ -81,3 +81,53 @@ def test_huge_actions_are_clipped(magnitude: float) -> None:
     tpm = env.core.tpm[0]
     np.testing.assert_allclose(tpm.sum(-1), 1.0)
     assert tpm.min() >= env.config.p_min - 1e-15
+
+
+def test_a_lost_track_at_the_largest_distance_keeps_its_held_error() -> None:
+    """A diverged run is held at the truth plus the cap (``divergence_error``); at the largest
+    distance a configuration may give (MAX_DISTANCE: positions resolve 1e-7 m there) the error
+    taken back from the two positions is still the cap, so a lost track scores
+    ``divergence_error``, not the 0 m a cap rounded away would give."""
+    from imm_gym.cli.comparison import evaluate
+    from imm_gym.validation import MAX_DISTANCE
+
+    scenario = {"segments": [{"duration": 5}], "position": [MAX_DISTANCE, -MAX_DISTANCE],
+                "velocity": [-20.0, 5.0]}
+    results, _ = evaluate(["fixed"], scenario, 3, 0, clairvoyant=False,
+                          env_config={"divergence_error": 1.0})
+    fixed = results["policies"]["fixed"]
+    assert fixed["diverged"] == 3
+    assert fixed["armse_pos"] == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("config", "message"),
+    [
+        ({"family": {"speed": [1.0, 1e200]}}, r"family\.speed\[1\] must be in \[1\.0, 100000\.0\]"),
+        ({"family": {"range_m": [3e3, 1e308]}},
+         r"family\.range_m\[1\] must be in \[3000\.0, 1000000000\.0\]"),
+        ({"family": {"range_m": [2e9, 3e9]}},
+         r"family\.range_m\[0\] must be in \[0\.0, 1000000000\.0\]"),
+        ({"sensor": {"position": [0.0, -1e10]}},
+         r"sensor\.position must be in \[-1000000000\.0, 1000000000\.0\]"),
+        ({"sensor": {"sigma_r": 1e12}}, r"sensor\.sigma_r must be in \(0\.0, 1000000000\.0\]"),
+        ({"scenario": {"segments": [{"duration": 5}], "position": [1e154, 0.0]}},
+         r"scenario\.position must be in \[-1000000000\.0, 1000000000\.0\]"),
+        ({"scenario": {"segments": [{"duration": 5}], "velocity": [8e4, 8e4]}},
+         r"scenario\.velocity: the speed \|v\| must be in \[0, 100000\.0\] m/s, got 113137"),
+        ({"scenario": {"segments": [{"duration": 10, "accel": 1e4}], "velocity": [300.0, 0.0]}},
+         r"scenario\.segments\[0\]\.accel: 10000\.0 m/s² for 10 steps of 1\.0 s drives the speed "
+         r"from 300 m/s above 100000\.0 m/s \(100300 m/s; accel <= 9970\)"),
+        ({"scenario": "random", "vary": {"speed": [5.0, 1e6]}},
+         r"vary\.speed\[1\] must be in \[5\.0, 100000\.0\]"),
+    ],
+)
+def test_a_place_or_speed_beyond_any_target_is_refused_by_name(config, message) -> None:
+    """Distances beyond MAX_DISTANCE (1e9 m) and speeds beyond MAX_SPEED (1e5 m/s) are refused
+    as the configuration is built, naming the field and the range: a target at 1e154 m used to
+    stop an evaluation seconds in with 'z0 and velocity must be finite', and one at 1e200 m/s to
+    score every lost run 0 m."""
+    from imm_gym.validation import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        EnvConfig.build(config)
