@@ -190,7 +190,11 @@ class EnvConfig:
             ``[-loglik_clip, 0]`` and divided by it.
         velocity_std: standard deviation of the initial velocity (m/s), SPEC §6, in
             ``[MIN_VELOCITY_STD, MAX_VELOCITY_STD]`` (about 1.5e-154 .. 1e6,
-            :mod:`imm_gym.tracking.initiation`).
+            :mod:`imm_gym.tracking.initiation`). The UKFs need the first prediction's spread,
+            about ``velocity_std · T``, well inside the target's range: sigma points spread
+            across the sensor give a wrong first update, whose covariance the divergence check
+            takes for a lost track (the default family at T = 1 s: every run lost at 1e4 m/s,
+            none at 3e3 m/s; the EKF, linearized at the estimate, tracks both).
         divergence_error: position error (m) that ends an episode as diverged.
         divergence_cov: trace of the position covariance (m²) that ends an episode as diverged.
         engine: how the banks run (:mod:`imm_gym.sim.engines`): ``"compiled"`` (one numba call
