@@ -353,7 +353,9 @@ def with_config(params: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]
     then taken as it stands."""
     extra = dict(extra)
     changes = extra.pop("env_kwargs", {})
-    updated = {**params, **extra, "env_kwargs": {**params.get("env_kwargs", {}), **changes}}
+    updated = {**params, **extra}
+    if changes or "env_kwargs" in params:  # none added where neither gives one
+        updated["env_kwargs"] = {**params.get("env_kwargs", {}), **changes}
     if "policy_kwargs" in extra:
         updated["policy_kwargs"] = {**params.get("policy_kwargs", {}), **extra["policy_kwargs"]}
     shared = _agent_fields(changes)

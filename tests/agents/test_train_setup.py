@@ -430,3 +430,14 @@ def test_a_rate_of_zero_is_refused_and_a_small_one_taken(key) -> None:
         with pytest.raises(ConfigError, match=rf"^f: {key} must be a positive number or 'lin_"):
             check_hyperparams("f", {key: zero}, "ppo", complete=False)
     assert check_hyperparams("f", {key: 1e-9}, "ppo", complete=False) == {key: 1e-9}
+
+
+def test_a_config_file_over_an_entry_without_env_kwargs_adds_none() -> None:
+    """An entry without env_kwargs (a hand-written one) stays without them under a file that
+    gives none, so resuming its run with a --config of only n_timesteps changes nothing else
+    (an empty env_kwargs added was refused as a change of the resumed run)."""
+    entry = {"n_envs": 8, "gamma": 0.9}
+    assert with_config(entry, {"n_timesteps": 512}) == {**entry, "n_timesteps": 512}
+    assert with_config(entry, {"env_kwargs": {"reward": "error"}})["env_kwargs"] == {
+        "reward": "error"
+    }
