@@ -192,8 +192,9 @@ class Sonar(_Clutter):
     def implausible(self, z: Array) -> NDArray[np.bool_]:
         """The rows of ``z (..., 2)`` unlikely to be sonar measurements in its units: a negative
         range, or a bearing beyond ``2 pi`` in magnitude (degrees, likely); NaN rows are not.
-        The simulation draws such rows only under heavy outliers (its noise is not clipped), so
-        they are told of, not refused."""
+        The simulation draws such rows too (its noise is not clipped): a negative range for a
+        target within a few ``sigma_r`` of the sonar, a bearing beyond ``2 pi`` under heavy
+        outliers; so they are told of, not refused."""
         return (z[..., 0] < 0.0) | (np.abs(z[..., 1]) > 2.0 * math.pi)
 
     def initial_position(self, z: Array) -> tuple[Array, Array]:
