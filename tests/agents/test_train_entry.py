@@ -3,10 +3,13 @@ durations its progress lines read, the versions it records and its stop requests
 
 from __future__ import annotations
 
+import argparse
 import json
+import shutil
 from pathlib import Path
 
 import train
+from agents import PRETRAINED
 
 
 def _earlier_run(out: Path, seeds: dict[str, dict[str, int]], agents: tuple[str, ...]) -> None:
@@ -31,3 +34,26 @@ def test_without_an_earlier_summary_the_resumed_seed_stands_alone(tmp_path: Path
     assert train.with_earlier_seeds(tmp_path, {"3": {"n": 3}}) == {"3": {"n": 3}}
     (tmp_path / "summary.json").write_text("[1, 2]")  # not one of ours
     assert train.with_earlier_seeds(tmp_path, {"3": {"n": 3}}) == {"3": {"n": 3}}
+
+
+def test_one_seed_makes_no_ensemble_and_unevaluated_seeds_no_report(tmp_path: Path) -> None:
+    """One seed: ``summary.json`` alone (no ensemble of one agent). Two seeds of which one was
+    not evaluated: their ensemble, no statistics across seeds, and an earlier ``report.md``
+    (of seeds evaluated before) removed."""
+    args = argparse.Namespace(out=tmp_path / "one")
+    args.out.mkdir()
+    train.write_summary(args, {"0": {"training": {}}}, "python train.py", {"v": "1"})
+    summary = json.loads((args.out / "summary.json").read_text())
+    assert summary == {"command": "python train.py", "versions": {"v": "1"},
+                       "seeds": {"0": {"training": {}}}}
+    assert sorted(p.name for p in args.out.iterdir()) == ["summary.json"]
+
+    args = argparse.Namespace(out=tmp_path / "two")
+    for seed in (0, 1):
+        shutil.copytree(PRETRAINED / f"seed_{seed}", args.out / f"seed_{seed}" / "agent")
+    (args.out / "report.md").write_text("the seeds evaluated before\n")
+    seeds = {"0": {"paper": {"armse_pos": 17.0}}, "1": {"training": {}}}
+    train.write_summary(args, seeds, "python train.py", {})
+    summary = json.loads((args.out / "summary.json").read_text())
+    assert summary["ensemble"] == str(args.out / "ensemble") and "across_seeds" not in summary
+    assert not (args.out / "report.md").exists()
