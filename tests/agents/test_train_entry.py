@@ -8,6 +8,8 @@ import json
 import shutil
 from pathlib import Path
 
+import pytest
+
 import train
 from agents import PRETRAINED
 
@@ -57,3 +59,12 @@ def test_one_seed_makes_no_ensemble_and_unevaluated_seeds_no_report(tmp_path: Pa
     summary = json.loads((args.out / "summary.json").read_text())
     assert summary["ensemble"] == str(args.out / "ensemble") and "across_seeds" not in summary
     assert not (args.out / "report.md").exists()
+
+
+@pytest.mark.parametrize(
+    ("seconds", "text"),
+    [(59.4, "59 s"), (60, "1 min 00 s"), (3599, "59 min 59 s"), (3600, "1 h 00 min"),
+     (-3.0, "0 s")],
+)
+def test_a_duration_changes_unit_at_the_minute_and_the_hour(seconds: float, text: str) -> None:
+    assert train._duration(seconds) == text
