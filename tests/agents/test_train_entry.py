@@ -68,3 +68,15 @@ def test_one_seed_makes_no_ensemble_and_unevaluated_seeds_no_report(tmp_path: Pa
 )
 def test_a_duration_changes_unit_at_the_minute_and_the_hour(seconds: float, text: str) -> None:
     assert train._duration(seconds) == text
+
+
+def test_the_versions_recorded_name_the_training_libraries() -> None:
+    """numba (the compiled environment step), SB3 and torch for every run; sb3-contrib only
+    for recurrent-ppo."""
+    from importlib.metadata import version
+
+    record = train._versions()
+    for name in ("stable-baselines3", "torch", "numba"):
+        assert record[name] == version(name)
+    assert "sb3-contrib" not in record
+    assert train._versions("sb3", "recurrent-ppo")["sb3-contrib"] == version("sb3-contrib")
