@@ -6,7 +6,9 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import signal
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -80,3 +82,28 @@ def test_the_versions_recorded_name_the_training_libraries() -> None:
         assert record[name] == version(name)
     assert "sb3-contrib" not in record
     assert train._versions("sb3", "recurrent-ppo")["sb3-contrib"] == version("sb3-contrib")
+
+
+def test_a_second_signal_while_stopping_is_ignored() -> None:
+    """Ctrl-C, then SIGTERM while stopping: the stop is Ctrl-C's, exit status 130."""
+    with train.StopRequest() as stop:
+        assert not stop.requested
+        signal.raise_signal(signal.SIGINT)
+        signal.raise_signal(signal.SIGTERM)
+        assert stop.requested and stop.signum == signal.SIGINT
+        with pytest.raises(SystemExit) as exit_info:
+            stop.exit("stopped")
+    assert exit_info.value.code == 130
+
+
+@pytest.mark.parametrize(("received", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_worker_stops_as_its_parent_was_asked_to(received: int, status: int) -> None:
+    """A ``--jobs`` worker reads the signal its parent received (0 until then) as its own."""
+    parent = SimpleNamespace(value=0)
+    stop = train.StopRequest(parent=parent)
+    assert not stop.requested and stop.signum is None
+    parent.value = int(received)
+    assert stop.requested and stop.signum == received
+    with pytest.raises(SystemExit) as exit_info:
+        stop.exit("stopped")
+    assert exit_info.value.code == status
