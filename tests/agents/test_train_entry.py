@@ -11,6 +11,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from helpers import train_small
 
 import train
 from agents import PRETRAINED
@@ -107,3 +108,15 @@ def test_a_worker_stops_as_its_parent_was_asked_to(received: int, status: int) -
     with pytest.raises(SystemExit) as exit_info:
         stop.exit("stopped")
     assert exit_info.value.code == status
+
+
+def test_a_resume_with_jobs_continues_its_checkpoint(tmp_path: Path) -> None:
+    """``--resume`` of one seed with ``--jobs 2`` continues the checkpoint (there is one seed
+    to train: no worker process), not a fresh run of the budget."""
+    argv = ("--timesteps", "256", "--no-eval", "--validate-every", "0")
+    assert train_small(tmp_path, *argv) == 0
+    latest = tmp_path / "seed_0" / "checkpoints" / "latest"
+    resumed = ["--timesteps", "512", "--no-eval", "--validate-every", "0", "--no-progress"]
+    assert train.main(["--resume", str(latest), *resumed, "--jobs", "2"]) == 0
+    stats = json.loads((tmp_path / "seed_0" / "training.json").read_text())
+    assert stats["timesteps"] == 512 and stats["trained_this_call"] == 256
