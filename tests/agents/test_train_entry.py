@@ -120,3 +120,21 @@ def test_a_resume_with_jobs_continues_its_checkpoint(tmp_path: Path) -> None:
     assert train.main(["--resume", str(latest), *resumed, "--jobs", "2"]) == 0
     stats = json.loads((tmp_path / "seed_0" / "training.json").read_text())
     assert stats["timesteps"] == 512 and stats["trained_this_call"] == 256
+
+
+def test_the_best_checkpoint_becomes_the_agent_and_its_record_the_selection(tmp_path) -> None:
+    """The validated best's files replace the agent's (nothing of the earlier agent stays);
+    what was selected is its validation record without the history (``training.json`` holds
+    that under ``validation``)."""
+    best, agent = tmp_path / "best", tmp_path / "agent"
+    best.mkdir()
+    agent.mkdir()
+    (best / "agent.json").write_text("the best\n")
+    (agent / "agent.json").write_text("the last\n")
+    (agent / "stale.json").write_text("an earlier file\n")
+    record = {"armse_pos": 17.5, "timesteps": 512,
+              "history": [{"timesteps": 256, "armse_pos": 18.0}]}
+    assert train.adopt_best(best, agent, record) == {"armse_pos": 17.5, "timesteps": 512}
+    assert sorted(p.name for p in agent.iterdir()) == ["agent.json"]
+    assert (agent / "agent.json").read_text() == "the best\n"
+    assert (best / "agent.json").is_file() and "history" in record
