@@ -73,8 +73,10 @@ def by_mode(run: Rollout) -> dict[str, Any]:
 
 
 def by_time(run: Rollout, window: int) -> dict[str, Any]:
-    """``{"start" (W,), "armse" (W,), "steps" (W, M), "stay" (W,)}`` over windows of
-    ``window`` steps (the last may be shorter): each window's first step, the ARMSE over its
+    """``{"start" (W,), "end" (W,), "armse" (W,), "steps" (W, M), "stay" (W,)}`` over windows
+    of ``window`` steps (the last may be shorter): each window's first step and the step after
+    its last (indices of the roll-out's steps: index 0 is the first filter step, k = 1, after
+    the track's start at k = 0), the ARMSE over its
     steps :math:`\\operatorname{mean}_{k \\in w} \\sqrt{\\operatorname{mean}_r e_{rk}^2}`,
     the count of its (run, step) pairs whose true model is each model, and the median of the
     first row's stay :math:`\\pi_{11}` over all its (run, step) pairs."""
@@ -84,6 +86,7 @@ def by_time(run: Rollout, window: int) -> dict[str, Any]:
     starts = np.arange(0, rms.shape[0], window)
     return {
         "start": starts,
+        "end": np.minimum(starts + window, rms.shape[0]),
         "armse": np.array([rms[a:a + window].mean() for a in starts]),
         "steps": np.stack([np.bincount(run.true_model[:, a:a + window].ravel(), minlength=M)
                            for a in starts]),
@@ -178,9 +181,8 @@ def print_time_table(name: str, policies: dict[str, dict[str, Any]]) -> None:
     print(f"\n{name}: ARMSE (m) / median stay of the first model, by window of the episode\n")
     print("| steps | true model (run-steps per model) | " + " | ".join(policies) + " |")
     print("|---" * (2 + len(policies)) + "|")
-    for w, start in enumerate(first["start"]):
-        end = first["start"][w + 1] if w + 1 < len(first["start"]) else None
-        span = f"{start}–{end - 1}" if end is not None else f"{start}–"
+    for w, (start, end) in enumerate(zip(first["start"], first["end"], strict=True)):
+        span = f"{start + 1}–{end}"  # the steps k of the window (k = 0: the track's start)
         cells = " | ".join(f"{p['time']['armse'][w]:.2f} / {p['time']['stay'][w]:.3f}"
                            for p in policies.values())
         steps = " ".join(str(c) for c in first["steps"][w])

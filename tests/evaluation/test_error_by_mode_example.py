@@ -87,3 +87,19 @@ def test_bad_options_are_refused_before_any_work(
     with pytest.raises(SystemExit) as exit_:
         example.main(["--scenario", "paper", *option])
     assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_time_table_labels_each_window_by_its_filter_steps(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The rows name the steps k of each window (k = 0 is the track's start, the roll-out's
+    first step k = 1), the last one to its last step: windows of 40 over 150 steps are 1–40,
+    41–80, 81–120 and 121–150."""
+    example = load_example("error_by_mode")
+    config = suite_configs("benchmark")["paper"]
+    _, rollouts = evaluate(["fixed"], "paper", 2, 11, clairvoyant=False, env_config=config)
+    time = example.by_time(rollouts["fixed"], 40)
+    assert time["end"].tolist() == [40, 80, 120, 150]
+    example.print_time_table("paper", {"fixed": {"time": time}})
+    rows = [line.split(" | ")[0] for line in capsys.readouterr().out.splitlines()[5:]]
+    assert rows == ["| 1–40", "| 41–80", "| 81–120", "| 121–150"]
