@@ -16,7 +16,10 @@ Input, by the file's suffix:
   ``2 pi``: degrees, likely) are told of on stderr, the first named, and tracked as given.
 * ``.npz``: ``z (N, K+1, m)`` or ``(K+1, m)``, optionally ``detected`` (default: 1 where every
   ``z`` cell is finite, 0 where every one is NaN), ``velocity (N, 2)``, or ``x0 (N, 4)`` and
-  ``P0 (N, 4, 4)`` (read without unpickling).
+  ``P0 (N, 4, 4)`` (read without unpickling, each entry's header checked before its array is
+  allocated: :func:`_npz_arrays`).
+
+A sequence's first row must start a track (:func:`unstartable`: not a range of 0).
 
 A CSV is UTF-8 (a byte order mark is dropped); a file that cannot be read is refused naming it.
 """
@@ -24,7 +27,9 @@ A CSV is UTF-8 (a byte order mark is dropped); a file that cannot be read is ref
 from __future__ import annotations
 
 import csv
+import math
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +42,9 @@ from imm_gym.validation import ConfigError
 
 #: Optional input columns of a CSV file besides ``z0 .. z{m-1}``.
 OPTIONAL_COLUMNS = ("sequence", "detected", "vx", "vy")
+#: The most bytes the arrays of a measurement NPZ may hold together: 1 GiB, 67 million
+#: range-bearing rows of float64.
+MAX_NPZ_BYTES = 2**30
 
 
 def read_csv(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
@@ -131,6 +139,11 @@ def read_csv(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
                 f"{path}:{at[bad]}: sequence {name!r}: a detection (detected 1) needs a number "
                 "in every z cell"
             )
+        if unstartable(sensor, z[0]):
+            raise ConfigError(
+                f"{path}:{at[0]}: the first row of sequence {name!r}, z {z[0].tolist()}, "
+                + UNSTARTABLE
+            )
         det = finite if detected is None else detected
         odd = implausible_rows(sensor, z, det)
         velocity = _velocity(path, at, name, group) if "vx" in header else None
@@ -154,6 +167,7 @@ def _csv_rows(path: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
     Raises:
         ConfigError: the file cannot be read, is not UTF-8 text or not CSV, naming it.
     """
+    reader = None
     try:
         with path.open(newline="", encoding="utf-8-sig") as handle:
             reader = csv.reader(handle)
@@ -163,8 +177,12 @@ def _csv_rows(path: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
         raise ConfigError(
             f"{path}: not UTF-8 text (byte {err.start}: {err.reason}); save it as UTF-8"
         ) from None
-    except csv.Error as err:
-        raise ConfigError(f"{path}: not a CSV file ({err})") from None
+    except csv.Error as err:  # a cell past the csv module's limit, or a quote left open
+        line = "" if reader is None else f":{reader.line_num}"
+        raise ConfigError(
+            f"{path}{line}: not a row of measurements ({err}: a quote left open, or a cell of "
+            f"more than {csv.field_size_limit()} characters)"
+        ) from None
     except OSError as err:
         raise ConfigError(f"{path}: cannot read ({err.strerror or err})") from None
 
@@ -225,6 +243,28 @@ def _flag(path: Path, line: int, name: str, text: str) -> bool:
     return value == 1.0
 
 
+def unstartable(sensor: Sonar, z0: NDArray[np.float64]) -> bool:
+    """Whether a first detection ``z0 (m,)`` cannot start a track: the covariance of its
+    position, ``J R J^T`` (:meth:`~imm_gym.tracking.sensors.Sonar.initial_position`), does not
+    factor in float64 — a range of 0 (no bearing across it), or one at which ``sigma_r`` and
+    ``range * sigma_theta`` differ by about 1e7 or more
+    (:func:`~imm_gym.tracking.initiation.check_factorable`)."""
+    _, cov = sensor.initial_position(z0[None])
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return True
+    return False
+
+
+#: Why :func:`unstartable` refuses a first row.
+UNSTARTABLE = (
+    "cannot start a track: its position's covariance (the sonar's sigma_r along range, range x "
+    "sigma_theta across it) is singular in float64 — a range of 0 has no bearing, and the two "
+    "may differ by a factor of about 1e7 at most"
+)
+
+
 def unusable_row(z: NDArray[np.float64], detected: NDArray[np.bool_]) -> int | None:
     """The first row of one sequence's ``z`` ``(K + 1, dim_z)`` the tracker cannot take: row 0
     unless it is a detection with a number in every cell (it initiates the track), else the
@@ -236,38 +276,96 @@ def unusable_row(z: NDArray[np.float64], detected: NDArray[np.bool_]) -> int | N
     return int(rows[0]) if rows.size else None
 
 
+def _npz_arrays(path: Path) -> dict[str, NDArray[Any]]:
+    """The arrays of an NPZ archive by name, read without unpickling: each entry a ``.npy``
+    array (format 1.0 or 2.0) of a numeric dtype, named once, its header's shape within the
+    bytes its entry unpacks to and the arrays within :data:`MAX_NPZ_BYTES` together — checked
+    from the headers before any array is allocated, so that a small file claiming or unpacking
+    to terabytes is refused, not allocated.
+
+    Raises:
+        ConfigError: anything else, naming the file and the array.
+    """
+    single = False
+    try:
+        with path.open("rb") as handle:
+            single = handle.read(6) == b"\x93NUMPY"
+        archive = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, EOFError, ValueError) as err:
+        if single:
+            raise ConfigError(
+                f"{path}: one .npy array, not an NPZ archive of named arrays (numpy.savez)"
+            ) from None
+        raise ConfigError(
+            f"{path}: not an NPZ archive of arrays, as numpy.savez writes ({err})"
+        ) from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read ({err.strerror or err})") from None
+    arrays: dict[str, NDArray[Any]] = {}
+    total = 0
+    with archive:
+        members = archive.infolist()
+        names = [member.filename for member in members]
+        twice = sorted({name for name in names if names.count(name) > 1})
+        if twice:
+            raise ConfigError(f"{path}: holds {twice} twice; numpy would read one of them silently")
+        for member in members:
+            key = member.filename.removesuffix(".npy")
+            if key == member.filename:
+                raise ConfigError(
+                    f"{path}: {member.filename!r} is not a .npy array; an NPZ holds arrays only"
+                )
+            unreadable = (ValueError, EOFError, OSError, zipfile.BadZipFile, zlib.error,
+                          NotImplementedError)
+            try:
+                with archive.open(member) as handle:
+                    version = np.lib.format.read_magic(handle)
+                    if version not in ((1, 0), (2, 0)):
+                        raise ValueError(f"a .npy of format {version}, not 1.0 or 2.0")
+                    header = (
+                        np.lib.format.read_array_header_1_0
+                        if version == (1, 0)
+                        else np.lib.format.read_array_header_2_0
+                    )
+                    shape, _, dtype = header(handle)
+            except unreadable as err:
+                raise ConfigError(f"{path}: cannot read its array {key} ({err})") from None
+            if dtype.hasobject:
+                raise ConfigError(f"{path}: {key} must hold numbers, got dtype {dtype}")
+            size = math.prod(shape) * dtype.itemsize
+            if size > member.file_size:
+                raise ConfigError(
+                    f"{path}: {key} claims shape {shape} of {dtype} ({size} bytes), but its "
+                    f"entry unpacks to {member.file_size} bytes"
+                )
+            total += size
+            if total > MAX_NPZ_BYTES:
+                raise ConfigError(
+                    f"{path}: its arrays hold more than {MAX_NPZ_BYTES} bytes ({key}: shape "
+                    f"{shape} of {dtype}); split the recording"
+                )
+            try:
+                with archive.open(member) as handle:
+                    arrays[key] = np.lib.format.read_array(handle, allow_pickle=False)
+            except unreadable as err:
+                raise ConfigError(f"{path}: cannot read its array {key} ({err})") from None
+    return arrays
+
+
 def read_npz(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
     """The sequences of a measurement NPZ (see the module docstring): its arrays numbers of the
     shapes z gives, ``detected`` 0 or 1, ``z`` finite or NaN (a missed detection: without
     ``detected``, NaN in every cell of its row), the rest finite, a velocity or ``x0`` and
     ``P0`` (``P0`` symmetric positive definite); anything else refused naming the file."""
     dim_z = sensor.dim_z
-    try:  # no pickles: a file that is not an NPZ archive must not run code
-        loaded = np.load(path, allow_pickle=False)
-    except (ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise ConfigError(
-            f"{path}: not an NPZ archive of arrays, as numpy.savez writes ({err})"
-            if "pickle" not in str(err)
-            else f"{path}: not an NPZ archive of arrays, as numpy.savez writes"
-        ) from None
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read ({err.strerror or err})") from None
-    if not isinstance(loaded, np.lib.npyio.NpzFile):
-        raise ConfigError(
-            f"{path}: one .npy array, not an NPZ archive of named arrays (numpy.savez)"
-        )
-    with loaded as data:
-        try:
-            arrays = {key: data[key] for key in data.files}
-        except (ValueError, EOFError, OSError, zipfile.BadZipFile) as err:
-            raise ConfigError(f"{path}: cannot read its arrays ({err})") from None
+    arrays = _npz_arrays(path)
     if "z" not in arrays:
         raise ConfigError(f"{path}: needs an array 'z' (N, K+1, m)")
     unknown = set(arrays) - {"z", "detected", "velocity", "x0", "P0"}
     if unknown:
         raise ConfigError(f"{path}: unknown arrays {sorted(unknown)}")
     for key, value in arrays.items():
-        if value.dtype.kind not in "biuf":
+        if value.dtype.kind not in ("biuf" if key == "detected" else "iuf"):
             raise ConfigError(f"{path}: {key} must hold numbers, got dtype {value.dtype}")
     z = arrays.pop("z").astype(np.float64)
     given = z.shape
@@ -319,6 +417,10 @@ def read_npz(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
             )
         if bad is not None:
             raise ConfigError(f"{path}: {name}z's row {bad} is a detection and not finite")
+        if "x0" not in extra and unstartable(sensor, z[i, 0]):
+            raise ConfigError(
+                f"{path}: {name}z's first row, {z[i, 0].tolist()}, " + UNSTARTABLE
+            )
     if "x0" in extra:
         problem = start_problem(extra["x0"], extra["P0"])
         if problem is not None:

@@ -29,7 +29,8 @@ the track and each later row is one filter step.
 Without a velocity the track starts at zero velocity with standard deviation
 :data:`~imm_gym.sim.replay.UNKNOWN_VELOCITY_STD`; ``--velocity VX VY`` gives one for every
 sequence that has none. The sequences run as one batch (one per kind of start: ``x0``/``P0``,
-a velocity, none), the shorter ones padded with missed detections and cut back. A network
+a velocity, none), the shorter ones padded with missed detections and cut back — split where
+the padding would more than double a batch's steps beyond ``PADDED_STEPS``. A network
 policy's matrix products round by the batch's shape, so a sequence tracked beside others can
 differ from itself tracked alone in the last bits (about 1e-7 m); the rules do not.
 A configuration file that names a scenario other than ``random`` tracks at that scenario's
@@ -70,6 +71,10 @@ from imm_gym.sim.env_config import EnvConfig
 from imm_gym.sim.replay import TrackResult, run_policy
 from imm_gym.validation import ConfigError
 
+#: The padded steps (sequences x longest length) a batch of sequences may take whatever its
+#: padding costs (:func:`batches`): a small file runs as one batch.
+PADDED_STEPS = 100_000
+
 
 def run(
     sequences: list[dict[str, Any]],
@@ -79,10 +84,10 @@ def run(
     overrides: Mapping[str, Any],
 ) -> list[tuple[str, TrackResult]]:
     """:func:`run_policy` on the sequences: ``(name, result)`` per sequence (``N = 1``), in the
-    input's order. Sequences that start alike (from ``x0``/``P0``, a velocity, or none) run as
-    one batch, the shorter ones padded with missed detections to the longest and cut back to
-    their own length (a step depends on none after it); a sequence's ``diverged_at`` counts its
-    own steps only."""
+    input's order. Sequences that start alike (from ``x0``/``P0``, a velocity, or none) run in
+    batches (:func:`batches`), the shorter ones padded with missed detections to their batch's
+    longest and cut back to their own length (a step depends on none after it); a sequence's
+    ``diverged_at`` counts its own steps only."""
     if not sequences:
         raise ConfigError("no measurements")
     started = []  # each sequence with --velocity where it gives no start of its own
@@ -92,29 +97,62 @@ def run(
         started.append(seq)
     results: dict[int, tuple[str, TrackResult]] = {}
     for kind in ("x0", "velocity", None):
-        group = [(i, seq) for i, seq in enumerate(started) if _start_kind(seq) == kind]
-        if not group:
-            continue
-        longest = max(seq["z"].shape[0] for _, seq in group)
-        z = np.full((len(group), longest, config.sensor.dim_z), np.nan)
-        detected = np.zeros((len(group), longest), dtype=bool)
-        for row, (_, seq) in enumerate(group):
-            n = seq["z"].shape[0]
-            z[row, :n] = seq["z"]
-            detected[row, :n] = (
-                np.all(np.isfinite(seq["z"]), axis=1) if seq.get("detected") is None
-                else seq["detected"]
-            )
-        args: dict[str, Any] = {}
-        if kind == "x0":
-            args["x0"] = np.stack([seq["x0"] for _, seq in group])
-            args["P0"] = np.stack([seq["P0"] for _, seq in group])
-        elif kind == "velocity":
-            args["velocity"] = np.stack([seq["velocity"] for _, seq in group])
-        result = run_policy(z, policy, config, detected=detected, overrides=overrides, **args)
-        for row, (i, seq) in enumerate(group):
-            results[i] = (seq["name"], _cut(result, row, seq["z"].shape[0] - 1))
+        alike = [(i, seq) for i, seq in enumerate(started) if _start_kind(seq) == kind]
+        for group in batches(alike, PADDED_STEPS):
+            results.update(_run_batch(group, kind, policy, config, overrides))
     return [results[i] for i in range(len(sequences))]
+
+
+def batches(
+    sequences: list[tuple[int, dict[str, Any]]], floor: int
+) -> list[list[tuple[int, dict[str, Any]]]]:
+    """``sequences`` (index, sequence) in batches to run padded to each batch's longest: by
+    length, longest first, a sequence joining the batch while the batch's padded steps stay
+    within twice its own or ``floor`` — one batch for sequences of like lengths or a small file
+    (a call per length ran 12x slower on real recordings), and a long recording beside many
+    short ones not padded into gigabytes."""
+    out: list[list[tuple[int, dict[str, Any]]]] = []
+    steps = 0
+    for item in sorted(sequences, key=lambda item: -item[1]["z"].shape[0]):
+        n = item[1]["z"].shape[0]
+        if out and (len(out[-1]) + 1) * out[-1][0][1]["z"].shape[0] <= max(2 * (steps + n), floor):
+            out[-1].append(item)
+            steps += n
+        else:
+            out.append([item])
+            steps = n
+    return out
+
+
+def _run_batch(
+    group: list[tuple[int, dict[str, Any]]],
+    kind: str | None,
+    policy: Any,
+    config: EnvConfig,
+    overrides: Mapping[str, Any],
+) -> dict[int, tuple[str, TrackResult]]:
+    """One batch of :func:`run`: its sequences' ``(name, result)`` by input index."""
+    results: dict[int, tuple[str, TrackResult]] = {}
+    longest = max(seq["z"].shape[0] for _, seq in group)
+    z = np.full((len(group), longest, config.sensor.dim_z), np.nan)
+    detected = np.zeros((len(group), longest), dtype=bool)
+    for row, (_, seq) in enumerate(group):
+        n = seq["z"].shape[0]
+        z[row, :n] = seq["z"]
+        detected[row, :n] = (
+            np.all(np.isfinite(seq["z"]), axis=1) if seq.get("detected") is None
+            else seq["detected"]
+        )
+    args: dict[str, Any] = {}
+    if kind == "x0":
+        args["x0"] = np.stack([seq["x0"] for _, seq in group])
+        args["P0"] = np.stack([seq["P0"] for _, seq in group])
+    elif kind == "velocity":
+        args["velocity"] = np.stack([seq["velocity"] for _, seq in group])
+    result = run_policy(z, policy, config, detected=detected, overrides=overrides, **args)
+    for row, (i, seq) in enumerate(group):
+        results[i] = (seq["name"], _cut(result, row, seq["z"].shape[0] - 1))
+    return results
 
 
 def _start_kind(seq: dict[str, Any]) -> str | None:
@@ -227,7 +265,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         config = evaluated_config(scenario, overrides)
         if not args.measurements.is_file():
-            what = "is a directory" if args.measurements.is_dir() else "no such file"
+            what = (
+                "is a directory" if args.measurements.is_dir()
+                else "not a regular file" if args.measurements.exists()
+                else "no such file"
+            )
             raise ConfigError(f"{args.measurements}: {what}")
         sequences = (
             read_csv(args.measurements, config.sensor)
