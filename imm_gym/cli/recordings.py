@@ -215,11 +215,12 @@ def _velocity(
 
 
 def _number(path: Path, line: int, name: str, column: str, text: str) -> float:
-    """A CSV cell of sequence ``name`` as a finite float (an empty cell is NaN)."""
+    """A CSV cell of sequence ``name`` as a finite float (an empty cell is NaN); a digit
+    separator, which Python's ``float`` takes (``5_000``), is not a number in data."""
     if text.strip() == "":
         return float("nan")
     try:
-        value = float(text)
+        value = None if "_" in text else float(text)
     except ValueError:
         value = None
     if value is None or not np.isfinite(value):

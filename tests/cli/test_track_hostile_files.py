@@ -133,6 +133,14 @@ def test_a_first_detection_that_cannot_start_a_track_is_refused_by_its_line_or_s
     assert read_npz(tmp_path / "late.npz", Sonar())[0]["z"][3].tolist() == [0.0, 0.0]
 
 
+def test_a_digit_separator_is_not_a_number_in_data(tmp_path: Path) -> None:
+    """Python's float reads '5_000' as 5000; a CSV cell with one is refused, as '5,0' is."""
+    (tmp_path / "z.csv").write_text("z0,z1\n5000,0.5\n5_010,0.5\n")
+    with pytest.raises(ConfigError, match=r"z\.csv:3: sequence '0': column z0: '5_010' is not a "
+                       "number"):
+        read_csv(tmp_path / "z.csv", Sonar())
+
+
 def test_a_cell_past_the_csv_limit_names_its_line(tmp_path: Path) -> None:
     (tmp_path / "z.csv").write_text("z0,z1\n5000,0.5\n" + "7" * 200_000 + ",0.5\n")
     with pytest.raises(ConfigError, match=r"z\.csv:3: not a row of measurements \(field larger "
