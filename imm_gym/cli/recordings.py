@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imm_gym.sim.replay import start_problem
+from imm_gym.tracking.initiation import check_factorable
 from imm_gym.tracking.sensors import Sonar
 from imm_gym.validation import ConfigError
 
@@ -45,6 +46,9 @@ OPTIONAL_COLUMNS = ("sequence", "detected", "vx", "vy")
 #: The most bytes the arrays of a measurement NPZ may hold together: 1 GiB, 67 million
 #: range-bearing rows of float64.
 MAX_NPZ_BYTES = 2**30
+#: What reading an NPZ entry raises for a file that is not what it says (a bad header or
+#: payload, a corrupt or unsupported compression, an entry cut short).
+UNREADABLE = (ValueError, EOFError, OSError, zipfile.BadZipFile, zlib.error, NotImplementedError)
 
 
 def read_csv(path: Path, sensor: Sonar) -> list[dict[str, Any]]:
@@ -252,8 +256,8 @@ def unstartable(sensor: Sonar, z0: NDArray[np.float64]) -> bool:
     (:func:`~imm_gym.tracking.initiation.check_factorable`)."""
     _, cov = sensor.initial_position(z0[None])
     try:
-        np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
+        check_factorable(sensor, cov)
+    except ConfigError:
         return True
     return False
 
@@ -316,8 +320,6 @@ def _npz_arrays(path: Path) -> dict[str, NDArray[Any]]:
                 raise ConfigError(
                     f"{path}: {member.filename!r} is not a .npy array; an NPZ holds arrays only"
                 )
-            unreadable = (ValueError, EOFError, OSError, zipfile.BadZipFile, zlib.error,
-                          NotImplementedError)
             try:
                 with archive.open(member) as handle:
                     version = np.lib.format.read_magic(handle)
@@ -329,7 +331,7 @@ def _npz_arrays(path: Path) -> dict[str, NDArray[Any]]:
                         else np.lib.format.read_array_header_2_0
                     )
                     shape, _, dtype = header(handle)
-            except unreadable as err:
+            except UNREADABLE as err:
                 raise ConfigError(f"{path}: cannot read its array {key} ({err})") from None
             if dtype.hasobject:
                 raise ConfigError(f"{path}: {key} must hold numbers, got dtype {dtype}")
@@ -348,7 +350,7 @@ def _npz_arrays(path: Path) -> dict[str, NDArray[Any]]:
             try:
                 with archive.open(member) as handle:
                     arrays[key] = np.lib.format.read_array(handle, allow_pickle=False)
-            except unreadable as err:
+            except UNREADABLE as err:
                 raise ConfigError(f"{path}: cannot read its array {key} ({err})") from None
     return arrays
 
