@@ -13,6 +13,9 @@ TORCH    ?= torch==2.13.0
 TORCH_FROM ?=
 VENV_RAY ?= .venv-ray
 PY_RAY   := $(VENV_RAY)/bin/python
+# pytest worker processes (pytest-xdist; a worker takes the tests another has not started when it
+# runs out): auto, one per core; 0 runs the suite in this process
+WORKERS  ?= auto
 
 .PHONY: install train test lint bench clean install-ray test-ray
 
@@ -32,7 +35,7 @@ test: install
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports --no-cache --no-logo
 	$(PY) -m imm_gym.precompile
-	$(PY) -m pytest $(ARGS)
+	$(PY) -m pytest -n $(WORKERS) --dist worksteal $(ARGS)
 
 $(VENV_RAY)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV_RAY)
@@ -43,11 +46,12 @@ $(VENV_RAY)/.installed: pyproject.toml
 
 install-ray: $(VENV_RAY)/.installed
 
-# The Ray tests (tests/ray: a two-node cluster on this machine), then the core suite under the
-# gymnasium that RLlib pins.
+# The kernels compiled, the Ray tests (tests/ray: a two-node cluster on this machine), then the
+# core suite under the gymnasium that RLlib pins.
 test-ray: install-ray
+	$(PY_RAY) -m imm_gym.precompile
 	$(PY_RAY) -m pytest -m ray tests/ray $(ARGS)
-	$(PY_RAY) -m pytest -m "not slow and not ray" $(ARGS)
+	$(PY_RAY) -m pytest -n $(WORKERS) --dist worksteal -m "not slow and not ray" $(ARGS)
 
 bench: install
 	$(PY) benchmarks/bench_imm.py
