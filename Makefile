@@ -14,8 +14,10 @@ TORCH_FROM ?=
 VENV_RAY ?= .venv-ray
 PY_RAY   := $(VENV_RAY)/bin/python
 # pytest worker processes (pytest-xdist; a worker takes the tests another has not started when it
-# runs out): auto, one per core; 0 runs the suite in this process
+# runs out): auto, one per core up to 8 (a worker took up to 1.6 GB here); 0 runs the suite in this
+# process
 WORKERS  ?= auto
+XDIST    := -n $(WORKERS) --maxprocesses 8 --dist worksteal
 
 .PHONY: install train test lint bench clean install-ray test-ray
 
@@ -35,7 +37,7 @@ test: install
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports --no-cache --no-logo
 	$(PY) -m imm_gym.precompile
-	$(PY) -m pytest -n $(WORKERS) --dist worksteal $(ARGS)
+	$(PY) -m pytest $(XDIST) $(ARGS)
 
 $(VENV_RAY)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV_RAY)
@@ -51,7 +53,7 @@ install-ray: $(VENV_RAY)/.installed
 test-ray: install-ray
 	$(PY_RAY) -m imm_gym.precompile
 	$(PY_RAY) -m pytest -m ray tests/ray $(ARGS)
-	$(PY_RAY) -m pytest -n $(WORKERS) --dist worksteal -m "not slow and not ray" $(ARGS)
+	$(PY_RAY) -m pytest $(XDIST) -m "not slow and not ray" $(ARGS)
 
 bench: install
 	$(PY) benchmarks/bench_imm.py
