@@ -1,0 +1,30 @@
+"""The distance and speed limits (MAX_DISTANCE = 1e9 m, MAX_SPEED = 1e5 m/s) where the tests of
+``test_numerics`` do not reach: a position sensor's noise and a varied noise range are refused
+past them naming the field and the range (at the limit they are accepted), and a deceleration
+that drives the speed past zero by more than rounding is refused."""
+
+from __future__ import annotations
+
+import pytest
+
+from imm_gym.tracking.sensors import PositionSensor
+from imm_gym.validation import ConfigError
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"sigma_pos": 2e9},
+         r"position_sensor\.sigma_pos must be in \(0\.0, 1000000000\.0\], got 2000000000\.0"),
+        ({"sigma_vel": 2e5},
+         r"position_sensor\.sigma_vel must be in \(0\.0, 100000\.0\], got 200000\.0"),
+    ],
+)
+def test_a_position_sensor_noise_beyond_the_limits_is_refused_by_name(fields, message) -> None:
+    with pytest.raises(ConfigError, match=message):
+        PositionSensor(**fields)
+
+
+def test_a_position_sensor_noise_at_the_limits_is_accepted() -> None:
+    sensor = PositionSensor(sigma_pos=1e9, sigma_vel=1e5)
+    assert (sensor.sigma_pos, sensor.sigma_vel) == (1e9, 1e5)
