@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pytest
 
+from imm_gym.sim.conditions import Variation
 from imm_gym.tracking.sensors import PositionSensor
 from imm_gym.validation import ConfigError
 
@@ -28,3 +29,23 @@ def test_a_position_sensor_noise_beyond_the_limits_is_refused_by_name(fields, me
 def test_a_position_sensor_noise_at_the_limits_is_accepted() -> None:
     sensor = PositionSensor(sigma_pos=1e9, sigma_vel=1e5)
     assert (sensor.sigma_pos, sensor.sigma_vel) == (1e9, 1e5)
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"sigma_r": (10.0, 2e9)},
+         r"vary\.sigma_r\[1\] must be in \[10\.0, 1000000000\.0\], got 2000000000\.0"),
+        ({"sigma_pos": (5.0, 2e9)},
+         r"vary\.sigma_pos\[1\] must be in \[5\.0, 1000000000\.0\], got 2000000000\.0"),
+    ],
+)
+def test_a_varied_noise_range_beyond_the_distance_limit_is_refused_as_built(
+    fields, message
+) -> None:
+    """Refused when the variation is built, naming its end: not a sensor drawn past 1e9 m now
+    and then, seconds into an evaluation."""
+    with pytest.raises(ConfigError, match=message):
+        Variation(**fields)
+    name, (low, _) = next(iter(fields.items()))
+    assert getattr(Variation(**{name: (low, 1e9)}), name) == (low, 1e9)  # the limit itself
