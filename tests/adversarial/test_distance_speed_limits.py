@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pytest
 
+from imm_gym import Scenario, Segment
 from imm_gym.sim.conditions import Variation
 from imm_gym.tracking.sensors import PositionSensor
 from imm_gym.validation import ConfigError
@@ -49,3 +50,13 @@ def test_a_varied_noise_range_beyond_the_distance_limit_is_refused_as_built(
         Variation(**fields)
     name, (low, _) = next(iter(fields.items()))
     assert getattr(Variation(**{name: (low, 1e9)}), name) == (low, 1e9)  # the limit itself
+
+
+def test_a_deceleration_past_zero_by_more_than_rounding_is_refused() -> None:
+    """10 m/s slowed by 1.00001 m/s² for 10 steps of 1 s ends at 10 - 10.0001 = -1e-4 m/s:
+    past zero by far more than rounding (1e-9 of the speed), refused; 1.0 m/s² stops the target
+    exactly and is a target."""
+    with pytest.raises(ConfigError, match=r"segments\[0\]\.accel: -1\.00001 m/s² for 10 steps of "
+                       r"1\.0 s drives the speed from 10 m/s below 0 \(-0\.0001 m/s\)"):
+        Scenario((Segment(10, accel=-1.00001),), velocity=(10.0, 0.0))
+    Scenario((Segment(10, accel=-1.0), Segment(3)), velocity=(10.0, 0.0))
