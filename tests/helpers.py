@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import struct
 from pathlib import Path
 from types import ModuleType
 
@@ -103,3 +104,11 @@ NETWORK_SPECS = [
      "lstm_hidden_size": 5, "n_lstm_layers": 2, "shared_lstm": True,
      "enable_critic_lstm": False},
 ]
+
+
+def npy_bytes(header: str, payload: bytes) -> bytes:
+    """A .npy file of format 1.0 with the header dict ``header`` and the bytes ``payload``
+    (whatever the header claims: a hostile file's)."""
+    text = header.encode("latin1")
+    text += b" " * (64 - (10 + len(text) + 1) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text)) + text + payload

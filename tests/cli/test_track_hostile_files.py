@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import os
 import pickle
-import struct
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import npy_bytes
 
 import imm_gym
 import imm_gym.cli.recordings as recordings
@@ -25,13 +25,6 @@ from imm_gym.cli.track import batches, main, run
 from imm_gym.validation import ConfigError
 
 _Z = np.array([[1000.0, 0.1], [1010.0, 0.1], [1020.0, 0.1]])
-
-
-def _npy(header: str, payload: bytes) -> bytes:
-    """A .npy file of format 1.0 with the header dict ``header`` and the bytes ``payload``."""
-    text = header.encode("latin1")
-    text += b" " * (64 - (10 + len(text) + 1) % 64) + b"\n"
-    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text)) + text + payload
 
 
 class _Payload:
@@ -51,7 +44,7 @@ def test_an_npz_whose_header_claims_terabytes_is_refused_before_it_is_allocated(
     allocation and a traceback; the claim is checked against the entry's size first."""
     claims = "{'descr': '<f8', 'fortran_order': False, 'shape': (1000000000000, 2), }"
     with zipfile.ZipFile(tmp_path / "bomb.npz", "w") as archive:
-        archive.writestr("z.npy", _npy(claims, b"\0" * 64))
+        archive.writestr("z.npy", npy_bytes(claims, b"\0" * 64))
     with pytest.raises(ConfigError, match=r"bomb\.npz: z claims shape \(1000000000000, 2\) of "
                        r"float64 \(16000000000000 bytes\), but its entry unpacks to \d+ bytes"):
         read_npz(tmp_path / "bomb.npz", Sonar())

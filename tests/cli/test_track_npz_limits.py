@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import npy_bytes
 
 from imm_gym import Sonar
 from imm_gym.cli.recordings import read_npz
@@ -19,13 +20,6 @@ from imm_gym.validation import ConfigError
 
 _Z = np.array([[1000.0, 0.1], [1010.0, 0.1], [1020.0, 0.1]])  # 3 x 2 x 8 = 48 bytes
 GIB = 1_073_741_824
-
-
-def _npy(header: str, payload: bytes) -> bytes:
-    """A .npy file of format 1.0 with the header dict ``header`` and the bytes ``payload``."""
-    text = header.encode("latin1")
-    text += b" " * (64 - (10 + len(text) + 1) % 64) + b"\n"
-    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text)) + text + payload
 
 
 def _claiming(path: Path, entries: list[tuple[str, bytes, int | None]]) -> None:
@@ -60,7 +54,7 @@ def test_arrays_past_one_gib_together_are_refused_before_the_entry_is_read(
     Refused naming the limit and detected, before detected is read."""
     claims = "{'descr': '|b1', 'fortran_order': False, 'shape': (1073741777,), }"
     _claiming(tmp_path / "big.npz", [("z.npy", _saved(_Z), None),
-                                     ("detected.npy", _npy(claims, b"\1" * 64), 2**30)])
+                                     ("detected.npy", npy_bytes(claims, b"\1" * 64), 2**30)])
     with pytest.raises(ConfigError, match=rf"big\.npz: its arrays hold more than {GIB} bytes "
                        r"\(detected: shape \(1073741777,\) of bool\); split the recording"):
         read_npz(tmp_path / "big.npz", Sonar())
@@ -72,12 +66,13 @@ def test_one_entry_past_one_gib_is_refused_and_one_at_it_is_read(tmp_path: Path)
     passes and the reader goes on to the entry (whose 64 bytes are all it holds: refused as
     unreadable, not as too large)."""
     over = "{'descr': '<f8', 'fortran_order': False, 'shape': (67108865, 2), }"
-    _claiming(tmp_path / "over.npz", [("z.npy", _npy(over, b"\0" * 64), 67108865 * 16 + 128)])
+    entry = npy_bytes(over, b"\0" * 64)
+    _claiming(tmp_path / "over.npz", [("z.npy", entry, 67108865 * 16 + 128)])
     with pytest.raises(ConfigError, match=rf"over\.npz: its arrays hold more than {GIB} bytes "
                        r"\(z: shape \(67108865, 2\) of float64\)"):
         read_npz(tmp_path / "over.npz", Sonar())
     at = "{'descr': '<f8', 'fortran_order': False, 'shape': (67108864, 2), }"
-    _claiming(tmp_path / "at.npz", [("z.npy", _npy(at, b"\0" * 64), GIB + 128)])
+    _claiming(tmp_path / "at.npz", [("z.npy", npy_bytes(at, b"\0" * 64), GIB + 128)])
     with pytest.raises(ConfigError, match=r"at\.npz: cannot read its array z") as refused:
         read_npz(tmp_path / "at.npz", Sonar())
     assert "more than" not in str(refused.value)
