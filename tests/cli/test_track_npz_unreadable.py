@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import npy_bytes
 
 from imm_gym import Sonar
 from imm_gym.cli.recordings import read_npz
@@ -34,9 +35,7 @@ def test_a_garbled_deflate_stream_is_refused_naming_the_array(tmp_path: Path) ->
 
 def test_an_archive_ending_before_its_entry_is_refused_naming_the_array(tmp_path: Path) -> None:
     """z claims (1000, 2) float64, 16 000 bytes, and its entry as many; the file holds 64."""
-    text = b"{'descr': '<f8', 'fortran_order': False, 'shape': (1000, 2), }"
-    text += b" " * (64 - (10 + len(text) + 1) % 64) + b"\n"
-    npy = b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text)) + text + b"\0" * 64
+    npy = npy_bytes("{'descr': '<f8', 'fortran_order': False, 'shape': (1000, 2), }", b"\0" * 64)
     path = tmp_path / "short.npz"
     with zipfile.ZipFile(path, "w") as archive:
         archive.writestr("z.npy", npy)
