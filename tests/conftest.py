@@ -1,4 +1,4 @@
-"""Shared fixtures: the IMM engines.
+"""Shared fixtures: the IMM engines, and no SB3 log folders left in the system temp folder.
 
 :class:`imm_gym.IMM` runs the same equations on two engines (``engine="numpy"``, the vectorized
 reference, and ``"compiled"``, the fused numba cycle). Tests that build an IMM take the
@@ -28,3 +28,15 @@ def make_imm(engine: str):
         return IMM(models, sensor, filter, engine=engine, **kwargs)
 
     return _make
+
+
+@pytest.fixture(scope="session", autouse=True)
+def sb3_log_folder(tmp_path_factory: pytest.TempPathFactory):
+    """SB3's logger folder inside pytest's temp tree.
+
+    A model trained without ``tensorboard_log`` (the tests' small ``learn`` calls) makes an
+    empty ``SB3-<date>`` folder in the system's temp folder unless ``SB3_LOGDIR`` names one.
+    """
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
+        yield
