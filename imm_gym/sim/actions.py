@@ -52,8 +52,8 @@ def real_numbers(action: Any) -> NDArray[Any]:
 
 
 def validate_action(action: NDArray[Any], n_envs: int, action_dim: int) -> Array:
-    """``action`` as float64 after checking its type (real numbers: bool, integer or float),
-    shape ``(N, action_dim)`` and finiteness (not clipped)."""
+    """``action`` as a C-contiguous, writeable float64 array after checking its type (real
+    numbers: bool, integer or float), shape ``(N, action_dim)`` and finiteness (not clipped)."""
     a = np.asarray(real_numbers(action), dtype=np.float64)
     if a.shape != (n_envs, action_dim):
         raise ActionError(
@@ -62,7 +62,9 @@ def validate_action(action: NDArray[Any], n_envs: int, action_dim: int) -> Array
         )
     if np.count_nonzero(np.isfinite(a)) != a.size:
         raise ActionError("action must be finite (got NaN or inf)")
-    return a
+    # the compiled step is cached for one layout: a strided, Fortran-ordered or read-only action
+    # would compile it anew (minutes), so such an action is copied
+    return a if a.flags.c_contiguous and a.flags.writeable else a.copy()
 
 
 #: the modes whose action is one entry per model (a stay probability per row)

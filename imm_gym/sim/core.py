@@ -549,10 +549,12 @@ class TrackingCore:
         return np.clip(self.validate_action(action), -1.0, 1.0)
 
     def validate_action(self, action: NDArray[Any]) -> Array:
-        """``action`` as float64 after checking shape ``(N, action_dim)`` and finiteness (not
-        clipped), its entries in the bank's order of the models."""
+        """``action`` as a C-contiguous float64 array after checking shape ``(N, action_dim)``
+        and finiteness (not clipped), its entries in the bank's order of the models."""
         a = validate_action(action, self.n_envs, self.action_dim)
-        return a if self.model_order is None else a[:, self._action_index]
+        if self.model_order is None:
+            return a
+        return np.ascontiguousarray(a[:, self._action_index])  # indexed columns: Fortran order
 
     # ------------------------------------------------------------------ step
     def step(self, action: NDArray[Any], active: NDArray[np.bool_] | None = None) -> StepResult:

@@ -97,8 +97,10 @@ class IMMBatch:
         (N, m)`` (``detected (N,)``); a failed IMM restarts from its slot's row of
         ``fallback`` (the step's outputs keep its failure)."""
         S = self.S
-        z_rows = np.ascontiguousarray(np.repeat(z, S, axis=0)) if S > 1 else z
-        det_rows = np.ascontiguousarray(np.repeat(detected, S)) if S > 1 else detected
+        # C-contiguous (np.repeat's copies are): the compiled cycle is cached for that layout,
+        # a step's column of the episode's measurements would compile it anew (minutes)
+        z_rows = np.repeat(z, S, axis=0) if S > 1 else np.ascontiguousarray(z)
+        det_rows = np.repeat(detected, S) if S > 1 else np.ascontiguousarray(detected)
         state, out = self._advance(tpm_rows, z_rows, det_rows)
         if np.count_nonzero(out.failed):
             slot = np.flatnonzero(out.failed) // S
