@@ -153,11 +153,12 @@ def test_one_tracker_entry_refuses_other_shapes() -> None:
             np.empty((N, M, 2)), np.empty(N), np.empty((N, n)), np.empty((N, n, n)),
             np.empty(N, dtype=bool))
     tpm = np.broadcast_to(stay_tpm(M, 0.9), (N, M, M)).copy()
+    z = np.ascontiguousarray(batch.measurements.z[:, 1])  # the cached variant: no compile
     with pytest.raises(ValueError, match="one tracker"):
-        kernel.imm_step_one(state.x, state.P, state.mu, tpm, batch.measurements.z[:, 1],
+        kernel.imm_step_one(state.x, state.P, state.mu, tpm, z,
                             np.ones(N, dtype=bool), *imm.kernel_args, True, *outs)
     with pytest.raises(ValueError, match="one tracker"):
-        kernel.checked_step_one(state.x, state.P, state.mu, tpm, batch.measurements.z[:, 1],
+        kernel.checked_step_one(state.x, state.P, state.mu, tpm, z,
                                 np.ones(N, dtype=bool), kernel.pack_one(*imm.kernel_args), -1.0,
                                 *outs)
 
